@@ -1,0 +1,31 @@
+"""pliant: deformable-object simulation — mass-spring, position-based dynamics and tetrahedral FEM —
+with every time integrator of the lecture, on NVIDIA Warp (CPU and CUDA, differentiable)."""
+
+from __future__ import annotations
+
+from ._warp import init as _init
+
+_init()
+
+from . import energies, integrators, io, model, solvers  # noqa: E402
+from .io import Trajectory  # noqa: E402
+from .model import Control, Model, ModelBuilder, State  # noqa: E402
+from .sim import DivergenceError, Simulator  # noqa: E402
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Control",
+    "DivergenceError",
+    "Model",
+    "ModelBuilder",
+    "Simulator",
+    "State",
+    "Trajectory",
+    "__version__",
+    "energies",
+    "integrators",
+    "io",
+    "model",
+    "solvers",
+]

@@ -1,0 +1,66 @@
+"""Warp set-up shared by every layer: initialisation, scalar types, device choice."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+_initialised = False
+
+
+def init() -> None:
+    """Initialise Warp once, quietly unless PLIANT_VERBOSE is set."""
+    global _initialised
+    if _initialised:
+        return
+    wp.config.quiet = not os.environ.get("PLIANT_VERBOSE")
+    wp.init()
+    _initialised = True
+
+
+DTYPES = ("float32", "float64")
+
+
+def scalar_type(dtype: str) -> Any:
+    """Warp scalar type for ``"float32"`` or ``"float64"``."""
+    if dtype not in DTYPES:
+        raise ValueError(f"dtype must be one of {DTYPES}, got {dtype!r}")
+    return wp.float32 if dtype == "float32" else wp.float64
+
+
+def vec3_type(dtype: str) -> Any:
+    """Warp 3-vector type for ``dtype``."""
+    return wp.vec3 if scalar_type(dtype) is wp.float32 else wp.vec3d
+
+
+def mat33_type(dtype: str) -> Any:
+    """Warp 3x3 matrix type for ``dtype``."""
+    return wp.mat33 if scalar_type(dtype) is wp.float32 else wp.mat33d
+
+
+def np_dtype(dtype: str) -> type:
+    """NumPy scalar type for ``dtype``."""
+    scalar_type(dtype)
+    return np.float32 if dtype == "float32" else np.float64
+
+
+def default_device() -> str:
+    """CUDA when present, else the CPU (DESIGN.md: default device is CUDA when present)."""
+    init()
+    return "cuda:0" if wp.is_cuda_available() else "cpu"
+
+
+def resolve_device(device: str | None) -> str:
+    """Validate a device name, naming the devices that exist when it is unknown."""
+    init()
+    if device is None:
+        return default_device()
+    names = [str(d) for d in wp.get_devices()]
+    if device == "cuda" and wp.is_cuda_available():
+        return "cuda:0"
+    if device not in names:
+        raise ValueError(f"unknown device {device!r}; available devices: {names}")
+    return device

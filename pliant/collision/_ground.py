@@ -1,0 +1,43 @@
+"""Ground-plane contact as a velocity-level response with Coulomb friction and restitution."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import warp as wp
+
+
+@wp.kernel
+def ground_contact(
+    inv_mass: wp.array(dtype=Any),
+    radius: wp.array(dtype=Any),
+    height: Any,
+    friction: Any,
+    restitution: Any,
+    x_io: wp.array(dtype=Any),
+    v_io: wp.array(dtype=Any),
+):
+    """Push particles above y = height + r, reflect the normal velocity (×e), Coulomb friction on v_t."""
+    i = wp.tid()
+    if inv_mass[i] == type(height)(0.0):
+        return
+    p = x_io[i]
+    floor = height + radius[i]
+    if p[1] >= floor:
+        return
+    zero = type(height)(0.0)
+    v = v_io[i]
+    vn = v[1]
+    vn_new = wp.max(vn, zero)
+    if vn < zero:
+        vn_new = -restitution * vn
+    dvn = vn_new - vn
+    # Coulomb: the tangential impulse is bounded by μ times the normal one, so a block sliding on the
+    # ground decelerates by exactly μg and stops after v²/(2μg).
+    vt = type(v)(v[0], zero, v[2])
+    speed_t = wp.length(vt)
+    scale = zero
+    if speed_t > zero:
+        scale = wp.max(speed_t - friction * dvn, zero) / speed_t
+    v_io[i] = type(v)(v[0] * scale, vn_new, v[2] * scale)
+    x_io[i] = type(p)(p[0], floor, p[2])

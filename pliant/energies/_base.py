@@ -1,0 +1,75 @@
+"""The Energy contract: value, gradient, Hessian blocks on a fixed sparsity pattern, step bound."""
+
+from __future__ import annotations
+
+import abc
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+from ..model import Model
+
+
+class Energy(abc.ABC):
+    """A potential energy E(x) = Σ_e E_e(x_e) [J] over the particle positions.
+
+    Contract (tested): ``gradient`` equals ∇``value`` and ``hessian`` equals ∇``gradient``, by central
+    differences in float64. All methods *add* into their output so that terms can be summed.
+
+    Hessians are written into the values of a block-sparse (3×3) matrix whose pattern the solver fixes
+    once: ``hessian_pattern`` lists the (row, col) particle pairs this energy writes, in the order its
+    kernel writes them, and the solver hands back ``slots`` — the index of each pair in the matrix values.
+    Assembly is then an atomic add per block, with no sorting per Newton iteration.
+    """
+
+    #: True for terms that depend on velocity (dissipation), prepared by ``begin_step``.
+    dissipative: bool = False
+
+    def begin_step(self, model: Model, x: wp.array, v: wp.array, dt: float) -> None:  # noqa: B027
+        """Freeze per-step data (e.g. the dashpot axis) at the start of a step; default: nothing."""
+
+    @abc.abstractmethod
+    def value(self, model: Model, x: wp.array, out: wp.array) -> None:
+        """Add E(x) [J] into ``out[0]``."""
+
+    @abc.abstractmethod
+    def gradient(self, model: Model, x: wp.array, out: wp.array) -> None:
+        """Add ∂E/∂x [N] per particle into ``out``, shape [particle_count] of vec3."""
+
+    def hessian_pattern(self, model: Model) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, cols) of the 3×3 blocks ``hessian`` writes, in write order; default: none."""
+        return np.zeros(0, np.int32), np.zeros(0, np.int32)
+
+    def hessian(  # noqa: B027
+        self, model: Model, x: wp.array, slots: wp.array, values: wp.array, *, project_psd: bool = True
+    ) -> None:
+        """Add the 3×3 blocks of ∂²E/∂x² [N/m] into ``values[slots[k]]``; PSD-projected per element."""
+
+    def max_step(self, model: Model, x: wp.array, dx: wp.array) -> float:
+        """Largest α ≤ 1 such that x + α dx stays admissible (no inversion, barrier); default 1."""
+        return 1.0
+
+    def force(self, model: Model, x: wp.array, v: wp.array, out: wp.array) -> None:
+        """Add the force [N] at (x, v) into ``out``; default −∇E(x) (dissipative terms override)."""
+        tmp = self._scratch(model)
+        tmp.zero_()
+        self.gradient(model, x, tmp)
+        _axpy(out, tmp, -1.0, model)
+
+    def _scratch(self, model: Model) -> wp.array:
+        buf = getattr(self, "_scratch_buf", None)
+        if buf is None or buf.shape[0] != model.particle_count or buf.device != wp.get_device(model.device):
+            buf = wp.zeros(model.particle_count, dtype=model.vec3, device=model.device)
+            self._scratch_buf = buf
+        return buf
+
+
+@wp.kernel
+def _axpy_kernel(out: wp.array(dtype=Any), x: wp.array(dtype=Any), a: Any):
+    i = wp.tid()
+    out[i] = out[i] + a * x[i]
+
+
+def _axpy(out: wp.array, x: wp.array, a: float, model: Model) -> None:
+    wp.launch(_axpy_kernel, dim=out.shape[0], inputs=[out, x, model.s(a)], device=model.device)

@@ -1,0 +1,47 @@
+"""NumPy-only geometry: procedural ropes, cloths and tet volumes, mesh loading, topology, measures.
+
+Nothing here imports Warp; arrays are float64 positions [N, 3] (m) and int32 index
+arrays. Tetrahedra returned by this package are positively oriented
+(``det[x1-x0, x2-x0, x3-x0] > 0``).
+"""
+
+from ._io import SUPPORTED_EXTENSIONS, load_mesh
+from ._measures import (
+    degenerate_tets,
+    degenerate_triangles,
+    orient_tets,
+    signed_tet_volumes,
+    triangle_areas,
+    triangle_normals,
+)
+from ._meshes import TetMesh, TriMesh
+from ._shapes import ClothGrid, Rope, cloth_grid, rope
+from ._springs import springs_from_points
+from ._tets import box_tets, cylinder_tets, sphere_tets, tetrahedralize
+from ._topology import bending_pairs, edges_from_tets, edges_from_triangles, surface_from_tets
+
+__all__ = [
+    "SUPPORTED_EXTENSIONS",
+    "ClothGrid",
+    "Rope",
+    "TetMesh",
+    "TriMesh",
+    "bending_pairs",
+    "box_tets",
+    "cloth_grid",
+    "cylinder_tets",
+    "degenerate_tets",
+    "degenerate_triangles",
+    "edges_from_tets",
+    "edges_from_triangles",
+    "load_mesh",
+    "orient_tets",
+    "rope",
+    "signed_tet_volumes",
+    "sphere_tets",
+    "springs_from_points",
+    "surface_from_tets",
+    "tetrahedralize",
+    "triangle_areas",
+    "triangle_normals",
+]

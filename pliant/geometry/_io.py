@@ -1,0 +1,142 @@
+"""Mesh file loading with actionable errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ._measures import orient_tets
+from ._meshes import TetMesh, TriMesh
+
+_TRIMESH_EXTS = (".obj", ".ply", ".stl")
+_MESHIO_EXTS = (".msh", ".vtk", ".vtu")
+SUPPORTED_EXTENSIONS = _TRIMESH_EXTS + _MESHIO_EXTS
+
+
+def _check_points(points: NDArray[np.float64], path: Path) -> None:
+    if len(points) == 0:
+        raise ValueError(f"mesh file '{path}' contains no vertices; is it empty or truncated?")
+    bad = np.flatnonzero(~np.all(np.isfinite(points), axis=1))
+    if bad.size:
+        raise ValueError(
+            f"mesh file '{path}' has {bad.size} vertex/vertices with NaN or inf coordinates "
+            f"(first indices: {bad[:5].tolist()}); re-export the mesh from its source or "
+            "remove those vertices and the faces that use them."
+        )
+
+
+def _check_cells(cells: NDArray[np.integer], n_points: int, path: Path, kind: str) -> None:
+    if len(cells) == 0:
+        raise ValueError(
+            f"mesh file '{path}' contains no {kind}; supported element types are triangles "
+            "(surface) and linear tetrahedra (volume)."
+        )
+    bad = np.flatnonzero(np.any((cells < 0) | (cells >= n_points), axis=1))
+    if bad.size:
+        raise ValueError(
+            f"mesh file '{path}': {bad.size} {kind} reference vertex indices outside [0, {n_points}) "
+            f"(first bad elements: {bad[:5].tolist()}); the file is corrupt or its vertex list is "
+            "incomplete, re-export it."
+        )
+
+
+def _compact(points: NDArray[np.float64], cells: NDArray[np.integer]) -> tuple[np.ndarray, np.ndarray]:
+    """Drop vertices no element uses (they would become massless free particles)."""
+    used, inverse = np.unique(cells, return_inverse=True)
+    if len(used) == len(points):
+        return points, cells
+    return points[used], inverse.reshape(cells.shape)
+
+
+def _load_trimesh(path: Path) -> TriMesh:
+    import trimesh
+
+    try:
+        # process=False: keep the file's vertex order and keep NaNs for our own check
+        # (processing would silently drop them).
+        mesh = trimesh.load(str(path), force="mesh", process=False)
+    except Exception as exc:
+        raise ValueError(f"could not read mesh file '{path}': {type(exc).__name__}: {exc}") from exc
+    points = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
+    faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
+    _check_points(points, path)
+    _check_cells(faces, len(points), path, "triangles")
+    if path.suffix.lower() == ".stl":
+        # STL stores each triangle's corners separately; weld them so the surface is connected.
+        mesh = trimesh.Trimesh(points, faces, process=False)
+        mesh.merge_vertices()
+        points, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    points, faces = _compact(points, faces)
+    return TriMesh(points=np.ascontiguousarray(points, np.float64), triangles=faces.astype(np.int32))
+
+
+def _load_meshio(path: Path) -> TriMesh | TetMesh:
+    import meshio
+
+    try:
+        m = meshio.read(str(path))
+    except Exception as exc:
+        raise ValueError(f"could not read mesh file '{path}': {type(exc).__name__}: {exc}") from exc
+    points = np.asarray(m.points, dtype=np.float64)
+    if points.ndim == 2 and points.shape[1] == 2:  # 2-D gmsh meshes: embed in z = 0
+        points = np.hstack([points, np.zeros((len(points), 1))])
+    points = points.reshape(-1, 3)
+    _check_points(points, path)
+
+    blocks = {c.type: [] for c in m.cells}
+    for c in m.cells:
+        blocks[c.type].append(np.asarray(c.data))
+    if "tetra" in blocks:
+        tets = np.concatenate(blocks["tetra"]).astype(np.int64)
+        _check_cells(tets, len(points), path, "tetrahedra")
+        points, tets = _compact(points, tets)
+        return TetMesh(points=np.ascontiguousarray(points), tets=orient_tets(points, tets))
+    if "triangle" in blocks:
+        tris = np.concatenate(blocks["triangle"]).astype(np.int64)
+        _check_cells(tris, len(points), path, "triangles")
+        points, tris = _compact(points, tris)
+        return TriMesh(points=np.ascontiguousarray(points), triangles=tris.astype(np.int32))
+    found = ", ".join(sorted(blocks)) or "none"
+    raise ValueError(
+        f"mesh file '{path}' contains no triangles or linear tetrahedra (cell types found: {found}); "
+        "re-export with first-order 'triangle' or 'tetra' elements (e.g. gmsh -order 1)."
+    )
+
+
+def load_mesh(path: str | Path) -> TriMesh | TetMesh:
+    """Load a triangle or tetrahedral mesh from disk.
+
+    OBJ, PLY and STL are read with trimesh into a :class:`TriMesh` (STL vertices are
+    welded, since the format repeats them per triangle). MSH, VTK and VTU are read
+    with meshio: a :class:`TetMesh` if the file has ``tetra`` cells (reoriented to
+    positive volume), else a :class:`TriMesh` from its ``triangle`` cells. Vertices
+    used by no returned element are dropped and indices remapped.
+
+    Args:
+        path: File path.
+
+    Returns:
+        :class:`TriMesh` or :class:`TetMesh` with float64 points (file units) and
+        int32 indices.
+
+    Raises:
+        FileNotFoundError: No such file.
+        ValueError: Unsupported extension, unreadable or empty file, NaN/inf
+            coordinates, or element indices out of range; the message names the file.
+    """
+    p = Path(path)
+    if not p.is_file():
+        where = "is a directory, not a file" if p.is_dir() else "does not exist"
+        raise FileNotFoundError(f"mesh file '{p}' {where} (resolved to '{p.resolve()}'); check the path.")
+    ext = p.suffix.lower()
+    if ext in _TRIMESH_EXTS:
+        return _load_trimesh(p)
+    if ext in _MESHIO_EXTS:
+        return _load_meshio(p)
+    raise ValueError(
+        f"cannot load '{p}': unsupported extension {ext or '(none)'!r}; supported: "
+        f"{', '.join(SUPPORTED_EXTENSIONS)}. Convert other formats with `meshio convert` "
+        "or trimesh."
+    )

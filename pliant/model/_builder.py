@@ -1,0 +1,570 @@
+"""ModelBuilder: collects particles and elements on the host, validates them, and finalizes a Model."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+from .._warp import init, mat33_type, np_dtype, resolve_device, scalar_type, vec3_type
+from ._model import Ground, Model
+
+_PIN_NAMES = ("top-corners", "top-edge", "corners", "top-left", "top-right", "none")
+
+
+def _as_index_array(indices: Any, width: int, what: str) -> np.ndarray:
+    arr = np.asarray(indices)
+    if arr.size == 0:
+        return np.zeros((0, width), np.int32)
+    if not np.issubdtype(arr.dtype, np.integer):
+        raise ValueError(f"{what} indices must be integers, got dtype {arr.dtype}")
+    arr = arr.reshape(-1, width) if arr.ndim == 1 and width > 1 else arr
+    if arr.ndim != 2 or arr.shape[1] != width:
+        raise ValueError(f"{what} indices must have shape [n, {width}], got {arr.shape}")
+    return arr.astype(np.int32)
+
+
+def _per_item(value: Any, n: int, what: str, unit: str) -> np.ndarray:
+    arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (n,)).copy() if np.ndim(value) == 0 else None
+    if arr is None:
+        arr = np.asarray(value, dtype=np.float64).reshape(-1)
+        if arr.shape[0] != n:
+            raise ValueError(
+                f"{what} has {arr.shape[0]} values for {n} items; give one value or {n} [{unit}]"
+            )
+    if not np.all(np.isfinite(arr)):
+        bad = np.flatnonzero(~np.isfinite(arr))
+        raise ValueError(f"{what} contains NaN/inf at {bad[:5].tolist()}; give finite values [{unit}]")
+    return arr
+
+
+class ModelBuilder:
+    """Collects particles, springs, triangles, tetrahedra and bending elements, then builds a Model.
+
+    Every ``add_*`` validates its input and raises ``ValueError`` naming the element and the fix; nothing
+    is silently dropped. Example::
+
+        b = pl.ModelBuilder()
+        b.add_cloth_grid(nx=32, ny=32, size=1.0, mass=0.2, stiffness=1e3, pin="top-corners")
+        b.add_ground()
+        model = b.finalize(device="cpu")
+    """
+
+    def __init__(self, *, gravity: Sequence[float] = (0.0, -9.81, 0.0)) -> None:
+        self.gravity = tuple(float(g) for g in gravity)
+        self._q: list[np.ndarray] = []
+        self._qd: list[np.ndarray] = []
+        self._mass: list[np.ndarray] = []
+        self._radius: list[np.ndarray] = []
+        self._count = 0
+        self._pinned: set[int] = set()
+        self._kinematic: list[int] = []
+        self._springs: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self._tris: list[np.ndarray] = []
+        self._tets: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._bending: list[tuple[np.ndarray, np.ndarray]] = []
+        self._render_faces: list[np.ndarray] = []
+        self._tet_host: list[np.ndarray] = []  # tets of every volume, FEM or not, for export
+        self.ground: Ground | None = None
+        self.objects: list[dict] = []
+
+    # ------------------------------------------------------------------ particles
+    @property
+    def particle_count(self) -> int:
+        """Number of particles added so far."""
+        return self._count
+
+    def positions(self) -> np.ndarray:
+        """All particle positions added so far [m], shape [particle_count, 3]."""
+        return np.concatenate(self._q) if self._q else np.zeros((0, 3))
+
+    def add_particles(
+        self,
+        positions: Any,
+        mass: Any,
+        *,
+        velocities: Any = None,
+        radius: Any = 0.01,
+        name: str = "particles",
+    ) -> int:
+        """Add particles; returns the index of the first one.
+
+        Args:
+            positions: [n, 3] positions [m].
+            mass: [n] or scalar mass per particle [kg]; must be > 0 (pin particles to fix them).
+            velocities: [n, 3] initial velocities [m/s] (zeros by default).
+            radius: [n] or scalar contact radius [m].
+            name: label used in error messages.
+        """
+        q = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+        n = q.shape[0]
+        if not np.all(np.isfinite(q)):
+            bad = np.flatnonzero(~np.all(np.isfinite(q), axis=1))
+            raise ValueError(
+                f"{name}: {bad.size} particle positions are NaN/inf (first: {bad[:5].tolist()}); "
+                "fix the mesh or the generator that produced them"
+            )
+        m = _per_item(mass, n, f"{name}: mass", "kg")
+        if np.any(m <= 0):
+            bad = np.flatnonzero(m <= 0)
+            raise ValueError(
+                f"{name}: {bad.size} particles have zero or negative mass (first: {bad[:5].tolist()}, "
+                f"value {m[bad[0]]:g} kg); give a positive mass and pin particles that must not move"
+            )
+        qd = np.zeros_like(q) if velocities is None else np.asarray(velocities, np.float64).reshape(-1, 3)
+        if qd.shape != q.shape:
+            raise ValueError(f"{name}: velocities have shape {qd.shape}, expected {q.shape}")
+        if not np.all(np.isfinite(qd)):
+            raise ValueError(f"{name}: velocities contain NaN/inf; give finite values [m/s]")
+        r = _per_item(radius, n, f"{name}: radius", "m")
+        if np.any(r < 0):
+            raise ValueError(f"{name}: radius must be >= 0 m")
+        start = self._count
+        self._q.append(q)
+        self._qd.append(qd)
+        self._mass.append(m)
+        self._radius.append(r)
+        self._count += n
+        return start
+
+    def _check_range(self, idx: np.ndarray, what: str) -> None:
+        if idx.size and (idx.min() < 0 or idx.max() >= self._count):
+            bad = np.flatnonzero(np.any((idx < 0) | (idx >= self._count), axis=1))
+            raise ValueError(
+                f"{what} {bad[0]} refers to particle {idx[bad[0]].tolist()}, out of range "
+                f"[0, {self._count}); add the particles first or fix the indices ({bad.size} bad {what}s)"
+            )
+
+    def pin(self, indices: Any) -> None:
+        """Fix particles in place (infinite mass: inverse mass 0)."""
+        idx = np.asarray(indices, dtype=np.int64).reshape(-1)
+        self._check_range(idx.reshape(-1, 1), "pin")
+        self._pinned.update(int(i) for i in idx)
+
+    def add_kinematic(self, indices: Any) -> None:
+        """Mark particles as kinematic: their positions follow ``Control.kinematic_targets``."""
+        idx = np.asarray(indices, dtype=np.int64).reshape(-1)
+        self._check_range(idx.reshape(-1, 1), "kinematic particle")
+        self._kinematic.extend(int(i) for i in idx)
+
+    # ------------------------------------------------------------------ elements
+    def add_springs(
+        self, indices: Any, *, stiffness: Any, damping: Any = 0.0, rest_length: Any = None
+    ) -> None:
+        """Add springs between particle pairs.
+
+        Args:
+            indices: [S, 2] particle indices.
+            stiffness: [S] or scalar spring constant k [N/m], >= 0.
+            damping: [S] or scalar dashpot coefficient γ [N s/m] acting along the spring axis.
+            rest_length: [S] rest lengths [m]; default the current distance.
+        """
+        idx = _as_index_array(indices, 2, "spring")
+        self._check_range(idx, "spring")
+        s = idx.shape[0]
+        if s == 0:
+            return
+        if np.any(idx[:, 0] == idx[:, 1]):
+            bad = np.flatnonzero(idx[:, 0] == idx[:, 1])
+            raise ValueError(f"spring {bad[0]} connects particle {idx[bad[0], 0]} to itself; remove it")
+        q = self.positions()
+        if rest_length is None:
+            rest = np.linalg.norm(q[idx[:, 0]] - q[idx[:, 1]], axis=1)
+        else:
+            rest = _per_item(rest_length, s, "spring rest_length", "m")
+        if np.any(rest <= 0):
+            bad = np.flatnonzero(rest <= 0)
+            raise ValueError(
+                f"spring {bad[0]} between particles {idx[bad[0]].tolist()} has zero rest length; "
+                "its endpoints coincide: merge the duplicate particles or give rest_length > 0"
+            )
+        k = _per_item(stiffness, s, "spring stiffness", "N/m")
+        g = _per_item(damping, s, "spring damping", "N s/m")
+        if np.any(k < 0) or np.any(g < 0):
+            raise ValueError("spring stiffness [N/m] and damping [N s/m] must be >= 0")
+        self._springs.append((idx, rest, k, g))
+
+    def add_triangles(self, indices: Any, *, render: bool = True) -> None:
+        """Add surface triangles (used for rendering, bending, collisions); rejects degenerate ones."""
+        idx = _as_index_array(indices, 3, "triangle")
+        self._check_range(idx, "triangle")
+        q = self.positions()
+        a, b, c = q[idx[:, 0]], q[idx[:, 1]], q[idx[:, 2]]
+        area2 = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+        scale = np.maximum.reduce([np.sum((b - a) ** 2, 1), np.sum((c - a) ** 2, 1), np.sum((c - b) ** 2, 1)])
+        bad = np.flatnonzero(area2 <= 1e-12 * np.maximum(scale, 1e-300))
+        if bad.size:
+            raise ValueError(
+                f"{bad.size} triangles are degenerate (zero area; first: {bad[:5].tolist()}, vertices "
+                f"{idx[bad[0]].tolist()}); remove them or merge their collinear/duplicate vertices"
+            )
+        self._tris.append(idx)
+        if render:
+            self._render_faces.append(idx)
+
+    def add_tetrahedra(self, indices: Any, *, E: Any, nu: Any, fix_orientation: bool = False) -> None:
+        """Add linear tetrahedral elements with Young's modulus ``E`` [Pa] and Poisson ratio ``nu``.
+
+        Inverted (negative-volume) tets raise unless ``fix_orientation``; degenerate ones always raise.
+        """
+        from ..energies._materials import lame_parameters
+
+        idx = _as_index_array(indices, 4, "tetrahedron")
+        self._check_range(idx, "tetrahedron")
+        n = idx.shape[0]
+        q = self.positions()
+        x0 = q[idx[:, 0]]
+        dm = np.stack([q[idx[:, 1]] - x0, q[idx[:, 2]] - x0, q[idx[:, 3]] - x0], axis=2)
+        det = np.linalg.det(dm)
+        edge = np.max(np.linalg.norm(dm, axis=1), axis=1)
+        degenerate = np.abs(det) <= 1e-9 * np.maximum(edge, 1e-300) ** 3
+        if np.any(degenerate):
+            bad = np.flatnonzero(degenerate)
+            raise ValueError(
+                f"{bad.size} tetrahedra are degenerate (zero volume; first: {bad[:5].tolist()}, vertices "
+                f"{idx[bad[0]].tolist()}); remesh with quality settings (pliant.geometry.tetrahedralize)"
+            )
+        inverted = det < 0
+        if np.any(inverted):
+            if not fix_orientation:
+                bad = np.flatnonzero(inverted)
+                raise ValueError(
+                    f"{bad.size} tetrahedra are inverted (negative volume; first: {bad[:5].tolist()}); "
+                    "reorder their vertices or pass fix_orientation=True"
+                )
+            idx = idx.copy()
+            idx[inverted, 2], idx[inverted, 3] = idx[inverted, 3], idx[inverted, 2].copy()
+        E_arr = _per_item(E, n, "Young's modulus E", "Pa")
+        nu_arr = _per_item(nu, n, "Poisson ratio nu", "-")
+        mu, lam = lame_parameters(E_arr, nu_arr)
+        self._tets.append((idx, np.broadcast_to(mu, (n,)).copy(), np.broadcast_to(lam, (n,)).copy()))
+
+    def add_bending(self, indices: Any, *, stiffness: Any) -> None:
+        """Add dihedral bending elements [B, 4]: shared edge (0, 1), opposite vertices (2, 3)."""
+        idx = _as_index_array(indices, 4, "bending element")
+        self._check_range(idx, "bending element")
+        if idx.shape[0]:
+            self._bending.append((idx, _per_item(stiffness, idx.shape[0], "bending stiffness", "N m/rad")))
+
+    def add_ground(self, height: float = 0.0, *, friction: float = 0.5, restitution: float = 0.0) -> None:
+        """Add the ground plane y = ``height`` [m] with Coulomb ``friction`` and ``restitution`` in [0, 1]."""
+        if friction < 0:
+            raise ValueError(f"ground friction must be >= 0, got {friction}")
+        if not 0 <= restitution <= 1:
+            raise ValueError(f"ground restitution must be in [0, 1], got {restitution}")
+        self.ground = Ground(float(height), float(friction), float(restitution))
+
+    # ------------------------------------------------------------------ shapes
+    def _register(self, name: str, kind: str, start: int, **extra: Any) -> None:
+        self.objects.append(
+            {"name": name, "kind": kind, "start": start, "count": self._count - start, **extra}
+        )
+
+    def add_rope(
+        self,
+        *,
+        n_segments: int,
+        length: float,
+        mass: float,
+        stiffness: float,
+        damping: float = 0.0,
+        start: Sequence[float] = (0.0, 1.0, 0.0),
+        direction: Sequence[float] = (1.0, 0.0, 0.0),
+        bend_stiffness: float = 0.0,
+        pin: str | Sequence[int] = "first",
+        radius: float = 0.01,
+        name: str = "rope",
+    ) -> int:
+        """Add a rope of ``n_segments`` springs; ``mass`` [kg] is spread evenly; returns the first index.
+
+        ``pin`` is "first", "last", "both", "none" or explicit local indices.
+        """
+        from ..geometry import rope
+
+        r = rope(n_segments, length, start=start, direction=direction)
+        n = r.points.shape[0]
+        first = self.add_particles(r.points, mass / n, radius=radius, name=name)
+        self.add_springs(r.edges + first, stiffness=stiffness, damping=damping)
+        if bend_stiffness > 0:
+            self.add_springs(r.bend_edges + first, stiffness=bend_stiffness, damping=damping)
+        local = (
+            {"first": [0], "last": [n - 1], "both": [0, n - 1], "none": []}.get(pin)
+            if isinstance(pin, str)
+            else list(pin)
+        )
+        if local is None:
+            raise ValueError(f"rope pin must be one of first|last|both|none or indices, got {pin!r}")
+        self.pin(np.asarray(local, dtype=np.int64) + first)
+        self._register(name, "rope", first)
+        return first
+
+    def add_cloth_grid(
+        self,
+        *,
+        nx: int,
+        ny: int,
+        size: float | Sequence[float] = 1.0,
+        mass: float,
+        stiffness: float | None = None,
+        shear_stiffness: float | None = None,
+        bend_stiffness: float = 0.0,
+        damping: float = 0.0,
+        youngs_modulus_thickness: float | None = None,
+        poisson: float = 0.3,
+        origin: Sequence[float] = (0.0, 1.0, 0.0),
+        plane: str = "xz",
+        pin: str | Sequence[int] = "none",
+        radius: float = 0.005,
+        name: str = "cloth",
+    ) -> int:
+        """Add an nx × ny cell cloth with structural, shear and bend springs and bending pairs.
+
+        Mass [kg] is lumped by triangle area. Give either spring ``stiffness`` [N/m] or the membrane
+        stiffness ``youngs_modulus_thickness`` E·t [N/m] with ``poisson`` (mapped by
+        :func:`pliant.energies.cloth_spring_stiffness`). Returns the first particle index.
+        """
+        from ..geometry import cloth_grid
+
+        g = cloth_grid(nx, ny, size=size, origin=origin, plane=plane)
+        tris = g.triangles
+        pts = g.points
+        area = 0.5 * np.linalg.norm(
+            np.cross(pts[tris[:, 1]] - pts[tris[:, 0]], pts[tris[:, 2]] - pts[tris[:, 0]]), axis=1
+        )
+        m = np.zeros(pts.shape[0])
+        np.add.at(m, tris.ravel(), np.repeat(area / 3.0, 3))
+        m *= mass / m.sum()
+        if youngs_modulus_thickness is not None:
+            from ..energies import cloth_spring_stiffness
+
+            stiffness, shear_stiffness = cloth_spring_stiffness(youngs_modulus_thickness, poisson)
+        if stiffness is None:
+            raise ValueError("add_cloth_grid: give stiffness [N/m] or youngs_modulus_thickness [N/m]")
+        shear_stiffness = stiffness if shear_stiffness is None else shear_stiffness
+        first = self.add_particles(pts, m, radius=radius, name=name)
+        self.add_springs(g.structural + first, stiffness=stiffness, damping=damping)
+        self.add_springs(g.shear + first, stiffness=shear_stiffness, damping=damping)
+        if bend_stiffness > 0:
+            self.add_springs(g.bend + first, stiffness=bend_stiffness, damping=damping)
+        self.add_triangles(tris + first)
+        if g.bending_pairs.size:
+            self.add_bending(g.bending_pairs + first, stiffness=0.0)
+        if isinstance(pin, str):
+            if pin not in _PIN_NAMES:
+                raise ValueError(f"cloth pin must be one of {_PIN_NAMES} or indices, got {pin!r}")
+            local = [] if pin == "none" else g.pin_indices(pin)
+        else:
+            local = list(pin)
+        self.pin(np.asarray(local, dtype=np.int64) + first)
+        self._register(name, "cloth", first, nx=nx, ny=ny)
+        return first
+
+    def add_soft_box(
+        self,
+        *,
+        cells: Sequence[int] = (4, 4, 4),
+        size: Sequence[float] = (0.2, 0.2, 0.2),
+        origin: Sequence[float] = (0.0, 0.5, 0.0),
+        density: float = 1000.0,
+        stiffness: float | None = None,
+        damping: float = 0.0,
+        E: float | None = None,
+        nu: float = 0.3,
+        velocity: Sequence[float] = (0.0, 0.0, 0.0),
+        radius: float = 0.005,
+        name: str = "soft_box",
+    ) -> int:
+        """Add a box meshed into 6 tets per cell; mass is lumped (ρV/4 per tet vertex).
+
+        ``stiffness`` [N/m] adds tet-edge springs (a mass-spring volume); ``E`` [Pa] adds FEM tetrahedra.
+        ``origin`` is the box centre. Returns the first particle index.
+        """
+        from ..geometry import box_tets
+
+        mesh = box_tets(*cells, size=size, origin=np.asarray(origin) - 0.5 * np.asarray(size))
+        return self._add_tet_mesh(
+            mesh.points, mesh.tets, density, stiffness, damping, E, nu, velocity, radius, name, "soft_box"
+        )
+
+    def add_tet_mesh(
+        self,
+        points: Any,
+        tets: Any,
+        *,
+        density: float = 1000.0,
+        stiffness: float | None = None,
+        damping: float = 0.0,
+        E: float | None = None,
+        nu: float = 0.3,
+        velocity: Sequence[float] = (0.0, 0.0, 0.0),
+        radius: float = 0.005,
+        name: str = "tet_mesh",
+    ) -> int:
+        """Add a tetrahedral mesh as a mass-spring volume (``stiffness``) and/or FEM body (``E``)."""
+        return self._add_tet_mesh(
+            points, tets, density, stiffness, damping, E, nu, velocity, radius, name, "mesh"
+        )
+
+    def _add_tet_mesh(
+        self, points, tets, density, stiffness, damping, E, nu, velocity, radius, name, kind
+    ) -> int:
+        from ..geometry import edges_from_tets, signed_tet_volumes, surface_from_tets
+
+        pts = np.asarray(points, np.float64).reshape(-1, 3)
+        tets = _as_index_array(tets, 4, "tetrahedron")
+        if tets.size and (tets.min() < 0 or tets.max() >= pts.shape[0]):
+            raise ValueError(f"{name}: tetrahedron indices out of range [0, {pts.shape[0]})")
+        if density <= 0:
+            raise ValueError(f"{name}: density must be > 0 kg/m³, got {density}")
+        vol = signed_tet_volumes(pts, tets)
+        m = np.zeros(pts.shape[0])
+        np.add.at(m, tets.ravel(), np.repeat(np.abs(vol) * density / 4.0, 4))
+        vel = np.broadcast_to(np.asarray(velocity, np.float64), pts.shape)
+        first = self.add_particles(pts, m, velocities=vel, radius=radius, name=name)
+        if stiffness is not None:
+            self.add_springs(edges_from_tets(tets) + first, stiffness=stiffness, damping=damping)
+        if E is not None:
+            self.add_tetrahedra(tets + first, E=E, nu=nu)
+        self._render_faces.append(surface_from_tets(tets) + first)
+        self._tet_host.append(tets + first)
+        self._register(name, kind, first)
+        return first
+
+    def add_point_cloud(
+        self,
+        points: Any,
+        *,
+        mass: float,
+        stiffness: float,
+        radius: float,
+        max_neighbors: int = 30,
+        damping: float = 0.0,
+        particle_radius: float = 0.005,
+        name: str = "points",
+    ) -> int:
+        """Add a point cloud with PhysTwin-style springs to up to ``max_neighbors`` within ``radius``."""
+        from ..geometry import springs_from_points
+
+        pts = np.asarray(points, np.float64).reshape(-1, 3)
+        first = self.add_particles(pts, mass / max(len(pts), 1), radius=particle_radius, name=name)
+        edges = springs_from_points(pts, radius, max_neighbors)
+        if edges.shape[0] == 0:
+            raise ValueError(
+                f"{name}: no springs within radius {radius} m; increase radius (point spacing is larger)"
+            )
+        self.add_springs(edges + first, stiffness=stiffness, damping=damping)
+        self._register(name, "points", first)
+        return first
+
+    # ------------------------------------------------------------------ finalize
+    def finalize(
+        self, device: str | None = None, dtype: str = "float32", requires_grad: bool = False
+    ) -> Model:
+        """Validate everything and copy it to ``device`` as a :class:`Model` in ``dtype``."""
+        init()
+        device = resolve_device(device)
+        f = np_dtype(dtype)
+        vec3, mat33, scalar = vec3_type(dtype), mat33_type(dtype), scalar_type(dtype)
+        if self._count == 0:
+            raise ValueError("the model has no particles; add a rope, cloth, volume or particles first")
+        q = np.concatenate(self._q)
+        qd = np.concatenate(self._qd)
+        mass = np.concatenate(self._mass)
+        radius = np.concatenate(self._radius)
+        inv_mass = 1.0 / mass
+        fixed = sorted(self._pinned | set(self._kinematic))
+        inv_mass[fixed] = 0.0
+        qd[fixed] = 0.0
+
+        if self._springs:
+            s_idx = np.concatenate([s[0] for s in self._springs])
+            s_rest, s_k, s_g = (np.concatenate([s[i] for s in self._springs]) for i in (1, 2, 3))
+            key = np.sort(s_idx, axis=1)
+            _, first_seen, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
+            if np.any(counts > 1):
+                dup = key[first_seen[np.flatnonzero(counts > 1)[0]]]
+                raise ValueError(
+                    f"{int(np.sum(counts > 1))} duplicate springs (first between particles {dup.tolist()}); "
+                    "each particle pair may have one spring: merge their stiffnesses into one spring"
+                )
+        else:
+            s_idx, s_rest, s_k, s_g = np.zeros((0, 2), np.int32), np.zeros(0), np.zeros(0), np.zeros(0)
+        tris = np.concatenate(self._tris) if self._tris else np.zeros((0, 3), np.int32)
+        if self._tets:
+            t_idx = np.concatenate([t[0] for t in self._tets])
+            t_mu = np.concatenate([t[1] for t in self._tets])
+            t_lam = np.concatenate([t[2] for t in self._tets])
+            x0 = q[t_idx[:, 0]]
+            dm = np.stack([q[t_idx[:, 1]] - x0, q[t_idx[:, 2]] - x0, q[t_idx[:, 3]] - x0], axis=2)
+            t_vol = np.linalg.det(dm) / 6.0
+            t_inv = np.linalg.inv(dm)
+        else:
+            t_idx, t_mu, t_lam = np.zeros((0, 4), np.int32), np.zeros(0), np.zeros(0)
+            t_vol, t_inv = np.zeros(0), np.zeros((0, 3, 3))
+        if self._bending:
+            b_idx = np.concatenate([b[0] for b in self._bending])
+            b_k = np.concatenate([b[1] for b in self._bending])
+            b_rest = _dihedral_angles(q, b_idx)
+        else:
+            b_idx, b_k, b_rest = np.zeros((0, 4), np.int32), np.zeros(0), np.zeros(0)
+
+        def arr(a: np.ndarray, dt: Any, rg: bool = False) -> wp.array:
+            return wp.array(a, dtype=dt, device=device, requires_grad=rg)
+
+        def ints(a: np.ndarray, width: int) -> wp.array:
+            return wp.array(a.reshape(-1, width).astype(np.int32), dtype=wp.int32, device=device)
+
+        faces = np.concatenate(self._render_faces) if self._render_faces else np.zeros((0, 3), np.int32)
+        tet_host = np.concatenate(self._tet_host) if self._tet_host else t_idx
+        return Model(
+            device=device,
+            dtype=dtype,
+            requires_grad=requires_grad,
+            particle_count=self._count,
+            particle_q=arr(q.astype(f), vec3, requires_grad),
+            particle_qd=arr(qd.astype(f), vec3, requires_grad),
+            particle_mass=arr(mass.astype(f), scalar),
+            particle_inv_mass=arr(inv_mass.astype(f), scalar),
+            particle_radius=arr(radius.astype(f), scalar),
+            spring_count=s_idx.shape[0],
+            spring_indices=ints(s_idx, 2),
+            spring_rest_length=arr(s_rest.astype(f), scalar, requires_grad),
+            spring_stiffness=arr(s_k.astype(f), scalar, requires_grad),
+            spring_damping=arr(s_g.astype(f), scalar, requires_grad),
+            tri_count=tris.shape[0],
+            tri_indices=ints(tris, 3),
+            tet_count=t_idx.shape[0],
+            tet_indices=ints(t_idx, 4),
+            tet_rest_inv=arr(t_inv.astype(f), mat33),
+            tet_rest_volume=arr(t_vol.astype(f), scalar),
+            tet_mu=arr(t_mu.astype(f), scalar, requires_grad),
+            tet_lam=arr(t_lam.astype(f), scalar, requires_grad),
+            bending_count=b_idx.shape[0],
+            bending_indices=ints(b_idx, 4),
+            bending_rest_angle=arr(b_rest.astype(f), scalar),
+            bending_stiffness=arr(b_k.astype(f), scalar, requires_grad),
+            gravity=self.gravity,
+            ground=self.ground,
+            particle_q_np=q,
+            particle_mass_np=mass,
+            kinematic_indices_np=np.asarray(self._kinematic, np.int32),
+            render_faces=faces.astype(np.int32),
+            tet_indices_np=tet_host.astype(np.int32),
+            objects=list(self.objects),
+        )
+
+
+def _dihedral_angles(q: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Signed dihedral angle [rad] of each bending element (0 when flat)."""
+    x0, x1, x2, x3 = (q[b[:, i]] for i in range(4))
+    e = x1 - x0
+    n1 = np.cross(e, x2 - x0)
+    n2 = np.cross(x3 - x0, e)
+    n1 /= np.maximum(np.linalg.norm(n1, axis=1, keepdims=True), 1e-300)
+    n2 /= np.maximum(np.linalg.norm(n2, axis=1, keepdims=True), 1e-300)
+    e_hat = e / np.maximum(np.linalg.norm(e, axis=1, keepdims=True), 1e-300)
+    cos = np.clip(np.sum(n1 * n2, axis=1), -1.0, 1.0)
+    sin = np.sum(np.cross(n1, n2) * e_hat, axis=1)
+    return np.arctan2(sin, cos)

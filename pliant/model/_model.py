@@ -1,0 +1,185 @@
+"""Model (static data on one device), State (x, v) and Control (what the user drives)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+from .._warp import mat33_type, np_dtype, scalar_type, vec3_type
+
+
+@dataclass(frozen=True)
+class Ground:
+    """A ground plane n·x = height with n = +y, Coulomb friction and restitution."""
+
+    height: float = 0.0
+    friction: float = 0.5
+    restitution: float = 0.0
+
+
+class State:
+    """Particle positions and velocities of one instant.
+
+    Attributes:
+        particle_q: Positions [m], shape [particle_count] of vec3.
+        particle_qd: Velocities [m/s], shape [particle_count] of vec3.
+    """
+
+    def __init__(self, particle_q: wp.array, particle_qd: wp.array) -> None:
+        self.particle_q = particle_q
+        self.particle_qd = particle_qd
+
+    @property
+    def x(self) -> wp.array:
+        """Positions [m] (alias of ``particle_q``)."""
+        return self.particle_q
+
+    @property
+    def v(self) -> wp.array:
+        """Velocities [m/s] (alias of ``particle_qd``)."""
+        return self.particle_qd
+
+    def assign(self, other: State) -> None:
+        """Copy ``other`` into this state (same device and shapes)."""
+        wp.copy(self.particle_q, other.particle_q)
+        wp.copy(self.particle_qd, other.particle_qd)
+
+    def to_torch(self) -> tuple[Any, Any]:
+        """Zero-copy PyTorch views of (positions, velocities)."""
+        return wp.to_torch(self.particle_q), wp.to_torch(self.particle_qd)
+
+
+class Control:
+    """Inputs that change over time: external forces, kinematic targets and a drag handle.
+
+    Attributes:
+        particle_f: External forces [N] per particle, shape [particle_count] of vec3 (zeros by default).
+        kinematic_indices: Particles whose positions are prescribed, int32 [K] (empty by default).
+        kinematic_targets: Target positions [m] of those particles at the end of the next step, [K] vec3.
+        drag_index: Particle pulled by the drag handle, or -1 when no handle is active.
+        drag_target: Where the handle pulls [m].
+        drag_stiffness: Stiffness of the handle's zero-length spring [N/m].
+    """
+
+    def __init__(self, model: Model) -> None:
+        self._model = model
+        d = model.device
+        self.particle_f = wp.zeros(model.particle_count, dtype=model.vec3, device=d)
+        self.kinematic_indices = wp.array(model.kinematic_indices_np, dtype=wp.int32, device=d)
+        self.kinematic_targets = wp.array(
+            model.particle_q_np[model.kinematic_indices_np], dtype=model.vec3, device=d
+        )
+        self.drag_index = -1
+        self.drag_target = np.zeros(3)
+        self.drag_stiffness = 0.0
+
+    def set_kinematic_targets(self, targets: np.ndarray) -> None:
+        """Set the target positions [m], shape [K, 3], of the kinematic particles."""
+        targets = np.asarray(targets, dtype=np_dtype(self._model.dtype)).reshape(-1, 3)
+        if targets.shape[0] != self.kinematic_targets.shape[0]:
+            raise ValueError(
+                f"expected {self.kinematic_targets.shape[0]} kinematic targets, got {targets.shape[0]}"
+            )
+        self.kinematic_targets.assign(targets)
+
+    def set_drag(self, index: int, target: np.ndarray, stiffness: float) -> None:
+        """Pull particle ``index`` toward ``target`` [m] with a spring of ``stiffness`` [N/m]."""
+        if not 0 <= index < self._model.particle_count:
+            raise ValueError(f"drag index {index} out of range [0, {self._model.particle_count})")
+        if stiffness < 0:
+            raise ValueError(f"drag stiffness must be >= 0 N/m, got {stiffness}")
+        self.drag_index = int(index)
+        self.drag_target = np.asarray(target, dtype=float).reshape(3)
+        self.drag_stiffness = float(stiffness)
+
+    def release_drag(self) -> None:
+        """Deactivate the drag handle."""
+        self.drag_index = -1
+
+
+@dataclass
+class Model:
+    """Static simulation data on one device: topology, rest shapes, materials, masses.
+
+    Built by :class:`pliant.ModelBuilder`; read-only during a step. Array names follow
+    ``<entity>_<attribute>``; every physical array is a Warp array on ``device`` in ``dtype``.
+    """
+
+    device: str
+    dtype: str
+    requires_grad: bool
+    particle_count: int
+    particle_q: wp.array  # initial positions [m]
+    particle_qd: wp.array  # initial velocities [m/s]
+    particle_mass: wp.array  # [kg]
+    particle_inv_mass: wp.array  # [1/kg], 0 for pinned and kinematic particles
+    particle_radius: wp.array  # [m]
+    spring_count: int
+    spring_indices: wp.array  # int32 [S, 2]
+    spring_rest_length: wp.array  # [m]
+    spring_stiffness: wp.array  # [N/m]
+    spring_damping: wp.array  # dashpot coefficient [N s/m]
+    tri_count: int
+    tri_indices: wp.array  # int32 [T, 3]
+    tet_count: int
+    tet_indices: wp.array  # int32 [E, 4]
+    tet_rest_inv: wp.array  # Dm^-1 per tet [1/m], mat33
+    tet_rest_volume: wp.array  # [m^3]
+    tet_mu: wp.array  # Lamé mu per tet [Pa]
+    tet_lam: wp.array  # Lamé lambda per tet [Pa]
+    bending_count: int
+    bending_indices: wp.array  # int32 [B, 4]: edge (0, 1), opposite vertices (2, 3)
+    bending_rest_angle: wp.array  # [rad]
+    bending_stiffness: wp.array  # [N m/rad]
+    gravity: tuple[float, float, float]
+    ground: Ground | None
+    # Host-side copies for builders, validation, rendering and I/O (never used in a step).
+    particle_q_np: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3)))
+    particle_mass_np: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
+    kinematic_indices_np: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0, np.int32))
+    render_faces: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3), np.int32))
+    tet_indices_np: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 4), np.int32))
+    objects: list[dict] = field(default_factory=list)
+    material: str | None = None
+
+    @property
+    def scalar(self) -> Any:
+        """Warp scalar type (wp.float32 or wp.float64)."""
+        return scalar_type(self.dtype)
+
+    @property
+    def vec3(self) -> Any:
+        """Warp vec3 type matching ``dtype``."""
+        return vec3_type(self.dtype)
+
+    @property
+    def mat33(self) -> Any:
+        """Warp mat33 type matching ``dtype``."""
+        return mat33_type(self.dtype)
+
+    def s(self, value: float) -> Any:
+        """``value`` as this model's Warp scalar, for kernel launches."""
+        return self.scalar(value)
+
+    def state(self, *, requires_grad: bool | None = None) -> State:
+        """A fresh State initialised with the model's initial positions and velocities."""
+        rg = self.requires_grad if requires_grad is None else requires_grad
+        q = wp.clone(self.particle_q, requires_grad=rg)
+        qd = wp.clone(self.particle_qd, requires_grad=rg)
+        return State(q, qd)
+
+    def control(self) -> Control:
+        """A fresh Control with no external forces, kinematic targets at rest, no drag."""
+        return Control(self)
+
+    @property
+    def gravity_vec(self) -> Any:
+        """Gravity [m/s²] as this model's vec3."""
+        return self.vec3(*self.gravity)
+
+    def total_mass(self) -> float:
+        """Sum of particle masses [kg]."""
+        return float(self.particle_mass_np.sum())

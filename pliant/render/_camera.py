@@ -1,0 +1,193 @@
+"""Pinhole camera with a y-up convention and automatic framing."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["Camera", "as_points"]
+
+# Direction from the target towards the eye for the default 3/4 view: in front (+z), to the
+# right (+x) and about 25 degrees above the horizon, so the ground plane is visible under
+# the object and both the front and a side face are seen.
+DEFAULT_VIEW_DIR = (0.75, 0.62, 1.0)
+
+
+def as_points(points: object, name: str = "points") -> np.ndarray:
+    """Converts NumPy/Warp/array-like input to a float64 [N, 3] host array.
+
+    Args:
+        points: Anything ``np.asarray`` accepts, or a ``warp.array`` (copied to the host).
+        name: Argument name used in error messages.
+
+    Returns:
+        Array of shape [N, 3], dtype float64.
+    """
+    if hasattr(points, "numpy") and not isinstance(points, np.ndarray):
+        points = points.numpy()  # warp.array / torch tensor on CPU
+    arr = np.asarray(points, dtype=np.float64)
+    if arr.ndim == 1 and arr.size == 3:
+        arr = arr.reshape(1, 3)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name} must have shape [N, 3], got {arr.shape}")
+    return arr
+
+
+def _vec3(v: object, name: str) -> np.ndarray:
+    arr = np.asarray(v, dtype=np.float64).reshape(-1)
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be a finite 3-vector, got {v!r}")
+    return arr
+
+
+@dataclass
+class Camera:
+    """Perspective pinhole camera.
+
+    Pixel coordinates are (column, row) with the origin at the top-left corner of the image;
+    pixel ``(i, j)`` has its centre at ``(j + 0.5, i + 0.5)``.
+
+    Attributes:
+        eye: Camera position [3] in metres.
+        target: Point looked at [3] in metres.
+        up: Approximate up direction [3] (pliant is y-up).
+        fov_y: Vertical field of view in degrees.
+        width: Image width in pixels.
+        height: Image height in pixels.
+        near: Near-plane distance in metres; geometry closer than this is not drawn.
+            ``None`` means 1e-3 times the eye-target distance.
+    """
+
+    eye: np.ndarray
+    target: np.ndarray
+    up: np.ndarray = field(default_factory=lambda: np.array([0.0, 1.0, 0.0]))
+    fov_y: float = 40.0
+    width: int = 640
+    height: int = 480
+    near: float | None = None
+
+    def __post_init__(self) -> None:
+        self.eye = _vec3(self.eye, "eye")
+        self.target = _vec3(self.target, "target")
+        self.up = _vec3(self.up, "up")
+        self.fov_y = float(self.fov_y)
+        self.width = int(self.width)
+        self.height = int(self.height)
+        if not 0.0 < self.fov_y < 180.0:
+            raise ValueError(f"fov_y must be in (0, 180) degrees, got {self.fov_y}")
+        if self.width < 1 or self.height < 1:
+            raise ValueError(f"image size must be positive, got {self.width}x{self.height}")
+        fwd = self.target - self.eye
+        if np.linalg.norm(fwd) == 0.0:
+            raise ValueError("eye and target coincide")
+        if np.linalg.norm(np.cross(fwd, self.up)) <= 1e-9 * np.linalg.norm(fwd) * np.linalg.norm(self.up):
+            raise ValueError("up is parallel to the viewing direction")
+        if self.near is not None and not self.near > 0.0:
+            raise ValueError(f"near must be positive, got {self.near}")
+
+    @property
+    def distance(self) -> float:
+        """Eye-target distance in metres."""
+        return float(np.linalg.norm(self.target - self.eye))
+
+    @property
+    def near_plane(self) -> float:
+        """Effective near-plane distance in metres."""
+        return float(self.near) if self.near is not None else 1e-3 * self.distance
+
+    @property
+    def focal_px(self) -> float:
+        """Focal length in pixels (square pixels)."""
+        return 0.5 * self.height / math.tan(math.radians(self.fov_y) * 0.5)
+
+    def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Orthonormal camera frame.
+
+        Returns:
+            ``(right, up, forward)`` unit vectors [3]; ``forward`` points from eye to target.
+        """
+        fwd = self.target - self.eye
+        fwd = fwd / np.linalg.norm(fwd)
+        right = np.cross(fwd, self.up)
+        right /= np.linalg.norm(right)
+        up = np.cross(right, fwd)
+        return right, up, fwd
+
+    def project(self, points: object) -> tuple[np.ndarray, np.ndarray]:
+        """Perspective projection of world points.
+
+        Args:
+            points: World positions [N, 3] in metres.
+
+        Returns:
+            ``(pixels, depth)``: pixel coordinates [N, 2] as (column, row) floats, and view-space
+            depth [N] in metres along the viewing direction (positive in front of the camera;
+            points with ``depth <= near_plane`` are not visible).
+        """
+        pts = as_points(points)
+        right, up, fwd = self.basis()
+        rel = pts - self.eye
+        xc, yc, zc = rel @ right, rel @ up, rel @ fwd
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = self.focal_px / zc
+        pix = np.stack([0.5 * self.width + xc * inv, 0.5 * self.height - yc * inv], axis=1)
+        return pix, zc
+
+    @classmethod
+    def fit(
+        cls,
+        points: object,
+        *,
+        direction: tuple[float, float, float] | np.ndarray = DEFAULT_VIEW_DIR,
+        up: tuple[float, float, float] | np.ndarray = (0.0, 1.0, 0.0),
+        fov_y: float = 40.0,
+        width: int = 640,
+        height: int = 480,
+        padding: float = 0.08,
+    ) -> Camera:
+        """Camera looking at the bounding box of ``points`` so that the whole box is in view.
+
+        The eye sits on the ray ``center + s * direction`` at the smallest distance ``s`` for
+        which all eight bounding-box corners (hence every point) project inside the image,
+        with a ``padding`` fraction of the half-image kept free on every side.
+
+        Args:
+            points: Positions [..., 3] in metres (e.g. [N, 3] or a whole trajectory [T, N, 3]);
+                non-finite rows are ignored.
+            direction: Direction from the target towards the eye (default: 3/4 view from the
+                front-right, about 25 degrees above the horizon).
+            up: Up vector.
+            fov_y: Vertical field of view in degrees.
+            width: Image width in pixels.
+            height: Image height in pixels.
+            padding: Fraction (0..1) of each half-image left empty around the box.
+
+        Returns:
+            A new camera.
+        """
+        if hasattr(points, "numpy") and not isinstance(points, np.ndarray):
+            points = points.numpy()
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        if len(pts) == 0:
+            raise ValueError("Camera.fit needs at least one finite point")
+        if not 0.0 <= padding < 1.0:
+            raise ValueError(f"padding must be in [0, 1), got {padding}")
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        center = 0.5 * (lo + hi)
+        # A single point or a tiny object still gets a sensible, finite camera distance.
+        half = np.maximum(0.5 * (hi - lo), 1e-3 * max(float(np.max(hi - lo)), 0.05))
+        d = _vec3(direction, "direction")
+        d /= np.linalg.norm(d)
+        cam = cls(eye=center + d, target=center, up=up, fov_y=fov_y, width=width, height=height)
+        right, upv, _ = cam.basis()
+        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+        rel = signs * half  # corners relative to the centre [8, 3]
+        s = rel @ d  # offset towards the camera
+        tan_y = math.tan(math.radians(fov_y) * 0.5) * (1.0 - padding)
+        tan_x = tan_y * width / height
+        dist = np.max(np.maximum(s + np.abs(rel @ right) / tan_x, s + np.abs(rel @ upv) / tan_y))
+        dist = max(float(dist), 1.05 * float(np.max(s)))  # keep the eye outside the box
+        return cls(eye=center + dist * d, target=center, up=up, fov_y=fov_y, width=width, height=height)

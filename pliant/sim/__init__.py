@@ -1,0 +1,5 @@
+"""Simulation loop: frames × substeps, recording, divergence detection, checkpoint/resume."""
+
+from ._simulator import DivergenceError, Simulator
+
+__all__ = ["DivergenceError", "Simulator"]

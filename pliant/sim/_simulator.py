@@ -1,0 +1,263 @@
+"""Simulator: frames × substeps, recording, divergence detection, checkpoints and resume."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+from ..io import Trajectory, load_checkpoint, save_checkpoint
+from ..model import Control, Model, State
+from ..solvers import Solver
+
+#: Model parameters that fitting may change; checkpoints carry them so a resumed run is the same run.
+_PARAMS = (
+    "spring_stiffness",
+    "spring_rest_length",
+    "spring_damping",
+    "tet_mu",
+    "tet_lam",
+    "bending_stiffness",
+)
+
+
+class DivergenceError(RuntimeError):
+    """The simulation blew up; the message names the frame, the quantity and what to change."""
+
+    def __init__(self, frame: int, quantity: str, value: float, advice: str) -> None:
+        self.frame, self.quantity, self.value = frame, quantity, value
+        super().__init__(f"diverged at frame {frame}: {quantity} {value:.3g}; {advice}")
+
+
+@wp.kernel
+def _health(
+    v: wp.array(dtype=Any),
+    x: wp.array(dtype=Any),
+    speed2_out: wp.array(dtype=Any),
+    bad_out: wp.array(dtype=wp.int32),
+):
+    i = wp.tid()
+    s = wp.dot(v[i], v[i])
+    p = wp.dot(x[i], x[i])
+    if wp.isnan(s) or wp.isinf(s) or wp.isnan(p) or wp.isinf(p):
+        wp.atomic_add(bad_out, 0, 1)
+    else:
+        wp.atomic_max(speed2_out, 0, s)
+
+
+class Simulator:
+    """Owns model, solver, two states and the control; runs frames of ``substeps`` solver steps.
+
+    Args:
+        model: the Model.
+        solver: any Solver.
+        dt: frame duration [s] (recording interval).
+        substeps: solver steps per frame (substep Δt = dt / substeps).
+        control: a Control (default ``model.control()``).
+        max_speed: divergence bound on any particle speed [m/s].
+        control_fn: optional ``f(t, control)`` called before each frame to move kinematic targets [s].
+
+    Example::
+
+        sim = pl.Simulator(model, solver, dt=1 / 60, substeps=16)
+        traj = sim.run(frames=240)
+    """
+
+    def __init__(
+        self,
+        model: Model,
+        solver: Solver,
+        *,
+        dt: float = 1.0 / 60.0,
+        substeps: int = 16,
+        control: Control | None = None,
+        max_speed: float = 1.0e3,
+        control_fn: Callable[[float, Control], None] | None = None,
+    ) -> None:
+        if dt <= 0 or not np.isfinite(dt):
+            raise ValueError(f"dt must be a positive number of seconds, got {dt}")
+        if substeps < 1:
+            raise ValueError(f"substeps must be >= 1, got {substeps}")
+        self.model, self.solver = model, solver
+        self.dt, self.substeps = float(dt), int(substeps)
+        self.control = control if control is not None else model.control()
+        self.control_fn = control_fn
+        self.max_speed = float(max_speed)
+        self.state_0: State = model.state()
+        self.state_1: State = model.state()
+        self.frame = 0
+        self.time = 0.0
+        self._xs: list[np.ndarray] = []
+        self._vs: list[np.ndarray] = []
+        self._ts: list[float] = []
+        self._speed2 = wp.zeros(1, dtype=model.scalar, device=model.device)
+        self._bad = wp.zeros(1, dtype=wp.int32, device=model.device)
+        self._last_good: tuple[int, float, np.ndarray, np.ndarray] | None = None
+
+    # ------------------------------------------------------------------ stepping
+    def step_frame(self) -> None:
+        """Advance one frame (``substeps`` solver steps); no host synchronisation."""
+        h = self.dt / self.substeps
+        if self.control_fn is not None:
+            self.control_fn(self.time, self.control)
+        for _ in range(self.substeps):
+            self.solver.step(self.state_0, self.state_1, self.control, h)
+            self.state_0, self.state_1 = self.state_1, self.state_0
+        self.frame += 1
+        self.time = self.frame * self.dt
+
+    def check(self) -> None:
+        """Raise :class:`DivergenceError` if any value is non-finite or a speed exceeds ``max_speed``."""
+        self._speed2.zero_()
+        self._bad.zero_()
+        s = self.state_0
+        wp.launch(
+            _health,
+            self.model.particle_count,
+            [s.particle_qd, s.particle_q, self._speed2, self._bad],
+            device=self.model.device,
+        )
+        bad = int(self._bad.numpy()[0])
+        integrator = getattr(getattr(self.solver, "integrator", None), "name", None)
+        h = self.dt / self.substeps
+        advice = (
+            f"lower dt (substep {h:.3g} s: raise substeps above {self.substeps})"
+            + (
+                ", or use an implicit integrator (BackwardEuler)"
+                if integrator and integrator != "BackwardEuler"
+                else ""
+            )
+            + ", or soften the stiffest material"
+        )
+        if bad:
+            raise DivergenceError(self.frame, "non-finite positions/velocities in particles:", bad, advice)
+        speed = float(np.sqrt(self._speed2.numpy()[0]))
+        if speed > self.max_speed:
+            raise DivergenceError(self.frame, "max speed (m/s)", speed, advice)
+
+    # ------------------------------------------------------------------ recording
+    def _record(self, with_velocity: bool) -> None:
+        x = self.state_0.particle_q.numpy().copy()
+        v = self.state_0.particle_qd.numpy().copy()
+        self._xs.append(x)
+        if with_velocity:
+            self._vs.append(v)
+        self._ts.append(self.time)
+        # The last state that passed its check: what a checkpoint stores, whatever happens next.
+        self._last_good = (self.frame, self.time, x, v)
+
+    def trajectory(self) -> Trajectory:
+        """Everything recorded so far (frame 0 included) as a :class:`Trajectory`."""
+        m = self.model
+        x = np.stack(self._xs) if self._xs else np.zeros((0, m.particle_count, 3))
+        v = np.stack(self._vs) if self._vs else None
+        faces = m.render_faces if m.render_faces.size else None
+        tets = m.tet_indices_np if m.tet_indices_np.size else None
+        meta = {
+            "dt": self.dt,
+            "substeps": self.substeps,
+            "dtype": m.dtype,
+            "device": m.device,
+            **self.solver.describe(),
+            "objects": m.objects,
+        }
+        return Trajectory(x=x, t=np.asarray(self._ts), v=v, faces=faces, tets=tets, meta=meta)
+
+    # ------------------------------------------------------------------ checkpoints
+    def save_checkpoint(self, path: str | os.PathLike) -> Path:
+        """Write the last recorded state, its time, fitted parameters and the trajectory (atomically)."""
+        traj = self.trajectory()
+        params = {k: getattr(self.model, k).numpy() for k in _PARAMS}
+        frame, time, x, v = self._last_good
+        return save_checkpoint(
+            path,
+            frame=frame,
+            time=time,
+            x=x,
+            v=v,
+            params=params,
+            traj_x=traj.x,
+            traj_t=traj.t,
+            traj_v=traj.v,
+            meta=traj.meta,
+        )
+
+    def load_checkpoint(self, path: str | os.PathLike) -> None:
+        """Continue from a checkpoint: state, time, parameters and the recorded frames."""
+        ck = load_checkpoint(path)
+        m = self.model
+        if ck["x"].shape != (m.particle_count, 3):
+            raise ValueError(
+                f"{path}: checkpoint has {ck['x'].shape[0]} particles but the scene has "
+                f"{m.particle_count}; resume with the scene that wrote it"
+            )
+        for k, a in ck["params"].items():
+            getattr(m, k).assign(a)
+        self.state_0.particle_q.assign(ck["x"])
+        self.state_0.particle_qd.assign(ck["v"])
+        self.frame, self.time = ck["frame"], ck["time"]
+        self._last_good = (ck["frame"], ck["time"], ck["x"], ck["v"])
+        self._xs = list(ck["traj_x"])
+        self._ts = list(ck["traj_t"])
+        self._vs = list(ck["traj_v"]) if ck["traj_v"] is not None else []
+
+    # ------------------------------------------------------------------ the loop
+    def run(
+        self,
+        frames: int,
+        *,
+        progress: bool = True,
+        record_velocity: bool = False,
+        checkpoint: str | os.PathLike | None = None,
+        checkpoint_every: int = 50,
+        resume: bool = False,
+        on_frame: Callable[[Simulator], None] | None = None,
+    ) -> Trajectory:
+        """Run until ``frames`` frames exist after frame 0, recording each; returns the trajectory.
+
+        With ``checkpoint``, state is saved every ``checkpoint_every`` frames and when the run stops for any
+        reason (Ctrl-C, divergence, an exception), so nothing computed is lost; ``resume=True`` continues
+        from that file bit-identically on the CPU.
+        """
+        if frames < 0:
+            raise ValueError(f"frames must be >= 0, got {frames}")
+        if resume:
+            if checkpoint is None or not Path(checkpoint).exists():
+                raise FileNotFoundError(f"--resume needs an existing checkpoint, none at {checkpoint}")
+            self.load_checkpoint(checkpoint)
+        if not self._xs:
+            self._record(record_velocity)
+        bar = None
+        if progress:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(
+                total=frames,
+                initial=min(self.frame, frames),
+                unit="frame",
+                desc="simulating",
+                leave=False,
+                dynamic_ncols=True,
+            )
+        try:
+            while self.frame < frames:
+                self.step_frame()
+                self.check()
+                self._record(record_velocity)
+                if on_frame is not None:
+                    on_frame(self)
+                if bar is not None:
+                    bar.update(1)
+                if checkpoint is not None and checkpoint_every > 0 and self.frame % checkpoint_every == 0:
+                    self.save_checkpoint(checkpoint)
+        finally:
+            if bar is not None:
+                bar.close()
+            if checkpoint is not None:
+                # On Ctrl-C or divergence this holds the last frame that passed its check.
+                self.save_checkpoint(checkpoint)
+        return self.trajectory()

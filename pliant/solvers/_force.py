@@ -1,0 +1,209 @@
+"""ForceSolver: any set of energies advanced by any integrator (mass-spring, FEM: one path)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+from ..collision import ground_contact
+from ..energies import Energy
+from ..integrators import Integrator, SymplecticEuler
+from ..model import Control, Model, State
+from ._base import Solver
+
+
+@wp.kernel
+def _accel_from_force(inv_mass: wp.array(dtype=Any), f_in: wp.array(dtype=Any), a_out: wp.array(dtype=Any)):
+    i = wp.tid()
+    a_out[i] = inv_mass[i] * f_in[i]
+
+
+@wp.kernel
+def _add_drag_handle(
+    index: int, target: Any, stiffness: Any, x_in: wp.array(dtype=Any), f_out: wp.array(dtype=Any)
+):
+    # A zero-length spring from the particle to the cursor: pulls without a velocity jump.
+    f_out[index] = f_out[index] + stiffness * (target - x_in[index])
+
+
+@wp.kernel
+def _apply_kinematic(
+    indices: wp.array(dtype=wp.int32),
+    targets: wp.array(dtype=Any),
+    inv_dt: Any,
+    x_in: wp.array(dtype=Any),
+    x_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+):
+    k = wp.tid()
+    i = indices[k]
+    x_out[i] = targets[k]
+    v_out[i] = (targets[k] - x_in[i]) * inv_dt
+
+
+class ForceSolver(Solver):
+    """Force-based dynamics M x'' = −∇E(x) + F_diss(x, v) + F_ext advanced by any integrator.
+
+    Args:
+        model: the Model.
+        energies: potential and dissipation terms (e.g. ``pl.energies.mass_spring()``).
+        integrator: any ``pl.integrators`` object (default SymplecticEuler).
+        velocity_damping: the lecture's δ, multiplying velocities each step (1 = none). Depends on Δt.
+        damping_rate: c [1/s] for the Δt-independent form v ← v·exp(−cΔt); overrides ``velocity_damping``.
+        contact: resolve ground contact after each step (needs ``model.ground``).
+
+    Example::
+
+        solver = pl.solvers.ForceSolver(model, energies=pl.energies.mass_spring(),
+                                        integrator=pl.integrators.SymplecticEuler())
+        solver.step(state_0, state_1, control, 1e-3)
+    """
+
+    def __init__(
+        self,
+        model: Model,
+        energies: Sequence[Energy] | None = None,
+        integrator: Integrator | None = None,
+        *,
+        velocity_damping: float = 1.0,
+        damping_rate: float | None = None,
+        contact: bool = True,
+    ) -> None:
+        super().__init__(model)
+        from ..energies import mass_spring
+
+        self.energies = list(mass_spring() if energies is None else energies)
+        for e in self.energies:
+            if not isinstance(e, Energy):
+                raise TypeError(f"energies must be pl.energies.Energy objects, got {type(e).__name__}")
+        self.integrator = integrator if integrator is not None else SymplecticEuler()
+        if not isinstance(self.integrator, Integrator):
+            raise TypeError(
+                f"integrator must be a pl.integrators.Integrator, got {type(self.integrator).__name__}"
+            )
+        if not 0.0 < velocity_damping <= 1.0:
+            raise ValueError(f"velocity_damping δ must be in (0, 1], got {velocity_damping}")
+        if damping_rate is not None and damping_rate < 0:
+            raise ValueError(f"damping_rate must be >= 0 1/s, got {damping_rate}")
+        self.velocity_damping_factor = float(velocity_damping)
+        self.damping_rate = damping_rate
+        self.contact = contact and model.ground is not None
+        d = model.device
+        self._force = wp.zeros(model.particle_count, dtype=model.vec3, device=d)
+        self._control: Control | None = None
+        self.last_stats: Any = None
+
+    # ------------------------------------------------------------------ System interface
+    def velocity_damping(self, dt: float) -> float:
+        """δ for a step of ``dt`` [s]: exp(−cΔt) when ``damping_rate`` c is set, else the fixed δ."""
+        if self.damping_rate is not None:
+            return math.exp(-self.damping_rate * dt)
+        return self.velocity_damping_factor
+
+    def forces(self, t: float, x: wp.array, v: wp.array, out: wp.array) -> None:
+        """Write the total force [N] at (x, v) into ``out``: −∇E, dissipation, control forces."""
+        m = self.model
+        c = self._control
+        if c is not None:
+            wp.copy(out, c.particle_f)
+        else:
+            out.zero_()
+        for e in self.energies:
+            e.force(m, x, v, out)
+        if c is not None and c.drag_index >= 0:
+            wp.launch(
+                _add_drag_handle,
+                1,
+                [c.drag_index, m.vec3(*c.drag_target), m.s(c.drag_stiffness), x, out],
+                device=m.device,
+            )
+
+    def acceleration(self, t: float, x: wp.array, v: wp.array, out: wp.array) -> None:
+        """a = M⁻¹F [m/s²]; zero for pinned and kinematic particles (inverse mass 0)."""
+        self.forces(t, x, v, self._force)
+        wp.launch(
+            _accel_from_force,
+            self.model.particle_count,
+            [self.model.particle_inv_mass, self._force, out],
+            device=self.model.device,
+        )
+
+    def minimize(self, t, h, x_tilde, x_ref, v_ref, x_out):
+        """Newton on the incremental potential (provided by the implicit machinery)."""
+        from ._newton import minimize_incremental_potential
+
+        return minimize_incremental_potential(self, t, h, x_tilde, x_ref, v_ref, x_out)
+
+    # ------------------------------------------------------------------ Solver interface
+    def step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
+        """Advance by ``dt`` [s]: integrate, then kinematic targets, then ground contact."""
+        m = self.model
+        self._control = control
+        self.integrator.step_system(
+            self,
+            0.0,
+            dt,
+            state_in.particle_q,
+            state_in.particle_qd,
+            state_out.particle_q,
+            state_out.particle_qd,
+        )
+        if control is not None and control.kinematic_indices.shape[0]:
+            wp.launch(
+                _apply_kinematic,
+                control.kinematic_indices.shape[0],
+                [
+                    control.kinematic_indices,
+                    control.kinematic_targets,
+                    m.s(1.0 / dt),
+                    state_in.particle_q,
+                    state_out.particle_q,
+                    state_out.particle_qd,
+                ],
+                device=m.device,
+            )
+        if self.contact:
+            g = m.ground
+            wp.launch(
+                ground_contact,
+                m.particle_count,
+                [
+                    m.particle_inv_mass,
+                    m.particle_radius,
+                    m.s(g.height),
+                    m.s(g.friction),
+                    m.s(g.restitution),
+                    state_out.particle_q,
+                    state_out.particle_qd,
+                ],
+                device=m.device,
+            )
+
+    def energy(self, state: State) -> dict[str, float]:
+        """Kinetic and potential energies [J] of ``state`` (host sync: use outside hot loops)."""
+        m = self.model
+        out = {}
+        buf = wp.zeros(1, dtype=m.scalar, device=m.device)
+        for e in self.energies:
+            if e.dissipative:
+                continue
+            buf.zero_()
+            e.value(m, state.particle_q, buf)
+            out[type(e).__name__] = float(buf.numpy()[0])
+        v = state.particle_qd.numpy().astype(np.float64)
+        out["kinetic"] = float(0.5 * np.sum(m.particle_mass_np * np.sum(v * v, axis=1)))
+        return out
+
+    def describe(self) -> dict:
+        """Solver, integrator and damping options."""
+        return {
+            "solver": "ForceSolver",
+            "integrator": self.integrator.name,
+            "energies": [type(e).__name__ for e in self.energies],
+            "velocity_damping": self.velocity_damping_factor,
+            "damping_rate": self.damping_rate,
+        }
