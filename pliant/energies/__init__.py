@@ -3,6 +3,14 @@
 from ._base import Energy
 from ._cloth import cloth_spring_stiffness
 from ._gravity import Gravity
+from ._materials import (
+    MATERIAL_MODELS,
+    Material,
+    MaterialModel,
+    get_material_model,
+    lame_parameters,
+    young_poisson,
+)
 from ._spring import Dashpots, Springs, dashpot_force, spring_energy, spring_gradient, spring_hessian
 
 
@@ -17,6 +25,12 @@ def mass_spring(*, dashpots: bool = True, gravity: bool = True) -> list[Energy]:
 
 
 __all__ = [
+    "MATERIAL_MODELS",
+    "Material",
+    "MaterialModel",
+    "get_material_model",
+    "lame_parameters",
+    "young_poisson",
     "Dashpots",
     "Energy",
     "Gravity",

@@ -133,9 +133,9 @@ def polar_rotation(F: Any):
 @wp.func
 def _levi_civita_pair(i: int, k: int):
     """ε_{i k m} for i ≠ k, m = 3 − i − k: +1 when (i, k, m) is cyclic, else −1."""
-    s = int(-1)
+    s = -1
     if (k - i + 3) % 3 == 1:
-        s = int(1)
+        s = 1
     return s
 
 
@@ -152,7 +152,9 @@ def _det_hessian(F: Any, coeff: Any, H: Any):
                         if i != k:
                             m = 3 - i - k
                             s = s_jl * _levi_civita_pair(i, k)
-                            H[i + 3 * j, k + 3 * l] = H[i + 3 * j, k + 3 * l] + coeff * type(coeff)(s) * F[m, n]
+                            H[i + 3 * j, k + 3 * l] = (
+                                H[i + 3 * j, k + 3 * l] + coeff * type(coeff)(s) * F[m, n]
+                            )
     return H
 
 
@@ -329,7 +331,7 @@ def stvk_dpk1_df_psd(F: Any, mu: Any, lam: Any):
 
 @wp.func
 def _corotated_pair_denominator(a: Any):
-    """σ_i + σ_j, kept away from 0 (R is not differentiable where σ_i + σ_j = 0: flat or inverted elements)."""
+    """σ_i + σ_j kept ≥ 1e-6 (∂R/∂F is singular at σ_i + σ_j = 0: flat or inverted elements)."""
     eps = type(a)(1.0e-6)
     return wp.max(a, eps)
 
@@ -458,7 +460,7 @@ def neohookean_dpk1_df_psd(F: Any, mu: Any, lam: Any):
 
 @wp.func
 def tet_shape_gradient(Dm_inv: Any, a: int):
-    """g_a = ∂F/∂x_a as a row vector (∂F_ij/∂x_a,l = δ_il g_a[j]): row a−1 of Dm⁻¹; g_0 = −(g_1 + g_2 + g_3)."""
+    """g_a with ∂F_ij/∂x_a,l = δ_il g_a[j]: row a−1 of Dm⁻¹ for a ≥ 1, g_0 = −(g_1 + g_2 + g_3)."""
     g = -(Dm_inv[0] + Dm_inv[1] + Dm_inv[2])
     if a > 0:
         g = Dm_inv[a - 1]

@@ -5,6 +5,7 @@ arrays. Tetrahedra returned by this package are positively oriented
 (``det[x1-x0, x2-x0, x3-x0] > 0``).
 """
 
+from ._barycentric import barycentric_coordinates, interpolate, locate_points, shape_functions
 from ._io import SUPPORTED_EXTENSIONS, load_mesh
 from ._measures import (
     degenerate_tets,
@@ -21,6 +22,10 @@ from ._tets import box_tets, cylinder_tets, sphere_tets, tetrahedralize
 from ._topology import bending_pairs, edges_from_tets, edges_from_triangles, surface_from_tets
 
 __all__ = [
+    "barycentric_coordinates",
+    "interpolate",
+    "locate_points",
+    "shape_functions",
     "SUPPORTED_EXTENSIONS",
     "ClothGrid",
     "Rope",

@@ -1,6 +1,16 @@
 """Model / State / Control and the validating ModelBuilder."""
 
 from ._builder import ModelBuilder
+from ._mass import tet_consistent_mass, tet_lumped_mass, triangle_lumped_mass
 from ._model import Control, Ground, Model, State
 
-__all__ = ["Control", "Ground", "Model", "ModelBuilder", "State"]
+__all__ = [
+    "Control",
+    "Ground",
+    "Model",
+    "ModelBuilder",
+    "State",
+    "tet_consistent_mass",
+    "tet_lumped_mass",
+    "triangle_lumped_mass",
+]

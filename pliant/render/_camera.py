@@ -147,11 +147,11 @@ class Camera:
         height: int = 480,
         padding: float = 0.08,
     ) -> Camera:
-        """Camera looking at the bounding box of ``points`` so that the whole box is in view.
+        """Camera looking at the bounding-box centre of ``points`` with every point in view.
 
         The eye sits on the ray ``center + s * direction`` at the smallest distance ``s`` for
-        which all eight bounding-box corners (hence every point) project inside the image,
-        with a ``padding`` fraction of the half-image kept free on every side.
+        which every point (beyond a million points: every bounding-box corner) projects inside
+        the image with a ``padding`` fraction of the half-image kept free on every side.
 
         Args:
             points: Positions [..., 3] in metres (e.g. [N, 3] or a whole trajectory [T, N, 3]);
@@ -177,17 +177,20 @@ class Camera:
             raise ValueError(f"padding must be in [0, 1), got {padding}")
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         center = 0.5 * (lo + hi)
-        # A single point or a tiny object still gets a sensible, finite camera distance.
-        half = np.maximum(0.5 * (hi - lo), 1e-3 * max(float(np.max(hi - lo)), 0.05))
         d = _vec3(direction, "direction")
         d /= np.linalg.norm(d)
         cam = cls(eye=center + d, target=center, up=up, fov_y=fov_y, width=width, height=height)
         right, upv, _ = cam.basis()
-        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
-        rel = signs * half  # corners relative to the centre [8, 3]
+        corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+        if np.max(hi - lo) <= 1e-9 * max(1.0, float(np.max(np.abs(center)))):
+            rel = corners * 0.05  # a single point: frame a 10 cm box around it
+        elif len(pts) > 1_000_000:
+            rel = corners * (0.5 * (hi - lo))  # the box corners bound every point, cheaply
+        else:
+            rel = pts - center  # exact: tighter than the box for round or diagonal shapes
         s = rel @ d  # offset towards the camera
         tan_y = math.tan(math.radians(fov_y) * 0.5) * (1.0 - padding)
         tan_x = tan_y * width / height
         dist = np.max(np.maximum(s + np.abs(rel @ right) / tan_x, s + np.abs(rel @ upv) / tan_y))
-        dist = max(float(dist), 1.05 * float(np.max(s)))  # keep the eye outside the box
+        dist = max(float(dist), 1.05 * float(np.max(s)), 1e-9)  # every point in front of the eye
         return cls(eye=center + dist * d, target=center, up=up, fov_y=fov_y, width=width, height=height)

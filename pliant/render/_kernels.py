@@ -100,7 +100,7 @@ def raster_triangles_kernel(
     p0 = world[t[0]]
     nf = wp.cross(world[t[1]] - p0, world[t[2]] - p0)
     # Two-sided lighting: orient every normal of this triangle towards the viewer.
-    sgn = float(1.0)
+    sgn = 1.0
     if wp.dot(nf, eye - p0) < 0.0:
         sgn = -1.0
     nfl = wp.length(nf)
@@ -289,10 +289,41 @@ def _box_filtered_stripe(p: float, w: float) -> float:
     return 2.0 * (wp.abs(_frac((p - 0.5 * w) * 0.5) - 0.5) - wp.abs(_frac((p + 0.5 * w) * 0.5) - 0.5)) / w
 
 
+@wp.func
+def _ground_base(
+    eye: wp.vec3,
+    right: wp.vec3,
+    up: wp.vec3,
+    fwd: wp.vec3,
+    focal: float,
+    cx: float,
+    cy: float,
+    fx: float,
+    fy: float,
+    hit: wp.vec3,
+    ground_y: float,
+    tile: float,
+    color_a: wp.vec3,
+    color_b: wp.vec3,
+) -> wp.vec3:
+    # Pixel footprint on the plane, from the neighbouring pixels' rays, sets the filter width.
+    dx = _ray_dir(right, up, fwd, focal, cx, cy, fx + 1.0, fy)
+    dy = _ray_dir(right, up, fwd, focal, cx, cy, fx, fy + 1.0)
+    wx = 4.0 * tile
+    wz = 4.0 * tile
+    if dx[1] < 0.0 and dy[1] < 0.0:
+        hx = eye + dx * ((ground_y - eye[1]) / dx[1])
+        hy = eye + dy * ((ground_y - eye[1]) / dy[1])
+        wx = wp.abs(hx[0] - hit[0]) + wp.abs(hy[0] - hit[0]) + 1.0e-6 * tile
+        wz = wp.abs(hx[2] - hit[2]) + wp.abs(hy[2] - hit[2]) + 1.0e-6 * tile
+    wx = wp.min(wx / tile, 4.0)
+    wz = wp.min(wz / tile, 4.0)
+    checker = 0.5 - 0.5 * _box_filtered_stripe(hit[0] / tile, wx) * _box_filtered_stripe(hit[2] / tile, wz)
+    return color_a + (color_b - color_a) * checker
+
+
 @wp.kernel
 def ground_kernel(
-    i0: int,
-    j0: int,
     has_ground: int,
     eye: wp.vec3,
     right: wp.vec3,
@@ -310,30 +341,17 @@ def ground_kernel(
     color_b: wp.vec3,
     background: wp.vec3,
     lit: float,
-    shadowed: float,
-    use_shadow: int,
-    smap: wp.array2d(dtype=float),
-    la: wp.vec3,
-    lb: wp.vec3,
-    lw: wp.vec3,
-    s_u0: float,
-    s_v0: float,
-    s_scale: float,
-    s_bias: float,
     depth: wp.array2d(dtype=float),
     image: wp.array2d(dtype=wp.vec3),
 ):
     """One thread per pixel: clears to the background or ray-casts the ground plane y = ground_y.
 
     The plane carries a box-filtered checkerboard that fades into the background with distance
-    from ``center`` (no horizon aliasing), optionally darkened by a 3x3 PCF shadow-map lookup.
-    The launch may cover a sub-rectangle whose top-left pixel is (i0, j0).
+    from ``center`` between ``fade0`` and ``fade1`` metres (no aliasing towards the horizon).
     """
-    ti, tj = wp.tid()
-    i = ti + i0
-    j = tj + j0
+    i, j = wp.tid()
     color = background
-    inv_depth = float(0.0)
+    inv_depth = 0.0
     if has_ground != 0:
         fx = float(j) + 0.5
         fy = float(i) + 0.5
@@ -344,44 +362,83 @@ def ground_kernel(
             r = wp.length(wp.vec2(hit[0] - center[0], hit[2] - center[2]))
             fade = wp.clamp((r - fade0) / (fade1 - fade0), 0.0, 1.0)
             if fade < 1.0:
-                # Pixel footprint on the plane from the neighbouring pixels' rays.
-                dx = _ray_dir(right, up, fwd, focal, cx, cy, fx + 1.0, fy)
-                dy = _ray_dir(right, up, fwd, focal, cx, cy, fx, fy + 1.0)
-                wx = 4.0 * tile
-                wz = 4.0 * tile
-                if dx[1] < 0.0 and dy[1] < 0.0:
-                    hx = eye + dx * ((ground_y - eye[1]) / dx[1])
-                    hy = eye + dy * ((ground_y - eye[1]) / dy[1])
-                    wx = wp.abs(hx[0] - hit[0]) + wp.abs(hy[0] - hit[0]) + 1.0e-6 * tile
-                    wz = wp.abs(hx[2] - hit[2]) + wp.abs(hy[2] - hit[2]) + 1.0e-6 * tile
-                wx = wp.min(wx / tile, 4.0)
-                wz = wp.min(wz / tile, 4.0)
-                checker = 0.5 - 0.5 * _box_filtered_stripe(hit[0] / tile, wx) * _box_filtered_stripe(
-                    hit[2] / tile, wz
+                base = _ground_base(
+                    eye, right, up, fwd, focal, cx, cy, fx, fy, hit, ground_y, tile, color_a, color_b
                 )
-                base = color_a + (color_b - color_a) * checker
-                shade = lit
-                if use_shadow != 0:
-                    su = (wp.dot(hit, la) - s_u0) * s_scale
-                    sv = (wp.dot(hit, lb) - s_v0) * s_scale
-                    n = smap.shape[0]
-                    if su > -2.0 and sv > -2.0 and su < float(n) + 2.0 and sv < float(n) + 2.0:
-                        h = wp.dot(hit, lw) + s_bias
-                        iu = int(wp.floor(su))
-                        iv = int(wp.floor(sv))
-                        occluded = float(0.0)
-                        for di in range(-1, 2):
-                            for dj in range(-1, 2):
-                                ri = iv + di
-                                rj = iu + dj
-                                if ri >= 0 and ri < n and rj >= 0 and rj < n:
-                                    if smap[ri, rj] > h:
-                                        occluded += 1.0
-                        shade = lit + (shadowed - lit) * occluded / 9.0
-                color = base * shade * (1.0 - fade) + background * fade
+                color = base * lit * (1.0 - fade) + background * fade
             inv_depth = 1.0 / (t * focal)
     depth[i, j] = inv_depth
     image[i, j] = color
+
+
+@wp.kernel
+def ground_shadow_kernel(
+    i0: int,
+    j0: int,
+    eye: wp.vec3,
+    right: wp.vec3,
+    up: wp.vec3,
+    fwd: wp.vec3,
+    focal: float,
+    cx: float,
+    cy: float,
+    ground_y: float,
+    tile: float,
+    center: wp.vec3,
+    fade0: float,
+    fade1: float,
+    color_a: wp.vec3,
+    color_b: wp.vec3,
+    background: wp.vec3,
+    lit: float,
+    shadowed: float,
+    smap: wp.array2d(dtype=float),
+    la: wp.vec3,
+    lb: wp.vec3,
+    lw: wp.vec3,
+    s_u0: float,
+    s_v0: float,
+    s_scale: float,
+    s_bias: float,
+    image: wp.array2d(dtype=wp.vec3),
+):
+    """Re-shades shadowed ground pixels of the sub-rectangle starting at pixel (i0, j0).
+
+    Expects ``image`` to hold the unshadowed ground from ``ground_kernel``; a 3x3 PCF lookup in
+    the light-space height map gives soft shadow edges. Unshadowed pixels are left untouched.
+    """
+    ti, tj = wp.tid()
+    i = ti + i0
+    j = tj + j0
+    fx = float(j) + 0.5
+    fy = float(i) + 0.5
+    d = _ray_dir(right, up, fwd, focal, cx, cy, fx, fy)
+    if d[1] >= 0.0:
+        return
+    hit = eye + d * ((ground_y - eye[1]) / d[1])
+    su = (wp.dot(hit, la) - s_u0) * s_scale
+    sv = (wp.dot(hit, lb) - s_v0) * s_scale
+    n = smap.shape[0]
+    if su < -2.0 or sv < -2.0 or su > float(n) + 2.0 or sv > float(n) + 2.0:
+        return
+    h = wp.dot(hit, lw) + s_bias
+    iu = int(wp.floor(su))
+    iv = int(wp.floor(sv))
+    occluded = 0.0
+    for di in range(-1, 2):
+        for dj in range(-1, 2):
+            ri = iv + di
+            rj = iu + dj
+            if ri >= 0 and ri < n and rj >= 0 and rj < n:
+                if smap[ri, rj] > h:
+                    occluded += 1.0
+    if occluded == 0.0:
+        return
+    r = wp.length(wp.vec2(hit[0] - center[0], hit[2] - center[2]))
+    fade = wp.clamp((r - fade0) / (fade1 - fade0), 0.0, 1.0)
+    base = _ground_base(eye, right, up, fwd, focal, cx, cy, fx, fy, hit, ground_y, tile, color_a, color_b)
+    shade = lit + (shadowed - lit) * occluded / 9.0
+    image[i, j] = base * shade * (1.0 - fade) + background * fade
 
 
 @wp.kernel

@@ -162,6 +162,7 @@ class Renderer:
         self.ground_tile = float(ground_tile) if ground_tile is not None else None
         self.edges = bool(edges)
         self.supersample = int(supersample)
+        self._ground_cache: tuple[tuple, np.ndarray, np.ndarray] | None = None
         self._buffers: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     # ------------------------------------------------------------------------------------------
@@ -252,30 +253,33 @@ class Renderer:
         # The unshadowed ground only depends on the camera and settings: compute it once and
         # copy it per frame; then re-shade just the screen rectangle the shadow can fall in.
         key = (
-            tuple(cam.eye), tuple(cam.target), tuple(cam.up), cam.fov_y, Hs, Ws, has_ground, g,
-            self.ground_tile, tuple(self.background), tuple(self.light_dir), self.ambient,
-        )  # fmt: skip
+            tuple(cam.eye),
+            tuple(cam.target),
+            tuple(cam.up),
+            cam.fov_y,
+            Hs,
+            Ws,
+            has_ground,
+            g,
+            self.ground_tile,
+            tuple(self.background),
+            tuple(self.light_dir),
+            self.ambient,
+        )
         if self._ground_cache is None or self._ground_cache[0] != key:
-            wp.launch(
-                K.ground_kernel,
-                dim=(Hs, Ws),
-                inputs=[0, 0, *ground_args, *shadow_args[:1], *shadow_args[1:], wp_depth, wp_image]
-                if False
-                else [0, 0, *ground_args, 0, *shadow_args[1:], wp_depth, wp_image],
-                device=DEVICE,
-            )
+            wp.launch(K.ground_kernel, dim=(Hs, Ws), inputs=[*ground_args, wp_depth, wp_image], device=DEVICE)
             self._ground_cache = (key, image.copy(), depth.copy())
         else:
             np.copyto(image, self._ground_cache[1])
             np.copyto(depth, self._ground_cache[2])
-        if shadow_args[0]:
+        if shadow_args is not None:
             rect = self._shadow_rect(shadow_args, focal, Hs, Ws)
             if rect is not None:
                 i0, i1, j0, j1 = rect
                 wp.launch(
-                    K.ground_kernel,
+                    K.ground_shadow_kernel,
                     dim=(i1 - i0, j1 - j0),
-                    inputs=[i0, j0, *ground_args, *shadow_args, wp_depth, wp_image],
+                    inputs=[i0, j0, *ground_args[1:], self._shadow_level(), *shadow_args, wp_image],
                     device=DEVICE,
                 )
 
@@ -287,7 +291,12 @@ class Renderer:
                 wp_normals = _wrap(normals, wp.vec3)
                 smooth = self.shading == "smooth"
                 if smooth:
-                    wp.launch(K.vertex_normals_kernel, dim=len(tri), inputs=[wp_world, wp_tri, wp_normals])
+                    wp.launch(
+                        K.vertex_normals_kernel,
+                        dim=len(tri),
+                        inputs=[wp_world, wp_tri, wp_normals],
+                        device=DEVICE,
+                    )
                 wp.launch(
                     K.raster_triangles_kernel,
                     dim=len(tri),
@@ -359,6 +368,66 @@ class Renderer:
         rp = np.maximum(rp, 0.75 * self.supersample)
         return rm.astype(np.float32), rp.astype(np.float32)
 
+    def _ground_inputs(self, has_ground: bool, focal: float, Hs: int, Ws: int) -> list:
+        """Ground-kernel arguments between the launch offset and the shadow arguments."""
+        cam = self.camera
+        right, up, fwd = cam.basis()
+        g = self.ground_height if self.ground_height is not None else 0.0
+        tile = self.ground_tile or _nice_tile(cam.distance / 5.0)
+        center = np.array([cam.target[0], g, cam.target[2]])
+        lit = self.ambient + (1.0 - self.ambient) * max(self.light_dir[1], 0.0)
+        return [
+            int(has_ground),
+            wp.vec3(*cam.eye),
+            wp.vec3(*right),
+            wp.vec3(*up),
+            wp.vec3(*fwd),
+            float(focal),
+            0.5 * Ws,
+            0.5 * Hs,
+            float(g),
+            float(tile),
+            wp.vec3(*center),
+            1.5 * cam.distance,  # checkerboard starts fading into the background here ...
+            5.0 * cam.distance,  # ... and is gone here (metres from the target, on the plane)
+            wp.vec3(*_GROUND_A),
+            wp.vec3(*_GROUND_B),
+            wp.vec3(*self.background),
+            float(lit),
+        ]
+
+    def _shadow_level(self) -> float:
+        """Ground brightness in full shadow: ambient plus a little sky light."""
+        lit = self.ambient + (1.0 - self.ambient) * max(self.light_dir[1], 0.0)
+        return float(self.ambient + 0.3 * (lit - self.ambient))
+
+    def _shadow_rect(self, shadow_args: list, focal: float, Hs: int, Ws: int) -> tuple | None:
+        """Screen rectangle (i0, i1, j0, j1) containing the shadow map's footprint on the ground."""
+        cam = self.camera
+        la, lb, lw = self._light_frame
+        u0, v0, scale = shadow_args[4], shadow_args[5], shadow_args[6]
+        span = _SHADOW_RES / scale
+        g = float(self.ground_height)  # type: ignore[arg-type]
+        corners = []
+        for du in (0.0, span):
+            for dv in (0.0, span):
+                u, v = u0 + du, v0 + dv
+                # Point with light-space coords (u, v) on the plane y = g.
+                w = (g - u * la[1] - v * lb[1]) / lw[1]
+                corners.append(u * la + v * lb + w * lw)
+        right, up, fwd = cam.basis()
+        rel = np.asarray(corners) - cam.eye
+        z = rel @ fwd
+        if np.any(z <= cam.near_plane):
+            return 0, Hs, 0, Ws  # footprint reaches behind the camera: re-shade everything
+        cols = 0.5 * Ws + (rel @ right) * focal / z
+        rows = 0.5 * Hs - (rel @ up) * focal / z
+        j0, j1 = max(int(np.floor(cols.min())) - 1, 0), min(int(np.ceil(cols.max())) + 1, Ws)
+        i0, i1 = max(int(np.floor(rows.min())) - 1, 0), min(int(np.ceil(rows.max())) + 1, Hs)
+        if i0 >= i1 or j0 >= j1:
+            return None
+        return i0, i1, j0, j1
+
     def _shadow_pass(
         self,
         world32: np.ndarray,
@@ -368,18 +437,22 @@ class Renderer:
         radius_px: np.ndarray | None,
         smap: np.ndarray,
         enabled: bool,
-    ) -> list:
-        """Fills the light-space height map and returns the ground kernel's shadow arguments."""
-        zero = wp.vec3(0.0, 0.0, 0.0)
-        wp_smap = _wrap(smap, float)
-        off = [0, wp_smap, zero, zero, zero, 0.0, 0.0, 0.0, 0.0]
+    ) -> list | None:
+        """Fills the light-space height map.
+
+        Returns:
+            The shadow arguments of ``ground_shadow_kernel`` (map, light frame, map origin and
+            scale, depth bias), or None when no shadow is drawn.
+        """
         lw = self.light_dir
         if not (enabled and self.shadows and lw[1] > 0.05):
-            return off
+            return None
+        wp_smap = _wrap(smap, float)
         # Light frame: lw towards the light, (la, lb) span the shadow-map plane.
         la = np.cross(lw, [0.0, 0.0, 1.0] if abs(lw[2]) < 0.9 else [1.0, 0.0, 0.0])
         la /= np.linalg.norm(la)
         lb = np.cross(lw, la)
+        self._light_frame = (la, lb, lw)
         pts = world32.astype(np.float64)
         u, v, h = pts @ la, pts @ lb, pts @ lw
         pad = 0.0 if radius_m is None else float(np.max(radius_m, initial=0.0))
@@ -409,6 +482,15 @@ class Renderer:
                 inputs=[_wrap(ls, wp.vec3), _wrap(rpx, float), _wrap(radius_m, float), wp_smap],
                 device=DEVICE,
             )
-        # Depth bias: a few texels' worth of slope plus a small fraction of the object size.
+        # Depth bias of two texels so a surface resting on the ground does not shadow itself.
         bias = 2.0 / scale
-        return [1, wp_smap, wp.vec3(*la), wp.vec3(*lb), wp.vec3(*lw), float(u0), float(v0), float(scale), bias]
+        return [
+            wp_smap,
+            wp.vec3(*la),
+            wp.vec3(*lb),
+            wp.vec3(*lw),
+            float(u0),
+            float(v0),
+            float(scale),
+            bias,
+        ]

@@ -132,11 +132,11 @@ class ForceSolver(Solver):
             device=self.model.device,
         )
 
-    def minimize(self, t, h, x_tilde, x_ref, v_ref, x_out):
-        """Newton on the incremental potential (provided by the implicit machinery)."""
+    def minimize(self, t, h, x_tilde, x_ref, v_ref, x_out, options=None):
+        """Newton on the incremental potential; ``options``: the integrator's Newton settings."""
         from ._newton import minimize_incremental_potential
 
-        return minimize_incremental_potential(self, t, h, x_tilde, x_ref, v_ref, x_out)
+        return minimize_incremental_potential(self, t, h, x_tilde, x_ref, v_ref, x_out, options)
 
     # ------------------------------------------------------------------ Solver interface
     def step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:

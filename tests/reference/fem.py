@@ -264,5 +264,6 @@ def random_deformations(rng, count: int, *, near_rest: bool) -> list[np.ndarray]
     if near_rest:
         return [I3 + 0.05 * rng.standard_normal((3, 3)) for _ in range(count)]
     return [
-        random_rotation(rng) @ np.diag(rng.uniform(0.6, 2.0, 3)) @ random_rotation(rng).T for _ in range(count)
+        random_rotation(rng) @ np.diag(rng.uniform(0.6, 2.0, 3)) @ random_rotation(rng).T
+        for _ in range(count)
     ]

@@ -1,0 +1,143 @@
+"""``pliant info | bench | study | export``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from importlib import metadata
+from pathlib import Path
+
+from . import EXIT_OK, EXIT_USER, CliError
+
+
+def _version(dist: str) -> str:
+    try:
+        return metadata.version(dist)
+    except metadata.PackageNotFoundError:
+        return "not installed"
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    """Versions, devices and the Warp kernel cache directory."""
+    import warp as wp
+
+    import pliant
+
+    from .._warp import init
+
+    init()
+    rows = [
+        ("pliant", f"{pliant.__version__} ({Path(pliant.__file__).parent})"),
+        ("python", f"{platform.python_version()} ({sys.executable})"),
+        ("platform", platform.platform()),
+        ("warp", wp.config.version),
+    ]
+    for dist in ("numpy", "scipy", "pydantic", "imageio", "imageio-ffmpeg", "meshio", "trimesh", "tetgen"):
+        rows.append((dist, _version(dist)))
+    for dist in ("usd-core", "torch"):
+        rows.append((f"{dist} (optional)", _version(dist)))
+    devices = []
+    for d in wp.get_devices():
+        name = getattr(d, "name", "")
+        devices.append(f"{d.alias} ({name})" if name and name != d.alias else str(d.alias))
+    rows.append(("devices", ", ".join(devices)))
+    rows.append(("cuda", "available" if wp.is_cuda_available() else "not available (CPU only)"))
+    rows.append(("kernel cache", str(wp.config.kernel_cache_dir)))
+    width = max(len(k) for k, _ in rows)
+    for k, v in rows:
+        print(f"{k:<{width}}  {v}")
+    return EXIT_OK
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    """Run benchmarks discovered in ``pliant.bench``; one JSON line each."""
+    from .. import bench
+
+    available = bench.discover()
+    if args.list:
+        for name, fn in sorted(available.items()):
+            doc = (fn.__doc__ or "").strip().splitlines()
+            print(f"{name}  {doc[0] if doc else ''}".rstrip())
+        return EXIT_OK
+    names = args.names or sorted(available)
+    unknown = [n for n in names if n not in available]
+    if unknown:
+        raise CliError(f"unknown benchmark(s) {', '.join(unknown)}; available: {', '.join(sorted(available))}")
+    if not names:
+        raise CliError("no benchmarks found in pliant.bench")
+    status = EXIT_OK
+    sink = open(args.json, "a", encoding="utf-8") if args.json else None  # noqa: SIM115
+    try:
+        for name in names:
+            try:
+                result = bench.run(name, device=args.device, quick=args.quick)
+            except Exception as exc:  # one failing benchmark must not hide the others
+                print(f"pliant: error: benchmark {name}: {type(exc).__name__}: {exc}", file=sys.stderr)
+                status = EXIT_USER
+                continue
+            line = json.dumps(result, default=str)
+            print(line, flush=True)
+            if sink is not None:
+                sink.write(line + "\n")
+                sink.flush()
+    finally:
+        if sink is not None:
+            sink.close()
+    return status
+
+
+def cmd_study(args: argparse.Namespace) -> int:
+    """``pliant study integrators``: calls ``pliant.studies.run_integrator_study``."""
+    try:
+        from ..studies import run_integrator_study
+    except ImportError as exc:
+        raise CliError(f"the integrator study (pliant.studies) is not available in this version ({exc})") from None
+    t0 = time.perf_counter()
+    result = run_integrator_study(Path(args.out), args.quick)
+    print(f"study done in {time.perf_counter() - t0:.1f} s; outputs in {Path(args.out).resolve()}")
+    if isinstance(result, dict):
+        for k, v in result.items():
+            print(f"  {k}: {v}")
+    elif isinstance(result, (list, tuple)):
+        for v in result:
+            print(f"  {v}")
+    return EXIT_OK
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    """``pliant export TRAJ.npz --format ply|obj|usd --out PATH``."""
+    from .. import render
+    from ..io import Trajectory
+
+    traj = Trajectory.load(args.trajectory)
+    out = Path(args.out)
+    fmt = args.format or {".ply": "ply", ".obj": "obj", ".usd": "usd", ".usda": "usd", ".usdc": "usd"}.get(
+        out.suffix.lower()
+    )
+    if fmt is None:
+        raise CliError(f"cannot tell the format from --out {out}; give --format ply, obj or usd")
+    if traj.frame_count == 0:
+        raise CliError(f"{args.trajectory}: the trajectory has no frames")
+    if fmt == "usd":
+        if args.frame is not None:
+            raise CliError("--frame applies to ply/obj; USD stores the whole animation")
+        dt = traj.meta.get("dt")
+        fps = 1.0 / dt if dt else 30.0
+        path = render.export_usd(out, traj.x, traj.faces, fps, t=traj.t)
+        print(f"wrote {path} ({traj.frame_count} frames)")
+        return EXIT_OK
+    single = {"ply": render.export_ply, "obj": render.export_obj}[fmt]
+    if args.frame is not None:
+        k = args.frame
+        if not -traj.frame_count <= k < traj.frame_count:
+            raise CliError(f"--frame {k} out of range: the trajectory has {traj.frame_count} frames")
+        path = single(out, traj.x[k], traj.faces)
+        print(f"wrote {path}")
+        return EXIT_OK
+    seq = {"ply": render.export_ply_sequence, "obj": render.export_obj_sequence}[fmt]
+    paths = seq(out, traj.x, traj.faces)
+    print(f"wrote {len(paths)} {fmt.upper()} files to {out}/ ({paths[0].name} ... {paths[-1].name})")
+    return EXIT_OK

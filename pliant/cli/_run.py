@@ -1,0 +1,167 @@
+"""``pliant run`` and ``pliant demo``: simulate a scene, save the trajectory, render the video."""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from . import EXIT_DIVERGED, EXIT_INTERRUPTED, EXIT_OK, CliError
+
+
+def _load(scene: str) -> Any:
+    from ..io import load_scene
+
+    return load_scene(scene)
+
+
+def _apply_overrides(cfg: Any, args: argparse.Namespace) -> None:
+    """Command-line options replace the scene file's values (already validated by argparse)."""
+    if getattr(args, "frames", None) is not None:
+        cfg.scene.frames = args.frames
+    if getattr(args, "dt", None) is not None:
+        cfg.scene.dt = args.dt
+    if getattr(args, "substeps", None) is not None:
+        if args.substeps < 1:
+            raise CliError("--substeps must be >= 1")
+        cfg.scene.substeps = args.substeps
+    if getattr(args, "integrator", None):
+        from ..io import make_integrator
+
+        make_integrator(args.integrator, source="--integrator", path="integrator")  # fails early if unknown
+        cfg.solver.integrator = args.integrator
+        cfg.solver.integrator_options = {}
+    if getattr(args, "checkpoint_every", None) is not None:
+        cfg.output.checkpoint_every = args.checkpoint_every
+
+
+def simulate(
+    cfg: Any,
+    out: Path,
+    name: str,
+    *,
+    device: str | None = None,
+    dtype: str | None = None,
+    resume: bool = False,
+    video: bool = True,
+    quiet: bool = False,
+    resume_hint: str = "",
+) -> int:
+    """Build, run, save ``<out>/<name>.npz`` (+ ``.mp4``, ``.ckpt.npz``) and print a summary."""
+    from .. import DivergenceError
+    from ..io import build_scene
+
+    scene = build_scene(cfg, device=device, dtype=dtype)
+    m = scene.model
+    out.mkdir(parents=True, exist_ok=True)
+    traj_path, video_path, ckpt = out / f"{name}.npz", out / f"{name}.mp4", out / f"{name}.ckpt.npz"
+    if resume and not ckpt.exists():
+        raise CliError(f"--resume: no checkpoint at {ckpt}; run once without --resume first")
+    sim = scene.simulator()
+    info = sim.solver.describe()
+    counts = f"{m.particle_count} particles, {m.spring_count} springs" + (
+        f", {m.tet_count} tets" if m.tet_count else ""
+    )
+    print(
+        f"{name}: {counts}; {scene.frames} frames x {scene.substeps} substeps (dt {scene.dt:.4g} s), "
+        f"{info.get('solver', type(sim.solver).__name__)}/{info.get('integrator', '-')} on {m.device} {m.dtype}",
+        flush=True,
+    )
+    status, note = EXIT_OK, ""
+    t0 = time.perf_counter()
+    try:
+        traj = sim.run(
+            scene.frames,
+            progress=not quiet,
+            record_velocity=cfg.output.record_velocity,
+            checkpoint=ckpt,
+            checkpoint_every=cfg.output.checkpoint_every,
+            resume=resume,
+        )
+    except KeyboardInterrupt:
+        traj, status = sim.trajectory(), EXIT_INTERRUPTED
+        note = f"interrupted at frame {sim.frame} of {scene.frames}; partial outputs kept" + (
+            f"; resume with: {resume_hint} --resume" if resume_hint else ""
+        )
+    except DivergenceError as exc:
+        traj, status = sim.trajectory(), EXIT_DIVERGED
+        note = str(exc)
+    wall = time.perf_counter() - t0
+    steps = max(traj.frame_count - 1, 0) * scene.substeps
+    written = []
+    if cfg.output.trajectory:
+        traj.meta["scene"] = cfg.scene.name
+        written.append(str(traj.save(traj_path)))
+    rate = f", {m.particle_count * steps / wall:.3g} particle-substeps/s" if wall > 0 and steps else ""
+    print(f"simulated {traj.frame_count - 1} frames in {wall:.2f} s{rate}", flush=True)
+    if video and cfg.output.video and traj.frame_count > 0:
+        t1 = time.perf_counter()
+        try:
+            from ..render import render_video
+
+            render_video(
+                traj.x,
+                video_path,
+                faces=traj.faces,
+                fps=scene.fps,
+                camera=scene.camera,
+                progress=not quiet,
+                ground=m.ground.height if m.ground is not None else False,
+            )
+            written.append(str(video_path))
+            print(f"rendered {traj.frame_count} frames in {time.perf_counter() - t1:.2f} s", flush=True)
+        except KeyboardInterrupt:
+            status = EXIT_INTERRUPTED
+            note = note or "interrupted while rendering; the trajectory is saved"
+    for w in written:
+        print(f"wrote {w}")
+    if status == EXIT_DIVERGED:
+        print(f"pliant: error: {note} (partial outputs kept)", file=sys.stderr)
+    elif status == EXIT_INTERRUPTED:
+        print(f"pliant: {note}", file=sys.stderr)
+    return status
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    """``pliant run SCENE``."""
+    cfg = _load(args.scene)
+    _apply_overrides(cfg, args)
+    hint = ["pliant", "run", args.scene, "--out", args.out]
+    for opt in ("frames", "dt", "substeps", "integrator", "device", "dtype"):
+        val = getattr(args, opt)
+        if val is not None:
+            hint += [f"--{opt}", str(val)]
+    return simulate(
+        cfg,
+        Path(args.out),
+        cfg.scene.name,
+        device=args.device,
+        dtype=args.dtype,
+        resume=args.resume,
+        video=not args.no_video,
+        quiet=args.quiet,
+        resume_hint=shlex.join(hint),
+    )
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """``pliant demo``: the built-in cloth scene, written as ``<out>/demo.mp4`` and ``<out>/demo.npz``."""
+    cfg = _load("cloth")
+    _apply_overrides(cfg, args)
+    out = Path(args.out)
+    t0 = time.perf_counter()
+    status = simulate(
+        cfg,
+        out,
+        "demo",
+        device=args.device,
+        video=not args.no_video,
+        quiet=args.quiet,
+    )
+    print(f"demo done in {time.perf_counter() - t0:.1f} s", flush=True)
+    if not args.no_video and (out / "demo.mp4").exists():
+        print(f"video: {(out / 'demo.mp4').resolve()}")
+    return status

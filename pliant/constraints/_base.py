@@ -1,0 +1,191 @@
+"""The shared XPBD update, greedy graph colouring, and the base class of constraint objects."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+from ..model import Model
+
+
+@wp.func
+def xpbd_delta_lambda(c: Any, w_grad_sq: Any, alpha_tilde: Any, lam: Any):
+    """Δλ = -(C + α̃λ) / (Σ w_i|∇_i C|² + α̃), α̃ = compliance / dt² (Macklin, Müller, Chentanez 2016)."""
+    denom = w_grad_sq + alpha_tilde
+    if denom <= type(c)(0.0):
+        return type(c)(0.0)
+    return -(c + alpha_tilde * lam) / denom
+
+
+@wp.func
+def pbd_delta_lambda(c: Any, w_grad_sq: Any, k: Any):
+    """Δλ = -k' C / Σ w_i|∇_i C|² (Müller et al. 2007, with the iteration-corrected stiffness k')."""
+    if w_grad_sq <= type(c)(0.0):
+        return type(c)(0.0)
+    return -k * c / w_grad_sq
+
+
+@wp.func
+def constraint_delta_lambda(c: Any, w_grad_sq: Any, alpha_tilde: Any, lam: Any, pbd_k: Any):
+    """XPBD Δλ when ``pbd_k`` < 0, otherwise the PBD update with stiffness ``pbd_k`` (λ then unused)."""
+    if pbd_k >= type(c)(0.0):
+        return pbd_delta_lambda(c, w_grad_sq, pbd_k)
+    return xpbd_delta_lambda(c, w_grad_sq, alpha_tilde, lam)
+
+
+def pbd_iteration_stiffness(k: float, iterations: int) -> float:
+    """Müller's k' = 1 − (1 − k)^(1/n): after n iterations the constraint error shrinks by (1 − k)."""
+    if not 0.0 <= k <= 1.0:
+        raise ValueError(f"PBD stiffness k must be in [0, 1], got {k}")
+    return 1.0 - (1.0 - k) ** (1.0 / max(int(iterations), 1))
+
+
+def color_incidence(
+    constraint_ids: np.ndarray, particle_ids: np.ndarray, constraint_count: int, particle_count: int
+) -> np.ndarray:
+    """Greedy colouring of constraints so that no two of one colour share a particle.
+
+    Vectorised rounds (Luby's algorithm): inside a colour, repeatedly take every still-free constraint whose
+    random priority is the smallest at each of its particles — an independent set — until no constraint
+    can join; then open the next colour. Each colour is a maximal independent set, as in sequential greedy;
+    random (seeded) priorities keep the number of rounds logarithmic instead of following id chains.
+
+    Args:
+        constraint_ids: Incidence pairs (constraint, particle): constraint side, int [P].
+        particle_ids: Particle side of the incidence pairs, int [P]. Drop pinned particles beforehand:
+            they never move, so sharing them is no conflict.
+        constraint_count: Number of constraints.
+        particle_count: Number of particles.
+
+    Returns:
+        Colour per constraint, int32 [constraint_count].
+    """
+    cid = np.asarray(constraint_ids, np.int64)
+    pid = np.asarray(particle_ids, np.int64)
+    color = np.full(constraint_count, -1, np.int64)
+    prio = np.random.default_rng(0).permutation(constraint_count)
+    big = np.iinfo(np.int64).max
+    c = 0
+    while np.any(color < 0):
+        used = np.zeros(particle_count, bool)
+        while True:
+            free_c = color[cid] < 0
+            # A constraint can join colour c only if none of its particles is used in colour c.
+            blocked = np.zeros(constraint_count, bool)
+            np.logical_or.at(blocked, cid[free_c], used[pid[free_c]])
+            cand = (color < 0) & ~blocked
+            if not np.any(cand):
+                break
+            mask = cand[cid]
+            owner = np.full(particle_count, big)
+            np.minimum.at(owner, pid[mask], prio[cid[mask]])
+            # A candidate wins if it has the smallest priority at every one of its particles.
+            lose = np.zeros(constraint_count, bool)
+            np.logical_or.at(lose, cid[mask], owner[pid[mask]] != prio[cid[mask]])
+            win = cand & ~lose
+            color[win] = c
+            used[pid[win[cid]]] = True
+        c += 1
+    return color.astype(np.int32)
+
+
+def color_constraints(indices: np.ndarray, inv_mass: np.ndarray) -> np.ndarray:
+    """Colours for constraints with fixed arity, indices [n, k]; pinned particles (w = 0) never conflict."""
+    idx = np.asarray(indices, np.int64)
+    n, k = idx.shape
+    if n == 0:
+        return np.zeros(0, np.int32)
+    cid = np.repeat(np.arange(n), k)
+    pid = idx.reshape(-1)
+    keep = np.asarray(inv_mass)[pid] > 0.0
+    return color_incidence(cid[keep], pid[keep], n, len(inv_mass))
+
+
+def sort_by_color(colors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Permutation grouping constraints by colour, and colour offsets [colour_count + 1]."""
+    order = np.argsort(colors, kind="stable")
+    counts = np.bincount(colors, minlength=int(colors.max()) + 1 if colors.size else 0)
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    return order, offsets
+
+
+class Constraint:
+    """A set of constraints of one kind: indices, rest data, compliance α and multipliers λ.
+
+    Subclasses implement :meth:`bind` (host set-up against a Model) and :meth:`project` (one
+    Gauss–Seidel or Jacobi sweep, launching kernels only). The solver calls, per step,
+    :meth:`begin_step` (reset λ, generate contacts) and, per iteration, :meth:`project`.
+
+    Attributes:
+        compliance: XPBD compliance α (inverse stiffness) per constraint set, or None for the default.
+        stiffness: PBD stiffness k in [0, 1] (used only by :class:`pliant.solvers.PBD`).
+        count: number of constraints once bound.
+    """
+
+    #: Jacobi deltas of unilateral per-particle constraints (ground) need no averaging.
+    uses_deltas = True
+
+    def __init__(self, *, compliance: float | None = None, stiffness: float = 1.0) -> None:
+        if compliance is not None and compliance < 0:
+            raise ValueError(f"compliance must be >= 0, got {compliance}")
+        if not 0.0 <= stiffness <= 1.0:
+            raise ValueError(f"PBD stiffness must be in [0, 1], got {stiffness}")
+        self.compliance = compliance
+        self.stiffness = float(stiffness)
+        self.count = 0
+        self.model: Model | None = None
+        self.lam: wp.array | None = None
+        self.color_offsets = np.zeros(1, np.int64)
+
+    # ------------------------------------------------------------------ host set-up
+    def bind(self, model: Model, coloring: bool) -> None:
+        """Copy indices and rest data to ``model.device``; colour them when ``coloring``."""
+        raise NotImplementedError
+
+    def _colors(self, indices: np.ndarray, coloring: bool) -> tuple[np.ndarray, np.ndarray]:
+        """(permutation, offsets) grouping ``indices`` [n, k] by colour; identity when not colouring."""
+        n = indices.shape[0]
+        if not coloring or n == 0:
+            return np.arange(n), np.array([0, n], np.int64)
+        colors = color_constraints(indices, self.model.particle_inv_mass.numpy())
+        return sort_by_color(colors)
+
+    def color_ranges(self, coloring: bool) -> list[tuple[int, int]]:
+        """(offset, size) launches of one sweep.
+
+        On the CPU Warp runs a launch's threads one after another in thread order, so the whole
+        colour-sorted list in one launch is exactly the colour-by-colour Gauss–Seidel sweep (the same
+        arithmetic in the same order); on CUDA each colour gets its own launch.
+        """
+        off = self.color_offsets
+        if not coloring or wp.get_device(self.model.device).is_cpu:
+            return [(0, self.count)] if self.count else []
+        return [(int(off[c]), int(off[c + 1] - off[c])) for c in range(len(off) - 1) if off[c + 1] > off[c]]
+
+    # ------------------------------------------------------------------ per step
+    def begin_step(self, solver: Any, x: wp.array, p: wp.array, dt: float) -> None:
+        """Reset λ (XPBD multipliers start at 0 every step); contacts are generated here."""
+        if self.lam is not None:
+            self.lam.zero_()
+
+    def project(self, solver: Any, p: wp.array, dt: float) -> None:
+        """One sweep over the constraints, writing ``p`` (Gauss–Seidel) or ``solver`` deltas (Jacobi)."""
+        raise NotImplementedError
+
+    def residual(self, solver: Any, p: wp.array, dt: float, out: wp.array) -> None:
+        """Add Σ (C + α̃λ)² over the constraints into ``out[0]`` and their number into ``out[1]``."""
+
+    def end_step(self, solver: Any, x: wp.array, p: wp.array, v: wp.array, dt: float) -> None:
+        """Velocity pass (friction, restitution) after v = (p − x)/dt."""
+
+    def pbd_k(self, solver: Any) -> float:
+        """The per-iteration PBD stiffness k', or −1 for XPBD (the kernels branch on the sign)."""
+        if getattr(solver, "pbd", False):
+            return pbd_iteration_stiffness(self.stiffness, solver.iterations)
+        return -1.0
+
+    def describe(self) -> dict:
+        """Name, count and compliance for metadata."""
+        return {"constraint": type(self).__name__, "count": self.count, "compliance": self.compliance}

@@ -1,0 +1,550 @@
+"""Unilateral contact constraints C ≥ 0: ground plane, particle–particle, point–triangle."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+from ..collision._hashgrid import ParticleGrid, TriangleBVH
+from ..model import Model
+from ._base import Constraint
+
+
+# ---------------------------------------------------------------------- ground
+@wp.func
+def ground_c(x: Any, normal: Any, d: Any, radius: Any):
+    """C(x) = n·x + d − r ≥ 0  [m] (the lecture's ground constraint, plane n·x + d = 0)."""
+    return wp.dot(normal, x) + d - radius
+
+
+@wp.func
+def ground_grad(x: Any, normal: Any):
+    """∇C = n."""
+    return normal
+
+
+@wp.kernel
+def _project_ground(
+    inv_mass: wp.array(dtype=Any),
+    radius: wp.array(dtype=Any),
+    normal: Any,
+    d: Any,
+    p_io: wp.array(dtype=Any),
+    lam_io: wp.array(dtype=Any),
+):
+    i = wp.tid()
+    w = inv_mass[i]
+    if w == type(w)(0.0):
+        return
+    x = p_io[i]
+    c = ground_c(x, normal, d, radius[i])
+    if c < type(w)(0.0):
+        # |∇C| = 1: Δλ = −C/w and Δx = wΔλ n = −C n (the lecture's Δp = C n with C = min(·, 0)).
+        lam_io[i] = lam_io[i] - c / w
+        p_io[i] = x - c * ground_grad(x, normal)
+
+
+@wp.kernel
+def _ground_velocity(
+    inv_mass: wp.array(dtype=Any),
+    normal: Any,
+    friction: Any,
+    restitution: Any,
+    threshold: Any,
+    inv_dt: Any,
+    lam_in: wp.array(dtype=Any),
+    v_pre_in: wp.array(dtype=Any),
+    v_io: wp.array(dtype=Any),
+):
+    i = wp.tid()
+    lam = lam_in[i]
+    zero = type(lam)(0.0)
+    if lam <= zero:
+        return
+    v = v_io[i]
+    vn = wp.dot(v, normal)
+    vt = v - vn * normal
+    # Coulomb: the tangential velocity change is bounded by μ times the normal one, |Δx_n|/Δt = wλ/Δt.
+    dvn = inv_mass[i] * lam * inv_dt
+    st = wp.length(vt)
+    scale = zero
+    if st > zero:
+        scale = wp.max(st - friction * dvn, zero) / st
+    vn_pre = wp.dot(v_pre_in[i], normal)
+    vn_new = wp.max(vn, zero)
+    if vn_pre < -threshold:
+        vn_new = -restitution * vn_pre
+    v_io[i] = vt * scale + vn_new * normal
+
+
+class Ground(Constraint):
+    """Ground plane: C(x_i) = n·x_i + d − r_i ≥ 0, plus Coulomb friction and restitution on velocities.
+
+    Positions are projected onto the plane (Δx = −C n when C < 0); after v = (p − x)/Δt the velocity
+    pass of Müller et al. ("Detailed rigid body simulation with XPBD", 2020) limits the tangential
+    velocity change to μ|Δx_n|/Δt and sets v_n = −e ṽ_n from the pre-solve normal velocity ṽ_n.
+
+    Args:
+        normal: plane normal n (normalised); default +y.
+        offset: d [m]; default −height of ``model.ground`` (so the plane is y = height).
+        friction: μ; default ``model.ground.friction``.
+        restitution: e in [0, 1]; default ``model.ground.restitution``.
+    """
+
+    uses_deltas = False
+
+    def __init__(
+        self,
+        *,
+        normal: Any = (0.0, 1.0, 0.0),
+        offset: float | None = None,
+        friction: float | None = None,
+        restitution: float | None = None,
+    ) -> None:
+        super().__init__(compliance=0.0)
+        n = np.asarray(normal, float).reshape(3)
+        if np.linalg.norm(n) == 0:
+            raise ValueError("Ground: normal must be non-zero")
+        self.normal = n / np.linalg.norm(n)
+        self._offset, self._friction, self._restitution = offset, friction, restitution
+
+    def bind(self, model: Model, coloring: bool) -> None:
+        """Resolve plane and material from ``model.ground``; one multiplier per particle."""
+        self.model = model
+        g = model.ground
+        self.offset = float(self._offset if self._offset is not None else (-g.height if g else 0.0))
+        self.friction = float(self._friction if self._friction is not None else (g.friction if g else 0.0))
+        self.restitution = float(
+            self._restitution if self._restitution is not None else (g.restitution if g else 0.0)
+        )
+        if self.friction < 0 or not 0 <= self.restitution <= 1:
+            raise ValueError("Ground: friction must be >= 0 and restitution in [0, 1]")
+        self.count = model.particle_count
+        self.lam = wp.zeros(self.count, dtype=model.scalar, device=model.device)
+
+    def project(self, solver: Any, p: wp.array, dt: float) -> None:
+        """Push particles onto the plane (each thread touches only its own particle)."""
+        m = self.model
+        wp.launch(
+            _project_ground,
+            self.count,
+            [m.particle_inv_mass, m.particle_radius, m.vec3(*self.normal), m.s(self.offset), p, self.lam],
+            device=m.device,
+        )
+
+    def end_step(self, solver: Any, x: wp.array, p: wp.array, v: wp.array, dt: float) -> None:
+        """Friction and restitution for the particles the plane pushed this step."""
+        m = self.model
+        g = float(np.linalg.norm(m.gravity))
+        wp.launch(
+            _ground_velocity,
+            self.count,
+            [
+                m.particle_inv_mass,
+                m.vec3(*self.normal),
+                m.s(self.friction),
+                m.s(self.restitution),
+                m.s(2.0 * g * dt),  # below this approach speed a contact rests instead of bouncing
+                m.s(1.0 / dt),
+                self.lam,
+                solver.v_pred,
+                v,
+            ],
+            device=m.device,
+        )
+
+
+# ---------------------------------------------------------------------- particle–particle
+@wp.func
+def particle_collision_c(xi: Any, xj: Any, ri: Any, rj: Any):
+    """C(x_i, x_j) = |x_i − x_j| − r_i − r_j ≥ 0  [m]."""
+    return wp.length(xi - xj) - ri - rj
+
+
+@wp.kernel
+def _project_particle_collision(
+    grid: wp.uint64,
+    inv_mass: wp.array(dtype=Any),
+    radius: wp.array(dtype=Any),
+    query_radius: Any,
+    p_in: wp.array(dtype=Any),
+    delta_out: wp.array(dtype=Any),
+    count_out: wp.array(dtype=wp.int32),
+):
+    i = wp.tid()
+    wi = inv_mass[i]
+    zero = type(wi)(0.0)
+    if wi == zero:
+        return
+    xi = p_in[i]
+    ri = radius[i]
+    acc = xi * zero
+    n_hit = int(0)
+    for j in wp.hash_grid_query(grid, xi, query_radius):
+        if j != i:
+            wj = inv_mass[j]
+            d = xi - p_in[j]
+            l = wp.length(d)
+            c = l - ri - radius[j]
+            if c < zero and l > zero:
+                # The lecture's mass-weighted split: particle i moves w_i/(w_i + w_j) of the overlap.
+                acc = acc - (wi / (wi + wj)) * c * (d / l)
+                n_hit += 1
+    if n_hit > 0:
+        # Each thread writes only its own particle: no conflicts, the pairs are symmetric.
+        delta_out[i] = delta_out[i] + acc
+        count_out[i] = count_out[i] + n_hit
+
+
+class ParticleCollision(Constraint):
+    """Particle–particle contact: C = |x_i − x_j| − r_i − r_j ≥ 0, broad phase by ``wp.HashGrid``.
+
+    Each particle moves by Δx_i = −w_i/(w_i + w_j) C n̂ for every overlapping neighbour (the lecture's
+    formula); the corrections are accumulated per particle and averaged (Jacobi), whatever the schedule,
+    because contacts change every step and are not worth colouring.
+
+    Args:
+        cell_size: hash-grid cell [m]; default twice the largest particle radius.
+        particles: restrict to these particle indices (default all) — not yet supported; all collide.
+    """
+
+    def __init__(self, *, cell_size: float | None = None) -> None:
+        super().__init__(compliance=0.0)
+        self._cell = cell_size
+
+    def bind(self, model: Model, coloring: bool) -> None:
+        """Allocate the hash grid."""
+        self.model = model
+        rmax = float(model.particle_radius.numpy().max())
+        if rmax <= 0:
+            raise ValueError("ParticleCollision: particles need a radius > 0 (ModelBuilder radius=)")
+        self.query_radius = 2.0 * rmax
+        self.grid = ParticleGrid(model.device, model.dtype, self._cell or self.query_radius)
+        self.count = model.particle_count
+
+    def begin_step(self, solver: Any, x: wp.array, p: wp.array, dt: float) -> None:
+        """Rebuild the grid over the predicted positions."""
+        self.grid.build(p)
+
+    def project(self, solver: Any, p: wp.array, dt: float) -> None:
+        """Accumulate contact corrections into ``solver.delta``."""
+        m = self.model
+        wp.launch(
+            _project_particle_collision,
+            self.count,
+            [
+                self.grid.id,
+                m.particle_inv_mass,
+                m.particle_radius,
+                m.s(self.query_radius),
+                p,
+                solver.delta,
+                solver.delta_count,
+            ],
+            device=m.device,
+        )
+
+
+# ---------------------------------------------------------------------- point–triangle
+@wp.func
+def point_triangle_c(q: Any, x1: Any, x2: Any, x3: Any, side: Any, h: Any):
+    """C = s (q − x1)·n̂ − h ≥ 0, n̂ = (x2 − x1)×(x3 − x1)/|·|, s = ±1 the side q started on  [m]."""
+    n = wp.cross(x2 - x1, x3 - x1)
+    ln = wp.length(n)
+    if ln == type(h)(0.0):
+        return type(h)(0.0)
+    return side * wp.dot(q - x1, n) / ln - h
+
+
+@wp.func
+def point_triangle_grad(q: Any, x1: Any, x2: Any, x3: Any, side: Any):
+    """∇_q = s n̂, ∇_2 = s b × u, ∇_3 = s u × a, ∇_1 = −Σ; a = x2 − x1, b = x3 − x1, u = (I − n̂n̂ᵀ)(q − x1)/|a × b|."""
+    a = x2 - x1
+    b = x3 - x1
+    n = wp.cross(a, b)
+    ln = wp.length(n)
+    zero = type(side)(0.0)
+    gq = n * zero
+    g2 = n * zero
+    g3 = n * zero
+    if ln > zero:
+        nh = n / ln
+        r = q - x1
+        u = (r - wp.dot(r, nh) * nh) / ln
+        gq = side * nh
+        g2 = side * wp.cross(b, u)
+        g3 = side * wp.cross(u, a)
+    return gq, -(gq + g2 + g3), g2, g3
+
+
+@wp.func
+def plane_barycentric(q: Any, a: Any, b: Any, c: Any):
+    """Barycentric (u, v, w) of the projection of q onto the plane of triangle abc."""
+    v0 = b - a
+    v1 = c - a
+    v2 = q - a
+    d00 = wp.dot(v0, v0)
+    d01 = wp.dot(v0, v1)
+    d11 = wp.dot(v1, v1)
+    d20 = wp.dot(v2, v0)
+    d21 = wp.dot(v2, v1)
+    den = d00 * d11 - d01 * d01
+    one = type(d00)(1.0)
+    if den == type(d00)(0.0):
+        return type(q)(-one, -one, -one)
+    v = (d11 * d20 - d01 * d21) / den
+    w = (d00 * d21 - d01 * d20) / den
+    return type(q)(one - v - w, v, w)
+
+
+@wp.kernel
+def _detect_point_triangle(
+    mesh: wp.uint64,
+    tri_indices: wp.array2d(dtype=wp.int32),
+    inv_mass: wp.array(dtype=Any),
+    thickness: Any,
+    margin: Any,
+    x_in: wp.array(dtype=Any),
+    p_in: wp.array(dtype=Any),
+    capacity: int,
+    contact_count: wp.array(dtype=wp.int32),
+    contact_particle: wp.array(dtype=wp.int32),
+    contact_tri: wp.array(dtype=wp.int32),
+    contact_side: wp.array(dtype=Any),
+):
+    q = wp.tid()
+    xq = x_in[q]
+    pq = p_in[q]
+    zero = type(thickness)(0.0)
+    reach = thickness + margin
+    lo = wp.min(xq, pq)
+    hi = wp.max(xq, pq)
+    lo32 = wp.vec3(wp.float32(lo[0] - reach), wp.float32(lo[1] - reach), wp.float32(lo[2] - reach))
+    hi32 = wp.vec3(wp.float32(hi[0] + reach), wp.float32(hi[1] + reach), wp.float32(hi[2] + reach))
+    for t in wp.mesh_query_aabb(mesh, lo32, hi32):
+        i1 = tri_indices[t, 0]
+        i2 = tri_indices[t, 1]
+        i3 = tri_indices[t, 2]
+        if q == i1 or q == i2 or q == i3:
+            continue
+        if inv_mass[q] + inv_mass[i1] + inv_mass[i2] + inv_mass[i3] == zero:
+            continue
+        # Which side q started on decides the sign of the constraint (the lecture's two forms).
+        n0 = wp.cross(x_in[i2] - x_in[i1], x_in[i3] - x_in[i1])
+        s0 = wp.dot(xq - x_in[i1], n0)
+        if s0 == zero:
+            continue
+        side = type(thickness)(1.0)
+        if s0 < zero:
+            side = type(thickness)(-1.0)
+        a = p_in[i1]
+        b = p_in[i2]
+        c = p_in[i3]
+        bary = plane_barycentric(pq, a, b, c)
+        tol = type(thickness)(-0.01)
+        if bary[0] < tol or bary[1] < tol or bary[2] < tol:
+            continue
+        if point_triangle_c(pq, a, b, c, side, thickness) < margin:
+            k = wp.atomic_add(contact_count, 0, 1)
+            if k < capacity:
+                contact_particle[k] = q
+                contact_tri[k] = t
+                contact_side[k] = side
+
+
+@wp.kernel
+def _project_point_triangle(
+    tri_indices: wp.array2d(dtype=wp.int32),
+    inv_mass: wp.array(dtype=Any),
+    thickness: Any,
+    capacity: int,
+    contact_count: wp.array(dtype=wp.int32),
+    contact_particle: wp.array(dtype=wp.int32),
+    contact_tri: wp.array(dtype=wp.int32),
+    contact_side: wp.array(dtype=Any),
+    p_in: wp.array(dtype=Any),
+    delta_out: wp.array(dtype=Any),
+    count_out: wp.array(dtype=wp.int32),
+):
+    k = wp.tid()
+    if k >= wp.min(contact_count[0], capacity):
+        return
+    q = contact_particle[k]
+    t = contact_tri[k]
+    i1 = tri_indices[t, 0]
+    i2 = tri_indices[t, 1]
+    i3 = tri_indices[t, 2]
+    xq = p_in[q]
+    x1 = p_in[i1]
+    x2 = p_in[i2]
+    x3 = p_in[i3]
+    side = contact_side[k]
+    c = point_triangle_c(xq, x1, x2, x3, side, thickness)
+    if c >= type(thickness)(0.0):
+        return
+    gq, g1, g2, g3 = point_triangle_grad(xq, x1, x2, x3, side)
+    wq = inv_mass[q]
+    w1 = inv_mass[i1]
+    w2 = inv_mass[i2]
+    w3 = inv_mass[i3]
+    wgs = wq * wp.dot(gq, gq) + w1 * wp.dot(g1, g1) + w2 * wp.dot(g2, g2) + w3 * wp.dot(g3, g3)
+    if wgs == type(thickness)(0.0):
+        return
+    dl = -c / wgs
+    wp.atomic_add(delta_out, q, (wq * dl) * gq)
+    wp.atomic_add(delta_out, i1, (w1 * dl) * g1)
+    wp.atomic_add(delta_out, i2, (w2 * dl) * g2)
+    wp.atomic_add(delta_out, i3, (w3 * dl) * g3)
+    wp.atomic_add(count_out, q, 1)
+    wp.atomic_add(count_out, i1, 1)
+    wp.atomic_add(count_out, i2, 1)
+    wp.atomic_add(count_out, i3, 1)
+
+
+@wp.kernel
+def _point_triangle_min_c(
+    tri_indices: wp.array2d(dtype=wp.int32),
+    thickness: Any,
+    capacity: int,
+    contact_count: wp.array(dtype=wp.int32),
+    contact_particle: wp.array(dtype=wp.int32),
+    contact_tri: wp.array(dtype=wp.int32),
+    contact_side: wp.array(dtype=Any),
+    p_in: wp.array(dtype=Any),
+    out: wp.array(dtype=Any),
+):
+    k = wp.tid()
+    if k >= wp.min(contact_count[0], capacity):
+        return
+    t = contact_tri[k]
+    c = point_triangle_c(
+        p_in[contact_particle[k]],
+        p_in[tri_indices[t, 0]],
+        p_in[tri_indices[t, 1]],
+        p_in[tri_indices[t, 2]],
+        contact_side[k],
+        thickness,
+    )
+    wp.atomic_min(out, 0, c)
+
+
+class PointTriangleCollision(Constraint):
+    """Point–triangle contact with thickness h: C = s (q − x1)·n̂ − h ≥ 0 (the lecture's collision).
+
+    Contacts are generated once per step (Algorithm 1, line 7): a particle q whose swept box x → p comes
+    within h + margin of a triangle it is not a vertex of, and whose projection falls inside it, gets a
+    contact with s = ±1 the side q was on at the start of the step. The gradient is exact (the triangle's
+    vertices move too; see :func:`point_triangle_grad`). Corrections are averaged (Jacobi).
+
+    Args:
+        thickness: h [m].
+        triangles: [T, 3]; default ``model.tri_indices`` (cloth self-collision and collisions with any other
+            triangle mesh in the model: pin its particles to make it a static obstacle).
+        margin: extra detection distance [m] (default h).
+        capacity: most contacts per step (extra ones are dropped; see :attr:`overflow`).
+    """
+
+    def __init__(
+        self,
+        *,
+        thickness: float = 0.01,
+        triangles: Any = None,
+        margin: float | None = None,
+        capacity: int | None = None,
+    ) -> None:
+        super().__init__(compliance=0.0)
+        if thickness <= 0:
+            raise ValueError(f"PointTriangleCollision: thickness must be > 0 m, got {thickness}")
+        self.thickness = float(thickness)
+        self.margin = float(thickness if margin is None else margin)
+        self._tris = triangles
+        self._capacity = capacity
+
+    def bind(self, model: Model, coloring: bool) -> None:
+        """Build the BVH and the contact buffers."""
+        self.model = model
+        tris = model.tri_indices.numpy() if self._tris is None else np.asarray(self._tris, np.int32)
+        tris = tris.reshape(-1, 3)
+        if tris.shape[0] == 0:
+            raise ValueError("PointTriangleCollision: the model has no triangles; pass triangles=")
+        d, f = model.device, model.scalar
+        self.tri_indices = wp.array(tris, dtype=wp.int32, device=d)
+        self.bvh = TriangleBVH(d, tris, model.particle_count)
+        self.capacity = int(self._capacity or 8 * model.particle_count)
+        self.contact_count = wp.zeros(1, dtype=wp.int32, device=d)
+        self.contact_particle = wp.zeros(self.capacity, dtype=wp.int32, device=d)
+        self.contact_tri = wp.zeros(self.capacity, dtype=wp.int32, device=d)
+        self.contact_side = wp.zeros(self.capacity, dtype=f, device=d)
+        self._min = wp.zeros(1, dtype=f, device=d)
+        self.count = self.capacity
+
+    def begin_step(self, solver: Any, x: wp.array, p: wp.array, dt: float) -> None:
+        """Refit the BVH at the predicted positions and generate this step's contacts."""
+        m = self.model
+        self.bvh.update(p)
+        self.contact_count.zero_()
+        wp.launch(
+            _detect_point_triangle,
+            m.particle_count,
+            [
+                self.bvh.id,
+                self.tri_indices,
+                m.particle_inv_mass,
+                m.s(self.thickness),
+                m.s(self.margin),
+                x,
+                p,
+                self.capacity,
+                self.contact_count,
+                self.contact_particle,
+                self.contact_tri,
+                self.contact_side,
+            ],
+            device=m.device,
+        )
+
+    def _contact_args(self) -> list:
+        return [
+            self.capacity,
+            self.contact_count,
+            self.contact_particle,
+            self.contact_tri,
+            self.contact_side,
+        ]
+
+    def project(self, solver: Any, p: wp.array, dt: float) -> None:
+        """Accumulate contact corrections into ``solver.delta``."""
+        m = self.model
+        wp.launch(
+            _project_point_triangle,
+            self.capacity,
+            [
+                self.tri_indices,
+                m.particle_inv_mass,
+                m.s(self.thickness),
+                *self._contact_args(),
+                p,
+                solver.delta,
+                solver.delta_count,
+            ],
+            device=m.device,
+        )
+
+    def min_value(self, p: wp.array) -> float:
+        """Smallest C over this step's contacts at positions ``p`` [m] (host sync; for tests)."""
+        m = self.model
+        self._min.fill_(1e30)
+        wp.launch(
+            _point_triangle_min_c,
+            self.capacity,
+            [self.tri_indices, m.s(self.thickness), *self._contact_args(), p, self._min],
+            device=m.device,
+        )
+        return float(self._min.numpy()[0])
+
+    @property
+    def overflow(self) -> bool:
+        """Whether the last step found more contacts than ``capacity`` (host sync)."""
+        return int(self.contact_count.numpy()[0]) > self.capacity

@@ -1,0 +1,389 @@
+"""Four-particle constraints: dihedral bending and tetrahedral volume."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+from ..model import Model
+from ._base import Constraint, constraint_delta_lambda
+
+
+# ---------------------------------------------------------------------- dihedral bending
+@wp.func
+def dihedral_angle(x0: Any, x1: Any, x2: Any, x3: Any):
+    """θ = atan2((n̂1 × n̂2)·ê, n̂1·n̂2), e = x1 − x0, n1 = e × (x2 − x0), n2 = (x3 − x0) × e  [rad].
+
+    The signed angle between the two triangle normals about the shared edge: 0 when flat, ±π when folded
+    shut. It equals the lecture's arccos(n̂1·n̂2) up to sign but, unlike arccos, has a bounded derivative
+    at 0 and π.
+    """
+    e = x1 - x0
+    n1 = wp.cross(e, x2 - x0)
+    n2 = wp.cross(x3 - x0, e)
+    le = wp.length(e)
+    zero = type(le)(0.0)
+    if le == zero:
+        return zero
+    # Unnormalised sin/cos: atan2 is scale-invariant, so one division suffices.
+    return wp.atan2(wp.dot(wp.cross(n1, n2), e) / le, wp.dot(n1, n2))
+
+
+@wp.func
+def wrap_angle(a: Any):
+    """a wrapped into (−π, π]  [rad]."""
+    pi = type(a)(wp.pi)
+    two_pi = type(a)(2.0 * wp.pi)
+    if a > pi:
+        a = a - two_pi
+    if a <= -pi:
+        a = a + two_pi
+    return a
+
+
+@wp.func
+def dihedral_c(x0: Any, x1: Any, x2: Any, x3: Any, rest: Any):
+    """C = wrap(θ(x) − θ0) ∈ (−π, π]  [rad]; continuous through the folded state θ = ±π."""
+    return wrap_angle(dihedral_angle(x0, x1, x2, x3) - rest)
+
+
+@wp.func
+def dihedral_grad(x0: Any, x1: Any, x2: Any, x3: Any):
+    """∇θ (Bridson, Marino, Fedkiw 2003): ∇_2 = −|e| n1/|n1|², ∇_3 = −|e| n2/|n2|², edge ends by lever rule.
+
+    With s_k = (x_k − x0)·e/|e|², ∇_0 = −(1 − s2)∇_2 − (1 − s3)∇_3 and ∇_1 = −s2 ∇_2 − s3 ∇_3, so the
+    gradients sum to zero and their moments cancel. Zero for a degenerate (zero-area) triangle.
+    """
+    e = x1 - x0
+    n1 = wp.cross(e, x2 - x0)
+    n2 = wp.cross(x3 - x0, e)
+    ee = wp.dot(e, e)
+    a1 = wp.dot(n1, n1)
+    a2 = wp.dot(n2, n2)
+    zero = type(ee)(0.0)
+    g0 = e * zero
+    g1 = e * zero
+    g2 = e * zero
+    g3 = e * zero
+    if ee > zero and a1 > zero and a2 > zero:
+        le = wp.sqrt(ee)
+        g2 = n1 * (-le / a1)
+        g3 = n2 * (-le / a2)
+        s2 = wp.dot(x2 - x0, e) / ee
+        s3 = wp.dot(x3 - x0, e) / ee
+        one = type(ee)(1.0)
+        g0 = -(one - s2) * g2 - (one - s3) * g3
+        g1 = -s2 * g2 - s3 * g3
+    return g0, g1, g2, g3
+
+
+# ---------------------------------------------------------------------- tetrahedral volume
+@wp.func
+def tet_volume(x0: Any, x1: Any, x2: Any, x3: Any):
+    """V = (1/6) ((x1 − x0) × (x2 − x0)) · (x3 − x0)  [m³], positive for a positively oriented tet."""
+    return wp.dot(wp.cross(x1 - x0, x2 - x0), x3 - x0) / type(x0[0])(6.0)
+
+
+@wp.func
+def volume_c(x0: Any, x1: Any, x2: Any, x3: Any, rest: Any):
+    """C = V(x) − V0  [m³]."""
+    return tet_volume(x0, x1, x2, x3) - rest
+
+
+@wp.func
+def volume_grad(x0: Any, x1: Any, x2: Any, x3: Any):
+    """∇_1 = (x2 − x0) × (x3 − x0)/6, ∇_2 = (x3 − x0) × (x1 − x0)/6, ∇_3 = (x1 − x0) × (x2 − x0)/6, ∇_0 = −Σ."""
+    sixth = type(x0[0])(1.0 / 6.0)
+    g1 = wp.cross(x2 - x0, x3 - x0) * sixth
+    g2 = wp.cross(x3 - x0, x1 - x0) * sixth
+    g3 = wp.cross(x1 - x0, x2 - x0) * sixth
+    return -(g1 + g2 + g3), g1, g2, g3
+
+
+# ---------------------------------------------------------------------- shared update
+@wp.func
+def _apply4(
+    i0: int,
+    i1: int,
+    i2: int,
+    i3: int,
+    w0: Any,
+    w1: Any,
+    w2: Any,
+    w3: Any,
+    g0: Any,
+    g1: Any,
+    g2: Any,
+    g3: Any,
+    dl: Any,
+    jacobi: int,
+    p_io: wp.array(dtype=Any),
+    delta_out: wp.array(dtype=Any),
+    count_out: wp.array(dtype=wp.int32),
+):
+    if jacobi != 0:
+        wp.atomic_add(delta_out, i0, (w0 * dl) * g0)
+        wp.atomic_add(delta_out, i1, (w1 * dl) * g1)
+        wp.atomic_add(delta_out, i2, (w2 * dl) * g2)
+        wp.atomic_add(delta_out, i3, (w3 * dl) * g3)
+        wp.atomic_add(count_out, i0, 1)
+        wp.atomic_add(count_out, i1, 1)
+        wp.atomic_add(count_out, i2, 1)
+        wp.atomic_add(count_out, i3, 1)
+    else:
+        p_io[i0] = p_io[i0] + (w0 * dl) * g0
+        p_io[i1] = p_io[i1] + (w1 * dl) * g1
+        p_io[i2] = p_io[i2] + (w2 * dl) * g2
+        p_io[i3] = p_io[i3] + (w3 * dl) * g3
+
+
+@wp.kernel
+def _project_four(
+    # Constraints:
+    indices: wp.array2d(dtype=wp.int32),
+    rest: wp.array(dtype=Any),
+    compliance: wp.array(dtype=Any),
+    # Model:
+    inv_mass: wp.array(dtype=Any),
+    # Parameters:
+    kind: int,
+    inv_dt2: Any,
+    pbd_k: Any,
+    offset: int,
+    jacobi: int,
+    # In/out:
+    p_io: wp.array(dtype=Any),
+    lam_io: wp.array(dtype=Any),
+    delta_out: wp.array(dtype=Any),
+    count_out: wp.array(dtype=wp.int32),
+):
+    s = offset + wp.tid()
+    i0 = indices[s, 0]
+    i1 = indices[s, 1]
+    i2 = indices[s, 2]
+    i3 = indices[s, 3]
+    x0 = p_io[i0]
+    x1 = p_io[i1]
+    x2 = p_io[i2]
+    x3 = p_io[i3]
+    w0 = inv_mass[i0]
+    w1 = inv_mass[i1]
+    w2 = inv_mass[i2]
+    w3 = inv_mass[i3]
+    c = rest[s] * type(rest[s])(0.0)
+    g0 = x0 * c
+    g1 = x0 * c
+    g2 = x0 * c
+    g3 = x0 * c
+    if kind == 0:
+        c = dihedral_c(x0, x1, x2, x3, rest[s])
+        g0, g1, g2, g3 = dihedral_grad(x0, x1, x2, x3)
+    else:
+        c = volume_c(x0, x1, x2, x3, rest[s])
+        g0, g1, g2, g3 = volume_grad(x0, x1, x2, x3)
+    wgs = w0 * wp.dot(g0, g0) + w1 * wp.dot(g1, g1) + w2 * wp.dot(g2, g2) + w3 * wp.dot(g3, g3)
+    lam = lam_io[s]
+    dl = constraint_delta_lambda(c, wgs, compliance[s] * inv_dt2, lam, pbd_k)
+    lam_io[s] = lam + dl
+    _apply4(i0, i1, i2, i3, w0, w1, w2, w3, g0, g1, g2, g3, dl, jacobi, p_io, delta_out, count_out)
+
+
+@wp.kernel
+def _residual_four(
+    indices: wp.array2d(dtype=wp.int32),
+    rest: wp.array(dtype=Any),
+    compliance: wp.array(dtype=Any),
+    kind: int,
+    inv_dt2: Any,
+    p_in: wp.array(dtype=Any),
+    lam_in: wp.array(dtype=Any),
+    out: wp.array(dtype=Any),
+):
+    s = wp.tid()
+    x0 = p_in[indices[s, 0]]
+    x1 = p_in[indices[s, 1]]
+    x2 = p_in[indices[s, 2]]
+    x3 = p_in[indices[s, 3]]
+    c = rest[s]
+    if kind == 0:
+        c = dihedral_c(x0, x1, x2, x3, rest[s])
+    else:
+        c = volume_c(x0, x1, x2, x3, rest[s])
+    r = c + compliance[s] * inv_dt2 * lam_in[s]
+    wp.atomic_add(out, 0, r * r)
+    wp.atomic_add(out, 1, type(r)(1.0))
+
+
+class _FourPoint(Constraint):
+    _kind = 0
+    _name = ""
+
+    def __init__(self, indices: Any, rest: Any, compliance: Any, stiffness: float) -> None:
+        super().__init__(
+            compliance=None if compliance is None or np.ndim(compliance) else float(compliance),
+            stiffness=stiffness,
+        )
+        self._indices = None if indices is None else np.asarray(indices, np.int64).reshape(-1, 4)
+        self._rest = rest
+        self._compliance_arg = compliance
+
+    def _defaults(self, model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        raise NotImplementedError
+
+    def _rest_of(self, q: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def bind(self, model: Model, coloring: bool) -> None:
+        """Resolve defaults from ``model`` and copy the colour-sorted constraints to its device."""
+        self.model = model
+        if self._indices is None:
+            idx, rest, comp = self._defaults(model)
+        else:
+            idx = self._indices
+            if idx.size and (idx.min() < 0 or idx.max() >= model.particle_count):
+                raise ValueError(f"{self._name}: indices out of range [0, {model.particle_count})")
+            rest = self._rest_of(model.particle_q_np, idx) if self._rest is None else self._rest
+            comp = 0.0 if self._compliance_arg is None else self._compliance_arg
+        n = idx.shape[0]
+        rest = np.broadcast_to(np.asarray(rest, np.float64), (n,))
+        comp = np.broadcast_to(np.asarray(comp, np.float64), (n,))
+        if np.any(comp < 0):
+            raise ValueError(f"{self._name}: compliance must be >= 0")
+        order, self.color_offsets = self._colors(idx, coloring)
+        self.count = n
+        d, f = model.device, model.scalar
+        self.indices = wp.array(idx[order].astype(np.int32).reshape(-1, 4), dtype=wp.int32, device=d)
+        self.rest = wp.array(rest[order], dtype=f, device=d)
+        self.compliance_array = wp.array(comp[order], dtype=f, device=d)
+        self.lam = wp.zeros(n, dtype=f, device=d)
+        self.order = order
+
+    def project(self, solver: Any, p: wp.array, dt: float) -> None:
+        """One sweep: Gauss–Seidel per colour, or Jacobi into ``solver.delta``."""
+        m = self.model
+        k = m.s(self.pbd_k(solver))
+        for off, size in self.color_ranges(solver.coloring):
+            wp.launch(
+                _project_four,
+                size,
+                [
+                    self.indices,
+                    self.rest,
+                    self.compliance_array,
+                    m.particle_inv_mass,
+                    self._kind,
+                    m.s(1.0 / (dt * dt)),
+                    k,
+                    off,
+                    int(not solver.coloring),
+                    p,
+                    self.lam,
+                    solver.delta,
+                    solver.delta_count,
+                ],
+                device=m.device,
+            )
+
+    def residual(self, solver: Any, p: wp.array, dt: float, out: wp.array) -> None:
+        """Σ (C + α̃λ)² into out[0], count into out[1]."""
+        m = self.model
+        if self.count:
+            wp.launch(
+                _residual_four,
+                self.count,
+                [
+                    self.indices,
+                    self.rest,
+                    self.compliance_array,
+                    self._kind,
+                    m.s(1.0 / (dt * dt)),
+                    p,
+                    self.lam,
+                    out,
+                ],
+                device=m.device,
+            )
+
+
+def dihedral_angles_np(q: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """Signed dihedral angles [rad] of bending elements [B, 4] (NumPy, same convention as the Warp func)."""
+    x0, x1, x2, x3 = (q[idx[:, k]] for k in range(4))
+    e = x1 - x0
+    n1 = np.cross(e, x2 - x0)
+    n2 = np.cross(x3 - x0, e)
+    le = np.maximum(np.linalg.norm(e, axis=1), 1e-300)
+    return np.arctan2(np.sum(np.cross(n1, n2) * e, axis=1) / le, np.sum(n1 * n2, axis=1))
+
+
+class DihedralBending(_FourPoint):
+    """Bending: C = wrap(θ(x) − θ0), θ the signed dihedral angle of two triangles sharing edge (0, 1).
+
+    The lecture writes C = arccos(n̂1·n̂2) − φ0; arccos has an unbounded derivative at the flat (0) and
+    folded (π) states, so we measure θ with atan2(sin, cos), whose gradient (Bridson et al. 2003) is
+    bounded there. Compliance α [1/(N m)] = 1/k_bend.
+
+    By default the set is the model's bending elements with α = 1/k from ``model.bending_stiffness``
+    (elements with k = 0 are left out) unless ``compliance`` is given.
+
+    Args:
+        indices: [B, 4] (edge 0-1, opposite vertices 2, 3); default the model's bending elements.
+        rest_angle: θ0 [rad]; default the current angles.
+        compliance: α [1/(N m)], scalar or [B].
+        stiffness: PBD stiffness k in [0, 1].
+    """
+
+    _kind = 0
+    _name = "DihedralBending"
+
+    def __init__(
+        self, indices: Any = None, *, rest_angle: Any = None, compliance: Any = None, stiffness: float = 1.0
+    ) -> None:
+        super().__init__(indices, rest_angle, compliance, stiffness)
+
+    def _defaults(self, model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        idx = model.bending_indices.numpy().reshape(-1, 4)
+        rest = model.bending_rest_angle.numpy().astype(np.float64)
+        if self._compliance_arg is not None:
+            return idx, rest, self._compliance_arg
+        k = model.bending_stiffness.numpy().astype(np.float64)
+        keep = k > 0
+        return idx[keep], rest[keep], 1.0 / k[keep]
+
+    def _rest_of(self, q: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        return dihedral_angles_np(q, idx)
+
+
+class Volume(_FourPoint):
+    """Tetrahedral volume: C = V(x) − V0 with V = (1/6)(x1 − x0)×(x2 − x0)·(x3 − x0).
+
+    By default the set is the model's tetrahedra with compliance α = 1/(κ V0) [1/(Pa m³)] from the bulk
+    modulus κ = λ + 2μ/3 of each tet (so that ½ α⁻¹ C² = ½ κ (ΔV)²/V0), unless ``compliance`` is given.
+
+    Args:
+        indices: [E, 4] positively oriented tets; default the model's tetrahedra.
+        rest_volume: V0 [m³]; default the current volumes.
+        compliance: α [1/(Pa m³)], scalar or [E] (0: incompressible).
+        stiffness: PBD stiffness k in [0, 1].
+    """
+
+    _kind = 1
+    _name = "Volume"
+
+    def __init__(
+        self, indices: Any = None, *, rest_volume: Any = None, compliance: Any = None, stiffness: float = 1.0
+    ) -> None:
+        super().__init__(indices, rest_volume, compliance, stiffness)
+
+    def _defaults(self, model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        idx = model.tet_indices.numpy().reshape(-1, 4)
+        rest = model.tet_rest_volume.numpy().astype(np.float64)
+        if self._compliance_arg is not None:
+            return idx, rest, self._compliance_arg
+        kappa = model.tet_lam.numpy().astype(np.float64) + 2.0 / 3.0 * model.tet_mu.numpy()
+        return idx, rest, 1.0 / np.maximum(kappa * np.abs(rest), 1e-300)
+
+    def _rest_of(self, q: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        x0, x1, x2, x3 = (q[idx[:, k]] for k in range(4))
+        return np.einsum("ij,ij->i", np.cross(x1 - x0, x2 - x0), x3 - x0) / 6.0

@@ -1,0 +1,265 @@
+"""Implicit integrators: backward Euler, implicit midpoint and BDF2, by Newton on both paths.
+
+ODE path (NumPy, float64): Newton on the stage equation with the problem's ``rhs_jacobian``.
+Physical path (Warp arrays): every step is one minimisation of the incremental potential
+Φ(x) = ½‖x − x̃‖²_M + ĥ² E(x) (``system.minimize``), with the integrator's x̃ and ĥ:
+
+=================  =======================================  ==========================================
+method             x̃, ĥ                                     velocity
+=================  =======================================  ==========================================
+BackwardEuler      x + h v, h                               v₁ = (x₁ − x)/h
+ImplicitMidpoint   x + (h/2) v, h/2  (then extrapolate)     v₁ = 2 v_½ − v, x₁ = 2 x_½ − x
+BDF2               x̂ + ĥ(4v − v₋₁)/3, ĥ = 2h/3              v₁ = (x₁ − x̂)/ĥ, x̂ = (4x − x₋₁)/3
+=================  =======================================  ==========================================
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+import warp as wp
+
+from ._base import Integrator, System, first_order
+from ._ops import lincomb
+from ._problems import ODEProblem, SecondOrderODE
+
+
+def newton_ode(
+    residual_fn: Any,
+    jacobian_fn: Any,
+    y0: np.ndarray,
+    *,
+    tol: float = 1e-14,
+    max_iterations: int = 50,
+) -> np.ndarray:
+    """Solve G(y) = 0 from ``y0`` by Newton's method (dense; for the small ODE problems of the studies).
+
+    Stops when ‖Δy‖∞ ≤ tol·(1 + ‖y‖∞) or the correction stops shrinking (round-off).
+    """
+    y = y0.copy()
+    last = np.inf
+    for _ in range(max_iterations):
+        dy = np.linalg.solve(jacobian_fn(y), -residual_fn(y))
+        y = y + dy
+        size = float(np.max(np.abs(dy))) if dy.size else 0.0
+        if size <= tol * (1.0 + float(np.max(np.abs(y)))) or (size >= last and size < 1e-10):
+            return y
+        last = size
+    raise RuntimeError(
+        f"Newton did not converge in {max_iterations} iterations (last correction {last:.3g}); "
+        "lower dt or check the problem's Jacobian"
+    )
+
+
+def _theta_stage(problem: ODEProblem, t: float, c: float, y_base: np.ndarray) -> np.ndarray:
+    """Solve y = y_base + c f(t, y) (one backward-Euler-like stage) by Newton, from y_base."""
+    n = y_base.size
+    eye = np.eye(n)
+    return newton_ode(
+        lambda y: y - y_base - c * problem.rhs(t, y),
+        lambda y: eye - c * problem.rhs_jacobian(t, y),
+        y_base,
+    )
+
+
+class _ImplicitOptions:
+    """Newton settings the physical path hands to ``system.minimize`` (``options=self``)."""
+
+    def __init__(
+        self,
+        *,
+        newton_tol: float = 1e-6,
+        max_newton_iterations: int = 20,
+        linear_solver: str = "auto",
+        cg_tol: float = 1e-8,
+        cg_max_iterations: int = 2000,
+        project_psd: bool = True,
+    ) -> None:
+        if newton_tol <= 0:
+            raise ValueError(f"newton_tol must be > 0 m/s, got {newton_tol}")
+        if max_newton_iterations < 1:
+            raise ValueError(f"max_newton_iterations must be >= 1, got {max_newton_iterations}")
+        if linear_solver not in ("cg", "direct", "auto"):
+            raise ValueError(f"linear_solver must be 'cg', 'direct' or 'auto', got {linear_solver!r}")
+        if not 0 < cg_tol < 1:
+            raise ValueError(f"cg_tol must be in (0, 1), got {cg_tol}")
+        self.newton_tol = float(newton_tol)
+        self.max_newton_iterations = int(max_newton_iterations)
+        self.linear_solver = linear_solver
+        self.cg_tol = float(cg_tol)
+        self.cg_max_iterations = int(cg_max_iterations)
+        self.project_psd = bool(project_psd)
+
+    def _minimize(self, system: System, t, h, x_tilde, x_ref, v_ref, x_out) -> Any:
+        if _accepts_options(system.minimize):
+            return system.minimize(t, h, x_tilde, x_ref, v_ref, x_out, options=self)
+        return system.minimize(t, h, x_tilde, x_ref, v_ref, x_out)
+
+
+def _accepts_options(fn: Any) -> bool:
+    """Whether a System's ``minimize`` takes the ``options`` keyword (the protocol's original form does not)."""
+    import inspect
+
+    try:
+        params = inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return False
+    return "options" in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
+
+
+def _damp(system: System, dt: float, v: wp.array) -> None:
+    delta = system.velocity_damping(dt)
+    if delta != 1.0:
+        lincomb(system.model, v, v, [(delta - 1.0, v)])
+
+
+class BackwardEuler(_ImplicitOptions, Integrator):
+    """Backward (implicit) Euler: A(y₁ − y₀)/Δt = f(y₁) (first order, L-stable).
+
+    Physical path: x₁ = argmin ½‖x − (x₀ + Δt v₀)‖²_M + Δt² E(x), v₁ = δ(x₁ − x₀)/Δt, by Newton with line
+    search (``pliant.solvers.ForceSolver.minimize``). On the undamped oscillator it divides the energy by
+    1 + ω²Δt² each step: unconditionally stable, visibly damped.
+
+    Args:
+        newton_tol: Newton tolerance [m/s] on ‖Δx‖∞/Δt and on the mass-scaled gradient.
+        max_newton_iterations: Newton iteration cap per step.
+        linear_solver: "cg" (warp.optim.linear.cg, any device), "direct" (SciPy, CPU) or "auto".
+        cg_tol: relative residual of CG.
+
+    Example::
+
+        solver = pl.solvers.ForceSolver(model, energies=pl.energies.mass_spring(),
+                                        integrator=pl.integrators.BackwardEuler(newton_tol=1e-6))
+        solver.step(state_0, state_1, control, 1 / 60)
+        print(solver.last_stats.iterations)
+    """
+
+    order: ClassVar[int] = 1
+    explicit: ClassVar[bool] = False
+
+    def step_ode(self, problem: ODEProblem | SecondOrderODE, t: float, dt: float, y: np.ndarray) -> np.ndarray:
+        """y₁ = y₀ + Δt A⁻¹f(t + Δt, y₁) by Newton."""
+        return _theta_stage(first_order(problem), t + dt, dt, y)
+
+    def step_system(self, system: System, t, dt, x_in, v_in, x_out, v_out) -> None:
+        """One backward-Euler step: minimise the incremental potential, then v₁ = δ(x₁ − x₀)/Δt."""
+        m = system.model
+        (x_tilde,) = self._buffers(system, 1)
+        lincomb(m, x_tilde, x_in, [(dt, v_in)])
+        self._minimize(system, t, dt, x_tilde, x_in, v_in, x_out)
+        _velocity_from_positions(m, x_out, x_in, 1.0 / dt, v_out)
+        _damp(system, dt, v_out)
+
+
+@wp.kernel(enable_backward=False)
+def _velocity_kernel(
+    x1: wp.array(dtype=Any), x0: wp.array(dtype=Any), inv_h: Any, v_out: wp.array(dtype=Any)
+):
+    i = wp.tid()
+    v_out[i] = (x1[i] - x0[i]) * inv_h
+
+
+def _velocity_from_positions(model: Any, x1: wp.array, x0: wp.array, inv_h: float, v_out: wp.array) -> None:
+    """v_out = (x1 − x0)/h."""
+    wp.launch(_velocity_kernel, model.particle_count, [x1, x0, model.s(inv_h), v_out], device=model.device)
+
+
+class ImplicitMidpoint(_ImplicitOptions, Integrator):
+    """Implicit midpoint: y₁ = y₀ + Δt A⁻¹f((y₀ + y₁)/2) (second order, symplectic, A-stable).
+
+    Computed as half a backward-Euler step followed by extrapolation, y_½ = y₀ + (Δt/2) f(y_½),
+    y₁ = 2y_½ − y₀, which is the same method. On a linear oscillator it conserves the energy exactly (its
+    amplification is a Cayley transform, a rotation), with a period error of O(Δt²).
+
+    Example::
+
+        integ = pl.integrators.ImplicitMidpoint()
+        sol = integ.solve(pl.integrators.harmonic_oscillator(), (1.0, 0.0), t_end=10.0, dt=0.5)
+    """
+
+    order: ClassVar[int] = 2
+    explicit: ClassVar[bool] = False
+    symplectic: ClassVar[bool] = True
+
+    def step_ode(self, problem: ODEProblem | SecondOrderODE, t: float, dt: float, y: np.ndarray) -> np.ndarray:
+        """Half a backward-Euler step, then y₁ = 2 y_½ − y₀."""
+        y_half = _theta_stage(first_order(problem), t + 0.5 * dt, 0.5 * dt, y)
+        return 2.0 * y_half - y
+
+    def step_system(self, system: System, t, dt, x_in, v_in, x_out, v_out) -> None:
+        """x_½ = argmin Φ with Δt/2; x₁ = 2x_½ − x₀, v₁ = δ(4(x_½ − x₀)/Δt − v₀)."""
+        m = system.model
+        x_tilde, x_half = self._buffers(system, 2)
+        h = 0.5 * dt
+        lincomb(m, x_tilde, x_in, [(h, v_in)])
+        self._minimize(system, t, h, x_tilde, x_in, v_in, x_half)
+        # v_½ = (x_½ − x₀)/h; v₁ = 2v_½ − v₀; x₁ = 2x_½ − x₀.
+        lincomb(m, v_out, v_in, [(-2.0, v_in), (2.0 / h, x_half), (-2.0 / h, x_in)])
+        lincomb(m, x_out, x_half, [(1.0, x_half), (-1.0, x_in)])
+        _damp(system, dt, v_out)
+
+
+class BDF2(_ImplicitOptions, Integrator):
+    """Second-order backward differentiation: y₁ − (4/3)y₀ + (1/3)y₋₁ = (2/3)Δt A⁻¹f(y₁) (L-stable).
+
+    A multistep method: the first step (and any step whose history does not match, e.g. after a change of
+    Δt or of the input state) is a backward-Euler step. On the ODE path a change of Δt uses the
+    variable-step BDF2 formula; :meth:`reset` forgets the history.
+
+    Physical path: ĥ = 2Δt/3, x̂ = (4x₀ − x₋₁)/3, x̃ = x̂ + ĥ(4v₀ − v₋₁)/3, x₁ = argmin Φ with ĥ,
+    v₁ = δ(x₁ − x̂)/ĥ.
+
+    Example::
+
+        solver = pl.solvers.ForceSolver(model, integrator=pl.integrators.BDF2())
+    """
+
+    order: ClassVar[int] = 2
+    explicit: ClassVar[bool] = False
+    multistep: ClassVar[bool] = True
+
+    def __init__(self, **options: Any) -> None:
+        super().__init__(**options)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the previous step (the next step is backward Euler)."""
+        self._ode_prev: tuple[np.ndarray, float, np.ndarray] | None = None  # (y₋₁, h₋₁, y₀ it produced)
+        self._sys_key: Any = None  # (model id, dt, x_out pointer) of the last physical step
+
+    def step_ode(self, problem: ODEProblem | SecondOrderODE, t: float, dt: float, y: np.ndarray) -> np.ndarray:
+        """Variable-step BDF2 by Newton (backward Euler when there is no matching history)."""
+        p = first_order(problem)
+        prev = self._ode_prev
+        if prev is None or prev[2].shape != y.shape or not np.array_equal(prev[2], y):
+            y1 = _theta_stage(p, t + dt, dt, y)
+        else:
+            y_m1, h_m1, _ = prev
+            w = dt / h_m1
+            # (1+2w)/(1+w) y₁ − (1+w) y₀ + w²/(1+w) y₋₁ = h f(y₁)
+            c1 = (1.0 + 2.0 * w) / (1.0 + w)
+            base = ((1.0 + w) * y - w * w / (1.0 + w) * y_m1) / c1
+            y1 = _theta_stage(p, t + dt, dt / c1, base)
+        self._ode_prev = (y.copy(), dt, y1.copy())
+        return y1
+
+    def step_system(self, system: System, t, dt, x_in, v_in, x_out, v_out) -> None:
+        """One BDF2 step (backward Euler when the history is missing or stale)."""
+        m = system.model
+        x_tilde, x_hat, x_prev, v_prev = self._buffers(system, 4)
+        key = (id(m), float(dt), x_in.ptr)
+        if self._sys_key is None or self._sys_key != key:
+            h = dt
+            lincomb(m, x_tilde, x_in, [(h, v_in)])
+            wp.copy(x_hat, x_in)
+        else:
+            h = 2.0 * dt / 3.0
+            lincomb(m, x_hat, x_in, [(1.0 / 3.0, x_in), (-1.0 / 3.0, x_prev)])
+            lincomb(m, x_tilde, x_hat, [(4.0 * h / 3.0, v_in), (-h / 3.0, v_prev)])
+        self._minimize(system, t, h, x_tilde, x_hat, v_in, x_out)
+        _velocity_from_positions(m, x_out, x_hat, 1.0 / h, v_out)
+        _damp(system, dt, v_out)
+        wp.copy(x_prev, x_in)
+        wp.copy(v_prev, v_in)
+        self._sys_key = (id(m), float(dt), x_out.ptr)

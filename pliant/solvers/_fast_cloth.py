@@ -1,0 +1,566 @@
+"""A specialised mass-spring solver: one fused, atomic-free kernel per explicit step, or Baraff–Witkin.
+
+The generic :class:`~pliant.solvers.ForceSolver` launches one kernel per energy term and scatters spring
+forces with atomics; on the CPU, where Warp runs a kernel's threads one after another, the launches and
+the scatter dominate a cloth step. Here each particle *gathers* the forces of its own springs from a CSR
+adjacency (spring ``s`` appears once in the row of each endpoint), so
+
+* the explicit path (symplectic Euler) is one kernel per step: gather spring + dashpot + gravity +
+  external forces, update v then x — no atomics, no scratch force array;
+* the implicit path is Baraff & Witkin's linearised backward Euler,
+  (M + hD + h²K) Δv = h(f(xⁿ, vⁿ) − hK vⁿ), solved matrix-free by block-Jacobi preconditioned CG with
+  two kernels per CG iteration (the search-direction update is fused into the product A·p by double
+  buffering p). K is the PSD-projected spring Hessian (compressed springs keep only their axial term),
+  D the dashpot Jacobian γ n̂n̂ᵀ. The CG scalars live in device arrays (one slot per iteration), so a step
+  never synchronises with the host.
+
+Only springs, dashpots (``model.spring_damping``), gravity, ``Control.particle_f``, the drag handle,
+kinematic targets, ground contact and post-step contact handlers are handled — a model with FEM
+tetrahedra needs ForceSolver.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+from ..collision import ground_contact
+from ..model import Control, Model, State
+from ._base import Solver
+
+
+def spring_adjacency(model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """CSR rows of the spring graph: (offsets [N+1], neighbour [2S], spring index [2S]), int32."""
+    idx = model.spring_indices.numpy().astype(np.int64) if model.spring_count else np.zeros((0, 2), np.int64)
+    n = model.particle_count
+    rows = np.concatenate([idx[:, 0], idx[:, 1]])
+    cols = np.concatenate([idx[:, 1], idx[:, 0]])
+    spr = np.concatenate([np.arange(idx.shape[0]), np.arange(idx.shape[0])])
+    order = np.lexsort((cols, rows))
+    offsets = np.zeros(n + 1, np.int64)
+    np.add.at(offsets, rows + 1, 1)
+    offsets = np.cumsum(offsets)
+    return offsets.astype(np.int32), cols[order].astype(np.int32), spr[order].astype(np.int32)
+
+
+# ---------------------------------------------------------------------------------------------- explicit
+@wp.kernel
+def _symplectic_gather(
+    # Model (packed):
+    adj_offsets: wp.array(dtype=wp.int32),
+    adj_neighbor: wp.array(dtype=wp.int32),
+    adj_param: wp.array(dtype=Any),
+    particle_inv_mass: wp.array(dtype=Any),
+    gravity: Any,
+    damped: int,
+    # Control:
+    f_ext: wp.array(dtype=Any),
+    # State in:
+    x_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    dt: Any,
+    delta: Any,
+    # Out:
+    x_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+):
+    i = wp.tid()
+    xi = x_in[i]
+    vi = v_in[i]
+    w = particle_inv_mass[i]
+    zero = dt * type(dt)(0.0)
+    if w == zero:
+        x_out[i] = xi
+        v_out[i] = vi
+        return
+    f = f_ext[i]
+    for e in range(adj_offsets[i], adj_offsets[i + 1]):
+        d = x_in[adj_neighbor[e]] - xi
+        prm = adj_param[e]  # (rest length, stiffness, dashpot γ)
+        l = wp.length(d)
+        if l > zero:
+            inv_l = type(dt)(1.0) / l
+            # Spring pulls i toward j when stretched; the dashpot resists the relative axial speed.
+            c = prm[1] * (l - prm[0])
+            if damped != 0:
+                c += prm[2] * wp.dot(v_in[adj_neighbor[e]] - vi, d) * inv_l
+            f += d * (c * inv_l)
+    v = delta * (vi + dt * (gravity + w * f))
+    v_out[i] = v
+    x_out[i] = xi + dt * v
+
+
+# ---------------------------------------------------------------------------------------------- implicit
+@wp.func
+def _spring_blocks(d: Any, rest: Any, k: Any, gamma: Any, h: Any):
+    """(K_s, h²K_s + hD_s) for the spring with d = x_j − x_i; K_s PSD-projected (Choi & Ko)."""
+    l = wp.length(d)
+    zero = h * type(h)(0.0)
+    one = type(h)(1.0)
+    n = d / wp.max(l, type(h)(1.0e-20))
+    nn = wp.outer(n, n)
+    t = wp.max(one - rest / wp.max(l, type(h)(1.0e-20)), zero)
+    eye = wp.identity(n=3, dtype=type(h))
+    K = k * (t * (eye - nn) + nn)
+    return K, (h * h) * K + (h * gamma) * nn
+
+
+@wp.kernel
+def _bw_assemble(
+    # Model:
+    adj_offsets: wp.array(dtype=wp.int32),
+    adj_neighbor: wp.array(dtype=wp.int32),
+    adj_spring: wp.array(dtype=wp.int32),
+    spring_rest_length: wp.array(dtype=Any),
+    spring_stiffness: wp.array(dtype=Any),
+    spring_damping: wp.array(dtype=Any),
+    particle_mass: wp.array(dtype=Any),
+    particle_inv_mass: wp.array(dtype=Any),
+    gravity: Any,
+    f_ext: wp.array(dtype=Any),
+    # State in:
+    x_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    h: Any,
+    # Out (scratch):
+    block_out: wp.array(dtype=Any),
+    precond_out: wp.array(dtype=Any),
+    r_out: wp.array(dtype=Any),
+    z_out: wp.array(dtype=Any),
+    p_out: wp.array(dtype=Any),
+    dv_out: wp.array(dtype=Any),
+    rz_out: wp.array(dtype=Any),
+):
+    i = wp.tid()
+    xi = x_in[i]
+    vi = v_in[i]
+    zero3 = vi * (h * type(h)(0.0))
+    dv_out[i] = zero3
+    eye = wp.identity(n=3, dtype=type(h))
+    if particle_inv_mass[i] == h * type(h)(0.0):
+        r_out[i] = zero3
+        z_out[i] = zero3
+        p_out[i] = zero3
+        precond_out[i] = eye * (h * type(h)(0.0))
+        return
+    m = particle_mass[i]
+    f = m * gravity + f_ext[i]
+    kv = zero3
+    diag = m * eye
+    for e in range(adj_offsets[i], adj_offsets[i + 1]):
+        j = adj_neighbor[e]
+        s = adj_spring[e]
+        d = x_in[j] - xi
+        l = wp.length(d)
+        dvel = v_in[j] - vi
+        if l > h * type(h)(0.0):
+            n = d / l
+            f += n * (spring_stiffness[s] * (l - spring_rest_length[s]) + spring_damping[s] * wp.dot(dvel, n))
+        K, H = _spring_blocks(d, spring_rest_length[s], spring_stiffness[s], spring_damping[s], h)
+        block_out[e] = H
+        diag += H
+        kv -= K * dvel  # (K v)_i = Σ_s K_s (v_i − v_j)
+    r = h * (f - h * kv)
+    P = wp.inverse(diag)
+    z = P * r
+    precond_out[i] = P
+    r_out[i] = r
+    z_out[i] = z
+    p_out[i] = z
+    wp.atomic_add(rz_out, 0, wp.dot(r, z))
+
+
+@wp.kernel
+def _bw_apply(
+    # Model:
+    adj_offsets: wp.array(dtype=wp.int32),
+    adj_neighbor: wp.array(dtype=wp.int32),
+    particle_mass: wp.array(dtype=Any),
+    particle_inv_mass: wp.array(dtype=Any),
+    block: wp.array(dtype=Any),
+    # CG:
+    z_in: wp.array(dtype=Any),
+    p_in: wp.array(dtype=Any),
+    scalars: wp.array(dtype=Any),
+    k: int,
+    p_out: wp.array(dtype=Any),
+    q_out: wp.array(dtype=Any),
+):
+    # p_new = z + β p_old (β = rz_k / rz_{k−1}; none at k = 0), then q = A p_new, accumulating p·q.
+    # Neighbours' p_new are recomputed from z and p_old, so nobody reads a value written in this launch.
+    i = wp.tid()
+    zero = scalars[0] * type(scalars[0])(0.0)
+    beta = zero
+    if k > 0:
+        den = scalars[2 * k - 2]
+        if den > zero:
+            beta = scalars[2 * k] / den
+    # Pinned rows have z = 0 (zero preconditioner), hence p = 0: they never move.
+    pi = z_in[i]
+    if k > 0:
+        pi = pi + beta * p_in[i]
+    q = particle_mass[i] * pi
+    for e in range(adj_offsets[i], adj_offsets[i + 1]):
+        j = adj_neighbor[e]
+        pj = z_in[j]
+        if k > 0:
+            pj = pj + beta * p_in[j]
+        q += block[e] * (pi - pj)
+    if particle_inv_mass[i] == zero:
+        q = q * zero
+    p_out[i] = pi
+    q_out[i] = q
+    wp.atomic_add(scalars, 2 * k + 1, wp.dot(pi, q))
+
+
+@wp.kernel
+def _bw_update(
+    precond: wp.array(dtype=Any),
+    p_in: wp.array(dtype=Any),
+    q_in: wp.array(dtype=Any),
+    scalars: wp.array(dtype=Any),
+    k: int,
+    tol2: Any,
+    dv_io: wp.array(dtype=Any),
+    r_io: wp.array(dtype=Any),
+    z_out: wp.array(dtype=Any),
+):
+    # α = rz_k / (p·Ap); frozen (α = 0) once rz_k ≤ tol²·rz_0, so a fixed launch count needs no host sync.
+    i = wp.tid()
+    rz = scalars[2 * k]
+    pq = scalars[2 * k + 1]
+    zero = rz * type(rz)(0.0)
+    alpha = zero
+    if pq > zero and rz > tol2 * scalars[0]:
+        alpha = rz / pq
+    dv_io[i] = dv_io[i] + alpha * p_in[i]
+    r = r_io[i] - alpha * q_in[i]
+    r_io[i] = r
+    z = precond[i] * r
+    if alpha == zero:
+        z = z * zero
+    z_out[i] = z
+    wp.atomic_add(scalars, 2 * k + 2, wp.dot(r, z))
+
+
+@wp.kernel
+def _bw_finish(
+    particle_inv_mass: wp.array(dtype=Any),
+    x_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    dv: wp.array(dtype=Any),
+    h: Any,
+    delta: Any,
+    x_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+):
+    i = wp.tid()
+    if particle_inv_mass[i] == h * type(h)(0.0):
+        x_out[i] = x_in[i]
+        v_out[i] = v_in[i]
+        return
+    v = delta * (v_in[i] + dv[i])
+    v_out[i] = v
+    x_out[i] = x_in[i] + h * v
+
+
+@wp.kernel
+def _add_drag_force(index: int, target: Any, stiffness: Any, x_in: wp.array(dtype=Any), f_io: wp.array(dtype=Any)):
+    f_io[index] = f_io[index] + stiffness * (target - x_in[index])
+
+
+@wp.kernel
+def _apply_kinematic(
+    indices: wp.array(dtype=wp.int32),
+    targets: wp.array(dtype=Any),
+    inv_dt: Any,
+    x_in: wp.array(dtype=Any),
+    x_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+):
+    k = wp.tid()
+    i = indices[k]
+    x_out[i] = targets[k]
+    v_out[i] = (targets[k] - x_in[i]) * inv_dt
+
+
+class FastMassSpring(Solver):
+    """Mass-spring dynamics (springs, dashpots, gravity) with fused, atomic-free per-particle kernels.
+
+    Args:
+        model: the Model (springs only; FEM tetrahedra are rejected — use ForceSolver).
+        method: ``"symplectic"`` (one fused kernel per step; stable for Δt ≲ 2/ω_max) or ``"implicit"``
+            (Baraff–Witkin linearised backward Euler, unconditionally stable; one Newton step per call).
+        cg_iterations: CG iterations per implicit step (a fixed count: no host synchronisation).
+        cg_tol: relative residual (preconditioned norm) at which CG stops updating.
+        velocity_damping: the lecture's δ, multiplying velocities each step (1 = none).
+        damping_rate: c [1/s]: v ← v·exp(−cΔt), Δt-independent; overrides ``velocity_damping``.
+        contact: resolve ground contact after each step (needs ``model.ground``).
+        collisions: contact handlers applied after the step, each with ``apply(model, state_in, state_out,
+            dt)`` (e.g. :class:`pliant.collision.Colliders`, :class:`pliant.collision.SelfCollision`).
+
+    Example::
+
+        solver = pl.solvers.FastMassSpring(model, method="implicit", cg_iterations=40, damping_rate=1.0)
+        solver.step(state_0, state_1, control, 1 / 60)
+    """
+
+    def __init__(
+        self,
+        model: Model,
+        *,
+        method: str = "symplectic",
+        cg_iterations: int = 50,
+        cg_tol: float = 1.0e-6,
+        velocity_damping: float = 1.0,
+        damping_rate: float | None = None,
+        contact: bool = True,
+        collisions: Sequence[Any] = (),
+    ) -> None:
+        super().__init__(model)
+        if method not in ("symplectic", "implicit"):
+            raise ValueError(f"method must be 'symplectic' or 'implicit', got {method!r}")
+        if model.tet_count:
+            raise ValueError("FastMassSpring handles springs only; this model has FEM tetrahedra: use ForceSolver")
+        if cg_iterations < 1:
+            raise ValueError(f"cg_iterations must be >= 1, got {cg_iterations}")
+        if not 0.0 < velocity_damping <= 1.0:
+            raise ValueError(f"velocity_damping δ must be in (0, 1], got {velocity_damping}")
+        if damping_rate is not None and damping_rate < 0:
+            raise ValueError(f"damping_rate must be >= 0 1/s, got {damping_rate}")
+        self.method = method
+        self.cg_iterations = int(cg_iterations)
+        self.cg_tol = float(cg_tol)
+        self.velocity_damping_factor = float(velocity_damping)
+        self.damping_rate = damping_rate
+        self.contact = contact and model.ground is not None
+        self.collisions = list(collisions)
+        for c in self.collisions:
+            if not callable(getattr(c, "apply", None)):
+                raise TypeError(f"collisions must have apply(model, state_in, state_out, dt), got {type(c).__name__}")
+        d = model.device
+        off, nb, spr = spring_adjacency(model)
+        self.adj_offsets = wp.array(off, dtype=wp.int32, device=d)
+        self.adj_neighbor = wp.array(nb, dtype=wp.int32, device=d)
+        self.adj_spring = wp.array(spr, dtype=wp.int32, device=d)
+        self._adj_param = wp.zeros(max(nb.shape[0], 1), dtype=model.vec3, device=d)
+        self.update_parameters()
+        n = model.particle_count
+        self._f_zero = wp.zeros(n, dtype=model.vec3, device=d)
+        self._f_work = wp.zeros(n, dtype=model.vec3, device=d)
+        if method == "implicit":
+            self._block = wp.zeros(max(nb.shape[0], 1), dtype=model.mat33, device=d)
+            self._precond = wp.zeros(n, dtype=model.mat33, device=d)
+            self._r, self._z, self._q, self._dv = (wp.zeros(n, dtype=model.vec3, device=d) for _ in range(4))
+            self._p = [wp.zeros(n, dtype=model.vec3, device=d) for _ in range(2)]
+            self._scalars = wp.zeros(2 * self.cg_iterations + 2, dtype=model.scalar, device=d)
+
+    def update_parameters(self) -> None:
+        """Re-pack spring rest lengths, stiffness and damping per adjacency entry (after changing them)."""
+        m = self.model
+        spr = self.adj_spring.numpy()
+        if spr.shape[0]:
+            packed = np.stack(
+                [m.spring_rest_length.numpy()[spr], m.spring_stiffness.numpy()[spr], m.spring_damping.numpy()[spr]],
+                axis=1,
+            )
+            self._adj_param.assign(packed)
+            self._damped = int(np.any(packed[:, 2] > 0))
+        else:
+            self._damped = 0
+        self._cmds = {}
+
+    def velocity_damping(self, dt: float) -> float:
+        """δ for a step of ``dt`` [s]: exp(−cΔt) when ``damping_rate`` c is set, else the fixed δ."""
+        if self.damping_rate is not None:
+            return math.exp(-self.damping_rate * dt)
+        return self.velocity_damping_factor
+
+    def _model_inputs(self) -> list:
+        m = self.model
+        return [
+            self.adj_offsets,
+            self.adj_neighbor,
+            self.adj_spring,
+            m.spring_rest_length,
+            m.spring_stiffness,
+            m.spring_damping,
+            m.particle_mass,
+            m.particle_inv_mass,
+            m.gravity_vec,
+        ]
+
+    def _external(self, control: Control | None, x: wp.array) -> wp.array:
+        if control is None:
+            return self._f_zero
+        if control.drag_index < 0:
+            return control.particle_f
+        m = self.model
+        wp.copy(self._f_work, control.particle_f)
+        wp.launch(
+            _add_drag_force,
+            1,
+            [control.drag_index, m.vec3(*control.drag_target), m.s(control.drag_stiffness), x, self._f_work],
+            device=m.device,
+        )
+        return self._f_work
+
+    def _commands(self, state_in: State, state_out: State, f_ext: wp.array, dt: float) -> list:
+        """Pre-recorded launches for this (state_in, state_out, forces, dt): no argument packing per step."""
+        key = (state_in.particle_q.ptr, state_in.particle_qd.ptr, state_out.particle_q.ptr, f_ext.ptr, dt)
+        cmds = self._cmds.get(key)
+        if cmds is not None:
+            return cmds
+        if len(self._cmds) > 8:
+            self._cmds.clear()
+        m, s, dev = self.model, self.model.s, self.model.device
+        n = m.particle_count
+        xi, vi, xo, vo = state_in.particle_q, state_in.particle_qd, state_out.particle_q, state_out.particle_qd
+        delta = s(self.velocity_damping(dt))
+        if self.method == "symplectic":
+            cmds = [
+                wp.launch(
+                    _symplectic_gather,
+                    n,
+                    [
+                        self.adj_offsets,
+                        self.adj_neighbor,
+                        self._adj_param,
+                        m.particle_inv_mass,
+                        m.gravity_vec,
+                        self._damped,
+                        f_ext,
+                        xi,
+                        vi,
+                        s(dt),
+                        delta,
+                        xo,
+                        vo,
+                    ],
+                    device=dev,
+                    record_cmd=True,
+                )
+            ]
+        else:
+            h = s(dt)
+            cmds = [
+                wp.launch(
+                    _bw_assemble,
+                    n,
+                    [
+                        *self._model_inputs(),
+                        f_ext,
+                        xi,
+                        vi,
+                        h,
+                        self._block,
+                        self._precond,
+                        self._r,
+                        self._z,
+                        self._p[0],
+                        self._dv,
+                        self._scalars,
+                    ],
+                    device=dev,
+                    record_cmd=True,
+                )
+            ]
+            tol2 = s(self.cg_tol**2)
+            for k in range(self.cg_iterations):
+                p_old, p_new = self._p[(k + 1) % 2], self._p[k % 2]
+                cmds.append(
+                    wp.launch(
+                        _bw_apply,
+                        n,
+                        [
+                            self.adj_offsets,
+                            self.adj_neighbor,
+                            m.particle_mass,
+                            m.particle_inv_mass,
+                            self._block,
+                            self._z,
+                            p_old,
+                            self._scalars,
+                            k,
+                            p_new,
+                            self._q,
+                        ],
+                        device=dev,
+                        record_cmd=True,
+                    )
+                )
+                cmds.append(
+                    wp.launch(
+                        _bw_update,
+                        n,
+                        [self._precond, p_new, self._q, self._scalars, k, tol2, self._dv, self._r, self._z],
+                        device=dev,
+                        record_cmd=True,
+                    )
+                )
+            cmds.append(
+                wp.launch(
+                    _bw_finish,
+                    n,
+                    [m.particle_inv_mass, xi, vi, self._dv, h, delta, xo, vo],
+                    device=dev,
+                    record_cmd=True,
+                )
+            )
+        self._cmds[key] = cmds
+        return cmds
+
+    def step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
+        """Advance by ``dt`` [s]: fused step, then kinematic targets, ground contact, contact handlers."""
+        m = self.model
+        f_ext = self._external(control, state_in.particle_q)
+        if self.method == "implicit":
+            self._scalars.zero_()
+        for cmd in self._commands(state_in, state_out, f_ext, float(dt)):
+            cmd.launch()
+        if control is not None and control.kinematic_indices.shape[0]:
+            wp.launch(
+                _apply_kinematic,
+                control.kinematic_indices.shape[0],
+                [
+                    control.kinematic_indices,
+                    control.kinematic_targets,
+                    m.s(1.0 / dt),
+                    state_in.particle_q,
+                    state_out.particle_q,
+                    state_out.particle_qd,
+                ],
+                device=m.device,
+            )
+        if self.contact:
+            g = m.ground
+            wp.launch(
+                ground_contact,
+                m.particle_count,
+                [
+                    m.particle_inv_mass,
+                    m.particle_radius,
+                    m.s(g.height),
+                    m.s(g.friction),
+                    m.s(g.restitution),
+                    state_out.particle_q,
+                    state_out.particle_qd,
+                ],
+                device=m.device,
+            )
+        for c in self.collisions:
+            c.apply(m, state_in, state_out, dt)
+
+    def describe(self) -> dict:
+        """Solver, method and options."""
+        return {
+            "solver": "FastMassSpring",
+            "integrator": "SymplecticEuler" if self.method == "symplectic" else "BaraffWitkin",
+            "cg_iterations": self.cg_iterations if self.method == "implicit" else 0,
+            "velocity_damping": self.velocity_damping_factor,
+            "damping_rate": self.damping_rate,
+        }
