@@ -14,6 +14,16 @@ from .sim import DivergenceError, Simulator  # noqa: E402
 
 __version__ = "0.1.0"
 
+
+def __getattr__(name: str):
+    # Heavier layers (renderer kernels, studies, benchmarks, CLI) load on first use, not on import.
+    import importlib
+
+    if name in ("render", "geometry", "constraints", "collision", "studies", "bench", "cli", "sim"):
+        return importlib.import_module(f"{__name__}.{name}")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 __all__ = [
     "Control",
     "DivergenceError",

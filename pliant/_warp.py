@@ -16,7 +16,12 @@ def init() -> None:
     global _initialised
     if _initialised:
         return
-    wp.config.quiet = not os.environ.get("PLIANT_VERBOSE")
+    if not os.environ.get("PLIANT_VERBOSE"):
+        # Warp's banner and per-module "load ... (compiled)" lines are noise in a CLI; warnings still show.
+        if hasattr(wp.config, "log_level") and hasattr(wp, "LOG_WARNING"):
+            wp.config.log_level = wp.LOG_WARNING
+        else:  # older Warp
+            wp.config.quiet = True
     wp.init()
     _initialised = True
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import subprocess
 import sys
 from pathlib import Path
 from types import SimpleNamespace
@@ -64,11 +65,24 @@ def _pixel(cam: Camera, p) -> tuple[int, int]:
     return int(pix[0, 1]), int(pix[0, 0])
 
 
-def _read_mp4(path: Path) -> np.ndarray:
-    gen = imageio_ffmpeg.read_frames(str(path))
-    meta = next(gen)
-    w, h = meta["size"]
-    return np.stack([np.frombuffer(b, np.uint8).reshape(h, w, 3) for b in gen])
+def _read_mp4(path: Path, h: int, w: int) -> np.ndarray:
+    """Decodes an MP4 with the bundled ffmpeg to uint8 [T, h, w, 3]; asserts H.264 + yuv420p."""
+    cmd = [
+        imageio_ffmpeg.get_ffmpeg_exe(),
+        "-hide_banner",
+        "-i",
+        str(path),
+        "-f",
+        "rawvideo",
+        "-pix_fmt",
+        "rgb24",
+        "-",
+    ]
+    res = subprocess.run(cmd, capture_output=True, check=True)
+    info = res.stderr.decode(errors="replace")
+    assert "Video: h264" in info and "yuv420p" in info and f"{w}x{h}" in info
+    assert len(res.stdout) % (h * w * 3) == 0
+    return np.frombuffer(res.stdout, np.uint8).reshape(-1, h, w, 3)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -195,7 +209,7 @@ def test_render_video_of_falling_sphere(tmp_path, ext):
     """render_video writes one readable frame per state; the sphere moves down and stays in frame."""
     x, faces = _sphere_drop(8)
     out = render_video(x, tmp_path / f"drop{ext}", faces=faces, fps=10, width=160, height=120, progress=False)
-    frames = _read_mp4(out) if ext == ".mp4" else iio.imread(out, index=None)[..., :3]
+    frames = _read_mp4(out, 120, 160) if ext == ".mp4" else iio.imread(out, index=None)[..., :3]
     assert frames.shape == (8, 120, 160, 3)
     assert np.abs(frames[0].astype(int) - frames[-1].astype(int)).mean() > 1.0
     obj = _saturated(frames)
@@ -212,7 +226,7 @@ def test_write_video_pads_odd_sizes_and_accepts_floats(tmp_path):
     """write_video accepts float frames of odd size; the MP4 has even dimensions and all frames."""
     frames = [np.full((31, 45, 3), k / 5.0) for k in range(6)]
     out = write_video(frames, tmp_path / "odd.mp4", fps=12)
-    back = _read_mp4(out)
+    back = _read_mp4(out, 32, 46)
     assert back.shape == (6, 32, 46, 3)
     assert abs(int(back[5, 10, 10, 0]) - 255) <= 3 and int(back[0, 10, 10, 0]) <= 3
 
@@ -226,7 +240,7 @@ def test_video_writer_keeps_frames_written_before_an_exception(tmp_path, ext):
             for k in range(5):
                 vw.append_frame(np.full((24, 32, 3), 40 * k, np.uint8))
             raise RuntimeError("boom")
-    frames = _read_mp4(path) if ext == ".mp4" else iio.imread(path, index=None)
+    frames = _read_mp4(path, 24, 32) if ext == ".mp4" else iio.imread(path, index=None)
     assert len(frames) == 5
 
 
@@ -235,14 +249,16 @@ def test_video_duck_typed_trajectory_plays_in_real_time(tmp_path):
     x, faces = _sphere_drop(101)
     traj = SimpleNamespace(x=x, faces=faces, t=np.linspace(0.0, 1.0, 101))
     out = video(traj, tmp_path / "traj.mp4", fps=10, width=96, height=72, progress=False)
-    assert len(_read_mp4(out)) == 11
+    assert len(_read_mp4(out, 72, 96)) == 11
     assert np.array_equal(realtime_indices(traj.t, fps=10), np.arange(0, 101, 10))
     tet = SimpleNamespace(
         x=np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]] * 2, float), tets=[[0, 1, 2, 3]]
     )
-    frames = _read_mp4(video(tet, tmp_path / "tet.mp4", width=96, height=72, progress=False))
+    frames = _read_mp4(video(tet, tmp_path / "tet.mp4", width=96, height=72, progress=False), 72, 96)
     tri = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
-    ref = _read_mp4(render_video(tet.x, tmp_path / "ref.mp4", faces=tri, width=96, height=72, progress=False))
+    ref = _read_mp4(
+        render_video(tet.x, tmp_path / "ref.mp4", faces=tri, width=96, height=72, progress=False), 72, 96
+    )
     assert frames.shape == ref.shape and np.abs(frames.astype(int) - ref).max() <= 2
 
 

@@ -65,7 +65,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
     names = args.names or sorted(available)
     unknown = [n for n in names if n not in available]
     if unknown:
-        raise CliError(f"unknown benchmark(s) {', '.join(unknown)}; available: {', '.join(sorted(available))}")
+        raise CliError(
+            f"unknown benchmark(s) {', '.join(unknown)}; available: {', '.join(sorted(available))}"
+        )
     if not names:
         raise CliError("no benchmarks found in pliant.bench")
     status = EXIT_OK
@@ -94,13 +96,16 @@ def cmd_study(args: argparse.Namespace) -> int:
     try:
         from ..studies import run_integrator_study
     except ImportError as exc:
-        raise CliError(f"the integrator study (pliant.studies) is not available in this version ({exc})") from None
+        raise CliError(
+            f"the integrator study (pliant.studies) is not available in this version ({exc})"
+        ) from None
     t0 = time.perf_counter()
     result = run_integrator_study(Path(args.out), args.quick)
     print(f"study done in {time.perf_counter() - t0:.1f} s; outputs in {Path(args.out).resolve()}")
     if isinstance(result, dict):
         for k, v in result.items():
-            print(f"  {k}: {v}")
+            text = str(v)
+            print(f"  {k}: {text if len(text) <= 200 else type(v).__name__ + ' (see the outputs)'}")
     elif isinstance(result, (list, tuple)):
         for v in result:
             print(f"  {v}")

@@ -29,9 +29,14 @@ def _apply_overrides(cfg: Any, args: argparse.Namespace) -> None:
             raise CliError("--substeps must be >= 1")
         cfg.scene.substeps = args.substeps
     if getattr(args, "integrator", None):
-        from ..io import make_integrator
+        from ..io import integrator_names
 
-        make_integrator(args.integrator, source="--integrator", path="integrator")  # fails early if unknown
+        names = integrator_names()
+        key = args.integrator.lower().replace("-", "").replace("_", "")
+        if not any(n.lower() == key for n in names):
+            raise CliError(
+                f"--integrator: unknown integrator {args.integrator!r}; available: {', '.join(names)}"
+            )
         cfg.solver.integrator = args.integrator
         cfg.solver.integrator_options = {}
     if getattr(args, "checkpoint_every", None) is not None:
@@ -65,9 +70,10 @@ def simulate(
     counts = f"{m.particle_count} particles, {m.spring_count} springs" + (
         f", {m.tet_count} tets" if m.tet_count else ""
     )
+    solver = f"{info.get('solver', type(sim.solver).__name__)}/{info.get('integrator', '-')}"
     print(
         f"{name}: {counts}; {scene.frames} frames x {scene.substeps} substeps (dt {scene.dt:.4g} s), "
-        f"{info.get('solver', type(sim.solver).__name__)}/{info.get('integrator', '-')} on {m.device} {m.dtype}",
+        f"{solver} on {m.device} {m.dtype}",
         flush=True,
     )
     status, note = EXIT_OK, ""

@@ -1,5 +1,8 @@
 """Contact: ground plane (more colliders and the hash-grid broad phase follow)."""
 
+from ._colliders import Colliders, collider_sdf
 from ._ground import ground_contact
+from ._hashgrid import ParticleGrid, TriangleBVH, triangle_closest_point
+from ._selfcollision import SelfCollision, closest_point_triangle
 
-__all__ = ["ground_contact"]
+__all__ = ["Colliders", "SelfCollision", "closest_point_triangle", "collider_sdf", "ParticleGrid", "TriangleBVH", "ground_contact", "triangle_closest_point"]

@@ -115,7 +115,15 @@ class TriangleBVH:
         """The mesh handle for kernels (``wp.mesh_query_aabb``)."""
         return self.mesh.id
 
-    def update(self, points: wp.array) -> None:
-        """Copy ``points`` (any precision) and refit the BVH (no host synchronisation)."""
-        wp.launch(_to_float32, points.shape[0], [points, self.points], device=self.device)
-        self.mesh.refit()
+    def update(self, points: wp.array, runner: Any = None) -> None:
+        """Copy ``points`` (any precision) and refit the BVH (no host synchronisation).
+
+        ``runner`` (optional) provides ``launch(kernel, dim, inputs)`` and ``call(fn, *args)``, e.g. a
+        solver that records its step for replay.
+        """
+        if runner is None:
+            wp.launch(_to_float32, points.shape[0], [points, self.points], device=self.device)
+            self.mesh.refit()
+        else:
+            runner.launch(_to_float32, points.shape[0], [points, self.points])
+            runner.call(self.mesh.refit)

@@ -124,8 +124,14 @@ class Constraint:
         count: number of constraints once bound.
     """
 
-    #: Jacobi deltas of unilateral per-particle constraints (ground) need no averaging.
+    #: Whether the set can conflict between threads (False: each thread owns its particle, e.g. ground).
     uses_deltas = True
+    #: Whether the set averages its corrections (Jacobi) under every schedule (contacts).
+    always_jacobi = False
+    #: Unilateral contact (C ≥ 0): also projected in the solver's final contact-only sweeps.
+    is_contact = False
+    #: Whether the set's Jacobi kernels apply the relaxation ω themselves (to Δλ and Δx together).
+    relaxes_itself = False
 
     def __init__(self, *, compliance: float | None = None, stiffness: float = 1.0) -> None:
         if compliance is not None and compliance < 0:
@@ -152,6 +158,13 @@ class Constraint:
         colors = color_constraints(indices, self.model.particle_inv_mass.numpy())
         return sort_by_color(colors)
 
+    def _split_counts(self, indices: np.ndarray) -> np.ndarray:
+        """n_i: how many constraints of this set can move particle i (those with a movable particle)."""
+        w = self.model.particle_inv_mass.numpy()
+        idx = np.asarray(indices, np.int64)
+        live = np.any(w[idx] > 0, axis=1) if idx.size else np.zeros(0, bool)
+        return np.bincount(idx[live].ravel(), minlength=self.model.particle_count).astype(np.int32)
+
     def color_ranges(self, coloring: bool) -> list[tuple[int, int]]:
         """(offset, size) launches of one sweep.
 
@@ -168,7 +181,7 @@ class Constraint:
     def begin_step(self, solver: Any, x: wp.array, p: wp.array, dt: float) -> None:
         """Reset λ (XPBD multipliers start at 0 every step); contacts are generated here."""
         if self.lam is not None:
-            self.lam.zero_()
+            solver.call(self.lam.zero_)
 
     def project(self, solver: Any, p: wp.array, dt: float) -> None:
         """One sweep over the constraints, writing ``p`` (Gauss–Seidel) or ``solver`` deltas (Jacobi)."""
@@ -179,6 +192,10 @@ class Constraint:
 
     def end_step(self, solver: Any, x: wp.array, p: wp.array, v: wp.array, dt: float) -> None:
         """Velocity pass (friction, restitution) after v = (p − x)/dt."""
+
+    def writes_deltas(self, coloring: bool) -> bool:
+        """Whether a sweep accumulates into the solver's deltas (which the solver then averages)."""
+        return self.uses_deltas and (self.always_jacobi or not coloring)
 
     def pbd_k(self, solver: Any) -> float:
         """The per-iteration PBD stiffness k', or −1 for XPBD (the kernels branch on the sign)."""

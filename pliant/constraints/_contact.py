@@ -94,6 +94,7 @@ class Ground(Constraint):
     """
 
     uses_deltas = False
+    is_contact = True
 
     def __init__(
         self,
@@ -127,18 +128,17 @@ class Ground(Constraint):
     def project(self, solver: Any, p: wp.array, dt: float) -> None:
         """Push particles onto the plane (each thread touches only its own particle)."""
         m = self.model
-        wp.launch(
+        solver.launch(
             _project_ground,
             self.count,
             [m.particle_inv_mass, m.particle_radius, m.vec3(*self.normal), m.s(self.offset), p, self.lam],
-            device=m.device,
         )
 
     def end_step(self, solver: Any, x: wp.array, p: wp.array, v: wp.array, dt: float) -> None:
         """Friction and restitution for the particles the plane pushed this step."""
         m = self.model
         g = float(np.linalg.norm(m.gravity))
-        wp.launch(
+        solver.launch(
             _ground_velocity,
             self.count,
             [
@@ -152,7 +152,6 @@ class Ground(Constraint):
                 solver.v_pred,
                 v,
             ],
-            device=m.device,
         )
 
 
@@ -181,7 +180,7 @@ def _project_particle_collision(
     xi = p_in[i]
     ri = radius[i]
     acc = xi * zero
-    n_hit = int(0)
+    n_hit = wp.int32(0)
     for j in wp.hash_grid_query(grid, xi, query_radius):
         if j != i:
             wj = inv_mass[j]
@@ -191,7 +190,7 @@ def _project_particle_collision(
             if c < zero and l > zero:
                 # The lecture's mass-weighted split: particle i moves w_i/(w_i + w_j) of the overlap.
                 acc = acc - (wi / (wi + wj)) * c * (d / l)
-                n_hit += 1
+                n_hit += wp.int32(1)
     if n_hit > 0:
         # Each thread writes only its own particle: no conflicts, the pairs are symmetric.
         delta_out[i] = delta_out[i] + acc
@@ -210,6 +209,9 @@ class ParticleCollision(Constraint):
         particles: restrict to these particle indices (default all) — not yet supported; all collide.
     """
 
+    always_jacobi = True
+    is_contact = True
+
     def __init__(self, *, cell_size: float | None = None) -> None:
         super().__init__(compliance=0.0)
         self._cell = cell_size
@@ -226,16 +228,16 @@ class ParticleCollision(Constraint):
 
     def begin_step(self, solver: Any, x: wp.array, p: wp.array, dt: float) -> None:
         """Rebuild the grid over the predicted positions."""
-        self.grid.build(p)
+        solver.call(self.grid.build, p)
 
     def project(self, solver: Any, p: wp.array, dt: float) -> None:
         """Accumulate contact corrections into ``solver.delta``."""
         m = self.model
-        wp.launch(
+        solver.launch(
             _project_particle_collision,
             self.count,
             [
-                self.grid.id,
+                wp.uint64(self.grid.id),
                 m.particle_inv_mass,
                 m.particle_radius,
                 m.s(self.query_radius),
@@ -243,7 +245,6 @@ class ParticleCollision(Constraint):
                 solver.delta,
                 solver.delta_count,
             ],
-            device=m.device,
         )
 
 
@@ -260,7 +261,7 @@ def point_triangle_c(q: Any, x1: Any, x2: Any, x3: Any, side: Any, h: Any):
 
 @wp.func
 def point_triangle_grad(q: Any, x1: Any, x2: Any, x3: Any, side: Any):
-    """∇_q = s n̂, ∇_2 = s b × u, ∇_3 = s u × a, ∇_1 = −Σ; a = x2 − x1, b = x3 − x1, u = (I − n̂n̂ᵀ)(q − x1)/|a × b|."""
+    """∇_q = s n̂, ∇_2 = s b×u, ∇_3 = s u×a, ∇_1 = −Σ; a = x2 − x1, b = x3 − x1, u = (I − n̂n̂ᵀ)r/|a×b|."""
     a = x2 - x1
     b = x3 - x1
     n = wp.cross(a, b)
@@ -446,6 +447,9 @@ class PointTriangleCollision(Constraint):
         capacity: most contacts per step (extra ones are dropped; see :attr:`overflow`).
     """
 
+    always_jacobi = True
+    is_contact = True
+
     def __init__(
         self,
         *,
@@ -483,13 +487,13 @@ class PointTriangleCollision(Constraint):
     def begin_step(self, solver: Any, x: wp.array, p: wp.array, dt: float) -> None:
         """Refit the BVH at the predicted positions and generate this step's contacts."""
         m = self.model
-        self.bvh.update(p)
-        self.contact_count.zero_()
-        wp.launch(
+        self.bvh.update(p, solver)
+        solver.call(self.contact_count.zero_)
+        solver.launch(
             _detect_point_triangle,
             m.particle_count,
             [
-                self.bvh.id,
+                wp.uint64(self.bvh.id),
                 self.tri_indices,
                 m.particle_inv_mass,
                 m.s(self.thickness),
@@ -502,7 +506,6 @@ class PointTriangleCollision(Constraint):
                 self.contact_tri,
                 self.contact_side,
             ],
-            device=m.device,
         )
 
     def _contact_args(self) -> list:
@@ -517,7 +520,7 @@ class PointTriangleCollision(Constraint):
     def project(self, solver: Any, p: wp.array, dt: float) -> None:
         """Accumulate contact corrections into ``solver.delta``."""
         m = self.model
-        wp.launch(
+        solver.launch(
             _project_point_triangle,
             self.capacity,
             [
@@ -529,7 +532,6 @@ class PointTriangleCollision(Constraint):
                 solver.delta,
                 solver.delta_count,
             ],
-            device=m.device,
         )
 
     def min_value(self, p: wp.array) -> float:

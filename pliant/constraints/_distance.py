@@ -34,6 +34,7 @@ def _project_distance(
     indices: wp.array2d(dtype=wp.int32),
     rest: wp.array(dtype=Any),
     compliance: wp.array(dtype=Any),
+    split: wp.array(dtype=wp.int32),
     # Model:
     inv_mass: wp.array(dtype=Any),
     # Parameters:
@@ -41,6 +42,7 @@ def _project_distance(
     pbd_k: Any,
     offset: int,
     jacobi: int,
+    omega: Any,
     # In/out:
     p_io: wp.array(dtype=Any),
     lam_io: wp.array(dtype=Any),
@@ -58,8 +60,14 @@ def _project_distance(
     xj = p_io[j]
     c = distance_c(xi, xj, rest[s])
     gi, gj = distance_grad(xi, xj)
+    if jacobi != 0:
+        # Mass splitting: each of the n_i constraints at particle i sees the mass m_i/n_i.
+        wi = wi * type(wi)(split[i])
+        wj = wj * type(wj)(split[j])
     lam = lam_io[s]
     dl = constraint_delta_lambda(c, wi + wj, compliance[s] * inv_dt2, lam, pbd_k)
+    if jacobi != 0:
+        dl = dl * omega  # over-relaxation of λ and x together keeps them consistent
     lam_io[s] = lam + dl
     if jacobi != 0:
         wp.atomic_add(delta_out, i, (wi * dl) * gi)
@@ -115,6 +123,8 @@ class Distance(Constraint):
         solver = pl.solvers.XPBD(model, constraints=[pl.constraints.Distance(compliance=1e-6)])
     """
 
+    relaxes_itself = True
+
     def __init__(
         self,
         indices: Any = None,
@@ -160,6 +170,7 @@ class Distance(Constraint):
         self.rest_length = wp.array(rest[order], dtype=f, device=d)
         self.compliance_array = wp.array(comp[order], dtype=f, device=d)
         self.lam = wp.zeros(n, dtype=f, device=d)
+        self.split = wp.array(self._split_counts(idx), dtype=wp.int32, device=d)
         self.order = order
 
     def project(self, solver: Any, p: wp.array, dt: float) -> None:
@@ -167,24 +178,25 @@ class Distance(Constraint):
         m = self.model
         k = m.s(self.pbd_k(solver))
         for off, size in self.color_ranges(solver.coloring):
-            wp.launch(
+            solver.launch(
                 _project_distance,
                 size,
                 [
                     self.indices,
                     self.rest_length,
                     self.compliance_array,
+                    self.split,
                     m.particle_inv_mass,
                     m.s(1.0 / (dt * dt)),
                     k,
                     off,
                     int(not solver.coloring),
+                    m.s(solver.relaxation),
                     p,
                     self.lam,
                     solver.delta,
                     solver.delta_count,
                 ],
-                device=m.device,
             )
 
     def residual(self, solver: Any, p: wp.array, dt: float, out: wp.array) -> None:
@@ -290,7 +302,7 @@ class Attachment(Constraint):
         """Each particle is touched by one attachment: a direct (conflict-free) update."""
         m = self.model
         if self.count:
-            wp.launch(
+            solver.launch(
                 _project_attachment,
                 self.count,
                 [
@@ -304,5 +316,4 @@ class Attachment(Constraint):
                     p,
                     self.lam,
                 ],
-                device=m.device,
             )

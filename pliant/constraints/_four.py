@@ -34,8 +34,8 @@ def dihedral_angle(x0: Any, x1: Any, x2: Any, x3: Any):
 @wp.func
 def wrap_angle(a: Any):
     """a wrapped into (−π, π]  [rad]."""
-    pi = type(a)(wp.pi)
-    two_pi = type(a)(2.0 * wp.pi)
+    pi = wp.acos(type(a)(-1.0))  # wp.pi is a float32 constant
+    two_pi = type(a)(2.0) * pi
     if a > pi:
         a = a - two_pi
     if a <= -pi:
@@ -94,8 +94,8 @@ def volume_c(x0: Any, x1: Any, x2: Any, x3: Any, rest: Any):
 
 @wp.func
 def volume_grad(x0: Any, x1: Any, x2: Any, x3: Any):
-    """∇_1 = (x2 − x0) × (x3 − x0)/6, ∇_2 = (x3 − x0) × (x1 − x0)/6, ∇_3 = (x1 − x0) × (x2 − x0)/6, ∇_0 = −Σ."""
-    sixth = type(x0[0])(1.0 / 6.0)
+    """∇_1 = (x2 − x0)×(x3 − x0)/6, ∇_2 = (x3 − x0)×(x1 − x0)/6, ∇_3 = (x1 − x0)×(x2 − x0)/6, ∇_0 = −Σ."""
+    sixth = type(x0[0])(1.0) / type(x0[0])(6.0)
     g1 = wp.cross(x2 - x0, x3 - x0) * sixth
     g2 = wp.cross(x3 - x0, x1 - x0) * sixth
     g3 = wp.cross(x1 - x0, x2 - x0) * sixth
@@ -145,6 +145,7 @@ def _project_four(
     indices: wp.array2d(dtype=wp.int32),
     rest: wp.array(dtype=Any),
     compliance: wp.array(dtype=Any),
+    split: wp.array(dtype=wp.int32),
     # Model:
     inv_mass: wp.array(dtype=Any),
     # Parameters:
@@ -153,6 +154,7 @@ def _project_four(
     pbd_k: Any,
     offset: int,
     jacobi: int,
+    omega: Any,
     # In/out:
     p_io: wp.array(dtype=Any),
     lam_io: wp.array(dtype=Any),
@@ -183,9 +185,17 @@ def _project_four(
     else:
         c = volume_c(x0, x1, x2, x3, rest[s])
         g0, g1, g2, g3 = volume_grad(x0, x1, x2, x3)
+    if jacobi != 0:
+        # Mass splitting: each of the n_i constraints at particle i sees the mass m_i/n_i.
+        w0 = w0 * type(w0)(split[i0])
+        w1 = w1 * type(w0)(split[i1])
+        w2 = w2 * type(w0)(split[i2])
+        w3 = w3 * type(w0)(split[i3])
     wgs = w0 * wp.dot(g0, g0) + w1 * wp.dot(g1, g1) + w2 * wp.dot(g2, g2) + w3 * wp.dot(g3, g3)
     lam = lam_io[s]
     dl = constraint_delta_lambda(c, wgs, compliance[s] * inv_dt2, lam, pbd_k)
+    if jacobi != 0:
+        dl = dl * omega  # over-relaxation of λ and x together keeps them consistent
     lam_io[s] = lam + dl
     _apply4(i0, i1, i2, i3, w0, w1, w2, w3, g0, g1, g2, g3, dl, jacobi, p_io, delta_out, count_out)
 
@@ -217,6 +227,7 @@ def _residual_four(
 
 
 class _FourPoint(Constraint):
+    relaxes_itself = True
     _kind = 0
     _name = ""
 
@@ -258,6 +269,7 @@ class _FourPoint(Constraint):
         self.rest = wp.array(rest[order], dtype=f, device=d)
         self.compliance_array = wp.array(comp[order], dtype=f, device=d)
         self.lam = wp.zeros(n, dtype=f, device=d)
+        self.split = wp.array(self._split_counts(idx), dtype=wp.int32, device=d)
         self.order = order
 
     def project(self, solver: Any, p: wp.array, dt: float) -> None:
@@ -265,25 +277,26 @@ class _FourPoint(Constraint):
         m = self.model
         k = m.s(self.pbd_k(solver))
         for off, size in self.color_ranges(solver.coloring):
-            wp.launch(
+            solver.launch(
                 _project_four,
                 size,
                 [
                     self.indices,
                     self.rest,
                     self.compliance_array,
+                    self.split,
                     m.particle_inv_mass,
                     self._kind,
                     m.s(1.0 / (dt * dt)),
                     k,
                     off,
                     int(not solver.coloring),
+                    m.s(solver.relaxation),
                     p,
                     self.lam,
                     solver.delta,
                     solver.delta_count,
                 ],
-                device=m.device,
             )
 
     def residual(self, solver: Any, p: wp.array, dt: float, out: wp.array) -> None:

@@ -1,8 +1,12 @@
 """Potential energies (value, gradient, Hessian) and dissipation terms."""
 
+from ._air import AirDrag, air_drag_force
 from ._base import Energy
 from ._cloth import cloth_spring_stiffness
+from ._colliders import ColliderPenalty
+from ._fem import Corotated, LinearElastic, NeoHookean, StVK, TetElasticity
 from ._gravity import Gravity
+from ._handles import ControlPoints
 from ._materials import (
     MATERIAL_MODELS,
     Material,
@@ -25,6 +29,15 @@ def mass_spring(*, dashpots: bool = True, gravity: bool = True) -> list[Energy]:
 
 
 __all__ = [
+    "Corotated",
+    "LinearElastic",
+    "NeoHookean",
+    "StVK",
+    "TetElasticity",
+    "AirDrag",
+    "ColliderPenalty",
+    "ControlPoints",
+    "air_drag_force",
     "MATERIAL_MODELS",
     "Material",
     "MaterialModel",

@@ -15,6 +15,8 @@ BDF2               x̂ + ĥ(4v − v₋₁)/3, ĥ = 2h/3              v₁ = (x�
 
 from __future__ import annotations
 
+import functools
+import inspect
 from typing import Any, ClassVar
 
 import numpy as np
@@ -98,9 +100,12 @@ class _ImplicitOptions:
 
 
 def _accepts_options(fn: Any) -> bool:
-    """Whether a System's ``minimize`` takes the ``options`` keyword (the protocol's original form does not)."""
-    import inspect
+    """Whether a System's ``minimize`` takes ``options`` (the protocol's original form does not)."""
+    return _takes_options(getattr(fn, "__func__", fn))
 
+
+@functools.lru_cache(maxsize=64)
+def _takes_options(fn: Any) -> bool:
     try:
         params = inspect.signature(fn).parameters
     except (TypeError, ValueError):
@@ -138,7 +143,9 @@ class BackwardEuler(_ImplicitOptions, Integrator):
     order: ClassVar[int] = 1
     explicit: ClassVar[bool] = False
 
-    def step_ode(self, problem: ODEProblem | SecondOrderODE, t: float, dt: float, y: np.ndarray) -> np.ndarray:
+    def step_ode(
+        self, problem: ODEProblem | SecondOrderODE, t: float, dt: float, y: np.ndarray
+    ) -> np.ndarray:
         """y₁ = y₀ + Δt A⁻¹f(t + Δt, y₁) by Newton."""
         return _theta_stage(first_order(problem), t + dt, dt, y)
 
@@ -182,7 +189,9 @@ class ImplicitMidpoint(_ImplicitOptions, Integrator):
     explicit: ClassVar[bool] = False
     symplectic: ClassVar[bool] = True
 
-    def step_ode(self, problem: ODEProblem | SecondOrderODE, t: float, dt: float, y: np.ndarray) -> np.ndarray:
+    def step_ode(
+        self, problem: ODEProblem | SecondOrderODE, t: float, dt: float, y: np.ndarray
+    ) -> np.ndarray:
         """Half a backward-Euler step, then y₁ = 2 y_½ − y₀."""
         y_half = _theta_stage(first_order(problem), t + 0.5 * dt, 0.5 * dt, y)
         return 2.0 * y_half - y
@@ -228,7 +237,9 @@ class BDF2(_ImplicitOptions, Integrator):
         self._ode_prev: tuple[np.ndarray, float, np.ndarray] | None = None  # (y₋₁, h₋₁, y₀ it produced)
         self._sys_key: Any = None  # (model id, dt, x_out pointer) of the last physical step
 
-    def step_ode(self, problem: ODEProblem | SecondOrderODE, t: float, dt: float, y: np.ndarray) -> np.ndarray:
+    def step_ode(
+        self, problem: ODEProblem | SecondOrderODE, t: float, dt: float, y: np.ndarray
+    ) -> np.ndarray:
         """Variable-step BDF2 by Newton (backward Euler when there is no matching history)."""
         p = first_order(problem)
         prev = self._ode_prev

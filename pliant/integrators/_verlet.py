@@ -33,7 +33,9 @@ class VelocityVerlet(Integrator):
     explicit: ClassVar[bool] = True
     symplectic: ClassVar[bool] = True
 
-    def step_ode(self, problem: ODEProblem | SecondOrderODE, t: float, dt: float, y: np.ndarray) -> np.ndarray:
+    def step_ode(
+        self, problem: ODEProblem | SecondOrderODE, t: float, dt: float, y: np.ndarray
+    ) -> np.ndarray:
         """One step on y = concat(v, x) of a SecondOrderODE."""
         if not isinstance(problem, SecondOrderODE):
             raise TypeError("VelocityVerlet needs a SecondOrderODE (positions and velocities kept apart)")

@@ -14,7 +14,7 @@ import re
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal, Union
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, Strict, ValidationError
@@ -62,9 +62,11 @@ class SceneError(ValueError):
 
 
 # ---------------------------------------------------------------------------------------------- types
-def _vector(n: int, what: str):
+def _vector(n: int, what: str, *, scalar: bool = False):
+    """Validator: a list of ``n`` items (or, with ``scalar``, one number repeated ``n`` times)."""
+
     def check(v: Any) -> Any:
-        if isinstance(v, (int, float)) and not isinstance(v, bool) and n > 1 and what.endswith("or scalar"):
+        if scalar and isinstance(v, (int, float)) and not isinstance(v, bool):
             return [v] * n
         if not isinstance(v, (list, tuple)) or len(v) != n:
             raise ValueError(f"expected {what}, got {v!r}")
@@ -80,12 +82,16 @@ NonNegFloat = Annotated[float, Strict(), Field(ge=0)]
 PosInt = Annotated[int, Strict(), Field(ge=1)]
 Vec3 = Annotated[tuple[Float, Float, Float], BeforeValidator(_vector(3, "3 numbers [x, y, z]"))]
 Size2 = Annotated[
-    tuple[PosFloat, PosFloat], BeforeValidator(_vector(2, "2 numbers [u, v] or scalar"))
+    tuple[PosFloat, PosFloat], BeforeValidator(_vector(2, "2 numbers [u, v] or one number", scalar=True))
 ]
 Size3 = Annotated[
-    tuple[PosFloat, PosFloat, PosFloat], BeforeValidator(_vector(3, "3 numbers [x, y, z] or scalar"))
+    tuple[PosFloat, PosFloat, PosFloat],
+    BeforeValidator(_vector(3, "3 numbers [x, y, z] or one number", scalar=True)),
 ]
-Cells3 = Annotated[tuple[PosInt, PosInt, PosInt], BeforeValidator(_vector(3, "3 integers [nx, ny, nz] or scalar"))]
+Cells3 = Annotated[
+    tuple[PosInt, PosInt, PosInt],
+    BeforeValidator(_vector(3, "3 integers [nx, ny, nz] or one integer", scalar=True)),
+]
 
 
 def _check_pin(v: Any) -> Any:
@@ -192,7 +198,7 @@ class PointsObject(_Object):
 
 
 ObjectConfig = Annotated[
-    Union[ClothObject, RopeObject, SoftBoxObject, MeshObject, PointsObject], Field(discriminator="kind")
+    ClothObject | RopeObject | SoftBoxObject | MeshObject | PointsObject, Field(discriminator="kind")
 ]
 
 
@@ -222,6 +228,7 @@ class SolverSection(_Section):
     velocity_damping: Annotated[float, Strict(), Field(gt=0, le=1)] = 1.0
     damping_rate: NonNegFloat | None = None  # [1/s]
     compliance: NonNegFloat | None = None  # XPBD default compliance [m/N]
+    stiffness: Annotated[float, Strict(), Field(ge=0, le=1)] | None = None  # PBD constraint stiffness k
     options: dict[str, Any] = Field(default_factory=dict)  # extra solver keyword arguments
 
 
@@ -396,7 +403,7 @@ def _problems_from(exc: ValidationError, text: str) -> list[tuple[int | None, st
         loc, msg = _message(err)
         path = _fmt_path(loc)
         out.append((_line_of(text, path), path, msg))
-    return out
+    return sorted(out, key=lambda p: p[0] or 0)
 
 
 # ---------------------------------------------------------------------------------------------- loading
@@ -432,7 +439,9 @@ def parse_scene(text: str, source: str = "<scene>", base_dir: str | os.PathLike 
     except tomllib.TOMLDecodeError as exc:
         m = re.search(r"line (\d+)", str(exc))
         msg = re.sub(r"\s*\(at line \d+, column \d+\)", "", str(exc))
-        raise SceneError(source, [(int(m.group(1)) if m else None, "", f"TOML syntax error: {msg}")]) from None
+        raise SceneError(
+            source, [(int(m.group(1)) if m else None, "", f"TOML syntax error: {msg}")]
+        ) from None
     try:
         cfg = SceneConfig.model_validate(data)
     except ValidationError as exc:
@@ -464,34 +473,61 @@ def _check(cfg: SceneConfig) -> list[tuple[str, str]]:
         volumetric = o.kind in ("soft_box", "mesh")
         if o.model == "fem":
             if not volumetric:
-                out.append((f"{at}.model", f"'fem' needs a volume (kind soft_box or mesh), not {o.kind}; "
-                            "use model = \"mass_spring\" or \"pbd\""))
+                out.append(
+                    (
+                        f"{at}.model",
+                        f"'fem' needs a volume (kind soft_box or mesh), not {o.kind}; "
+                        'use model = "mass_spring" or "pbd"',
+                    )
+                )
             elif mat.E is None:
                 out.append((f"{at}.material.E", "model 'fem' needs Young's modulus E [Pa], e.g. E = 1e5"))
             if kind != "force":
                 out.append(("solver.kind", f"objects[{i}] uses model 'fem', which needs kind = \"force\""))
         elif o.model == "mass_spring":
             if o.kind == "cloth" and mat.stiffness is None and mat.Et is None:
-                out.append((f"{at}.material.stiffness",
-                            "mass_spring cloth needs stiffness [N/m] or Et (E·t [N/m]), e.g. stiffness = 300"))
+                out.append(
+                    (
+                        f"{at}.material.stiffness",
+                        "mass_spring cloth needs stiffness [N/m] or Et (E·t [N/m]), e.g. stiffness = 300",
+                    )
+                )
             elif o.kind != "cloth" and mat.stiffness is None:
-                out.append((f"{at}.material.stiffness",
-                            "model 'mass_spring' needs stiffness [N/m], e.g. stiffness = 500"))
+                out.append(
+                    (
+                        f"{at}.material.stiffness",
+                        "model 'mass_spring' needs stiffness [N/m], e.g. stiffness = 500",
+                    )
+                )
             if kind != "force":
-                out.append(("solver.kind", f"objects[{i}] uses model 'mass_spring', which needs kind = \"force\""))
+                out.append(
+                    ("solver.kind", f"objects[{i}] uses model 'mass_spring', which needs kind = \"force\"")
+                )
         elif o.model == "pbd" and kind == "force":
-            out.append(("solver.kind", f"objects[{i}] uses model 'pbd', which needs kind = \"xpbd\" or \"pbd\""))
+            out.append(
+                ("solver.kind", f'objects[{i}] uses model \'pbd\', which needs kind = "xpbd" or "pbd"')
+            )
         pin = getattr(o, "pin", None)
         if isinstance(pin, str):
             allowed = CLOTH_PINS if o.kind == "cloth" else ROPE_PINS
             if pin not in allowed:
-                out.append((f"{at}.pin", f"unknown pin {pin!r}; allowed: {', '.join(allowed)} or a list of indices"))
+                out.append(
+                    (f"{at}.pin", f"unknown pin {pin!r}; allowed: {', '.join(allowed)} or a list of indices")
+                )
         if isinstance(o, RopeObject) and not np.any(o.direction):
             out.append((f"{at}.direction", "must be a non-zero vector"))
+    laws = {o.material.law for o in cfg.objects if o.model == "fem"}
+    if len(laws) > 1:
+        i = next(i for i, o in enumerate(cfg.objects) if o.model == "fem" and o.material.law != min(laws))
+        out.append((f"objects[{i}].material.law", f"all fem objects must share one law, got {sorted(laws)}"))
     cam = cfg.camera
     if (cam.eye is None) != (cam.target is None):
-        out.append(("camera.eye" if cam.eye is None else "camera.target",
-                    "give both eye and target, or neither (the camera then frames the motion)"))
+        out.append(
+            (
+                "camera.eye" if cam.eye is None else "camera.target",
+                "give both eye and target, or neither (the camera then frames the motion)",
+            )
+        )
     elif cam.eye is not None and np.allclose(cam.eye, cam.target):
         out.append(("camera.target", "must differ from camera.eye"))
     return out
@@ -514,20 +550,25 @@ def integrator_names() -> list[str]:
     return sorted(names)
 
 
-def make_integrator(name: str, options: dict[str, Any] | None = None, *, source: str = "", path: str = ""):
+def make_integrator(
+    name: str, options: dict[str, Any] | None = None, *, source: str = "", path: str = "", text: str = ""
+):
     """``pliant.integrators.<name>(**options)``, found case-insensitively; errors list what exists."""
     from .. import integrators
+
+    path = path or "solver.integrator"
 
     names = integrator_names()
     match = next((n for n in names if n.lower() == name.lower().replace("-", "").replace("_", "")), None)
     match = match or next((n for n in names if n.lower() == name.lower()), None)
     if match is None:
-        raise SceneError(source or "<scene>", [(None, path or "solver.integrator",
-                                                f"unknown integrator {name!r}; available: {', '.join(names)}")])
+        msg = f"unknown integrator {name!r}; available: {', '.join(names)}"
+        raise SceneError(source or "<scene>", [(_line_of(text, path), path, msg)])
     try:
         return getattr(integrators, match)(**(options or {}))
-    except TypeError as exc:
-        raise SceneError(source or "<scene>", [(None, "solver.integrator_options", f"{match}: {exc}")]) from None
+    except (TypeError, ValueError) as exc:
+        opt = "solver.integrator_options"
+        raise SceneError(source or "<scene>", [(_line_of(text, opt), opt, f"{match}: {exc}")]) from None
 
 
 def _not_available(what: str, needs: str) -> NotImplementedError:
@@ -566,7 +607,8 @@ def _points_for(o: PointsObject, base_dir: str) -> np.ndarray:
 def _add_object(b: Any, o: Any, i: int, cfg: SceneConfig) -> None:
     mat = o.material
     name = o.name or f"{o.kind}{i}"
-    k = mat.stiffness if mat.stiffness is not None else 0.0  # pbd objects: springs carry topology only
+    # pbd objects without a stiffness: the springs only carry topology (the solver gets compliance 0).
+    k = mat.stiffness if mat.stiffness is not None else 1.0
     r = {} if o.particle_radius is None else {"radius": o.particle_radius}
     if o.kind == "cloth":
         kw: dict[str, Any] = {}
@@ -574,16 +616,46 @@ def _add_object(b: Any, o: Any, i: int, cfg: SceneConfig) -> None:
             kw = {"youngs_modulus_thickness": mat.Et, "poisson": mat.nu}
         else:
             kw = {"stiffness": k, "shear_stiffness": mat.shear_stiffness}
-        b.add_cloth_grid(nx=o.nx, ny=o.ny, size=o.size, mass=o.mass, bend_stiffness=mat.bend_stiffness,
-                         damping=mat.damping, origin=o.origin, plane=o.plane, pin=o.pin, name=name, **kw, **r)
+        b.add_cloth_grid(
+            nx=o.nx,
+            ny=o.ny,
+            size=o.size,
+            mass=o.mass,
+            bend_stiffness=mat.bend_stiffness,
+            damping=mat.damping,
+            origin=o.origin,
+            plane=o.plane,
+            pin=o.pin,
+            name=name,
+            **kw,
+            **r,
+        )
     elif o.kind == "rope":
-        b.add_rope(n_segments=o.n_segments, length=o.length, mass=o.mass, stiffness=k, damping=mat.damping,
-                   start=o.origin, direction=o.direction, bend_stiffness=mat.bend_stiffness, pin=o.pin,
-                   name=name, **r)
+        b.add_rope(
+            n_segments=o.n_segments,
+            length=o.length,
+            mass=o.mass,
+            stiffness=k,
+            damping=mat.damping,
+            start=o.origin,
+            direction=o.direction,
+            bend_stiffness=mat.bend_stiffness,
+            pin=o.pin,
+            name=name,
+            **r,
+        )
     elif o.kind in ("soft_box", "mesh"):
         fem = o.model == "fem"
-        kw = {"stiffness": None if fem else k, "damping": mat.damping, "E": mat.E if fem else None,
-              "nu": mat.nu, "velocity": o.velocity, "name": name, "density": o.density, **r}
+        kw = {
+            "stiffness": None if fem else k,
+            "damping": mat.damping,
+            "E": mat.E if fem else None,
+            "nu": mat.nu,
+            "velocity": o.velocity,
+            "name": name,
+            "density": o.density,
+            **r,
+        }
         if o.kind == "soft_box":
             b.add_soft_box(cells=o.cells, size=o.size, origin=o.origin, **kw)
         else:
@@ -600,9 +672,16 @@ def _add_object(b: Any, o: Any, i: int, cfg: SceneConfig) -> None:
             b.add_tet_mesh(pts, tets, **kw)
     elif o.kind == "points":
         pts = _points_for(o, cfg.base_dir)
-        b.add_point_cloud(pts, mass=o.mass, stiffness=k, radius=o.radius or 1.8 * o.spacing,
-                          max_neighbors=o.max_neighbors, damping=mat.damping, name=name,
-                          **({} if o.particle_radius is None else {"particle_radius": o.particle_radius}))
+        b.add_point_cloud(
+            pts,
+            mass=o.mass,
+            stiffness=k,
+            radius=o.radius or 1.8 * o.spacing,
+            max_neighbors=o.max_neighbors,
+            damping=mat.damping,
+            name=name,
+            **({} if o.particle_radius is None else {"particle_radius": o.particle_radius}),
+        )
 
 
 @dataclass
@@ -682,7 +761,16 @@ def build_scene(cfg: SceneConfig, device: str | None = None, dtype: str | None =
     g = cfg.ground
     if g is not None and g.enabled:
         b.add_ground(g.height, friction=g.friction, restitution=g.restitution)
-    model = b.finalize(device=device or cfg.scene.device, dtype=dtype or cfg.scene.dtype)
+    try:
+        model = b.finalize(device=device or cfg.scene.device, dtype=dtype or cfg.scene.dtype)
+    except ValueError as exc:
+        if device is None and cfg.scene.device is not None and "device" in str(exc):
+            path = "scene.device"
+        elif "device" in str(exc):
+            raise
+        else:
+            path = "objects"
+        raise SceneError(src, [(_line_of(cfg.text, path), path, str(exc))]) from None
 
     s = cfg.solver
     if kind == "force":
@@ -693,15 +781,29 @@ def build_scene(cfg: SceneConfig, device: str | None = None, dtype: str | None =
             except TypeError:
                 m0 = fem_objects[0].material
                 terms.append(fem_energy(E=m0.E, nu=m0.nu))
-        integrator = make_integrator(s.integrator, s.integrator_options, source=src)
-        solver = solvers.ForceSolver(model, terms, integrator, velocity_damping=s.velocity_damping,
-                                     damping_rate=s.damping_rate, **s.options)
+        integrator = make_integrator(s.integrator, s.integrator_options, source=src, text=cfg.text)
+        solver = solvers.ForceSolver(
+            model,
+            terms,
+            integrator,
+            velocity_damping=s.velocity_damping,
+            damping_rate=s.damping_rate,
+            **s.options,
+        )
     else:
         compliance = s.compliance
         if compliance is None:
-            compliance = next((o.material.compliance for o in cfg.objects if o.material.compliance is not None),
-                              0.0 if kind == "pbd" else None)
-        kw = {"iterations": s.iterations, "compliance": compliance, "damping_rate": s.damping_rate}
+            compliance = next(
+                (o.material.compliance for o in cfg.objects if o.material.compliance is not None), None
+            )
+        if compliance is None and any(o.material.stiffness is None for o in cfg.objects):
+            compliance = 0.0  # no stiffness given: rigid distance constraints (XPBD would use α = 1/k)
+        kw = {
+            "iterations": s.iterations,
+            "compliance": None if kind == "pbd" else compliance,
+            "stiffness": s.stiffness if kind == "pbd" else None,
+            "damping": s.damping_rate,
+        }
         kw = {k: v for k, v in kw.items() if v is not None}
         solver = solver_cls(model, **_filtered_kwargs(solver_cls, kw), **s.options)
 
@@ -711,5 +813,13 @@ def build_scene(cfg: SceneConfig, device: str | None = None, dtype: str | None =
         from ..render import Camera
 
         camera = Camera(eye=c.eye, target=c.target, up=c.up, fov_y=c.fov, width=c.width, height=c.height)
-    return Scene(config=cfg, model=model, solver=solver, dt=cfg.scene.dt, substeps=cfg.scene.substeps,
-                 frames=cfg.scene.frames, camera=camera, outputs=cfg.output)
+    return Scene(
+        config=cfg,
+        model=model,
+        solver=solver,
+        dt=cfg.scene.dt,
+        substeps=cfg.scene.substeps,
+        frames=cfg.scene.frames,
+        camera=camera,
+        outputs=cfg.output,
+    )

@@ -20,6 +20,10 @@ def atomic_savez(path: str | os.PathLike, **arrays: Any) -> Path:
     os.close(fd)
     try:
         np.savez(tmp, **arrays)
+        # mkstemp creates 0600 files; give the output the permissions a plain open() would.
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):

@@ -163,13 +163,14 @@ class Renderer:
         self.edges = bool(edges)
         self.supersample = int(supersample)
         self._ground_cache: tuple[tuple, np.ndarray, np.ndarray] | None = None
-        self._buffers: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._light_frame = (np.zeros(3), np.zeros(3), self.light_dir)  # set by _shadow_pass
+        self._buffers: dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     # ------------------------------------------------------------------------------------------
     def _get_buffers(self, h: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        key = (h, w)
+        s = self.supersample
+        key = (h, w, s)
         if key not in self._buffers:
-            s = self.supersample
             self._buffers = {
                 key: (
                     np.zeros((h * s, w * s), np.float32),
@@ -244,9 +245,7 @@ class Renderer:
         # 1) shadow map, 2) ground/background (which reads it), 3) object.
         g = self.ground_height
         has_ground = g is not None and cam.eye[1] > g
-        shadow_args = self._shadow_pass(
-            world32, valid, wp_tri, radius_m, radius_px, smap, has_ground and has_geometry
-        )
+        shadow_args = self._shadow_pass(world32, valid, wp_tri, radius_m, smap, has_ground and has_geometry)
         wp_depth = _wrap(depth, float)
         wp_image = _wrap(image, wp.vec3)
         ground_args = self._ground_inputs(has_ground, focal, Hs, Ws)
@@ -434,7 +433,6 @@ class Renderer:
         valid: np.ndarray,
         wp_tri: wp.array | None,
         radius_m: np.ndarray | None,
-        radius_px: np.ndarray | None,
         smap: np.ndarray,
         enabled: bool,
     ) -> list | None:

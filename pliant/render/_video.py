@@ -39,7 +39,9 @@ class VideoWriter:
     The format follows the file extension (``.mp4``/``.m4v``/``.mov``/``.mkv`` or ``.gif``). All
     frames must have the size of the first one; odd widths/heights are padded by one
     replicated row/column because yuv420p needs even dimensions. MP4 frames are streamed to
-    ffmpeg; GIF frames are palette-quantised and kept in memory until ``close``.
+    ffmpeg; GIF frames are palette-quantised and kept in memory until ``close`` (Pillow merges
+    identical consecutive GIF frames into one longer frame). Nothing is written if no frame
+    was appended.
 
     Used as a context manager, the file is finalised on exit even when the block raises, so
     the frames written so far are kept.
@@ -163,6 +165,8 @@ def write_video(frames: Iterable[np.ndarray], path: str | os.PathLike, fps: floa
     with VideoWriter(path, fps, **kw) as vw:
         for f in frames:
             vw.append_frame(f)
+    if vw.frame_count == 0:
+        raise ValueError("write_video got no frames")
     return vw.path
 
 

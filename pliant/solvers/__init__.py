@@ -1,6 +1,10 @@
 """Solvers advance a Model one step: ``step(state_in, state_out, control, dt)``."""
 
 from ._base import Solver
+from ._fast_cloth import FastMassSpring
 from ._force import ForceSolver
+from ._static import StaticStats, solve_static
+from ._rigid import RigidBodySolver
+from ._xpbd import PBD, XPBD
 
-__all__ = ["ForceSolver", "Solver"]
+__all__ = ["StaticStats", "solve_static", "FastMassSpring", "PBD", "RigidBodySolver", "XPBD", "ForceSolver", "Solver"]

@@ -8,6 +8,9 @@ over the free particles (inverse mass > 0); pinned and kinematic particles stay 
 (dashpots) are Rayleigh potentials about the reference positions x_ref, prepared by ``begin_step`` with the
 same h, so that h²∇R is the dashpot impulse at v = (x − x_ref)/h (see ``pliant.energies.Dashpots``).
 
+The Control's external forces f enter as the potential −f·x and its drag handle as ½k|x − target|², so
+implicit and explicit integrators see the same forces.
+
 The Hessian H = M + h² Σ H_e lives on a fixed BSR(3×3) pattern built once per model: the union of every
 energy's ``hessian_pattern`` plus the diagonal. Each energy's blocks are mapped once to ``slots`` (positions
 in the sorted (row, col) keys), so assembly per Newton iteration is: zero the values, add M, let every
@@ -200,6 +203,42 @@ def _inverse_diagonal(
 
 
 @wp.kernel(enable_backward=False)
+def _external_force_terms(
+    f_ext: wp.array(dtype=Any),
+    x_in: wp.array(dtype=Any),
+    grad_out: wp.array(dtype=Any),
+    value_out: wp.array(dtype=Any),
+):
+    # Control forces as the potential −f·x (constant over the step): gradient −f.
+    i = wp.tid()
+    grad_out[i] = grad_out[i] - f_ext[i]
+    wp.atomic_add(value_out, 0, -wp.dot(f_ext[i], x_in[i]))
+
+
+@wp.kernel(enable_backward=False)
+def _drag_terms(
+    index: int,
+    target: Any,
+    stiffness: Any,
+    scale: Any,
+    diag_slots: wp.array(dtype=wp.int32),
+    x_in: wp.array(dtype=Any),
+    mode: int,
+    grad_out: wp.array(dtype=Any),
+    value_out: wp.array(dtype=Any),
+    values_out: wp.array(dtype=Any),
+):
+    # The drag handle's zero-length spring ½k|x − target|²: value and gradient (mode 0) or Hessian (mode 1).
+    d = x_in[index] - target
+    if mode == 0:
+        grad_out[index] = grad_out[index] + stiffness * d
+        value_out[0] = value_out[0] + type(stiffness)(0.5) * stiffness * wp.dot(d, d)
+    else:
+        s = diag_slots[index]
+        values_out[s] = values_out[s] + (scale * stiffness) * wp.identity(n=3, dtype=type(stiffness))
+
+
+@wp.kernel(enable_backward=False)
 def _negate(src: wp.array(dtype=Any), out: wp.array(dtype=Any)):
     i = wp.tid()
     out[i] = -src[i]
@@ -240,11 +279,15 @@ class _Workspace:
             np.array_equal(self.A.offsets.numpy()[: n + 1], self.indptr)
             and np.array_equal(self.A.columns.numpy()[: self.nnz], bcol)
         ):
-            raise RuntimeError("warp.sparse built a BSR layout that differs from the sorted (row, col) pattern")
+            raise RuntimeError(
+                "warp.sparse built a BSR layout that differs from the sorted (row, col) pattern"
+            )
         self.values = self.A.values
         self.block_rows = wp.array(brow, dtype=wp.int32, device=d)
         self.block_cols = wp.array(bcol, dtype=wp.int32, device=d)
-        self.diag_slots = wp.array(np.searchsorted(keys, diag * n + diag).astype(np.int32), dtype=wp.int32, device=d)
+        self.diag_slots = wp.array(
+            np.searchsorted(keys, diag * n + diag).astype(np.int32), dtype=wp.int32, device=d
+        )
         self.slots = []
         for r, c in patterns:
             k = np.asarray(r, np.int64) * n + np.asarray(c, np.int64)
@@ -252,6 +295,7 @@ class _Workspace:
         v3 = model.vec3
         self.grad = wp.zeros(n, dtype=v3, device=d)
         self.egrad = wp.zeros(n, dtype=v3, device=d)
+        self.egrad_scratch = wp.zeros(n, dtype=v3, device=d)  # gradient nobody reads (line-search values)
         self.rhs = wp.zeros(n, dtype=v3, device=d)
         self.dx = wp.zeros(n, dtype=v3, device=d)
         self.x_trial = wp.zeros(n, dtype=v3, device=d)
@@ -317,13 +361,15 @@ def _resolve_linear_solver(name: str, model: Any) -> str:
 def _direct_solve(ws: _Workspace, model: Any) -> None:
     """Δx = −H⁻¹∇Φ by a SciPy sparse LU (float64 on the host; one copy each way)."""
     import scipy.sparse as sp
-    from scipy.sparse.linalg import spsolve
+    from scipy.sparse.linalg import splu
 
     n = model.particle_count
     vals = ws.values.numpy()[: ws.nnz].astype(np.float64)
     H = sp.bsr_matrix((vals, ws.indices, ws.indptr), shape=(3 * n, 3 * n)).tocsc()
     g = ws.grad.numpy().astype(np.float64).reshape(-1)
-    dx = spsolve(H, -g)
+    # H is symmetric positive definite: symmetric ordering, no pivoting (SuperLU's "symmetric mode").
+    lu = splu(H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    dx = lu.solve(-g)
     ws.dx.assign(dx.reshape(n, 3).astype(ws.np_dtype))
 
 
@@ -332,12 +378,15 @@ def _gradient(solver: Any, ws: _Workspace, x: wp.array, x_tilde: wp.array, h: fl
     """∇Φ(x) into ws.grad (fixed rows zeroed); returns [max|g|/(m h), max|x|, inertia, E] (one host read)."""
     m = solver.model
     n = m.particle_count
-    wp.launch(_inertia_gradient, n, [m.particle_mass, m.particle_inv_mass, x, x_tilde, ws.grad], device=m.device)
+    wp.launch(
+        _inertia_gradient, n, [m.particle_mass, m.particle_inv_mass, x, x_tilde, ws.grad], device=m.device
+    )
     ws.egrad.zero_()
     ws.gstats.zero_()
     for e in solver.energies:
         e.gradient(m, x, ws.egrad)
         e.value(m, x, ws.gstats_e)
+    _control_terms(solver, ws, x, ws.egrad, ws.gstats_e)
     wp.launch(_scale_into, n, [ws.egrad, m.s(h * h), ws.grad], device=m.device)
     wp.launch(
         _gradient_stats,
@@ -348,15 +397,63 @@ def _gradient(solver: Any, ws: _Workspace, x: wp.array, x_tilde: wp.array, h: fl
     return ws.gstats.numpy().astype(np.float64)
 
 
+def _control_terms(solver: Any, ws: _Workspace, x: wp.array, grad: wp.array, value: wp.array) -> None:
+    """Add the Control's external forces and drag handle (as potentials) into ``grad`` and ``value``."""
+    c = getattr(solver, "_control", None)
+    if c is None:
+        return
+    m = solver.model
+    wp.launch(_external_force_terms, m.particle_count, [c.particle_f, x, grad, value], device=m.device)
+    if c.drag_index >= 0:
+        wp.launch(
+            _drag_terms,
+            1,
+            [
+                c.drag_index,
+                m.vec3(*c.drag_target),
+                m.s(c.drag_stiffness),
+                m.s(1.0),
+                ws.diag_slots,
+                x,
+                0,
+                grad,
+                value,
+                ws.values,
+            ],
+            device=m.device,
+        )
+
+
 def _assemble(solver: Any, ws: _Workspace, x: wp.array, h: float, project_psd: bool) -> None:
     """H = M + h² Σ H_e on the fixed pattern, fixed particles projected out."""
     m = solver.model
     ws.values.zero_()
-    wp.launch(_add_mass_diagonal, m.particle_count, [m.particle_mass, ws.diag_slots, ws.values], device=m.device)
+    wp.launch(
+        _add_mass_diagonal, m.particle_count, [m.particle_mass, ws.diag_slots, ws.values], device=m.device
+    )
     for e, slots in zip(solver.energies, ws.slots, strict=True):
         if slots.shape[0] == 0:
             continue  # no Hessian (e.g. gravity)
         e.hessian(m, x, slots, ws.values, project_psd=project_psd, scale=h * h)
+    c = getattr(solver, "_control", None)
+    if c is not None and c.drag_index >= 0:
+        wp.launch(
+            _drag_terms,
+            1,
+            [
+                c.drag_index,
+                m.vec3(*c.drag_target),
+                m.s(c.drag_stiffness),
+                m.s(h * h),
+                ws.diag_slots,
+                x,
+                1,
+                ws.egrad,
+                ws.gstats_e,
+                ws.values,
+            ],
+            device=m.device,
+        )
     wp.launch(
         _project_fixed,
         ws.nnz,
@@ -440,7 +537,9 @@ def minimize_incremental_potential(
         for ls in range(max_ls + 1):
             if ls == 0:
                 ws.tstats.zero_()
-                wp.launch(_step_stats, n, [m.particle_inv_mass, ws.grad, ws.dx, ws.tstats_step], device=m.device)
+                wp.launch(
+                    _step_stats, n, [m.particle_inv_mass, ws.grad, ws.dx, ws.tstats_step], device=m.device
+                )
             else:
                 ws.tstats_phi.zero_()
             wp.launch(
@@ -451,6 +550,7 @@ def minimize_incremental_potential(
             )
             for e in solver.energies:
                 e.value(m, ws.x_trial, ws.tstats_e)
+            _control_terms(solver, ws, ws.x_trial, ws.egrad_scratch, ws.tstats_e)
             s = ws.tstats.numpy().astype(np.float64)
             dx_max, gdx = s[2], s[3]
             phi = s[0] + h2 * s[1]
@@ -461,15 +561,17 @@ def minimize_incremental_potential(
                 break
             alpha *= 0.5
             stats.line_search_backtracks += 1
-        stats.step_norm = alpha * dx_max / h
+        stats.step_norm = float(alpha * dx_max / h)
         if not accepted:
             break  # no decrease even for a tiny step: at the round-off floor (or a non-descent direction)
         wp.copy(x, ws.x_trial)
         g = _gradient(solver, ws, x, x_tilde, h)
         stats.residuals.append(float(g[0]))
-        if stats.step_norm <= tol or g[0] <= tol:
+        if g[0] <= tol:
             stats.converged = True
             break
+        if stats.step_norm <= 1e-3 * tol:
+            break  # stagnating far below the tolerance on the step: round-off or an inexact Hessian
     stats.gradient_norm = float(g[0])
     solver.last_stats = stats
     return stats

@@ -1,0 +1,210 @@
+"""Cloth drape benchmark: a 1 m cloth pinned at two adjacent corners falls and hangs for 300 frames.
+
+Scene (fixed, so that equal speed means equal behaviour): n × n cells, side 1 m, starting flat in the
+horizontal xz plane at y = 0 (near the origin: see the float32 pitfall in DESIGN.md), total mass 0.5 kg,
+membrane stiffness E·t = 1000 N/m with ν = 0.3 mapped by :func:`pliant.energies.cloth_spring_stiffness`
+(structural and shear springs, no bending), pinned at "top-corners", gravity −9.81 m/s² along y, no ground,
+300 frames of 1/60 s. The sanity figure is the **sag**: pin height minus the lowest particle's height at
+the end [m], compared with a converged float64 reference (:data:`REFERENCE_SAG`).
+
+Each benchmark returns one JSON-serialisable dict; ``python -m pliant.bench._mass_spring`` prints them.
+"""
+
+from __future__ import annotations
+
+import json
+import resource
+import sys
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+#: Converged sag [m] of the drape at equilibrium, per cells per side. Computed by :func:`reference_sag`:
+#: float64, Baraff–Witkin steps of 1/60 s with 200–300 CG iterations (relative tolerance 1e-9) and
+#: damping 3/s, run until the largest speed is below 1e-4 m/s and the force residual below 1% of a
+#: particle's weight (64: 1500 frames, max |v| 1e-5 m/s). At rest the sag does not depend on damping or
+#: integrator; the symplectic-Euler float64 run with 400 substeps/frame agrees (see tests/test_mass_spring.py).
+REFERENCE_SAG: dict[int, float] = {64: 1.011910, 128: float("nan"), 256: float("nan")}
+
+#: Frames of 1/60 s per run.
+FRAMES = 300
+FRAME_DT = 1.0 / 60.0
+
+
+def cloth_drape_model(
+    n: int, *, device: str | None = "cpu", dtype: str = "float32", damping: float = 0.0
+) -> Any:
+    """The drape scene's Model: n × n cells, 1 m, 0.5 kg, E·t = 1000 N/m, ν = 0.3, two pinned corners."""
+    from ..model import ModelBuilder
+
+    b = ModelBuilder(gravity=(0.0, -9.81, 0.0))
+    b.add_cloth_grid(
+        nx=n,
+        ny=n,
+        size=1.0,
+        mass=0.5,
+        youngs_modulus_thickness=1000.0,
+        poisson=0.3,
+        damping=damping,
+        origin=(-0.5, 0.0, -0.5),
+        plane="xz",
+        pin="top-corners",
+    )
+    return b.finalize(device=device, dtype=dtype)
+
+
+def sag(model: Any, x: np.ndarray) -> float:
+    """Pin height minus the lowest particle's height [m]."""
+    pinned = model.particle_inv_mass.numpy() == 0
+    return float(x[pinned, 1].mean() - x[:, 1].min())
+
+
+def make_solver(model: Any, method: str, *, cg_iterations: int = 20, damping_rate: float = 1.0) -> Any:
+    """The solver of a benchmark row: "implicit" / "symplectic" (FastMassSpring) or "force" (ForceSolver)."""
+    from ..solvers._fast_cloth import FastMassSpring
+
+    if method == "force":
+        from ..energies import Gravity, Springs
+        from ..integrators import SymplecticEuler
+        from ..solvers import ForceSolver
+
+        return ForceSolver(
+            model, energies=[Springs(), Gravity()], integrator=SymplecticEuler(), damping_rate=damping_rate
+        )
+    return FastMassSpring(model, method=method, cg_iterations=cg_iterations, damping_rate=damping_rate)
+
+
+def _peak_mem_mb(device: str) -> float:
+    if device.startswith("cuda"):
+        import warp as wp
+
+        return wp.get_mempool_used_mem_high(device) / 2**20
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def cloth_drape(
+    n: int = 64,
+    method: str = "implicit",
+    substeps: int = 1,
+    cg_iterations: int = 20,
+    damping_rate: float = 1.0,
+    frames: int = FRAMES,
+    device: str | None = "cpu",
+    dtype: str = "float32",
+    quick: bool = False,
+) -> dict:
+    """Run the drape for ``frames`` frames of 1/60 s; one dict of speed and sag figures."""
+    import warp as wp
+
+    from .._warp import resolve_device
+
+    if quick:
+        n, frames = min(n, 16), min(frames, 30)
+    device = str(resolve_device(device))
+    t0 = time.perf_counter()
+    model = cloth_drape_model(n, device=device, dtype=dtype)
+    solver = make_solver(model, method, cg_iterations=cg_iterations, damping_rate=damping_rate)
+    control = model.control()
+    dt = FRAME_DT / substeps
+    s0, s1 = model.state(), model.state()
+    solver.step(s0, s1, control, dt)  # warm-up: kernel compilation or cache load, launch recording
+    solver.step(s1, s0, control, dt)
+    wp.synchronize_device(device)
+    compile_s = time.perf_counter() - t0
+    s0, s1 = model.state(), model.state()
+    wp.synchronize_device(device)
+    t0 = time.perf_counter()
+    for _ in range(frames):
+        for _ in range(substeps):
+            solver.step(s0, s1, control, dt)
+            s0, s1 = s1, s0
+    wp.synchronize_device(device)
+    wall = time.perf_counter() - t0
+    x = s0.particle_q.numpy()
+    finite = bool(np.all(np.isfinite(x)))
+    sg = sag(model, x) if finite else float("nan")
+    ref = REFERENCE_SAG.get(n, float("nan"))
+    d = solver.describe()
+    return {
+        "scene": f"cloth_drape_{n}x{n}",
+        "solver": d["solver"],
+        "integrator": d["integrator"],
+        "device": device,
+        "dtype": dtype,
+        "particles": model.particle_count,
+        "elements": model.spring_count,
+        "frames": frames,
+        "substeps": substeps,
+        "iterations": cg_iterations if method == "implicit" else 0,
+        "damping_rate": damping_rate,
+        "wall_s": round(wall, 4),
+        "compile_s": round(compile_s, 3),
+        "fps": round(frames / wall, 2),
+        "particle_substeps_per_s": float(f"{model.particle_count * frames * substeps / wall:.4g}"),
+        "peak_mem_mb": round(_peak_mem_mb(device), 1),
+        "sag": round(sg, 5),
+        "sag_reference": ref,
+        "sag_rel_error": round(abs(sg - ref) / ref, 5) if np.isfinite(ref) and finite else None,
+        "stable": finite,
+    }
+
+
+def reference_sag(n: int, *, max_frames: int = 4000, cg_iterations: int = 300) -> float:
+    """Converged float64 sag [m] of the n × n drape (slow: minutes at n = 128)."""
+    import warp as wp
+
+    from ..energies import Gravity, Springs
+    from ..solvers._fast_cloth import FastMassSpring
+
+    model = cloth_drape_model(n, device="cpu", dtype="float64")
+    solver = FastMassSpring(
+        model, method="implicit", cg_iterations=cg_iterations, cg_tol=1e-9, damping_rate=3.0
+    )
+    control = model.control()
+    s0, s1 = model.state(), model.state()
+    grad = wp.zeros(model.particle_count, dtype=model.vec3, device=model.device)
+    free = model.particle_inv_mass.numpy() > 0
+    weight = model.particle_mass.numpy()[free] * 9.81
+    for f in range(max_frames):
+        solver.step(s0, s1, control, FRAME_DT)
+        s0, s1 = s1, s0
+        if f % 100 == 99:
+            grad.zero_()
+            for e in (Springs(), Gravity()):
+                e.gradient(model, s0.particle_q, grad)
+            res = float(np.max(np.linalg.norm(grad.numpy()[free], axis=1) / weight))
+            vmax = float(np.abs(s0.particle_qd.numpy()).max())
+            if vmax < 1e-4 and res < 1e-2:
+                break
+    return sag(model, s0.particle_q.numpy())
+
+
+def _bench(n: int, method: str, substeps: int = 1, cg_iterations: int = 20) -> Callable[..., dict]:
+    def run(device: str | None = "cpu", quick: bool = False, dtype: str = "float32") -> dict:
+        return cloth_drape(
+            n, method, substeps, cg_iterations, device=device, quick=quick, dtype=dtype, frames=FRAMES
+        )
+
+    run.__doc__ = f"Cloth drape {n}×{n}, {method}, {substeps} substep(s)/frame, 300 frames."
+    return run
+
+
+#: Substeps per frame that keep symplectic Euler stable on the pinned drape (measured; see the report).
+SYMPLECTIC_SUBSTEPS = {64: 80, 128: 160, 256: 320}
+
+BENCHMARKS: dict[str, Callable[..., dict]] = {
+    "cloth_drape_64_implicit": _bench(64, "implicit"),
+    "cloth_drape_128_implicit": _bench(128, "implicit"),
+    "cloth_drape_256_implicit": _bench(256, "implicit"),
+    "cloth_drape_64_symplectic": _bench(64, "symplectic", SYMPLECTIC_SUBSTEPS[64]),
+    "cloth_drape_128_symplectic": _bench(128, "symplectic", SYMPLECTIC_SUBSTEPS[128]),
+    "cloth_drape_64_forcesolver": _bench(64, "force", SYMPLECTIC_SUBSTEPS[64]),
+}
+
+
+if __name__ == "__main__":
+    names = sys.argv[1:] or list(BENCHMARKS)
+    for name in names:
+        print(json.dumps({"benchmark": name, **BENCHMARKS[name]()}), flush=True)

@@ -1,0 +1,242 @@
+"""XPBD benchmarks: the cloth drape (both schedules, 64² and 128²) and a soft-body drop.
+
+The drape is the scene of :mod:`pliant.bench._mass_spring` (1 m, 0.5 kg, E·t = 1000 N/m, ν = 0.3, two pinned
+adjacent corners, 300 frames of 1/60 s, no ground) under :class:`pliant.solvers.XPBD` with the springs as
+distance constraints of compliance α = 1/k, and a velocity damping of 3/s so that after 5 s the cloth hangs
+at rest and its sag can be compared with the converged equilibrium. ``python -m pliant.bench._xpbd`` prints
+the rows; ``python -m pliant.bench._xpbd reference 64`` recomputes :data:`REFERENCE_SAG`.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from ._mass_spring import FRAME_DT, FRAMES, cloth_drape_model, sag
+
+#: Velocity damping rate c [1/s] of the drape runs (v ← v e^{−cΔt}).
+DAMPING = 3.0
+
+#: Converged XPBD sag [m] after 300 frames, per cells per side: float64, "coloring", damping 3/s,
+#: 100 substeps × 20 iterations per frame (64: 1.0131; the mass-spring equilibrium reference of
+#: pliant.bench._mass_spring is 1.0119), computed by :func:`reference_sag`.
+REFERENCE_SAG: dict[int, float] = {64: 1.011905, 128: float("nan")}
+
+#: Substeps and iterations of the benchmark rows (chosen for the speed goal with sag within 5 %).
+SETTINGS: dict[tuple[int, str], tuple[int, int]] = {
+    (64, "coloring"): (20, 1),
+    (128, "coloring"): (20, 1),
+    (64, "jacobi"): (20, 4),
+    (128, "jacobi"): (20, 4),
+}
+
+
+def _run_drape(
+    n: int,
+    schedule: str,
+    substeps: int,
+    iterations: int,
+    *,
+    frames: int,
+    device: str,
+    dtype: str,
+    damping: float = DAMPING,
+) -> tuple[dict, object, object]:
+    import warp as wp
+
+    from ..solvers import XPBD
+
+    t0 = time.perf_counter()
+    model = cloth_drape_model(n, device=device, dtype=dtype)
+    solver = XPBD(model, iterations=iterations, schedule=schedule, damping=damping)
+    control = model.control()
+    dt = FRAME_DT / substeps
+    s0, s1 = model.state(), model.state()
+    # Warm-up: kernel compilation (or cache load) and the recording of both step plans.
+    solver.step(s0, s1, control, dt)
+    solver.step(s1, s0, control, dt)
+    wp.synchronize_device(device)
+    compile_s = time.perf_counter() - t0
+    s0.assign(model.state())
+    s1.assign(model.state())
+    wp.synchronize_device(device)
+    t0 = time.perf_counter()
+    for _ in range(frames):
+        for _ in range(substeps):
+            solver.step(s0, s1, control, dt)
+            s0, s1 = s1, s0
+    wp.synchronize_device(device)
+    wall = time.perf_counter() - t0
+    return {"wall": wall, "compile": compile_s}, model, (solver, s0)
+
+
+def cloth_drape(
+    n: int = 64,
+    schedule: str = "coloring",
+    substeps: int | None = None,
+    iterations: int | None = None,
+    frames: int = FRAMES,
+    device: str | None = "cpu",
+    dtype: str = "float32",
+    quick: bool = False,
+) -> dict:
+    """Run the drape under XPBD for ``frames`` frames of 1/60 s; one dict of speed and sag figures."""
+    from .._warp import resolve_device
+
+    sub_default, it_default = SETTINGS.get((n, schedule), (20, 1))
+    substeps = substeps or sub_default
+    iterations = iterations or it_default
+    if quick:
+        n, frames = min(n, 16), min(frames, 30)
+    device = str(resolve_device(device))
+    times, model, (solver, state) = _run_drape(
+        n, schedule, substeps, iterations, frames=frames, device=device, dtype=dtype
+    )
+    wall = times["wall"]
+    x = state.particle_q.numpy()
+    finite = bool(np.all(np.isfinite(x)))
+    sg = sag(model, x) if finite else float("nan")
+    ref = REFERENCE_SAG.get(n, float("nan")) if frames == FRAMES else float("nan")
+    count = solver.constraint_count
+    return {
+        "scene": f"cloth_drape_{n}x{n}",
+        "solver": "XPBD",
+        "integrator": "xpbd",
+        "schedule": schedule,
+        "device": device,
+        "dtype": dtype,
+        "particles": model.particle_count,
+        "elements": count,
+        "frames": frames,
+        "substeps": substeps,
+        "iterations": iterations,
+        "damping_rate": DAMPING,
+        "wall_s": round(wall, 4),
+        "compile_s": round(times["compile"], 3),
+        "fps": round(frames / wall, 2),
+        "particle_substeps_per_s": float(f"{model.particle_count * frames * substeps / wall:.4g}"),
+        "constraint_projections_per_s": float(f"{count * frames * substeps * iterations / wall:.4g}"),
+        "residual": float(f"{solver.residual():.4g}"),
+        "sag": round(sg, 5),
+        "sag_reference": ref,
+        "sag_rel_error": round(abs(sg - ref) / ref, 5) if np.isfinite(ref) and finite else None,
+        "stable": finite,
+    }
+
+
+def reference_sag(n: int, *, substeps: int = 100, iterations: int = 10) -> float:
+    """Converged XPBD sag [m] of the n × n drape after 300 frames (float64, colouring; slow)."""
+    _, model, (_, state) = _run_drape(
+        n, "coloring", substeps, iterations, frames=FRAMES, device="cpu", dtype="float64"
+    )
+    return sag(model, state.particle_q.numpy())
+
+
+def soft_body_drop(
+    cells: int = 6,
+    schedule: str = "coloring",
+    substeps: int = 10,
+    iterations: int = 4,
+    frames: int = 120,
+    device: str | None = "cpu",
+    dtype: str = "float32",
+    quick: bool = False,
+) -> dict:
+    """A 0.2 m soft box (tet-edge distance + volume constraints) dropped from 0.3 m onto the ground."""
+    import warp as wp
+
+    from .._warp import resolve_device
+    from ..model import ModelBuilder
+    from ..solvers import XPBD
+
+    if quick:
+        cells, frames = min(cells, 3), min(frames, 20)
+    device = str(resolve_device(device))
+    t0 = time.perf_counter()
+    b = ModelBuilder()
+    b.add_soft_box(
+        cells=(cells, cells, cells), size=(0.2, 0.2, 0.2), origin=(0.0, 0.3, 0.0), stiffness=2.0e4, E=1.0e5
+    )
+    b.add_ground(friction=0.5)
+    model = b.finalize(device=device, dtype=dtype)
+    solver = XPBD(model, iterations=iterations, schedule=schedule)
+    control = model.control()
+    dt = FRAME_DT / substeps
+    s0, s1 = model.state(), model.state()
+    solver.step(s0, s1, control, dt)
+    solver.step(s1, s0, control, dt)
+    wp.synchronize_device(device)
+    compile_s = time.perf_counter() - t0
+    s0.assign(model.state())
+    s1.assign(model.state())
+    t0 = time.perf_counter()
+    for _ in range(frames):
+        for _ in range(substeps):
+            solver.step(s0, s1, control, dt)
+            s0, s1 = s1, s0
+    wp.synchronize_device(device)
+    wall = time.perf_counter() - t0
+    x = s0.particle_q.numpy()
+    count = solver.constraint_count
+    return {
+        "scene": f"soft_box_drop_{cells}^3",
+        "solver": "XPBD",
+        "integrator": "xpbd",
+        "schedule": schedule,
+        "device": device,
+        "dtype": dtype,
+        "particles": model.particle_count,
+        "elements": count,
+        "frames": frames,
+        "substeps": substeps,
+        "iterations": iterations,
+        "wall_s": round(wall, 4),
+        "compile_s": round(compile_s, 3),
+        "fps": round(frames / wall, 2),
+        "particle_substeps_per_s": float(f"{model.particle_count * frames * substeps / wall:.4g}"),
+        "constraint_projections_per_s": float(f"{count * frames * substeps * iterations / wall:.4g}"),
+        "residual": float(f"{solver.residual():.4g}"),
+        "final_height": round(float(x[:, 1].mean()), 5),
+        "min_height": round(float(x[:, 1].min()), 5),
+        "stable": bool(np.all(np.isfinite(x))),
+    }
+
+
+def _drape(n: int, schedule: str) -> Callable[..., dict]:
+    def run(device: str | None = "cpu", quick: bool = False, dtype: str = "float32") -> dict:
+        return cloth_drape(n, schedule, device=device, quick=quick, dtype=dtype)
+
+    sub, it = SETTINGS[(n, schedule)]
+    run.__doc__ = f"Cloth drape {n}×{n}, XPBD {schedule}, {sub} substeps × {it} iterations, 300 frames."
+    return run
+
+
+def _drop(schedule: str) -> Callable[..., dict]:
+    def run(device: str | None = "cpu", quick: bool = False, dtype: str = "float32") -> dict:
+        return soft_body_drop(schedule=schedule, device=device, quick=quick, dtype=dtype)
+
+    run.__doc__ = f"Soft box (6³ cells) dropped on the ground, XPBD {schedule}, 120 frames."
+    return run
+
+
+BENCHMARKS: dict[str, Callable[..., dict]] = {
+    "xpbd_cloth_drape_64_coloring": _drape(64, "coloring"),
+    "xpbd_cloth_drape_64_jacobi": _drape(64, "jacobi"),
+    "xpbd_cloth_drape_128_coloring": _drape(128, "coloring"),
+    "xpbd_cloth_drape_128_jacobi": _drape(128, "jacobi"),
+    "xpbd_soft_box_drop_coloring": _drop("coloring"),
+    "xpbd_soft_box_drop_jacobi": _drop("jacobi"),
+}
+
+
+if __name__ == "__main__":
+    if sys.argv[1:2] == ["reference"]:
+        for arg in sys.argv[2:] or ["64"]:
+            print(json.dumps({"n": int(arg), "reference_sag": reference_sag(int(arg))}), flush=True)
+    else:
+        for name in sys.argv[1:] or list(BENCHMARKS):
+            print(json.dumps({"benchmark": name, **BENCHMARKS[name]()}), flush=True)

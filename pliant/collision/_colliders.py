@@ -1,0 +1,355 @@
+"""Static colliders — sphere, box, capsule, triangle mesh — as signed distance fields.
+
+Each collider is a signed distance φ(p) [m] (negative inside) with its gradient n = ∇φ (the outward
+normal) and Hessian ∇²φ. Two responses use them:
+
+* :meth:`Colliders.apply`, a velocity-level response after an (explicit) step, like the ground plane:
+  particles closer than their radius are pushed out along n, the normal velocity is reflected with
+  restitution e, and Coulomb friction removes at most μ·Δv_n of the tangential speed (so a block sliding on
+  a collider decelerates by μ g);
+* :class:`pliant.energies.ColliderPenalty`, E = ½ k Σ max(0, r − φ)², a smooth term with an exact Hessian
+  for implicit solvers.
+
+Meshes use ``wp.Mesh`` (a BVH) and ``wp.mesh_query_point``: they must be closed and consistently wound for
+the inside/outside sign; their Hessian omits the curvature term (exact on faces, Gauss–Newton elsewhere).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+SPHERE, BOX, CAPSULE, MESH = 0, 1, 2, 3
+_KIND_NAMES = {SPHERE: "sphere", BOX: "box", CAPSULE: "capsule", MESH: "mesh"}
+
+
+@wp.func
+def _curved_hessian(P: Any, n: Any, rho: Any):
+    """(P − nnᵀ)/ρ: the Hessian of the distance to a point (P = I) or a line (P = I − ûûᵀ)."""
+    return (P - wp.outer(n, n)) / wp.max(rho, type(rho)(1.0e-12))
+
+
+@wp.func
+def collider_sdf(
+    kind: int, pos: Any, aux: Any, rot: Any, radius: Any, mesh: wp.uint64, p: Any
+):
+    """(φ [m], n = ∇φ, ∇²φ [1/m]) of one collider at p; see :class:`Colliders` for the parameters."""
+    zero = radius * type(radius)(0.0)
+    one = type(radius)(1.0)
+    eye = wp.identity(n=3, dtype=type(radius))
+    up = type(p)(zero, one, zero)
+    phi = zero
+    n = up
+    H = eye * zero
+    if kind == 0:  # sphere: centre pos, radius
+        d = p - pos
+        l = wp.length(d)
+        phi = l - radius
+        if l > zero:
+            n = d / l
+        H = _curved_hessian(eye, n, l)
+    elif kind == 1:  # box: centre pos, half extents aux, rotation rot (world from local), rounded by radius
+        pl = wp.transpose(rot) * (p - pos)
+        q = type(p)(wp.abs(pl[0]) - aux[0], wp.abs(pl[1]) - aux[1], wp.abs(pl[2]) - aux[2])
+        qmax = wp.max(q[0], wp.max(q[1], q[2]))
+        if qmax > zero:
+            qp = type(p)(wp.max(q[0], zero), wp.max(q[1], zero), wp.max(q[2], zero))
+            rho = wp.length(qp)
+            nl = type(p)(wp.sign(pl[0]) * qp[0], wp.sign(pl[1]) * qp[1], wp.sign(pl[2]) * qp[2]) / rho
+            P = eye * zero
+            for a in range(3):
+                if q[a] > zero:
+                    P[a, a] = one
+            n = rot * nl
+            H = rot * _curved_hessian(P, nl, rho) * wp.transpose(rot)
+            phi = rho - radius
+        else:
+            axis = 0
+            if q[1] >= q[0] and q[1] >= q[2]:
+                axis = 1
+            elif q[2] >= q[0] and q[2] >= q[1]:
+                axis = 2
+            nl = type(p)(zero, zero, zero)
+            nl[axis] = wp.sign(pl[axis])
+            n = rot * nl
+            phi = qmax - radius
+    elif kind == 2:  # capsule: segment pos–aux, radius
+        ab = aux - pos
+        t = wp.clamp(wp.dot(p - pos, ab) / wp.dot(ab, ab), zero, one)
+        d = p - (pos + t * ab)
+        l = wp.length(d)
+        phi = l - radius
+        if l > zero:
+            n = d / l
+        P = eye
+        if t > zero and t < one:
+            u = ab / wp.length(ab)
+            P = eye - wp.outer(u, u)
+        H = _curved_hessian(P, n, l)
+    else:  # closed triangle mesh (float32 BVH)
+        pf = wp.vec3f(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
+        qr = wp.mesh_query_point(mesh, pf, wp.float32(1.0e6))
+        if qr.result:
+            cpf = wp.mesh_eval_position(mesh, qr.face, qr.u, qr.v)
+            cp = type(p)(type(zero)(cpf[0]), type(zero)(cpf[1]), type(zero)(cpf[2]))
+            d = p - cp
+            l = wp.length(d)
+            s = type(zero)(qr.sign)
+            phi = s * l - radius
+            if l > type(zero)(1.0e-9):
+                n = s * d / l
+            else:
+                nf = wp.mesh_eval_face_normal(mesh, qr.face)
+                n = type(p)(type(zero)(nf[0]), type(zero)(nf[1]), type(zero)(nf[2]))
+        else:
+            phi = type(zero)(1.0e6)
+    return phi, n, H
+
+
+@wp.kernel
+def _collider_response(
+    # Colliders:
+    kind: wp.array(dtype=wp.int32),
+    pos: wp.array(dtype=Any),
+    aux: wp.array(dtype=Any),
+    rot: wp.array(dtype=Any),
+    radius: wp.array(dtype=Any),
+    mesh: wp.array(dtype=wp.uint64),
+    friction: wp.array(dtype=Any),
+    restitution: wp.array(dtype=Any),
+    # Model:
+    particle_inv_mass: wp.array(dtype=Any),
+    particle_radius: wp.array(dtype=Any),
+    # State out (in place):
+    x_io: wp.array(dtype=Any),
+    v_io: wp.array(dtype=Any),
+):
+    i = wp.tid()
+    zero = particle_radius[i] * type(particle_radius[i])(0.0)
+    if particle_inv_mass[i] == zero:
+        return
+    x = x_io[i]
+    v = v_io[i]
+    for c in range(kind.shape[0]):
+        phi, n, H = collider_sdf(kind[c], pos[c], aux[c], rot[c], radius[c], mesh[c], x)
+        pen = particle_radius[i] - phi
+        if pen > zero:
+            x = x + pen * n
+            vn = wp.dot(v, n)
+            vn_new = wp.max(vn, zero)
+            if vn < zero:
+                vn_new = -restitution[c] * vn
+            dvn = vn_new - vn
+            vt = v - vn * n
+            st = wp.length(vt)
+            scale = zero
+            if st > zero:
+                # Coulomb: the tangential impulse is at most μ times the normal one.
+                scale = wp.max(st - friction[c] * dvn, zero) / st
+            v = scale * vt + vn_new * n
+    x_io[i] = x
+    v_io[i] = v
+
+
+@wp.kernel
+def _collider_query(
+    kind: wp.array(dtype=wp.int32),
+    pos: wp.array(dtype=Any),
+    aux: wp.array(dtype=Any),
+    rot: wp.array(dtype=Any),
+    radius: wp.array(dtype=Any),
+    mesh: wp.array(dtype=wp.uint64),
+    x_in: wp.array(dtype=Any),
+    phi_out: wp.array(dtype=Any),
+    n_out: wp.array(dtype=Any),
+):
+    i = wp.tid()
+    best = radius[0] * type(radius[0])(0.0) + type(radius[0])(1.0e30)
+    for c in range(kind.shape[0]):
+        phi, n, H = collider_sdf(kind[c], pos[c], aux[c], rot[c], radius[c], mesh[c], x_in[i])
+        if phi < best:
+            best = phi
+            n_out[i] = n
+    phi_out[i] = best
+
+
+def _rotation_matrix(rotation: Any) -> np.ndarray:
+    if rotation is None:
+        return np.eye(3)
+    r = np.asarray(rotation, dtype=np.float64)
+    if r.shape == (3, 3):
+        if not np.allclose(r @ r.T, np.eye(3), atol=1e-6) or np.linalg.det(r) < 0:
+            raise ValueError("box rotation must be a proper rotation matrix (orthonormal, det +1)")
+        return r
+    if r.shape == (4,):  # quaternion (x, y, z, w)
+        x, y, z, w = r / np.linalg.norm(r)
+        return np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+            ]
+        )
+    raise ValueError(f"box rotation must be a 3x3 matrix or an (x, y, z, w) quaternion, got shape {r.shape}")
+
+
+def _vec(v: Any, what: str) -> np.ndarray:
+    a = np.asarray(v, dtype=np.float64).reshape(-1)
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"{what} must be 3 finite numbers [m], got {v!r}")
+    return a
+
+
+class Colliders:
+    """A set of static colliders with Coulomb friction μ and restitution e each.
+
+    Example::
+
+        colliders = pl.collision.Colliders()
+        colliders.add_sphere((0, 0.3, 0), 0.25, friction=0.3)
+        colliders.add_box((0, -0.05, 0), (1, 0.05, 1))
+        solver = pl.solvers.FastMassSpring(model, collisions=[colliders])
+        # or, after any solver's step: colliders.apply(model, state_0, state_1, dt)
+    """
+
+    def __init__(self) -> None:
+        self._rows: list[tuple] = []
+        self._meshes: list[tuple[np.ndarray, np.ndarray]] = []
+        self._cache: dict = {}
+
+    def __len__(self) -> int:
+        return len(self._rows)
+
+    def _add(self, kind, pos, aux, rot, radius, friction, restitution, mesh=-1) -> int:
+        if friction < 0:
+            raise ValueError(f"collider friction μ must be >= 0, got {friction}")
+        if not 0.0 <= restitution <= 1.0:
+            raise ValueError(f"collider restitution e must be in [0, 1], got {restitution}")
+        self._rows.append((kind, pos, aux, rot, float(radius), float(friction), float(restitution), mesh))
+        self._cache.clear()
+        return len(self._rows) - 1
+
+    def add_sphere(
+        self, center: Sequence[float], radius: float, *, friction: float = 0.5, restitution: float = 0.0
+    ) -> int:
+        """A sphere of ``radius`` [m] at ``center`` [m]; returns its index."""
+        if radius <= 0:
+            raise ValueError(f"sphere radius must be > 0 m, got {radius}")
+        c = _vec(center, "sphere center")
+        return self._add(SPHERE, c, np.zeros(3), np.eye(3), radius, friction, restitution)
+
+    def add_box(
+        self,
+        center: Sequence[float],
+        half_extents: Sequence[float],
+        *,
+        rotation: Any = None,
+        rounding: float = 0.0,
+        friction: float = 0.5,
+        restitution: float = 0.0,
+    ) -> int:
+        """A box with ``half_extents`` [m] at ``center``, rotated by a 3×3 matrix or (x, y, z, w) quaternion."""
+        he = _vec(half_extents, "box half_extents")
+        if np.any(he <= 0):
+            raise ValueError(f"box half_extents must be > 0 m, got {half_extents}")
+        if rounding < 0:
+            raise ValueError(f"box rounding must be >= 0 m, got {rounding}")
+        c = _vec(center, "box center")
+        return self._add(BOX, c, he, _rotation_matrix(rotation), rounding, friction, restitution)
+
+    def add_capsule(
+        self,
+        a: Sequence[float],
+        b: Sequence[float],
+        radius: float,
+        *,
+        friction: float = 0.5,
+        restitution: float = 0.0,
+    ) -> int:
+        """A capsule: the segment a–b [m] thickened by ``radius`` [m]."""
+        pa, pb = _vec(a, "capsule a"), _vec(b, "capsule b")
+        if radius <= 0:
+            raise ValueError(f"capsule radius must be > 0 m, got {radius}")
+        if np.linalg.norm(pb - pa) == 0:
+            raise ValueError("capsule endpoints coincide; use add_sphere")
+        return self._add(CAPSULE, pa, pb, np.eye(3), radius, friction, restitution)
+
+    def add_mesh(
+        self, vertices: Any, faces: Any, *, friction: float = 0.5, restitution: float = 0.0
+    ) -> int:
+        """A closed, outward-wound triangle mesh (vertices [V, 3] m, faces [F, 3]) queried through a BVH."""
+        v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+        f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+        if f.size == 0 or f.min() < 0 or f.max() >= v.shape[0]:
+            raise ValueError(f"mesh faces must index the {v.shape[0]} vertices and be non-empty")
+        self._meshes.append((v, f.astype(np.int32)))
+        return self._add(MESH, np.zeros(3), np.zeros(3), np.eye(3), 0.0, friction, restitution, len(self._meshes) - 1)
+
+    # ------------------------------------------------------------------ device data
+    def arrays(self, model: Any) -> dict:
+        """Device arrays of the colliders in the model's device and dtype (built once, then cached)."""
+        key = (str(model.device), model.dtype)
+        if key in self._cache:
+            return self._cache[key]
+        if not self._rows:
+            raise ValueError("no colliders: add a sphere, box, capsule or mesh first")
+        d = model.device
+        meshes = [
+            wp.Mesh(
+                points=wp.array(v, dtype=wp.vec3f, device=d), indices=wp.array(f.ravel(), dtype=wp.int32, device=d)
+            )
+            for v, f in self._meshes
+        ]
+        rows = self._rows
+        arr = {
+            "kind": wp.array([r[0] for r in rows], dtype=wp.int32, device=d),
+            "pos": wp.array(np.array([r[1] for r in rows]), dtype=model.vec3, device=d),
+            "aux": wp.array(np.array([r[2] for r in rows]), dtype=model.vec3, device=d),
+            "rot": wp.array(np.array([r[3] for r in rows]), dtype=model.mat33, device=d),
+            "radius": wp.array([r[4] for r in rows], dtype=model.scalar, device=d),
+            "mesh": wp.array([meshes[r[7]].id if r[0] == MESH else 0 for r in rows], dtype=wp.uint64, device=d),
+            "friction": wp.array([r[5] for r in rows], dtype=model.scalar, device=d),
+            "restitution": wp.array([r[6] for r in rows], dtype=model.scalar, device=d),
+            "_meshes": meshes,  # keep the BVHs alive
+        }
+        self._cache[key] = arr
+        return arr
+
+    def geometry_inputs(self, model: Any) -> list:
+        """Kernel inputs (kind, pos, aux, rot, radius, mesh) for :func:`collider_sdf` loops."""
+        a = self.arrays(model)
+        return [a["kind"], a["pos"], a["aux"], a["rot"], a["radius"], a["mesh"]]
+
+    def apply(self, model: Any, state_in: Any, state_out: Any, dt: float) -> None:
+        """Velocity-level contact response on ``state_out`` (push out, restitution, Coulomb friction)."""
+        a = self.arrays(model)
+        wp.launch(
+            _collider_response,
+            model.particle_count,
+            [
+                *self.geometry_inputs(model),
+                a["friction"],
+                a["restitution"],
+                model.particle_inv_mass,
+                model.particle_radius,
+                state_out.particle_q,
+                state_out.particle_qd,
+            ],
+            device=model.device,
+        )
+
+    def query(self, model: Any, x: wp.array) -> tuple[np.ndarray, np.ndarray]:
+        """Smallest signed distance φ [m] over the colliders and its normal, per point (host arrays)."""
+        phi = wp.zeros(x.shape[0], dtype=model.scalar, device=model.device)
+        n = wp.zeros(x.shape[0], dtype=model.vec3, device=model.device)
+        wp.launch(_collider_query, x.shape[0], [*self.geometry_inputs(model), x, phi, n], device=model.device)
+        return phi.numpy(), n.numpy()
+
+    def describe(self) -> list[dict]:
+        """One dict per collider: kind, parameters, friction, restitution."""
+        return [
+            {"kind": _KIND_NAMES[r[0]], "friction": r[5], "restitution": r[6], "radius": r[4]} for r in self._rows
+        ]

@@ -1,0 +1,274 @@
+"""Particle–particle and cloth self-collision with a thickness, as a post-step position/velocity pass.
+
+Two kinds of contact are resolved after the integrator, each thread moving only its own particle (no
+atomics; every thread reads a snapshot of the predicted positions, so CPU and CUDA give the same result):
+
+* particle–particle, found with ``wp.HashGrid``: centres closer than the thickness h are pushed apart,
+  half the overlap each, except pairs already closer than h in the rest configuration (neighbours in the
+  same mesh);
+* point–triangle against every triangle of the model (found with ``wp.Mesh`` AABB queries over a BVH
+  refitted each pass), skipping the particle's own triangles. The side a particle must stay on is the side
+  it was on at the *start* of the step, so a particle that crossed a triangle within one step is put back:
+  its signed distance to the plane is restored to ≥ h on that side.
+
+The approaching normal velocity (relative to the triangle or partner) is removed, and Coulomb friction μ
+removes at most μ·Δv_n of the tangential relative velocity.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+
+@wp.func
+def closest_point_triangle(p: Any, a: Any, b: Any, c: Any):
+    """Closest point to p on triangle abc and its barycentric weights (Ericson, Real-Time Collision Detection)."""
+    zero = p[0] * type(p[0])(0.0)
+    one = type(zero)(1.0)
+    ab = b - a
+    ac = c - a
+    ap = p - a
+    d1 = wp.dot(ab, ap)
+    d2 = wp.dot(ac, ap)
+    w = type(p)(one, zero, zero)
+    if d1 <= zero and d2 <= zero:
+        return a, w
+    bp = p - b
+    d3 = wp.dot(ab, bp)
+    d4 = wp.dot(ac, bp)
+    if d3 >= zero and d4 <= d3:
+        return b, type(p)(zero, one, zero)
+    vc = d1 * d4 - d3 * d2
+    if vc <= zero and d1 >= zero and d3 <= zero:
+        v = d1 / (d1 - d3)
+        return a + v * ab, type(p)(one - v, v, zero)
+    cp = p - c
+    d5 = wp.dot(ab, cp)
+    d6 = wp.dot(ac, cp)
+    if d6 >= zero and d5 <= d6:
+        return c, type(p)(zero, zero, one)
+    vb = d5 * d2 - d1 * d6
+    if vb <= zero and d2 >= zero and d6 <= zero:
+        t = d2 / (d2 - d6)
+        return a + t * ac, type(p)(one - t, zero, t)
+    va = d3 * d6 - d5 * d4
+    if va <= zero and (d4 - d3) >= zero and (d5 - d6) >= zero:
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return b + t * (c - b), type(p)(zero, one - t, t)
+    denom = one / (va + vb + vc)
+    v = vb * denom
+    t = vc * denom
+    return a + v * ab + t * ac, type(p)(one - v - t, v, t)
+
+
+@wp.kernel
+def _snapshot(
+    x_in: wp.array(dtype=Any), v_in: wp.array(dtype=Any), x_out: wp.array(dtype=Any), v_out: wp.array(dtype=Any),
+    xf_out: wp.array(dtype=wp.vec3f),
+):
+    i = wp.tid()
+    x = x_in[i]
+    x_out[i] = x
+    v_out[i] = v_in[i]
+    xf_out[i] = wp.vec3f(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
+
+
+@wp.kernel
+def _self_contact(
+    # Model:
+    particle_inv_mass: wp.array(dtype=Any),
+    rest_q: wp.array(dtype=Any),
+    tri_indices: wp.array(dtype=wp.int32),
+    mesh: wp.uint64,
+    grid: wp.uint64,
+    use_particles: int,
+    use_triangles: int,
+    thickness: Any,
+    friction: Any,
+    # State at the start of the step and the predicted (snapshot) state:
+    x_start: wp.array(dtype=Any),
+    x_pred: wp.array(dtype=Any),
+    v_pred: wp.array(dtype=Any),
+    xf_pred: wp.array(dtype=wp.vec3f),
+    # Out:
+    x_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+):
+    i = wp.tid()
+    zero = thickness * type(thickness)(0.0)
+    if particle_inv_mass[i] == zero:
+        return
+    x = x_pred[i]
+    v = v_pred[i]
+    dx = x * zero
+    dv = x * zero
+    count = int(0)
+    if use_particles != 0:
+        query = wp.hash_grid_query(grid, xf_pred[i], wp.float32(thickness))
+        j = int(0)
+        while wp.hash_grid_query_next(query, j):
+            if j != i:
+                d = x - x_pred[j]
+                l = wp.length(d)
+                if l < thickness and l > zero and wp.length(rest_q[i] - rest_q[j]) >= thickness:
+                    n = d / l
+                    half = type(thickness)(0.5)
+                    w = half
+                    if particle_inv_mass[j] == zero:
+                        w = type(thickness)(1.0)
+                    dx += (w * (thickness - l)) * n
+                    vrel = v - v_pred[j]
+                    vn = wp.dot(vrel, n)
+                    if vn < zero:
+                        vt = vrel - vn * n
+                        st = wp.length(vt)
+                        dv -= (w * vn) * n
+                        if st > zero:
+                            dv -= (w * wp.min(friction * (-vn), st) / st) * vt
+                    count += 1
+    if use_triangles != 0:
+        x0 = x_start[i]
+        lo = wp.min(x, x0) - type(x)(thickness, thickness, thickness)
+        hi = wp.max(x, x0) + type(x)(thickness, thickness, thickness)
+        lof = wp.vec3f(wp.float32(lo[0]), wp.float32(lo[1]), wp.float32(lo[2]))
+        hif = wp.vec3f(wp.float32(hi[0]), wp.float32(hi[1]), wp.float32(hi[2]))
+        q = wp.mesh_query_aabb(mesh, lof, hif)
+        f = int(0)
+        while wp.mesh_query_aabb_next(q, f):
+            ia = tri_indices[3 * f]
+            ib = tri_indices[3 * f + 1]
+            ic = tri_indices[3 * f + 2]
+            if ia != i and ib != i and ic != i:
+                a = x_pred[ia]
+                b = x_pred[ib]
+                c = x_pred[ic]
+                nrm = wp.cross(b - a, c - a)
+                ln = wp.length(nrm)
+                a0 = x_start[ia]
+                n0 = wp.cross(x_start[ib] - a0, x_start[ic] - a0)
+                if ln > zero and wp.length(n0) > zero:
+                    n = nrm / ln
+                    s0 = wp.dot(x0 - a0, n0)
+                    s1 = wp.dot(x - a, n)
+                    side = type(thickness)(1.0)
+                    if s0 < zero or (s0 == zero and s1 < zero):
+                        side = type(thickness)(-1.0)
+                    cp, bary = closest_point_triangle(x, a, b, c)
+                    d = x - cp
+                    dist = wp.length(d)
+                    inside = bary[0] > zero and bary[1] > zero and bary[2] > zero
+                    push = x * zero
+                    if side * s1 < zero and (inside or dist < thickness):
+                        push = (thickness - side * s1) * side * n  # crossed: back to the start side
+                    elif dist < thickness and dist > zero:
+                        push = (thickness - dist) * (d / dist)
+                    lp = wp.length(push)
+                    if lp > zero:
+                        pn = push / lp
+                        dx += push
+                        vt_ = bary[0] * v_pred[ia] + bary[1] * v_pred[ib] + bary[2] * v_pred[ic]
+                        vrel = v - vt_
+                        vn = wp.dot(vrel, pn)
+                        if vn < zero:
+                            vt = vrel - vn * pn
+                            st = wp.length(vt)
+                            dv -= vn * pn
+                            if st > zero:
+                                dv -= (wp.min(friction * (-vn), st) / st) * vt
+                        count += 1
+    if count > 0:
+        inv = type(thickness)(1.0) / type(thickness)(count)
+        x_out[i] = x + dx * inv
+        v_out[i] = v + dv * inv
+
+
+class SelfCollision:
+    """Contacts between all particles (hash grid) and of particles against all triangles, with thickness h.
+
+    Use as a post-step contact handler (``FastMassSpring(..., collisions=[SelfCollision(model, ...)])``) or
+    call :meth:`apply` after any solver's step. Keeps the particles of a cloth folding onto itself from
+    passing through its triangles, and particles of different objects apart.
+
+    Args:
+        model: the Model (its triangles ``model.tri_indices`` and rest positions are used).
+        thickness: h [m]: minimum particle–particle and particle–triangle distance. Keep it below the cloth's
+            edge length and above the largest displacement per step.
+        friction: Coulomb μ between contacting particles / triangles.
+        iterations: Jacobi passes per step (each pass resolves the contacts found in it).
+        particles: resolve particle–particle contacts.
+        triangles: resolve particle–triangle contacts (needs triangles in the model).
+    """
+
+    def __init__(
+        self,
+        model: Any,
+        *,
+        thickness: float,
+        friction: float = 0.0,
+        iterations: int = 2,
+        particles: bool = True,
+        triangles: bool = True,
+    ) -> None:
+        if thickness <= 0:
+            raise ValueError(f"thickness must be > 0 m, got {thickness}")
+        if friction < 0 or iterations < 1:
+            raise ValueError("friction must be >= 0 and iterations >= 1")
+        self.thickness = float(thickness)
+        self.friction = float(friction)
+        self.iterations = int(iterations)
+        self.use_particles = bool(particles)
+        self.use_triangles = bool(triangles) and model.tri_count > 0
+        d = model.device
+        n = model.particle_count
+        self._x = wp.zeros(n, dtype=model.vec3, device=d)
+        self._v = wp.zeros(n, dtype=model.vec3, device=d)
+        self._xf = wp.zeros(n, dtype=wp.vec3f, device=d)
+        tris = model.tri_indices.numpy().reshape(-1).astype(np.int32) if model.tri_count else np.zeros(3, np.int32)
+        self._tris = wp.array(tris, dtype=wp.int32, device=d)
+        self._mesh = None
+        if self.use_triangles:
+            self._xf.assign(model.particle_q_np.astype(np.float32))
+            self._mesh = wp.Mesh(points=self._xf, indices=self._tris)
+        # Hash-table size ~2 cells per particle per axis³, capped: a build clears every cell.
+        dim = int(np.clip(round(2.0 * n ** (1.0 / 3.0)), 8, 128))
+        self._grid = wp.HashGrid(dim, dim, dim, device=d) if self.use_particles else None
+
+    def apply(self, model: Any, state_in: Any, state_out: Any, dt: float) -> None:
+        """Resolve contacts in ``state_out`` (positions and velocities), using ``state_in`` for the sides."""
+        s = model.s
+        for _ in range(self.iterations):
+            wp.launch(
+                _snapshot,
+                model.particle_count,
+                [state_out.particle_q, state_out.particle_qd, self._x, self._v, self._xf],
+                device=model.device,
+            )
+            if self._mesh is not None:
+                self._mesh.refit()
+            if self._grid is not None:
+                self._grid.build(self._xf, self.thickness)
+            wp.launch(
+                _self_contact,
+                model.particle_count,
+                [
+                    model.particle_inv_mass,
+                    model.particle_q,
+                    self._tris,
+                    wp.uint64(self._mesh.id if self._mesh is not None else 0),
+                    wp.uint64(self._grid.id if self._grid is not None else 0),
+                    int(self.use_particles),
+                    int(self.use_triangles),
+                    s(self.thickness),
+                    s(self.friction),
+                    state_in.particle_q,
+                    self._x,
+                    self._v,
+                    self._xf,
+                    state_out.particle_q,
+                    state_out.particle_qd,
+                ],
+                device=model.device,
+            )

@@ -1,0 +1,70 @@
+"""PBD/XPBD constraints: pure C(x) and ∇C ``@wp.func`` maths, and objects owning indices, rest data and λ.
+
+Every constraint object is a set of one kind (``Distance``, ``DihedralBending``, ``Volume``, ``Ground``,
+``ParticleCollision``, ``PointTriangleCollision``, ``Attachment``, ``ShapeMatching``) and is passed to
+:class:`pliant.solvers.XPBD` or :class:`pliant.solvers.PBD` through ``constraints=[...]``.
+"""
+
+from ._base import (
+    Constraint,
+    color_constraints,
+    color_incidence,
+    pbd_delta_lambda,
+    pbd_iteration_stiffness,
+    xpbd_delta_lambda,
+)
+from ._contact import (
+    Ground,
+    ParticleCollision,
+    PointTriangleCollision,
+    ground_c,
+    ground_grad,
+    particle_collision_c,
+    point_triangle_c,
+    point_triangle_grad,
+)
+from ._distance import Attachment, Distance, distance_c, distance_grad
+from ._four import (
+    DihedralBending,
+    Volume,
+    dihedral_angle,
+    dihedral_c,
+    dihedral_grad,
+    tet_volume,
+    volume_c,
+    volume_grad,
+)
+from ._shape import ShapeMatching, oriented_moment, polar_rotation, shape_matching_goal
+
+__all__ = [
+    "Attachment",
+    "Constraint",
+    "DihedralBending",
+    "Distance",
+    "Ground",
+    "ParticleCollision",
+    "PointTriangleCollision",
+    "ShapeMatching",
+    "Volume",
+    "color_constraints",
+    "color_incidence",
+    "dihedral_angle",
+    "dihedral_c",
+    "dihedral_grad",
+    "distance_c",
+    "distance_grad",
+    "ground_c",
+    "ground_grad",
+    "oriented_moment",
+    "particle_collision_c",
+    "pbd_delta_lambda",
+    "pbd_iteration_stiffness",
+    "point_triangle_c",
+    "point_triangle_grad",
+    "polar_rotation",
+    "shape_matching_goal",
+    "tet_volume",
+    "volume_c",
+    "volume_grad",
+    "xpbd_delta_lambda",
+]

@@ -1,0 +1,438 @@
+"""Tetrahedral FEM elasticity: E(x) = Σ_e V_e ψ(F_e) over the model's linear tetrahedra.
+
+The element maths (ψ, P = ∂ψ/∂F, ∂P/∂F, PSD projection, element forces and Hessian blocks) lives in
+:mod:`pliant.energies._fem_math`; this module only writes the kernels that loop over tets and the
+:class:`~pliant.energies.Energy` classes that launch them. One set of kernels is built per material model
+(a closure over that model's ``@wp.func``\\ s, in its own Warp module), so a material compiles only what it
+uses; each kernel is generic over float32 / float64.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+from ..model import Model
+from . import _fem_math as fm
+from ._base import Energy
+from ._materials import get_material_model, lame_parameters
+
+# ----------------------------------------------------------------------------------- material-free kernels
+
+
+@wp.func
+def det_polynomial(A: Any, B: Any):
+    """det(A + αB) = c0 + c1 α + c2 α² + c3 α³ with c1 = cof(A):B, c2 = cof(B):A; returns (c0, c1, c2, c3)."""
+    return wp.determinant(A), wp.ddot(fm.cofactor(A), B), wp.ddot(fm.cofactor(B), A), wp.determinant(B)
+
+
+@wp.func
+def _cubic(a0: Any, a1: Any, a2: Any, a3: Any, t: Any):
+    return a0 + t * (a1 + t * (a2 + t * a3))
+
+
+@wp.func
+def _first_root_in(a0: Any, a1: Any, a2: Any, a3: Any, lo: Any, hi: Any):
+    """Largest t in [lo, hi] left of the first sign change of the cubic (q(lo) > 0), or hi if none."""
+    a = lo
+    b = hi
+    if _cubic(a0, a1, a2, a3, b) > type(a0)(0.0):
+        return b
+    for _ in range(48):
+        mid = type(a0)(0.5) * (a + b)
+        if _cubic(a0, a1, a2, a3, mid) > type(a0)(0.0):
+            a = mid
+        else:
+            b = mid
+    return a
+
+
+@wp.func
+def tet_inversion_step(Ds: Any, dDs: Any, eta: Any):
+    """Largest α ∈ (0, 1] with det(Ds + t dDs) > η det(Ds) for all t ∈ [0, α]; 1 if det(Ds) ≤ 0.
+
+    The cubic q(t) = det(Ds + t dDs) − η det(Ds), normalised by det(Ds), is monotone between the roots of
+    q′; the first interval on which it changes sign is bisected, keeping the admissible end.
+    """
+    zero = type(eta)(0.0)
+    one = type(eta)(1.0)
+    c0, c1, c2, c3 = det_polynomial(Ds, dDs)
+    alpha = one
+    if c0 > zero:
+        a0 = one - eta
+        a1 = c1 / c0
+        a2 = c2 / c0
+        a3 = c3 / c0
+        # critical points of q: 3 a3 t² + 2 a2 t + a1 = 0, sorted, clipped to (0, 1)
+        t1 = one
+        t2 = one
+        qa = type(eta)(3.0) * a3
+        qb = type(eta)(2.0) * a2
+        if qa != zero:
+            disc = qb * qb - type(eta)(4.0) * qa * a1
+            if disc >= zero:
+                sq = wp.sqrt(disc)
+                r1 = (-qb - sq) / (type(eta)(2.0) * qa)
+                r2 = (-qb + sq) / (type(eta)(2.0) * qa)
+                t1 = wp.min(r1, r2)
+                t2 = wp.max(r1, r2)
+        elif qb != zero:
+            t1 = -a1 / qb
+        if t1 <= zero or t1 >= one:
+            t1 = one
+        if t2 <= zero or t2 >= one:
+            t2 = one
+        if t2 < t1:
+            tmp = t1
+            t1 = t2
+            t2 = tmp
+        alpha = _first_root_in(a0, a1, a2, a3, zero, t1)
+        if alpha >= t1 and t1 < one:
+            alpha = _first_root_in(a0, a1, a2, a3, t1, t2)
+            if alpha >= t2 and t2 < one:
+                alpha = _first_root_in(a0, a1, a2, a3, t2, one)
+    return alpha
+
+
+@wp.kernel(enable_backward=False)
+def _tet_max_step(
+    tet_indices: wp.array2d(dtype=wp.int32),
+    x_in: wp.array(dtype=Any),
+    dx_in: wp.array(dtype=Any),
+    eta: Any,
+    alpha_out: wp.array(dtype=Any),
+):
+    t = wp.tid()
+    i = tet_indices[t, 0]
+    j = tet_indices[t, 1]
+    k = tet_indices[t, 2]
+    l = tet_indices[t, 3]
+    x0 = x_in[i]
+    d0 = dx_in[i]
+    Ds = wp.matrix_from_cols(x_in[j] - x0, x_in[k] - x0, x_in[l] - x0)
+    dDs = wp.matrix_from_cols(dx_in[j] - d0, dx_in[k] - d0, dx_in[l] - d0)
+    wp.atomic_min(alpha_out, 0, tet_inversion_step(Ds, dDs, eta))
+
+
+@wp.kernel(enable_backward=False)
+def _tet_min_det(
+    tet_indices: wp.array2d(dtype=wp.int32),
+    tet_rest_inv: wp.array(dtype=Any),
+    x_in: wp.array(dtype=Any),
+    out: wp.array(dtype=Any),
+):
+    t = wp.tid()
+    F = fm.deformation_gradient(
+        x_in[tet_indices[t, 0]],
+        x_in[tet_indices[t, 1]],
+        x_in[tet_indices[t, 2]],
+        x_in[tet_indices[t, 3]],
+        tet_rest_inv[t],
+    )
+    wp.atomic_min(out, 0, wp.determinant(F))
+
+
+@wp.kernel(enable_backward=False)
+def _fill(value: Any, out: wp.array(dtype=Any)):
+    out[wp.tid()] = value
+
+
+# ----------------------------------------------------------------------------------- per-material kernels
+
+_KERNELS: dict[str, tuple[Any, Any, Any]] = {}
+_OVERLOADED: set[tuple[str, str]] = set()
+
+
+def _material_kernels(name: str, dtype: str) -> tuple[Any, Any, Any]:
+    """(value, gradient, hessian) kernels for material ``name``, built once per material.
+
+    Value and gradient share one Warp module (with adjoints, for fitting); the Hessian, the costly one to
+    compile, gets its own module without adjoints. The overloads for ``dtype`` are declared for all three
+    before the first launch, so each module compiles once per dtype set instead of once per kernel.
+    """
+    if name not in _KERNELS:
+        _KERNELS[name] = _build_material_kernels(name)
+    kernels = _KERNELS[name]
+    if (name, dtype) not in _OVERLOADED:
+        s = wp.float32 if dtype == "float32" else wp.float64
+        v3 = wp.types.vector(3, s)
+        m33 = wp.types.matrix((3, 3), s)
+        common = {
+            "tet_rest_inv": wp.array(dtype=m33),
+            "tet_rest_volume": wp.array(dtype=s),
+            "tet_mu": wp.array(dtype=s),
+            "tet_lam": wp.array(dtype=s),
+            "x_in": wp.array(dtype=v3),
+        }
+        wp.overload(kernels[0], {**common, "out": wp.array(dtype=s)})
+        wp.overload(kernels[1], {**common, "grad_out": wp.array(dtype=v3)})
+        wp.overload(kernels[2], {**common, "scale": s, "values_out": wp.array(dtype=m33)})
+        _OVERLOADED.add((name, dtype))
+    return kernels
+
+
+def _build_material_kernels(name: str) -> tuple[Any, Any, Any]:
+    mat = get_material_model(name)
+    psi_fn, pk1_fn, dpdf_fn, dpdf_psd_fn = mat.psi, mat.pk1, mat.dpk1_df, mat.dpk1_df_psd
+    module = wp.get_module(f"pliant.energies._fem.{name}")
+    hessian_module = wp.get_module(f"pliant.energies._fem.{name}_hessian")
+
+    @wp.kernel(module=module)
+    def tet_value(
+        tet_indices: wp.array2d(dtype=wp.int32),
+        tet_rest_inv: wp.array(dtype=Any),
+        tet_rest_volume: wp.array(dtype=Any),
+        tet_mu: wp.array(dtype=Any),
+        tet_lam: wp.array(dtype=Any),
+        x_in: wp.array(dtype=Any),
+        out: wp.array(dtype=Any),
+    ):
+        t = wp.tid()
+        F = fm.deformation_gradient(
+            x_in[tet_indices[t, 0]],
+            x_in[tet_indices[t, 1]],
+            x_in[tet_indices[t, 2]],
+            x_in[tet_indices[t, 3]],
+            tet_rest_inv[t],
+        )
+        wp.atomic_add(out, 0, tet_rest_volume[t] * psi_fn(F, tet_mu[t], tet_lam[t]))
+
+    @wp.kernel(module=module)
+    def tet_gradient(
+        tet_indices: wp.array2d(dtype=wp.int32),
+        tet_rest_inv: wp.array(dtype=Any),
+        tet_rest_volume: wp.array(dtype=Any),
+        tet_mu: wp.array(dtype=Any),
+        tet_lam: wp.array(dtype=Any),
+        x_in: wp.array(dtype=Any),
+        grad_out: wp.array(dtype=Any),
+    ):
+        t = wp.tid()
+        i = tet_indices[t, 0]
+        j = tet_indices[t, 1]
+        k = tet_indices[t, 2]
+        l = tet_indices[t, 3]
+        Dm_inv = tet_rest_inv[t]
+        F = fm.deformation_gradient(x_in[i], x_in[j], x_in[k], x_in[l], Dm_inv)
+        P = pk1_fn(F, tet_mu[t], tet_lam[t])
+        f0, f1, f2, f3 = fm.tet_forces(P, Dm_inv, tet_rest_volume[t])
+        # ∂E/∂x_a = −f_a (element forces), shared vertices: atomics
+        wp.atomic_sub(grad_out, i, f0)
+        wp.atomic_sub(grad_out, j, f1)
+        wp.atomic_sub(grad_out, k, f2)
+        wp.atomic_sub(grad_out, l, f3)
+
+    @wp.kernel(module=hessian_module, enable_backward=False)
+    def tet_hessian(
+        tet_indices: wp.array2d(dtype=wp.int32),
+        tet_rest_inv: wp.array(dtype=Any),
+        tet_rest_volume: wp.array(dtype=Any),
+        tet_mu: wp.array(dtype=Any),
+        tet_lam: wp.array(dtype=Any),
+        x_in: wp.array(dtype=Any),
+        scale: Any,
+        project: int,
+        slots: wp.array(dtype=wp.int32),
+        values_out: wp.array(dtype=Any),
+    ):
+        t = wp.tid()
+        Dm_inv = tet_rest_inv[t]
+        F = fm.deformation_gradient(
+            x_in[tet_indices[t, 0]],
+            x_in[tet_indices[t, 1]],
+            x_in[tet_indices[t, 2]],
+            x_in[tet_indices[t, 3]],
+            Dm_inv,
+        )
+        mu = tet_mu[t]
+        lam = tet_lam[t]
+        if project != 0:
+            A = dpdf_psd_fn(F, mu, lam)
+        else:
+            A = dpdf_fn(F, mu, lam)
+        V = scale * tet_rest_volume[t]
+        for a in range(4):
+            for b in range(4):
+                wp.atomic_add(values_out, slots[16 * t + 4 * a + b], fm.tet_hessian_block(A, Dm_inv, V, a, b))
+
+    return tet_value, tet_gradient, tet_hessian
+
+
+# ----------------------------------------------------------------------------------------------- classes
+
+
+class TetElasticity(Energy):
+    """Hyperelastic linear tetrahedra: E(x) = Σ_e V_e ψ(F_e; μ_e, λ_e) [J], F_e = D_s D_m⁻¹.
+
+    The material model is one of :data:`pliant.energies.MATERIAL_MODELS` (``"linear"``, ``"stvk"``,
+    ``"corotated"``, ``"neohookean"``); the Lamé parameters are per tet, from the model (``tet_mu``,
+    ``tet_lam``, built from E and ν by ``ModelBuilder.add_tetrahedra``), unless ``E`` is given here, which
+    overrides them with one uniform material. Forces are f_a = −V P ∂F/∂x_a, accumulated atomically; the
+    Hessian is 16 3×3 blocks per tet, V (∂F/∂x_a)ᵀ ∂P/∂F (∂F/∂x_b), with ∂P/∂F projected to PSD per element
+    from its analytic eigensystem when ``project_psd`` (Smith, de Goes, Kim, "Analytic Eigensystems for
+    Isotropic Distortion Energies", ACM TOG 38(1), 2019).
+
+    ``max_step`` bounds the line search so that no element's volume falls below ``inversion_margin`` times
+    its current volume within one step (the first root of the cubic det(D_s + α ΔD_s) = η det(D_s)), so a
+    Newton solve started from an uninverted mesh never inverts an element.
+
+    Limitations: linear (4-node) tets lock in bending and for ν → 0.5; use a fine mesh (see
+    ``tests/test_fem_solid_mechanics.py``). ``linear`` is not rotation invariant: large rotations create
+    spurious stress.
+
+    Args:
+        material: material model name.
+        E: Young's modulus [Pa] overriding the model's per-tet values (None: use the model's).
+        nu: Poisson's ratio used with ``E``.
+        inversion_margin: η ∈ [0, 1): the smallest fraction of its volume an element may keep in one step.
+
+    Example::
+
+        b = pl.ModelBuilder()
+        b.add_soft_box(cells=(4, 4, 4), size=(0.2, 0.2, 0.2), E=1e5, nu=0.4)
+        model = b.finalize()
+        solver = pl.solvers.ForceSolver(model, [pl.energies.NeoHookean(), pl.energies.Gravity()],
+                                        pl.integrators.BackwardEuler())
+    """
+
+    def __init__(
+        self,
+        material: str = "neohookean",
+        *,
+        E: float | None = None,
+        nu: float = 0.3,
+        inversion_margin: float = 0.1,
+    ) -> None:
+        self.material = get_material_model(material)
+        if not 0.0 <= inversion_margin < 1.0:
+            raise ValueError(f"inversion_margin must be in [0, 1), got {inversion_margin}")
+        self.E = None if E is None else float(E)
+        self.nu = float(nu)
+        self._lame = None if E is None else lame_parameters(E, nu)
+        self.inversion_margin = float(inversion_margin)
+        self._cache: dict[str, Any] = {}
+
+    def __repr__(self) -> str:
+        extra = "" if self.E is None else f", E={self.E:g}, nu={self.nu:g}"
+        return f"{type(self).__name__}(material={self.material.name!r}{extra})"
+
+    # ------------------------------------------------------------------ helpers
+    def _buffers(self, model: Model) -> dict[str, Any]:
+        c = self._cache
+        if c.get("model") is not model:
+            c.clear()
+            c["model"] = model
+            d = model.device
+            c["alpha"] = wp.zeros(1, dtype=model.scalar, device=d)
+            if self._lame is not None:
+                mu, lam = self._lame
+                c["mu"] = wp.full(model.tet_count, model.s(mu), dtype=model.scalar, device=d)
+                c["lam"] = wp.full(model.tet_count, model.s(lam), dtype=model.scalar, device=d)
+            else:
+                c["mu"], c["lam"] = model.tet_mu, model.tet_lam
+        return c
+
+    def _inputs(self, model: Model) -> list:
+        c = self._buffers(model)
+        return [model.tet_indices, model.tet_rest_inv, model.tet_rest_volume, c["mu"], c["lam"]]
+
+    # ------------------------------------------------------------------ Energy contract
+    def value(self, model: Model, x: wp.array, out: wp.array) -> None:
+        """Add Σ V ψ(F) [J] into ``out[0]``."""
+        if model.tet_count:
+            k = _material_kernels(self.material.name, model.dtype)[0]
+            wp.launch(k, model.tet_count, [*self._inputs(model), x, out], device=model.device)
+
+    def gradient(self, model: Model, x: wp.array, out: wp.array) -> None:
+        """Add ∂E/∂x [N] (minus the element forces) per particle into ``out``."""
+        if model.tet_count:
+            k = _material_kernels(self.material.name, model.dtype)[1]
+            wp.launch(k, model.tet_count, [*self._inputs(model), x, out], device=model.device)
+
+    def hessian_pattern(self, model: Model) -> tuple[np.ndarray, np.ndarray]:
+        """16 blocks per tet, (a, b) for a, b in 0..3 in row-major order: slot 16 t + 4 a + b."""
+        idx = model.tet_indices.numpy().astype(np.int32)
+        rows = np.repeat(idx, 4, axis=1).ravel()
+        cols = np.tile(idx, (1, 4)).ravel()
+        return rows, cols
+
+    def hessian(self, model, x, slots, values, *, project_psd: bool = True, scale: float = 1.0) -> None:
+        """Add scale·∂²E/∂x² [N/m] (PSD-projected per element when ``project_psd``) into ``values[slots]``."""
+        if model.tet_count:
+            k = _material_kernels(self.material.name, model.dtype)[2]
+            wp.launch(
+                k,
+                model.tet_count,
+                [*self._inputs(model), x, model.s(scale), int(project_psd), slots, values],
+                device=model.device,
+            )
+
+    def max_step(self, model: Model, x: wp.array, dx: wp.array) -> float:
+        """Largest α ≤ 1 keeping every element's volume above η times its current one (one host read)."""
+        if not model.tet_count:
+            return 1.0
+        a = self._buffers(model)["alpha"]
+        wp.launch(_fill, 1, [model.s(1.0), a], device=model.device)
+        wp.launch(
+            _tet_max_step,
+            model.tet_count,
+            [model.tet_indices, x, dx, model.s(self.inversion_margin), a],
+            device=model.device,
+        )
+        return float(a.numpy()[0])
+
+    # ------------------------------------------------------------------ diagnostics
+    def min_det(self, model: Model, x: wp.array) -> float:
+        """min_e det F_e over the model's tets at ``x`` (≤ 0: an element is inverted); one host read."""
+        if not model.tet_count:
+            return 1.0
+        out = wp.full(1, model.s(np.inf), dtype=model.scalar, device=model.device)
+        wp.launch(
+            _tet_min_det,
+            model.tet_count,
+            [model.tet_indices, model.tet_rest_inv, x, out],
+            device=model.device,
+        )
+        return float(out.numpy()[0])
+
+
+class LinearElastic(TetElasticity):
+    """Linear elasticity ψ = μ ε:ε + λ/2 tr(ε)², ε = ½(F + Fᵀ) − I (small strains; not rotation invariant).
+
+    See :class:`TetElasticity` for the arguments.
+    """
+
+    def __init__(self, *, E: float | None = None, nu: float = 0.3, inversion_margin: float = 0.1) -> None:
+        super().__init__("linear", E=E, nu=nu, inversion_margin=inversion_margin)
+
+
+class StVK(TetElasticity):
+    """St. Venant–Kirchhoff ψ = μ E:E + λ/2 tr(E)², E = ½(FᵀF − I) (softens, and can invert, in compression).
+
+    See :class:`TetElasticity` for the arguments.
+    """
+
+    def __init__(self, *, E: float | None = None, nu: float = 0.3, inversion_margin: float = 0.1) -> None:
+        super().__init__("stvk", E=E, nu=nu, inversion_margin=inversion_margin)
+
+
+class Corotated(TetElasticity):
+    """Fixed corotated ψ = μ ‖F − R‖² + λ/2 (J − 1)², F = R S (Stomakhin et al. 2012).
+
+    See :class:`TetElasticity` for the arguments.
+    """
+
+    def __init__(self, *, E: float | None = None, nu: float = 0.3, inversion_margin: float = 0.1) -> None:
+        super().__init__("corotated", E=E, nu=nu, inversion_margin=inversion_margin)
+
+
+class NeoHookean(TetElasticity):
+    """Stable neo-Hookean ψ = μ/2 (I_C − 3) − μ (J − 1) + (λ + μ)/2 (J − 1)² (Smith, de Goes, Kim 2018).
+
+    See :class:`TetElasticity` for the arguments.
+    """
+
+    def __init__(self, *, E: float | None = None, nu: float = 0.3, inversion_margin: float = 0.1) -> None:
+        super().__init__("neohookean", E=E, nu=nu, inversion_margin=inversion_margin)

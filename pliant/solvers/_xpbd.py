@@ -1,0 +1,318 @@
+"""XPBD and PBD: the lecture's Algorithm 1 with compliant (XPBD) or stiffness-scaled (PBD) projections."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import warp as wp
+
+from ..constraints import Constraint, DihedralBending, Distance, Ground, Volume
+from ..model import Control, Model, State
+from . import _xpbd_kernels as K
+from ._base import Solver
+
+_SCHEDULES = ("jacobi", "coloring")
+
+
+class XPBD(Solver):
+    """Extended position-based dynamics (Macklin, Müller, Chentanez, "XPBD: position-based simulation of
+    compliant constrained dynamics", MIG 2016) in the loop of the lecture's Algorithm 1.
+
+    Per step: predict p = x + Δt(v + Δt(g + w f_ext)); generate contacts; ``iterations`` sweeps of
+    Δλ = −(C + α̃λ)/(Σ w|∇C|² + α̃), Δx = wΔλ∇C with α̃ = α/Δt² and λ reset to 0 every step; then
+    v = (p − x)/Δt, x = p, and a velocity pass (ground friction and restitution, damping v ← v e^{−cΔt}).
+
+    Schedules: ``"coloring"`` is Gauss–Seidel over a greedy colouring computed once on the host (no two
+    constraints of a colour share a moving particle, so a colour runs in parallel without races);
+    ``"jacobi"`` projects all constraints of a set at once, accumulates their corrections atomically and
+    moves each particle by ω × their average (summing without averaging diverges for stiff constraints on
+    light particles). Each constraint computes its Δλ as if particle i had the mass m_i/n_i (mass
+    splitting, n_i the constraints of the set at i), so the average of its copies' corrections is exactly
+    Σ_c w_i Δλ_c ∇_i C_c: λ stays consistent with the motion applied, and a converged static state is the
+    same as under Gauss–Seidel (plain averaging without the split would over-count λ and sag too far).
+    Contacts are always averaged.
+
+    Args:
+        model: the Model; by default the constraints are its springs (``Distance``, α = 1/k), bending
+            elements with k > 0 (``DihedralBending``), tetrahedra (``Volume``, α = 1/(κV0)) and ground.
+        iterations: projection sweeps per step.
+        compliance: α [m/N] of the default distance constraints (overrides 1/k).
+        bending_compliance: α [1/(N m)] of the default bending constraints (adds them for every element).
+        volume_compliance: α of the default volume constraints.
+        schedule: "jacobi" or "coloring".
+        relaxation: ω of the Jacobi schedule in (0, 2): Δλ and Δx of each sweep are scaled together (over-
+            relaxation, which keeps λ consistent with x); ignored by "coloring".
+        damping: c [1/s] in v ← v e^{−cΔt}.
+        friction: ground μ (default ``model.ground.friction``).
+        restitution: ground e (default ``model.ground.restitution``).
+        constraints: explicit constraint objects (replace the defaults; a ``Ground`` is added when the
+            model has a ground and none is given).
+        contact: add the model's ground plane as a ``Ground`` constraint.
+        contact_iterations: extra sweeps of the contact constraints alone at the end of each step.
+
+    Example::
+
+        solver = pl.solvers.XPBD(model, iterations=10, schedule="coloring")
+        sim = pl.Simulator(model, solver, dt=1 / 60, substeps=10)
+    """
+
+    pbd = False
+
+    def __init__(
+        self,
+        model: Model,
+        *,
+        iterations: int = 10,
+        compliance: float | None = None,
+        bending_compliance: float | None = None,
+        volume_compliance: float | None = None,
+        schedule: str = "jacobi",
+        relaxation: float = 1.0,
+        damping: float = 0.0,
+        friction: float | None = None,
+        restitution: float | None = None,
+        constraints: Sequence[Constraint] | None = None,
+        contact: bool = True,
+        contact_iterations: int = 4,
+    ) -> None:
+        super().__init__(model)
+        if model.requires_grad:
+            raise NotImplementedError(
+                "XPBD projects in place and is not tape-differentiable yet; finalize with requires_grad=False"
+            )
+        if int(iterations) < 1:
+            raise ValueError(f"iterations must be >= 1, got {iterations}")
+        if schedule not in _SCHEDULES:
+            raise ValueError(f"schedule must be one of {_SCHEDULES}, got {schedule!r}")
+        if not 0.0 < relaxation < 2.0:
+            raise ValueError(f"relaxation ω must be in (0, 2), got {relaxation}")
+        if damping < 0:
+            raise ValueError(f"damping must be >= 0 1/s, got {damping}")
+        self.iterations = int(iterations)
+        self.schedule = schedule
+        self.coloring = schedule == "coloring"
+        self.relaxation = float(relaxation)
+        self.damping = float(damping)
+        self.contact_iterations = int(contact_iterations)
+        self.constraints = self._default_constraints(
+            model, compliance, bending_compliance, volume_compliance, constraints
+        )
+        if contact and model.ground is not None and not any(isinstance(c, Ground) for c in self.constraints):
+            self.constraints.append(Ground(friction=friction, restitution=restitution))
+        for c in self.constraints:
+            if not isinstance(c, Constraint):
+                raise TypeError(f"constraints must be pl.constraints objects, got {type(c).__name__}")
+            c.bind(model, self.coloring)
+        d, n = model.device, model.particle_count
+        self.delta = wp.zeros(n, dtype=model.vec3, device=d)
+        self.delta_count = wp.zeros(n, dtype=wp.int32, device=d)
+        self.v_pred = wp.zeros(n, dtype=model.vec3, device=d)
+        self._residual = wp.zeros(2, dtype=model.scalar, device=d)
+        self._last_dt: float | None = None
+        self._last_p: wp.array | None = None
+        #: Replay recorded launches for repeated identical steps (set False to launch afresh every step).
+        self.replay = True
+        self._plans: dict[tuple, list] = {}
+        self._recording: list | None = None
+
+    def _default_constraints(self, model, compliance, bending_compliance, volume_compliance, constraints):
+        if constraints is not None:
+            return list(constraints)
+        out: list[Constraint] = []
+        if model.spring_count:
+            out.append(Distance(compliance=compliance, stiffness=self._stiffness("stiffness")))
+        if model.bending_count:
+            k = model.bending_stiffness.numpy()
+            if bending_compliance is not None or np.any(k > 0):
+                out.append(
+                    DihedralBending(compliance=bending_compliance, stiffness=self._stiffness("bending"))
+                )
+        if model.tet_count:
+            out.append(Volume(compliance=volume_compliance, stiffness=self._stiffness("volume")))
+        return out
+
+    def _stiffness(self, which: str) -> float:
+        return 1.0
+
+    # ------------------------------------------------------------------ launching
+    def launch(self, kernel, dim: int, inputs: list) -> None:
+        """Launch ``kernel`` on the model's device, recording it when a step is being recorded."""
+        if dim <= 0:
+            return
+        if self._recording is None:
+            wp.launch(kernel, dim, inputs, device=self.model.device)
+            return
+        cmd = wp.launch(kernel, dim, inputs, device=self.model.device, record_cmd=True)
+        cmd.launch()
+        self._recording.append(cmd.launch)
+
+    def call(self, fn, *args) -> None:
+        """Run a non-kernel operation of the step (a clear, a grid build, a BVH refit), recording it too."""
+        fn(*args)
+        if self._recording is not None:
+            self._recording.append((lambda: fn(*args)) if args else fn)
+
+    # ------------------------------------------------------------------ the loop
+    def step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
+        """Advance ``state_in`` by ``dt`` [s] into ``state_out`` (Algorithm 1); ``state_in`` is only read.
+
+        The first step for a given (states, control, Δt) records its launches; later identical steps replay
+        them (``wp.Launch``), which removes most of the per-step Python cost. Scalar control inputs (the
+        drag handle) are part of the key, array contents (forces, kinematic targets) are read at replay.
+        """
+        key = self._plan_key(state_in, state_out, control, dt)
+        plan = self._plans.get(key) if self.replay else None
+        if plan is not None:
+            for f in plan:
+                f()
+        else:
+            self._recording = [] if self.replay else None
+            try:
+                self._step(state_in, state_out, control, dt)
+            finally:
+                if self._recording is not None:
+                    if len(self._plans) >= 8:
+                        self._plans.clear()
+                    self._plans[key] = self._recording
+                self._recording = None
+        self._last_dt, self._last_p = dt, state_out.particle_q
+
+    def _project(self, c: Constraint, p: wp.array, dt: float) -> None:
+        c.project(self, p, dt)
+        if c.writes_deltas(self.coloring):
+            omega = 1.0 if (self.coloring or c.always_jacobi or c.relaxes_itself) else self.relaxation
+            m = self.model
+            self.launch(K.apply_deltas, m.particle_count, [m.s(omega), p, self.delta, self.delta_count])
+
+    def _plan_key(self, state_in: State, state_out: State, control: Control | None, dt: float) -> tuple:
+        arrays = (state_in.particle_q, state_in.particle_qd, state_out.particle_q, state_out.particle_qd)
+        key = (float(dt), *(a.ptr for a in arrays))
+        if control is None:
+            return key
+        return (
+            *key,
+            id(control),
+            control.particle_f.ptr,
+            control.kinematic_indices.ptr,
+            control.kinematic_targets.ptr,
+            control.drag_index,
+            tuple(np.asarray(control.drag_target, float).tolist()),
+            float(control.drag_stiffness),
+        )
+
+    def _step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
+        m = self.model
+        n = m.particle_count
+        x, p, v = state_in.particle_q, state_out.particle_q, state_out.particle_qd
+        if control is not None:
+            f_ext = control.particle_f
+            drag = control.drag_index
+            drag_target, drag_k = m.vec3(*control.drag_target), m.s(control.drag_stiffness)
+        else:
+            f_ext = self.delta  # zeros between steps
+            drag, drag_target, drag_k = -1, m.vec3(0.0, 0.0, 0.0), m.s(0.0)
+        self.launch(
+            K.predict,
+            n,
+            [
+                m.particle_inv_mass,
+                m.gravity_vec,
+                f_ext,
+                drag,
+                drag_target,
+                drag_k,
+                m.s(dt),
+                x,
+                state_in.particle_qd,
+                p,
+                self.v_pred,
+            ],
+        )
+        if control is not None and control.kinematic_indices.shape[0]:
+            self.launch(
+                K.apply_kinematic,
+                control.kinematic_indices.shape[0],
+                [control.kinematic_indices, control.kinematic_targets, p],
+            )
+        for c in self.constraints:
+            c.begin_step(self, x, p, dt)
+        for _ in range(self.iterations):
+            for c in self.constraints:
+                self._project(c, p, dt)
+        # Contacts last: extra sweeps of the unilateral constraints alone, so that averaging with the
+        # bilateral corrections does not leave particles inside what they touch at the end of the step.
+        contacts = [c for c in self.constraints if c.is_contact]
+        for _ in range(self.contact_iterations if contacts else 0):
+            for c in contacts:
+                self._project(c, p, dt)
+        self.launch(K.update_velocity, n, [m.s(1.0 / dt), m.s(math.exp(-self.damping * dt)), x, p, v])
+        for c in self.constraints:
+            c.end_step(self, x, p, v, dt)
+
+    # ------------------------------------------------------------------ diagnostics
+    def residual(self) -> float:
+        """RMS of C + α̃λ over the bilateral constraints after the last step (host sync) [constraint units]."""
+        if self._last_dt is None:
+            raise RuntimeError("residual() needs a step first")
+        self._residual.zero_()
+        for c in self.constraints:
+            c.residual(self, self._last_p, self._last_dt, self._residual)
+        s, n = self._residual.numpy()
+        return float(math.sqrt(s / n)) if n > 0 else 0.0
+
+    @property
+    def constraint_count(self) -> int:
+        """Number of bilateral constraints projected per sweep (contacts excluded)."""
+        return sum(c.count for c in self.constraints if isinstance(c, (Distance, DihedralBending, Volume)))
+
+    def describe(self) -> dict:
+        """Solver options and constraint sets."""
+        return {
+            "solver": type(self).__name__,
+            "integrator": "xpbd" if not self.pbd else "pbd",
+            "iterations": self.iterations,
+            "schedule": self.schedule,
+            "relaxation": self.relaxation,
+            "damping": self.damping,
+            "constraints": [c.describe() for c in self.constraints],
+        }
+
+
+class PBD(XPBD):
+    """Position-based dynamics (Müller, Heidelberger, Hennix, Ratcliff, VRIPHYS 2006): XPBD's loop with
+    Δλ = −k' C/Σ w|∇C|², k' = 1 − (1 − k)^(1/n) for n iterations, so that the stiffness k ∈ [0, 1] acts
+    the same whatever the iteration count (but still depends on Δt and the mesh).
+
+    Args:
+        model: the Model.
+        iterations: projection sweeps per step.
+        stiffness: k of the default distance constraints.
+        bending_stiffness: k of the default bending constraints (added for every element when > 0).
+        volume_stiffness: k of the default volume constraints.
+        Other keyword arguments as :class:`XPBD`; constraint objects carry their own ``stiffness``.
+    """
+
+    pbd = True
+
+    def __init__(
+        self,
+        model: Model,
+        *,
+        iterations: int = 10,
+        stiffness: float = 1.0,
+        bending_stiffness: float = 0.0,
+        volume_stiffness: float = 1.0,
+        **kwargs,
+    ) -> None:
+        self._k = {"stiffness": stiffness, "bending": bending_stiffness, "volume": volume_stiffness}
+        for name, k in self._k.items():
+            if not 0.0 <= k <= 1.0:
+                raise ValueError(f"PBD {name} must be in [0, 1], got {k}")
+        if bending_stiffness > 0 and "bending_compliance" not in kwargs:
+            kwargs["bending_compliance"] = 0.0
+        super().__init__(model, iterations=iterations, **kwargs)
+
+    def _stiffness(self, which: str) -> float:
+        return self._k[which]

@@ -1,0 +1,83 @@
+"""Kernels of the PBD/XPBD loop: prediction, Jacobi averaging, velocity update."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import warp as wp
+
+
+@wp.kernel
+def predict(
+    # Model:
+    inv_mass: wp.array(dtype=Any),
+    gravity: Any,
+    # Control:
+    f_ext: wp.array(dtype=Any),
+    drag_index: int,
+    drag_target: Any,
+    drag_stiffness: Any,
+    # Parameters:
+    dt: Any,
+    # State in:
+    x_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    # Out:
+    p_out: wp.array(dtype=Any),
+    v_pred_out: wp.array(dtype=Any),
+):
+    """Algorithm 1, lines 5–6: v ← v + Δt(g + w f_ext), p ← x + Δt v (pinned particles stay)."""
+    i = wp.tid()
+    w = inv_mass[i]
+    x = x_in[i]
+    if w == type(w)(0.0):
+        p_out[i] = x
+        v_pred_out[i] = x * type(w)(0.0)
+        return
+    f = f_ext[i]
+    if i == drag_index:
+        # The drag handle: a zero-length spring from the particle to the cursor.
+        f = f + drag_stiffness * (drag_target - x)
+    v = v_in[i] + dt * (gravity + w * f)
+    p_out[i] = x + dt * v
+    v_pred_out[i] = v
+
+
+@wp.kernel
+def apply_kinematic(
+    indices: wp.array(dtype=wp.int32),
+    targets: wp.array(dtype=Any),
+    p_out: wp.array(dtype=Any),
+):
+    """Kinematic particles (inverse mass 0) sit on their targets during the projection."""
+    k = wp.tid()
+    p_out[indices[k]] = targets[k]
+
+
+@wp.kernel
+def apply_deltas(
+    relaxation: Any,
+    p_io: wp.array(dtype=Any),
+    delta_io: wp.array(dtype=Any),
+    count_io: wp.array(dtype=wp.int32),
+):
+    """Jacobi: p_i += ω Σ_c Δp_i^c / n_i (the average over the n_i constraints that moved i), then reset."""
+    i = wp.tid()
+    n = count_io[i]
+    if n > 0:
+        p_io[i] = p_io[i] + (relaxation / type(relaxation)(n)) * delta_io[i]
+        delta_io[i] = delta_io[i] * type(relaxation)(0.0)
+        count_io[i] = 0
+
+
+@wp.kernel
+def update_velocity(
+    inv_dt: Any,
+    damping_factor: Any,
+    x_in: wp.array(dtype=Any),
+    p_in: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+):
+    """Algorithm 1, lines 12–13: v ← (p − x)/Δt, scaled by exp(−cΔt) (x ← p is the state swap)."""
+    i = wp.tid()
+    v_out[i] = ((p_in[i] - x_in[i]) * inv_dt) * damping_factor
