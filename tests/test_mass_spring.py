@@ -65,7 +65,9 @@ def test_hanging_chain_stretch_per_link_is_weight_below_over_k():
     """A chain hanging from its top: the stretch of each link equals the weight below it over k (0.5%)."""
     n, k, mass = 10, 200.0, 0.5
     b = pl.ModelBuilder()
-    b.add_rope(n_segments=n, length=1.0, mass=mass, stiffness=k, start=(0, 0, 0), direction=(0, -1, 0), pin="first")
+    b.add_rope(
+        n_segments=n, length=1.0, mass=mass, stiffness=k, start=(0, 0, 0), direction=(0, -1, 0), pin="first"
+    )
     model = b.finalize(device="cpu", dtype="float64")
     x = _relax(model, frames=300).particle_q.numpy()
     stretch = np.linalg.norm(np.diff(x, axis=0), axis=1) - 1.0 / n
@@ -90,7 +92,7 @@ def test_stiff_rope_pinned_at_both_ends_lies_on_the_catenary():
     x0[:, 1] = -1.6 * xs * (span - xs)
     model.particle_q.assign(x0)
     x = _relax(model, frames=600).particle_q.numpy()
-    # Catenary y = a cosh((x − span/2)/a) + c through both ends with arc length `length`: 2a sinh(span/2a) = L.
+    # Catenary y = a cosh((x − span/2)/a) + c through both ends, arc length L: 2a sinh(span/2a) = L.
     from scipy.optimize import brentq
 
     a = brentq(lambda a: 2 * a * np.sinh(span / (2 * a)) - length, 0.05, 100.0)
@@ -119,19 +121,24 @@ def _kinetic_potential_momentum(model, state):
 
 @pytest.mark.parametrize("which", ["force_dashpots", "fast_dashpots", "velocity_damping"])
 def test_dashpots_and_damping_dissipate_monotonically(which):
-    """Dashpots and δ damping lower the energy monotonically; dashpots conserve linear momentum, δ scales it."""
+    """Dashpots and δ damping lower the energy monotonically; dashpots conserve momentum, δ scales it."""
     model = _spinning_rope()
     dt, delta = 2e-4, 0.999
     if which == "force_dashpots":
         solver = pl.solvers.ForceSolver(
-            model, energies=[pl.energies.Springs(), pl.energies.Dashpots()], integrator=pl.integrators.SymplecticEuler()
+            model,
+            energies=[pl.energies.Springs(), pl.energies.Dashpots()],
+            integrator=pl.integrators.SymplecticEuler(),
         )
     elif which == "fast_dashpots":
         solver = pl.solvers.FastMassSpring(model, method="symplectic")
     else:
         model.spring_damping.zero_()
         solver = pl.solvers.ForceSolver(
-            model, energies=[pl.energies.Springs()], integrator=pl.integrators.SymplecticEuler(), velocity_damping=delta
+            model,
+            energies=[pl.energies.Springs()],
+            integrator=pl.integrators.SymplecticEuler(),
+            velocity_damping=delta,
         )
     s0, s1 = model.state(), model.state()
     e0, p0 = _kinetic_potential_momentum(model, s0)
@@ -156,7 +163,9 @@ def test_block_sliding_on_ground_stops_after_v2_over_2_mu_g():
     b.add_particles([[0.0, 0.01, 0.0]], 1.0, velocities=[[v0, 0.0, 0.0]], radius=0.01)
     b.add_ground(friction=mu)
     model = b.finalize(device="cpu", dtype="float64")
-    solver = pl.solvers.ForceSolver(model, energies=[pl.energies.Gravity()], integrator=pl.integrators.SymplecticEuler())
+    solver = pl.solvers.ForceSolver(
+        model, energies=[pl.energies.Gravity()], integrator=pl.integrators.SymplecticEuler()
+    )
     s0, s1 = model.state(), model.state()
     for _ in range(int(1.2 * v0 / (mu * G) / dt)):
         solver.step(s0, s1, None, dt)
@@ -187,7 +196,9 @@ def test_uniaxial_stretch_strains_by_stress_over_youngs_modulus():
     """
     n, et, nu, size = 40, 1000.0, 1.0 / 3.0, 1.0
     b = pl.ModelBuilder(gravity=(0.0, 0.0, 0.0))
-    b.add_cloth_grid(nx=n, ny=n, size=size, mass=0.1, youngs_modulus_thickness=et, poisson=nu, origin=(0, 0, 0))
+    b.add_cloth_grid(
+        nx=n, ny=n, size=size, mass=0.1, youngs_modulus_thickness=et, poisson=nu, origin=(0, 0, 0)
+    )
     model = b.finalize(device="cpu", dtype="float64")
     x0 = model.particle_q_np
     sigma = 0.002 * et  # membrane stress [N/m]: 0.2% strain, in the linear range
@@ -235,8 +246,22 @@ def test_drape_implicit_and_symplectic_agree_on_sag():
 def test_drape_benchmark_row_has_the_documented_fields():
     """A quick drape benchmark row is stable and carries speed and sag figures."""
     row = cloth_drape(16, "implicit", quick=True)
-    for key in ("scene", "solver", "integrator", "device", "particles", "elements", "substeps", "iterations",
-                "wall_s", "compile_s", "fps", "particle_substeps_per_s", "peak_mem_mb", "sag"):
+    for key in (
+        "scene",
+        "solver",
+        "integrator",
+        "device",
+        "particles",
+        "elements",
+        "substeps",
+        "iterations",
+        "wall_s",
+        "compile_s",
+        "fps",
+        "particle_substeps_per_s",
+        "peak_mem_mb",
+        "sag",
+    ):
         assert key in row
     assert row["stable"] and row["particles"] == 17 * 17
 
@@ -248,3 +273,35 @@ def test_drape_implicit_sag_within_5_percent_of_reference(n):
     row = cloth_drape(n, "implicit")
     assert row["stable"]
     assert row["sag"] == pytest.approx(REFERENCE_SAG[n], rel=0.05)
+
+
+@pytest.mark.parametrize("solver_kind", ["force", "fast_symplectic", "fast_implicit"])
+def test_drag_handle_pulls_to_the_cursor_and_pins_hold(solver_kind):
+    """The drag handle pulls a rope's free end to the cursor (1 cm) while the pinned end stays put."""
+    b = pl.ModelBuilder()
+    b.add_rope(
+        n_segments=8, length=0.4, mass=0.04, stiffness=500.0, damping=0.05, start=(0, 0, 0), pin="first"
+    )
+    model = b.finalize(device="cpu", dtype="float64")
+    if solver_kind == "force":
+        solver = pl.solvers.ForceSolver(
+            model,
+            energies=pl.energies.mass_spring(),
+            integrator=pl.integrators.SymplecticEuler(),
+            damping_rate=4.0,
+        )
+    else:
+        method = "symplectic" if solver_kind == "fast_symplectic" else "implicit"
+        solver = pl.solvers.FastMassSpring(model, method=method, cg_iterations=60, damping_rate=4.0)
+    control = model.control()
+    target = np.array([0.3, 0.2, 0.0])
+    control.set_drag(8, target, 200.0)
+    s0, s1 = model.state(), model.state()
+    dt = 1e-3 if solver_kind != "fast_implicit" else 1e-2
+    for _ in range(int(3.0 / dt)):
+        solver.step(s0, s1, control, dt)
+        s0, s1 = s1, s0
+    x = s0.particle_q.numpy()
+    assert np.array_equal(x[0], model.particle_q_np[0])
+    # At rest the handle spring holds the end: k·|target − x_end| balances gravity and the rope's pull.
+    assert np.linalg.norm(x[8] - target) < 0.01

@@ -235,7 +235,7 @@ def test_rigid_shape_matching_keeps_pairwise_distances():
 
 
 def test_oriented_particles_follow_cluster_rotation():
-    """With oriented particles each particle's orientation equals its rigid cluster's rotation."""
+    """Oriented particles: each orientation is the cluster's rotation, ω the body's angular velocity (2%)."""
     model, pts, _, _, _ = _rigid_cluster()
     sm = pc.ShapeMatching(stiffness=1.0, radii=np.full(model.particle_count, 0.02))
     solver = XPBD(model, iterations=1, constraints=[sm])
@@ -246,6 +246,14 @@ def test_oriented_particles_follow_cluster_rotation():
     for k in range(model.particle_count):
         R = np.array(wp.quat_to_matrix(wp.quatd(*q[k]))).reshape(3, 3)
         np.testing.assert_allclose((pts - pts[0]) @ R.T, x - x[0], atol=1e-9)
+    # Their angular velocity is the body's: L = I ω about the centre of mass, from the particle velocities.
+    m, v = model.particle_mass_np, s.particle_qd.numpy()
+    c = m @ x / m.sum()
+    r = x - c
+    L = (m[:, None] * np.cross(r, v - m @ v / m.sum())).sum(axis=0)
+    I = np.eye(3) * np.sum(m * np.sum(r * r, axis=1)) - (r * m[:, None]).T @ r
+    w = sm.angular_velocity.numpy()
+    np.testing.assert_allclose(w, np.tile(np.linalg.solve(I, L), (len(w), 1)), rtol=0.02, atol=0.02)
 
 
 def test_rigid_body_solver_keeps_shape_and_momenta():
@@ -286,3 +294,37 @@ def test_rigid_body_solver_agrees_with_rigid_shape_matching():
         gaps.append(np.abs(a - b.particle_q.numpy()).max())
     assert gaps[0] < 5e-3, gaps
     assert 1.7 < gaps[0] / gaps[1] < 2.3, f"gaps {gaps} do not shrink like Δt"
+
+
+def test_fused_cpu_sweep_equals_colour_by_colour_launches(monkeypatch):
+    """On the CPU one launch over the colour-sorted list is bit-identical to per-colour launches."""
+    import pliant.constraints._base as base
+
+    model = cloth_model(10, dtype="float32")
+    results = []
+    for fused in (True, False):
+        monkeypatch.setattr(base, "FUSE_CPU_COLORS", fused)
+        solver = XPBD(model, iterations=3, schedule="coloring")
+        ranges = solver.constraints[0].color_ranges(True)
+        assert (len(ranges) == 1) == fused
+        results.append(run(model, solver, 10, 1 / 240).particle_q.numpy())
+    np.testing.assert_array_equal(results[0], results[1])
+
+
+def test_kinematic_targets_are_followed():
+    """A kinematic particle ends each step on its target with velocity (target − x)/Δt; the rest follow."""
+    b = ModelBuilder(gravity=(0.0, -G, 0.0))
+    b.add_rope(n_segments=4, length=0.4, mass=0.5, stiffness=1e3, start=(0, 0, 0), pin="none")
+    b.add_kinematic([0])
+    model = b.finalize(device="cpu", dtype="float64")
+    control = model.control()
+    solver = XPBD(model, iterations=10, schedule="coloring")
+    s0, s1 = model.state(), model.state()
+    for k in range(1, 21):
+        target = np.array([[0.0, 0.01 * k, 0.0]])
+        control.set_kinematic_targets(target)
+        solver.step(s0, s1, control, 1e-2)
+        s0, s1 = s1, s0
+        np.testing.assert_allclose(s0.particle_q.numpy()[0], target[0], atol=1e-14)
+        np.testing.assert_allclose(s0.particle_qd.numpy()[0], [0.0, 1.0, 0.0], atol=1e-9)
+    assert s0.particle_q.numpy()[1:, 1].max() > 0.0  # the rope was lifted

@@ -4,13 +4,14 @@ Scene (fixed, so that equal speed means equal behaviour): a cube of side 0.5 m m
 6 linear tets each, density 1000 kg/m³, stable neo-Hookean with E = 1e5 Pa, ν = 0.3 (the model's per-tet
 Lamé parameters), its bottom 0.1 m above the ground plane y = 0 (friction 0.5, no restitution), gravity
 −9.81 m/s² along y, released at rest. Frames of 1/60 s. Ground contact is ForceSolver's projection after each
-step (particle radius 5 mm). The sanity figures are the **final height** of the centre of mass and of the
+step (particle radius 5 mm), plus a ground penalty energy inside the potential (see :func:`make_solver`).
+The sanity figures are the **final height** of the centre of mass and of the
 box top [m]: at rest the centre sits near 0.255 m (half the side plus the particle radius, minus the small
 sag under its own weight) and every particle is slow.
 
-Implicit rows: backward Euler, one Newton solve per frame (tolerance 1e-4 m/s, SciPy direct solve on the
-CPU, Jacobi-CG on a GPU). Explicit rows: symplectic Euler with enough substeps for the CFL limit of the
-stiffest tet.
+Implicit rows: backward Euler, one Newton solve per frame (tolerance :data:`NEWTON_TOL`, SciPy direct
+solve on the CPU, Jacobi-CG on a GPU). Explicit rows: symplectic Euler with enough substeps for the CFL
+limit of the stiffest tet.
 
 ``python -m pliant.bench._fem`` prints the rows as JSON lines.
 """
@@ -52,19 +53,38 @@ def soft_box_model(n: int, *, device: str | None = "cpu", dtype: str = "float32"
     return b.finalize(device=device, dtype=dtype)
 
 
-def make_solver(model: Any, method: str, *, newton_tol: float = 1e-4) -> Any:
-    """ForceSolver with NeoHookean + Gravity: "implicit" (BackwardEuler) or "explicit" (SymplecticEuler)."""
-    from ..energies import Gravity, NeoHookean
+#: Ground penalty stiffness [N/m]: a particle's weight (about 1 N at 10³ cells) sinks it by ~10 µm.
+GROUND_STIFFNESS = 1.0e5
+
+#: Newton tolerance [m/s] per dtype: float32 forces carry ~eps·μ·h² ≈ 1e-5 N of round-off, i.e. about
+#: 6e-3 m/s of mass-scaled gradient at 10³ cells, so a float32 solve cannot go below ~1e-2 m/s.
+NEWTON_TOL = {"float32": 2e-2, "float64": 1e-4}
+
+
+def make_solver(model: Any, method: str, *, newton_tol: float | None = None) -> Any:
+    """ForceSolver with NeoHookean + Gravity + a ground penalty: "implicit" (BackwardEuler) or "explicit"
+    (SymplecticEuler).
+
+    The ground is both a penalty energy ½k·max(0, r − y)² (so that Newton sees it: the post-step projection
+    alone lets an implicit step push whole layers of particles through the floor and flattens them) and
+    ForceSolver's projection after the step (friction, no restitution).
+    """
+    from ..collision import Colliders
+    from ..energies import ColliderPenalty, Gravity, NeoHookean
     from ..integrators import BackwardEuler, SymplecticEuler
     from ..solvers import ForceSolver
 
+    floor = Colliders()
+    floor.add_box(center=(0.0, -1.0, 0.0), half_extents=(10.0, 1.0, 10.0), friction=0.5)
+    energies = [NeoHookean(), Gravity(), ColliderPenalty(floor, stiffness=GROUND_STIFFNESS)]
     if method == "implicit":
-        integrator = BackwardEuler(newton_tol=newton_tol)
+        tol = NEWTON_TOL[model.dtype] if newton_tol is None else newton_tol
+        integrator = BackwardEuler(newton_tol=tol)
     elif method == "explicit":
         integrator = SymplecticEuler()
     else:
         raise ValueError(f"method must be 'implicit' or 'explicit', got {method!r}")
-    return ForceSolver(model, energies=[NeoHookean(), Gravity()], integrator=integrator)
+    return ForceSolver(model, energies=energies, integrator=integrator)
 
 
 def _peak_mem_mb(device: str) -> float:
@@ -136,6 +156,7 @@ def soft_box_drop(
         "substeps": substeps,
         "dt": dt,
         "iterations_per_step": round(iterations / steps, 3) if method == "implicit" else 0,
+        "newton_tol": getattr(solver.integrator, "newton_tol", None),
         "wall_s": round(wall, 4),
         "compile_s": round(compile_s, 3),
         "time_per_step_s": float(f"{wall / steps:.4g}"),

@@ -5,4 +5,13 @@ from ._ground import ground_contact
 from ._hashgrid import ParticleGrid, TriangleBVH, triangle_closest_point
 from ._selfcollision import SelfCollision, closest_point_triangle
 
-__all__ = ["Colliders", "SelfCollision", "closest_point_triangle", "collider_sdf", "ParticleGrid", "TriangleBVH", "ground_contact", "triangle_closest_point"]
+__all__ = [
+    "Colliders",
+    "SelfCollision",
+    "closest_point_triangle",
+    "collider_sdf",
+    "ParticleGrid",
+    "TriangleBVH",
+    "ground_contact",
+    "triangle_closest_point",
+]

@@ -33,9 +33,7 @@ def _curved_hessian(P: Any, n: Any, rho: Any):
 
 
 @wp.func
-def collider_sdf(
-    kind: int, pos: Any, aux: Any, rot: Any, radius: Any, mesh: wp.uint64, p: Any
-):
+def collider_sdf(kind: int, pos: Any, aux: Any, rot: Any, radius: Any, mesh: wp.uint64, p: Any):
     """(φ [m], n = ∇φ, ∇²φ [1/m]) of one collider at p; see :class:`Colliders` for the parameters."""
     zero = radius * type(radius)(0.0)
     one = type(radius)(1.0)
@@ -251,7 +249,7 @@ class Colliders:
         friction: float = 0.5,
         restitution: float = 0.0,
     ) -> int:
-        """A box with ``half_extents`` [m] at ``center``, rotated by a 3×3 matrix or (x, y, z, w) quaternion."""
+        """A box of ``half_extents`` [m] at ``center``, rotated by a 3×3 matrix or (x, y, z, w) quaternion."""
         he = _vec(half_extents, "box half_extents")
         if np.any(he <= 0):
             raise ValueError(f"box half_extents must be > 0 m, got {half_extents}")
@@ -277,16 +275,16 @@ class Colliders:
             raise ValueError("capsule endpoints coincide; use add_sphere")
         return self._add(CAPSULE, pa, pb, np.eye(3), radius, friction, restitution)
 
-    def add_mesh(
-        self, vertices: Any, faces: Any, *, friction: float = 0.5, restitution: float = 0.0
-    ) -> int:
+    def add_mesh(self, vertices: Any, faces: Any, *, friction: float = 0.5, restitution: float = 0.0) -> int:
         """A closed, outward-wound triangle mesh (vertices [V, 3] m, faces [F, 3]) queried through a BVH."""
         v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
         f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
         if f.size == 0 or f.min() < 0 or f.max() >= v.shape[0]:
             raise ValueError(f"mesh faces must index the {v.shape[0]} vertices and be non-empty")
         self._meshes.append((v, f.astype(np.int32)))
-        return self._add(MESH, np.zeros(3), np.zeros(3), np.eye(3), 0.0, friction, restitution, len(self._meshes) - 1)
+        return self._add(
+            MESH, np.zeros(3), np.zeros(3), np.eye(3), 0.0, friction, restitution, len(self._meshes) - 1
+        )
 
     # ------------------------------------------------------------------ device data
     def arrays(self, model: Any) -> dict:
@@ -299,7 +297,8 @@ class Colliders:
         d = model.device
         meshes = [
             wp.Mesh(
-                points=wp.array(v, dtype=wp.vec3f, device=d), indices=wp.array(f.ravel(), dtype=wp.int32, device=d)
+                points=wp.array(v, dtype=wp.vec3f, device=d),
+                indices=wp.array(f.ravel(), dtype=wp.int32, device=d),
             )
             for v, f in self._meshes
         ]
@@ -310,7 +309,9 @@ class Colliders:
             "aux": wp.array(np.array([r[2] for r in rows]), dtype=model.vec3, device=d),
             "rot": wp.array(np.array([r[3] for r in rows]), dtype=model.mat33, device=d),
             "radius": wp.array([r[4] for r in rows], dtype=model.scalar, device=d),
-            "mesh": wp.array([meshes[r[7]].id if r[0] == MESH else 0 for r in rows], dtype=wp.uint64, device=d),
+            "mesh": wp.array(
+                [meshes[r[7]].id if r[0] == MESH else 0 for r in rows], dtype=wp.uint64, device=d
+            ),
             "friction": wp.array([r[5] for r in rows], dtype=model.scalar, device=d),
             "restitution": wp.array([r[6] for r in rows], dtype=model.scalar, device=d),
             "_meshes": meshes,  # keep the BVHs alive
@@ -351,5 +352,6 @@ class Colliders:
     def describe(self) -> list[dict]:
         """One dict per collider: kind, parameters, friction, restitution."""
         return [
-            {"kind": _KIND_NAMES[r[0]], "friction": r[5], "restitution": r[6], "radius": r[4]} for r in self._rows
+            {"kind": _KIND_NAMES[r[0]], "friction": r[5], "restitution": r[6], "radius": r[4]}
+            for r in self._rows
         ]

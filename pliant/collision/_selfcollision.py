@@ -25,7 +25,7 @@ import warp as wp
 
 @wp.func
 def closest_point_triangle(p: Any, a: Any, b: Any, c: Any):
-    """Closest point to p on triangle abc and its barycentric weights (Ericson, Real-Time Collision Detection)."""
+    """Closest point to p on triangle abc and its barycentric weights (Ericson, RTCD §5.1.5)."""
     zero = p[0] * type(p[0])(0.0)
     one = type(zero)(1.0)
     ab = b - a
@@ -66,7 +66,10 @@ def closest_point_triangle(p: Any, a: Any, b: Any, c: Any):
 
 @wp.kernel
 def _snapshot(
-    x_in: wp.array(dtype=Any), v_in: wp.array(dtype=Any), x_out: wp.array(dtype=Any), v_out: wp.array(dtype=Any),
+    x_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    x_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
     xf_out: wp.array(dtype=wp.vec3f),
 ):
     i = wp.tid()
@@ -105,10 +108,10 @@ def _self_contact(
     v = v_pred[i]
     dx = x * zero
     dv = x * zero
-    count = int(0)
+    count = int(0)  # noqa: UP018 (a mutable Warp variable)
     if use_particles != 0:
         query = wp.hash_grid_query(grid, xf_pred[i], wp.float32(thickness))
-        j = int(0)
+        j = int(0)  # noqa: UP018
         while wp.hash_grid_query_next(query, j):
             if j != i:
                 d = x - x_pred[j]
@@ -136,7 +139,7 @@ def _self_contact(
         lof = wp.vec3f(wp.float32(lo[0]), wp.float32(lo[1]), wp.float32(lo[2]))
         hif = wp.vec3f(wp.float32(hi[0]), wp.float32(hi[1]), wp.float32(hi[2]))
         q = wp.mesh_query_aabb(mesh, lof, hif)
-        f = int(0)
+        f = int(0)  # noqa: UP018
         while wp.mesh_query_aabb_next(q, f):
             ia = tri_indices[3 * f]
             ib = tri_indices[3 * f + 1]
@@ -226,7 +229,11 @@ class SelfCollision:
         self._x = wp.zeros(n, dtype=model.vec3, device=d)
         self._v = wp.zeros(n, dtype=model.vec3, device=d)
         self._xf = wp.zeros(n, dtype=wp.vec3f, device=d)
-        tris = model.tri_indices.numpy().reshape(-1).astype(np.int32) if model.tri_count else np.zeros(3, np.int32)
+        tris = (
+            model.tri_indices.numpy().reshape(-1).astype(np.int32)
+            if model.tri_count
+            else np.zeros(3, np.int32)
+        )
         self._tris = wp.array(tris, dtype=wp.int32, device=d)
         self._mesh = None
         if self.use_triangles:

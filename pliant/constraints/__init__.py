@@ -26,14 +26,19 @@ from ._contact import (
 from ._distance import Attachment, Distance, distance_c, distance_grad
 from ._four import (
     DihedralBending,
+    IsometricBending,
     Volume,
     dihedral_angle,
     dihedral_c,
     dihedral_grad,
+    isometric_bending_c,
+    isometric_bending_grad,
+    isometric_bending_weights,
     tet_volume,
     volume_c,
     volume_grad,
 )
+from ._generic import GenericConstraint
 from ._shape import ShapeMatching, oriented_moment, polar_rotation, shape_matching_goal
 
 __all__ = [
@@ -41,7 +46,9 @@ __all__ = [
     "Constraint",
     "DihedralBending",
     "Distance",
+    "GenericConstraint",
     "Ground",
+    "IsometricBending",
     "ParticleCollision",
     "PointTriangleCollision",
     "ShapeMatching",
@@ -55,6 +62,9 @@ __all__ = [
     "distance_grad",
     "ground_c",
     "ground_grad",
+    "isometric_bending_c",
+    "isometric_bending_grad",
+    "isometric_bending_weights",
     "oriented_moment",
     "particle_collision_c",
     "pbd_delta_lambda",

@@ -206,7 +206,9 @@ class ParticleCollision(Constraint):
 
     Args:
         cell_size: hash-grid cell [m]; default twice the largest particle radius.
-        particles: restrict to these particle indices (default all) — not yet supported; all collide.
+
+    Every particle collides with every other one, including its neighbours in a mesh: give particles a
+    radius below half the rest spacing of connected particles.
     """
 
     always_jacobi = True

@@ -105,6 +105,22 @@ def _project_shape(
             orientation_io[i] = q
 
 
+@wp.kernel
+def _angular_velocity(
+    inv_dt: Any,
+    q_prev: wp.array(dtype=Any),
+    q_in: wp.array(dtype=Any),
+    w_out: wp.array(dtype=Any),
+):
+    # ω = 2 vec(q q_prev⁻¹)/Δt, taking the short way round (the sign of the real part).
+    i = wp.tid()
+    dq = q_in[i] * wp.quat_inverse(q_prev[i])
+    s = type(inv_dt)(2.0) * inv_dt
+    if dq[3] < type(inv_dt)(0.0):
+        s = -s
+    w_out[i] = type(w_out[i])(dq[0] * s, dq[1] * s, dq[2] * s)
+
+
 class ShapeMatching(Constraint):
     """Shape matching (Müller, Heidelberger, Teschner, Gross 2005): Δp_i = k_S [R(p̄_i − c̄) + c − p_i].
 
@@ -184,12 +200,29 @@ class ShapeMatching(Constraint):
         quat = wp.quat if model.dtype == "float32" else wp.quatd
         ident = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (n, 1))
         self.orientation = wp.array(ident, dtype=quat, device=d)
+        self._orientation_prev = wp.array(ident, dtype=quat, device=d)
+        self.angular_velocity = wp.zeros(n, dtype=v, device=d)
         self._ident = ident
         self.order = order
 
     def reset_orientations(self) -> None:
         """Set every particle orientation back to the identity (the rest orientation)."""
         self.orientation.assign(self._ident)
+
+    def begin_step(self, solver: Any, x: wp.array, p: wp.array, dt: float) -> None:
+        """Remember the orientations at the start of the step (oriented particles)."""
+        if self.oriented:
+            solver.call(wp.copy, self._orientation_prev, self.orientation)
+
+    def end_step(self, solver: Any, x: wp.array, p: wp.array, v: wp.array, dt: float) -> None:
+        """Angular velocities from the orientation change of the step (oriented particles)."""
+        if self.oriented:
+            m = self.model
+            solver.launch(
+                _angular_velocity,
+                m.particle_count,
+                [m.s(1.0 / dt), self._orientation_prev, self.orientation, self.angular_velocity],
+            )
 
     def project(self, solver: Any, p: wp.array, dt: float) -> None:
         """Pull each cluster towards its best-fit rigid motion of the rest shape."""

@@ -105,7 +105,12 @@ class AirDrag(Energy):
         self._dummy: dict = {}
 
     def _args(self, model: Model) -> list:
-        return [model.particle_inv_mass, model.vec3(*self.wind), model.s(self.coefficient), model.s(self.quadratic)]
+        return [
+            model.particle_inv_mass,
+            model.vec3(*self.wind),
+            model.s(self.coefficient),
+            model.s(self.quadratic),
+        ]
 
     def force(self, model: Model, x: wp.array, v: wp.array, out: wp.array) -> None:
         """Add the drag forces [N] at velocities ``v`` into ``out``."""
@@ -125,7 +130,9 @@ class AirDrag(Energy):
             }
         wp.copy(self._x_ref, x)
         self._inv_dt = 1.0 / dt
-        wp.launch(_air_begin, model.particle_count, [model.vec3(*self.wind), v, self._speed], device=model.device)
+        wp.launch(
+            _air_begin, model.particle_count, [model.vec3(*self.wind), v, self._speed], device=model.device
+        )
 
     def _launch(self, model, x, mode, scale=1.0, slots=None, value=None, grad=None, hess=None) -> None:
         if self._speed is None:

@@ -42,9 +42,16 @@ class Energy(abc.ABC):
         return np.zeros(0, np.int32), np.zeros(0, np.int32)
 
     def hessian(  # noqa: B027
-        self, model: Model, x: wp.array, slots: wp.array, values: wp.array, *, project_psd: bool = True
+        self,
+        model: Model,
+        x: wp.array,
+        slots: wp.array,
+        values: wp.array,
+        *,
+        project_psd: bool = True,
+        scale: float = 1.0,
     ) -> None:
-        """Add the 3×3 blocks of ∂²E/∂x² [N/m] into ``values[slots[k]]``; PSD-projected per element."""
+        """Add ``scale``·∂²E/∂x² [N/m] blocks into ``values[slots[k]]``; PSD-projected per element."""
 
     def max_step(self, model: Model, x: wp.array, dx: wp.array) -> float:
         """Largest α ≤ 1 such that x + α dx stays admissible (no inversion, barrier); default 1."""

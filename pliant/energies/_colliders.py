@@ -79,7 +79,9 @@ class ColliderPenalty(Energy):
         self.stiffness = float(stiffness)
         self._dummy: dict = {}
 
-    def _launch(self, model: Model, x, mode, *, project=1, scale=1.0, slots=None, value=None, grad=None, hess=None):
+    def _launch(
+        self, model: Model, x, mode, *, project=1, scale=1.0, slots=None, value=None, grad=None, hess=None
+    ):
         key = (str(model.device), model.dtype)
         if key not in self._dummy:
             d = model.device

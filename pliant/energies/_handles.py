@@ -108,7 +108,9 @@ class ControlPoints(Energy):
             rests.append(np.zeros(cand.size) if zero_rest else d[cand])
         part = np.concatenate(parts)
         if part.size == 0:
-            raise ValueError(f"no particle lies within radius {radius} m of any control point; increase radius")
+            raise ValueError(
+                f"no particle lies within radius {radius} m of any control point; increase radius"
+            )
         dev = model.device
         self.point_count = pts.shape[0]
         self.link_count = int(part.size)

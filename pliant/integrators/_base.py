@@ -28,7 +28,14 @@ class System(Protocol):
         """Factor δ ∈ (0, 1] that scales velocities each step (the lecture's δ); 1 = none."""
 
     def minimize(
-        self, t: float, h: float, x_tilde: wp.array, x_ref: wp.array, v_ref: wp.array, x_out: wp.array
+        self,
+        t: float,
+        h: float,
+        x_tilde: wp.array,
+        x_ref: wp.array,
+        v_ref: wp.array,
+        x_out: wp.array,
+        options: Any = None,
     ) -> Any:
         """x_out = argmin ½‖x − x̃‖²_M + h² E(x) (+ dissipation about x_ref); returns solver statistics."""
 

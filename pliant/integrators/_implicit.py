@@ -71,12 +71,12 @@ class _ImplicitOptions:
     def __init__(
         self,
         *,
-        newton_tol: float = 1e-6,
+        newton_tol: float = 1e-5,
         max_newton_iterations: int = 20,
         linear_solver: str = "auto",
-        cg_tol: float = 1e-8,
+        cg_tol: float = 1e-6,
         cg_max_iterations: int = 2000,
-        project_psd: bool = True,
+        project_psd: bool | str = "auto",
     ) -> None:
         if newton_tol <= 0:
             raise ValueError(f"newton_tol must be > 0 m/s, got {newton_tol}")
@@ -91,7 +91,9 @@ class _ImplicitOptions:
         self.linear_solver = linear_solver
         self.cg_tol = float(cg_tol)
         self.cg_max_iterations = int(cg_max_iterations)
-        self.project_psd = bool(project_psd)
+        if project_psd not in (True, False, "auto"):
+            raise ValueError(f"project_psd must be True, False or 'auto', got {project_psd!r}")
+        self.project_psd = project_psd
 
     def _minimize(self, system: System, t, h, x_tilde, x_ref, v_ref, x_out) -> Any:
         if _accepts_options(system.minimize):
@@ -130,12 +132,15 @@ class BackwardEuler(_ImplicitOptions, Integrator):
         newton_tol: Newton tolerance [m/s] on ‖Δx‖∞/Δt and on the mass-scaled gradient.
         max_newton_iterations: Newton iteration cap per step.
         linear_solver: "cg" (warp.optim.linear.cg, any device), "direct" (SciPy, CPU) or "auto".
-        cg_tol: relative residual of CG.
+        cg_tol: relative residual of CG (raised to 30 eps of the model's dtype).
+        project_psd: PSD-project element Hessians: True (always; robust, but Newton converges only linearly
+            where springs are compressed), False (exact; the direct solver copes with indefinite H, CG may
+            not) or "auto" (exact until a Newton direction fails to descend, then projected for the step).
 
     Example::
 
         solver = pl.solvers.ForceSolver(model, energies=pl.energies.mass_spring(),
-                                        integrator=pl.integrators.BackwardEuler(newton_tol=1e-6))
+                                        integrator=pl.integrators.BackwardEuler(newton_tol=1e-5))
         solver.step(state_0, state_1, control, 1 / 60)
         print(solver.last_stats.iterations)
     """

@@ -122,13 +122,13 @@ class Simulator:
             device=self.model.device,
         )
         bad = int(self._bad.numpy()[0])
-        integrator = getattr(getattr(self.solver, "integrator", None), "name", None)
+        integrator = getattr(self.solver, "integrator", None)
         h = self.dt / self.substeps
         advice = (
             f"lower dt (substep {h:.3g} s: raise substeps above {self.substeps})"
             + (
                 ", or use an implicit integrator (BackwardEuler)"
-                if integrator and integrator != "BackwardEuler"
+                if getattr(integrator, "explicit", False)
                 else ""
             )
             + ", or soften the stiffest material"

@@ -3,8 +3,17 @@
 from ._base import Solver
 from ._fast_cloth import FastMassSpring
 from ._force import ForceSolver
-from ._static import StaticStats, solve_static
 from ._rigid import RigidBodySolver
+from ._static import StaticStats, solve_static
 from ._xpbd import PBD, XPBD
 
-__all__ = ["StaticStats", "solve_static", "FastMassSpring", "PBD", "RigidBodySolver", "XPBD", "ForceSolver", "Solver"]
+__all__ = [
+    "StaticStats",
+    "solve_static",
+    "FastMassSpring",
+    "PBD",
+    "RigidBodySolver",
+    "XPBD",
+    "ForceSolver",
+    "Solver",
+]

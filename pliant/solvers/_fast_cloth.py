@@ -269,7 +269,9 @@ def _bw_finish(
 
 
 @wp.kernel
-def _add_drag_force(index: int, target: Any, stiffness: Any, x_in: wp.array(dtype=Any), f_io: wp.array(dtype=Any)):
+def _add_drag_force(
+    index: int, target: Any, stiffness: Any, x_in: wp.array(dtype=Any), f_io: wp.array(dtype=Any)
+):
     f_io[index] = f_io[index] + stiffness * (target - x_in[index])
 
 
@@ -325,7 +327,9 @@ class FastMassSpring(Solver):
         if method not in ("symplectic", "implicit"):
             raise ValueError(f"method must be 'symplectic' or 'implicit', got {method!r}")
         if model.tet_count:
-            raise ValueError("FastMassSpring handles springs only; this model has FEM tetrahedra: use ForceSolver")
+            raise ValueError(
+                "FastMassSpring handles springs only; this model has FEM tetrahedra: use ForceSolver"
+            )
         if cg_iterations < 1:
             raise ValueError(f"cg_iterations must be >= 1, got {cg_iterations}")
         if not 0.0 < velocity_damping <= 1.0:
@@ -341,7 +345,9 @@ class FastMassSpring(Solver):
         self.collisions = list(collisions)
         for c in self.collisions:
             if not callable(getattr(c, "apply", None)):
-                raise TypeError(f"collisions must have apply(model, state_in, state_out, dt), got {type(c).__name__}")
+                raise TypeError(
+                    f"collisions must have apply(model, state_in, state_out, dt), got {type(c).__name__}"
+                )
         d = model.device
         off, nb, spr = spring_adjacency(model)
         self.adj_offsets = wp.array(off, dtype=wp.int32, device=d)
@@ -365,7 +371,11 @@ class FastMassSpring(Solver):
         spr = self.adj_spring.numpy()
         if spr.shape[0]:
             packed = np.stack(
-                [m.spring_rest_length.numpy()[spr], m.spring_stiffness.numpy()[spr], m.spring_damping.numpy()[spr]],
+                [
+                    m.spring_rest_length.numpy()[spr],
+                    m.spring_stiffness.numpy()[spr],
+                    m.spring_damping.numpy()[spr],
+                ],
                 axis=1,
             )
             self._adj_param.assign(packed)
@@ -419,7 +429,12 @@ class FastMassSpring(Solver):
             self._cmds.clear()
         m, s, dev = self.model, self.model.s, self.model.device
         n = m.particle_count
-        xi, vi, xo, vo = state_in.particle_q, state_in.particle_qd, state_out.particle_q, state_out.particle_qd
+        xi, vi, xo, vo = (
+            state_in.particle_q,
+            state_in.particle_qd,
+            state_out.particle_q,
+            state_out.particle_qd,
+        )
         delta = s(self.velocity_damping(dt))
         if self.method == "symplectic":
             cmds = [

@@ -55,6 +55,8 @@ class ForceSolver(Solver):
         velocity_damping: the lecture's δ, multiplying velocities each step (1 = none). Depends on Δt.
         damping_rate: c [1/s] for the Δt-independent form v ← v·exp(−cΔt); overrides ``velocity_damping``.
         contact: resolve ground contact after each step (needs ``model.ground``).
+        collisions: contact handlers run after ground contact, each with
+            ``apply(model, state_in, state_out, dt)`` (``pl.collision.Colliders``, ``SelfCollision``).
 
     Example::
 
@@ -72,6 +74,7 @@ class ForceSolver(Solver):
         velocity_damping: float = 1.0,
         damping_rate: float | None = None,
         contact: bool = True,
+        collisions: Sequence[Any] = (),
     ) -> None:
         super().__init__(model)
         from ..energies import mass_spring
@@ -92,6 +95,12 @@ class ForceSolver(Solver):
         self.velocity_damping_factor = float(velocity_damping)
         self.damping_rate = damping_rate
         self.contact = contact and model.ground is not None
+        self.collisions = list(collisions)
+        for c in self.collisions:
+            if not callable(getattr(c, "apply", None)):
+                raise TypeError(
+                    f"collisions must have apply(model, state_in, state_out, dt), got {type(c).__name__}"
+                )
         d = model.device
         self._force = wp.zeros(model.particle_count, dtype=model.vec3, device=d)
         self._control: Control | None = None
@@ -182,6 +191,8 @@ class ForceSolver(Solver):
                 ],
                 device=m.device,
             )
+        for c in self.collisions:
+            c.apply(m, state_in, state_out, dt)
 
     def energy(self, state: State) -> dict[str, float]:
         """Kinetic and potential energies [J] of ``state`` (host sync: use outside hot loops)."""

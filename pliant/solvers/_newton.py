@@ -18,8 +18,10 @@ energy atomically add h²·H_e. The linear system is solved by Jacobi-preconditi
 (any device) or a SciPy sparse direct solve (CPU).
 
 Host synchronisation: each Newton iteration reads back one small statistics array after the gradient
-(convergence test) and one per line-search trial (Φ at the trial point and the directional derivative);
-CG itself checks its residual on the host every 10 iterations. Nothing else leaves the device.
+(convergence test) and one per line-search trial (Φ at the trial point and the directional derivative),
+plus, once per step, the largest H_ii/m_i (the round-off floor of the tolerance); CG itself checks its
+residual on the host every 10 iterations. The direct solver copies the matrix to the host. Nothing else
+leaves the device.
 
 Reference: D. Baraff, A. Witkin, "Large steps in cloth simulation", SIGGRAPH 1998; M. Li et al.,
 "Incremental Potential Contact", ACM TOG 39(4), 2020 (Newton with backtracking on Φ, step-size bound).
@@ -35,12 +37,12 @@ import warp as wp
 
 #: Defaults when ``options`` does not name a setting.
 DEFAULTS: dict[str, Any] = {
-    "newton_tol": 1e-6,  # [m/s] on ‖Δx‖∞/h and on max_i |∇Φ_i|/(m_i h)
+    "newton_tol": 1e-5,  # [m/s] on ‖Δx‖∞/h and on max_i |∇Φ_i|/(m_i h)
     "max_newton_iterations": 20,
     "linear_solver": "auto",  # "cg" | "direct" | "auto"
-    "cg_tol": 1e-8,  # relative residual of CG
+    "cg_tol": 1e-6,  # relative residual of CG (at least 30 eps of the dtype)
     "cg_max_iterations": 2000,
-    "project_psd": True,
+    "project_psd": "auto",
     "max_line_search": 20,
 }
 
@@ -62,6 +64,8 @@ class NewtonStats:
         linear_iterations: total CG iterations (0 for the direct solver).
         linear_solver: "cg" or "direct".
         tolerance: the tolerance used [m/s] (``newton_tol``, raised to the round-off floor of the dtype).
+        projected: whether PSD-projected Hessians were used (always with ``project_psd=True``; with "auto"
+            after an exact Hessian failed to give a descent direction).
     """
 
     iterations: int = 0
@@ -73,6 +77,7 @@ class NewtonStats:
     linear_iterations: int = 0
     linear_solver: str = ""
     tolerance: float = 0.0
+    projected: bool = False
 
 
 # ----------------------------------------------------------------------------------------------- kernels
@@ -239,6 +244,21 @@ def _drag_terms(
 
 
 @wp.kernel(enable_backward=False)
+def _stiffness_ratio(
+    inv_mass: wp.array(dtype=Any),
+    diag_slots: wp.array(dtype=wp.int32),
+    values: wp.array(dtype=Any),
+    ratio_out: wp.array(dtype=Any),
+):
+    # max_i trace(H_ii)/(3 m_i) = 1 + h² K_ii/m_i: how much one ulp of position moves the scaled gradient.
+    i = wp.tid()
+    if inv_mass[i] == type(ratio_out[0])(0.0):
+        return
+    b = values[diag_slots[i]]
+    wp.atomic_max(ratio_out, 0, (b[0, 0] + b[1, 1] + b[2, 2]) * inv_mass[i] / type(inv_mass[i])(3.0))
+
+
+@wp.kernel(enable_backward=False)
 def _negate(src: wp.array(dtype=Any), out: wp.array(dtype=Any)):
     i = wp.tid()
     out[i] = -src[i]
@@ -300,6 +320,7 @@ class _Workspace:
         self.dx = wp.zeros(n, dtype=v3, device=d)
         self.x_trial = wp.zeros(n, dtype=v3, device=d)
         self.inv_diag = wp.zeros(n, dtype=v3, device=d)
+        self.hstats = wp.zeros(1, dtype=model.scalar, device=d)  # max_i H_ii/m_i
         self.gstats = wp.zeros(4, dtype=model.scalar, device=d)  # max|g|/mh, max|x|, inertia, E
         self.tstats = wp.zeros(4, dtype=model.scalar, device=d)  # inertia(trial), E(trial), max|dx|, g·dx
         # Views made once (Energy.value adds into out[0]).
@@ -322,6 +343,7 @@ class _Workspace:
                 self.rhs,
                 self.dx,
                 tol=tol,
+                atol=0.0,  # Warp takes atol = tol when unset; the residual must be relative to ‖b‖ only
                 maxiter=maxiter,
                 M=aslinearoperator(self.inv_diag),
                 run=False,
@@ -483,7 +505,8 @@ def minimize_incremental_potential(
         v_ref: velocities at the start of the step [m/s].
         x_out: the minimiser [m] (may not alias the inputs).
         options: an object or dict with ``newton_tol`` [m/s], ``max_newton_iterations``, ``linear_solver``
-            ("cg" | "direct" | "auto"), ``cg_tol``, ``cg_max_iterations``, ``project_psd``; missing ones
+            ("cg" | "direct" | "auto"), ``cg_tol``, ``cg_max_iterations``, ``project_psd`` (True | False |
+            "auto": exact Hessians until one fails to give descent, then projected ones); missing ones
             take :data:`DEFAULTS`.
 
     Returns:
@@ -495,9 +518,12 @@ def minimize_incremental_potential(
     tol_opt = float(_option(options, "newton_tol"))
     max_it = int(_option(options, "max_newton_iterations"))
     lin = _resolve_linear_solver(str(_option(options, "linear_solver")), m)
-    cg_tol = float(_option(options, "cg_tol"))
+    cg_tol = max(float(_option(options, "cg_tol")), 30.0 * float(np.finfo(ws.np_dtype).eps))
     cg_max = int(_option(options, "cg_max_iterations"))
-    project_psd = bool(_option(options, "project_psd"))
+    project_psd = _option(options, "project_psd")
+    if project_psd not in (True, False, "auto"):
+        raise ValueError(f"project_psd must be True, False or 'auto', got {project_psd!r}")
+    project_psd = "project" if project_psd is True else project_psd
     max_ls = int(_option(options, "max_line_search"))
     eps = float(np.finfo(np.float32 if m.dtype == "float32" else np.float64).eps)
     stats = NewtonStats(linear_solver=lin)
@@ -509,30 +535,50 @@ def minimize_incremental_potential(
     x = x_out
     h2 = h * h
     g = _gradient(solver, ws, x, x_tilde, h)
-    # Round-off floor: positions carry eps·max|x| of noise, i.e. eps·max|x|/h of "velocity".
+    # Round-off floor: positions are known to eps·max|x|; one ulp moves ∇Φ_i/(m_i h) by up to
+    # eps·max|x|·max_i(H_ii/m_i)/h (the stiffness term dominates in float32). Known after the first assembly.
     tol = max(tol_opt, 8.0 * eps * max(g[1], 1.0) / h)
     stats.tolerance = tol
     stats.residuals.append(float(g[0]))
-    for _ in range(max_it):
-        if g[0] <= tol:
+    # "auto": exact Hessians while they give descent directions, PSD-projected ones from the first failure on
+    # (projection keeps H ⪰ M but makes Newton linear where springs are compressed).
+    project = project_psd == "project"
+    switchable = project_psd == "auto"
+    stats.projected = project
+    first = True
+    while stats.iterations < max_it:
+        # The round-off floor only ends iterations after the first: at x̃ the gradient is no noise.
+        if g[0] <= (tol if stats.iterations else tol_opt):
             stats.converged = True
             break
         phi0 = g[2] + h2 * g[3]
-        _assemble(solver, ws, x, h, project_psd)
+        _assemble(solver, ws, x, h, project)
+        if first:
+            first = False
+            ws.hstats.zero_()
+            wp.launch(
+                _stiffness_ratio,
+                n,
+                [m.particle_inv_mass, ws.diag_slots, ws.values, ws.hstats],
+                device=m.device,
+            )
+            ratio = float(ws.hstats.numpy()[0])
+            tol = max(tol, eps * max(g[1], 1.0) * ratio / h)
+            stats.tolerance = tol
         if lin == "direct":
             _direct_solve(ws, m)
         else:
             wp.launch(_inverse_diagonal, n, [ws.diag_slots, ws.values, ws.inv_diag], device=m.device)
             wp.launch(_negate, n, [ws.grad, ws.rhs], device=m.device)
             ws.dx.zero_()
-            it, _, _ = ws.cg(cg_tol, cg_max)()
-            stats.linear_iterations += int(it)
+            cg_iterations, _, _ = ws.cg(cg_tol, cg_max)()
+            stats.linear_iterations += int(cg_iterations)
         stats.iterations += 1
         # Line search: α ≤ min over energies of max_step, halved until Armijo holds on Φ.
         alpha = 1.0
         for e in solver.energies:
             alpha = min(alpha, float(e.max_step(m, x, ws.dx)))
-        accepted = False
+        accepted = descent = False
         dx_max = gdx = 0.0
         for ls in range(max_ls + 1):
             if ls == 0:
@@ -553,6 +599,9 @@ def minimize_incremental_potential(
             _control_terms(solver, ws, ws.x_trial, ws.egrad_scratch, ws.tstats_e)
             s = ws.tstats.numpy().astype(np.float64)
             dx_max, gdx = s[2], s[3]
+            descent = bool(np.isfinite(gdx) and gdx < 0.0)
+            if not descent and switchable and not project:
+                break
             phi = s[0] + h2 * s[1]
             # Armijo with an allowance for the round-off of Φ's terms.
             slack = 64.0 * eps * (abs(s[0]) + h2 * abs(s[1]) + abs(phi0))
@@ -561,6 +610,10 @@ def minimize_incremental_potential(
                 break
             alpha *= 0.5
             stats.line_search_backtracks += 1
+        if switchable and not project and (not descent or not accepted):
+            project = True  # the exact Hessian is indefinite here: redo this iteration with projection
+            stats.projected = True
+            continue
         stats.step_norm = float(alpha * dx_max / h)
         if not accepted:
             break  # no decrease even for a tiny step: at the round-off floor (or a non-descent direction)

@@ -182,8 +182,10 @@ def solve_static(
         loads: constant nodal forces f [N], shape [particle_count, 3] (or one vec3 for every vertex).
         x0: initial positions and prescribed positions of the fixed vertices [m], shape [particle_count, 3];
             default the model's rest positions.
-        tol: relative tolerance: stop when max_i |∇_i| ≤ tol · max_i |∇_i(x0)| over free vertices, or when a
-            full Newton step moves no vertex more than tol · (model size).
+        tol: relative tolerance: stop when max_i |∇_i| ≤ tol · max_i |∇_i(x0)| over free vertices (or
+            below the round-off floor of the elastic forces), or when a full Newton step moves no vertex
+            more than tol · (model size). The free vertices must be held (fixed vertices, or an energy
+            such as a ground penalty): otherwise rigid motions make the Hessian singular.
         max_iterations: Newton iteration cap.
         linear_solver: "direct" (SciPy sparse LU, on the host), "cg" (Jacobi-preconditioned Warp CG, any
             device) or "auto" (direct on the CPU, CG on a GPU).
@@ -262,7 +264,13 @@ def solve_static(
     e0 = energy(x)
     g0 = g
     stats.residuals.append(g)
-    target = tol * g0
+    # Round-off floor: elastic forces carry ~eps·μ·V^(2/3) of noise per tet, summed over ~20 tets a vertex.
+    force_scale = 0.0
+    if model.tet_count:
+        force_scale = float(
+            np.max(model.tet_mu.numpy() * np.abs(model.tet_rest_volume.numpy()) ** (2.0 / 3.0))
+        )
+    target = max(tol * g0, 64.0 * eps * force_scale)
     for _ in range(max_iterations):
         if g <= target or g == 0.0:
             stats.converged = True

@@ -1,0 +1,16 @@
+"""Shared fixtures: the devices to test on (CPU always, CUDA when present), as Newton's tests do."""
+
+from __future__ import annotations
+
+import pytest
+import warp as wp
+
+import pliant  # noqa: F401  (initialises Warp quietly)
+
+DEVICES = ["cpu"] + (["cuda:0"] if wp.is_cuda_available() else [])
+
+
+@pytest.fixture(params=DEVICES)
+def device(request: pytest.FixtureRequest) -> str:
+    """Each available device in turn."""
+    return request.param
