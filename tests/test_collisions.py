@@ -320,7 +320,7 @@ def test_cloth_folding_onto_itself_never_passes_through_its_triangles(device):
 
 
 def test_force_solver_runs_collision_handlers():
-    """ForceSolver(collisions=[...]) keeps a cloth falling on a sphere outside R + particle radius (1e-6 m)."""
+    """ForceSolver(collisions=[...]) keeps a cloth on a sphere outside R + particle radius (1e-6 m)."""
     b = pl.ModelBuilder()
     b.add_cloth_grid(
         nx=12, ny=12, size=1.0, mass=0.2, stiffness=300.0, damping=0.01, origin=(-0.5, 0.6, -0.5)
