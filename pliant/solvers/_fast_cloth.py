@@ -28,9 +28,9 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from ..collision import ground_contact
 from ..model import Control, Model, State
 from ._base import Solver
+from ._post import add_drag_force, check_collisions, finish_step
 
 
 def spring_adjacency(model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -268,28 +268,6 @@ def _bw_finish(
     x_out[i] = x_in[i] + h * v
 
 
-@wp.kernel
-def _add_drag_force(
-    index: int, target: Any, stiffness: Any, x_in: wp.array(dtype=Any), f_io: wp.array(dtype=Any)
-):
-    f_io[index] = f_io[index] + stiffness * (target - x_in[index])
-
-
-@wp.kernel
-def _apply_kinematic(
-    indices: wp.array(dtype=wp.int32),
-    targets: wp.array(dtype=Any),
-    inv_dt: Any,
-    x_in: wp.array(dtype=Any),
-    x_out: wp.array(dtype=Any),
-    v_out: wp.array(dtype=Any),
-):
-    k = wp.tid()
-    i = indices[k]
-    x_out[i] = targets[k]
-    v_out[i] = (targets[k] - x_in[i]) * inv_dt
-
-
 class FastMassSpring(Solver):
     """Mass-spring dynamics (springs, dashpots, gravity) with fused, atomic-free per-particle kernels.
 
@@ -342,12 +320,7 @@ class FastMassSpring(Solver):
         self.velocity_damping_factor = float(velocity_damping)
         self.damping_rate = damping_rate
         self.contact = contact and model.ground is not None
-        self.collisions = list(collisions)
-        for c in self.collisions:
-            if not callable(getattr(c, "apply", None)):
-                raise TypeError(
-                    f"collisions must have apply(model, state_in, state_out, dt), got {type(c).__name__}"
-                )
+        self.collisions = check_collisions(collisions)
         d = model.device
         off, nb, spr = spring_adjacency(model)
         self.adj_offsets = wp.array(off, dtype=wp.int32, device=d)
@@ -412,7 +385,7 @@ class FastMassSpring(Solver):
         m = self.model
         wp.copy(self._f_work, control.particle_f)
         wp.launch(
-            _add_drag_force,
+            add_drag_force,
             1,
             [control.drag_index, m.vec3(*control.drag_target), m.s(control.drag_stiffness), x, self._f_work],
             device=m.device,
@@ -537,38 +510,7 @@ class FastMassSpring(Solver):
             self._scalars.zero_()
         for cmd in self._commands(state_in, state_out, f_ext, float(dt)):
             cmd.launch()
-        if control is not None and control.kinematic_indices.shape[0]:
-            wp.launch(
-                _apply_kinematic,
-                control.kinematic_indices.shape[0],
-                [
-                    control.kinematic_indices,
-                    control.kinematic_targets,
-                    m.s(1.0 / dt),
-                    state_in.particle_q,
-                    state_out.particle_q,
-                    state_out.particle_qd,
-                ],
-                device=m.device,
-            )
-        if self.contact:
-            g = m.ground
-            wp.launch(
-                ground_contact,
-                m.particle_count,
-                [
-                    m.particle_inv_mass,
-                    m.particle_radius,
-                    m.s(g.height),
-                    m.s(g.friction),
-                    m.s(g.restitution),
-                    state_out.particle_q,
-                    state_out.particle_qd,
-                ],
-                device=m.device,
-            )
-        for c in self.collisions:
-            c.apply(m, state_in, state_out, dt)
+        finish_step(m, control, state_in, state_out, dt, contact=self.contact, collisions=self.collisions)
 
     def describe(self) -> dict:
         """Solver, method and options."""

@@ -9,40 +9,17 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from ..collision import ground_contact
 from ..energies import Energy
 from ..integrators import Integrator, SymplecticEuler
 from ..model import Control, Model, State
 from ._base import Solver
+from ._post import add_drag_force, check_collisions, finish_step
 
 
 @wp.kernel
 def _accel_from_force(inv_mass: wp.array(dtype=Any), f_in: wp.array(dtype=Any), a_out: wp.array(dtype=Any)):
     i = wp.tid()
     a_out[i] = inv_mass[i] * f_in[i]
-
-
-@wp.kernel
-def _add_drag_handle(
-    index: int, target: Any, stiffness: Any, x_in: wp.array(dtype=Any), f_out: wp.array(dtype=Any)
-):
-    # A zero-length spring from the particle to the cursor: pulls without a velocity jump.
-    f_out[index] = f_out[index] + stiffness * (target - x_in[index])
-
-
-@wp.kernel
-def _apply_kinematic(
-    indices: wp.array(dtype=wp.int32),
-    targets: wp.array(dtype=Any),
-    inv_dt: Any,
-    x_in: wp.array(dtype=Any),
-    x_out: wp.array(dtype=Any),
-    v_out: wp.array(dtype=Any),
-):
-    k = wp.tid()
-    i = indices[k]
-    x_out[i] = targets[k]
-    v_out[i] = (targets[k] - x_in[i]) * inv_dt
 
 
 class ForceSolver(Solver):
@@ -95,12 +72,7 @@ class ForceSolver(Solver):
         self.velocity_damping_factor = float(velocity_damping)
         self.damping_rate = damping_rate
         self.contact = contact and model.ground is not None
-        self.collisions = list(collisions)
-        for c in self.collisions:
-            if not callable(getattr(c, "apply", None)):
-                raise TypeError(
-                    f"collisions must have apply(model, state_in, state_out, dt), got {type(c).__name__}"
-                )
+        self.collisions = check_collisions(collisions)
         d = model.device
         self._force = wp.zeros(model.particle_count, dtype=model.vec3, device=d)
         self._control: Control | None = None
@@ -125,7 +97,7 @@ class ForceSolver(Solver):
             e.force(m, x, v, out)
         if c is not None and c.drag_index >= 0:
             wp.launch(
-                _add_drag_handle,
+                add_drag_force,
                 1,
                 [c.drag_index, m.vec3(*c.drag_target), m.s(c.drag_stiffness), x, out],
                 device=m.device,
@@ -161,38 +133,7 @@ class ForceSolver(Solver):
             state_out.particle_q,
             state_out.particle_qd,
         )
-        if control is not None and control.kinematic_indices.shape[0]:
-            wp.launch(
-                _apply_kinematic,
-                control.kinematic_indices.shape[0],
-                [
-                    control.kinematic_indices,
-                    control.kinematic_targets,
-                    m.s(1.0 / dt),
-                    state_in.particle_q,
-                    state_out.particle_q,
-                    state_out.particle_qd,
-                ],
-                device=m.device,
-            )
-        if self.contact:
-            g = m.ground
-            wp.launch(
-                ground_contact,
-                m.particle_count,
-                [
-                    m.particle_inv_mass,
-                    m.particle_radius,
-                    m.s(g.height),
-                    m.s(g.friction),
-                    m.s(g.restitution),
-                    state_out.particle_q,
-                    state_out.particle_qd,
-                ],
-                device=m.device,
-            )
-        for c in self.collisions:
-            c.apply(m, state_in, state_out, dt)
+        finish_step(m, control, state_in, state_out, dt, contact=self.contact, collisions=self.collisions)
 
     def energy(self, state: State) -> dict[str, float]:
         """Kinetic and potential energies [J] of ``state`` (host sync: use outside hot loops)."""

@@ -1,0 +1,92 @@
+"""What every force-based solver does after integrating: kinematic targets, ground, contact handlers."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import warp as wp
+
+from ..collision import ground_contact
+from ..model import Control, Model, State
+
+
+@wp.kernel
+def apply_kinematic(
+    indices: wp.array(dtype=wp.int32),
+    targets: wp.array(dtype=Any),
+    inv_dt: Any,
+    x_in: wp.array(dtype=Any),
+    x_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+):
+    """Put kinematic particles on their targets, with the velocity that got them there."""
+    k = wp.tid()
+    i = indices[k]
+    x_out[i] = targets[k]
+    v_out[i] = (targets[k] - x_in[i]) * inv_dt
+
+
+@wp.kernel
+def add_drag_force(
+    index: int, target: Any, stiffness: Any, x_in: wp.array(dtype=Any), f_io: wp.array(dtype=Any)
+):
+    """The drag handle: a zero-length spring from the particle to the cursor (pulls without a jump)."""
+    f_io[index] = f_io[index] + stiffness * (target - x_in[index])
+
+
+def finish_step(
+    model: Model,
+    control: Control | None,
+    state_in: State,
+    state_out: State,
+    dt: float,
+    *,
+    contact: bool,
+    collisions: Sequence[Any] = (),
+) -> None:
+    """Kinematic targets, then the ground response (when ``contact``), then each contact handler."""
+    m = model
+    if control is not None and control.kinematic_indices.shape[0]:
+        wp.launch(
+            apply_kinematic,
+            control.kinematic_indices.shape[0],
+            [
+                control.kinematic_indices,
+                control.kinematic_targets,
+                m.s(1.0 / dt),
+                state_in.particle_q,
+                state_out.particle_q,
+                state_out.particle_qd,
+            ],
+            device=m.device,
+        )
+    if contact and m.ground is not None:
+        g = m.ground
+        wp.launch(
+            ground_contact,
+            m.particle_count,
+            [
+                m.particle_inv_mass,
+                m.particle_radius,
+                m.s(g.height),
+                m.s(g.friction),
+                m.s(g.restitution),
+                state_out.particle_q,
+                state_out.particle_qd,
+            ],
+            device=m.device,
+        )
+    for c in collisions:
+        c.apply(m, state_in, state_out, dt)
+
+
+def check_collisions(collisions: Sequence[Any]) -> list[Any]:
+    """The handlers as a list, each checked for ``apply(model, state_in, state_out, dt)``."""
+    out = list(collisions)
+    for c in out:
+        if not callable(getattr(c, "apply", None)):
+            raise TypeError(
+                f"collisions must have apply(model, state_in, state_out, dt), got {type(c).__name__}"
+            )
+    return out
