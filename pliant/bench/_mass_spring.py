@@ -12,15 +12,14 @@ Each benchmark returns one JSON-serialisable dict; ``python -m pliant.bench._mas
 
 from __future__ import annotations
 
-import json
-import os
-import resource
 import sys
 import time
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+
+from ._common import print_rows, run_timed, speed_fields
 
 #: Converged sag [m] of the drape at equilibrium, per cells per side, from :func:`reference_sag`: float64,
 #: Baraff–Witkin steps of 1/60 s with 200–300 CG iterations (relative tolerance 1e-9) and damping 3/s, run
@@ -64,6 +63,21 @@ def sag(model: Any, x: np.ndarray) -> float:
     return float(x[pinned, 1].mean() - x[:, 1].min())
 
 
+def sag_fields(model: Any, state: Any, reference: float) -> dict:
+    """The sanity columns of a drape row: sag [m] of the final ``state``, ``reference``, relative error,
+    and whether every position is finite (the sag is NaN otherwise)."""
+    x = state.particle_q.numpy()
+    finite = bool(np.all(np.isfinite(x)))
+    sg = sag(model, x) if finite else float("nan")
+    comparable = bool(np.isfinite(reference)) and finite
+    return {
+        "sag": round(sg, 5),
+        "sag_reference": reference,
+        "sag_rel_error": round(abs(sg - reference) / reference, 5) if comparable else None,
+        "stable": finite,
+    }
+
+
 def make_solver(model: Any, method: str, *, cg_iterations: int = 20, damping_rate: float = 1.0) -> Any:
     """The solver of a benchmark row: "implicit" / "symplectic" (FastMassSpring) or "force" (ForceSolver)."""
     from ..solvers._fast_cloth import FastMassSpring
@@ -79,14 +93,6 @@ def make_solver(model: Any, method: str, *, cg_iterations: int = 20, damping_rat
     return FastMassSpring(model, method=method, cg_iterations=cg_iterations, damping_rate=damping_rate)
 
 
-def _peak_mem_mb(device: str) -> float:
-    if device.startswith("cuda"):
-        import warp as wp
-
-        return wp.get_mempool_used_mem_high(device) / 2**20
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
 def cloth_drape(
     n: int = 64,
     method: str = "implicit",
@@ -99,38 +105,18 @@ def cloth_drape(
     quick: bool = False,
 ) -> dict:
     """Run the drape for ``frames`` frames of 1/60 s; one dict of speed and sag figures."""
-    import warp as wp
-
     from .._warp import resolve_device
 
     if quick:
         n, frames = min(n, 16), min(frames, 30)
     device = str(resolve_device(device))
-    t0 = time.perf_counter()
+    started = time.perf_counter()
     model = cloth_drape_model(n, device=device, dtype=dtype)
     solver = make_solver(model, method, cg_iterations=cg_iterations, damping_rate=damping_rate)
-    control = model.control()
     dt = FRAME_DT / substeps
-    s0, s1 = model.state(), model.state()
-    solver.step(s0, s1, control, dt)  # warm-up: kernel compilation or cache load, launch recording
-    solver.step(s1, s0, control, dt)
-    wp.synchronize_device(device)
-    compile_s = time.perf_counter() - t0
-    s0, s1 = model.state(), model.state()
-    wp.synchronize_device(device)
-    t0 = time.perf_counter()
-    c0 = time.process_time()
-    for _ in range(frames):
-        for _ in range(substeps):
-            solver.step(s0, s1, control, dt)
-            s0, s1 = s1, s0
-    wp.synchronize_device(device)
-    wall = time.perf_counter() - t0
-    cpu = time.process_time() - c0
-    x = s0.particle_q.numpy()
-    finite = bool(np.all(np.isfinite(x)))
-    sg = sag(model, x) if finite else float("nan")
-    ref = REFERENCE_SAG.get(n, float("nan"))
+    state, timing = run_timed(
+        model, solver, model.control(), dt, frames=frames, substeps=substeps, device=device, started=started
+    )
     d = solver.describe()
     return {
         "scene": f"cloth_drape_{n}x{n}",
@@ -144,18 +130,8 @@ def cloth_drape(
         "substeps": substeps,
         "iterations": cg_iterations if method == "implicit" else 0,
         "damping_rate": damping_rate,
-        "wall_s": round(wall, 4),
-        "cpu_s": round(cpu, 4),  # this process's CPU time: the figure to trust on a shared machine
-        "load_avg_1min": round(os.getloadavg()[0], 2),
-        "compile_s": round(compile_s, 3),
-        "fps": round(frames / wall, 2),
-        "fps_cpu_time": round(frames / cpu, 2) if device == "cpu" and cpu > 0 else None,
-        "particle_substeps_per_s": float(f"{model.particle_count * frames * substeps / wall:.4g}"),
-        "peak_mem_mb": round(_peak_mem_mb(device), 1),
-        "sag": round(sg, 5),
-        "sag_reference": ref,
-        "sag_rel_error": round(abs(sg - ref) / ref, 5) if np.isfinite(ref) and finite else None,
-        "stable": finite,
+        **speed_fields(timing, model.particle_count),
+        **sag_fields(model, state, REFERENCE_SAG.get(n, float("nan"))),
     }
 
 
@@ -219,6 +195,4 @@ BENCHMARKS: dict[str, Callable[..., dict]] = {
 
 
 if __name__ == "__main__":
-    names = sys.argv[1:] or list(BENCHMARKS)
-    for name in names:
-        print(json.dumps({"benchmark": name, **BENCHMARKS[name]()}), flush=True)
+    print_rows(BENCHMARKS, sys.argv[1:])

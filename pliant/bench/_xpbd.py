@@ -13,10 +13,12 @@ import json
 import sys
 import time
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
-from ._mass_spring import FRAME_DT, FRAMES, cloth_drape_model, sag
+from ._common import Timing, print_rows, run_timed, sig4, speed_fields
+from ._mass_spring import FRAME_DT, FRAMES, cloth_drape_model, sag, sag_fields
 
 #: Velocity damping rate c [1/s] of the drape runs (v ← v e^{−cΔt}).
 DAMPING = 3.0
@@ -36,6 +38,22 @@ SETTINGS: dict[tuple[int, str], tuple[int, int, float]] = {
 }
 
 
+def _run_xpbd(model: Any, solver: Any, *, frames: int, substeps: int, device: str, started: float):
+    """:func:`run_timed` for XPBD: the warm-up records both step plans, the timed steps replay them on the
+    same state arrays."""
+    return run_timed(
+        model,
+        solver,
+        model.control(),
+        FRAME_DT / substeps,
+        frames=frames,
+        substeps=substeps,
+        device=device,
+        started=started,
+        reuse_states=True,
+    )
+
+
 def _run_drape(
     n: int,
     schedule: str,
@@ -47,33 +65,41 @@ def _run_drape(
     dtype: str,
     damping: float = DAMPING,
     relaxation: float = 1.0,
-) -> tuple[dict, object, object]:
-    import warp as wp
-
+) -> tuple[Timing, Any, Any, Any]:
+    """(timing, model, solver, final state) of the drape under XPBD."""
     from ..solvers import XPBD
 
-    t0 = time.perf_counter()
+    started = time.perf_counter()
     model = cloth_drape_model(n, device=device, dtype=dtype)
     solver = XPBD(model, iterations=iterations, schedule=schedule, damping=damping, relaxation=relaxation)
-    control = model.control()
-    dt = FRAME_DT / substeps
-    s0, s1 = model.state(), model.state()
-    # Warm-up: kernel compilation (or cache load) and the recording of both step plans.
-    solver.step(s0, s1, control, dt)
-    solver.step(s1, s0, control, dt)
-    wp.synchronize_device(device)
-    compile_s = time.perf_counter() - t0
-    s0.assign(model.state())
-    s1.assign(model.state())
-    wp.synchronize_device(device)
-    t0 = time.perf_counter()
-    for _ in range(frames):
-        for _ in range(substeps):
-            solver.step(s0, s1, control, dt)
-            s0, s1 = s1, s0
-    wp.synchronize_device(device)
-    wall = time.perf_counter() - t0
-    return {"wall": wall, "compile": compile_s}, model, (solver, s0)
+    state, timing = _run_xpbd(model, solver, frames=frames, substeps=substeps, device=device, started=started)
+    return timing, model, solver, state
+
+
+def _xpbd_row(scene: str, timing: Timing, model: Any, solver: Any, settings: dict, sanity: dict) -> dict:
+    """An XPBD row: the scene and run columns, ``settings``, the speed columns (with constraint projections
+    per second and the final residual), then the ``sanity`` columns."""
+    count, iterations = solver.constraint_count, solver.iterations
+    return {
+        "scene": scene,
+        "solver": "XPBD",
+        "integrator": "xpbd",
+        "schedule": solver.schedule,
+        "device": timing.device,
+        "dtype": model.dtype,
+        "particles": model.particle_count,
+        "elements": count,
+        "frames": timing.frames,
+        "substeps": timing.substeps,
+        "iterations": iterations,
+        **settings,
+        **speed_fields(timing, model.particle_count, process=False),
+        "constraint_projections_per_s": sig4(
+            count * timing.frames * timing.substeps * iterations / timing.wall
+        ),
+        "residual": sig4(solver.residual()),
+        **sanity,
+    }
 
 
 def cloth_drape(
@@ -97,45 +123,17 @@ def cloth_drape(
     if quick:
         n, frames = min(n, 16), min(frames, 30)
     device = str(resolve_device(device))
-    times, model, (solver, state) = _run_drape(
+    timing, model, solver, state = _run_drape(
         n, schedule, substeps, iterations, frames=frames, device=device, dtype=dtype, relaxation=relaxation
     )
-    wall = times["wall"]
-    x = state.particle_q.numpy()
-    finite = bool(np.all(np.isfinite(x)))
-    sg = sag(model, x) if finite else float("nan")
     ref = REFERENCE_SAG.get(n, float("nan")) if frames == FRAMES else float("nan")
-    count = solver.constraint_count
-    return {
-        "scene": f"cloth_drape_{n}x{n}",
-        "solver": "XPBD",
-        "integrator": "xpbd",
-        "schedule": schedule,
-        "device": device,
-        "dtype": dtype,
-        "particles": model.particle_count,
-        "elements": count,
-        "frames": frames,
-        "substeps": substeps,
-        "iterations": iterations,
-        "relaxation": relaxation if schedule == "jacobi" else None,
-        "damping_rate": DAMPING,
-        "wall_s": round(wall, 4),
-        "compile_s": round(times["compile"], 3),
-        "fps": round(frames / wall, 2),
-        "particle_substeps_per_s": float(f"{model.particle_count * frames * substeps / wall:.4g}"),
-        "constraint_projections_per_s": float(f"{count * frames * substeps * iterations / wall:.4g}"),
-        "residual": float(f"{solver.residual():.4g}"),
-        "sag": round(sg, 5),
-        "sag_reference": ref,
-        "sag_rel_error": round(abs(sg - ref) / ref, 5) if np.isfinite(ref) and finite else None,
-        "stable": finite,
-    }
+    settings = {"relaxation": relaxation if schedule == "jacobi" else None, "damping_rate": DAMPING}
+    return _xpbd_row(f"cloth_drape_{n}x{n}", timing, model, solver, settings, sag_fields(model, state, ref))
 
 
 def reference_sag(n: int, *, substeps: int = 100, iterations: int = 10) -> float:
     """Converged XPBD sag [m] of the n × n drape after 300 frames (float64, colouring; slow)."""
-    _, model, (_, state) = _run_drape(
+    _, model, _, state = _run_drape(
         n, "coloring", substeps, iterations, frames=FRAMES, device="cpu", dtype="float64"
     )
     return sag(model, state.particle_q.numpy())
@@ -152,8 +150,6 @@ def soft_body_drop(
     quick: bool = False,
 ) -> dict:
     """A 0.2 m soft box (tet-edge distance + volume constraints) dropped from 0.3 m onto the ground."""
-    import warp as wp
-
     from .._warp import resolve_device
     from ..model import ModelBuilder
     from ..solvers import XPBD
@@ -161,7 +157,7 @@ def soft_body_drop(
     if quick:
         cells, frames = min(cells, 3), min(frames, 20)
     device = str(resolve_device(device))
-    t0 = time.perf_counter()
+    started = time.perf_counter()
     b = ModelBuilder()
     b.add_soft_box(
         cells=(cells, cells, cells), size=(0.2, 0.2, 0.2), origin=(0.0, 0.3, 0.0), stiffness=2.0e4, E=1.0e5
@@ -169,46 +165,14 @@ def soft_body_drop(
     b.add_ground(friction=0.5)
     model = b.finalize(device=device, dtype=dtype)
     solver = XPBD(model, iterations=iterations, schedule=schedule)
-    control = model.control()
-    dt = FRAME_DT / substeps
-    s0, s1 = model.state(), model.state()
-    solver.step(s0, s1, control, dt)
-    solver.step(s1, s0, control, dt)
-    wp.synchronize_device(device)
-    compile_s = time.perf_counter() - t0
-    s0.assign(model.state())
-    s1.assign(model.state())
-    t0 = time.perf_counter()
-    for _ in range(frames):
-        for _ in range(substeps):
-            solver.step(s0, s1, control, dt)
-            s0, s1 = s1, s0
-    wp.synchronize_device(device)
-    wall = time.perf_counter() - t0
-    x = s0.particle_q.numpy()
-    count = solver.constraint_count
-    return {
-        "scene": f"soft_box_drop_{cells}^3",
-        "solver": "XPBD",
-        "integrator": "xpbd",
-        "schedule": schedule,
-        "device": device,
-        "dtype": dtype,
-        "particles": model.particle_count,
-        "elements": count,
-        "frames": frames,
-        "substeps": substeps,
-        "iterations": iterations,
-        "wall_s": round(wall, 4),
-        "compile_s": round(compile_s, 3),
-        "fps": round(frames / wall, 2),
-        "particle_substeps_per_s": float(f"{model.particle_count * frames * substeps / wall:.4g}"),
-        "constraint_projections_per_s": float(f"{count * frames * substeps * iterations / wall:.4g}"),
-        "residual": float(f"{solver.residual():.4g}"),
+    state, timing = _run_xpbd(model, solver, frames=frames, substeps=substeps, device=device, started=started)
+    x = state.particle_q.numpy()
+    sanity = {
         "final_height": round(float(x[:, 1].mean()), 5),
         "min_height": round(float(x[:, 1].min()), 5),
         "stable": bool(np.all(np.isfinite(x))),
     }
+    return _xpbd_row(f"soft_box_drop_{cells}^3", timing, model, solver, {}, sanity)
 
 
 def _drape(n: int, schedule: str) -> Callable[..., dict]:
@@ -243,5 +207,4 @@ if __name__ == "__main__":
         for arg in sys.argv[2:] or ["64"]:
             print(json.dumps({"n": int(arg), "reference_sag": reference_sag(int(arg))}), flush=True)
     else:
-        for name in sys.argv[1:] or list(BENCHMARKS):
-            print(json.dumps({"benchmark": name, **BENCHMARKS[name]()}), flush=True)
+        print_rows(BENCHMARKS, sys.argv[1:])

@@ -9,7 +9,7 @@ import numpy as np
 import warp as wp
 
 from ..model import Model
-from ._base import Energy
+from ._base import ModalEnergy
 
 
 @wp.func
@@ -72,7 +72,7 @@ def _air_begin(wind: Any, v_in: wp.array(dtype=Any), speed_out: wp.array(dtype=A
     speed_out[i] = wp.length(v_in[i] - wind)
 
 
-class AirDrag(Energy):
+class AirDrag(ModalEnergy):
     """Air drag per particle: F = −c u − c₂|u| u with u = v − w (wind w) [N].
 
     Linear drag c [N s/m] models slow, viscous air; quadratic drag c₂ [N s²/m²] ≈ ½ ρ C_d A per particle
@@ -102,7 +102,6 @@ class AirDrag(Energy):
         self._speed: wp.array | None = None
         self._x_ref: wp.array | None = None
         self._inv_dt = 0.0
-        self._dummy: dict = {}
 
     def _args(self, model: Model) -> list:
         return [
@@ -122,22 +121,16 @@ class AirDrag(Energy):
             d = model.device
             self._speed = wp.zeros(model.particle_count, dtype=model.scalar, device=d)
             self._x_ref = wp.zeros(model.particle_count, dtype=model.vec3, device=d)
-            self._dummy = {
-                "s": wp.zeros(1, dtype=model.scalar, device=d),
-                "v": wp.zeros(1, dtype=model.vec3, device=d),
-                "m": wp.zeros(1, dtype=model.mat33, device=d),
-                "i": wp.zeros(1, dtype=wp.int32, device=d),
-            }
         wp.copy(self._x_ref, x)
         self._inv_dt = 1.0 / dt
         wp.launch(
             _air_begin, model.particle_count, [model.vec3(*self.wind), v, self._speed], device=model.device
         )
 
-    def _launch(self, model, x, mode, scale=1.0, slots=None, value=None, grad=None, hess=None) -> None:
+    def _launch_mode(self, model, x, mode, scale, project, outputs) -> None:
+        """R(x) of the current step; its Hessian is scale·(c + c₂|uⁿ|)/h·I (``project`` is unused)."""
         if self._speed is None:
             raise RuntimeError("AirDrag.begin_step must be called before the implicit potential is used")
-        d = self._dummy
         wp.launch(
             _air_implicit,
             model.particle_count,
@@ -149,27 +142,12 @@ class AirDrag(Energy):
                 model.s(self._inv_dt),
                 mode,
                 model.s(scale),
-                d["i"] if slots is None else slots,
-                d["s"] if value is None else value,
-                d["v"] if grad is None else grad,
-                d["m"] if hess is None else hess,
+                *outputs,
             ],
             device=model.device,
         )
-
-    def value(self, model: Model, x: wp.array, out: wp.array) -> None:
-        """Add the Rayleigh potential R(x) [J] of the current step into ``out[0]``."""
-        self._launch(model, x, 0, value=out)
-
-    def gradient(self, model: Model, x: wp.array, out: wp.array) -> None:
-        """Add ∂R/∂x [N] into ``out``."""
-        self._launch(model, x, 1, grad=out)
 
     def hessian_pattern(self, model: Model) -> tuple[np.ndarray, np.ndarray]:
         """One diagonal block per particle."""
         i = np.arange(model.particle_count, dtype=np.int32)
         return i, i.copy()
-
-    def hessian(self, model, x, slots, values, *, project_psd: bool = True, scale: float = 1.0) -> None:
-        """Add scale·∂²R/∂x² = scale·(c + c₂|uⁿ|)/h·I into ``values[slots]``."""
-        self._launch(model, x, 2, scale=scale, slots=slots, hess=values)

@@ -72,6 +72,73 @@ class Energy(abc.ABC):
         return buf
 
 
+class ModalEnergy(Energy):
+    """An energy whose value, gradient and Hessian blocks come from one kernel with a ``mode`` switch.
+
+    The kernel takes, last, ``slots`` (int32), ``value_out`` (scalar), ``grad_out`` (vec3) and ``hess_out``
+    (mat33), and writes only the output of its mode (0 value, 1 gradient, 2 Hessian); the outputs not in
+    use are 1-element dummies. Subclasses implement :meth:`_launch_mode` and :meth:`hessian_pattern`.
+    """
+
+    def value(self, model: Model, x: wp.array, out: wp.array) -> None:
+        """Add E(x) [J] (for a dissipative term, the step's Rayleigh potential R(x)) into ``out[0]``."""
+        self._launch_mode(model, x, 0, 1.0, True, self._outputs(model, value=out))
+
+    def gradient(self, model: Model, x: wp.array, out: wp.array) -> None:
+        """Add ∂E/∂x [N] per particle into ``out``."""
+        self._launch_mode(model, x, 1, 1.0, True, self._outputs(model, grad=out))
+
+    def hessian(
+        self,
+        model: Model,
+        x: wp.array,
+        slots: wp.array,
+        values: wp.array,
+        *,
+        project_psd: bool = True,
+        scale: float = 1.0,
+    ) -> None:
+        """Add ``scale``·∂²E/∂x² [N/m] blocks into ``values[slots[k]]``, PSD-projected if ``project_psd``."""
+        self._launch_mode(model, x, 2, scale, project_psd, self._outputs(model, slots=slots, hess=values))
+
+    @abc.abstractmethod
+    def _launch_mode(
+        self, model: Model, x: wp.array, mode: int, scale: float, project: bool, outputs: list[wp.array]
+    ) -> None:
+        """Launch the kernel in ``mode`` with ``outputs`` = [slots, value, grad, hess] as its last inputs."""
+
+    def _outputs(
+        self,
+        model: Model,
+        *,
+        slots: wp.array | None = None,
+        value: wp.array | None = None,
+        grad: wp.array | None = None,
+        hess: wp.array | None = None,
+    ) -> list[wp.array]:
+        """[slots, value, grad, hess], each output not given replaced by its dummy."""
+        d_slots, d_value, d_grad, d_hess = self._dummies(model)
+        return [
+            d_slots if slots is None else slots,
+            d_value if value is None else value,
+            d_grad if grad is None else grad,
+            d_hess if hess is None else hess,
+        ]
+
+    def _dummies(self, model: Model) -> tuple[wp.array, wp.array, wp.array, wp.array]:
+        """1-element (int32, scalar, vec3, mat33) arrays on the model's device and dtype, cached."""
+        cache = getattr(self, "_dummy_cache", None)
+        if cache is None:
+            cache = self._dummy_cache = {}
+        key = (str(wp.get_device(model.device)), model.dtype)
+        if key not in cache:
+            cache[key] = tuple(
+                wp.zeros(1, dtype=t, device=model.device)
+                for t in (wp.int32, model.scalar, model.vec3, model.mat33)
+            )
+        return cache[key]
+
+
 @wp.kernel
 def _axpy_kernel(out: wp.array(dtype=Any), x: wp.array(dtype=Any), a: Any):
     i = wp.tid()

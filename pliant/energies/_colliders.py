@@ -9,7 +9,7 @@ import warp as wp
 
 from ..collision import Colliders, collider_sdf
 from ..model import Model
-from ._base import Energy
+from ._base import ModalEnergy
 
 
 @wp.kernel
@@ -57,7 +57,7 @@ def _penalty(
                 wp.atomic_add(hess_out, slots[i], scale * stiffness * h)
 
 
-class ColliderPenalty(Energy):
+class ColliderPenalty(ModalEnergy):
     """Penalty E = ½ k Σ_i Σ_c max(0, r_i − φ_c(x_i))² [J] keeping particles outside static colliders.
 
     φ_c is the collider's signed distance (:class:`pliant.collision.Colliders`) and r_i the particle radius.
@@ -77,21 +77,9 @@ class ColliderPenalty(Energy):
             raise ValueError("ColliderPenalty needs at least one collider")
         self.colliders = colliders
         self.stiffness = float(stiffness)
-        self._dummy: dict = {}
 
-    def _launch(
-        self, model: Model, x, mode, *, project=1, scale=1.0, slots=None, value=None, grad=None, hess=None
-    ):
-        key = (str(model.device), model.dtype)
-        if key not in self._dummy:
-            d = model.device
-            self._dummy[key] = (
-                wp.zeros(1, dtype=model.scalar, device=d),
-                wp.zeros(1, dtype=model.vec3, device=d),
-                wp.zeros(1, dtype=model.mat33, device=d),
-                wp.zeros(1, dtype=wp.int32, device=d),
-            )
-        ds, dv, dm, di = self._dummy[key]
+    def _launch_mode(self, model, x, mode, scale, project, outputs) -> None:
+        """The penalty energy; ``project`` drops the curvature term of the Hessian."""
         wp.launch(
             _penalty,
             model.particle_count,
@@ -104,27 +92,12 @@ class ColliderPenalty(Energy):
                 mode,
                 int(project),
                 model.s(scale),
-                di if slots is None else slots,
-                ds if value is None else value,
-                dv if grad is None else grad,
-                dm if hess is None else hess,
+                *outputs,
             ],
             device=model.device,
         )
-
-    def value(self, model: Model, x: wp.array, out: wp.array) -> None:
-        """Add the penalty energy [J] into ``out[0]``."""
-        self._launch(model, x, 0, value=out)
-
-    def gradient(self, model: Model, x: wp.array, out: wp.array) -> None:
-        """Add ∂E/∂x [N] into ``out``."""
-        self._launch(model, x, 1, grad=out)
 
     def hessian_pattern(self, model: Model) -> tuple[np.ndarray, np.ndarray]:
         """One diagonal block per particle (contacts come and go; the pattern stays fixed)."""
         i = np.arange(model.particle_count, dtype=np.int32)
         return i, i.copy()
-
-    def hessian(self, model, x, slots, values, *, project_psd: bool = True, scale: float = 1.0) -> None:
-        """Add scale·∂²E/∂x² [N/m] into ``values[slots[i]]``."""
-        self._launch(model, x, 2, project=project_psd, scale=scale, slots=slots, hess=values)

@@ -8,7 +8,7 @@ import numpy as np
 import warp as wp
 
 from ..model import Model
-from ._base import Energy
+from ._base import ModalEnergy
 from ._spring import dashpot_force, spring_energy, spring_gradient, spring_hessian
 
 
@@ -61,7 +61,7 @@ def _handle_force(
     wp.atomic_add(f_out, i, f)
 
 
-class ControlPoints(Energy):
+class ControlPoints(ModalEnergy):
     """Moving control points, each tied by springs to the particles within ``radius`` (PhysTwin's control).
 
     At construction every control point is linked to its up to ``max_links`` nearest particles within
@@ -122,12 +122,6 @@ class ControlPoints(Energy):
         self._np = np.float64 if model.dtype == "float64" else np.float32
         self.stiffness = float(stiffness)
         self.damping = float(damping)
-        self._dummy = (
-            wp.zeros(1, dtype=model.scalar, device=dev),
-            wp.zeros(1, dtype=model.vec3, device=dev),
-            wp.zeros(1, dtype=model.mat33, device=dev),
-            wp.zeros(1, dtype=wp.int32, device=dev),
-        )
 
     def set_positions(self, points: Any, velocities: Any = None) -> None:
         """Move the control points to ``points`` [K, 3] m (velocities [K, 3] m/s for the dashpots)."""
@@ -138,8 +132,8 @@ class ControlPoints(Energy):
         if velocities is not None:
             self.point_velocities.assign(np.asarray(velocities, dtype=self._np).reshape(-1, 3))
 
-    def _launch(self, model, x, mode, project=1, scale=1.0, slots=None, value=None, grad=None, hess=None):
-        ds, dv, dm, di = self._dummy
+    def _launch_mode(self, model, x, mode, scale, project, outputs) -> None:
+        """The link energy Σ ½ k (|x_i − c_k| − l)²; ``project`` clamps the compressive transverse term."""
         wp.launch(
             _handle_kernel,
             self.link_count,
@@ -153,21 +147,10 @@ class ControlPoints(Energy):
                 mode,
                 int(project),
                 model.s(scale),
-                di if slots is None else slots,
-                ds if value is None else value,
-                dv if grad is None else grad,
-                dm if hess is None else hess,
+                *outputs,
             ],
             device=model.device,
         )
-
-    def value(self, model: Model, x: wp.array, out: wp.array) -> None:
-        """Add the link energy [J] into ``out[0]``."""
-        self._launch(model, x, 0, value=out)
-
-    def gradient(self, model: Model, x: wp.array, out: wp.array) -> None:
-        """Add ∂E/∂x [N] into ``out``."""
-        self._launch(model, x, 1, grad=out)
 
     def force(self, model: Model, x: wp.array, v: wp.array, out: wp.array) -> None:
         """Add link spring and dashpot forces [N] into ``out``."""
@@ -193,7 +176,3 @@ class ControlPoints(Energy):
         """One diagonal block (i, i) per link (the control point is not a degree of freedom)."""
         i = self.link_particle.numpy()
         return i.copy(), i.copy()
-
-    def hessian(self, model, x, slots, values, *, project_psd: bool = True, scale: float = 1.0) -> None:
-        """Add scale·∂²E/∂x² [N/m] blocks into ``values[slots]``."""
-        self._launch(model, x, 2, project=project_psd, scale=scale, slots=slots, hess=values)

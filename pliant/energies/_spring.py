@@ -8,7 +8,7 @@ import numpy as np
 import warp as wp
 
 from ..model import Model
-from ._base import Energy
+from ._base import Energy, ModalEnergy
 
 
 @wp.func
@@ -222,7 +222,7 @@ def _dashpot_implicit(
         wp.atomic_sub(hess_out, slots[4 * s + 3], h)
 
 
-class Dashpots(Energy):
+class Dashpots(ModalEnergy):
     """Dashpots on the model's springs: F_i = −γ((v_i − v_j)·d̂)d̂ (dissipates, conserves momentum).
 
     Explicit integrators call :meth:`force`. Implicit ones call :meth:`begin_step` and then treat the
@@ -236,7 +236,6 @@ class Dashpots(Energy):
         self._axis: wp.array | None = None
         self._x_ref: wp.array | None = None
         self._inv_dt = 0.0
-        self._dummy: dict = {}
 
     def force(self, model: Model, x: wp.array, v: wp.array, out: wp.array) -> None:
         """Add the dashpot forces [N] at (x, v) into ``out``."""
@@ -253,12 +252,6 @@ class Dashpots(Energy):
         if self._axis is None or self._axis.shape[0] != model.spring_count:
             self._axis = wp.zeros(model.spring_count, dtype=model.vec3, device=model.device)
             self._x_ref = wp.zeros(model.particle_count, dtype=model.vec3, device=model.device)
-            self._dummy = {
-                "s": wp.zeros(1, dtype=model.scalar, device=model.device),
-                "v": wp.zeros(1, dtype=model.vec3, device=model.device),
-                "m": wp.zeros(1, dtype=model.mat33, device=model.device),
-                "i": wp.zeros(1, dtype=wp.int32, device=model.device),
-            }
         wp.copy(self._x_ref, x)
         self._inv_dt = 1.0 / dt
         if model.spring_count:
@@ -266,12 +259,12 @@ class Dashpots(Energy):
                 _dashpot_axes, model.spring_count, [model.spring_indices, x, self._axis], device=model.device
             )
 
-    def _launch(self, model, x, mode, scale=1.0, slots=None, value=None, grad=None, hess=None) -> None:
+    def _launch_mode(self, model, x, mode, scale, project, outputs) -> None:
+        """The Rayleigh potential R(x) of the current step (PSD by construction: ``project`` is unused)."""
         if not model.spring_count:
             return
         if self._axis is None:
             raise RuntimeError("Dashpots.begin_step must be called before the implicit potential is used")
-        d = self._dummy
         wp.launch(
             _dashpot_implicit,
             model.spring_count,
@@ -284,26 +277,11 @@ class Dashpots(Energy):
                 model.s(self._inv_dt),
                 mode,
                 model.s(scale),
-                d["i"] if slots is None else slots,
-                d["s"] if value is None else value,
-                d["v"] if grad is None else grad,
-                d["m"] if hess is None else hess,
+                *outputs,
             ],
             device=model.device,
         )
 
-    def value(self, model: Model, x: wp.array, out: wp.array) -> None:
-        """Add the Rayleigh potential R(x) [J] of the current step into ``out[0]``."""
-        self._launch(model, x, 0, value=out)
-
-    def gradient(self, model: Model, x: wp.array, out: wp.array) -> None:
-        """Add ∂R/∂x [N] into ``out``."""
-        self._launch(model, x, 1, grad=out)
-
     def hessian_pattern(self, model: Model) -> tuple[np.ndarray, np.ndarray]:
         """Same four blocks per spring as :class:`Springs`."""
         return _spring_pattern(model)
-
-    def hessian(self, model, x, slots, values, *, project_psd: bool = True, scale: float = 1.0) -> None:
-        """Add scale·∂²R/∂x² (PSD by construction) into ``values[slots]``."""
-        self._launch(model, x, 2, scale=scale, slots=slots, hess=values)

@@ -1,0 +1,112 @@
+"""Shared pieces of the benchmark modules: the timed stepping loop and the speed columns of a row.
+
+No ``BENCHMARKS`` here: :func:`pliant.bench.discover` skips this module.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Timing:
+    """A timed benchmark run: ``wall`` and process ``cpu`` seconds of the ``frames`` × ``substeps`` timed
+    steps on ``device``, and ``compile``, the seconds of set-up plus the two warm-up steps (kernel
+    compilation or cache load, launch recording)."""
+
+    wall: float
+    cpu: float
+    compile: float
+    frames: int
+    substeps: int
+    device: str
+
+
+def run_timed(
+    model: Any,
+    solver: Any,
+    control: Any,
+    dt: float,
+    *,
+    frames: int,
+    substeps: int,
+    device: str,
+    started: float,
+    reuse_states: bool = False,
+    on_step: Callable[[], None] | None = None,
+) -> tuple[Any, Timing]:
+    """Warm up with two steps, then time ``frames`` × ``substeps`` steps of ``dt`` [s] from the initial state.
+
+    ``started`` is the ``time.perf_counter()`` taken before the model was built: the compile time counts
+    from there. ``reuse_states`` restarts from the initial state in the warmed-up state arrays (for solvers
+    that replay launches recorded for those arrays, e.g. XPBD) instead of in fresh ones. ``on_step`` runs
+    after each timed step (e.g. to collect solver statistics). Returns the final state and the timing.
+    """
+    import warp as wp
+
+    s0, s1 = model.state(), model.state()
+    solver.step(s0, s1, control, dt)
+    solver.step(s1, s0, control, dt)
+    wp.synchronize_device(device)
+    compile_s = time.perf_counter() - started
+    if reuse_states:
+        s0.assign(model.state())
+        s1.assign(model.state())
+    else:
+        s0, s1 = model.state(), model.state()
+    wp.synchronize_device(device)
+    t0 = time.perf_counter()
+    c0 = time.process_time()
+    for _ in range(frames):
+        for _ in range(substeps):
+            solver.step(s0, s1, control, dt)
+            s0, s1 = s1, s0
+            if on_step is not None:
+                on_step()
+    wp.synchronize_device(device)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    return s0, Timing(wall, cpu, compile_s, frames, substeps, device)
+
+
+def sig4(value: float) -> float:
+    """``value`` rounded to 4 significant digits (rates and residuals in the rows)."""
+    return float(f"{value:.4g}")
+
+
+def peak_mem_mb(device: str) -> float:
+    """Peak memory [MiB]: the Warp mempool high-water mark on CUDA, this process's max RSS on the CPU."""
+    if device.startswith("cuda"):
+        import warp as wp
+
+        return wp.get_mempool_used_mem_high(device) / 2**20
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def speed_fields(timing: Timing, particles: int, *, process: bool = True) -> dict:
+    """The speed columns of a row for ``particles`` particles: wall_s, compile_s, fps, particle_substeps_per_s
+    and, with ``process``, cpu_s, load_avg_1min, fps_cpu_time and peak_mem_mb (machine load and memory)."""
+    wall, cpu, frames, device = timing.wall, timing.cpu, timing.frames, timing.device
+    row: dict[str, Any] = {"wall_s": round(wall, 4)}
+    if process:
+        row["cpu_s"] = round(cpu, 4)  # this process's CPU time: the figure to trust on a shared machine
+        row["load_avg_1min"] = round(os.getloadavg()[0], 2)
+    row["compile_s"] = round(timing.compile, 3)
+    row["fps"] = round(frames / wall, 2)
+    if process:
+        row["fps_cpu_time"] = round(frames / cpu, 2) if device == "cpu" and cpu > 0 else None
+    row["particle_substeps_per_s"] = sig4(particles * frames * timing.substeps / wall)
+    if process:
+        row["peak_mem_mb"] = round(peak_mem_mb(device), 1)
+    return row
+
+
+def print_rows(benchmarks: Mapping[str, Callable[..., dict]], names: Sequence[str]) -> None:
+    """Run the named benchmarks (all when ``names`` is empty) and print one JSON line each."""
+    for name in names or list(benchmarks):
+        print(json.dumps({"benchmark": name, **benchmarks[name]()}), flush=True)
