@@ -88,16 +88,7 @@ class ModalEnergy(Energy):
         """Add ∂E/∂x [N] per particle into ``out``."""
         self._launch_mode(model, x, 1, 1.0, True, self._outputs(model, grad=out))
 
-    def hessian(
-        self,
-        model: Model,
-        x: wp.array,
-        slots: wp.array,
-        values: wp.array,
-        *,
-        project_psd: bool = True,
-        scale: float = 1.0,
-    ) -> None:
+    def hessian(self, model, x, slots, values, *, project_psd: bool = True, scale: float = 1.0) -> None:
         """Add ``scale``·∂²E/∂x² [N/m] blocks into ``values[slots[k]]``, PSD-projected if ``project_psd``."""
         self._launch_mode(model, x, 2, scale, project_psd, self._outputs(model, slots=slots, hess=values))
 

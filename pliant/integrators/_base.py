@@ -99,11 +99,7 @@ class Integrator(abc.ABC):
         ``y0`` is an array for an ODEProblem and ``(x0, v0)`` for a SecondOrderODE.
         """
         second = isinstance(problem, SecondOrderODE)
-        if second:
-            x0, v0 = (np.atleast_1d(np.asarray(a, dtype=np.float64)) for a in y0)  # type: ignore[misc]
-            y = np.concatenate([v0, x0])
-        else:
-            y = np.atleast_1d(np.asarray(y0, dtype=np.float64)).copy()
+        y = initial_state(problem, y0)
         n = int(round((t_end - t0) / dt))
         if n < 1 or not np.isclose(t0 + n * dt, t_end, rtol=1e-9, atol=1e-12):
             raise ValueError(f"t_end − t0 = {t_end - t0} is not a whole number of steps of dt = {dt}")
@@ -144,6 +140,16 @@ class Integrator(abc.ABC):
             ]
             self._ws = (key, bufs)
         return self._ws[1]
+
+
+def initial_state(
+    problem: ODEProblem | SecondOrderODE, y0: np.ndarray | tuple[np.ndarray, np.ndarray]
+) -> np.ndarray:
+    """``y0`` as a float64 vector: concat(v0, x0) for a SecondOrderODE (``y0`` = (x0, v0)), else a copy."""
+    if isinstance(problem, SecondOrderODE):
+        x0, v0 = (np.atleast_1d(np.asarray(a, dtype=np.float64)) for a in y0)  # type: ignore[misc]
+        return np.concatenate([v0, x0])
+    return np.atleast_1d(np.asarray(y0, dtype=np.float64)).copy()
 
 
 def second_order_split(problem: ODEProblem | SecondOrderODE, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -6,7 +6,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from ._base import Solution, System, first_order
+from ._base import Solution, System, first_order, initial_state
 from ._explicit import ExplicitRK
 from ._problems import ODEProblem, SecondOrderODE
 
@@ -80,11 +80,7 @@ class DormandPrince(ExplicitRK):
         if t_end <= t0:
             raise ValueError(f"t_end ({t_end}) must be after t0 ({t0})")
         second = isinstance(problem, SecondOrderODE)
-        if second:
-            x0, v0 = (np.atleast_1d(np.asarray(a, dtype=np.float64)) for a in y0)  # type: ignore[misc]
-            y = np.concatenate([v0, x0])
-        else:
-            y = np.atleast_1d(np.asarray(y0, dtype=np.float64)).copy()
+        y = initial_state(problem, y0)
         p = first_order(problem)
         t = float(t0)
         k0 = p.rhs(t, y)
