@@ -119,7 +119,7 @@ def test_unknown_scene_lists_builtins(capsys):
     """An unknown scene name lists the built-in scenes."""
     assert main(["run", "no_such_scene"]) == 1
     err = capsys.readouterr().err
-    assert "built-in scenes: cloth, " in err and "rope" in err and "soft_box" in err
+    assert "built-in scenes: " in err and "cloth, " in err and "rope" in err and "soft_box" in err
 
 
 def test_info_exits_0(capsys):

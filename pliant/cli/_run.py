@@ -101,6 +101,13 @@ def simulate(
     if cfg.output.trajectory:
         traj.meta["scene"] = cfg.scene.name
         written.append(str(traj.save(traj_path)))
+        if scene.embeddings and traj.frame_count > 0:
+            # What the video draws (particles, the fine embedded surface, colliders) as <name>.render.npz.
+            from ..io import Trajectory
+
+            xf, ff, _ = scene.render_mesh(traj.x, traj.faces)
+            fine = Trajectory(x=xf, t=traj.t, faces=ff, meta={**traj.meta, "render_mesh": True})
+            written.append(str(fine.save(out / f"{name}.render.npz")))
     rate = f", {m.particle_count * steps / wall:.3g} particle-substeps/s" if wall > 0 and steps else ""
     print(f"simulated {traj.frame_count - 1} frames in {wall:.2f} s{rate}", flush=True)
     if video and cfg.output.video and traj.frame_count > 0:
@@ -108,10 +115,12 @@ def simulate(
         try:
             from ..render import render_video
 
+            xr, fr, colors = scene.render_mesh(traj.x, traj.faces)
             render_video(
-                traj.x,
+                xr,
                 video_path,
-                faces=traj.faces,
+                faces=fr,
+                colors=colors,
                 fps=scene.fps,
                 camera=scene.camera,
                 progress=not quiet,

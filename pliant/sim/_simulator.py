@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -97,6 +98,7 @@ class Simulator:
         self._speed2 = wp.zeros(1, dtype=model.scalar, device=model.device)
         self._bad = wp.zeros(1, dtype=wp.int32, device=model.device)
         self._last_good: tuple[int, float, np.ndarray, np.ndarray] | None = None
+        self._warned_newton = False
 
     # ------------------------------------------------------------------ stepping
     def step_frame(self) -> None:
@@ -135,6 +137,17 @@ class Simulator:
         )
         if bad:
             raise DivergenceError(self.frame, "non-finite positions/velocities in particles:", bad, advice)
+        stats = getattr(self.solver, "last_stats", None)
+        if stats is not None and getattr(stats, "converged", True) is False and not self._warned_newton:
+            # Not fatal (the state is finite), but the motion is not backward Euler's: say so once per run.
+            self._warned_newton = True
+            warnings.warn(
+                f"Newton did not converge at frame {self.frame} (gradient {stats.gradient_norm:.3g} after "
+                f"{stats.iterations} iterations); raise max_newton_iterations, keep project_psd=True, or add "
+                "substeps",
+                RuntimeWarning,
+                stacklevel=2,
+            )
         speed = float(np.sqrt(self._speed2.numpy()[0]))
         if speed > self.max_speed:
             raise DivergenceError(self.frame, "max speed (m/s)", speed, advice)

@@ -42,7 +42,7 @@ DEFAULTS: dict[str, Any] = {
     "linear_solver": "auto",  # "cg" | "direct" | "auto"
     "cg_tol": 1e-6,  # relative residual of CG (at least 30 eps of the dtype)
     "cg_max_iterations": 2000,
-    "project_psd": "auto",
+    "project_psd": True,
     "max_line_search": 20,
 }
 
