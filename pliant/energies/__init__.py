@@ -6,6 +6,7 @@ from ._cloth import cloth_spring_stiffness
 from ._colliders import ColliderPenalty
 from ._fem import Corotated, LinearElastic, NeoHookean, StVK, TetElasticity
 from ._gravity import Gravity
+from ._ground import GroundPenalty
 from ._handles import ControlPoints
 from ._materials import (
     MATERIAL_MODELS,
@@ -47,6 +48,7 @@ __all__ = [
     "Dashpots",
     "Energy",
     "Gravity",
+    "GroundPenalty",
     "Springs",
     "cloth_spring_stiffness",
     "dashpot_force",

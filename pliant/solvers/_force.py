@@ -72,6 +72,12 @@ class ForceSolver(Solver):
         self.velocity_damping_factor = float(velocity_damping)
         self.damping_rate = damping_rate
         self.contact = contact and model.ground is not None
+        if self.contact and not self.integrator.explicit:
+            from ..energies import GroundPenalty
+
+            # Newton must see the ground: projecting after a large implicit step flattens (inverts) elements.
+            if not any(isinstance(e, GroundPenalty) for e in self.energies):
+                self.energies.append(GroundPenalty())
         self.collisions = check_collisions(collisions)
         d = model.device
         self._force = wp.zeros(model.particle_count, dtype=model.vec3, device=d)
