@@ -7,6 +7,10 @@ import warp as wp
 
 import pliant  # noqa: F401  (initialises Warp quietly)
 
+# Tests that do not ask for a device run on the CPU everywhere, so a helper's bare wp.zeros(...) never lands
+# on a GPU next to a CPU model; the `device` fixture below is how a test runs on CUDA too.
+wp.set_device("cpu")
+
 DEVICES = ["cpu"] + (["cuda:0"] if wp.is_cuda_available() else [])
 
 

@@ -32,19 +32,19 @@ def energy_fd_check(model, energy, x, *, eps=1e-6, project=False, begin=None):
         energy.begin_step(model, *begin)
 
     def val(xx):
-        out = wp.zeros(1, dtype=wp.float64)
-        energy.value(model, wp.array(xx, dtype=wp.vec3d), out)
+        out = wp.zeros(1, dtype=wp.float64, device=model.device)
+        energy.value(model, wp.array(xx, dtype=wp.vec3d, device=model.device), out)
         return out.numpy()[0]
 
     def grad(xx):
-        out = wp.zeros(n, dtype=wp.vec3d)
-        energy.gradient(model, wp.array(xx, dtype=wp.vec3d), out)
+        out = wp.zeros(n, dtype=wp.vec3d, device=model.device)
+        energy.gradient(model, wp.array(xx, dtype=wp.vec3d, device=model.device), out)
         return out.numpy().ravel()
 
     rows, cols = energy.hessian_pattern(model)
-    vals = wp.zeros(len(rows), dtype=wp.mat33d)
-    slots = wp.array(np.arange(len(rows), dtype=np.int32), dtype=wp.int32)
-    energy.hessian(model, wp.array(x, dtype=wp.vec3d), slots, vals, project_psd=project)
+    vals = wp.zeros(len(rows), dtype=wp.mat33d, device=model.device)
+    slots = wp.array(np.arange(len(rows), dtype=np.int32), dtype=wp.int32, device=model.device)
+    energy.hessian(model, wp.array(x, dtype=wp.vec3d, device=model.device), slots, vals, project_psd=project)
     H = np.zeros((3 * n, 3 * n))
     for r, c, b in zip(rows, cols, vals.numpy(), strict=True):
         H[3 * r : 3 * r + 3, 3 * c : 3 * c + 3] += b
