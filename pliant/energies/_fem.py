@@ -9,7 +9,7 @@ uses; each kernel is generic over float32 / float64.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import warp as wp
@@ -297,15 +297,18 @@ class TetElasticity(Energy):
                                         pl.integrators.BackwardEuler())
     """
 
+    #: Material model of this class; the named subclasses fix it, TetElasticity takes it as an argument.
+    default_material: ClassVar[str] = "neohookean"
+
     def __init__(
         self,
-        material: str = "neohookean",
+        material: str | None = None,
         *,
         E: float | None = None,
         nu: float = 0.3,
         inversion_margin: float = 0.1,
     ) -> None:
-        self.material = get_material_model(material)
+        self.material = get_material_model(self.default_material if material is None else material)
         if not 0.0 <= inversion_margin < 1.0:
             raise ValueError(f"inversion_margin must be in [0, 1), got {inversion_margin}")
         self.E = None if E is None else float(E)
@@ -404,8 +407,7 @@ class LinearElastic(TetElasticity):
     See :class:`TetElasticity` for the arguments.
     """
 
-    def __init__(self, *, E: float | None = None, nu: float = 0.3, inversion_margin: float = 0.1) -> None:
-        super().__init__("linear", E=E, nu=nu, inversion_margin=inversion_margin)
+    default_material: ClassVar[str] = "linear"
 
 
 class StVK(TetElasticity):
@@ -414,8 +416,7 @@ class StVK(TetElasticity):
     See :class:`TetElasticity` for the arguments.
     """
 
-    def __init__(self, *, E: float | None = None, nu: float = 0.3, inversion_margin: float = 0.1) -> None:
-        super().__init__("stvk", E=E, nu=nu, inversion_margin=inversion_margin)
+    default_material: ClassVar[str] = "stvk"
 
 
 class Corotated(TetElasticity):
@@ -424,8 +425,7 @@ class Corotated(TetElasticity):
     See :class:`TetElasticity` for the arguments.
     """
 
-    def __init__(self, *, E: float | None = None, nu: float = 0.3, inversion_margin: float = 0.1) -> None:
-        super().__init__("corotated", E=E, nu=nu, inversion_margin=inversion_margin)
+    default_material: ClassVar[str] = "corotated"
 
 
 class NeoHookean(TetElasticity):
@@ -434,5 +434,4 @@ class NeoHookean(TetElasticity):
     See :class:`TetElasticity` for the arguments.
     """
 
-    def __init__(self, *, E: float | None = None, nu: float = 0.3, inversion_margin: float = 0.1) -> None:
-        super().__init__("neohookean", E=E, nu=nu, inversion_margin=inversion_margin)
+    default_material: ClassVar[str] = "neohookean"
