@@ -187,7 +187,7 @@ def test_implicit_step_balances_forces_with_dashpots():
 
 def test_options_validated():
     """Unknown linear solvers and non-positive tolerances are rejected with the accepted values named."""
-    with pytest.raises(ValueError, match="'cg', 'direct' or 'auto'"):
+    with pytest.raises(ValueError, match="'cg', 'scipy-cg', 'direct' or 'auto'"):
         I.BackwardEuler(linear_solver="lu")
     with pytest.raises(ValueError, match="newton_tol"):
         I.BDF2(newton_tol=0.0)
@@ -222,3 +222,15 @@ def test_auto_projection_converges_faster():
         res[psd] = (sum(its), s.particle_q.numpy())
     assert res["auto"][0] < res[True][0], (res["auto"][0], res[True][0])
     assert np.abs(res["auto"][1] - res[True][1]).max() < 1e-7
+
+
+def test_scipy_cg_matches_direct_on_a_soft_step():
+    """linear_solver="scipy-cg" gives the direct solver's backward-Euler step to 1e-6 m (float64)."""
+    model = _cloth()
+    outs = {}
+    for lin in ("direct", "scipy-cg"):
+        out, solver = _one_step(model, model.state(), I.BackwardEuler(newton_tol=1e-8, linear_solver=lin))
+        outs[lin] = out.particle_q.numpy()
+        assert solver.last_stats.converged, solver.last_stats
+    err = np.abs(outs["direct"] - outs["scipy-cg"]).max()
+    assert err < 1e-6, f"scipy-cg differs from direct by {err:.3g} m"

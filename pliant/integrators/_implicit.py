@@ -82,8 +82,10 @@ class _ImplicitOptions:
             raise ValueError(f"newton_tol must be > 0 m/s, got {newton_tol}")
         if max_newton_iterations < 1:
             raise ValueError(f"max_newton_iterations must be >= 1, got {max_newton_iterations}")
-        if linear_solver not in ("cg", "direct", "auto"):
-            raise ValueError(f"linear_solver must be 'cg', 'direct' or 'auto', got {linear_solver!r}")
+        if linear_solver not in ("cg", "scipy-cg", "direct", "auto"):
+            raise ValueError(
+                f"linear_solver must be 'cg', 'scipy-cg', 'direct' or 'auto', got {linear_solver!r}"
+            )
         if not 0 < cg_tol < 1:
             raise ValueError(f"cg_tol must be in (0, 1), got {cg_tol}")
         self.newton_tol = float(newton_tol)
@@ -131,7 +133,9 @@ class BackwardEuler(_ImplicitOptions, Integrator):
     Args:
         newton_tol: Newton tolerance [m/s] on ‖Δx‖∞/Δt and on the mass-scaled gradient.
         max_newton_iterations: Newton iteration cap per step.
-        linear_solver: "cg" (warp.optim.linear.cg, any device), "direct" (SciPy, CPU) or "auto".
+        linear_solver: "cg" (warp.optim.linear.cg, any device), "scipy-cg" (SciPy CG, block-Jacobi, host),
+            "direct" (SciPy sparse LU, host) or "auto" (direct on the CPU, cg on a GPU). "scipy-cg" is about
+            3x faster per step on soft FEM bodies and falls back to the direct solve when a step stalls.
         cg_tol: relative residual of CG (raised to 30 eps of the model's dtype).
         project_psd: PSD-project element Hessians: True (the default: robust; Newton converges only linearly
             where springs are compressed), False (exact; the direct solver copes with indefinite H, CG may
