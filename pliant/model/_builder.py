@@ -27,13 +27,11 @@ def _as_index_array(indices: Any, width: int, what: str) -> np.ndarray:
 
 
 def _per_item(value: Any, n: int, what: str, unit: str) -> np.ndarray:
-    arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (n,)).copy() if np.ndim(value) == 0 else None
-    if arr is None:
-        arr = np.asarray(value, dtype=np.float64).reshape(-1)
-        if arr.shape[0] != n:
-            raise ValueError(
-                f"{what} has {arr.shape[0]} values for {n} items; give one value or {n} [{unit}]"
-            )
+    arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    if np.ndim(value) == 0:
+        arr = np.full(n, arr[0])
+    elif arr.shape[0] != n:
+        raise ValueError(f"{what} has {arr.shape[0]} values for {n} items; give one value or {n} [{unit}]")
     if not np.all(np.isfinite(arr)):
         bad = np.flatnonzero(~np.isfinite(arr))
         raise ValueError(f"{what} contains NaN/inf at {bad[:5].tolist()}; give finite values [{unit}]")
