@@ -295,7 +295,9 @@ def test_soft_box_dropped_on_ground_comes_to_rest():
         assert e.min_det(model, s0.particle_q) > 0.2
     x, v = s0.particle_q.numpy(), s0.particle_qd.numpy()
     radius = float(model.particle_radius.numpy()[0])
-    assert x[:, 1].min() == pytest.approx(radius, abs=1e-4), "the box does not touch the ground"
+    # Implicit steps hold the box with the ground penalty κ m_i d: the bottom particles carry the column above
+    # them (about 3× their own weight here), so they rest ~3 g/κ ≈ 0.3-0.8 mm inside the contact radius.
+    assert radius - 1e-3 < x[:, 1].min() < radius, "the box does not rest on the ground"
     assert 0.19 < x[:, 1].max() < 0.21, f"top at {x[:, 1].max()} m"
     assert np.abs(v).max() < 0.02, f"still moving: max |v| = {np.abs(v).max()} m/s"
 

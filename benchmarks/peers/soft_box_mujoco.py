@@ -67,6 +67,9 @@ def main(argv: list[str] | None = None) -> dict:
         "--uniform-mass", action="store_true", help="flexcomp's equal point masses, not ρV/4 lumping"
     )
     ap.add_argument("--frames", type=int, default=FRAMES)
+    ap.add_argument(
+        "--trajectory", default=None, help="save the centre of mass height per step to this .npy (adds a read per step)"
+    )
     args = ap.parse_args(argv)
 
     import mujoco
@@ -92,17 +95,23 @@ def main(argv: list[str] | None = None) -> dict:
     sim_s = args.frames * FRAME_DT
     steps = int(round(sim_s / model.opt.timestep))
     iters = 0
+    vert = slice(model.flex_vertadr[0], model.flex_vertadr[0] + model.flex_vertnum[0])
+    body_mass = np.asarray(model.body_mass[vbody])
+    com = []
     t0 = time.perf_counter()
     for _ in range(steps):
         mujoco.mj_step(model, data)
         iters += int(data.solver_niter[0])
+        if args.trajectory:
+            com.append(float(body_mass @ np.asarray(data.flexvert_xpos[vert])[:, 2] / body_mass.sum()))
     wall = time.perf_counter() - t0
+    if args.trajectory:
+        np.save(args.trajectory, np.array(com))
 
     x = data.flexvert_xpos[model.flex_vertadr[0] : model.flex_vertadr[0] + model.flex_vertnum[0]]
     x = np.asarray(x)[:, [1, 2, 0]]  # back to pliant's (x, y, z)
     dof = model.body_dofadr[vbody]
     v = np.stack([data.qvel[dof + k] for k in range(3)], axis=1)
-    body_mass = np.asarray(model.body_mass[vbody])
     row = {
         "benchmark": f"mujoco_soft_box_drop_{args.n}_flex",
         "scene": f"soft_box_drop_{args.n}x{args.n}x{args.n}",

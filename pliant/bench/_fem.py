@@ -53,9 +53,6 @@ def soft_box_model(n: int, *, device: str | None = "cpu", dtype: str = "float32"
     return b.finalize(device=device, dtype=dtype)
 
 
-#: Ground penalty stiffness [N/m]: a particle's weight (about 1 N at 10³ cells) sinks it by ~10 µm.
-GROUND_STIFFNESS = 1.0e5
-
 #: Newton tolerance [m/s] per dtype. In float32 the mass-scaled gradient has a round-off floor of about
 #: 1e-2 m/s at 10³ cells and 0.06-0.1 m/s at 20³ during the impact (measured), so the implicit rows run in
 #: float64 by default (:data:`IMPLICIT_DTYPE`).
@@ -66,21 +63,18 @@ IMPLICIT_DTYPE = "float64"
 
 
 def make_solver(model: Any, method: str, *, newton_tol: float | None = None) -> Any:
-    """ForceSolver with NeoHookean + Gravity + a ground penalty: "implicit" (BackwardEuler) or "explicit"
-    (SymplecticEuler).
+    """ForceSolver with NeoHookean + Gravity: "implicit" (BackwardEuler) or "explicit" (SymplecticEuler).
 
-    The ground is both a penalty energy ½k·max(0, r − y)² (so that Newton sees it: the post-step projection
-    alone lets an implicit step push whole layers of particles through the floor and flattens them) and
-    ForceSolver's projection after the step (friction, no restitution).
+    Ground contact: for the implicit rows ForceSolver adds a :class:`~pliant.energies.GroundPenalty` to the
+    potential (so that Newton sees the ground: a projection after the step alone lets an implicit step push
+    whole layers of particles through the floor and flattens them) and applies Coulomb friction for the
+    penalty's impulse after the step; the explicit rows use the post-step projection with friction.
     """
-    from ..collision import Colliders
-    from ..energies import ColliderPenalty, Gravity, NeoHookean
+    from ..energies import Gravity, NeoHookean
     from ..integrators import BackwardEuler, SymplecticEuler
     from ..solvers import ForceSolver
 
-    floor = Colliders()
-    floor.add_box(center=(0.0, -1.0, 0.0), half_extents=(10.0, 1.0, 10.0), friction=0.5)
-    energies = [NeoHookean(), Gravity(), ColliderPenalty(floor, stiffness=GROUND_STIFFNESS)]
+    energies = [NeoHookean(), Gravity()]
     if method == "implicit":
         tol = NEWTON_TOL[model.dtype] if newton_tol is None else newton_tol
         # Projected Hessians: with exact ones (project_psd="auto") the stable neo-Hookean Hessian of the

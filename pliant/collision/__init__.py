@@ -1,7 +1,7 @@
 """Contact: ground plane (more colliders and the hash-grid broad phase follow)."""
 
 from ._colliders import Colliders, collider_sdf
-from ._ground import ground_contact
+from ._ground import ground_contact, ground_penalty_friction
 from ._hashgrid import ParticleGrid, TriangleBVH, triangle_closest_point
 from ._selfcollision import SelfCollision, closest_point_triangle
 
@@ -13,5 +13,6 @@ __all__ = [
     "ParticleGrid",
     "TriangleBVH",
     "ground_contact",
+    "ground_penalty_friction",
     "triangle_closest_point",
 ]

@@ -22,6 +22,8 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from .._warp import launch
+
 SPHERE, BOX, CAPSULE, MESH = 0, 1, 2, 3
 _KIND_NAMES = {SPHERE: "sphere", BOX: "box", CAPSULE: "capsule", MESH: "mesh"}
 
@@ -327,7 +329,7 @@ class Colliders:
     def apply(self, model: Any, state_in: Any, state_out: Any, dt: float) -> None:
         """Velocity-level contact response on ``state_out`` (push out, restitution, Coulomb friction)."""
         a = self.arrays(model)
-        wp.launch(
+        launch(
             _collider_response,
             model.particle_count,
             [
@@ -346,7 +348,7 @@ class Colliders:
         """Smallest signed distance φ [m] over the colliders and its normal, per point (host arrays)."""
         phi = wp.zeros(x.shape[0], dtype=model.scalar, device=model.device)
         n = wp.zeros(x.shape[0], dtype=model.vec3, device=model.device)
-        wp.launch(_collider_query, x.shape[0], [*self.geometry_inputs(model), x, phi, n], device=model.device)
+        launch(_collider_query, x.shape[0], [*self.geometry_inputs(model), x, phi, n], device=model.device)
         return phi.numpy(), n.numpy()
 
     def describe(self) -> list[dict]:

@@ -41,3 +41,46 @@ def ground_contact(
         scale = wp.max(speed_t - friction * dvn, zero) / speed_t
     v_io[i] = type(v)(v[0] * scale, vn_new, v[2] * scale)
     x_io[i] = type(p)(p[0], floor, p[2])
+
+
+@wp.kernel
+def ground_penalty_friction(
+    inv_mass: wp.array(dtype=Any),
+    radius: wp.array(dtype=Any),
+    height: Any,
+    friction: Any,
+    kappa: Any,
+    dt: Any,
+    x_io: wp.array(dtype=Any),
+    v_io: wp.array(dtype=Any),
+):
+    """Coulomb friction for the normal impulse a ground penalty κ m d gave over the step (implicit steps).
+
+    Inside the incremental potential the penalty holds a resting particle at the depth d = g/κ where it
+    balances the weight; projecting it back to y = height + r after every step (``ground_contact``) would
+    undo that equilibrium and leave Newton a residual of h·g per step. So particles are only moved when
+    their centre went below the plane (the penalty lost); the others keep their position and the normal
+    velocity the potential gave them, and their tangential speed drops by μ κ d Δt (the impulse bound).
+    """
+    i = wp.tid()
+    if inv_mass[i] == type(height)(0.0):
+        return
+    p = x_io[i]
+    d = height + radius[i] - p[1]
+    zero = type(height)(0.0)
+    if d <= zero:
+        return
+    v = v_io[i]
+    dvn = kappa * d * dt
+    vn = v[1]
+    if p[1] < height:
+        dvn = wp.max(-vn, zero)
+        vn = vn + dvn
+        p = type(p)(p[0], height + radius[i], p[2])
+        x_io[i] = p
+    vt = type(v)(v[0], zero, v[2])
+    speed_t = wp.length(vt)
+    scale = zero
+    if speed_t > zero:
+        scale = wp.max(speed_t - friction * dvn, zero) / speed_t
+    v_io[i] = type(v)(v[0] * scale, vn, v[2] * scale)

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from .._warp import launch
 from ..model import Model
 from ._base import ModalEnergy
 
@@ -113,7 +114,7 @@ class AirDrag(ModalEnergy):
 
     def force(self, model: Model, x: wp.array, v: wp.array, out: wp.array) -> None:
         """Add the drag forces [N] at velocities ``v`` into ``out``."""
-        wp.launch(_air_force, model.particle_count, [*self._args(model), v, out], device=model.device)
+        launch(_air_force, model.particle_count, [*self._args(model), v, out], device=model.device)
 
     def begin_step(self, model: Model, x: wp.array, v: wp.array, dt: float) -> None:
         """Freeze xⁿ and the relative speeds |uⁿ| for the implicit potential of this step of ``dt`` [s]."""
@@ -123,7 +124,7 @@ class AirDrag(ModalEnergy):
             self._x_ref = wp.zeros(model.particle_count, dtype=model.vec3, device=d)
         wp.copy(self._x_ref, x)
         self._inv_dt = 1.0 / dt
-        wp.launch(
+        launch(
             _air_begin, model.particle_count, [model.vec3(*self.wind), v, self._speed], device=model.device
         )
 
@@ -131,7 +132,7 @@ class AirDrag(ModalEnergy):
         """R(x) of the current step; its Hessian is scale·(c + c₂|uⁿ|)/h·I (``project`` is unused)."""
         if self._speed is None:
             raise RuntimeError("AirDrag.begin_step must be called before the implicit potential is used")
-        wp.launch(
+        launch(
             _air_implicit,
             model.particle_count,
             [

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from .._warp import launch
 from ..model import Model
 
 
@@ -26,6 +27,10 @@ class Energy(abc.ABC):
     #: True for terms that depend on velocity (dissipation), prepared by ``begin_step``.
     dissipative: bool = False
 
+    #: True for terms whose Hessian switches with an active set (contact penalties): the quasi-Newton
+    #: minimiser re-evaluates them every step instead of lagging them with the elastic terms.
+    hessian_changes_each_step: bool = False
+
     def begin_step(self, model: Model, x: wp.array, v: wp.array, dt: float) -> None:  # noqa: B027
         """Freeze per-step data (e.g. the dashpot axis) at the start of a step; default: nothing."""
 
@@ -36,6 +41,11 @@ class Energy(abc.ABC):
     @abc.abstractmethod
     def gradient(self, model: Model, x: wp.array, out: wp.array) -> None:
         """Add ∂E/∂x [N] per particle into ``out``, shape [particle_count] of vec3."""
+
+    def value_and_gradient(self, model: Model, x: wp.array, value_out: wp.array, grad_out: wp.array) -> None:
+        """Add E(x) [J] into ``value_out[0]`` and ∂E/∂x [N] into ``grad_out``; override to fuse the passes."""
+        self.gradient(model, x, grad_out)
+        self.value(model, x, value_out)
 
     def hessian_pattern(self, model: Model) -> tuple[np.ndarray, np.ndarray]:
         """(rows, cols) of the 3×3 blocks ``hessian`` writes, in write order; default: none."""
@@ -56,6 +66,11 @@ class Energy(abc.ABC):
     def max_step(self, model: Model, x: wp.array, dx: wp.array) -> float:
         """Largest α ≤ 1 such that x + α dx stays admissible (no inversion, barrier); default 1."""
         return 1.0
+
+    def max_step_radius(self, model: Model, x: wp.array) -> float:
+        """Max-norm radius [m] around x inside which every configuration is admissible (``max_step`` would
+        return 1 for any step staying inside it); default inf (no bound)."""
+        return float("inf")
 
     def force(self, model: Model, x: wp.array, v: wp.array, out: wp.array) -> None:
         """Add the force [N] at (x, v) into ``out``; default −∇E(x) (dissipative terms override)."""
@@ -137,4 +152,4 @@ def _axpy_kernel(out: wp.array(dtype=Any), x: wp.array(dtype=Any), a: Any):
 
 
 def _axpy(out: wp.array, x: wp.array, a: float, model: Model) -> None:
-    wp.launch(_axpy_kernel, dim=out.shape[0], inputs=[out, x, model.s(a)], device=model.device)
+    launch(_axpy_kernel, dim=out.shape[0], inputs=[out, x, model.s(a)], device=model.device)

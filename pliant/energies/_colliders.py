@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from .._warp import launch
 from ..collision import Colliders, collider_sdf
 from ..model import Model
 from ._base import ModalEnergy
@@ -70,6 +71,8 @@ class ColliderPenalty(ModalEnergy):
         stiffness: k [N/m]; the penetration at rest is about m g / k.
     """
 
+    hessian_changes_each_step = True
+
     def __init__(self, colliders: Colliders, *, stiffness: float = 1.0e4) -> None:
         if stiffness <= 0:
             raise ValueError(f"penalty stiffness must be > 0 N/m, got {stiffness}")
@@ -80,7 +83,7 @@ class ColliderPenalty(ModalEnergy):
 
     def _launch_mode(self, model, x, mode, scale, project, outputs) -> None:
         """The penalty energy; ``project`` drops the curvature term of the Hessian."""
-        wp.launch(
+        launch(
             _penalty,
             model.particle_count,
             [

@@ -14,6 +14,7 @@ from typing import Any, ClassVar
 import numpy as np
 import warp as wp
 
+from .._warp import launch
 from ..model import Model
 from . import _fem_math as fm
 from ._base import Energy
@@ -135,18 +136,37 @@ def _tet_min_det(
 
 
 @wp.kernel(enable_backward=False)
+def _tet_sigma_min_bound(
+    tet_indices: wp.array2d(dtype=wp.int32),
+    x_in: wp.array(dtype=Any),
+    out: wp.array(dtype=Any),
+):
+    # σ_min(D_s) = |det D_s|/(σ₁σ₂) ≥ 2|det D_s|/‖D_s‖_F², since σ₁σ₂ ≤ (σ₁² + σ₂²)/2; 0 for inverted tets.
+    t = wp.tid()
+    x0 = x_in[tet_indices[t, 0]]
+    Ds = wp.matrix_from_cols(
+        x_in[tet_indices[t, 1]] - x0, x_in[tet_indices[t, 2]] - x0, x_in[tet_indices[t, 3]] - x0
+    )
+    det = wp.determinant(Ds)
+    bound = det * type(det)(0.0)
+    if det > bound:
+        bound = type(det)(2.0) * det / wp.ddot(Ds, Ds)
+    wp.atomic_min(out, 0, bound)
+
+
+@wp.kernel(enable_backward=False)
 def _fill(value: Any, out: wp.array(dtype=Any)):
     out[wp.tid()] = value
 
 
 # ----------------------------------------------------------------------------------- per-material kernels
 
-_KERNELS: dict[str, tuple[Any, Any, Any]] = {}
+_KERNELS: dict[str, tuple[Any, Any, Any, Any]] = {}
 _OVERLOADED: set[tuple[str, str]] = set()
 
 
-def _material_kernels(name: str, dtype: str) -> tuple[Any, Any, Any]:
-    """(value, gradient, hessian) kernels for material ``name``, built once per material.
+def _material_kernels(name: str, dtype: str) -> tuple[Any, Any, Any, Any]:
+    """(value, gradient, hessian, value-and-gradient) kernels for material ``name``, built once per material.
 
     Value and gradient share one Warp module (with adjoints, for fitting); the Hessian, the costly one to
     compile, gets its own module without adjoints. The overloads for ``dtype`` are declared for all three
@@ -169,11 +189,12 @@ def _material_kernels(name: str, dtype: str) -> tuple[Any, Any, Any]:
         wp.overload(kernels[0], {**common, "out": wp.array(dtype=s)})
         wp.overload(kernels[1], {**common, "grad_out": wp.array(dtype=v3)})
         wp.overload(kernels[2], {**common, "scale": s, "values_out": wp.array(dtype=m33)})
+        wp.overload(kernels[3], {**common, "out": wp.array(dtype=s), "grad_out": wp.array(dtype=v3)})
         _OVERLOADED.add((name, dtype))
     return kernels
 
 
-def _build_material_kernels(name: str) -> tuple[Any, Any, Any]:
+def _build_material_kernels(name: str) -> tuple[Any, Any, Any, Any]:
     mat = get_material_model(name)
     psi_fn, pk1_fn, dpdf_fn, dpdf_psd_fn = mat.psi, mat.pk1, mat.dpk1_df, mat.dpk1_df_psd
     module = wp.get_module(f"pliant.energies._fem.{name}")
@@ -224,6 +245,34 @@ def _build_material_kernels(name: str) -> tuple[Any, Any, Any]:
         wp.atomic_sub(grad_out, k, f2)
         wp.atomic_sub(grad_out, l, f3)
 
+    @wp.kernel(module=module, enable_backward=False)
+    def tet_value_gradient(
+        tet_indices: wp.array2d(dtype=wp.int32),
+        tet_rest_inv: wp.array(dtype=Any),
+        tet_rest_volume: wp.array(dtype=Any),
+        tet_mu: wp.array(dtype=Any),
+        tet_lam: wp.array(dtype=Any),
+        x_in: wp.array(dtype=Any),
+        out: wp.array(dtype=Any),
+        grad_out: wp.array(dtype=Any),
+    ):
+        # One pass for the line search of the quasi-Newton solver: F is built once for ψ and P.
+        t = wp.tid()
+        i = tet_indices[t, 0]
+        j = tet_indices[t, 1]
+        k = tet_indices[t, 2]
+        l = tet_indices[t, 3]
+        Dm_inv = tet_rest_inv[t]
+        F = fm.deformation_gradient(x_in[i], x_in[j], x_in[k], x_in[l], Dm_inv)
+        V = tet_rest_volume[t]
+        wp.atomic_add(out, 0, V * psi_fn(F, tet_mu[t], tet_lam[t]))
+        P = pk1_fn(F, tet_mu[t], tet_lam[t])
+        f0, f1, f2, f3 = fm.tet_forces(P, Dm_inv, V)
+        wp.atomic_sub(grad_out, i, f0)
+        wp.atomic_sub(grad_out, j, f1)
+        wp.atomic_sub(grad_out, k, f2)
+        wp.atomic_sub(grad_out, l, f3)
+
     @wp.kernel(module=hessian_module, enable_backward=False)
     def tet_hessian(
         tet_indices: wp.array2d(dtype=wp.int32),
@@ -257,7 +306,7 @@ def _build_material_kernels(name: str) -> tuple[Any, Any, Any]:
             for b in range(4):
                 wp.atomic_add(values_out, slots[16 * t + 4 * a + b], fm.tet_hessian_block(A, Dm_inv, V, a, b))
 
-    return tet_value, tet_gradient, tet_hessian
+    return tet_value, tet_gradient, tet_hessian, tet_value_gradient
 
 
 # ----------------------------------------------------------------------------------------------- classes
@@ -346,13 +395,19 @@ class TetElasticity(Energy):
         """Add Σ V ψ(F) [J] into ``out[0]``."""
         if model.tet_count:
             k = _material_kernels(self.material.name, model.dtype)[0]
-            wp.launch(k, model.tet_count, [*self._inputs(model), x, out], device=model.device)
+            launch(k, model.tet_count, [*self._inputs(model), x, out], device=model.device)
 
     def gradient(self, model: Model, x: wp.array, out: wp.array) -> None:
         """Add ∂E/∂x [N] (minus the element forces) per particle into ``out``."""
         if model.tet_count:
             k = _material_kernels(self.material.name, model.dtype)[1]
-            wp.launch(k, model.tet_count, [*self._inputs(model), x, out], device=model.device)
+            launch(k, model.tet_count, [*self._inputs(model), x, out], device=model.device)
+
+    def value_and_gradient(self, model: Model, x: wp.array, value_out: wp.array, grad_out: wp.array) -> None:
+        """Add E(x) [J] into ``value_out[0]`` and ∂E/∂x [N] into ``grad_out`` in one pass over the tets."""
+        if model.tet_count:
+            k = _material_kernels(self.material.name, model.dtype)[3]
+            launch(k, model.tet_count, [*self._inputs(model), x, value_out, grad_out], device=model.device)
 
     def hessian_pattern(self, model: Model) -> tuple[np.ndarray, np.ndarray]:
         """16 blocks per tet, (a, b) for a, b in 0..3 in row-major order: slot 16 t + 4 a + b."""
@@ -365,7 +420,7 @@ class TetElasticity(Energy):
         """Add scale·∂²E/∂x² [N/m] (PSD-projected per element when ``project_psd``) into ``values[slots]``."""
         if model.tet_count:
             k = _material_kernels(self.material.name, model.dtype)[2]
-            wp.launch(
+            launch(
                 k,
                 model.tet_count,
                 [*self._inputs(model), x, model.s(scale), int(project_psd), slots, values],
@@ -377,8 +432,8 @@ class TetElasticity(Energy):
         if not model.tet_count:
             return 1.0
         a = self._buffers(model)["alpha"]
-        wp.launch(_fill, 1, [model.s(1.0), a], device=model.device)
-        wp.launch(
+        launch(_fill, 1, [model.s(1.0), a], device=model.device)
+        launch(
             _tet_max_step,
             model.tet_count,
             [model.tet_indices, x, dx, model.s(self.inversion_margin), a],
@@ -386,13 +441,29 @@ class TetElasticity(Energy):
         )
         return float(a.numpy()[0])
 
+    def max_step_radius(self, model: Model, x: wp.array) -> float:
+        """Max-norm radius [m] around x inside which no element's volume falls below η times its volume at x.
+
+        For a displacement u with max_i,k |u_ik| ≤ r, each edge matrix moves by ‖ΔD_s‖₂ ≤ 6r, so
+        det(D_s + ΔD_s)/det(D_s) ≥ (1 − 6r/σ_min(D_s))³, which stays above η while
+        r ≤ (1 − η^⅓) σ_min/6. σ_min is bounded below by 2|det D_s|/‖D_s‖_F² (one pass, one host read); 0
+        when an element is already inverted. Solvers skip :meth:`max_step` for steps inside the radius.
+        """
+        if not model.tet_count:
+            return float("inf")
+        a = self._buffers(model)["alpha"]
+        launch(_fill, 1, [model.s(np.inf), a], device=model.device)
+        launch(_tet_sigma_min_bound, model.tet_count, [model.tet_indices, x, a], device=model.device)
+        sigma = float(a.numpy()[0])
+        return (1.0 - self.inversion_margin ** (1.0 / 3.0)) * sigma / 6.0
+
     # ------------------------------------------------------------------ diagnostics
     def min_det(self, model: Model, x: wp.array) -> float:
         """min_e det F_e over the model's tets at ``x`` (≤ 0: an element is inverted); one host read."""
         if not model.tet_count:
             return 1.0
         out = wp.full(1, model.s(np.inf), dtype=model.scalar, device=model.device)
-        wp.launch(
+        launch(
             _tet_min_det,
             model.tet_count,
             [model.tet_indices, model.tet_rest_inv, x, out],

@@ -6,6 +6,7 @@ from typing import Any
 
 import warp as wp
 
+from .._warp import launch
 from ..model import Model
 from ._base import Energy
 
@@ -27,7 +28,7 @@ class Gravity(Energy):
 
     def value(self, model: Model, x: wp.array, out: wp.array) -> None:
         """Add the gravitational potential energy [J] into ``out[0]``."""
-        wp.launch(
+        launch(
             _gravity_value,
             model.particle_count,
             [model.particle_mass, model.gravity_vec, x, out],
@@ -36,7 +37,7 @@ class Gravity(Energy):
 
     def gradient(self, model: Model, x: wp.array, out: wp.array) -> None:
         """Add −m_i g [N] into ``out``."""
-        wp.launch(
+        launch(
             _gravity_gradient,
             model.particle_count,
             [model.particle_mass, model.gravity_vec, out],

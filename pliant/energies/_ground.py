@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from .._warp import launch
 from ..model import Model
 from ._base import ModalEnergy
 
@@ -59,6 +60,8 @@ class GroundPenalty(ModalEnergy):
         stiffness: κ [1/s²]; the resting penetration under gravity is g/κ (1e5 → 0.1 mm).
     """
 
+    hessian_changes_each_step = True
+
     def __init__(self, stiffness: float = 1.0e5) -> None:
         if stiffness <= 0:
             raise ValueError(f"GroundPenalty stiffness must be > 0 1/s², got {stiffness}")
@@ -68,7 +71,7 @@ class GroundPenalty(ModalEnergy):
         """Penalty value, gradient, or Hessian blocks scale·κ m_i e_y e_yᵀ (PSD; ``project`` unused)."""
         if model.ground is None:
             return
-        wp.launch(
+        launch(
             _ground_penalty,
             model.particle_count,
             [

@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from .._warp import launch
 from ..model import Model
 from ._base import ModalEnergy
 from ._spring import dashpot_force, spring_energy, spring_gradient, spring_hessian
@@ -134,7 +135,7 @@ class ControlPoints(ModalEnergy):
 
     def _launch_mode(self, model, x, mode, scale, project, outputs) -> None:
         """The link energy Σ ½ k (|x_i − c_k| − l)²; ``project`` clamps the compressive transverse term."""
-        wp.launch(
+        launch(
             _handle_kernel,
             self.link_count,
             [
@@ -154,7 +155,7 @@ class ControlPoints(ModalEnergy):
 
     def force(self, model: Model, x: wp.array, v: wp.array, out: wp.array) -> None:
         """Add link spring and dashpot forces [N] into ``out``."""
-        wp.launch(
+        launch(
             _handle_force,
             self.link_count,
             [

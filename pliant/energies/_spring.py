@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from .._warp import launch
 from ..model import Model
 from ._base import Energy, ModalEnergy
 
@@ -119,14 +120,12 @@ class Springs(Energy):
     def value(self, model: Model, x: wp.array, out: wp.array) -> None:
         """Add the spring energy [J] into ``out[0]``."""
         if model.spring_count:
-            wp.launch(_spring_value, model.spring_count, [*self._inputs(model), x, out], device=model.device)
+            launch(_spring_value, model.spring_count, [*self._inputs(model), x, out], device=model.device)
 
     def gradient(self, model: Model, x: wp.array, out: wp.array) -> None:
         """Add ∂E/∂x [N] into ``out``."""
         if model.spring_count:
-            wp.launch(
-                _spring_gradient, model.spring_count, [*self._inputs(model), x, out], device=model.device
-            )
+            launch(_spring_gradient, model.spring_count, [*self._inputs(model), x, out], device=model.device)
 
     def hessian_pattern(self, model: Model) -> tuple[np.ndarray, np.ndarray]:
         """Four blocks per spring: (i,i), (j,j), (i,j), (j,i)."""
@@ -135,7 +134,7 @@ class Springs(Energy):
     def hessian(self, model, x, slots, values, *, project_psd: bool = True, scale: float = 1.0) -> None:
         """Add scale·∂²E/∂x² [N/m] blocks into ``values[slots]``."""
         if model.spring_count:
-            wp.launch(
+            launch(
                 _spring_hessian,
                 model.spring_count,
                 [*self._inputs(model), x, model.s(scale), int(project_psd), slots, values],
@@ -240,7 +239,7 @@ class Dashpots(ModalEnergy):
     def force(self, model: Model, x: wp.array, v: wp.array, out: wp.array) -> None:
         """Add the dashpot forces [N] at (x, v) into ``out``."""
         if model.spring_count:
-            wp.launch(
+            launch(
                 _dashpot_force,
                 model.spring_count,
                 [model.spring_indices, model.spring_damping, x, v, out],
@@ -255,7 +254,7 @@ class Dashpots(ModalEnergy):
         wp.copy(self._x_ref, x)
         self._inv_dt = 1.0 / dt
         if model.spring_count:
-            wp.launch(
+            launch(
                 _dashpot_axes, model.spring_count, [model.spring_indices, x, self._axis], device=model.device
             )
 
@@ -265,7 +264,7 @@ class Dashpots(ModalEnergy):
             return
         if self._axis is None:
             raise RuntimeError("Dashpots.begin_step must be called before the implicit potential is used")
-        wp.launch(
+        launch(
             _dashpot_implicit,
             model.spring_count,
             [

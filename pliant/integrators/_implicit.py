@@ -22,6 +22,7 @@ from typing import Any, ClassVar
 import numpy as np
 import warp as wp
 
+from .._warp import launch
 from ._base import Integrator, System, first_order
 from ._ops import lincomb
 from ._problems import ODEProblem, SecondOrderODE
@@ -77,7 +78,19 @@ class _ImplicitOptions:
         cg_tol: float = 1e-6,
         cg_max_iterations: int = 2000,
         project_psd: bool | str = True,
+        method: str = "newton",
+        lbfgs_history: int = 5,
+        lbfgs_refresh: int = 40,
     ) -> None:
+        if method not in ("newton", "lbfgs"):
+            raise ValueError(f"method must be 'newton' or 'lbfgs', got {method!r}")
+        if lbfgs_history < 0:
+            raise ValueError(f"lbfgs_history must be >= 0, got {lbfgs_history}")
+        if lbfgs_refresh < 1:
+            raise ValueError(f"lbfgs_refresh must be >= 1, got {lbfgs_refresh}")
+        self.method = method
+        self.lbfgs_history = int(lbfgs_history)
+        self.lbfgs_refresh = int(lbfgs_refresh)
         if newton_tol <= 0:
             raise ValueError(f"newton_tol must be > 0 m/s, got {newton_tol}")
         if max_newton_iterations < 1:
@@ -179,7 +192,7 @@ def _velocity_kernel(
 
 def _velocity_from_positions(model: Any, x1: wp.array, x0: wp.array, inv_h: float, v_out: wp.array) -> None:
     """v_out = (x1 − x0)/h."""
-    wp.launch(_velocity_kernel, model.particle_count, [x1, x0, model.s(inv_h), v_out], device=model.device)
+    launch(_velocity_kernel, model.particle_count, [x1, x0, model.s(inv_h), v_out], device=model.device)
 
 
 class ImplicitMidpoint(_ImplicitOptions, Integrator):

@@ -6,6 +6,8 @@ from typing import Any
 
 import warp as wp
 
+from .._warp import launch
+
 
 @wp.kernel
 def _lincomb4(
@@ -37,7 +39,7 @@ def lincomb(model: Any, out: wp.array, base: wp.array, terms: list[tuple[float, 
         chunk = terms[k : k + 4]
         while len(chunk) < 4:
             chunk.append((0.0, chunk[0][1]))
-        wp.launch(
+        launch(
             _lincomb4,
             out.shape[0],
             [src, *(a for _, a in chunk), *(s(c) for c, _ in chunk), out],

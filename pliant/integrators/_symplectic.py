@@ -7,6 +7,7 @@ from typing import Any, ClassVar
 import numpy as np
 import warp as wp
 
+from .._warp import launch
 from ._base import Integrator, System, second_order_split
 from ._problems import ODEProblem, SecondOrderODE
 
@@ -57,7 +58,7 @@ class SymplecticEuler(Integrator):
         m = system.model
         (a,) = self._buffers(system, 1)
         system.acceleration(t, x_in, v_in, a)
-        wp.launch(
+        launch(
             _symplectic_update,
             m.particle_count,
             [m.particle_inv_mass, x_in, v_in, a, m.s(dt), m.s(system.velocity_damping(dt)), x_out, v_out],

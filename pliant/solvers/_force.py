@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from .._warp import launch
 from ..energies import Energy
 from ..integrators import Integrator, SymplecticEuler
 from ..model import Control, Model, State
@@ -102,7 +103,7 @@ class ForceSolver(Solver):
         for e in self.energies:
             e.force(m, x, v, out)
         if c is not None and c.drag_index >= 0:
-            wp.launch(
+            launch(
                 add_drag_force,
                 1,
                 [c.drag_index, m.vec3(*c.drag_target), m.s(c.drag_stiffness), x, out],
@@ -112,7 +113,7 @@ class ForceSolver(Solver):
     def acceleration(self, t: float, x: wp.array, v: wp.array, out: wp.array) -> None:
         """a = M⁻¹F [m/s²]; zero for pinned and kinematic particles (inverse mass 0)."""
         self.forces(t, x, v, self._force)
-        wp.launch(
+        launch(
             _accel_from_force,
             self.model.particle_count,
             [self.model.particle_inv_mass, self._force, out],
@@ -120,9 +121,13 @@ class ForceSolver(Solver):
         )
 
     def minimize(self, t, h, x_tilde, x_ref, v_ref, x_out, options=None):
-        """Newton on the incremental potential; ``options``: the integrator's Newton settings."""
-        from ._newton import minimize_incremental_potential
+        """Minimise the incremental potential (Newton or L-BFGS, the integrator's ``method``)."""
+        from ._newton import _option, minimize_incremental_potential
 
+        if _option(options, "method") == "lbfgs":
+            from ._quasi_newton import minimize_quasi_newton
+
+            return minimize_quasi_newton(self, t, h, x_tilde, x_ref, v_ref, x_out, options)
         return minimize_incremental_potential(self, t, h, x_tilde, x_ref, v_ref, x_out, options)
 
     # ------------------------------------------------------------------ Solver interface
@@ -139,7 +144,27 @@ class ForceSolver(Solver):
             state_out.particle_q,
             state_out.particle_qd,
         )
-        finish_step(m, control, state_in, state_out, dt, contact=self.contact, collisions=self.collisions)
+        finish_step(
+            m,
+            control,
+            state_in,
+            state_out,
+            dt,
+            contact=self.contact,
+            collisions=self.collisions,
+            ground_penalty=self._ground_penalty(),
+        )
+
+    def _ground_penalty(self) -> float | None:
+        """κ of the GroundPenalty an implicit step minimised (the post-step then only adds friction)."""
+        if self.integrator.explicit:
+            return None
+        from ..energies import GroundPenalty
+
+        for e in self.energies:
+            if isinstance(e, GroundPenalty):
+                return e.stiffness
+        return None
 
     def energy(self, state: State) -> dict[str, float]:
         """Kinetic and potential energies [J] of ``state`` (host sync: use outside hot loops)."""

@@ -35,6 +35,8 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from .._warp import launch
+
 #: Defaults when ``options`` does not name a setting.
 DEFAULTS: dict[str, Any] = {
     "newton_tol": 1e-5,  # [m/s] on ‖Δx‖∞/h and on max_i |∇Φ_i|/(m_i h)
@@ -44,6 +46,11 @@ DEFAULTS: dict[str, Any] = {
     "cg_max_iterations": 2000,
     "project_psd": True,
     "max_line_search": 20,
+    "method": "newton",  # "newton" | "lbfgs" (pliant.solvers._quasi_newton)
+    "lbfgs_history": 5,
+    "lbfgs_max_iterations": 200,
+    "lbfgs_refresh": 40,
+    "lbfgs_warm_start": True,
 }
 
 #: auto: direct on the CPU below this many degrees of freedom, CG otherwise.
@@ -77,6 +84,7 @@ class NewtonStats:
     linear_solver: str = ""
     tolerance: float = 0.0
     projected: bool = False
+    warm_started: bool = False
 
 
 # ----------------------------------------------------------------------------------------------- kernels
@@ -429,17 +437,14 @@ def _gradient(solver: Any, ws: _Workspace, x: wp.array, x_tilde: wp.array, h: fl
     """∇Φ(x) into ws.grad (fixed rows zeroed); returns [max|g|/(m h), max|x|, inertia, E] (one host read)."""
     m = solver.model
     n = m.particle_count
-    wp.launch(
-        _inertia_gradient, n, [m.particle_mass, m.particle_inv_mass, x, x_tilde, ws.grad], device=m.device
-    )
+    launch(_inertia_gradient, n, [m.particle_mass, m.particle_inv_mass, x, x_tilde, ws.grad], device=m.device)
     ws.egrad.zero_()
     ws.gstats.zero_()
     for e in solver.energies:
-        e.gradient(m, x, ws.egrad)
-        e.value(m, x, ws.gstats_e)
+        e.value_and_gradient(m, x, ws.gstats_e, ws.egrad)
     _control_terms(solver, ws, x, ws.egrad, ws.gstats_e)
-    wp.launch(_scale_into, n, [ws.egrad, m.s(h * h), ws.grad], device=m.device)
-    wp.launch(
+    launch(_scale_into, n, [ws.egrad, m.s(h * h), ws.grad], device=m.device)
+    launch(
         _gradient_stats,
         n,
         [m.particle_mass, m.particle_inv_mass, m.s(1.0 / h), x, x_tilde, ws.grad, ws.gstats],
@@ -454,9 +459,9 @@ def _control_terms(solver: Any, ws: _Workspace, x: wp.array, grad: wp.array, val
     if c is None:
         return
     m = solver.model
-    wp.launch(_external_force_terms, m.particle_count, [c.particle_f, x, grad, value], device=m.device)
+    launch(_external_force_terms, m.particle_count, [c.particle_f, x, grad, value], device=m.device)
     if c.drag_index >= 0:
-        wp.launch(
+        launch(
             _drag_terms,
             1,
             [
@@ -479,16 +484,14 @@ def _assemble(solver: Any, ws: _Workspace, x: wp.array, h: float, project_psd: b
     """H = M + h² Σ H_e on the fixed pattern, fixed particles projected out."""
     m = solver.model
     ws.values.zero_()
-    wp.launch(
-        _add_mass_diagonal, m.particle_count, [m.particle_mass, ws.diag_slots, ws.values], device=m.device
-    )
+    launch(_add_mass_diagonal, m.particle_count, [m.particle_mass, ws.diag_slots, ws.values], device=m.device)
     for e, slots in zip(solver.energies, ws.slots, strict=True):
         if slots.shape[0] == 0:
             continue  # no Hessian (e.g. gravity)
         e.hessian(m, x, slots, ws.values, project_psd=project_psd, scale=h * h)
     c = getattr(solver, "_control", None)
     if c is not None and c.drag_index >= 0:
-        wp.launch(
+        launch(
             _drag_terms,
             1,
             [
@@ -505,7 +508,7 @@ def _assemble(solver: Any, ws: _Workspace, x: wp.array, h: float, project_psd: b
             ],
             device=m.device,
         )
-    wp.launch(
+    launch(
         _project_fixed,
         ws.nnz,
         [m.particle_inv_mass, m.particle_mass, ws.block_rows, ws.block_cols, ws.values],
@@ -585,7 +588,7 @@ def minimize_incremental_potential(
         if first:
             first = False
             ws.hstats.zero_()
-            wp.launch(
+            launch(
                 _stiffness_ratio,
                 n,
                 [m.particle_inv_mass, ws.diag_slots, ws.values, ws.hstats],
@@ -599,8 +602,8 @@ def minimize_incremental_potential(
         elif lin == "scipy-cg":
             stats.linear_iterations += _host_cg_solve(ws, m, cg_tol, cg_max)
         else:
-            wp.launch(_inverse_diagonal, n, [ws.diag_slots, ws.values, ws.inv_diag], device=m.device)
-            wp.launch(_negate, n, [ws.grad, ws.rhs], device=m.device)
+            launch(_inverse_diagonal, n, [ws.diag_slots, ws.values, ws.inv_diag], device=m.device)
+            launch(_negate, n, [ws.grad, ws.rhs], device=m.device)
             ws.dx.zero_()
             cg_iterations, _, _ = ws.cg(cg_tol, cg_max)()
             stats.linear_iterations += int(cg_iterations)
@@ -614,12 +617,10 @@ def minimize_incremental_potential(
         for ls in range(max_ls + 1):
             if ls == 0:
                 ws.tstats.zero_()
-                wp.launch(
-                    _step_stats, n, [m.particle_inv_mass, ws.grad, ws.dx, ws.tstats_step], device=m.device
-                )
+                launch(_step_stats, n, [m.particle_inv_mass, ws.grad, ws.dx, ws.tstats_step], device=m.device)
             else:
                 ws.tstats_phi.zero_()
-            wp.launch(
+            launch(
                 _trial_point,
                 n,
                 [m.particle_inv_mass, x, ws.dx, m.s(alpha), x_tilde, m.particle_mass, ws.x_trial, ws.tstats],

@@ -7,7 +7,8 @@ from typing import Any
 
 import warp as wp
 
-from ..collision import ground_contact
+from .._warp import launch
+from ..collision import ground_contact, ground_penalty_friction
 from ..model import Control, Model, State
 
 
@@ -44,11 +45,16 @@ def finish_step(
     *,
     contact: bool,
     collisions: Sequence[Any] = (),
+    ground_penalty: float | None = None,
 ) -> None:
-    """Kinematic targets, then the ground response (when ``contact``), then each contact handler."""
+    """Kinematic targets, then the ground response (when ``contact``), then each contact handler.
+
+    ``ground_penalty``: κ [1/s²] of a :class:`~pliant.energies.GroundPenalty` the step already minimised;
+    the ground response is then friction for the penalty's impulse instead of a projection.
+    """
     m = model
     if control is not None and control.kinematic_indices.shape[0]:
-        wp.launch(
+        launch(
             apply_kinematic,
             control.kinematic_indices.shape[0],
             [
@@ -61,9 +67,26 @@ def finish_step(
             ],
             device=m.device,
         )
-    if contact and m.ground is not None:
+    if contact and m.ground is not None and ground_penalty is not None:
         g = m.ground
-        wp.launch(
+        launch(
+            ground_penalty_friction,
+            m.particle_count,
+            [
+                m.particle_inv_mass,
+                m.particle_radius,
+                m.s(g.height),
+                m.s(g.friction),
+                m.s(ground_penalty),
+                m.s(dt),
+                state_out.particle_q,
+                state_out.particle_qd,
+            ],
+            device=m.device,
+        )
+    elif contact and m.ground is not None:
+        g = m.ground
+        launch(
             ground_contact,
             m.particle_count,
             [
