@@ -68,7 +68,7 @@ def main(argv: list[str] | None = None) -> dict:
     )
     ap.add_argument("--frames", type=int, default=FRAMES)
     ap.add_argument(
-        "--trajectory", default=None, help="save the centre of mass height per step to this .npy (adds a read per step)"
+        "--trajectory", default=None, help="save the com height per step to this .npy (one read per step)"
     )
     args = ap.parse_args(argv)
 

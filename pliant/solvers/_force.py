@@ -155,6 +155,17 @@ class ForceSolver(Solver):
             ground_penalty=self._ground_penalty(),
         )
 
+    def reset(self) -> None:
+        """Forget what earlier steps leave for the next: the L-BFGS curvature pairs and warm start, a
+        multistep integrator's history. Set-up that depends only on the model (Hessian patterns, the lagged
+        Hessian's factorisation) is kept."""
+        st = getattr(self, "_lbfgs_state", None)
+        if st is not None:
+            st[2].clear()
+            st[3].clear()
+        if hasattr(self.integrator, "reset"):
+            self.integrator.reset()
+
     def _ground_penalty(self) -> float | None:
         """κ of the GroundPenalty an implicit step minimised (the post-step then only adds friction)."""
         if self.integrator.explicit:

@@ -68,18 +68,22 @@ class _LaggedHessian:
             free = model.particle_inv_mass.numpy() > 0.0
         self.free = free
         self.mass = model.particle_mass_np.astype(np.float64)
-        # Contact slots with a fixed row or column stay out of H₀ (those rows are m_i·I).
-        self.volatile_slots = []
+        # Each contact term writes its blocks into a compact buffer of its own (slot j → entry j); the blocks
+        # are then added at their places in the pattern. Blocks with a fixed row or column stay out of H₀
+        # (those rows are m_i·I).
+        self.volatile_buffers = []
         for k, _ in self.volatile:
             s = ws.slots[k].numpy().astype(np.int64)
             keep = free[self.rows[s]] & free[self.cols[s]]
-            self.volatile_slots.append(s[keep] if s.size else s)
+            compact = wp.array(np.arange(s.size, dtype=np.int32), dtype=wp.int32, device=model.device)
+            scratch = wp.zeros(max(s.size, 1), dtype=model.mat33, device=model.device)
+            self.volatile_buffers.append((compact, scratch, keep, s[keep]))
         self.base: np.ndarray | None = None  # (3, nnz) lagged axis values
         self.h = None
         self.values: list[np.ndarray | None] = [None, None, None]
         self.lu: list[Any] = [None, None, None]
         self.factorizations = 0
-        self.scratch = wp.zeros_like(ws.values) if self.volatile else None
+        self._ratio: float | None = None
 
     def refresh(self, solver: Any, ws: _Workspace, x: wp.array, h: float) -> None:
         """Assemble M + h² Σ_lagged H_e at x (PSD-projected, fixed rows m_i·I) and keep its axis values."""
@@ -102,6 +106,7 @@ class _LaggedHessian:
         vals = ws.values.numpy()[: ws.nnz]
         self.base = np.stack([vals[:, d, d].astype(np.float64) for d in range(3)])
         self.h = h
+        self._ratio = None
         self.values = [None, None, None]  # the next update factorises every axis afresh
         self.lu = [None, None, None]
 
@@ -122,16 +127,15 @@ class _LaggedHessian:
         axis_values = [self.base[d] for d in range(3)]
         if self.volatile:
             m = solver.model
-            self.scratch.zero_()
-            for k, e in self.volatile:
-                e.hessian(m, x, ws.slots[k], self.scratch, project_psd=True, scale=h * h)
-            vals = self.scratch.numpy()
-            for d in range(3):
-                extra = np.zeros_like(self.base[d])
-                for s in self.volatile_slots:
-                    extra[s] = vals[s, d, d]
-                if extra.any():
-                    axis_values[d] = self.base[d] + extra
+            extra = np.zeros_like(self.base)
+            for (_, e), buffers in zip(self.volatile, self.volatile_buffers, strict=True):
+                compact, scratch, keep, slots = buffers
+                scratch.zero_()
+                e.hessian(m, x, compact, scratch, project_psd=True, scale=h * h)
+                blocks = scratch.numpy()[: keep.size][keep]
+                for d in range(3):
+                    np.add.at(extra[d], slots, blocks[:, d, d])
+            axis_values = [self.base[d] + extra[d] if extra[d].any() else self.base[d] for d in range(3)]
         count = 0
         for d in range(3):
             v = axis_values[d]
@@ -161,9 +165,11 @@ class _LaggedHessian:
     def stiffness_ratio(self) -> float:
         """max_i trace(H₀_ii)/(3 m_i) over free particles (the round-off floor's amplification)."""
         assert self.base is not None
-        diag = self.base[:, self.diag_slots].sum(axis=0) / 3.0
-        ratio = diag[self.free] / self.mass[self.free]
-        return float(ratio.max()) if ratio.size else 1.0
+        if self._ratio is None:
+            diag = self.base[:, self.diag_slots].sum(axis=0) / 3.0
+            ratio = diag[self.free] / self.mass[self.free]
+            self._ratio = float(ratio.max()) if ratio.size else 1.0
+        return self._ratio
 
 
 class _History:
