@@ -94,7 +94,8 @@ def launch(kernel: Any, dim: Any, inputs: list, device: Any = None) -> None:
     recorded; later ones replay it after setting the non-array arguments (scalars, vectors, ids), which
     costs 3-6 µs. A replay is exactly the same launch: the key holds everything the recorded parameters
     hold, so an array freed and reallocated at the same address with the same layout is launched
-    correctly. While a ``wp.Tape`` records, launches go through ``wp.launch`` so that autodiff sees them.
+    correctly, and the cache holds no references to arrays. While a ``wp.Tape`` records, launches go
+    through ``wp.launch`` so that autodiff sees them.
     """
     if _tape_active():
         wp.launch(kernel, dim, inputs, device=device)
@@ -114,12 +115,19 @@ def launch(kernel: Any, dim: Any, inputs: list, device: Any = None) -> None:
     hit = _LAUNCHES.get(key)
     if hit is None:
         cmd = wp.launch(kernel, dim, inputs, device=device, record_cmd=True)
+        # The recorded parameters hold raw pointers; the argument list is only needed by Warp's launch
+        # capture (APIC). Dropping it lets the arrays of a deleted model be freed: the cache would otherwise
+        # keep them alive.
+        if hasattr(cmd, "fwd_args"):
+            cmd.fwd_args = None
         if len(_LAUNCHES) >= _LAUNCHES_MAX:
             _LAUNCHES.clear()
         _LAUNCHES[key] = (cmd, tuple(scalars))
+    else:
+        cmd, idx = hit
+        for k in idx:
+            cmd.set_param_at_index(k, inputs[k])
+    try:
         cmd.launch()
-        return
-    cmd, idx = hit
-    for k in idx:
-        cmd.set_param_at_index(k, inputs[k])
-    cmd.launch()
+    except RuntimeError:  # a launch capture that needs the argument list: launch the ordinary way
+        wp.launch(kernel, dim, inputs, device=device)

@@ -22,13 +22,14 @@ def configs(py: str) -> dict[str, list[str]]:
     newton = [py, f"{PEERS}/soft_box_newton.py"]
     mujoco = [py, f"{PEERS}/soft_box_mujoco.py"]
     return {
-        "pliant implicit (BackwardEuler)": [".venv/bin/pliant", "bench", "soft_box_drop_10_implicit"],
-        "pliant implicit float32": [
+        "pliant implicit L-BFGS (BackwardEuler)": [".venv/bin/pliant", "bench", "soft_box_drop_10_implicit"],
+        "pliant implicit L-BFGS float32": [
             ".venv/bin/python",
             "-c",
             "import json; from pliant.bench._fem import BENCHMARKS; "
             "print(json.dumps(BENCHMARKS['soft_box_drop_10_implicit'](dtype='float32')))",
         ],
+        "pliant implicit Newton (direct)": [".venv/bin/pliant", "bench", "soft_box_drop_10_implicit_newton"],
         "newton VBD 10x10 (examples' setting)": [
             *newton,
             "--solver",

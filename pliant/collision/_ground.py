@@ -58,9 +58,10 @@ def ground_penalty_friction(
 
     Inside the incremental potential the penalty holds a resting particle at the depth d = g/κ where it
     balances the weight; projecting it back to y = height + r after every step (``ground_contact``) would
-    undo that equilibrium and leave Newton a residual of h·g per step. So particles are only moved when
-    their centre went below the plane (the penalty lost); the others keep their position and the normal
-    velocity the potential gave them, and their tangential speed drops by μ κ d Δt (the impulse bound).
+    undo that equilibrium and leave Newton a residual of h·g per step. So particles keep their position
+    and the normal velocity the potential gave them, and their tangential speed drops by μ κ d Δt (the
+    impulse bound). Even a particle that went deep is not moved: moving one vertex of an element after the
+    step's inversion-safe minimisation can invert the element; the penalty pushes it out in the next step.
     """
     i = wp.tid()
     if inv_mass[i] == type(height)(0.0):
@@ -72,15 +73,9 @@ def ground_penalty_friction(
         return
     v = v_io[i]
     dvn = kappa * d * dt
-    vn = v[1]
-    if p[1] < height:
-        dvn = wp.max(-vn, zero)
-        vn = vn + dvn
-        p = type(p)(p[0], height + radius[i], p[2])
-        x_io[i] = p
     vt = type(v)(v[0], zero, v[2])
     speed_t = wp.length(vt)
     scale = zero
     if speed_t > zero:
         scale = wp.max(speed_t - friction * dvn, zero) / speed_t
-    v_io[i] = type(v)(v[0] * scale, vn, v[2] * scale)
+    v_io[i] = type(v)(v[0] * scale, v[1], v[2] * scale)

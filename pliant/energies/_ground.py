@@ -57,12 +57,12 @@ class GroundPenalty(ModalEnergy):
     integrators when the model has a ground; the post-step response still applies friction and restitution.
 
     Args:
-        stiffness: κ [1/s²]; the resting penetration under gravity is g/κ (1e5 → 0.1 mm).
+        stiffness: κ [1/s²]; the resting penetration under gravity is g/κ (1e6 → 10 µm).
     """
 
     hessian_changes_each_step = True
 
-    def __init__(self, stiffness: float = 1.0e5) -> None:
+    def __init__(self, stiffness: float = 1.0e6) -> None:
         if stiffness <= 0:
             raise ValueError(f"GroundPenalty stiffness must be > 0 1/s², got {stiffness}")
         self.stiffness = float(stiffness)

@@ -81,6 +81,8 @@ class _ImplicitOptions:
         method: str = "newton",
         lbfgs_history: int = 5,
         lbfgs_refresh: int = 40,
+        lbfgs_warm_start: bool = True,
+        lbfgs_max_iterations: int = 200,
     ) -> None:
         if method not in ("newton", "lbfgs"):
             raise ValueError(f"method must be 'newton' or 'lbfgs', got {method!r}")
@@ -91,6 +93,10 @@ class _ImplicitOptions:
         self.method = method
         self.lbfgs_history = int(lbfgs_history)
         self.lbfgs_refresh = int(lbfgs_refresh)
+        self.lbfgs_warm_start = bool(lbfgs_warm_start)
+        if lbfgs_max_iterations < 1:
+            raise ValueError(f"lbfgs_max_iterations must be >= 1, got {lbfgs_max_iterations}")
+        self.lbfgs_max_iterations = int(lbfgs_max_iterations)
         if newton_tol <= 0:
             raise ValueError(f"newton_tol must be > 0 m/s, got {newton_tol}")
         if max_newton_iterations < 1:
@@ -154,6 +160,15 @@ class BackwardEuler(_ImplicitOptions, Integrator):
             where springs are compressed), False (exact; the direct solver copes with indefinite H, CG may
             not) or "auto" (exact until a Newton direction fails to descend, then projected for the step;
             about half the iterations on a falling cloth, but it can stall unconverged on FEM contact).
+        method: the minimiser of each step: "newton" (the default; exact PSD-projected Hessians, a linear
+            solve per iteration) or "lbfgs" (L-BFGS whose initial Hessian is the per-axis, lagged,
+            prefactorised one: no assembly or factorisation per iteration; the fast choice for FEM bodies on
+            the CPU, see ``pliant.solvers._quasi_newton`` and the README's FEM speed table).
+        lbfgs_history: curvature pairs L-BFGS keeps (default 5).
+        lbfgs_refresh: re-assemble L-BFGS's lagged Hessian after a step that needed more iterations.
+        lbfgs_warm_start: start each L-BFGS step from x̃ plus the previous step's correction when that lowers
+            the potential (default True).
+        lbfgs_max_iterations: L-BFGS iteration cap per step (default 200).
 
     Example::
 
