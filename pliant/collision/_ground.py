@@ -7,6 +7,21 @@ from typing import Any
 import warp as wp
 
 
+@wp.func
+def coulomb_ground(v: Any, dvn: Any, vn_new: Any, friction: Any):
+    """v with normal component vn_new and its tangential part slowed by μ·dvn (stopped if that is more).
+
+    Coulomb: the tangential impulse is bounded by μ times the normal one, so a block sliding on the ground
+    decelerates by exactly μg and stops after v²/(2μg).
+    """
+    zero = friction * type(friction)(0.0)
+    speed_t = wp.length(type(v)(v[0], zero, v[2]))
+    scale = zero
+    if speed_t > zero:
+        scale = wp.max(speed_t - friction * dvn, zero) / speed_t
+    return type(v)(v[0] * scale, vn_new, v[2] * scale)
+
+
 @wp.kernel
 def ground_contact(
     inv_mass: wp.array(dtype=Any),
@@ -31,15 +46,7 @@ def ground_contact(
     vn_new = wp.max(vn, zero)
     if vn < zero:
         vn_new = -restitution * vn
-    dvn = vn_new - vn
-    # Coulomb: the tangential impulse is bounded by μ times the normal one, so a block sliding on the
-    # ground decelerates by exactly μg and stops after v²/(2μg).
-    vt = type(v)(v[0], zero, v[2])
-    speed_t = wp.length(vt)
-    scale = zero
-    if speed_t > zero:
-        scale = wp.max(speed_t - friction * dvn, zero) / speed_t
-    v_io[i] = type(v)(v[0] * scale, vn_new, v[2] * scale)
+    v_io[i] = coulomb_ground(v, vn_new - vn, vn_new, friction)
     x_io[i] = type(p)(p[0], floor, p[2])
 
 
@@ -72,10 +79,4 @@ def ground_penalty_friction(
     if d <= zero:
         return
     v = v_io[i]
-    dvn = kappa * d * dt
-    vt = type(v)(v[0], zero, v[2])
-    speed_t = wp.length(vt)
-    scale = zero
-    if speed_t > zero:
-        scale = wp.max(speed_t - friction * dvn, zero) / speed_t
-    v_io[i] = type(v)(v[0] * scale, v[1], v[2] * scale)
+    v_io[i] = coulomb_ground(v, kappa * d * dt, v[1], friction)

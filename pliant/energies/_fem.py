@@ -154,6 +154,17 @@ def _tet_sigma_min_bound(
     wp.atomic_min(out, 0, bound)
 
 
+@wp.func
+def _add_tet_gradient(
+    grad_out: wp.array(dtype=Any), i: int, j: int, k: int, l: int, f0: Any, f1: Any, f2: Any, f3: Any
+):
+    # ∂E/∂x_a = −f_a (element forces); vertices are shared between tets: atomics.
+    wp.atomic_sub(grad_out, i, f0)
+    wp.atomic_sub(grad_out, j, f1)
+    wp.atomic_sub(grad_out, k, f2)
+    wp.atomic_sub(grad_out, l, f3)
+
+
 @wp.kernel(enable_backward=False)
 def _fill(value: Any, out: wp.array(dtype=Any)):
     out[wp.tid()] = value
@@ -239,11 +250,7 @@ def _build_material_kernels(name: str) -> tuple[Any, Any, Any, Any]:
         F = fm.deformation_gradient(x_in[i], x_in[j], x_in[k], x_in[l], Dm_inv)
         P = pk1_fn(F, tet_mu[t], tet_lam[t])
         f0, f1, f2, f3 = fm.tet_forces(P, Dm_inv, tet_rest_volume[t])
-        # ∂E/∂x_a = −f_a (element forces), shared vertices: atomics
-        wp.atomic_sub(grad_out, i, f0)
-        wp.atomic_sub(grad_out, j, f1)
-        wp.atomic_sub(grad_out, k, f2)
-        wp.atomic_sub(grad_out, l, f3)
+        _add_tet_gradient(grad_out, i, j, k, l, f0, f1, f2, f3)
 
     @wp.kernel(module=module, enable_backward=False)
     def tet_value_gradient(
@@ -266,12 +273,8 @@ def _build_material_kernels(name: str) -> tuple[Any, Any, Any, Any]:
         F = fm.deformation_gradient(x_in[i], x_in[j], x_in[k], x_in[l], Dm_inv)
         V = tet_rest_volume[t]
         wp.atomic_add(out, 0, V * psi_fn(F, tet_mu[t], tet_lam[t]))
-        P = pk1_fn(F, tet_mu[t], tet_lam[t])
-        f0, f1, f2, f3 = fm.tet_forces(P, Dm_inv, V)
-        wp.atomic_sub(grad_out, i, f0)
-        wp.atomic_sub(grad_out, j, f1)
-        wp.atomic_sub(grad_out, k, f2)
-        wp.atomic_sub(grad_out, l, f3)
+        g0, g1, g2, g3 = fm.tet_forces(pk1_fn(F, tet_mu[t], tet_lam[t]), Dm_inv, V)
+        _add_tet_gradient(grad_out, i, j, k, l, g0, g1, g2, g3)
 
     @wp.kernel(module=hessian_module, enable_backward=False)
     def tet_hessian(
