@@ -16,7 +16,7 @@ POISSON = 0.3
 DROP = 0.1  # bottom of the box above the ground [m]
 FRICTION = 0.5
 RADIUS = 0.005  # particle contact radius [m]
-GROUND_STIFFNESS = 1.0e5  # pliant's ground penalty [N/m]
+GROUND_STIFFNESS = 1.0e5  # ≈ pliant's ground penalty κ m_i (κ = 1e6 1/s², m_i ≈ 0.09 kg) [N/m]
 FRAME_DT = 1.0 / 60.0
 FRAMES = 60  # 1 simulated second
 GRAVITY = 9.81

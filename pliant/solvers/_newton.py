@@ -67,7 +67,8 @@ class NewtonStats:
         gradient_norm: max_i |∇Φ_i|/(m_i h) at the returned positions [m/s] (free particles).
         residuals: ``gradient_norm`` at the start of every iteration and at the end [m/s].
         line_search_backtracks: total step halvings in the Armijo line search.
-        linear_iterations: total CG iterations (0 for the direct solver).
+        linear_iterations: total CG iterations (0 for the direct solver; for L-BFGS, the steps that
+            refactorised its initial Hessian).
         linear_solver: "cg" or "direct".
         tolerance: the tolerance used [m/s] (``newton_tol``, raised to the round-off floor of the dtype).
         projected: whether PSD-projected Hessians were used (always with ``project_psd=True``; with "auto"

@@ -251,8 +251,9 @@ def minimize_quasi_newton(
     Arguments as :func:`pliant.solvers._newton.minimize_incremental_potential`; ``options`` may also name
     ``lbfgs_history`` (curvature pairs kept, default 5), ``lbfgs_max_iterations`` (default 200),
     ``lbfgs_refresh`` (re-assemble the lagged Hessian after a step that took more iterations than this,
-    default 40) and ``lbfgs_warm_start`` (start from x̃ plus the previous step's correction x − x̃ when that
-    lowers Φ; default True). ``stats.linear_iterations`` counts the factorisations of H₀'s axes.
+    default 40) and ``lbfgs_warm_start`` (start from x̃ plus the correction x − x̃ extrapolated from the
+    last two steps when that lowers Φ; default True). ``stats.linear_iterations`` counts the steps that
+    refactorised H₀.
 
     Curvature pairs are kept from one step to the next while H₀ is unchanged: y = ∇Φ(x + s) − ∇Φ(x) does
     not depend on x̃, so a pair stays exact for the energy when the step's target moves.
@@ -373,7 +374,12 @@ def minimize_quasi_newton(
 def _finish(solver: Any, stats: NewtonStats, memo: dict, x: wp.array, x_tilde: wp.array, g, h: float):
     if not stats.iterations:
         stats.converged = True
-    memo["correction"] = x.numpy().astype(np.float64) - x_tilde.numpy().astype(np.float64)
+    c = x.numpy().astype(np.float64) - x_tilde.numpy().astype(np.float64)
+    prev = memo.get("last_correction")
+    # Next step's start: the correction extrapolated from the last two, damped by half (measured on the
+    # 10³ box: 3.92 → 3.58 iterations per step; the full linear extrapolation gave 3.72).
+    memo["correction"] = c if prev is None or memo.get("h") != h else 1.5 * c - 0.5 * prev
+    memo["last_correction"] = c
     memo["h"] = h
     stats.gradient_norm = float(g[0])
     solver.last_stats = stats
