@@ -484,3 +484,34 @@ def test_launch_cache_holds_no_array_references():
     del a
     gc.collect()
     assert ref() is None, "the launch cache keeps the array alive"
+
+
+def test_nested_dissection_is_a_permutation_with_less_fill_than_minimum_degree():
+    """The geometric nested-dissection order of a 10³-cell box's pattern is a permutation, and SuperLU's
+    factors of the permuted Laplacian have fewer nonzeros than with SuperLU's own minimum-degree order
+    (measured 172k vs 200k)."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+
+    from pliant.solvers._quasi_newton import nested_dissection
+
+    b = pl.ModelBuilder()
+    b.add_soft_box(cells=(10, 10, 10), size=(0.5, 0.5, 0.5), E=1e5, nu=0.3)
+    model = b.finalize(device="cpu", dtype="float64")
+    tets = model.tet_indices.numpy()
+    rows = np.repeat(tets, 4, axis=1).ravel()
+    cols = np.tile(tets, (1, 4)).ravel()
+    n = model.particle_count
+    lap = sp.csc_matrix((np.full(rows.size, -1.0), (rows, cols)), shape=(n, n))
+    lap = lap - sp.diags(np.asarray(lap.sum(axis=1)).ravel() - 1.0)  # SPD: graph Laplacian + I
+    lap = sp.csc_matrix(lap)
+    perm = nested_dissection(model.particle_q_np, rows, cols)
+    assert np.array_equal(np.sort(perm), np.arange(n))
+    opts = {"SymmetricMode": True}
+    mmd = splu(lap, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=opts)
+    nd = splu(lap[perm][:, perm].tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0, options=opts)
+    assert nd.L.nnz + nd.U.nnz < 0.95 * (mmd.L.nnz + mmd.U.nnz)
+    b_ = np.random.default_rng(0).standard_normal(n)
+    x = np.empty(n)
+    x[perm] = nd.solve(b_[perm])
+    np.testing.assert_allclose(lap @ x, b_, atol=1e-10)
