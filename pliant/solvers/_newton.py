@@ -90,47 +90,33 @@ class NewtonStats:
 
 # ----------------------------------------------------------------------------------------------- kernels
 @wp.kernel(enable_backward=False)
-def _inertia_gradient(
+def _incremental_gradient(
     mass: wp.array(dtype=Any),
     inv_mass: wp.array(dtype=Any),
-    x_in: wp.array(dtype=Any),
-    x_tilde: wp.array(dtype=Any),
-    grad_out: wp.array(dtype=Any),
-):
-    # grad = M (x − x̃); the energies add h²∇E afterwards.
-    i = wp.tid()
-    grad_out[i] = mass[i] * (x_in[i] - x_tilde[i])
-
-
-@wp.kernel(enable_backward=False)
-def _scale_into(src: wp.array(dtype=Any), a: Any, out: wp.array(dtype=Any)):
-    i = wp.tid()
-    out[i] = out[i] + a * src[i]
-
-
-@wp.kernel(enable_backward=False)
-def _gradient_stats(
-    mass: wp.array(dtype=Any),
-    inv_mass: wp.array(dtype=Any),
+    h2: Any,
     inv_h: Any,
     x_in: wp.array(dtype=Any),
     x_tilde: wp.array(dtype=Any),
-    grad: wp.array(dtype=Any),
+    egrad: wp.array(dtype=Any),
+    grad_out: wp.array(dtype=Any),
     stats_out: wp.array(dtype=Any),
 ):
-    # Zero the fixed rows; stats[0] = max |g_i|/(m_i h), stats[1] = max |x|, stats[2] = ½‖x − x̃‖²_M.
+    # ∇Φ = M (x − x̃) + h² ∇E, zero on fixed rows; over the free particles stats[0] = max |g_i|/(m_i h),
+    # stats[1] = max |x|, stats[2] = ½‖x − x̃‖²_M (fixed ones stay at x̃).
     i = wp.tid()
+    x = x_in[i]
+    d = x - x_tilde[i]
+    m = mass[i]
+    g = m * d + h2 * egrad[i]
     zero = type(inv_h)(0.0)
     if inv_mass[i] == zero:
-        grad[i] = grad[i] * zero
+        grad_out[i] = g * zero
         return
-    g = grad[i]
+    grad_out[i] = g
+    wp.atomic_max(stats_out, 1, wp.max(wp.max(wp.abs(x[0]), wp.abs(x[1])), wp.abs(x[2])))
     gm = wp.max(wp.max(wp.abs(g[0]), wp.abs(g[1])), wp.abs(g[2])) * inv_mass[i] * inv_h
     wp.atomic_max(stats_out, 0, gm)
-    x = x_in[i]
-    wp.atomic_max(stats_out, 1, wp.max(wp.max(wp.abs(x[0]), wp.abs(x[1])), wp.abs(x[2])))
-    d = x - x_tilde[i]
-    wp.atomic_add(stats_out, 2, type(inv_h)(0.5) * mass[i] * wp.dot(d, d))
+    wp.atomic_add(stats_out, 2, type(inv_h)(0.5) * m * wp.dot(d, d))
 
 
 @wp.kernel(enable_backward=False)
@@ -438,17 +424,16 @@ def _gradient(solver: Any, ws: _Workspace, x: wp.array, x_tilde: wp.array, h: fl
     """∇Φ(x) into ws.grad (fixed rows zeroed); returns [max|g|/(m h), max|x|, inertia, E] (one host read)."""
     m = solver.model
     n = m.particle_count
-    launch(_inertia_gradient, n, [m.particle_mass, m.particle_inv_mass, x, x_tilde, ws.grad], device=m.device)
     ws.egrad.zero_()
     ws.gstats.zero_()
     for e in solver.energies:
         e.value_and_gradient(m, x, ws.gstats_e, ws.egrad)
     _control_terms(solver, ws, x, ws.egrad, ws.gstats_e)
-    launch(_scale_into, n, [ws.egrad, m.s(h * h), ws.grad], device=m.device)
     launch(
-        _gradient_stats,
+        _incremental_gradient,
         n,
-        [m.particle_mass, m.particle_inv_mass, m.s(1.0 / h), x, x_tilde, ws.grad, ws.gstats],
+        [m.particle_mass, m.particle_inv_mass, m.s(h * h), m.s(1.0 / h), x, x_tilde, ws.egrad, ws.grad]
+        + [ws.gstats],
         device=m.device,
     )
     return ws.gstats.numpy().astype(np.float64)
