@@ -79,7 +79,7 @@ class _ImplicitOptions:
         cg_max_iterations: int = 2000,
         project_psd: bool | str = True,
         method: str = "newton",
-        lbfgs_history: int = 5,
+        lbfgs_history: int = 8,
         lbfgs_refresh: int = 40,
         lbfgs_warm_start: bool = True,
         lbfgs_max_iterations: int = 200,
@@ -164,7 +164,7 @@ class BackwardEuler(_ImplicitOptions, Integrator):
             solve per iteration) or "lbfgs" (L-BFGS whose initial Hessian is the per-axis, lagged,
             prefactorised one: no assembly or factorisation per iteration; the fast choice for FEM bodies on
             the CPU, see ``pliant.solvers._quasi_newton`` and the README's FEM speed table).
-        lbfgs_history: curvature pairs L-BFGS keeps (default 5).
+        lbfgs_history: curvature pairs L-BFGS keeps (default 8).
         lbfgs_refresh: re-assemble L-BFGS's lagged Hessian after a step that needed more iterations.
         lbfgs_warm_start: start each L-BFGS step from x̃ plus the previous step's correction when that lowers
             the potential (default True).

@@ -47,7 +47,7 @@ DEFAULTS: dict[str, Any] = {
     "project_psd": True,
     "max_line_search": 20,
     "method": "newton",  # "newton" | "lbfgs" (pliant.solvers._quasi_newton)
-    "lbfgs_history": 5,
+    "lbfgs_history": 8,
     "lbfgs_max_iterations": 200,
     "lbfgs_refresh": 40,
     "lbfgs_warm_start": True,

@@ -297,7 +297,7 @@ def minimize_quasi_newton(
     """x_out = argmin_x ½‖x − x̃‖²_M + h² Σ E(x) by L-BFGS with a lagged, prefactored Hessian.
 
     Arguments as :func:`pliant.solvers._newton.minimize_incremental_potential`; ``options`` may also name
-    ``lbfgs_history`` (curvature pairs kept, default 5), ``lbfgs_max_iterations`` (default 200),
+    ``lbfgs_history`` (curvature pairs kept, default 8), ``lbfgs_max_iterations`` (default 200),
     ``lbfgs_refresh`` (re-assemble the lagged Hessian after a step that took more iterations than this,
     default 40) and ``lbfgs_warm_start`` (start from x̃ plus the correction x − x̃ extrapolated from the
     last two steps when that lowers Φ; default True). ``stats.linear_iterations`` counts the steps that
