@@ -172,12 +172,12 @@ def _fill(value: Any, out: wp.array(dtype=Any)):
 
 # ----------------------------------------------------------------------------------- per-material kernels
 
-_KERNELS: dict[str, tuple[Any, Any, Any, Any]] = {}
+_KERNELS: dict[str, tuple[Any, Any, Any]] = {}
 _OVERLOADED: set[tuple[str, str]] = set()
 
 
-def _material_kernels(name: str, dtype: str) -> tuple[Any, Any, Any, Any]:
-    """(value, gradient, hessian, value-and-gradient) kernels for material ``name``, built once per material.
+def _material_kernels(name: str, dtype: str) -> tuple[Any, Any, Any]:
+    """(value, gradient [with the value on request], hessian) kernels for material ``name``, built once.
 
     Value and gradient share one Warp module (with adjoints, for fitting); the Hessian, the costly one to
     compile, gets its own module without adjoints. The overloads for ``dtype`` are declared for all three
@@ -198,14 +198,13 @@ def _material_kernels(name: str, dtype: str) -> tuple[Any, Any, Any, Any]:
             "x_in": wp.array(dtype=v3),
         }
         wp.overload(kernels[0], {**common, "out": wp.array(dtype=s)})
-        wp.overload(kernels[1], {**common, "grad_out": wp.array(dtype=v3)})
+        wp.overload(kernels[1], {**common, "out": wp.array(dtype=s), "grad_out": wp.array(dtype=v3)})
         wp.overload(kernels[2], {**common, "scale": s, "values_out": wp.array(dtype=m33)})
-        wp.overload(kernels[3], {**common, "out": wp.array(dtype=s), "grad_out": wp.array(dtype=v3)})
         _OVERLOADED.add((name, dtype))
     return kernels
 
 
-def _build_material_kernels(name: str) -> tuple[Any, Any, Any, Any]:
+def _build_material_kernels(name: str) -> tuple[Any, Any, Any]:
     mat = get_material_model(name)
     psi_fn, pk1_fn, dpdf_fn, dpdf_psd_fn = mat.psi, mat.pk1, mat.dpk1_df, mat.dpk1_df_psd
     module = wp.get_module(f"pliant.energies._fem.{name}")
@@ -239,31 +238,11 @@ def _build_material_kernels(name: str) -> tuple[Any, Any, Any, Any]:
         tet_mu: wp.array(dtype=Any),
         tet_lam: wp.array(dtype=Any),
         x_in: wp.array(dtype=Any),
-        grad_out: wp.array(dtype=Any),
-    ):
-        t = wp.tid()
-        i = tet_indices[t, 0]
-        j = tet_indices[t, 1]
-        k = tet_indices[t, 2]
-        l = tet_indices[t, 3]
-        Dm_inv = tet_rest_inv[t]
-        F = fm.deformation_gradient(x_in[i], x_in[j], x_in[k], x_in[l], Dm_inv)
-        P = pk1_fn(F, tet_mu[t], tet_lam[t])
-        f0, f1, f2, f3 = fm.tet_forces(P, Dm_inv, tet_rest_volume[t])
-        _add_tet_gradient(grad_out, i, j, k, l, f0, f1, f2, f3)
-
-    @wp.kernel(module=module, enable_backward=False)
-    def tet_value_gradient(
-        tet_indices: wp.array2d(dtype=wp.int32),
-        tet_rest_inv: wp.array(dtype=Any),
-        tet_rest_volume: wp.array(dtype=Any),
-        tet_mu: wp.array(dtype=Any),
-        tet_lam: wp.array(dtype=Any),
-        x_in: wp.array(dtype=Any),
+        with_value: int,
         out: wp.array(dtype=Any),
         grad_out: wp.array(dtype=Any),
     ):
-        # One pass for the line search of the quasi-Newton solver: F is built once for ψ and P.
+        # ∂E/∂x, and E into out[0] when with_value (the quasi-Newton line search: F is built once for both).
         t = wp.tid()
         i = tet_indices[t, 0]
         j = tet_indices[t, 1]
@@ -272,7 +251,8 @@ def _build_material_kernels(name: str) -> tuple[Any, Any, Any, Any]:
         Dm_inv = tet_rest_inv[t]
         F = fm.deformation_gradient(x_in[i], x_in[j], x_in[k], x_in[l], Dm_inv)
         V = tet_rest_volume[t]
-        wp.atomic_add(out, 0, V * psi_fn(F, tet_mu[t], tet_lam[t]))
+        if with_value != 0:
+            wp.atomic_add(out, 0, V * psi_fn(F, tet_mu[t], tet_lam[t]))
         g0, g1, g2, g3 = fm.tet_forces(pk1_fn(F, tet_mu[t], tet_lam[t]), Dm_inv, V)
         _add_tet_gradient(grad_out, i, j, k, l, g0, g1, g2, g3)
 
@@ -309,7 +289,7 @@ def _build_material_kernels(name: str) -> tuple[Any, Any, Any, Any]:
             for b in range(4):
                 wp.atomic_add(values_out, slots[16 * t + 4 * a + b], fm.tet_hessian_block(A, Dm_inv, V, a, b))
 
-    return tet_value, tet_gradient, tet_hessian, tet_value_gradient
+    return tet_value, tet_gradient, tet_hessian
 
 
 # ----------------------------------------------------------------------------------------------- classes
@@ -404,13 +384,14 @@ class TetElasticity(Energy):
         """Add ∂E/∂x [N] (minus the element forces) per particle into ``out``."""
         if model.tet_count:
             k = _material_kernels(self.material.name, model.dtype)[1]
-            launch(k, model.tet_count, [*self._inputs(model), x, out], device=model.device)
+            c = self._buffers(model)
+            launch(k, model.tet_count, [*self._inputs(model), x, 0, c["alpha"], out], device=model.device)
 
     def value_and_gradient(self, model: Model, x: wp.array, value_out: wp.array, grad_out: wp.array) -> None:
         """Add E(x) [J] into ``value_out[0]`` and ∂E/∂x [N] into ``grad_out`` in one pass over the tets."""
         if model.tet_count:
-            k = _material_kernels(self.material.name, model.dtype)[3]
-            launch(k, model.tet_count, [*self._inputs(model), x, value_out, grad_out], device=model.device)
+            k = _material_kernels(self.material.name, model.dtype)[1]
+            launch(k, model.tet_count, [*self._inputs(model), x, 1, value_out, grad_out], device=model.device)
 
     def hessian_pattern(self, model: Model) -> tuple[np.ndarray, np.ndarray]:
         """16 blocks per tet, (a, b) for a, b in 0..3 in row-major order: slot 16 t + 4 a + b."""
