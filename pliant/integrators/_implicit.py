@@ -163,7 +163,8 @@ class BackwardEuler(_ImplicitOptions, Integrator):
         method: the minimiser of each step: "newton" (the default; exact PSD-projected Hessians, a linear
             solve per iteration) or "lbfgs" (L-BFGS whose initial Hessian is the per-axis, lagged,
             prefactorised one: no assembly or factorisation per iteration; the fast choice for FEM bodies on
-            the CPU, see ``pliant.solvers._quasi_newton`` and the README's FEM speed table).
+            the CPU, see ``pliant.solvers._quasi_newton`` and the README's FEM speed table; not for spring
+            cloth, whose Hessian changes too much between steps for a lagged one).
         lbfgs_history: curvature pairs L-BFGS keeps (default 8).
         lbfgs_refresh: re-assemble L-BFGS's lagged Hessian after a step that needed more iterations.
         lbfgs_warm_start: start each L-BFGS step from x̃ plus the previous step's correction when that lowers

@@ -365,6 +365,7 @@ class GroundSection(_Section):
     height: Float = 0.0  # [m]
     friction: NonNegFloat = 0.5
     restitution: Annotated[float, Strict(), Field(ge=0, le=1)] = 0.0
+    stiffness: PosFloat | None = None  # κ [1/s²] of the implicit integrators' ground penalty (default 1e6)
 
 
 class SolverSection(_Section):
@@ -1269,6 +1270,9 @@ def build_scene(cfg: SceneConfig, device: str | None = None, dtype: str | None =
             control_points.append(cp)
             springs.append((h, cp, pts))
         integrator = make_integrator(s.integrator, s.integrator_options, source=src, text=cfg.text)
+        g = cfg.ground
+        if g is not None and g.enabled and g.stiffness is not None and not integrator.explicit:
+            terms.append(energies.GroundPenalty(g.stiffness))
         solver = solvers.ForceSolver(
             model,
             terms,
