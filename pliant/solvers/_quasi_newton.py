@@ -373,6 +373,7 @@ def minimize_quasi_newton(
         stats.iterations += 1
         accepted = False
         for _ in range(max_ls + 1):
+            ws.tstats.zero_()
             launch(
                 _trial_point,
                 n,
