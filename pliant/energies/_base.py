@@ -68,8 +68,8 @@ class Energy(abc.ABC):
         return 1.0
 
     def max_step_radius(self, model: Model, x: wp.array) -> float:
-        """Max-norm radius [m] around x inside which every configuration is admissible (``max_step`` would
-        return 1 for any step staying inside it); default inf (no bound)."""
+        """Radius r [m] around x: every configuration with all particle displacements |u_i| ≤ r is admissible
+        (``max_step`` would return 1 for any step staying inside); default inf (no bound)."""
         return float("inf")
 
     def force(self, model: Model, x: wp.array, v: wp.array, out: wp.array) -> None:

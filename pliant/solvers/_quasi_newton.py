@@ -367,7 +367,8 @@ def minimize_quasi_newton(
             gdx = float(np.vdot(grad, dx))
         ws.dx.assign(dx.astype(ws.np_dtype, copy=False))
         alpha = 1.0
-        if not float(np.abs(x_host + dx - x_start).max()) <= radius:
+        u = x_host + dx - x_start
+        if not float(np.sqrt(np.einsum("ij,ij->i", u, u).max())) <= radius:
             for e in solver.energies:
                 alpha = min(alpha, float(e.max_step(m, x, ws.dx)))
         stats.iterations += 1
