@@ -159,10 +159,11 @@ class ForceSolver(Solver):
         """Forget what earlier steps leave for the next: the L-BFGS curvature pairs and warm start, a
         multistep integrator's history. Set-up that depends only on the model (Hessian patterns, the lagged
         Hessian's factorisation) is kept."""
-        st = getattr(self, "_lbfgs_state", None)
+        st = getattr(self, "_lbfgs_state", None)  # (workspace, lagged Hessian, history, warm-start memo)
         if st is not None:
-            st[2].clear()
-            st[3].clear()
+            _, _, history, memo = st
+            history.clear()
+            memo.clear()
         if hasattr(self.integrator, "reset"):
             self.integrator.reset()
 

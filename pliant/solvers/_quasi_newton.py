@@ -109,9 +109,7 @@ class _LaggedHessian:
         self.volatile = [
             (k, e) for k, e in enumerate(energies) if getattr(e, "hessian_changes_each_step", False)
         ]
-        free = model.particle_inv_mass_np > 0.0 if hasattr(model, "particle_inv_mass_np") else None
-        if free is None:
-            free = model.particle_inv_mass.numpy() > 0.0
+        free = model.particle_inv_mass.numpy() > 0.0
         self.free = free
         self.mass = model.particle_mass_np.astype(np.float64)
         # Each contact term writes its blocks into a compact buffer of its own (slot j → entry j); the blocks
