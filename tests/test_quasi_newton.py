@@ -515,3 +515,20 @@ def test_nested_dissection_is_a_permutation_with_less_fill_than_minimum_degree()
     x = np.empty(n)
     x[perm] = nd.solve(b_[perm])
     np.testing.assert_allclose(lap @ x, b_, atol=1e-10)
+
+
+@pytest.mark.parametrize(
+    ("options", "name"),
+    [({"method": "lbfgs", "lbfgs_max_iterations": 1}, "L-BFGS"), ({"max_newton_iterations": 1}, "Newton")],
+)
+def test_simulator_warns_once_naming_the_minimiser_that_stopped_unconverged(options, name):
+    """A step cut off before convergence is not fatal, but the Simulator says which minimiser stopped and
+    what to raise, once per run."""
+    model = _box(origin=(0.0, 0.3, 0.0))
+    solver = pl.solvers.ForceSolver(
+        model, [NeoHookean(), pl.energies.Gravity()], I.BackwardEuler(newton_tol=1e-9, **options)
+    )
+    sim = pl.Simulator(model, solver, dt=1 / 30, substeps=1)
+    with pytest.warns(RuntimeWarning, match=f"^{name} did not converge at frame") as record:
+        sim.run(12, progress=False)
+    assert len([w for w in record if "did not converge" in str(w.message)]) == 1

@@ -141,10 +141,13 @@ class Simulator:
         if stats is not None and getattr(stats, "converged", True) is False and not self._warned_newton:
             # Not fatal (the state is finite), but the motion is not backward Euler's: say so once per run.
             self._warned_newton = True
+            if getattr(stats, "linear_solver", "") == "lbfgs":
+                what, fix = "L-BFGS", "raise lbfgs_max_iterations, use method='newton', or add substeps"
+            else:
+                what, fix = "Newton", "raise max_newton_iterations, keep project_psd=True, or add substeps"
             warnings.warn(
-                f"Newton did not converge at frame {self.frame} (gradient {stats.gradient_norm:.3g} after "
-                f"{stats.iterations} iterations); raise max_newton_iterations, keep project_psd=True, or add "
-                "substeps",
+                f"{what} did not converge at frame {self.frame} (gradient {stats.gradient_norm:.3g} m/s "
+                f"after {stats.iterations} iterations); {fix}",
                 RuntimeWarning,
                 stacklevel=2,
             )
