@@ -196,6 +196,7 @@ class _LaggedHessian:
                 mat, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
             )
             self.values[d] = v
+            self._ratio = None
             count += 1
         self.factorizations += count
         return count
@@ -209,10 +210,11 @@ class _LaggedHessian:
         return out
 
     def stiffness_ratio(self) -> float:
-        """max_i trace(H₀_ii)/(3 m_i) over free particles (the round-off floor's amplification)."""
-        assert self.base is not None
+        """max_i trace(H₀_ii)/(3 m_i) over free particles, contact terms included (the round-off floor's
+        amplification, as Newton's from its assembled Hessian)."""
+        assert all(v is not None for v in self.values)
         if self._ratio is None:
-            diag = self.base[:, self.diag_slots].sum(axis=0) / 3.0
+            diag = sum(v[self.diag_slots] for v in self.values) / 3.0
             ratio = diag[self.free] / self.mass[self.free]
             self._ratio = float(ratio.max()) if ratio.size else 1.0
         return self._ratio
