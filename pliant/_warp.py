@@ -90,11 +90,11 @@ def launch(kernel: Any, dim: Any, inputs: list, device: Any = None) -> None:
 
     A plain launch of a generic kernel spends 10-60 µs in Python (overload resolution, argument packing),
     more than many of our kernels take to run on the CPU for a thousand particles. The first launch with a
-    given signature — kernel, dim, device, and for every array its pointer, shape, strides and dtype — is
-    recorded; later ones replay it after setting the non-array arguments (scalars, vectors, ids), which
-    costs 3-6 µs. A replay is exactly the same launch: the key holds everything the recorded parameters
-    hold, so an array freed and reallocated at the same address with the same layout is launched
-    correctly, and the cache holds no references to arrays. While a ``wp.Tape`` records, launches go
+    given signature — kernel, dim, device, and for every array its pointer, shape, strides, dtype and
+    device — is recorded; later ones replay it after setting the non-array arguments (scalars, vectors,
+    ids), which costs 3-6 µs. A replay is exactly the same launch: the key holds everything the recorded
+    parameters hold, so an array freed and reallocated at the same address with the same layout is
+    launched correctly, and the cache holds no references to arrays. While a ``wp.Tape`` records, launches go
     through ``wp.launch`` so that autodiff sees them.
     """
     if _tape_active():
@@ -104,7 +104,7 @@ def launch(kernel: Any, dim: Any, inputs: list, device: Any = None) -> None:
     scalars = []
     for k, a in enumerate(inputs):
         if isinstance(a, wp.array):
-            parts.append((a.ptr, a.shape, a.strides, a.dtype))
+            parts.append((a.ptr, a.shape, a.strides, a.dtype, a.device))
         elif isinstance(a, (int, float, bool)) or type(a).__module__.startswith("warp"):
             parts.append(type(a))
             scalars.append(k)
