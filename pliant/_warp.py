@@ -104,7 +104,7 @@ def launch(kernel: Any, dim: Any, inputs: list, device: Any = None) -> None:
     scalars = []
     for k, a in enumerate(inputs):
         if isinstance(a, wp.array):
-            parts.append((a.ptr, a.shape, a.strides, a.dtype, a.device))
+            parts.append((a.ptr, a.shape, a.strides, a.dtype, a.device.alias))
         elif isinstance(a, (int, float, bool)) or type(a).__module__.startswith("warp"):
             parts.append(type(a))
             scalars.append(k)
