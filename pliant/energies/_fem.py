@@ -386,6 +386,7 @@ class TetElasticity(Energy):
         if model.tet_count:
             k = _material_kernels(self.material.name, model.dtype)[1]
             c = self._buffers(model)
+            # with_value = 0: the kernel never touches its value output, so any 1-element array will do.
             launch(k, model.tet_count, [*self._inputs(model), x, 0, c["alpha"], out], device=model.device)
 
     def value_and_gradient(self, model: Model, x: wp.array, value_out: wp.array, grad_out: wp.array) -> None:

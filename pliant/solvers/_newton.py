@@ -466,17 +466,29 @@ def _control_terms(solver: Any, ws: _Workspace, x: wp.array, grad: wp.array, val
         )
 
 
-def _assemble(solver: Any, ws: _Workspace, x: wp.array, h: float, project_psd: bool) -> None:
-    """H = M + h² Σ H_e on the fixed pattern, fixed particles projected out."""
+def _assemble(
+    solver: Any,
+    ws: _Workspace,
+    x: wp.array,
+    h: float,
+    project_psd: bool,
+    *,
+    skip: frozenset[int] = frozenset(),
+    control: bool = True,
+) -> None:
+    """H = M + h² Σ H_e on the fixed pattern, fixed particles projected out.
+
+    ``skip``: indices of energies left out; ``control``: include the drag handle's spring.
+    """
     m = solver.model
     ws.values.zero_()
     launch(_add_mass_diagonal, m.particle_count, [m.particle_mass, ws.diag_slots, ws.values], device=m.device)
-    for e, slots in zip(solver.energies, ws.slots, strict=True):
-        if slots.shape[0] == 0:
-            continue  # no Hessian (e.g. gravity)
+    for k, (e, slots) in enumerate(zip(solver.energies, ws.slots, strict=True)):
+        if k in skip or slots.shape[0] == 0:
+            continue  # left out, or no Hessian (e.g. gravity)
         e.hessian(m, x, slots, ws.values, project_psd=project_psd, scale=h * h)
     c = getattr(solver, "_control", None)
-    if c is not None and c.drag_index >= 0:
+    if control and c is not None and c.drag_index >= 0:
         launch(
             _drag_terms,
             1,

@@ -40,11 +40,10 @@ import warp as wp
 from .._warp import launch
 from ._newton import (
     NewtonStats,
-    _add_mass_diagonal,
+    _assemble,
     _control_terms,
     _gradient,
     _option,
-    _project_fixed,
     _trial_point,
     _Workspace,
     _workspace,
@@ -131,22 +130,8 @@ class _LaggedHessian:
 
     def refresh(self, solver: Any, ws: _Workspace, x: wp.array, h: float) -> None:
         """Assemble M + h² Σ_lagged H_e at x (PSD-projected, fixed rows m_i·I) and keep its axis values."""
-        m = solver.model
-        ws.values.zero_()
-        launch(
-            _add_mass_diagonal, m.particle_count, [m.particle_mass, ws.diag_slots, ws.values], device=m.device
-        )
-        volatile = {k for k, _ in self.volatile}
-        for k, (e, slots) in enumerate(zip(solver.energies, ws.slots, strict=True)):
-            if k in volatile or slots.shape[0] == 0:
-                continue
-            e.hessian(m, x, slots, ws.values, project_psd=True, scale=h * h)
-        launch(
-            _project_fixed,
-            ws.nnz,
-            [m.particle_inv_mass, m.particle_mass, ws.block_rows, ws.block_cols, ws.values],
-            device=m.device,
-        )
+        # The drag handle, like contact, switches on and off: L-BFGS learns it rather than H₀ lagging it.
+        _assemble(solver, ws, x, h, True, skip=frozenset(k for k, _ in self.volatile), control=False)
         vals = ws.values.numpy()[: ws.nnz]
         self.base = np.stack([vals[:, d, d].astype(np.float64) for d in range(3)])
         self.h = h
