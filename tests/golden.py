@@ -30,20 +30,13 @@ def simulate(name: str, frames: int = FRAMES) -> np.ndarray:
 
 
 def _build(pl, name: str):
-    # The scene API moves between packages (issue 10); use whichever this checkout has.
-    mod = getattr(pl, "scene", None)
-    if mod is not None and hasattr(mod, "load_scene"):
-        return mod.build_scene(mod.load_scene(name), device="cpu")
-    return pl.io.build_scene(pl.io.load_scene(name), device="cpu")
+    return pl.scene.build_scene(pl.scene.load_scene(name), device="cpu")
 
 
 def scene_names() -> list[str]:
     import pliant as pl
 
-    mod = getattr(pl, "scene", None)
-    if mod is not None and hasattr(mod, "builtin_scenes"):
-        return list(mod.builtin_scenes())
-    return list(pl.io.builtin_scenes())
+    return list(pl.scene.builtin_scenes())
 
 
 def main(argv: list[str]) -> int:

@@ -39,7 +39,7 @@ def test_force_solver_adds_ground_penalty_for_implicit_integrators_only():
 
 def test_implicit_fem_box_lands_without_crushed_elements():
     """A neo-Hookean box landing in one backward-Euler step per frame keeps every det F above 0.3."""
-    scene = pl.io.build_scene(pl.io.load_scene("soft_box_fem"))
+    scene = pl.scene.build_scene(pl.scene.load_scene("soft_box_fem"))
     x = scene.simulator().run(40, progress=False).x
     tets = scene.model.tet_indices_np
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import pliant as pl
-from pliant.io import SceneError, build_scene, builtin_scenes, load_scene, parse_scene
+from pliant.scene import SceneError, build_scene, builtin_scenes, load_scene, parse_scene
 
 BUILTINS = ["cloth", "rope", "soft_box", "points"]
 

@@ -13,9 +13,17 @@ from . import EXIT_DIVERGED, EXIT_INTERRUPTED, EXIT_OK, CliError
 
 
 def _load(scene: str) -> Any:
-    from ..io import load_scene
+    import warnings
 
-    return load_scene(scene)
+    from ..scene import load_scene
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DeprecationWarning)
+        cfg = load_scene(scene)
+    for w in caught:  # renamed scene keys: one note each, naming the new key
+        if issubclass(w.category, DeprecationWarning):
+            print(f"pliant: note: {w.message}", file=sys.stderr)
+    return cfg
 
 
 def _apply_overrides(cfg: Any, args: argparse.Namespace) -> None:
@@ -23,13 +31,19 @@ def _apply_overrides(cfg: Any, args: argparse.Namespace) -> None:
     if getattr(args, "frames", None) is not None:
         cfg.scene.frames = args.frames
     if getattr(args, "dt", None) is not None:
-        cfg.scene.dt = args.dt
+        print("pliant: note: --dt is deprecated; use --frame-dt (the frame duration [s])", file=sys.stderr)
+        if getattr(args, "frame_dt", None) is None:
+            args.frame_dt = args.dt
+    if getattr(args, "frame_dt", None) is not None:
+        if not 1e-6 <= args.frame_dt <= 10.0:
+            raise CliError("--frame-dt must be in [1e-06, 10] s")
+        cfg.scene.frame_dt = args.frame_dt
     if getattr(args, "substeps", None) is not None:
-        if args.substeps < 1:
-            raise CliError("--substeps must be >= 1")
+        if not 1 <= args.substeps <= 10_000:
+            raise CliError("--substeps must be in [1, 10000]")
         cfg.scene.substeps = args.substeps
     if getattr(args, "integrator", None):
-        from ..io import integrator_names
+        from ..scene import integrator_names
 
         names = integrator_names()
         key = args.integrator.lower().replace("-", "").replace("_", "")
@@ -57,7 +71,7 @@ def simulate(
 ) -> int:
     """Build, run, save ``<out>/<name>.npz`` (+ ``.mp4``, ``.ckpt.npz``) and print a summary."""
     from .. import DivergenceError
-    from ..io import build_scene
+    from ..scene import build_scene
 
     scene = build_scene(cfg, device=device, dtype=dtype)
     m = scene.model
@@ -72,7 +86,7 @@ def simulate(
     )
     solver = f"{info.get('solver', type(sim.solver).__name__)}/{info.get('integrator', '-')}"
     print(
-        f"{name}: {counts}; {scene.frames} frames x {scene.substeps} substeps (dt {scene.dt:.4g} s), "
+        f"{name}: {counts}; {scene.frames} frames x {scene.substeps} substeps (frame_dt {scene.frame_dt:.4g} s), "
         f"{solver} on {m.device} {m.dtype}",
         flush=True,
     )
@@ -145,10 +159,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     cfg = _load(args.scene)
     _apply_overrides(cfg, args)
     hint = ["pliant", "run", args.scene, "--out", args.out]
-    for opt in ("frames", "dt", "substeps", "integrator", "device", "dtype"):
-        val = getattr(args, opt)
+    for opt in ("frames", "frame_dt", "substeps", "integrator", "device", "dtype"):
+        val = getattr(args, opt, None)
         if val is not None:
-            hint += [f"--{opt}", str(val)]
+            hint += [f"--{opt.replace('_', '-')}", str(val)]
     return simulate(
         cfg,
         Path(args.out),

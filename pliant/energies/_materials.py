@@ -11,8 +11,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
+from ..model._materials import lame_parameters, young_poisson
 from . import _fem_math as fm
 
 __all__ = [
@@ -23,56 +22,6 @@ __all__ = [
     "lame_parameters",
     "young_poisson",
 ]
-
-
-def lame_parameters(E: float | np.ndarray, nu: float | np.ndarray) -> tuple[Any, Any]:
-    """Lamé parameters from Young's modulus and Poisson's ratio.
-
-    μ = E / (2 (1 + ν)),  λ = E ν / ((1 + ν)(1 − 2ν)).
-
-    Args:
-        E: Young's modulus [Pa], > 0; a scalar or an array (e.g. per element).
-        nu: Poisson's ratio, in the open interval (−1, 0.5); scalar or array broadcastable with ``E``.
-
-    Returns:
-        ``(mu, lam)`` [Pa]: Python floats for scalar inputs, else float64 arrays.
-
-    Raises:
-        ValueError: if ``E`` is not finite and positive or ``nu`` is outside (−1, 0.5).
-    """
-    E_arr = np.asarray(E, dtype=np.float64)
-    nu_arr = np.asarray(nu, dtype=np.float64)
-    if not np.all(np.isfinite(E_arr) & (E_arr > 0.0)):
-        bad = E_arr[~(np.isfinite(E_arr) & (E_arr > 0.0))].ravel()
-        raise ValueError(f"E (Young's modulus) must be finite and > 0 [Pa], got {bad[:5].tolist()}")
-    if not np.all((nu_arr > -1.0) & (nu_arr < 0.5)):
-        bad = nu_arr[~((nu_arr > -1.0) & (nu_arr < 0.5))].ravel()
-        raise ValueError(
-            f"nu (Poisson's ratio) must lie in the open interval (-1, 0.5), got {bad[:5].tolist()}; "
-            "nu = 0.5 (incompressible) makes lam infinite"
-        )
-    mu = E_arr / (2.0 * (1.0 + nu_arr))
-    lam = E_arr * nu_arr / ((1.0 + nu_arr) * (1.0 - 2.0 * nu_arr))
-    if mu.ndim == 0:
-        return float(mu), float(lam)
-    return mu, lam
-
-
-def young_poisson(mu: float, lam: float) -> tuple[float, float]:
-    """Inverse of :func:`lame_parameters`: E = μ (3λ + 2μ) / (λ + μ), ν = λ / (2 (λ + μ)).
-
-    Args:
-        mu: Shear modulus [Pa], > 0.
-        lam: First Lamé parameter [Pa], with 3λ + 2μ > 0 (positive bulk modulus).
-
-    Returns:
-        ``(E, nu)``.
-    """
-    if not (math.isfinite(mu) and mu > 0.0):
-        raise ValueError(f"mu (shear modulus) must be finite and > 0 [Pa], got {mu}")
-    if not (math.isfinite(lam) and 3.0 * lam + 2.0 * mu > 0.0):
-        raise ValueError(f"lam must satisfy 3 lam + 2 mu > 0 (positive bulk modulus), got lam={lam}, mu={mu}")
-    return mu * (3.0 * lam + 2.0 * mu) / (lam + mu), lam / (2.0 * (lam + mu))
 
 
 @dataclass(frozen=True)

@@ -207,7 +207,7 @@ class ModelBuilder:
 
         Inverted (negative-volume) tets raise unless ``fix_orientation``; degenerate ones always raise.
         """
-        from ..energies._materials import lame_parameters
+        from ._materials import lame_parameters
 
         idx = _as_index_array(indices, 4, "tetrahedron")
         self._check_range(idx, "tetrahedron")
@@ -255,7 +255,13 @@ class ModelBuilder:
         self.ground = Ground(float(height), float(friction), float(restitution))
 
     # ------------------------------------------------------------------ shapes
-    def _register(self, name: str, kind: str, start: int, **extra: Any) -> None:
+    def register_object(self, name: str, kind: str, start: int, **extra: Any) -> None:
+        """Record particles ``start`` .. ``particle_count`` (added last) as one named object of ``kind``.
+
+        ``add_*`` shape methods call it; call it after :meth:`add_particles` for a body made by hand, so that
+        ``model.objects`` (ranges used by renderers, handles and scene files) lists it. ``extra`` items are
+        stored with it (e.g. ``nx``, ``ny`` of a cloth grid).
+        """
         self.objects.append(
             {"name": name, "kind": kind, "start": start, "count": self._count - start, **extra}
         )
@@ -295,7 +301,7 @@ class ModelBuilder:
         if local is None:
             raise ValueError(f"rope pin must be one of first|last|both|none or indices, got {pin!r}")
         self.pin(np.asarray(local, dtype=np.int64) + first)
-        self._register(name, "rope", first)
+        self.register_object(name, "rope", first)
         return first
 
     def add_cloth_grid(
@@ -335,7 +341,7 @@ class ModelBuilder:
         np.add.at(m, tris.ravel(), np.repeat(area / 3.0, 3))
         m *= mass / m.sum()
         if youngs_modulus_thickness is not None:
-            from ..energies import cloth_spring_stiffness
+            from ._materials import cloth_spring_stiffness
 
             stiffness, shear_stiffness = cloth_spring_stiffness(youngs_modulus_thickness, poisson)
         if stiffness is None:
@@ -356,7 +362,7 @@ class ModelBuilder:
         else:
             local = list(pin)
         self.pin(np.asarray(local, dtype=np.int64) + first)
-        self._register(name, "cloth", first, nx=nx, ny=ny)
+        self.register_object(name, "cloth", first, nx=nx, ny=ny)
         return first
 
     def add_soft_box(
@@ -399,10 +405,14 @@ class ModelBuilder:
         velocity: Sequence[float] = (0.0, 0.0, 0.0),
         radius: float = 0.005,
         name: str = "tet_mesh",
+        kind: str = "mesh",
     ) -> int:
-        """Add a tetrahedral mesh as a mass-spring volume (``stiffness``) and/or FEM body (``E``)."""
+        """Add a tetrahedral mesh as a mass-spring volume (``stiffness``) and/or FEM body (``E``).
+
+        ``kind`` is the label it gets in ``model.objects`` (e.g. ``"soft_sphere"``).
+        """
         return self._add_tet_mesh(
-            points, tets, density, stiffness, damping, E, nu, velocity, radius, name, "mesh"
+            points, tets, density, stiffness, damping, E, nu, velocity, radius, name, kind
         )
 
     def _add_tet_mesh(
@@ -427,7 +437,7 @@ class ModelBuilder:
             self.add_tetrahedra(tets + first, E=E, nu=nu)
         self._render_faces.append(surface_from_tets(tets) + first)
         self._tet_host.append(tets + first)
-        self._register(name, kind, first)
+        self.register_object(name, kind, first)
         return first
 
     def add_point_cloud(
@@ -453,7 +463,7 @@ class ModelBuilder:
                 f"{name}: no springs within radius {radius} m; increase radius (point spacing is larger)"
             )
         self.add_springs(edges + first, stiffness=stiffness, damping=damping)
-        self._register(name, "points", first)
+        self.register_object(name, "points", first)
         return first
 
     # ------------------------------------------------------------------ finalize

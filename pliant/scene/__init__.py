@@ -1,0 +1,52 @@
+"""Scene files (TOML): load, validate and build a Model, a Solver and a Simulator.
+
+A scene file has the sections ``[scene]``, ``[[objects]]`` (one per body), ``[[colliders]]``, ``[[handles]]``,
+``[[energies]]``, ``[[constraints]]``, ``[ground]``, ``[solver]``, ``[camera]`` and ``[output]``; README.md
+documents every field. Errors name the file, the line when it can be found, the field as a dotted path
+(``objects[1].material.E``) and the fix. Object, collider, handle and solver kinds, energies and
+constraints are registries (``register_*``): a new kind is one registered function.
+"""
+
+from __future__ import annotations
+
+from . import _contacts, _objects  # noqa: F401 - register the built-in kinds
+from ._build import Embedding, Scene, build_scene
+from ._context import BuildContext
+from ._errors import SceneError
+from ._load import builtin_scenes, load_scene, parse_scene
+from ._registry import (
+    register_collider_kind,
+    register_constraint,
+    register_energy,
+    register_handle_kind,
+    register_object_kind,
+    register_solver,
+)
+from ._schema import ColliderBase, Material, ObjectBase, SceneConfig
+from ._solvers import integrator_names, make_integrator
+from ._terms import register_builtin_terms
+
+register_builtin_terms()
+
+__all__ = [
+    "BuildContext",
+    "ColliderBase",
+    "Embedding",
+    "Material",
+    "ObjectBase",
+    "Scene",
+    "SceneConfig",
+    "SceneError",
+    "build_scene",
+    "builtin_scenes",
+    "integrator_names",
+    "load_scene",
+    "make_integrator",
+    "parse_scene",
+    "register_collider_kind",
+    "register_constraint",
+    "register_energy",
+    "register_handle_kind",
+    "register_object_kind",
+    "register_solver",
+]

@@ -1,0 +1,368 @@
+"""Building a validated scene: the Model from the registered object kinds, contact handlers, handles, and
+the Solver from the registered solver kind; :class:`Scene` holds what a run and its video need."""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ._context import BuildContext
+from ._errors import SceneError
+from ._registry import (
+    COLLIDER_KINDS,
+    CONSTRAINT_KINDS,
+    ENERGY_KINDS,
+    HANDLE_KINDS,
+    OBJECT_KINDS,
+    SOLVER_KINDS,
+)
+from ._schema import OutputSection, SceneConfig
+
+#: Video colours (RGB in [0, 1]) of simulated bodies and of drawn colliders.
+BODY_COLOR = (0.91, 0.42, 0.16)
+COLLIDER_COLOR = (0.55, 0.62, 0.72)
+
+
+@dataclass
+class Embedding:
+    """A fine render surface moved with a coarse tet mesh: x_fine = Σ φ x_tet (barycentric)."""
+
+    start: int  # first particle of the embedding object
+    count: int  # its particles
+    tets: np.ndarray  # [E, 4] global particle indices of the object's tets
+    tet_ids: np.ndarray  # [P] tet of each fine vertex
+    bary: np.ndarray  # [P, 4]
+    faces: np.ndarray  # [F, 3] fine triangles (indices into the fine vertices)
+
+
+@dataclass
+class Scene:
+    """A built scene: the Model, its Solver, and how to run and show it.
+
+    Example::
+
+        scene = pl.scene.build_scene(pl.scene.load_scene("cloth"), device="cpu")
+        traj = scene.simulator().run(frames=scene.frames)
+    """
+
+    config: SceneConfig
+    model: Any
+    solver: Any
+    frame_dt: float  # frame duration [s] (the Simulator's dt); each frame runs `substeps` solver steps
+    substeps: int
+    frames: int
+    camera: Any = None  # pliant.render.Camera, or None to frame the motion automatically
+    outputs: OutputSection = field(default_factory=OutputSection)
+    colliders: Any = None  # pliant.collision.Colliders of [[colliders]], or None
+    control_fn: Any = None  # f(t, control) moving the [[handles]], or None
+    control_points: list = field(default_factory=list)  # pl.energies.ControlPoints of spring handles
+    embeddings: list[Embedding] = field(default_factory=list)
+    static_meshes: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)  # drawn colliders
+
+    @property
+    def dt(self) -> float:
+        """Deprecated alias of :attr:`frame_dt` (the frame duration [s])."""
+        warnings.warn(
+            "Scene.dt is deprecated; use Scene.frame_dt (the frame duration [s])",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return self.frame_dt
+
+    @property
+    def name(self) -> str:
+        """The scene's name."""
+        return self.config.scene.name
+
+    @property
+    def fps(self) -> float:
+        """Video frame rate: ``[output] fps`` or 1 / frame_dt."""
+        return float(self.outputs.fps or 1.0 / self.frame_dt)
+
+    @property
+    def sim_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments of :class:`pliant.Simulator` (its ``dt`` is the frame duration)."""
+        kw = {"dt": self.frame_dt, "substeps": self.substeps, "max_speed": self.config.scene.max_speed}
+        if self.control_fn is not None:
+            kw["control_fn"] = self.control_fn
+        return kw
+
+    def simulator(self, **overrides: Any) -> Any:
+        """A fresh :class:`pliant.Simulator` (``overrides`` replace ``sim_kwargs`` entries)."""
+        from ..sim import Simulator
+
+        if self.control_fn is not None:
+            self.control_fn(0.0, None)  # handles back to their start
+        return Simulator(self.model, self.solver, **{**self.sim_kwargs, **overrides})
+
+    def render_mesh(
+        self, x: np.ndarray, faces: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """What to draw for positions ``x`` [T, N, 3] (or [N, 3]): embedded fine surfaces replace their tet
+        meshes' surfaces, and colliders with ``render = true`` are added as grey static meshes.
+
+        Returns (x, faces, per-vertex colours [V, 3] or None).
+        """
+        if not self.embeddings and not self.static_meshes:
+            return x, faces, None
+        x = np.asarray(x)
+        single = x.ndim == 2
+        xs = x[None] if single else x
+        parts, fparts = [xs], []
+        count = xs.shape[1]
+        if faces is not None:
+            keep = np.ones(len(faces), bool)
+            for e in self.embeddings:
+                keep &= ~np.all((faces >= e.start) & (faces < e.start + e.count), axis=1)
+            fparts.append(np.asarray(faces)[keep])
+        for e in self.embeddings:
+            w = xs[:, e.tets[e.tet_ids]]  # [T, P, 4, 3]
+            parts.append(np.einsum("tpkd,pk->tpd", w, e.bary))
+            fparts.append(e.faces + count)
+            count += len(e.bary)
+        n_body = count
+        for v, f in self.static_meshes:
+            parts.append(np.broadcast_to(v, (xs.shape[0], *v.shape)))
+            fparts.append(f + count)
+            count += len(v)
+        out = np.concatenate(parts, axis=1)
+        out_faces = np.concatenate(fparts).astype(np.int32) if fparts else None
+        colors = np.empty((count, 3))
+        colors[:n_body] = BODY_COLOR
+        colors[n_body:] = COLLIDER_COLOR
+        return (out[0] if single else out), out_faces, colors
+
+
+# ---------------------------------------------------------------------------------------------- steps
+def _add_objects(ctx: BuildContext) -> None:
+    for i, o in enumerate(ctx.cfg.objects):
+        start = ctx.builder.particle_count
+        try:
+            OBJECT_KINDS[o.kind].build(ctx, o, i)
+        except (ValueError, FileNotFoundError) as exc:
+            if isinstance(exc, SceneError):
+                raise
+            raise ctx.fail(f"objects[{i}]", str(exc)) from None
+        ctx.ranges.append((start, ctx.builder.particle_count))
+
+
+def _select_handles(ctx: BuildContext) -> tuple[list, list]:
+    """Kinematic handles (marked in the builder before finalize) and spring handles' control points."""
+    names = ctx.cfg.object_names()
+    kin: list[tuple[Any, slice, np.ndarray]] = []
+    springs: list[tuple[int, Any, np.ndarray]] = []
+    n_kin = 0
+    for i, h in enumerate(ctx.cfg.handles):
+        lo, hi = 0, ctx.builder.particle_count
+        if h.object is not None:
+            lo, hi = ctx.ranges[h.object if isinstance(h.object, int) else names.index(h.object)]
+        idx, pts = HANDLE_KINDS[h.kind].select(ctx, h, lo, hi, i)
+        if h.resolved_mode() == "kinematic":
+            ctx.builder.add_kinematic(idx)
+            kin.append((h, slice(n_kin, n_kin + idx.size), pts))
+            n_kin += idx.size
+        else:
+            springs.append((i, h, pts))
+    return kin, springs
+
+
+def _finalize(ctx: BuildContext, device: str | None, dtype: str | None) -> None:
+    cfg = ctx.cfg
+    g = cfg.ground
+    if g is not None and g.enabled:
+        ctx.builder.add_ground(g.height, friction=g.friction, restitution=g.restitution)
+    try:
+        ctx.model = ctx.builder.finalize(device=device or cfg.scene.device, dtype=dtype or cfg.scene.dtype)
+    except ValueError as exc:
+        if device is None and cfg.scene.device is not None and "device" in str(exc):
+            path = "scene.device"
+        elif "device" in str(exc):
+            raise
+        else:
+            path = "objects"
+        raise ctx.fail(path, str(exc)) from None
+
+
+def _embeddings(ctx: BuildContext, x0: np.ndarray) -> list[Embedding]:
+    """Locate each object's fine render mesh in its tets."""
+    import trimesh
+
+    from ..geometry import locate_points
+    from ._files import load_mesh_file
+
+    out = []
+    tets = ctx.model.tet_indices_np
+    for i, o in enumerate(ctx.cfg.objects):
+        rm = getattr(o, "render_mesh", None)
+        if rm is None:
+            continue
+        at = f"objects[{i}].render_mesh"
+        start, stop = ctx.ranges[i]
+        center = np.asarray(rm.center if rm.center is not None else o.origin)
+        if rm.icosphere is not None:
+            r = rm.radius or getattr(o, "radius", None) or 0.5 * float(min(getattr(o, "size", (1.0,))))
+            m = trimesh.creation.icosphere(subdivisions=rm.icosphere, radius=r)
+            v, f = np.asarray(m.vertices) + center, np.asarray(m.faces)
+        else:
+            mesh = load_mesh_file(ctx.cfg, rm.path, f"{at}.path")
+            v = np.asarray(mesh.points) * np.asarray(rm.scale) + center
+            f = np.asarray(mesh.triangles)
+        mine = tets[np.all((tets >= start) & (tets < stop), axis=1)]
+        if mine.shape[0] == 0:
+            raise ctx.fail(at, f"objects[{i}] has no tetrahedra to embed a render mesh in")
+        try:
+            tet_ids, bary = locate_points(v, x0, mine)[:2]
+        except (ValueError, IndexError) as exc:
+            raise ctx.fail(at, f"cannot embed the render mesh in the object's tets ({exc})") from None
+        out.append(
+            Embedding(start, stop - start, mine, np.asarray(tet_ids), np.asarray(bary), f.astype(np.int32))
+        )
+    return out
+
+
+def _colliders(ctx: BuildContext) -> tuple[Any, list]:
+    from ..collision import Colliders
+
+    if not ctx.cfg.colliders:
+        return None, []
+    colliders, drawn = Colliders(), []
+    for i, c in enumerate(ctx.cfg.colliders):
+        try:
+            mesh = COLLIDER_KINDS[c.kind].add(colliders, ctx.cfg, c, f"colliders[{i}]")
+        except (ValueError, FileNotFoundError) as exc:
+            if isinstance(exc, SceneError):
+                raise
+            raise ctx.fail(f"colliders[{i}]", str(exc)) from None
+        if mesh is not None:
+            drawn.append((np.asarray(mesh[0], float), np.asarray(mesh[1], np.int32)))
+    ctx.handlers.append(colliders)
+    return colliders, drawn
+
+
+def _spring_handles(ctx: BuildContext, spring_handles: list) -> tuple[list, list]:
+    """``pl.energies.ControlPoints`` of the spring handles (added to ``ctx.terms``)."""
+    from .. import energies
+
+    cps, springs = [], []
+    for i, h, pts in spring_handles:
+        try:
+            cp = energies.ControlPoints(
+                ctx.model,
+                pts,
+                stiffness=h.stiffness,
+                radius=h.radius if h.radius is not None else 1e-6,
+                max_links=h.max_links if h.kind == "points" else 1,
+                damping=h.damping,
+                zero_rest=h.kind == "box",
+            )
+        except ValueError as exc:
+            raise ctx.fail(f"handles[{i}]", str(exc)) from None
+        ctx.terms.append(cp)
+        cps.append(cp)
+        springs.append((h, cp, pts))
+    return cps, springs
+
+
+def _extra_constraints(ctx: BuildContext) -> None:
+    """Shape matching of cluster objects, self-collision constraints and ``[[constraints]]`` (XPBD / PBD)."""
+    from .. import constraints as C
+
+    cfg, model = ctx.cfg, ctx.model
+    by_k: dict[tuple[float, bool], list[np.ndarray]] = {}
+    radii = model.particle_radius.numpy()
+    for o, (lo, hi) in zip(cfg.objects, ctx.ranges, strict=True):
+        if o.kind == "cluster":
+            k_s = 1.0 if o.rigid else (o.shape_stiffness if o.shape_stiffness is not None else 0.5)
+            by_k.setdefault((k_s, o.oriented), []).append(np.arange(lo, hi))
+    for (k_s, oriented), clusters in by_k.items():
+        ctx.constraints.append(C.ShapeMatching(clusters, stiffness=k_s, radii=radii if oriented else None))
+    sc = cfg.solver.self_collision
+    if sc is not None:
+        if sc.particles:
+            ctx.constraints.append(C.ParticleCollision())
+        if sc.triangles and model.tri_count:
+            ctx.constraints.append(C.PointTriangleCollision(thickness=sc.thickness))
+
+
+def _entries(ctx: BuildContext, section: str, registry: dict, out: list) -> None:
+    """The ``[[energies]]`` / ``[[constraints]]`` entries, built by their registered factories."""
+    for i, e in enumerate(getattr(ctx.cfg, section)):
+        try:
+            out.append(registry[e.kind].factory(ctx.model, **e.options()))
+        except (TypeError, ValueError) as exc:
+            raise ctx.fail(f"{section}[{i}]", f"{e.kind}: {exc}") from None
+
+
+def _make_control_fn(frame_dt: float, kin: list[tuple[Any, slice, np.ndarray]], springs: list):
+    """f(t, control): kinematic targets / control points at the end of the coming frame (t + frame_dt)."""
+    state = {"targets": None}
+
+    def control_fn(t: float, control: Any) -> None:
+        te = t + frame_dt if control is not None else 0.0
+        if kin:
+            if state["targets"] is None:
+                state["targets"] = np.concatenate([x0 for _, _, x0 in kin])
+            tg = state["targets"].copy()
+            for h, sl, x0 in kin:
+                tg[sl] = x0 + h.offset(te)
+            if control is not None:
+                control.set_kinematic_targets(tg)
+        for h, cp, x0 in springs:
+            vel = (h.offset(te + 1e-3) - h.offset(max(te - 1e-3, 0.0))) / (te + 1e-3 - max(te - 1e-3, 0.0))
+            cp.set_positions(x0 + h.offset(te), np.broadcast_to(vel, x0.shape))
+
+    return control_fn
+
+
+def _camera(cfg: SceneConfig) -> Any:
+    c = cfg.camera
+    if c.eye is None:
+        return None
+    from ..render import Camera
+
+    return Camera(eye=c.eye, target=c.target, up=c.up, fov_y=c.fov, width=c.width, height=c.height)
+
+
+def build_scene(cfg: SceneConfig, device: str | None = None, dtype: str | None = None) -> Scene:
+    """Build the Model and Solver a scene describes, on ``device`` in ``dtype`` (defaults: the file's).
+
+    Args:
+        cfg: A validated scene (:func:`load_scene` / :func:`parse_scene`).
+        device: Warp device (``"cpu"``, ``"cuda:0"``); None: ``[scene] device`` or Warp's default.
+        dtype: ``"float32"`` or ``"float64"``; None: ``[scene] dtype``.
+
+    Raises:
+        SceneError: a file, option or geometry the build cannot use, naming the field.
+    """
+    from ..model import ModelBuilder
+
+    ctx = BuildContext(cfg, ModelBuilder(gravity=cfg.scene.gravity))
+    _add_objects(ctx)
+    x0 = ctx.builder.positions()
+    kin, spring_handles = _select_handles(ctx)
+    _finalize(ctx, device, dtype)
+    embeddings = _embeddings(ctx, x0)
+    colliders, static_meshes = _colliders(ctx)
+    control_points, springs = _spring_handles(ctx, spring_handles)
+    _entries(ctx, "energies", ENERGY_KINDS, ctx.terms)
+    _extra_constraints(ctx)
+    _entries(ctx, "constraints", CONSTRAINT_KINDS, ctx.constraints)
+    solver = SOLVER_KINDS[cfg.solver_kind()].factory(ctx)
+    return Scene(
+        config=cfg,
+        model=ctx.model,
+        solver=solver,
+        frame_dt=cfg.scene.frame_dt,
+        substeps=cfg.scene.substeps,
+        frames=cfg.scene.frames,
+        camera=_camera(cfg),
+        outputs=cfg.output,
+        colliders=colliders,
+        control_fn=_make_control_fn(cfg.scene.frame_dt, kin, springs) if (kin or springs) else None,
+        control_points=control_points,
+        embeddings=embeddings,
+        static_meshes=static_meshes,
+    )

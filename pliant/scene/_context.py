@@ -1,0 +1,35 @@
+"""What a registered builder receives: the scene, the model builder, then the model and contact handlers."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from ._errors import SceneError, scene_error
+
+
+@dataclass
+class BuildContext:
+    """State shared by the registered builders of one :func:`~pliant.scene.build_scene` call.
+
+    Attributes:
+        cfg: The validated :class:`~pliant.scene.SceneConfig`.
+        builder: The ``pl.ModelBuilder`` objects add themselves to.
+        ranges: ``(start, stop)`` particle range of each object, filled as objects are built.
+        model: The finalized ``pl.Model`` (None while objects are being added).
+        handlers: Post-step contact handlers (``Colliders``, ``SelfCollision``) for the solver.
+        terms: Extra energies (spring handles, ``[[energies]]``) for force-based solvers.
+        constraints: Extra constraints (clusters, self-collision, ``[[constraints]]``) for XPBD / PBD.
+    """
+
+    cfg: Any
+    builder: Any
+    ranges: list[tuple[int, int]] = field(default_factory=list)
+    model: Any = None
+    handlers: list[Any] = field(default_factory=list)
+    terms: list[Any] = field(default_factory=list)
+    constraints: list[Any] = field(default_factory=list)
+
+    def fail(self, path: str, msg: str) -> SceneError:
+        """A SceneError for the field at dotted ``path`` (with its line in the scene file)."""
+        return scene_error(self.cfg, path, msg)
