@@ -86,7 +86,8 @@ def simulate(
     )
     solver = f"{info.get('solver', type(sim.solver).__name__)}/{info.get('integrator', '-')}"
     print(
-        f"{name}: {counts}; {scene.frames} frames x {scene.substeps} substeps (frame_dt {scene.frame_dt:.4g} s), "
+        f"{name}: {counts}; {scene.frames} frames x {scene.substeps} substeps "
+        f"(frame_dt {scene.frame_dt:.4g} s), "
         f"{solver} on {m.device} {m.dtype}",
         flush=True,
     )
