@@ -102,7 +102,11 @@ def load_mesh_file(cfg: Any, rel: str, at: str) -> Any:
     except (ValueError, OSError, ImportError, KeyError, IndexError, TypeError, EOFError, SystemExit) as exc:
         # Third-party readers (trimesh, meshio) fail in many ways on a malformed file (meshio used to call
         # sys.exit); none of them may escape as a traceback or end the interpreter.
-        msg = str(exc).split("\n")[0][:200] or type(exc).__name__
+        msg = (
+            "not a readable mesh file of its format"
+            if isinstance(exc, SystemExit)
+            else str(exc).split("\n")[0][:200] or type(exc).__name__
+        )
         raise scene_error(cfg, at, f"cannot read the mesh {path.name}: {msg}") from None
     pts = np.asarray(mesh.points, np.float64)
     if pts.ndim != 2 or pts.shape[0] == 0 or pts.shape[1] != 3:

@@ -220,7 +220,7 @@ def _check_budget(cfg: SceneConfig) -> list[tuple[str, str]]:
             return [(p, m) for _, p, m in exc.problems]
         total += n
         if n > limit:
-            return [(f"objects[{i}]", budget_message(n, f"this {o.kind}"))]
+            return [(f"objects[{i}]", budget_message(n, f"this {o.kind} object"))]
     if total > limit:
         return [("objects", budget_message(total, "the objects together"))]
     return []

@@ -78,6 +78,9 @@ def accepted_keywords(target: Any) -> dict[str, inspect.Parameter]:
 def _type_problem(p: inspect.Parameter, value: Any) -> str | None:
     """What is wrong with ``value`` for parameter ``p``, judged from its default (cheap, not exhaustive)."""
     d = p.default
+    if d is None:  # judge by the annotation's first type ("float | None" -> float)
+        first = str(p.annotation).split("|")[0].strip()
+        d = {"float": 0.0, "int": 0, "bool": False, "str": ""}.get(first)
     if d is inspect.Parameter.empty or d is None:
         return None
     if isinstance(d, bool):
@@ -337,7 +340,7 @@ def _register_builtins() -> None:
         fields=("velocity_damping", "damping_rate", "self_collision"),
         reserved=("velocity_damping", "damping_rate", "collisions"),
     )
-    pb_reserved = ("iterations", "damping", "collisions")
+    pb_reserved = ("iterations", "damping", "collisions", "constraints")
     register_solver(
         "xpbd",
         make_xpbd,
