@@ -1,0 +1,383 @@
+"""Property-based fuzz of scene files (issue 11): mutations of the built-in scenes — wrong types, missing and
+unknown fields, 0 / negative / NaN / inf / huge numbers, unknown kinds, odd names, broken TOML, garbage or
+empty mesh and ``.npy`` files — through the in-process path ``pliant run`` uses (load → build → simulate one
+frame → save into ``--out``). Every case must end as a success, a ``SceneError`` naming the file, a
+``CliError`` or a clean divergence; never another exception, a file outside the output folder, or non-finite
+output. The default run takes about a minute; ``-m slow`` runs many more cases.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import io
+import json
+import math
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+import pliant as pl
+from pliant.cli import CliError
+from pliant.cli._run import simulate
+from pliant.scene import SceneError, load_scene
+
+# Small built-in scenes (a frame costs milliseconds); the big ones only differ in sizes, which are mutated.
+BASES = [
+    "rope",
+    "rope_swing",
+    "cloth_pinned",
+    "points",
+    "points_push",
+    "pendulum_chain",
+    "xpbd_pile",
+    "cloth_sphere",
+    "soft_box",
+    "fem_squeeze",
+]
+MAX_SUBSTEPS = 4
+STATS: dict[str, int] = {}
+
+
+# ---------------------------------------------------------------------------------------------- TOML out
+def _value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf") if math.isinf(v) else repr(v)
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{json.dumps(str(k))} = {_value(x)}" for k, x in v.items()) + "}"
+    raise TypeError(type(v))
+
+
+def to_toml(data: dict) -> str:
+    """A TOML text for ``data`` (tables, arrays of tables, inline values)."""
+    lines = [f"{json.dumps(k)} = {_value(v)}" for k, v in data.items() if not _is_table(v) and not _is_aot(v)]
+    for k, v in data.items():
+        if _is_table(v):
+            lines += [f"[{json.dumps(k)}]", *(f"{json.dumps(a)} = {_value(b)}" for a, b in v.items())]
+        elif _is_aot(v):
+            for item in v:
+                lines += [
+                    f"[[{json.dumps(k)}]]",
+                    *(f"{json.dumps(a)} = {_value(b)}" for a, b in item.items()),
+                ]
+    return "\n".join(lines) + "\n"
+
+
+def _is_table(v) -> bool:
+    return isinstance(v, dict)
+
+
+def _is_aot(v) -> bool:
+    return isinstance(v, list) and bool(v) and all(isinstance(x, dict) for x in v)
+
+
+# ---------------------------------------------------------------------------------------------- mutations
+BAD_VALUES = st.one_of(
+    st.sampled_from(
+        [
+            0,
+            -1,
+            1,
+            2,
+            10**12,
+            -(10**12),
+            0.0,
+            -1.0,
+            1e-300,
+            5e-324,
+            1e39,
+            -1e308,
+            1e308,
+            math.nan,
+            math.inf,
+            -math.inf,
+            True,
+            False,
+            "",
+            "x",
+            "../x",
+            "/tmp/abs",
+            "a\x00b",
+            "a" * 300,
+            "__class__",
+            [],
+            [1, 2],
+            [0.0, 1e39, 0.0],
+            [math.nan, 0.0, 0.0],
+            {},
+            {"foo": 1},
+        ]
+    ),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.integers(min_value=-(2**40), max_value=2**40),
+    st.text(max_size=12),
+)
+FIELD_NAMES = st.sampled_from(
+    [
+        "name",
+        "frame_dt",
+        "dt",
+        "substeps",
+        "frames",
+        "gravity",
+        "kind",
+        "model",
+        "nx",
+        "ny",
+        "n_segments",
+        "size",
+        "origin",
+        "velocity",
+        "mass",
+        "pin",
+        "spacing",
+        "radius",
+        "cells",
+        "density",
+        "stiffness",
+        "E",
+        "nu",
+        "compliance",
+        "iterations",
+        "integrator",
+        "options",
+        "integrator_options",
+        "fov",
+        "eye",
+        "target",
+        "fps",
+        "center",
+        "half_extents",
+        "points",
+        "path",
+        "max_speed",
+        "foo",
+        "stiffness_factor",
+        "resolution",
+        "max_volume",
+        "device",
+        "dtype",
+        "checkpoint_every",
+        "width",
+        "height",
+        "shape",
+        "jitter",
+        "__class__",
+    ]
+)
+
+
+def _tables(data: dict) -> list[dict]:
+    out = []
+    for v in data.values():
+        if isinstance(v, dict):
+            out.append(v)
+            out += [x for x in v.values() if isinstance(x, dict)]
+        elif _is_aot(v):
+            for x in v:
+                out.append(x)
+                out += [y for y in x.values() if isinstance(y, dict)]
+    return out
+
+
+@st.composite
+def mutated_scene(draw) -> tuple[str, dict[str, bytes]]:
+    """(TOML text, extra files) of a mutated built-in scene."""
+    base = draw(st.sampled_from(BASES))
+    text = (Path(pl.__file__).parent / "scenes" / f"{base}.toml").read_text()
+    data = tomllib.loads(text)
+    files: dict[str, bytes] = {}
+    for _ in range(draw(st.integers(1, 3))):
+        op = draw(
+            st.sampled_from(["set", "set", "scale", "scale", "delete", "add", "kind", "section", "file"])
+        )
+        tables = _tables(data)
+        table = draw(st.sampled_from(tables)) if tables else data
+        if op == "set" and table:
+            table[draw(st.sampled_from(sorted(table)))] = copy.deepcopy(draw(BAD_VALUES))
+        elif op == "scale" and table:
+            # A valid-looking but extreme value: most of these build and run, exercising the solvers.
+            key = draw(st.sampled_from(sorted(table)))
+            factor = draw(st.sampled_from([0.0, -1.0, 1e-3, 0.1, 10.0, 100.0, 1e3, 1e6]))
+            v = table[key]
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                table[key] = type(v)(v * factor) if abs(v * factor) < 1e18 else v * factor
+            elif isinstance(v, list) and all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) for x in v
+            ):
+                table[key] = [type(x)(x * factor) for x in v]
+        elif op == "delete" and table:
+            del table[draw(st.sampled_from(sorted(table)))]
+        elif op == "add":
+            table[draw(FIELD_NAMES)] = copy.deepcopy(draw(BAD_VALUES))
+        elif op == "kind":
+            table["kind"] = draw(
+                st.sampled_from(
+                    [
+                        "cloth",
+                        "rope",
+                        "soft_box",
+                        "mesh",
+                        "points",
+                        "soft_sphere",
+                        "cluster",
+                        "cone",
+                        "force",
+                        "xpbd",
+                        "pbd",
+                        "fast_mass_spring",
+                        "box",
+                        "sphere",
+                        "capsule",
+                        "nope",
+                    ]
+                )
+            )
+        elif op == "section":
+            data[
+                draw(
+                    st.sampled_from(
+                        [
+                            "solver",
+                            "camera",
+                            "output",
+                            "ground",
+                            "scene",
+                            "colliders",
+                            "handles",
+                            "energies",
+                            "constraints",
+                            "objects",
+                            "bogus",
+                        ]
+                    )
+                )
+            ] = copy.deepcopy(draw(BAD_VALUES))
+        elif op == "file":
+            name, content = draw(bad_file())
+            files[name] = content
+            kind = "points" if name.endswith(".npy") else draw(st.sampled_from(["mesh", "points"]))
+            data.setdefault("objects", []).append(
+                {"kind": kind, "path": name, "material": {"stiffness": 10.0}}
+            )
+    out = to_toml(data)
+    if draw(st.integers(0, 9)) == 0:  # broken TOML
+        k = draw(st.integers(0, max(len(out) - 1, 0)))
+        out = out[:k] + draw(st.sampled_from(["[", "]", '"', "=", "\n[[", "\x00", ""])) + out[k + 1 :]
+    return out, files
+
+
+@st.composite
+def bad_file(draw) -> tuple[str, bytes]:
+    """A mesh or .npy file that is empty, garbage, or an array of a wrong or right shape and dtype."""
+    ext = draw(st.sampled_from([".npy", ".npy", ".obj", ".vtk", ".msh", ".vtu", ".ply", ".stl"]))
+    how = draw(st.sampled_from(["empty", "garbage", "array"]))
+    if how == "empty":
+        return "f" + ext, b""
+    if how == "garbage" or ext != ".npy":
+        return "f" + ext, draw(st.binary(min_size=1, max_size=200))
+    shape = draw(st.sampled_from([(0, 3), (5,), (5, 2), (5, 3), (5, 4), (40, 3), (2, 3, 3)]))
+    dtype = draw(st.sampled_from(["<f8", "<f4", "<i4", "<c16", "|b1"]))
+    arr = np.random.default_rng(0).normal(size=shape).astype(dtype) * 0.05
+    if draw(st.booleans()) and arr.size:
+        arr.flat[0] = draw(st.sampled_from([np.nan, np.inf, 1e39]))
+    buf = io.BytesIO()
+    np.save(buf, arr)
+    return "f.npy", buf.getvalue()
+
+
+# ---------------------------------------------------------------------------------------------- the harness
+def run_case(text: str, files: dict[str, bytes]) -> str:
+    """Run one case as ``pliant run`` does; return its outcome class, or raise AssertionError."""
+    root = Path(tempfile.mkdtemp(prefix="pliant_fuzz_"))
+    scene_dir, out, cwd = root / "scene", root / "out", root / "cwd"
+    for d in (scene_dir, out, cwd):
+        d.mkdir()
+    (scene_dir / "s.toml").write_text(text, encoding="utf-8", errors="surrogatepass")
+    for name, content in files.items():
+        (scene_dir / name).write_bytes(content)
+    old = os.getcwd()
+    os.chdir(cwd)
+    sink = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
+            try:
+                cfg = load_scene(scene_dir / "s.toml")
+                cfg.scene.frames = 1
+                cfg.scene.substeps = min(cfg.scene.substeps, MAX_SUBSTEPS)
+                status = simulate(cfg, out, cfg.scene.name, device="cpu", video=False, quiet=True)
+            except SceneError as exc:
+                assert str(exc).startswith(str(scene_dir / "s.toml")), f"SceneError without the file: {exc}"
+                return "rejected"
+            except CliError:
+                return "cli_error"
+        assert status in (0, 2), status
+        outside = [
+            p
+            for p in root.rglob("*")
+            if p.is_file() and not p.is_relative_to(scene_dir) and not p.is_relative_to(out)
+        ]
+        assert not outside, f"files written outside --out: {outside}"
+        for f in out.glob("*.npz"):
+            if not f.name.endswith(".ckpt.npz"):
+                x = pl.Trajectory.load(f).x
+                assert np.all(np.isfinite(x)), f"non-finite output in {f.name} (exit {status})"
+        return "ok" if status == 0 else "diverged"
+    finally:
+        os.chdir(old)
+        import shutil
+
+        shutil.rmtree(root, ignore_errors=True)
+
+
+def _check(case) -> None:
+    text, files = case
+    try:
+        outcome = run_case(text, files)
+    except AssertionError:
+        raise
+    except Exception as exc:  # any other exception type is a finding
+        raise AssertionError(f"{type(exc).__name__}: {exc}\n--- scene ---\n{text}") from exc
+    STATS[outcome] = STATS.get(outcome, 0) + 1
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+@given(mutated_scene())
+def test_mutated_scenes_fail_cleanly(case):
+    """Every mutated scene ends as success, a SceneError naming the file, or a clean divergence (about a
+    minute: 150 deterministic cases)."""
+    _check(case)
+
+
+@pytest.mark.slow
+@settings(max_examples=3000, deadline=None, suppress_health_check=list(HealthCheck))
+@given(mutated_scene())
+def test_mutated_scenes_fail_cleanly_long(case):
+    """The same property over 3000 random cases (slow)."""
+    _check(case)
+
+
+def test_the_harness_sees_failures():
+    """The harness is not vacuous: an unmodified built-in scene succeeds, and a bad one is rejected."""
+    text = (Path(pl.__file__).parent / "scenes" / "rope.toml").read_text()
+    assert run_case(text, {}) == "ok"
+    assert run_case(text.replace('name = "rope"', 'name = "../x"'), {}) == "rejected"
