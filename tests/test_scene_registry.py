@@ -176,3 +176,33 @@ def test_io_keeps_only_trajectory_files():
     """pliant.io holds trajectories and checkpoints only; scene files are pliant.scene."""
     assert set(pl.io.__all__) == {"Trajectory", "atomic_savez", "load_checkpoint", "save_checkpoint"}
     assert pl.scene.load_scene is load_scene
+
+
+def test_cli_frame_dt_and_deprecated_dt(tmp_path, capsys):
+    """`pliant run --frame-dt` sets the frame duration; `--dt` still works and prints a note naming
+    --frame-dt; a scene file with the old key prints a note naming frame_dt."""
+    from pliant.cli import main
+
+    args = [
+        "run",
+        "rope",
+        "--frames",
+        "1",
+        "--out",
+        str(tmp_path),
+        "--quiet",
+        "--no-video",
+        "--device",
+        "cpu",
+    ]
+    assert main([*args, "--frame-dt", "0.02"]) == 0
+    assert np.allclose(pl.Trajectory.load(tmp_path / "rope.npz").t, [0.0, 0.02])
+    assert main([*args, "--dt", "0.01"]) == 0
+    assert "--dt is deprecated; use --frame-dt" in capsys.readouterr().err
+    assert np.allclose(pl.Trajectory.load(tmp_path / "rope.npz").t, [0.0, 0.01])
+    old = tmp_path / "old.toml"
+    old.write_text(
+        '[scene]\nname = "old"\ndt = 0.02\n[[objects]]\nkind = "rope"\nmaterial = {stiffness = 10.0}\n'
+    )
+    assert main(["run", str(old), *args[2:]]) == 0
+    assert "pliant: note: [scene] dt is deprecated; rename it to frame_dt" in capsys.readouterr().err
