@@ -276,9 +276,9 @@ def mutated_scene(draw) -> tuple[str, dict[str, bytes]]:
             name, content = draw(bad_file())
             files[name] = content
             kind = "points" if name.endswith(".npy") else draw(st.sampled_from(["mesh", "points"]))
-            data.setdefault("objects", []).append(
-                {"kind": kind, "path": name, "material": {"stiffness": 10.0}}
-            )
+            if not isinstance(data.get("objects"), list):
+                data["objects"] = []
+            data["objects"].append({"kind": kind, "path": name, "material": {"stiffness": 10.0}})
     out = to_toml(data)
     if draw(st.integers(0, 9)) == 0:  # broken TOML
         k = draw(st.integers(0, max(len(out) - 1, 0)))

@@ -264,26 +264,24 @@ def _xpbd_compliance(cfg: Any) -> float | None:
 
 
 def _position_based(ctx: Any, cls: Any, **kw: Any) -> Any:
+    """XPBD / PBD with the scene's iterations, damping, contact handlers and extra constraints."""
     s = ctx.cfg.solver
-    kw = {
-        k: v
-        for k, v in {"iterations": s.iterations, "damping": s.damping_rate, **kw}.items()
-        if v is not None
-    }
+    kw = {"iterations": s.iterations, "damping": s.damping_rate, **kw}
+    kw = {k: v for k, v in kw.items() if v is not None}
     if "collisions" in inspect.signature(cls).parameters:
         solver = _construct(ctx, cls, ctx.model, collisions=ctx.handlers, **kw)
-    else:  # pragma: no cover - shim until XPBD takes collisions= (branch h-solvers); see report
+    else:
+        # Shim until XPBD takes collisions= (branch h-solvers): the handlers run after each step, exactly
+        # as XPBD(collisions=...) will run them.
         solver = _construct(ctx, cls, ctx.model, **kw)
         _attach_post_step(solver, ctx.handlers)
     if ctx.constraints:
-        solver.add_constraints(ctx.constraints) if hasattr(solver, "add_constraints") else _insert(
-            solver, ctx
-        )
+        _insert(solver, ctx)
     return solver
 
 
 def _attach_post_step(solver: Any, handlers: list[Any]) -> None:
-    """Run contact handlers after each step of ``solver`` (minimal shim, per instance, no subclass)."""
+    """Run contact handlers after each step of ``solver`` (shim, per instance; see _position_based)."""
     if not handlers:
         return
     step = solver.step
@@ -297,7 +295,8 @@ def _attach_post_step(solver: Any, handlers: list[Any]) -> None:
 
 
 def _insert(solver: Any, ctx: Any) -> None:
-    """Put the scene's extra constraints before the solver's contact constraints (which run last)."""
+    """Put the scene's extra constraints before the solver's contact constraints (those run last and get
+    extra sweeps), found by ``is_contact`` rather than assumed to be the last entry."""
     at = next((k for k, c in enumerate(solver.constraints) if c.is_contact), len(solver.constraints))
     for c in ctx.constraints:
         c.bind(ctx.model, solver.coloring)
