@@ -3,19 +3,37 @@
 from __future__ import annotations
 
 import abc
+from collections.abc import Sequence
+from typing import Any
 
 from ..model import Control, Model, State
+from ._post import check_collisions
 
 
 class Solver(abc.ABC):
-    """Advances a Model one step: ``step(state_in, state_out, control, dt)``; never writes ``state_in``."""
+    """Advances a Model one step: ``step(state_in, state_out, control, dt)``; never writes ``state_in``.
 
-    def __init__(self, model: Model) -> None:
+    Every solver owns the same post-step contact handlers: ``collisions`` are objects with
+    ``apply(model, state_in, state_out, dt)`` (``pl.collision.Colliders``, ``SelfCollision``), run in order
+    after the solver's own step and ground response (:meth:`apply_collisions`).
+
+    Args:
+        model: the Model.
+        collisions: contact handlers run after each step (checked here for an ``apply`` method).
+    """
+
+    def __init__(self, model: Model, collisions: Sequence[Any] = ()) -> None:
         self.model = model
+        self.collisions = check_collisions(collisions)
 
     @abc.abstractmethod
     def step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
         """Advance ``state_in`` by ``dt`` [s] into ``state_out``."""
+
+    def apply_collisions(self, state_in: State, state_out: State, dt: float) -> None:
+        """Run each contact handler on the finished step (``state_out`` is corrected in place)."""
+        for c in self.collisions:
+            c.apply(self.model, state_in, state_out, dt)
 
     def describe(self) -> dict:
         """Name and options, recorded in trajectory metadata and benchmark lines."""

@@ -28,12 +28,18 @@ def apply_kinematic(
     v_out[i] = (targets[k] - x_in[i]) * inv_dt
 
 
+@wp.func
+def drag_force(target: Any, stiffness: Any, x: Any):
+    """The drag handle's force [N]: a zero-length spring k (target − x) from the particle to the cursor."""
+    return stiffness * (target - x)
+
+
 @wp.kernel
 def add_drag_force(
     index: int, target: Any, stiffness: Any, x_in: wp.array(dtype=Any), f_io: wp.array(dtype=Any)
 ):
-    """The drag handle: a zero-length spring from the particle to the cursor (pulls without a jump)."""
-    f_io[index] = f_io[index] + stiffness * (target - x_in[index])
+    """The drag handle (pulls without a jump), added to the force of the particle it holds."""
+    f_io[index] = f_io[index] + drag_force(target, stiffness, x_in[index])
 
 
 def finish_step(

@@ -115,6 +115,8 @@ class RigidBodySolver(Solver):
     Args:
         model: the Model; bodies' particles must not be pinned.
         bodies: particle index arrays, one per body (default: all particles form one body).
+        collisions: contact handlers run after each step (``apply(model, state_in, state_out, dt)``); they
+            move particles one by one, and the next step's polar decomposition makes each body rigid again.
 
     Example::
 
@@ -122,8 +124,10 @@ class RigidBodySolver(Solver):
         solver.step(state_0, state_1, control, 1e-3)
     """
 
-    def __init__(self, model: Model, bodies: Sequence[Any] | None = None) -> None:
-        super().__init__(model)
+    def __init__(
+        self, model: Model, bodies: Sequence[Any] | None = None, *, collisions: Sequence[Any] = ()
+    ) -> None:
+        super().__init__(model, collisions)
         n = model.particle_count
         bodies = [np.arange(n)] if bodies is None else [np.asarray(b, np.int64).reshape(-1) for b in bodies]
         inv_mass = model.particle_inv_mass.numpy()
@@ -182,6 +186,7 @@ class RigidBodySolver(Solver):
             ],
             device=m.device,
         )
+        self.apply_collisions(state_in, state_out, dt)
 
     def describe(self) -> dict:
         """Solver name and body count."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import warp as wp
@@ -56,6 +57,8 @@ class XPBD(Solver):
             model has a ground and none is given).
         contact: add the model's ground plane as a ``Ground`` constraint.
         contact_iterations: extra sweeps of the contact constraints alone at the end of each step.
+        collisions: contact handlers run after each step, each with ``apply(model, state_in, state_out,
+            dt)`` (``pl.collision.Colliders``, ``SelfCollision``), as for every solver (:class:`Solver`).
 
     Example::
 
@@ -81,8 +84,9 @@ class XPBD(Solver):
         constraints: Sequence[Constraint] | None = None,
         contact: bool = True,
         contact_iterations: int = 4,
+        collisions: Sequence[Any] = (),
     ) -> None:
-        super().__init__(model)
+        super().__init__(model, collisions)
         if model.requires_grad:
             raise NotImplementedError(
                 "XPBD projects in place and is not tape-differentiable yet; finalize with requires_grad=False"
@@ -183,6 +187,8 @@ class XPBD(Solver):
             finally:
                 self._recording = None
         self._last_dt, self._last_p = dt, state_out.particle_q
+        # Handlers run outside the recorded plan: they may rebuild grids or BVHs with host logic.
+        self.apply_collisions(state_in, state_out, dt)
 
     def reset_plans(self) -> None:
         """Forget the recorded steps; call after changing options (iterations, relaxation, constraints)."""

@@ -6,6 +6,8 @@ from typing import Any
 
 import warp as wp
 
+from ._post import drag_force
+
 
 @wp.kernel
 def predict(
@@ -36,8 +38,8 @@ def predict(
         return
     f = f_ext[i]
     if i == drag_index:
-        # The drag handle: a zero-length spring from the particle to the cursor.
-        f = f + drag_stiffness * (drag_target - x)
+        # The drag handle: the same zero-length spring as the force solvers add (_post.drag_force).
+        f = f + drag_force(drag_target, drag_stiffness, x)
     v = v_in[i] + dt * (gravity + w * f)
     p_out[i] = x + dt * v
     v_pred_out[i] = v
