@@ -268,30 +268,10 @@ def _position_based(ctx: Any, cls: Any, **kw: Any) -> Any:
     s = ctx.cfg.solver
     kw = {"iterations": s.iterations, "damping": s.damping_rate, **kw}
     kw = {k: v for k, v in kw.items() if v is not None}
-    if "collisions" in inspect.signature(cls).parameters:
-        solver = _construct(ctx, cls, ctx.model, collisions=ctx.handlers, **kw)
-    else:
-        # Shim until XPBD takes collisions= (branch h-solvers): the handlers run after each step, exactly
-        # as XPBD(collisions=...) will run them.
-        solver = _construct(ctx, cls, ctx.model, **kw)
-        _attach_post_step(solver, ctx.handlers)
+    solver = _construct(ctx, cls, ctx.model, collisions=ctx.handlers, **kw)
     if ctx.constraints:
         _insert(solver, ctx)
     return solver
-
-
-def _attach_post_step(solver: Any, handlers: list[Any]) -> None:
-    """Run contact handlers after each step of ``solver`` (shim, per instance; see _position_based)."""
-    if not handlers:
-        return
-    step = solver.step
-
-    def step_with_handlers(state_in, state_out, control, dt):
-        step(state_in, state_out, control, dt)
-        for h in handlers:
-            h.apply(solver.model, state_in, state_out, dt)
-
-    solver.step = step_with_handlers
 
 
 def _insert(solver: Any, ctx: Any) -> None:
