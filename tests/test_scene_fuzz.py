@@ -208,7 +208,9 @@ def mutated_scene(draw) -> tuple[str, dict[str, bytes]]:
     files: dict[str, bytes] = {}
     for _ in range(draw(st.integers(1, 3))):
         op = draw(
-            st.sampled_from(["set", "set", "scale", "scale", "delete", "add", "kind", "section", "file"])
+            st.sampled_from(
+                ["set", "set", "scale", "scale", "delete", "add", "kind", "section", "file", "entry"]
+            )
         )
         tables = _tables(data)
         table = draw(st.sampled_from(tables)) if tables else data
@@ -272,6 +274,12 @@ def mutated_scene(draw) -> tuple[str, dict[str, bytes]]:
                     )
                 )
             ] = copy.deepcopy(draw(BAD_VALUES))
+        elif op == "entry":  # [[energies]] / [[constraints]] by registered kind, with odd options
+            section = draw(st.sampled_from(["energies", "constraints"]))
+            entry = {"kind": draw(st.sampled_from(["air_drag", "particle_collision", "nope", "__class__"]))}
+            key = draw(st.sampled_from(["coefficient", "quadratic", "wind", "cell_size", "foo"]))
+            entry[key] = copy.deepcopy(draw(st.one_of(BAD_VALUES, st.floats(0.0, 10.0))))
+            data[section] = [entry]
         elif op == "file":
             name, content = draw(bad_file())
             files[name] = content
