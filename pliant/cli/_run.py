@@ -20,9 +20,11 @@ def _load(scene: str) -> Any:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DeprecationWarning)
         cfg = load_scene(scene)
-    for w in caught:  # renamed scene keys: one note each, naming the new key
+    for w in caught:  # renamed scene keys: one note each, naming the new key; other warnings as usual
         if issubclass(w.category, DeprecationWarning):
             print(f"pliant: note: {w.message}", file=sys.stderr)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     return cfg
 
 
