@@ -206,3 +206,12 @@ def test_cli_frame_dt_and_deprecated_dt(tmp_path, capsys):
     )
     assert main(["run", str(old), *args[2:]]) == 0
     assert "pliant: note: [scene] dt is deprecated; rename it to frame_dt" in capsys.readouterr().err
+
+
+def test_registering_a_schema_without_its_tag_is_refused():
+    """A schema must declare kind: Literal[name] and subclass ObjectBase, else registration says so."""
+    with pytest.raises(TypeError, match=r'must declare kind: Literal\["other"\]'):
+        pl.scene.register_object_kind("other", Ring, build_ring)
+    with pytest.raises(TypeError, match="must subclass pliant.scene.ObjectBase"):
+        pl.scene.register_object_kind("other", pl.scene.Material, build_ring)
+    assert "other" not in pl.scene._registry.OBJECT_KINDS
