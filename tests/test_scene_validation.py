@@ -253,3 +253,19 @@ def test_unreadable_meshes_are_scene_errors(tmp_path, fname):
     body = f'[[objects]]\nkind = "mesh"\npath = "{fname}"\nmaterial = {{stiffness = 1.0}}\n'
     msg = _error(HEAD + body, tmp_path)
     assert msg.startswith("s.toml:7: objects[0].path: "), msg
+
+
+def test_tetgen_bound_is_budgeted_before_tetgen_runs(tmp_path):
+    """Item 4: a 0.2 m box filled with max_volume = 1e-12 m³ would ask TetGen for ~1e9 vertices: a load error
+    naming objects[0] (the same file with max_volume = 1e-4 builds)."""
+    import trimesh
+
+    trimesh.creation.box(extents=(0.2, 0.2, 0.2)).export(tmp_path / "b.obj")
+    body = '[[objects]]\nkind = "mesh"\npath = "b.obj"\nmax_volume = {v}\nmaterial = {{stiffness = 1.0}}\n'
+    with pytest.raises(
+        SceneError, match=r"s.toml:5: objects\[0\]: this mesh object would create about 1.6e\+09"
+    ):
+        parse_scene(HEAD + body.format(v="1e-12"), "s.toml", tmp_path)
+    assert build_scene(
+        parse_scene(HEAD + body.format(v="1e-4"), "s.toml", tmp_path), device="cpu"
+    ).model.particle_count

@@ -348,6 +348,16 @@ def _points_estimate(cfg: Any, o: Any) -> float:
     return _grid_count(o.size, o.spacing)
 
 
+def _mesh_estimate(cfg: Any, o: MeshObject) -> float:
+    # Only a TetGen bound needs the file now (its vertex count is checked when it is read): the bounding
+    # box's volume over max_volume bounds the tets TetGen is asked for.
+    if o.max_volume is None:
+        return 0.0
+    at = f"objects[{cfg.objects.index(o)}].path"
+    pts = np.asarray(load_mesh_file(cfg, o.path, at).points, np.float64) * np.asarray(o.scale)
+    return _tetgen_particles(float(np.prod(np.ptp(pts, axis=0))), o.max_volume, float(len(pts)))
+
+
 def _sphere_estimate(cfg: Any, o: SoftSphereObject) -> float:
     return _tetgen_particles(4.0 / 3.0 * math.pi * o.radius**3, o.max_volume, 10.0 * 4**o.resolution + 2)
 
@@ -366,7 +376,9 @@ register_object_kind(
     volumetric=True,
     particles=lambda cfg, o: float(np.prod([c + 1.0 for c in o.cells])),
 )
-register_object_kind("mesh", MeshObject, build_mesh, check=check_render_mesh, volumetric=True)
+register_object_kind(
+    "mesh", MeshObject, build_mesh, check=check_render_mesh, volumetric=True, particles=_mesh_estimate
+)
 register_object_kind("points", PointsObject, build_points, particles=_points_estimate)
 register_object_kind(
     "soft_sphere",
