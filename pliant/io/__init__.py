@@ -11,9 +11,18 @@ from ._scene import (
     make_integrator,
     parse_scene,
 )
-from ._trajectory import Trajectory, atomic_savez, load_checkpoint, save_checkpoint
+from ._trajectory import (
+    CheckpointError,
+    CheckpointSpec,
+    Trajectory,
+    atomic_savez,
+    load_checkpoint,
+    save_checkpoint,
+)
 
 __all__ = [
+    "CheckpointError",
+    "CheckpointSpec",
     "Scene",
     "SceneConfig",
     "SceneError",
