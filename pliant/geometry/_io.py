@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -50,15 +54,36 @@ def _compact(points: NDArray[np.float64], cells: NDArray[np.integer]) -> tuple[n
     return points[used], inverse.reshape(cells.shape)
 
 
+def _read(path: Path, reader: str, fn: Callable[[], Any]) -> Any:
+    """Run a third-party mesh reader so that nothing escapes raw: meshio calls ``sys.exit(1)`` on a file it
+    cannot parse (an empty .vtk is enough) and prints to stdout; trimesh raises whatever its parser meets
+    (``IndexError``, a missing optional text-encoding module for binary junk, ...). Every failure becomes one
+    ``ValueError`` naming the file, the reader's own words, and what to do."""
+    out = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
+            return fn()
+    except (SystemExit, Exception) as exc:
+        said = " ".join(out.getvalue().split())
+        if isinstance(exc, SystemExit) or not str(exc):
+            why = said or type(exc).__name__
+        elif isinstance(exc, (ImportError, UnicodeDecodeError)):
+            # Binary junk in a text format: trimesh then looks for an encoding detector it may not have.
+            why = "the file is not valid text for this format (binary or corrupt data)"
+        else:
+            why = f"{type(exc).__name__}: {exc}"
+        raise ValueError(
+            f"could not read mesh file '{path}' with {reader} ({why[:300]}); the file is empty, truncated or "
+            f"not a {path.suffix.lower()} mesh: re-export it, or convert it with `meshio convert`"
+        ) from None
+
+
 def _load_trimesh(path: Path) -> TriMesh:
     import trimesh
 
-    try:
-        # process=False: keep the file's vertex order and keep NaNs for our own check
-        # (processing would silently drop them).
-        mesh = trimesh.load(str(path), force="mesh", process=False)
-    except Exception as exc:
-        raise ValueError(f"could not read mesh file '{path}': {type(exc).__name__}: {exc}") from exc
+    # process=False: keep the file's vertex order and keep NaNs for our own check
+    # (processing would silently drop them).
+    mesh = _read(path, "trimesh", lambda: trimesh.load(str(path), force="mesh", process=False))
     points = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
     faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
     _check_points(points, path)
@@ -75,10 +100,7 @@ def _load_trimesh(path: Path) -> TriMesh:
 def _load_meshio(path: Path) -> TriMesh | TetMesh:
     import meshio
 
-    try:
-        m = meshio.read(str(path))
-    except Exception as exc:
-        raise ValueError(f"could not read mesh file '{path}': {type(exc).__name__}: {exc}") from exc
+    m = _read(path, "meshio", lambda: meshio.read(str(path)))
     points = np.asarray(m.points, dtype=np.float64)
     if points.ndim == 2 and points.shape[1] == 2:  # 2-D gmsh meshes: embed in z = 0
         points = np.hstack([points, np.zeros((len(points), 1))])

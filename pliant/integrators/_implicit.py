@@ -346,7 +346,8 @@ class BDF2(_ImplicitOptions, Integrator):
             a = np.asarray(state[k])
             if a.shape != (m.particle_count, 3) or a.dtype != np_dtype or not np.all(np.isfinite(a)):
                 raise ValueError(
-                    f"{k}: expected finite {np_dtype} of shape ({m.particle_count}, 3), got {a.dtype} {a.shape}"
+                    f"{k}: expected finite {np_dtype} of shape ({m.particle_count}, 3), "
+                    f"got {a.dtype} {a.shape}"
                 )
             arrays.append(a)
         dt = np.asarray(state["bdf2_dt"])

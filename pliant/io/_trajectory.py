@@ -158,7 +158,9 @@ def save_checkpoint(
     return atomic_savez(path, **arrays)
 
 
-def _float_array(path: Path, key: str, a: np.ndarray, shape: tuple[int, ...], dtype: str | None) -> np.ndarray:
+def _float_array(
+    path: Path, key: str, a: np.ndarray, shape: tuple[int, ...], dtype: str | None
+) -> np.ndarray:
     """``a`` checked for exact shape, a float dtype (``dtype`` when given) and finite values."""
     if a.shape != shape:
         raise CheckpointError(
@@ -224,7 +226,9 @@ def load_checkpoint(path: str | os.PathLike, spec: CheckpointSpec | None = None)
     frame_f = _scalar(path, "frame", d["frame"], "iu")
     frame = int(frame_f)
     if frame < 0 or (spec is not None and spec.max_frame is not None and frame > spec.max_frame):
-        bound = "" if spec is None or spec.max_frame is None else f", at most the {spec.max_frame} frames asked for"
+        bound = ""
+        if spec is not None and spec.max_frame is not None:
+            bound = f", at most the {spec.max_frame} frames asked for"
         raise CheckpointError(
             f"{path}: frame: {frame} is out of range (expected >= 0{bound}); "
             "ask for more frames, or delete the checkpoint to start over"

@@ -9,6 +9,10 @@ import numpy as np
 
 __all__ = ["Camera", "as_points"]
 
+#: Allowed vertical field of view [degrees] and image side [pixels].
+FOV_RANGE = (0.01, 179.0)
+MAX_IMAGE_SIDE = 16384
+
 # Direction from the target towards the eye for the default 3/4 view: in front (+z), to the
 # right (+x) and about 25 degrees above the horizon, so the ground plane is visible under
 # the object and both the front and a side face are seen.
@@ -75,16 +79,28 @@ class Camera:
         self.fov_y = float(self.fov_y)
         self.width = int(self.width)
         self.height = int(self.height)
-        if not 0.0 < self.fov_y < 180.0:
-            raise ValueError(f"fov_y must be in (0, 180) degrees, got {self.fov_y}")
-        if self.width < 1 or self.height < 1:
-            raise ValueError(f"image size must be positive, got {self.width}x{self.height}")
-        fwd = self.target - self.eye
-        if np.linalg.norm(fwd) == 0.0:
-            raise ValueError("eye and target coincide")
+        if not FOV_RANGE[0] <= self.fov_y <= FOV_RANGE[1]:
+            # Below ~0.01° the focal length overflows the pixel maths; at 180° it is zero.
+            raise ValueError(
+                f"fov_y must be in [{FOV_RANGE[0]}, {FOV_RANGE[1]}] degrees, got {self.fov_y}; "
+                "zoom by moving the eye instead"
+            )
+        if not (1 <= self.width <= MAX_IMAGE_SIDE and 1 <= self.height <= MAX_IMAGE_SIDE):
+            raise ValueError(
+                f"image size must be 1..{MAX_IMAGE_SIDE} pixels a side, got {self.width}x{self.height}"
+            )
+        with np.errstate(over="ignore", invalid="ignore"):
+            fwd = self.target - self.eye
+            dist = float(np.linalg.norm(fwd))
+        scale = max(1.0, float(np.max(np.abs(self.eye))), float(np.max(np.abs(self.target))))
+        if not np.isfinite(dist) or dist <= 1e-9 * scale:
+            raise ValueError(
+                f"eye {self.eye.tolist()} and target {self.target.tolist()} coincide (or are too far apart "
+                "to subtract); put the eye at a finite distance from the point it looks at"
+            )
         if np.linalg.norm(np.cross(fwd, self.up)) <= 1e-9 * np.linalg.norm(fwd) * np.linalg.norm(self.up):
             raise ValueError("up is parallel to the viewing direction")
-        if self.near is not None and not self.near > 0.0:
+        if self.near is not None and not (self.near > 0.0 and np.isfinite(self.near)):
             raise ValueError(f"near must be positive, got {self.near}")
 
     @property

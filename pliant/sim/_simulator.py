@@ -223,7 +223,8 @@ class Simulator:
     # ------------------------------------------------------------------ checkpoints
     def _params(self) -> dict[str, Any]:
         """The model's parameter arrays a checkpoint carries (the whitelist, only those the model has)."""
-        return {k: getattr(self.model, k) for k in _PARAMS if isinstance(getattr(self.model, k, None), wp.array)}
+        m = self.model
+        return {k: getattr(m, k) for k in _PARAMS if isinstance(getattr(m, k, None), wp.array)}
 
     def save_checkpoint(self, path: str | os.PathLike) -> Path:
         """Write the last recorded state, its time, fitted parameters, the solver's state between steps
@@ -278,8 +279,8 @@ class Simulator:
             raise
         except Exception as exc:  # whatever a foreign or corrupt solver_ array makes the solver raise
             raise CheckpointError(
-                f"{path}: solver state: {exc}; resume with the solver that wrote the checkpoint, or delete it "
-                "to start over"
+                f"{path}: solver state: {exc}; resume with the solver that wrote the checkpoint, or "
+                "delete it to start over"
             ) from None
         for k, a in ck["params"].items():
             getattr(m, k).assign(a)

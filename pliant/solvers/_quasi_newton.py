@@ -197,7 +197,8 @@ class _LaggedHessian:
 
             raise SingularSystemError(
                 f"L-BFGS: the initial Hessian M + h^2 K of axis {'xyz'[axis]} is singular ({exc}) at step "
-                f"h = {self.h:.3g} s: the masses vanish next to h^2 times the stiffness in float64 round-off; "
+                f"h = {self.h:.3g} s: the masses vanish next to h^2 times the stiffness in float64 "
+                "round-off; "
                 "lower dt or raise substeps (h below ~1 s for any physical body), or use method='newton'"
             ) from None
 
@@ -519,7 +520,11 @@ def lbfgs_restore_checkpoint_state(solver: Any, state: dict[str, np.ndarray]) ->
         s = _ck_array(state, "lbfgs_s", (pairs, n, 3))
         y = _ck_array(state, "lbfgs_y", (pairs, n, 3))
         rho = _ck_array(state, "lbfgs_rho", (pairs,))
-    corr = {k: _ck_array(state, f"lbfgs_{k}", (n, 3)) for k in ("correction", "last_correction") if f"lbfgs_{k}" in state}
+    corr = {
+        k: _ck_array(state, f"lbfgs_{k}", (n, 3))
+        for k in ("correction", "last_correction")
+        if f"lbfgs_{k}" in state
+    }
     h = float(_ck_array(state, "lbfgs_h", ())) if "lbfgs_h" in state else None
     refresh = bool(_ck_array(state, "lbfgs_refresh", (), "b")) if "lbfgs_refresh" in state else None
     base = _ck_array(state, "lbfgs_h0_base", (3, nnz)) if "lbfgs_h0_base" in state else None
@@ -527,7 +532,9 @@ def lbfgs_restore_checkpoint_state(solver: Any, state: dict[str, np.ndarray]) ->
     values = _ck_array(state, "lbfgs_h0_values", (3, nnz)) if "lbfgs_h0_values" in state else None
     if (base is None) != (h0_h is None) or (values is not None and base is None):
         raise ValueError("lbfgs_h0_values needs lbfgs_h0_base and lbfgs_h0_h")
-    facts = int(_ck_array(state, "lbfgs_h0_factorizations", (), "iu")) if "lbfgs_h0_factorizations" in state else 0
+    facts = 0
+    if "lbfgs_h0_factorizations" in state:
+        facts = int(_ck_array(state, "lbfgs_h0_factorizations", (), "iu"))
     hist.clear()
     for k in range(pairs):
         hist.s.append(np.array(s[k], dtype=np.float64))
