@@ -124,6 +124,13 @@ class Simulator:
         self.frame += 1
         self.time = self.frame * self.dt
 
+    def check_initial_state(self) -> None:
+        """Frame 0 is checked like every other: raise :class:`DivergenceError` (frame 0) if the current
+        state is already non-finite (e.g. an origin that overflows float32) or moves faster than
+        ``max_speed``."""
+        wp.copy(self._x_start, self.state_0.particle_q)
+        self.check()
+
     def check(self) -> None:
         """Raise :class:`DivergenceError` if any value is non-finite or a speed exceeds ``max_speed``.
 
@@ -231,6 +238,8 @@ class Simulator:
         (``Solver.checkpoint_state``) and the trajectory, atomically."""
         traj = self.trajectory()
         params = {k: a.numpy() for k, a in self._params().items()}
+        if self._last_good is None:
+            raise ValueError("nothing to checkpoint yet: run at least frame 0 first")
         frame, time, x, v = self._last_good
         return save_checkpoint(
             path,
@@ -321,9 +330,7 @@ class Simulator:
                 raise FileNotFoundError(f"--resume needs an existing checkpoint, none at {checkpoint}")
             self.load_checkpoint(checkpoint, max_frame=frames)
         if not self._xs:
-            # Frame 0 is checked like every other: a state that is already non-finite is reported now.
-            wp.copy(self._x_start, self.state_0.particle_q)
-            self.check()
+            self.check_initial_state()
             self._record(record_velocity)
         bar = None
         if progress:
@@ -351,7 +358,7 @@ class Simulator:
         finally:
             if bar is not None:
                 bar.close()
-            if checkpoint is not None:
+            if checkpoint is not None and self._last_good is not None:
                 # On Ctrl-C or divergence this holds the last frame that passed its check.
                 self.save_checkpoint(checkpoint)
         return self.trajectory()
