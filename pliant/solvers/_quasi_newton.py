@@ -197,9 +197,9 @@ class _LaggedHessian:
 
             raise SingularSystemError(
                 f"L-BFGS: the initial Hessian M + h^2 K of axis {'xyz'[axis]} is singular ({exc}) at step "
-                f"h = {self.h:.3g} s: the masses vanish next to h^2 times the stiffness in float64 "
-                "round-off; "
-                "lower dt or raise substeps (h below ~1 s for any physical body), or use method='newton'"
+                f"h = {self.h:.3g} s: the masses vanish next to h^2 times the stiffness (or h^2 K "
+                "overflows the model's dtype); lower dt or raise substeps (h below ~1 s for any physical "
+                "body), or use method='newton'"
             ) from None
 
     def solve(self, r: np.ndarray) -> np.ndarray:
