@@ -392,3 +392,21 @@ def test_item8_checkpoint_meta_is_json(tmp_path):
     with np.load(ckpt) as z:
         assert json.loads(str(z["meta"]))["substeps"] == 4
     assert _rope_sim().run(5, progress=False, checkpoint=ckpt, resume=True).frame_count == 6
+
+
+def test_item1_export_sequence_prefix_cannot_escape(tmp_path):
+    """export_*_sequence writes only into its folder: a prefix with a separator is refused, nothing written."""
+    x = np.zeros((2, 3, 3))
+    with pytest.raises(ValueError, match="not a plain file name"):
+        pl.render.export_ply_sequence(tmp_path / "seq", x, prefix="../escaped_")
+    assert not list(tmp_path.rglob("*.ply"))
+    paths = pl.render.export_ply_sequence(tmp_path / "seq", x)
+    assert all(p.parent == tmp_path / "seq" for p in paths) and len(paths) == 2
+
+
+def test_item1_export_out_with_nul_is_a_cli_error(tmp_path, capsys):
+    """`pliant export --out` with a NUL byte: exit 1 with pliant's message, before reading the input."""
+    assert main(["export", str(tmp_path / "missing.npz"), "--out", str(tmp_path / "a\x00b.ply")]) == 1
+    assert "is not a plain file name ('\\x00')" in capsys.readouterr().err
+    assert main(["export", str(tmp_path / "missing.npz"), "--out", str(tmp_path / "a\x00b" / "x.ply")]) == 1
+    assert "not a usable folder name" in capsys.readouterr().err
