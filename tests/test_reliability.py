@@ -395,7 +395,7 @@ def test_item8_checkpoint_meta_is_json(tmp_path):
 
 
 def test_item1_export_sequence_prefix_cannot_escape(tmp_path):
-    """export_*_sequence writes only into its folder: a prefix with a separator is refused, nothing written."""
+    """export_*_sequence writes only into its folder: a prefix with a separator is refused."""
     x = np.zeros((2, 3, 3))
     with pytest.raises(ValueError, match="not a plain file name"):
         pl.render.export_ply_sequence(tmp_path / "seq", x, prefix="../escaped_")
