@@ -520,15 +520,24 @@ def lbfgs_restore_checkpoint_state(solver: Any, state: dict[str, np.ndarray]) ->
         s = _ck_array(state, "lbfgs_s", (pairs, n, 3))
         y = _ck_array(state, "lbfgs_y", (pairs, n, 3))
         rho = _ck_array(state, "lbfgs_rho", (pairs,))
+        for k in range(pairs):
+            # ρ is 1/(sᵀy) > 0 by construction (_History.push), computed the same way here: bit-equal.
+            sy = float(np.vdot(s[k], y[k]))
+            if not (sy > 0.0 and float(rho[k]) == 1.0 / sy):
+                raise ValueError(f"lbfgs_rho[{k}]: not 1/(s.y) of its curvature pair (a corrupt file)")
     corr = {
         k: _ck_array(state, f"lbfgs_{k}", (n, 3))
         for k in ("correction", "last_correction")
         if f"lbfgs_{k}" in state
     }
     h = float(_ck_array(state, "lbfgs_h", ())) if "lbfgs_h" in state else None
+    if h is not None and not h > 0.0:
+        raise ValueError(f"lbfgs_h: the last step must be > 0 s, got {h}")
     refresh = bool(_ck_array(state, "lbfgs_refresh", (), "b")) if "lbfgs_refresh" in state else None
     base = _ck_array(state, "lbfgs_h0_base", (3, nnz)) if "lbfgs_h0_base" in state else None
     h0_h = float(_ck_array(state, "lbfgs_h0_h", ())) if "lbfgs_h0_h" in state else None
+    if h0_h is not None and not h0_h > 0.0:
+        raise ValueError(f"lbfgs_h0_h: the step of H0 must be > 0 s, got {h0_h}")
     values = _ck_array(state, "lbfgs_h0_values", (3, nnz)) if "lbfgs_h0_values" in state else None
     if (base is None) != (h0_h is None) or (values is not None and base is None):
         raise ValueError("lbfgs_h0_values needs lbfgs_h0_base and lbfgs_h0_h")
