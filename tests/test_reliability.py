@@ -119,7 +119,9 @@ class _Teleport(pl.solvers.Solver):
         self.jump = jump
 
     def step(self, state_in, state_out, control, dt):
-        state_out.particle_q.assign(state_in.particle_q.numpy() + np.array([self.jump, 0.0, 0.0], np.float32))
+        free = (self.model.particle_inv_mass.numpy() > 0)[:, None]  # pins stay: not a handle's motion
+        jump = np.where(free, np.array([self.jump, 0.0, 0.0]), 0.0).astype(np.float32)
+        state_out.particle_q.assign(state_in.particle_q.numpy() + jump)
         state_out.particle_qd.zero_()
 
 
@@ -410,3 +412,27 @@ def test_item1_export_out_with_nul_is_a_cli_error(tmp_path, capsys):
     assert "is not a plain file name ('\\x00')" in capsys.readouterr().err
     assert main(["export", str(tmp_path / "missing.npz"), "--out", str(tmp_path / "a\x00b" / "x.ply")]) == 1
     assert "not a usable folder name" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("speed, diverges", [(1e9, True), (1.0, False)])
+def test_item5_fast_handle_is_a_divergence_naming_the_handle(speed, diverges):
+    """A kinematic particle (a handle) driven at 1e9 m/s: DivergenceError that blames the handle, not dt;
+    at 1 m/s the run completes."""
+    b = pl.ModelBuilder()
+    b.add_rope(n_segments=4, length=0.4, mass=0.05, stiffness=400.0, start=(0.0, 0.5, 0.0))
+    b.add_kinematic([0])
+    model = b.finalize(device="cpu")
+    x0 = model.particle_q.numpy()[[0]].astype(np.float64)
+    dt = 1 / 60
+
+    def drive(t, control):
+        control.set_kinematic_targets(x0 + np.array([speed * (t + dt), 0.0, 0.0]))
+
+    sim = pl.Simulator(model, pl.solvers.ForceSolver(model), dt=dt, substeps=8, control_fn=drive)
+    if not diverges:
+        assert sim.run(3, progress=False).frame_count == 4
+        return
+    with pytest.raises(pl.DivergenceError, match="handle") as info:
+        sim.run(3, progress=False)
+    assert info.value.frame == 1 and info.value.value == pytest.approx(speed, rel=1e-3)
+    assert "lower dt" not in str(info.value)

@@ -39,9 +39,11 @@ def _health(
     v: wp.array(dtype=Any),
     x: wp.array(dtype=Any),
     x_start: wp.array(dtype=Any),
+    inv_mass: wp.array(dtype=Any),
     stats_out: wp.array(dtype=Any),
 ):
-    # stats: [0] max |v|², [1] max |x − x_start|² over the frame, [2] count of non-finite particles.
+    # stats: [0] max |v|², [1] max |x − x_start|² over the frame, [2] count of non-finite particles,
+    # [3], [4]: [0] and [1] over kinematic and pinned particles only (inverse mass 0: handles).
     i = wp.tid()
     s = wp.dot(v[i], v[i])
     p = wp.dot(x[i], x[i])
@@ -52,6 +54,9 @@ def _health(
     else:
         wp.atomic_max(stats_out, 0, s)
         wp.atomic_max(stats_out, 1, dd)
+        if inv_mass[i] == type(s)(0.0):
+            wp.atomic_max(stats_out, 3, s)
+            wp.atomic_max(stats_out, 4, dd)
 
 
 class Simulator:
@@ -102,7 +107,7 @@ class Simulator:
         self._xs: list[np.ndarray] = []
         self._vs: list[np.ndarray] = []
         self._ts: list[float] = []
-        self._stats = wp.zeros(3, dtype=model.scalar, device=model.device)
+        self._stats = wp.zeros(5, dtype=model.scalar, device=model.device)
         # Positions at the start of the current frame: the displacement check's reference.
         self._x_start = wp.clone(self.state_0.particle_q)
         self._last_good: tuple[int, float, np.ndarray, np.ndarray] | None = None
@@ -143,10 +148,10 @@ class Simulator:
         wp.launch(
             _health,
             self.model.particle_count,
-            [s.particle_qd, s.particle_q, self._x_start, self._stats],
+            [s.particle_qd, s.particle_q, self._x_start, self.model.particle_inv_mass, self._stats],
             device=self.model.device,
         )
-        speed2, disp2, bad = (float(a) for a in self._stats.numpy())
+        speed2, disp2, bad, kin_speed2, kin_disp2 = (float(a) for a in self._stats.numpy())
         integrator = getattr(self.solver, "integrator", None)
         h = self.dt / self.substeps
         advice = (
@@ -181,6 +186,16 @@ class Simulator:
                 f"after {stats.iterations} iterations); {fix}",
                 RuntimeWarning,
                 stacklevel=2,
+            )
+        kin = max(float(np.sqrt(kin_speed2)), float(np.sqrt(kin_disp2)) / self.dt)
+        if kin > self.max_speed:
+            # Checked first: the motion is prescribed, so the solver's step size is not the cause.
+            raise DivergenceError(
+                self.frame,
+                "max speed of a handle or kinematic particle (m/s)",
+                kin,
+                "a handle's path or velocity moves its particles faster than max_speed: slow the handle "
+                "(its path's times or velocity), or raise max_speed if such speeds are meant",
             )
         speed = float(np.sqrt(speed2))
         if speed > self.max_speed:
