@@ -205,7 +205,7 @@ def test_untouched_checkpoints_resume(tmp_path):
         assert _check(kind, _base(kind, tmp_path), tmp_path) == "ok"
 
 
-@pytest.mark.parametrize("kind, examples", [("rope", 150), ("fem", 40)])
+@pytest.mark.parametrize("kind, examples", [("rope", 400), ("fem", 100)])
 def test_checkpoint_fuzz(kind, examples, tmp_path_factory):
     """A fixed sample of mutated checkpoints: success or a clear pliant error, never another exception."""
     _fuzz(kind, tmp_path_factory, examples, derandomize=True)

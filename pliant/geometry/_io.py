@@ -19,6 +19,11 @@ _MESHIO_EXTS = (".msh", ".vtk", ".vtu")
 SUPPORTED_EXTENSIONS = _TRIMESH_EXTS + _MESHIO_EXTS
 
 
+#: Largest vertex coordinate a mesh file may have [file units, metres for pliant]: beyond any object
+#: pliant simulates, and where float32 positions are 64 m apart.
+MAX_COORDINATE = 1e9
+
+
 def _check_points(points: NDArray[np.float64], path: Path) -> None:
     if len(points) == 0:
         raise ValueError(f"mesh file '{path}' contains no vertices; is it empty or truncated?")
@@ -28,6 +33,13 @@ def _check_points(points: NDArray[np.float64], path: Path) -> None:
             f"mesh file '{path}' has {bad.size} vertex/vertices with NaN or inf coordinates "
             f"(first indices: {bad[:5].tolist()}); re-export the mesh from its source or "
             "remove those vertices and the faces that use them."
+        )
+    huge = np.flatnonzero(np.any(np.abs(points) > MAX_COORDINATE, axis=1))
+    if huge.size:
+        raise ValueError(
+            f"mesh file '{path}' has {huge.size} vertex/vertices with coordinates beyond {MAX_COORDINATE:g} "
+            f"(first indices: {huge[:5].tolist()}); the file is corrupt or in the wrong units: re-export it "
+            "in metres (a scene's `scale` resizes a mesh)"
         )
 
 
