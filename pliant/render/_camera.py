@@ -171,7 +171,7 @@ class Camera:
 
         Args:
             points: Positions [..., 3] in metres (e.g. [N, 3] or a whole trajectory [T, N, 3]);
-                non-finite rows are ignored.
+                non-finite rows (and rows beyond float32's range, which are not drawn) are ignored.
             direction: Direction from the target towards the eye (default: 3/4 view from the
                 front-right, about 25 degrees above the horizon).
             up: Up vector.
@@ -186,7 +186,8 @@ class Camera:
         if hasattr(points, "numpy") and not isinstance(points, np.ndarray):
             points = points.numpy()
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        # As the renderer: rows float32 cannot hold (|x| > 3.4e38, e.g. a far collider) are not framed.
+        pts = pts[np.all(np.abs(pts) <= np.finfo(np.float32).max, axis=1)]
         if len(pts) == 0:
             raise ValueError("Camera.fit needs at least one finite point")
         if not 0.0 <= padding < 1.0:
@@ -195,7 +196,10 @@ class Camera:
         center = 0.5 * (lo + hi)
         d = _vec3(direction, "direction")
         d /= np.linalg.norm(d)
-        cam = cls(eye=center + d, target=center, up=up, fov_y=fov_y, width=width, height=height)
+        # A provisional camera for the basis (which depends only on d); its distance must be resolvable
+        # next to the coordinates' size.
+        reach = max(1.0, float(np.max(np.abs(center))), float(np.max(hi - lo)))
+        cam = cls(eye=center + reach * d, target=center, up=up, fov_y=fov_y, width=width, height=height)
         right, upv, _ = cam.basis()
         corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
         if np.max(hi - lo) <= 1e-9 * max(1.0, float(np.max(np.abs(center)))):

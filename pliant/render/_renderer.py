@@ -224,7 +224,8 @@ class Renderer:
         with np.errstate(divide="ignore", invalid="ignore"):
             inv = np.where(zc > near, focal / zc, 0.0)
         screen = np.stack([0.5 * Ws + (rel @ right) * inv, 0.5 * Hs - (rel @ up) * inv, zc], axis=1)
-        screen = screen.astype(np.float32)
+        with np.errstate(over="ignore"):  # far off-screen points: ±inf pixels, clipped by the kernels
+            screen = screen.astype(np.float32)
         table, per_vertex = resolve_colors(colors, n, self.color)
 
         tri = None
