@@ -296,7 +296,8 @@ def test_item3_hanging_chain_from_rest_length_reaches_closed_form(load_steps):
     assert stats.regularized_steps >= 1 and stats.load_steps == load_steps
 
 
-def test_item3_per_component_fixed_mask():
+@pytest.mark.parametrize("linear_solver", ["direct", "cg"])
+def test_item3_per_component_fixed_mask(linear_solver):
     """A particle tied to a pinned anchor by a stretched spring, held in y and z only ([N, 3] mask): it slides
     along x to where the spring has its rest length, x = sqrt(L² − y²); held in no component it goes
     radially instead."""
@@ -307,7 +308,9 @@ def test_item3_per_component_fixed_mask():
     model = b.finalize(device="cpu", dtype="float64")
     mask = np.zeros((2, 3), bool)
     mask[1, 1:] = True
-    x, stats = pl.solvers.solve_static(model, [pl.energies.Springs()], fixed=mask)
+    x, stats = pl.solvers.solve_static(
+        model, [pl.energies.Springs()], fixed=mask, linear_solver=linear_solver
+    )
     np.testing.assert_allclose(x.numpy()[1], [0.4, 0.3, 0.0], atol=1e-10)
     assert stats.fixed_dofs == 3 + 2 and stats.stop_reason == "converged"
     x, _ = pl.solvers.solve_static(model, [pl.energies.Springs()])

@@ -126,7 +126,7 @@ def _project_fixed_dofs(
     fr = free[r]
     fc = free[c]
     m = values[k]
-    one = fr[0] * type(fr[0])(0.0) + type(fr[0])(1.0)
+    one = type(fr[0])(1.0)
     for a in range(3):
         for b in range(3):
             m[a, b] = m[a, b] * fr[a] * fc[b]
