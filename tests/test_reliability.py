@@ -257,7 +257,7 @@ def test_item6_video_writer_wraps_ffmpeg_failures(tmp_path, monkeypatch):
         ("garbage.stl", bytes(range(255, -1, -1)) * 3),
     ],
 )
-def test_item6_unreadable_mesh_files_are_value_errors(tmp_path, capsys, name, data):
+def test_item3_and_6_unreadable_mesh_files_are_value_errors(tmp_path, capsys, name, data):
     """meshio's sys.exit(1) and trimesh's raw errors become one ValueError naming the file; nothing is
     printed by the readers, and no 'charset_normalizer' or SystemExit."""
     path = tmp_path / name
@@ -269,7 +269,7 @@ def test_item6_unreadable_mesh_files_are_value_errors(tmp_path, capsys, name, da
     assert capsys.readouterr().out == ""
 
 
-# ------------------------------------------------------------------------------- item 3: statics
+# ---------------------------------------- item 4 (singular statics) and solve_static's new options
 def _chain(n: int = 10, L: float = 0.1, m: float = 0.05, k: float = 200.0):
     b = pl.ModelBuilder(gravity=(0.0, -9.81, 0.0))
     pos = np.zeros((n + 1, 3))
@@ -281,7 +281,7 @@ def _chain(n: int = 10, L: float = 0.1, m: float = 0.05, k: float = 200.0):
 
 
 @pytest.mark.parametrize("load_steps", [1, 4])
-def test_item3_hanging_chain_from_rest_length_reaches_closed_form(load_steps):
+def test_item4_solve_static_singular_start_reaches_closed_form(load_steps):
     """A chain hanging straight at rest length has no transverse stiffness (H singular: SciPy's 'Factor is
     exactly singular' before). The Levenberg–Marquardt shift makes Newton converge to the closed form:
     spring j carries the weight of the n − j particles below it, stretching by (n − j) m g / k."""
@@ -297,7 +297,7 @@ def test_item3_hanging_chain_from_rest_length_reaches_closed_form(load_steps):
 
 
 @pytest.mark.parametrize("linear_solver", ["direct", "cg"])
-def test_item3_per_component_fixed_mask(linear_solver):
+def test_solve_static_per_component_fixed_mask(linear_solver):
     """A particle tied to a pinned anchor by a stretched spring, held in y and z only ([N, 3] mask): it slides
     along x to where the spring has its rest length, x = sqrt(L² − y²); held in no component it goes
     radially instead."""
@@ -319,7 +319,7 @@ def test_item3_per_component_fixed_mask(linear_solver):
         pl.solvers.solve_static(model, [pl.energies.Springs()], fixed=np.zeros((2, 2), bool))
 
 
-def test_item3_stop_reason_max_iterations():
+def test_solve_static_stop_reason_max_iterations():
     """One Newton iteration on the nonlinear chain from a sideways start: stop_reason says so."""
     model = _chain()
     x0 = model.particle_q.numpy()

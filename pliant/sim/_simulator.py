@@ -316,7 +316,8 @@ class Simulator:
         self._solver_state = dict(ck["solver_state"])
         self._xs = list(ck["traj_x"])
         self._ts = list(ck["traj_t"])
-        self._vs = list(ck["traj_v"]) if ck["traj_v"] is not None else []
+        # Velocities only when this run records them too (else the trajectory's v would stop short of x).
+        self._vs = list(ck["traj_v"]) if ck["traj_v"] is not None and self._record_velocity else []
 
     # ------------------------------------------------------------------ the loop
     def run(
