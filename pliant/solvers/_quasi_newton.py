@@ -541,6 +541,12 @@ def lbfgs_restore_checkpoint_state(solver: Any, state: dict[str, np.ndarray]) ->
     values = _ck_array(state, "lbfgs_h0_values", (3, nnz)) if "lbfgs_h0_values" in state else None
     if (base is None) != (h0_h is None) or (values is not None and base is None):
         raise ValueError("lbfgs_h0_values needs lbfgs_h0_base and lbfgs_h0_h")
+    # H₀ is SPD with the masses on its diagonal, and contact terms only add to it (PSD blocks).
+    diag = h0.diag_slots
+    if base is not None and not np.all(base[:, diag] > 0.0):
+        raise ValueError("lbfgs_h0_base: H0's diagonal must be positive (a corrupt file)")
+    if values is not None and not np.all(values[:, diag] >= base[:, diag]):
+        raise ValueError("lbfgs_h0_values: H0's diagonal is below its lagged part's (a corrupt file)")
     facts = 0
     if "lbfgs_h0_factorizations" in state:
         facts = int(_ck_array(state, "lbfgs_h0_factorizations", (), "iu"))
