@@ -205,6 +205,7 @@ def test_untouched_checkpoints_resume(tmp_path):
         assert _check(kind, _base(kind, tmp_path), tmp_path) == "ok"
 
 
+@pytest.mark.filterwarnings("ignore:L-BFGS did not converge")
 @pytest.mark.parametrize("kind, examples", [("rope", 400), ("fem", 100)])
 def test_checkpoint_fuzz(kind, examples, tmp_path_factory):
     """A fixed sample of mutated checkpoints: success or a clear pliant error, never another exception."""
@@ -212,6 +213,7 @@ def test_checkpoint_fuzz(kind, examples, tmp_path_factory):
 
 
 @pytest.mark.slow
+@pytest.mark.filterwarnings("ignore:L-BFGS did not converge")
 @pytest.mark.parametrize("kind, examples", [("rope", 5000), ("fem", 1500)])
 def test_checkpoint_fuzz_long(kind, examples, tmp_path_factory):
     """The long random search (run with -m slow)."""

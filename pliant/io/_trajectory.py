@@ -31,10 +31,29 @@ def atomic_savez(path: str | os.PathLike, **arrays: Any) -> Path:
     return path
 
 
-def _load_npz(path: str | os.PathLike, required: tuple[str, ...], what: str) -> dict[str, np.ndarray]:
+#: Default bound on the uncompressed size of an NPZ pliant reads [bytes] (a compressed member could
+#: otherwise expand to any size: the check reads the ZIP directory, before anything is allocated).
+MAX_NPZ_BYTES = 8 << 30
+
+
+def _load_npz(
+    path: str | os.PathLike, required: tuple[str, ...], what: str, max_bytes: int = MAX_NPZ_BYTES
+) -> dict[str, np.ndarray]:
+    import zipfile
+
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{what} file not found: {path}")
+    try:
+        with zipfile.ZipFile(path) as zf:
+            size = sum(info.file_size for info in zf.infolist())
+    except Exception:
+        size = 0  # not a ZIP: np.load below says what it is
+    if size > max_bytes:
+        raise ValueError(
+            f"{path}: the {what} NPZ expands to {size / 2**30:.3g} GiB, more than the "
+            f"{max_bytes / 2**30:.3g} GiB it can need; it is not a file pliant wrote for this run"
+        )
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
@@ -204,8 +223,12 @@ def load_checkpoint(path: str | os.PathLike, spec: CheckpointSpec | None = None)
             values, a frame out of range; the message names the file and the key.
     """
     path = Path(path)
+    budget = MAX_NPZ_BYTES
+    if spec is not None and spec.max_frame is not None:
+        # traj_x and traj_v in float64, x and v, the parameters and solver state: generously bounded.
+        budget = 64 * (spec.max_frame + 2) * spec.particle_count * 3 * 8 + (256 << 20)
     try:
-        d = _load_npz(path, ("frame", "time", "x", "v", "traj_x", "traj_t"), "checkpoint")
+        d = _load_npz(path, ("frame", "time", "x", "v", "traj_x", "traj_t"), "checkpoint", budget)
     except FileNotFoundError:
         raise
     except ValueError as exc:
