@@ -116,9 +116,16 @@ def cmd_export(args: argparse.Namespace) -> int:
     """``pliant export TRAJ.npz --format ply|obj|usd --out PATH``."""
     from .. import render
     from ..io import Trajectory
+    from ..io._paths import OutputPathError, check_file_stem, check_out_dir
 
-    traj = Trajectory.load(args.trajectory)
     out = Path(args.out)
+    try:  # before reading anything: a folder name no file system takes, a file name with a separator
+        check_out_dir(out.parent if out.suffix else out)
+        if out.suffix:
+            check_file_stem(out.name, "--out file name", 255 - 16)
+    except OutputPathError as exc:
+        raise CliError(str(exc)) from None
+    traj = Trajectory.load(args.trajectory)
     fmt = args.format or {".ply": "ply", ".obj": "obj", ".usd": "usd", ".usda": "usd", ".usdc": "usd"}.get(
         out.suffix.lower()
     )

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from . import EXIT_DIVERGED, EXIT_INTERRUPTED, EXIT_OK, CliError
+from . import EXIT_DIVERGED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USER, CliError
 
 
 def _load(scene: str) -> Any:
@@ -71,14 +71,45 @@ def simulate(
     quiet: bool = False,
     resume_hint: str = "",
 ) -> int:
-    """Build, run, save ``<out>/<name>.npz`` (+ ``.mp4``, ``.ckpt.npz``) and print a summary."""
+    """Build, run, save ``<out>/<name>.npz`` (+ ``.mp4``, ``.ckpt.npz``) and print a summary.
+
+    Every output path is checked first (one file name inside ``out``, links followed), then the video's
+    frame rate, then the scene is built and its initial state checked: a mistake in any of them is an
+    error before anything is simulated or written.
+    """
+    import numpy as np
+
     from .. import DivergenceError
+    from ..io._paths import OutputPathError, check_file_stem, confined
     from ..scene import build_scene
 
-    scene = build_scene(cfg, device=device, dtype=dtype)
+    try:
+        check_file_stem(name, "scene name")
+        traj_path, video_path, ckpt, render_path = (
+            confined(out, f"{name}{suffix}") for suffix in (".npz", ".mp4", ".ckpt.npz", ".render.npz")
+        )
+    except OutputPathError as exc:
+        raise CliError(str(exc)) from None
+    want_video = video and cfg.output.video
+    if want_video:
+        from ..render import check_fps
+
+        fps = getattr(cfg.output, "fps", None)
+        if fps is not None:
+            try:
+                check_fps(fps)
+            except ValueError as exc:
+                raise CliError(f"output.fps: {exc}") from None
+    # A value that overflows the model's dtype (origin 1e39 in float32) is reported by the frame-0 check
+    # below, not as NumPy's RuntimeWarning.
+    with np.errstate(over="ignore", invalid="ignore"):
+        scene = build_scene(cfg, device=device, dtype=dtype)
     m = scene.model
-    out.mkdir(parents=True, exist_ok=True)
-    traj_path, video_path, ckpt = out / f"{name}.npz", out / f"{name}.mp4", out / f"{name}.ckpt.npz"
+    if want_video:
+        try:
+            check_fps(scene.fps)
+        except ValueError as exc:
+            raise CliError(f"video frame rate (output.fps, default 1/dt): {exc}; or use --no-video") from None
     if resume and not ckpt.exists():
         raise CliError(f"--resume: no checkpoint at {ckpt}; run once without --resume first")
     sim = scene.simulator()
@@ -95,6 +126,11 @@ def simulate(
     )
     status, note = EXIT_OK, ""
     t0 = time.perf_counter()
+    if not resume:
+        try:
+            sim.check_initial_state()  # non-finite → a user error, with nothing written
+        except DivergenceError as exc:
+            raise CliError(str(exc)) from None
     try:
         traj = sim.run(
             scene.frames,
@@ -124,10 +160,10 @@ def simulate(
 
             xf, ff, _ = scene.render_mesh(traj.x, traj.faces)
             fine = Trajectory(x=xf, t=traj.t, faces=ff, meta={**traj.meta, "render_mesh": True})
-            written.append(str(fine.save(out / f"{name}.render.npz")))
+            written.append(str(fine.save(render_path)))
     rate = f", {m.particle_count * steps / wall:.3g} particle-substeps/s" if wall > 0 and steps else ""
     print(f"simulated {traj.frame_count - 1} frames in {wall:.2f} s{rate}", flush=True)
-    if video and cfg.output.video and traj.frame_count > 0:
+    if want_video and traj.frame_count > 0:
         t1 = time.perf_counter()
         try:
             from ..render import render_video
@@ -148,10 +184,15 @@ def simulate(
         except KeyboardInterrupt:
             status = EXIT_INTERRUPTED
             note = note or "interrupted while rendering; the trajectory is saved"
+        except (OSError, ValueError) as exc:  # VideoError (ffmpeg), a camera the frames cannot be fitted to
+            status = EXIT_USER if status == EXIT_OK else status
+            note = note or f"could not render the video: {exc}; the trajectory is saved"
     for w in written:
         print(f"wrote {w}")
     if status == EXIT_DIVERGED:
         print(f"pliant: error: {note} (partial outputs kept)", file=sys.stderr)
+    elif status == EXIT_USER:
+        print(f"pliant: error: {note}", file=sys.stderr)
     elif status == EXIT_INTERRUPTED:
         print(f"pliant: {note}", file=sys.stderr)
     return status

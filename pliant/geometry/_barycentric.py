@@ -81,8 +81,25 @@ def interpolate(field: np.ndarray, tets: np.ndarray, tet_ids: np.ndarray, bary: 
     return np.sum(w * vals, axis=1)
 
 
+def _far_points_error(points: np.ndarray, ids: np.ndarray, dist: np.ndarray, lo, hi, why: str) -> ValueError:
+    """The error for points that lie (too) far outside the mesh: which ones, how far, what to do."""
+    order = ids[np.argsort(-dist)][:5]
+    far = ", ".join(f"#{i} at {points[i].tolist()}" for i in order)
+    return ValueError(
+        f"{ids.size} point(s) lie outside the tetrahedra {why} (up to {float(np.max(dist)):.3g} m from the "
+        f"mesh, whose bounding box is {np.round(lo, 6).tolist()}..{np.round(hi, 6).tolist()} m; farthest: "
+        f"{far}); move or scale the points (e.g. a render mesh's center/scale) so they lie inside the mesh"
+    )
+
+
 def locate_points(
-    points: np.ndarray, mesh_points: np.ndarray, tets: np.ndarray, *, candidates: int = 8, tol: float = 1e-9
+    points: np.ndarray,
+    mesh_points: np.ndarray,
+    tets: np.ndarray,
+    *,
+    candidates: int = 8,
+    tol: float = 1e-9,
+    max_distance: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Find the tetrahedron containing each point, and its barycentric coordinates.
 
@@ -97,9 +114,15 @@ def locate_points(
         tets: Vertex indices, shape [E, 4].
         candidates: Nearest tets tested in the first pass.
         tol: A point is inside when min φ_i ≥ −tol.
+        max_distance: If given [m], a point farther than this from its projection into the mesh is an
+            error (a render mesh that does not fit its simulation mesh) instead of being projected.
 
     Returns:
         ``(tet_ids [P] int64, bary [P, 4] float64, inside [P] bool)``.
+
+    Raises:
+        ValueError: bad shapes or indices, non-finite coordinates, points beyond ``max_distance``, or
+            points so far away that their distance overflows; the message names the points and how far.
     """
     points = np.asarray(points, dtype=np.float64)
     mesh_points = np.asarray(mesh_points, dtype=np.float64)
@@ -114,16 +137,30 @@ def locate_points(
         raise ValueError(
             f"tets index vertices in [{tets.min()}, {tets.max()}], but there are {len(mesh_points)}"
         )
+    for what, a in (("points", points), ("mesh_points", mesh_points)):
+        bad = np.flatnonzero(~np.all(np.isfinite(a), axis=1))
+        if bad.size:
+            raise ValueError(f"{what} has NaN/inf coordinates at rows {bad[:5].tolist()} ({bad.size} rows)")
+    if max_distance is not None and not max_distance >= 0.0:
+        raise ValueError(f"max_distance must be >= 0 m, got {max_distance}")
     tets = tets.astype(np.int64, copy=False)
     P = len(points)
     X = mesh_points[tets]  # [E, 4, 3]
     centroids = X.mean(axis=1)
+    lo, hi = mesh_points.min(axis=0), mesh_points.max(axis=0)
     tree = cKDTree(centroids)
     k = int(min(max(candidates, 1), len(tets)))
 
     # first pass: k nearest centroids
-    _, cand = tree.query(points, k=k)
+    dist_c, cand = tree.query(points, k=k)
     cand = np.asarray(cand).reshape(P, k)
+    missing = np.flatnonzero(np.any(cand >= len(tets), axis=1))
+    if missing.size:
+        # cKDTree reports no neighbour when the distance overflows (points ~1e308 m away); the gap to the
+        # bounding box is measured per axis (max norm), which does not overflow.
+        p = points[missing]
+        gap = np.max(np.maximum(np.maximum(lo - p, p - hi), 0.0), axis=1)
+        raise _far_points_error(points, missing, gap, lo, hi, "by more than any distance can express")
     bary_c, _ = _solve_bary(points[:, None, :], X[cand])  # [P, k, 4]
     min_c = np.nan_to_num(bary_c.min(axis=2), nan=-np.inf)
     best = np.argmax(min_c, axis=1)  # most-inside candidate (first one on ties, i.e. nearest centroid)
@@ -162,4 +199,11 @@ def locate_points(
         j = np.argmin(dist, axis=1)
         tet_ids[out] = cand[out, j]
         bary[out] = bc[np.arange(out.size), j]
+        if max_distance is not None:
+            gap = dist[np.arange(out.size), j]
+            far = gap > max_distance
+            if far.any():
+                raise _far_points_error(
+                    points, out[far], gap[far], lo, hi, f"by more than {max_distance:.3g} m"
+                )
     return tet_ids, bary, inside

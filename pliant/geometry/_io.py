@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
+import warnings
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -15,6 +20,11 @@ _MESHIO_EXTS = (".msh", ".vtk", ".vtu")
 SUPPORTED_EXTENSIONS = _TRIMESH_EXTS + _MESHIO_EXTS
 
 
+#: Largest vertex coordinate a mesh file may have [file units, metres for pliant]: beyond any object
+#: pliant simulates, and where float32 positions are 64 m apart.
+MAX_COORDINATE = 1e9
+
+
 def _check_points(points: NDArray[np.float64], path: Path) -> None:
     if len(points) == 0:
         raise ValueError(f"mesh file '{path}' contains no vertices; is it empty or truncated?")
@@ -24,6 +34,13 @@ def _check_points(points: NDArray[np.float64], path: Path) -> None:
             f"mesh file '{path}' has {bad.size} vertex/vertices with NaN or inf coordinates "
             f"(first indices: {bad[:5].tolist()}); re-export the mesh from its source or "
             "remove those vertices and the faces that use them."
+        )
+    huge = np.flatnonzero(np.any(np.abs(points) > MAX_COORDINATE, axis=1))
+    if huge.size:
+        raise ValueError(
+            f"mesh file '{path}' has {huge.size} vertex/vertices with coordinates beyond {MAX_COORDINATE:g} "
+            f"(first indices: {huge[:5].tolist()}); the file is corrupt or in the wrong units: re-export it "
+            "in metres (a scene's `scale` resizes a mesh)"
         )
 
 
@@ -50,24 +67,56 @@ def _compact(points: NDArray[np.float64], cells: NDArray[np.integer]) -> tuple[n
     return points[used], inverse.reshape(cells.shape)
 
 
+def _read(path: Path, reader: str, fn: Callable[[], Any]) -> Any:
+    """Run a third-party mesh reader so that nothing escapes raw: meshio calls ``sys.exit(1)`` on a file it
+    cannot parse (an empty .vtk is enough) and prints to stdout; trimesh raises whatever its parser meets
+    (``IndexError``, a missing optional text-encoding module for binary junk, ...). Every failure becomes one
+    ``ValueError`` naming the file, the reader's own words, and what to do."""
+    out = io.StringIO()
+    try:
+        # The readers' own RuntimeWarnings on junk (overflowing casts) are noise: the checks that follow
+        # (finite, in-range, sizes) decide.
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with np.errstate(all="ignore"):
+                return fn()
+    except (SystemExit, Exception) as exc:
+        said = " ".join(out.getvalue().split())
+        if isinstance(exc, SystemExit) or not str(exc):
+            why = said or type(exc).__name__
+        elif isinstance(exc, (ImportError, UnicodeDecodeError)):
+            # Binary junk in a text format: trimesh then looks for an encoding detector it may not have.
+            why = "the file is not valid text for this format (binary or corrupt data)"
+        else:
+            why = f"{type(exc).__name__}: {exc}"
+        raise ValueError(
+            f"could not read mesh file '{path}' with {reader} ({why[:300]}); the file is empty, truncated or "
+            f"not a {path.suffix.lower()} mesh: re-export it, or convert it with `meshio convert`"
+        ) from None
+
+
 def _load_trimesh(path: Path) -> TriMesh:
     import trimesh
 
-    try:
-        # process=False: keep the file's vertex order and keep NaNs for our own check
-        # (processing would silently drop them).
+    # process=False: keep the file's vertex order and keep NaNs for our own check
+    # (processing would silently drop them).
+    def read() -> tuple[np.ndarray, np.ndarray]:
         mesh = trimesh.load(str(path), force="mesh", process=False)
-    except Exception as exc:
-        raise ValueError(f"could not read mesh file '{path}': {type(exc).__name__}: {exc}") from exc
-    points = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
-    faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
+        points = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
+        faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
+        return points, faces
+
+    points, faces = _read(path, "trimesh", read)
     _check_points(points, path)
     _check_cells(faces, len(points), path, "triangles")
     if path.suffix.lower() == ".stl":
         # STL stores each triangle's corners separately; weld them so the surface is connected.
-        mesh = trimesh.Trimesh(points, faces, process=False)
-        mesh.merge_vertices()
-        points, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+        def weld() -> tuple[np.ndarray, np.ndarray]:
+            mesh = trimesh.Trimesh(points, faces, process=False)
+            mesh.merge_vertices()
+            return np.asarray(mesh.vertices), np.asarray(mesh.faces)
+
+        points, faces = _read(path, "trimesh", weld)
     points, faces = _compact(points, faces)
     return TriMesh(points=np.ascontiguousarray(points, np.float64), triangles=faces.astype(np.int32))
 
@@ -75,19 +124,23 @@ def _load_trimesh(path: Path) -> TriMesh:
 def _load_meshio(path: Path) -> TriMesh | TetMesh:
     import meshio
 
-    try:
+    def read() -> tuple[np.ndarray, dict[str, list[np.ndarray]]]:
         m = meshio.read(str(path))
-    except Exception as exc:
-        raise ValueError(f"could not read mesh file '{path}': {type(exc).__name__}: {exc}") from exc
-    points = np.asarray(m.points, dtype=np.float64)
-    if points.ndim == 2 and points.shape[1] == 2:  # 2-D gmsh meshes: embed in z = 0
-        points = np.hstack([points, np.zeros((len(points), 1))])
-    points = points.reshape(-1, 3)
+        points = np.asarray(m.points, dtype=np.float64)
+        if points.ndim == 2 and points.shape[1] == 2:  # 2-D gmsh meshes: embed in z = 0
+            points = np.hstack([points, np.zeros((len(points), 1))])
+        points = points.reshape(-1, 3)
+        blocks: dict[str, list[np.ndarray]] = {c.type: [] for c in m.cells}
+        for c in m.cells:
+            data = np.asarray(c.data)
+            if c.type in ("tetra", "triangle"):
+                data = data.astype(np.int64).reshape(-1, 4 if c.type == "tetra" else 3)
+            blocks[c.type].append(data)
+        return points, blocks
+
+    points, blocks = _read(path, "meshio", read)
     _check_points(points, path)
 
-    blocks = {c.type: [] for c in m.cells}
-    for c in m.cells:
-        blocks[c.type].append(np.asarray(c.data))
     if "tetra" in blocks:
         tets = np.concatenate(blocks["tetra"]).astype(np.int64)
         _check_cells(tets, len(points), path, "tetrahedra")
@@ -131,10 +184,14 @@ def load_mesh(path: str | Path) -> TriMesh | TetMesh:
         where = "is a directory, not a file" if p.is_dir() else "does not exist"
         raise FileNotFoundError(f"mesh file '{p}' {where} (resolved to '{p.resolve()}'); check the path.")
     ext = p.suffix.lower()
-    if ext in _TRIMESH_EXTS:
-        return _load_trimesh(p)
-    if ext in _MESHIO_EXTS:
-        return _load_meshio(p)
+    if ext in _TRIMESH_EXTS or ext in _MESHIO_EXTS:
+        try:
+            return _load_trimesh(p) if ext in _TRIMESH_EXTS else _load_meshio(p)
+        except ValueError as exc:
+            if str(p) in str(exc):
+                raise
+            # The mesh classes' own checks (degenerate elements, ...): say which file.
+            raise ValueError(f"mesh file '{p}': {exc}") from None
     raise ValueError(
         f"cannot load '{p}': unsupported extension {ext or '(none)'!r}; supported: "
         f"{', '.join(SUPPORTED_EXTENSIONS)}. Convert other formats with `meshio convert` "

@@ -313,3 +313,62 @@ class BDF2(_ImplicitOptions, Integrator):
         wp.copy(x_prev, x_in)
         wp.copy(v_prev, v_in)
         self._sys_key = (id(m), float(dt), x_out.ptr)
+
+    # ------------------------------------------------------------------ checkpoints
+    def checkpoint_state(self) -> dict[str, np.ndarray]:
+        """The physical path's history (x₋₁, v₋₁ and the step Δt) as host copies; empty without one."""
+        if self._sys_key is None or getattr(self, "_ws", None) is None:
+            return {}
+        _, _, x_prev, v_prev = self._ws[1]
+        return {
+            "bdf2_x_prev": x_prev.numpy().copy(),
+            "bdf2_v_prev": v_prev.numpy().copy(),
+            "bdf2_dt": np.array(float(self._sys_key[1])),
+        }
+
+    def restore_checkpoint_state(self, state: dict[str, np.ndarray], system: System) -> None:
+        """Take back :meth:`checkpoint_state`'s arrays: the next step of ``system`` with the same Δt uses
+        them as its history (whatever buffer its input state lives in).
+
+        Raises:
+            ValueError: unknown keys, or arrays of the wrong shape, dtype or with non-finite values.
+        """
+        self.reset()
+        if not state:
+            return
+        keys = {"bdf2_x_prev", "bdf2_v_prev", "bdf2_dt"}
+        if set(state) != keys:
+            raise ValueError(f"BDF2 history needs exactly the keys {sorted(keys)}, got {sorted(state)}")
+        m = system.model
+        np_dtype = np.dtype(m.dtype)
+        arrays = []
+        for k in ("bdf2_x_prev", "bdf2_v_prev"):
+            a = np.asarray(state[k])
+            if a.shape != (m.particle_count, 3) or a.dtype != np_dtype or not np.all(np.isfinite(a)):
+                raise ValueError(
+                    f"{k}: expected finite {np_dtype} of shape ({m.particle_count}, 3), "
+                    f"got {a.dtype} {a.shape}"
+                )
+            arrays.append(a)
+        dt = np.asarray(state["bdf2_dt"])
+        if dt.shape != () or dt.dtype.kind != "f" or not float(dt) > 0 or not np.isfinite(dt):
+            raise ValueError(f"bdf2_dt: expected a positive step [s], got {dt!r}")
+        _, _, x_prev, v_prev = self._buffers(system, 4)
+        x_prev.assign(arrays[0])
+        v_prev.assign(arrays[1])
+        self._sys_key = _ResumedKey(float(dt))
+
+
+class _ResumedKey:
+    """BDF2's history key after a restore: matches the next step of the same Δt, in any buffer."""
+
+    def __init__(self, dt: float) -> None:
+        self.dt = dt
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, tuple) and len(other) == 3 and other[1] == self.dt
+
+    def __ne__(self, other: object) -> bool:
+        return not self == other
+
+    __hash__ = None  # type: ignore[assignment]

@@ -1,8 +1,17 @@
 """Files: trajectories and checkpoints (NPZ). Scene files (TOML) are :mod:`pliant.scene`."""
 
-from ._trajectory import Trajectory, atomic_savez, load_checkpoint, save_checkpoint
+from ._trajectory import (
+    CheckpointError,
+    CheckpointSpec,
+    Trajectory,
+    atomic_savez,
+    load_checkpoint,
+    save_checkpoint,
+)
 
 __all__ = [
+    "CheckpointError",
+    "CheckpointSpec",
     "Trajectory",
     "atomic_savez",
     "load_checkpoint",

@@ -31,15 +31,37 @@ def atomic_savez(path: str | os.PathLike, **arrays: Any) -> Path:
     return path
 
 
-def _load_npz(path: str | os.PathLike, required: tuple[str, ...], what: str) -> dict[str, np.ndarray]:
+#: Default bound on the uncompressed size of an NPZ pliant reads [bytes] (a compressed member could
+#: otherwise expand to any size: the check reads the ZIP directory, before anything is allocated).
+MAX_NPZ_BYTES = 8 << 30
+
+
+def _load_npz(
+    path: str | os.PathLike, required: tuple[str, ...], what: str, max_bytes: int = MAX_NPZ_BYTES
+) -> dict[str, np.ndarray]:
+    import zipfile
+
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{what} file not found: {path}")
     try:
+        with zipfile.ZipFile(path) as zf:
+            size = sum(info.file_size for info in zf.infolist())
+    except Exception:
+        size = 0  # not a ZIP: np.load below says what it is
+    if size > max_bytes:
+        raise ValueError(
+            f"{path}: the {what} NPZ expands to {size / 2**30:.3g} GiB, more than the "
+            f"{max_bytes / 2**30:.3g} GiB it can need; it is not a file pliant wrote for this run"
+        )
+    try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
     except Exception as exc:  # a truncated or foreign file: say which and why
-        raise ValueError(f"{path}: not a readable {what} NPZ ({exc})") from exc
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if "pickle" in why:  # NumPy's own text would suggest allow_pickle=True: never for an untrusted file
+            why = "it holds Python objects (pickled data), which pliant never writes or loads"
+        raise ValueError(f"{path}: not a readable {what} NPZ ({why})") from None
     missing = [k for k in required if k not in data]
     if missing:
         raise ValueError(f"{path}: {what} is missing the fields {missing}")
@@ -94,6 +116,31 @@ class Trajectory:
         )
 
 
+class CheckpointError(ValueError):
+    """A checkpoint file that cannot be resumed from; the message names the file, the key and the fix."""
+
+
+#: Checkpoint keys besides ``param_<name>`` (model parameters) and ``solver_<name>`` (solver state).
+CHECKPOINT_KEYS = ("frame", "time", "x", "v", "traj_x", "traj_t", "traj_v", "meta")
+
+
+@dataclass
+class CheckpointSpec:
+    """What a checkpoint must match to be resumed by a given simulator.
+
+    Attributes:
+        particle_count: N: ``x``, ``v`` are [N, 3], ``traj_x`` [frame + 1, N, 3].
+        dtype: NumPy dtype name of the model's positions ("float32" or "float64").
+        params: allowed ``param_<name>`` keys and the shape each must have (the model's arrays).
+        max_frame: the largest allowed ``frame`` (the frames the run asks for); None: no bound.
+    """
+
+    particle_count: int
+    dtype: str
+    params: dict[str, tuple[int, ...]] = field(default_factory=dict)
+    max_frame: int | None = None
+
+
 def save_checkpoint(
     path: str | os.PathLike,
     *,
@@ -106,8 +153,12 @@ def save_checkpoint(
     traj_t: np.ndarray,
     traj_v: np.ndarray | None,
     meta: dict,
+    solver_state: dict[str, np.ndarray] | None = None,
 ) -> Path:
-    """Write state, model parameters and the trajectory so far, atomically."""
+    """Write state, model parameters, solver state and the trajectory so far, atomically.
+
+    ``solver_state`` (from ``Solver.checkpoint_state()``) is stored under ``solver_<name>`` keys.
+    """
     arrays: dict[str, Any] = {
         "frame": np.array(frame),
         "time": np.array(time),
@@ -121,21 +172,123 @@ def save_checkpoint(
         arrays["traj_v"] = traj_v
     for k, a in params.items():
         arrays[f"param_{k}"] = a
+    for k, a in (solver_state or {}).items():
+        arrays[f"solver_{k}"] = np.asarray(a)
     return atomic_savez(path, **arrays)
 
 
-def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
-    """Read a checkpoint written by :func:`save_checkpoint`."""
-    d = _load_npz(path, ("frame", "time", "x", "v", "traj_x", "traj_t"), "checkpoint")
-    out: dict[str, Any] = {
-        "frame": int(d["frame"]),
-        "time": float(d["time"]),
-        "x": d["x"],
-        "v": d["v"],
-        "traj_x": d["traj_x"],
-        "traj_t": d["traj_t"],
-        "traj_v": d.get("traj_v"),
-        "meta": json.loads(str(d["meta"])) if "meta" in d else {},
-        "params": {k[len("param_") :]: a for k, a in d.items() if k.startswith("param_")},
+def _float_array(
+    path: Path, key: str, a: np.ndarray, shape: tuple[int, ...], dtype: str | None
+) -> np.ndarray:
+    """``a`` checked for exact shape, a float dtype (``dtype`` when given) and finite values."""
+    if a.shape != shape:
+        raise CheckpointError(
+            f"{path}: {key}: shape {a.shape}, expected {shape}; resume with the scene (and settings) "
+            "that wrote the checkpoint, or delete it to start over"
+        )
+    if a.dtype.kind != "f" or (dtype is not None and a.dtype != np.dtype(dtype)):
+        raise CheckpointError(
+            f"{path}: {key}: dtype {a.dtype}, expected {dtype or 'a float type'}; resume with the dtype "
+            "that wrote the checkpoint, or delete it to start over"
+        )
+    if not np.all(np.isfinite(a)):
+        raise CheckpointError(f"{path}: {key}: contains NaN or inf; the file is corrupt, delete it")
+    return a
+
+
+def _scalar(path: Path, key: str, a: np.ndarray, kind: str) -> float:
+    if a.shape != () or a.dtype.kind not in kind:
+        raise CheckpointError(f"{path}: {key}: expected a scalar number, got {a.dtype} {a.shape}")
+    value = a.item()
+    if not np.isfinite(value):
+        raise CheckpointError(f"{path}: {key}: {value} is not finite; the file is corrupt, delete it")
+    return value
+
+
+def load_checkpoint(path: str | os.PathLike, spec: CheckpointSpec | None = None) -> dict[str, Any]:
+    """Read and validate a checkpoint written by :func:`save_checkpoint`.
+
+    Args:
+        path: the checkpoint NPZ.
+        spec: what the resuming simulator expects (particle count, dtype, parameter arrays, frame bound);
+            without it only the file's own consistency is checked.
+
+    Returns:
+        A dict with frame, time, x, v, traj_x, traj_t, traj_v, meta, params (name → array) and
+        solver_state (name → array, the ``solver_`` prefix removed).
+
+    Raises:
+        FileNotFoundError: no such file.
+        CheckpointError: unreadable file, unknown or missing keys, wrong shapes or dtypes, non-finite
+            values, a frame out of range; the message names the file and the key.
+    """
+    path = Path(path)
+    budget = MAX_NPZ_BYTES
+    if spec is not None and spec.max_frame is not None:
+        # traj_x and traj_v in float64, x and v, the parameters and solver state: generously bounded.
+        budget = 64 * (spec.max_frame + 2) * spec.particle_count * 3 * 8 + (256 << 20)
+    try:
+        d = _load_npz(path, ("frame", "time", "x", "v", "traj_x", "traj_t"), "checkpoint", budget)
+    except FileNotFoundError:
+        raise
+    except ValueError as exc:
+        raise CheckpointError(f"{exc}; delete the checkpoint to start over") from None
+    params_allowed = None if spec is None else spec.params
+    for k in d:
+        if k in CHECKPOINT_KEYS or k.startswith("solver_"):
+            continue
+        name = k[len("param_") :] if k.startswith("param_") else None
+        if name is not None and (params_allowed is None or name in params_allowed):
+            continue
+        known = sorted(params_allowed or ())
+        raise CheckpointError(
+            f"{path}: unknown key {k!r}"
+            + (f" (model parameters a checkpoint may hold: {', '.join(known)})" if name and known else "")
+            + "; this file was not written by pliant's Simulator, delete it to start over"
+        )
+    frame_f = _scalar(path, "frame", d["frame"], "iu")
+    frame = int(frame_f)
+    if frame < 0 or (spec is not None and spec.max_frame is not None and frame > spec.max_frame):
+        bound = ""
+        if spec is not None and spec.max_frame is not None:
+            bound = f", at most the {spec.max_frame} frames asked for"
+        raise CheckpointError(
+            f"{path}: frame: {frame} is out of range (expected >= 0{bound}); "
+            "ask for more frames, or delete the checkpoint to start over"
+        )
+    time = float(_scalar(path, "time", d["time"], "f"))
+    n = spec.particle_count if spec is not None else (d["x"].shape[0] if d["x"].ndim == 2 else -1)
+    dtype = spec.dtype if spec is not None else None
+    x = _float_array(path, "x", d["x"], (n, 3), dtype)
+    v = _float_array(path, "v", d["v"], (n, 3), dtype)
+    traj_x = _float_array(path, "traj_x", d["traj_x"], (frame + 1, n, 3), dtype)
+    traj_t = _float_array(path, "traj_t", d["traj_t"], (frame + 1,), None)
+    traj_v = d.get("traj_v")
+    if traj_v is not None:
+        traj_v = _float_array(path, "traj_v", traj_v, (frame + 1, n, 3), dtype)
+    meta: dict = {}
+    if "meta" in d:
+        try:
+            meta = json.loads(str(d["meta"]))
+        except ValueError:
+            raise CheckpointError(f"{path}: meta: not JSON; the file is corrupt, delete it") from None
+        if not isinstance(meta, dict):
+            raise CheckpointError(f"{path}: meta: expected a JSON object; the file is corrupt, delete it")
+    params = {}
+    for k, a in d.items():
+        if k.startswith("param_"):
+            name = k[len("param_") :]
+            shape = spec.params[name] if spec is not None else a.shape
+            params[name] = _float_array(path, k, a, tuple(shape), None)
+    return {
+        "frame": frame,
+        "time": time,
+        "x": x,
+        "v": v,
+        "traj_x": traj_x,
+        "traj_t": traj_t,
+        "traj_v": traj_v,
+        "meta": meta,
+        "params": params,
+        "solver_state": {k[len("solver_") :]: a for k, a in d.items() if k.startswith("solver_")},
     }
-    return out

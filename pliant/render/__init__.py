@@ -15,12 +15,14 @@ from ._camera import Camera
 from ._export import export_obj, export_obj_sequence, export_ply, export_ply_sequence, export_usd
 from ._plots import fit_order, plot_error_vs_dt, plot_phase_portrait, plot_series
 from ._renderer import Renderer
-from ._video import VideoWriter, realtime_indices, render_video, video, write_video
+from ._video import VideoError, VideoWriter, check_fps, realtime_indices, render_video, video, write_video
 
 __all__ = [
     "Camera",
     "Renderer",
+    "VideoError",
     "VideoWriter",
+    "check_fps",
     "write_video",
     "render_video",
     "video",

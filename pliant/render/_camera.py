@@ -9,6 +9,10 @@ import numpy as np
 
 __all__ = ["Camera", "as_points"]
 
+#: Allowed vertical field of view [degrees] and image side [pixels].
+FOV_RANGE = (0.01, 179.0)
+MAX_IMAGE_SIDE = 16384
+
 # Direction from the target towards the eye for the default 3/4 view: in front (+z), to the
 # right (+x) and about 25 degrees above the horizon, so the ground plane is visible under
 # the object and both the front and a side face are seen.
@@ -75,16 +79,28 @@ class Camera:
         self.fov_y = float(self.fov_y)
         self.width = int(self.width)
         self.height = int(self.height)
-        if not 0.0 < self.fov_y < 180.0:
-            raise ValueError(f"fov_y must be in (0, 180) degrees, got {self.fov_y}")
-        if self.width < 1 or self.height < 1:
-            raise ValueError(f"image size must be positive, got {self.width}x{self.height}")
-        fwd = self.target - self.eye
-        if np.linalg.norm(fwd) == 0.0:
-            raise ValueError("eye and target coincide")
+        if not FOV_RANGE[0] <= self.fov_y <= FOV_RANGE[1]:
+            # Below ~0.01° the focal length overflows the pixel maths; at 180° it is zero.
+            raise ValueError(
+                f"fov_y must be in [{FOV_RANGE[0]}, {FOV_RANGE[1]}] degrees, got {self.fov_y}; "
+                "zoom by moving the eye instead"
+            )
+        if not (1 <= self.width <= MAX_IMAGE_SIDE and 1 <= self.height <= MAX_IMAGE_SIDE):
+            raise ValueError(
+                f"image size must be 1..{MAX_IMAGE_SIDE} pixels a side, got {self.width}x{self.height}"
+            )
+        with np.errstate(over="ignore", invalid="ignore"):
+            fwd = self.target - self.eye
+            dist = float(np.linalg.norm(fwd))
+        scale = max(1.0, float(np.max(np.abs(self.eye))), float(np.max(np.abs(self.target))))
+        if not np.isfinite(dist) or dist <= 1e-9 * scale:
+            raise ValueError(
+                f"eye {self.eye.tolist()} and target {self.target.tolist()} coincide (or are too far apart "
+                "to subtract); put the eye at a finite distance from the point it looks at"
+            )
         if np.linalg.norm(np.cross(fwd, self.up)) <= 1e-9 * np.linalg.norm(fwd) * np.linalg.norm(self.up):
             raise ValueError("up is parallel to the viewing direction")
-        if self.near is not None and not self.near > 0.0:
+        if self.near is not None and not (self.near > 0.0 and np.isfinite(self.near)):
             raise ValueError(f"near must be positive, got {self.near}")
 
     @property
@@ -155,7 +171,7 @@ class Camera:
 
         Args:
             points: Positions [..., 3] in metres (e.g. [N, 3] or a whole trajectory [T, N, 3]);
-                non-finite rows are ignored.
+                non-finite rows (and rows beyond float32's range, which are not drawn) are ignored.
             direction: Direction from the target towards the eye (default: 3/4 view from the
                 front-right, about 25 degrees above the horizon).
             up: Up vector.
@@ -170,7 +186,8 @@ class Camera:
         if hasattr(points, "numpy") and not isinstance(points, np.ndarray):
             points = points.numpy()
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        # As the renderer: rows float32 cannot hold (|x| > 3.4e38, e.g. a far collider) are not framed.
+        pts = pts[np.all(np.abs(pts) <= np.finfo(np.float32).max, axis=1)]
         if len(pts) == 0:
             raise ValueError("Camera.fit needs at least one finite point")
         if not 0.0 <= padding < 1.0:
@@ -179,7 +196,10 @@ class Camera:
         center = 0.5 * (lo + hi)
         d = _vec3(direction, "direction")
         d /= np.linalg.norm(d)
-        cam = cls(eye=center + d, target=center, up=up, fov_y=fov_y, width=width, height=height)
+        # A provisional camera for the basis (which depends only on d); its distance must be resolvable
+        # next to the coordinates' size.
+        reach = max(1.0, float(np.max(np.abs(center))), float(np.max(hi - lo)))
+        cam = cls(eye=center + reach * d, target=center, up=up, fov_y=fov_y, width=width, height=height)
         right, upv, _ = cam.basis()
         corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
         if np.max(hi - lo) <= 1e-9 * max(1.0, float(np.max(np.abs(center)))):

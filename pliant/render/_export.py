@@ -103,6 +103,10 @@ def export_obj(path: str | os.PathLike, points: object, faces: object | None = N
 
 
 def _sequence_paths(folder: str | os.PathLike, prefix: str, n: int, ext: str) -> list[Path]:
+    from ..io._paths import check_file_stem
+
+    if prefix:  # the files must land in `folder`: the prefix is part of one file name, never a path
+        check_file_stem(prefix, "prefix")
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     width = max(4, len(str(n - 1)))

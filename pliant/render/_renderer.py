@@ -214,7 +214,9 @@ class Renderer:
         right, up, fwd = cam.basis()
         focal = cam.focal_px * ss
         near = cam.near_plane
-        valid = np.all(np.isfinite(pts), axis=1)
+        # Rows the float32 kernels cannot hold (|x| > 3.4e38 overflows to inf) are not drawn, like NaNs.
+        with np.errstate(over="ignore"):
+            valid = np.all(np.isfinite(pts.astype(np.float32)), axis=1)
         world = np.where(valid[:, None], pts, 0.0)
         rel = world - cam.eye
         zc = rel @ fwd
@@ -222,7 +224,8 @@ class Renderer:
         with np.errstate(divide="ignore", invalid="ignore"):
             inv = np.where(zc > near, focal / zc, 0.0)
         screen = np.stack([0.5 * Ws + (rel @ right) * inv, 0.5 * Hs - (rel @ up) * inv, zc], axis=1)
-        screen = screen.astype(np.float32)
+        with np.errstate(over="ignore"):  # far off-screen points: ±inf pixels, clipped by the kernels
+            screen = screen.astype(np.float32)
         table, per_vertex = resolve_colors(colors, n, self.color)
 
         tri = None
@@ -461,6 +464,10 @@ class Renderer:
         res = smap.shape[0]
         # One texel of border so PCF at the footprint edge reads "lit".
         scale = (res - 2) / span
+        if not (np.isfinite(span) and np.all(np.isfinite(lo)) and scale > 0.0 and 1.0 / scale < 1e30):
+            # A footprint too large for float32 light-space maths (e.g. a collider at 1e308 m): no shadow
+            # rather than a division by zero; such a scene is not meant to be looked at anyway.
+            return None
         u0, v0 = lo[0] - 1.0 / scale, lo[1] - 1.0 / scale
         ls = np.stack([(u - u0) * scale, (v - v0) * scale, np.where(valid, h, -1e30)], axis=1)
         ls = ls.astype(np.float32)

@@ -13,9 +13,30 @@ import numpy as np
 from ._camera import Camera
 from ._renderer import Renderer, default_point_radius
 
-__all__ = ["VideoWriter", "write_video", "render_video", "video"]
+__all__ = ["FPS_RANGE", "VideoError", "VideoWriter", "check_fps", "write_video", "render_video", "video"]
 
 _VIDEO_EXTS = {".mp4", ".m4v", ".mov", ".mkv"}
+
+#: Frame rates [1/s] a video may have: ffmpeg takes the rate as a rational with bounded terms.
+FPS_RANGE = (0.01, 1000.0)
+
+
+class VideoError(OSError):
+    """The video could not be written (ffmpeg or Pillow failed); the message says why and what to do."""
+
+
+def check_fps(fps: float) -> float:
+    """``fps`` as a float if it lies in :data:`FPS_RANGE`, else a ValueError saying so.
+
+    Call it before any work (simulation, rendering) so a bad rate fails at once.
+    """
+    try:
+        value = float(fps)
+    except (TypeError, ValueError):
+        raise ValueError(f"fps must be a number of frames per second, got {fps!r}") from None
+    if not FPS_RANGE[0] <= value <= FPS_RANGE[1]:
+        raise ValueError(f"fps must be in [{FPS_RANGE[0]}, {FPS_RANGE[1]}] frames per second, got {fps}")
+    return value
 
 
 def _as_frame(frame: object) -> np.ndarray:
@@ -59,9 +80,7 @@ class VideoWriter:
 
     def __init__(self, path: str | os.PathLike, fps: float = 30, *, crf: int = 18) -> None:
         self.path = Path(path)
-        if not fps > 0:
-            raise ValueError(f"fps must be positive, got {fps}")
-        self.fps = float(fps)
+        self.fps = check_fps(fps)
         self.crf = int(crf)
         ext = self.path.suffix.lower()
         if ext == ".gif":
@@ -92,7 +111,7 @@ class VideoWriter:
             h, w = img.shape[:2]
             if h % 2 or w % 2:
                 img = np.pad(img, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
-            self._gen.send(np.ascontiguousarray(img))
+            self._ffmpeg(self._gen.send, np.ascontiguousarray(img))
         else:
             from PIL import Image
 
@@ -100,11 +119,26 @@ class VideoWriter:
             self._gif_frames.append(Image.fromarray(img).quantize(colors=256))
         self.frame_count += 1
 
+    def _ffmpeg(self, fn: Any, *args: Any, **kwargs: Any) -> Any:
+        """Call into imageio-ffmpeg; its failures (no binary, a broken pipe, ffmpeg's own errors with its
+        whole command line) become one :class:`VideoError` naming the file."""
+        try:
+            return fn(*args, **kwargs)
+        except (ImportError, OSError, RuntimeError, StopIteration, ValueError) as exc:
+            text = str(exc).strip().splitlines()
+            why = text[-1] if text else type(exc).__name__
+            raise VideoError(
+                f"could not write the video {self.path}: ffmpeg failed ({why[:300]}); check that the folder "
+                "is writable and has space, that imageio-ffmpeg is installed (pip install imageio-ffmpeg), "
+                "or write a .gif instead"
+            ) from None
+
     def _open_ffmpeg(self) -> None:
         import imageio_ffmpeg
 
         h, w = self._size  # type: ignore[misc]
-        self._gen = imageio_ffmpeg.write_frames(
+        self._gen = self._ffmpeg(
+            imageio_ffmpeg.write_frames,
             str(self.path),
             (w + w % 2, h + h % 2),
             fps=self.fps,
@@ -116,7 +150,7 @@ class VideoWriter:
             ffmpeg_log_level="error",
             output_params=["-crf", str(self.crf), "-preset", "medium", "-movflags", "+faststart"],
         )
-        self._gen.send(None)  # start the generator (launches ffmpeg)
+        self._ffmpeg(self._gen.send, None)  # start the generator (launches ffmpeg)
 
     def close(self) -> None:
         """Finalises the file (idempotent)."""
@@ -125,18 +159,21 @@ class VideoWriter:
         self._closed = True
         if self._kind == "mp4":
             if self._gen is not None:
-                self._gen.close()
-                self._gen = None
+                gen, self._gen = self._gen, None
+                self._ffmpeg(gen.close)
         elif self._gif_frames:
             first, *rest = self._gif_frames
-            first.save(
-                self.path,
-                save_all=True,
-                append_images=rest,
-                duration=max(int(round(1000.0 / self.fps)), 10),
-                loop=0,
-            )
             self._gif_frames = []
+            try:
+                first.save(
+                    self.path,
+                    save_all=True,
+                    append_images=rest,
+                    duration=max(int(round(1000.0 / self.fps)), 10),
+                    loop=0,
+                )
+            except (OSError, ValueError) as exc:
+                raise VideoError(f"could not write the GIF {self.path}: {exc}") from None
 
     def __enter__(self) -> VideoWriter:
         return self
@@ -226,6 +263,7 @@ def render_video(
     Returns:
         The output path.
     """
+    fps = check_fps(fps)  # before any rendering
     if hasattr(x, "numpy") and not isinstance(x, np.ndarray):
         x = x.numpy()
     x = np.asarray(x, dtype=np.float64)

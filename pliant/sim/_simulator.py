@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from ..io import Trajectory, load_checkpoint, save_checkpoint
+from ..io import CheckpointError, CheckpointSpec, Trajectory, load_checkpoint, save_checkpoint
 from ..model import Control, Model, State
 from ..solvers import Solver
 
@@ -38,16 +38,25 @@ class DivergenceError(RuntimeError):
 def _health(
     v: wp.array(dtype=Any),
     x: wp.array(dtype=Any),
-    speed2_out: wp.array(dtype=Any),
-    bad_out: wp.array(dtype=wp.int32),
+    x_start: wp.array(dtype=Any),
+    inv_mass: wp.array(dtype=Any),
+    stats_out: wp.array(dtype=Any),
 ):
+    # stats: [0] max |v|², [1] max |x − x_start|² over the frame, [2] count of non-finite particles,
+    # [3], [4]: [0] and [1] over kinematic and pinned particles only (inverse mass 0: handles).
     i = wp.tid()
     s = wp.dot(v[i], v[i])
     p = wp.dot(x[i], x[i])
+    d = x[i] - x_start[i]
+    dd = wp.dot(d, d)
     if wp.isnan(s) or wp.isinf(s) or wp.isnan(p) or wp.isinf(p):
-        wp.atomic_add(bad_out, 0, 1)
+        wp.atomic_add(stats_out, 2, type(s)(1.0))
     else:
-        wp.atomic_max(speed2_out, 0, s)
+        wp.atomic_max(stats_out, 0, s)
+        wp.atomic_max(stats_out, 1, dd)
+        if inv_mass[i] == type(s)(0.0):
+            wp.atomic_max(stats_out, 3, s)
+            wp.atomic_max(stats_out, 4, dd)
 
 
 class Simulator:
@@ -59,7 +68,8 @@ class Simulator:
         dt: frame duration [s] (recording interval).
         substeps: solver steps per frame (substep Δt = dt / substeps).
         control: a Control (default ``model.control()``).
-        max_speed: divergence bound on any particle speed [m/s].
+        max_speed: divergence bound on any particle speed [m/s]: on the velocity array and on the frame's
+            displacement divided by ``dt`` (so colliders and handles that teleport particles count too).
         control_fn: optional ``f(t, control)`` called before each frame to move kinematic targets [s].
 
     Example::
@@ -83,6 +93,8 @@ class Simulator:
             raise ValueError(f"dt must be a positive number of seconds, got {dt}")
         if substeps < 1:
             raise ValueError(f"substeps must be >= 1, got {substeps}")
+        if not max_speed > 0:
+            raise ValueError(f"max_speed must be a positive speed [m/s], got {max_speed}")
         self.model, self.solver = model, solver
         self.dt, self.substeps = float(dt), int(substeps)
         self.control = control if control is not None else model.control()
@@ -95,15 +107,20 @@ class Simulator:
         self._xs: list[np.ndarray] = []
         self._vs: list[np.ndarray] = []
         self._ts: list[float] = []
-        self._speed2 = wp.zeros(1, dtype=model.scalar, device=model.device)
-        self._bad = wp.zeros(1, dtype=wp.int32, device=model.device)
+        self._stats = wp.zeros(5, dtype=model.scalar, device=model.device)
+        # Positions at the start of the current frame: the displacement check's reference.
+        self._x_start = wp.clone(self.state_0.particle_q)
         self._last_good: tuple[int, float, np.ndarray, np.ndarray] | None = None
+        self._solver_state: dict[str, np.ndarray] = {}
+        self._record_velocity = False
+        self._snapshot_solver = False  # copy the solver's state at each recorded frame (for checkpoints)
         self._warned_newton = False
 
     # ------------------------------------------------------------------ stepping
     def step_frame(self) -> None:
         """Advance one frame (``substeps`` solver steps); no host synchronisation."""
         h = self.dt / self.substeps
+        wp.copy(self._x_start, self.state_0.particle_q)
         if self.control_fn is not None:
             self.control_fn(self.time, self.control)
         for _ in range(self.substeps):
@@ -112,18 +129,29 @@ class Simulator:
         self.frame += 1
         self.time = self.frame * self.dt
 
+    def check_initial_state(self) -> None:
+        """Frame 0 is checked like every other: raise :class:`DivergenceError` (frame 0) if the current
+        state is already non-finite (e.g. an origin that overflows float32) or moves faster than
+        ``max_speed``."""
+        wp.copy(self._x_start, self.state_0.particle_q)
+        self.check()
+
     def check(self) -> None:
-        """Raise :class:`DivergenceError` if any value is non-finite or a speed exceeds ``max_speed``."""
-        self._speed2.zero_()
-        self._bad.zero_()
+        """Raise :class:`DivergenceError` if any value is non-finite or a speed exceeds ``max_speed``.
+
+        Two speeds are bounded: the velocity array's, and the frame's displacement divided by ``dt`` (what
+        a collider or handle that teleports particles produces without touching the velocities). One host
+        read per call.
+        """
+        self._stats.zero_()
         s = self.state_0
         wp.launch(
             _health,
             self.model.particle_count,
-            [s.particle_qd, s.particle_q, self._speed2, self._bad],
+            [s.particle_qd, s.particle_q, self._x_start, self.model.particle_inv_mass, self._stats],
             device=self.model.device,
         )
-        bad = int(self._bad.numpy()[0])
+        speed2, disp2, bad, kin_speed2, kin_disp2 = (float(a) for a in self._stats.numpy())
         integrator = getattr(self.solver, "integrator", None)
         h = self.dt / self.substeps
         advice = (
@@ -136,6 +164,14 @@ class Simulator:
             + ", or soften the stiffest material"
         )
         if bad:
+            if self.frame == 0:
+                raise DivergenceError(
+                    0,
+                    "non-finite initial positions/velocities in particles:",
+                    bad,
+                    "the initial state overflows the model's dtype or is NaN: check the objects' origin, "
+                    "size and velocity (float32 holds |x| < 3.4e38), or use dtype float64",
+                )
             raise DivergenceError(self.frame, "non-finite positions/velocities in particles:", bad, advice)
         stats = getattr(self.solver, "last_stats", None)
         if stats is not None and getattr(stats, "converged", True) is False and not self._warned_newton:
@@ -151,9 +187,29 @@ class Simulator:
                 RuntimeWarning,
                 stacklevel=2,
             )
-        speed = float(np.sqrt(self._speed2.numpy()[0]))
+        kin = max(float(np.sqrt(kin_speed2)), float(np.sqrt(kin_disp2)) / self.dt)
+        if kin > self.max_speed:
+            # Checked first: the motion is prescribed, so the solver's step size is not the cause.
+            raise DivergenceError(
+                self.frame,
+                "max speed of a handle or kinematic particle (m/s)",
+                kin,
+                "a handle's path or velocity moves its particles faster than max_speed: slow the handle "
+                "(its path's times or velocity), or raise max_speed if such speeds are meant",
+            )
+        speed = float(np.sqrt(speed2))
         if speed > self.max_speed:
             raise DivergenceError(self.frame, "max speed (m/s)", speed, advice)
+        jump = float(np.sqrt(disp2)) / self.dt
+        if jump > self.max_speed:
+            raise DivergenceError(
+                self.frame,
+                "max displacement speed (m/s, displacement over the frame / dt)",
+                jump,
+                "a particle moved farther in one frame than max_speed allows: a collider that encloses or "
+                "jumps onto the body, a handle or kinematic target moving faster than max_speed, or an "
+                f"unstable step ({advice}); raise max_speed only if such speeds are meant",
+            )
 
     # ------------------------------------------------------------------ recording
     def _record(self, with_velocity: bool) -> None:
@@ -163,8 +219,11 @@ class Simulator:
         if with_velocity:
             self._vs.append(v)
         self._ts.append(self.time)
-        # The last state that passed its check: what a checkpoint stores, whatever happens next.
+        # The last state that passed its check: what a checkpoint stores, whatever happens next, with the
+        # solver's state between steps at that point (L-BFGS history, a multistep integrator's past).
         self._last_good = (self.frame, self.time, x, v)
+        if self._snapshot_solver:
+            self._solver_state = self.solver.checkpoint_state()
 
     def trajectory(self) -> Trajectory:
         """Everything recorded so far (frame 0 included) as a :class:`Trajectory`."""
@@ -184,10 +243,18 @@ class Simulator:
         return Trajectory(x=x, t=np.asarray(self._ts), v=v, faces=faces, tets=tets, meta=meta)
 
     # ------------------------------------------------------------------ checkpoints
+    def _params(self) -> dict[str, Any]:
+        """The model's parameter arrays a checkpoint carries (the whitelist, only those the model has)."""
+        m = self.model
+        return {k: getattr(m, k) for k in _PARAMS if isinstance(getattr(m, k, None), wp.array)}
+
     def save_checkpoint(self, path: str | os.PathLike) -> Path:
-        """Write the last recorded state, its time, fitted parameters and the trajectory (atomically)."""
+        """Write the last recorded state, its time, fitted parameters, the solver's state between steps
+        (``Solver.checkpoint_state``) and the trajectory, atomically."""
         traj = self.trajectory()
-        params = {k: getattr(self.model, k).numpy() for k in _PARAMS}
+        params = {k: a.numpy() for k, a in self._params().items()}
+        if self._last_good is None:
+            raise ValueError("nothing to checkpoint yet: run at least frame 0 first")
         frame, time, x, v = self._last_good
         return save_checkpoint(
             path,
@@ -200,26 +267,57 @@ class Simulator:
             traj_t=traj.t,
             traj_v=traj.v,
             meta=traj.meta,
+            solver_state=self._solver_state,
         )
 
-    def load_checkpoint(self, path: str | os.PathLike) -> None:
-        """Continue from a checkpoint: state, time, parameters and the recorded frames."""
-        ck = load_checkpoint(path)
+    def load_checkpoint(self, path: str | os.PathLike, *, max_frame: int | None = None) -> None:
+        """Continue from a checkpoint: state, time, parameters, solver state and the recorded frames.
+
+        The file is validated against this simulator first (known keys, shapes and dtypes of the model,
+        ``frame`` in [0, ``max_frame``], the frame duration); nothing changes unless it all holds.
+
+        Raises:
+            CheckpointError: what is wrong, naming the file and the key.
+        """
         m = self.model
-        if ck["x"].shape != (m.particle_count, 3):
-            raise ValueError(
-                f"{path}: checkpoint has {ck['x'].shape[0]} particles but the scene has "
-                f"{m.particle_count}; resume with the scene that wrote it"
+        spec = CheckpointSpec(
+            particle_count=m.particle_count,
+            dtype=m.dtype,
+            params={k: tuple(a.shape) for k, a in self._params().items()},
+            max_frame=max_frame,
+        )
+        ck = load_checkpoint(path, spec)
+        if not np.isclose(ck["time"], ck["frame"] * self.dt, rtol=1e-9, atol=0.0):
+            raise CheckpointError(
+                f"{path}: time: {ck['time']} s at frame {ck['frame']} is not frame x dt = "
+                f"{ck['frame'] * self.dt} s; resume with the frame duration (dt) that wrote the checkpoint"
             )
+        if ck["traj_v"] is None and self._record_velocity and ck["frame"] > 0:
+            raise CheckpointError(
+                f"{path}: traj_v: missing, but this run records velocities; resume with the same "
+                "record_velocity setting"
+            )
+        try:
+            self.solver.restore_checkpoint_state(ck["solver_state"])
+        except CheckpointError:
+            raise
+        except Exception as exc:  # whatever a foreign or corrupt solver_ array makes the solver raise
+            raise CheckpointError(
+                f"{path}: solver state: {exc}; resume with the solver that wrote the checkpoint, or "
+                "delete it to start over"
+            ) from None
         for k, a in ck["params"].items():
             getattr(m, k).assign(a)
         self.state_0.particle_q.assign(ck["x"])
         self.state_0.particle_qd.assign(ck["v"])
-        self.frame, self.time = ck["frame"], ck["time"]
-        self._last_good = (ck["frame"], ck["time"], ck["x"], ck["v"])
+        self.frame = ck["frame"]
+        self.time = self.frame * self.dt  # as step_frame computes it, so control_fn sees the same times
+        self._last_good = (ck["frame"], self.time, ck["x"], ck["v"])
+        self._solver_state = dict(ck["solver_state"])
         self._xs = list(ck["traj_x"])
         self._ts = list(ck["traj_t"])
-        self._vs = list(ck["traj_v"]) if ck["traj_v"] is not None else []
+        # Velocities only when this run records them too (else the trajectory's v would stop short of x).
+        self._vs = list(ck["traj_v"]) if ck["traj_v"] is not None and self._record_velocity else []
 
     # ------------------------------------------------------------------ the loop
     def run(
@@ -241,11 +339,14 @@ class Simulator:
         """
         if frames < 0:
             raise ValueError(f"frames must be >= 0, got {frames}")
+        self._record_velocity = record_velocity
+        self._snapshot_solver = checkpoint is not None
         if resume:
             if checkpoint is None or not Path(checkpoint).exists():
                 raise FileNotFoundError(f"--resume needs an existing checkpoint, none at {checkpoint}")
-            self.load_checkpoint(checkpoint)
+            self.load_checkpoint(checkpoint, max_frame=frames)
         if not self._xs:
+            self.check_initial_state()
             self._record(record_velocity)
         bar = None
         if progress:
@@ -273,7 +374,7 @@ class Simulator:
         finally:
             if bar is not None:
                 bar.close()
-            if checkpoint is not None:
+            if checkpoint is not None and self._last_good is not None:
                 # On Ctrl-C or divergence this holds the last frame that passed its check.
                 self.save_checkpoint(checkpoint)
         return self.trajectory()

@@ -6,6 +6,8 @@ import abc
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
+
 from ..model import Control, Model, State
 from ._post import check_collisions
 
@@ -38,3 +40,23 @@ class Solver(abc.ABC):
     def describe(self) -> dict:
         """Name and options, recorded in trajectory metadata and benchmark lines."""
         return {"solver": type(self).__name__}
+
+    def checkpoint_state(self) -> dict[str, np.ndarray]:
+        """What this solver keeps from one step to the next, as named host arrays (copies).
+
+        Together with the state's positions and velocities it makes a resumed run continue bit for bit:
+        L-BFGS curvature pairs and warm start, a multistep integrator's history. Default: nothing.
+        """
+        return {}
+
+    def restore_checkpoint_state(self, state: dict[str, np.ndarray]) -> None:
+        """Take back what :meth:`checkpoint_state` returned (possibly from another process).
+
+        Raises:
+            ValueError: a key this solver does not know, or an array of the wrong shape or dtype.
+        """
+        if state:
+            raise ValueError(
+                f"{type(self).__name__} keeps no state between steps, but got {sorted(state)}; "
+                "resume with the solver that wrote the checkpoint"
+            )

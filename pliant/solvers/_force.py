@@ -202,3 +202,30 @@ class ForceSolver(Solver):
             "velocity_damping": self.velocity_damping_factor,
             "damping_rate": self.damping_rate,
         }
+
+    # ------------------------------------------------------------------ checkpoints
+    def checkpoint_state(self) -> dict[str, np.ndarray]:
+        """L-BFGS's history and warm start (``lbfgs_*``) and the integrator's (e.g. BDF2's ``bdf2_*``)."""
+        from ._quasi_newton import lbfgs_checkpoint_state
+
+        out = lbfgs_checkpoint_state(self)
+        own = getattr(self.integrator, "checkpoint_state", None)
+        if own is not None:
+            out.update(own())
+        return out
+
+    def restore_checkpoint_state(self, state: dict[str, np.ndarray]) -> None:
+        """Take back :meth:`checkpoint_state`'s arrays (validated by their owners; ValueError if wrong)."""
+        from ._quasi_newton import lbfgs_restore_checkpoint_state
+
+        lbfgs = {k: a for k, a in state.items() if k.startswith("lbfgs_")}
+        rest = {k: a for k, a in state.items() if not k.startswith("lbfgs_")}
+        own = getattr(self.integrator, "restore_checkpoint_state", None)
+        if own is None and rest:
+            raise ValueError(
+                f"{self.integrator.name} keeps no state between steps, but got {sorted(rest)}; "
+                "resume with the integrator that wrote the checkpoint"
+            )
+        lbfgs_restore_checkpoint_state(self, lbfgs)
+        if own is not None:
+            own(rest, self)

@@ -149,9 +149,6 @@ class _LaggedHessian:
         factorisation costs about as much as six iterations (a bouncing box's contact set changes in most
         steps). At rest the contact set is constant and nothing is refactorised.
         """
-        import scipy.sparse as sp
-        from scipy.sparse.linalg import splu
-
         assert self.base is not None
         axis_values = [self.base[d] for d in range(3)]
         if self.volatile:
@@ -174,17 +171,36 @@ class _LaggedHessian:
                     continue
                 # Grow the contact set, never shrink it: a bouncing body's contacts flicker every step.
                 v = np.maximum(v, old)
-            ip = self.inv_perm
-            mat = sp.csc_matrix((v, (ip[self.rows], ip[self.cols])), shape=(self.n, self.n))
-            # Symmetric positive definite: our symmetric ordering, no pivoting (SuperLU's "symmetric mode").
-            self.lu[d] = splu(
-                mat, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
-            )
+            self.lu[d] = self.factor(v, d)
             self.values[d] = v
             self._ratio = None
             count += 1
         self.factorizations += count
         return count
+
+    def factor(self, v: np.ndarray, axis: int) -> Any:
+        """SuperLU factor of axis ``axis``'s H₀ with values ``v`` (the pattern's entries, in our order).
+
+        Raises:
+            SingularSystemError: H₀ is singular in float64 (the masses are lost next to h²K).
+        """
+        import scipy.sparse as sp
+        from scipy.sparse.linalg import splu
+
+        ip = self.inv_perm
+        mat = sp.csc_matrix((v, (ip[self.rows], ip[self.cols])), shape=(self.n, self.n))
+        try:
+            # Symmetric positive definite: our symmetric ordering, no pivoting (SuperLU's "symmetric mode").
+            return splu(mat, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+        except RuntimeError as exc:  # SciPy: "Factor is exactly singular"
+            from ._errors import SingularSystemError
+
+            raise SingularSystemError(
+                f"L-BFGS: the initial Hessian M + h^2 K of axis {'xyz'[axis]} is singular ({exc}) at step "
+                f"h = {self.h:.3g} s: the masses vanish next to h^2 times the stiffness (or h^2 K "
+                "overflows the model's dtype); lower dt or raise substeps (h below ~1 s for any physical "
+                "body), or use method='newton'"
+            ) from None
 
     def solve(self, r: np.ndarray) -> np.ndarray:
         """H₀⁻¹ r for r of shape (n, 3)."""
@@ -419,3 +435,139 @@ def _finish(solver: Any, stats: NewtonStats, memo: dict, x: wp.array, x_tilde: w
     stats.gradient_norm = float(g[0])
     solver.last_stats = stats
     return stats
+
+
+# ----------------------------------------------------------------------------------------- checkpoints
+# What L-BFGS keeps between steps, as host arrays, so a resumed run continues bit for bit: the curvature
+# pairs, the warm start's corrections, and the lagged H₀ (its values: the factors are rebuilt from them,
+# and SuperLU is deterministic for the same matrix and ordering).
+_CKPT_KEYS = (
+    "lbfgs_s",
+    "lbfgs_y",
+    "lbfgs_rho",
+    "lbfgs_correction",
+    "lbfgs_last_correction",
+    "lbfgs_h",
+    "lbfgs_refresh",
+    "lbfgs_h0_base",
+    "lbfgs_h0_h",
+    "lbfgs_h0_values",
+    "lbfgs_h0_factorizations",
+)
+
+
+def lbfgs_checkpoint_state(solver: Any) -> dict[str, np.ndarray]:
+    """L-BFGS's state between steps on ``solver`` (copies; empty before its first step)."""
+    st = getattr(solver, "_lbfgs_state", None)
+    if st is None:
+        return {}
+    _, h0, hist, memo = st
+    out: dict[str, np.ndarray] = {}
+    if hist.s:
+        out["lbfgs_s"] = np.stack(hist.s)
+        out["lbfgs_y"] = np.stack(hist.y)
+        out["lbfgs_rho"] = np.asarray(hist.rho, dtype=np.float64)
+    for key in ("correction", "last_correction"):
+        if memo.get(key) is not None:
+            out[f"lbfgs_{key}"] = np.array(memo[key], dtype=np.float64)
+    if "h" in memo:
+        out["lbfgs_h"] = np.array(float(memo["h"]))
+    if "refresh" in memo:
+        out["lbfgs_refresh"] = np.array(bool(memo["refresh"]))
+    if h0.base is not None:
+        out["lbfgs_h0_base"] = h0.base.copy()
+        out["lbfgs_h0_h"] = np.array(float(h0.h))
+        if all(v is not None for v in h0.values):
+            out["lbfgs_h0_values"] = np.stack(h0.values)
+    out["lbfgs_h0_factorizations"] = np.array(int(h0.factorizations))
+    return out
+
+
+def _ck_array(state: dict, key: str, shape: tuple[int, ...], kind: str = "f") -> np.ndarray:
+    a = np.asarray(state[key])
+    if a.shape != shape or a.dtype.kind not in kind:
+        raise ValueError(f"{key}: expected {shape} of kind {kind!r}, got {a.dtype} {a.shape}")
+    if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
+        raise ValueError(f"{key}: contains NaN or inf")
+    return a
+
+
+def lbfgs_restore_checkpoint_state(solver: Any, state: dict[str, np.ndarray]) -> None:
+    """Set L-BFGS's state on ``solver`` from :func:`lbfgs_checkpoint_state`'s arrays (validated first).
+
+    Raises:
+        ValueError: an unknown key, or an array of the wrong shape, dtype or with non-finite values.
+    """
+    unknown = sorted(set(state) - set(_CKPT_KEYS))
+    if unknown:
+        raise ValueError(f"unknown L-BFGS state keys {unknown}")
+    if not state:
+        st = getattr(solver, "_lbfgs_state", None)
+        if st is not None:
+            st[2].clear()
+            st[3].clear()
+        return
+    n = solver.model.particle_count
+    ws = _workspace(solver)
+    h0, hist, memo = _state(solver, ws)
+    nnz = h0.rows.size
+    # Validate everything before changing anything.
+    pairs = 0
+    if "lbfgs_s" in state or "lbfgs_y" in state or "lbfgs_rho" in state:
+        pairs = int(np.asarray(state.get("lbfgs_rho", np.zeros(0))).shape[0]) if "lbfgs_rho" in state else -1
+        if pairs < 0 or "lbfgs_s" not in state or "lbfgs_y" not in state:
+            raise ValueError("lbfgs_s, lbfgs_y and lbfgs_rho come together")
+        s = _ck_array(state, "lbfgs_s", (pairs, n, 3))
+        y = _ck_array(state, "lbfgs_y", (pairs, n, 3))
+        rho = _ck_array(state, "lbfgs_rho", (pairs,))
+        for k in range(pairs):
+            # ρ is 1/(sᵀy) > 0 by construction (_History.push), computed the same way here: bit-equal.
+            sy = float(np.vdot(s[k], y[k]))
+            if not (sy > 0.0 and float(rho[k]) == 1.0 / sy):
+                raise ValueError(f"lbfgs_rho[{k}]: not 1/(s.y) of its curvature pair (a corrupt file)")
+    corr = {
+        k: _ck_array(state, f"lbfgs_{k}", (n, 3))
+        for k in ("correction", "last_correction")
+        if f"lbfgs_{k}" in state
+    }
+    h = float(_ck_array(state, "lbfgs_h", ())) if "lbfgs_h" in state else None
+    if h is not None and not h > 0.0:
+        raise ValueError(f"lbfgs_h: the last step must be > 0 s, got {h}")
+    refresh = bool(_ck_array(state, "lbfgs_refresh", (), "b")) if "lbfgs_refresh" in state else None
+    base = _ck_array(state, "lbfgs_h0_base", (3, nnz)) if "lbfgs_h0_base" in state else None
+    h0_h = float(_ck_array(state, "lbfgs_h0_h", ())) if "lbfgs_h0_h" in state else None
+    if h0_h is not None and not h0_h > 0.0:
+        raise ValueError(f"lbfgs_h0_h: the step of H0 must be > 0 s, got {h0_h}")
+    values = _ck_array(state, "lbfgs_h0_values", (3, nnz)) if "lbfgs_h0_values" in state else None
+    if (base is None) != (h0_h is None) or (values is not None and base is None):
+        raise ValueError("lbfgs_h0_values needs lbfgs_h0_base and lbfgs_h0_h")
+    # H₀ is SPD with the masses on its diagonal, and contact terms only add to it (PSD blocks).
+    diag = h0.diag_slots
+    if base is not None and not np.all(base[:, diag] > 0.0):
+        raise ValueError("lbfgs_h0_base: H0's diagonal must be positive (a corrupt file)")
+    if values is not None and not np.all(values[:, diag] >= base[:, diag]):
+        raise ValueError("lbfgs_h0_values: H0's diagonal is below its lagged part's (a corrupt file)")
+    facts = 0
+    if "lbfgs_h0_factorizations" in state:
+        facts = int(_ck_array(state, "lbfgs_h0_factorizations", (), "iu"))
+    hist.clear()
+    for k in range(pairs):
+        hist.s.append(np.array(s[k], dtype=np.float64))
+        hist.y.append(np.array(y[k], dtype=np.float64))
+        hist.rho.append(float(rho[k]))
+    memo.clear()
+    for k, a in corr.items():
+        memo[k] = np.array(a, dtype=np.float64)
+    if h is not None:
+        memo["h"] = h
+    if refresh is not None:
+        memo["refresh"] = refresh
+    h0.base, h0.h = (None, None) if base is None else (np.array(base, dtype=np.float64), h0_h)
+    h0.values, h0.lu, h0._ratio = [None, None, None], [None, None, None], None
+    if values is not None:
+        h0.h = h0_h
+        for d in range(3):
+            v = np.array(values[d], dtype=np.float64)
+            h0.lu[d] = h0.factor(v, d)
+            h0.values[d] = v
+    h0.factorizations = facts

@@ -3,7 +3,13 @@
 Reuses the implicit solver's machinery (:mod:`pliant.solvers._newton`): the fixed BSR(3×3) pattern built
 from the energies' ``hessian_pattern``, the atomic block assembly, the projection of fixed rows and columns,
 and the linear solvers (SciPy sparse LU on the host, or Jacobi-preconditioned ``warp.optim.linear.cg``).
-Only the objective differs: there is no inertia term, so the Hessian is Σ H_e alone.
+Only the objective differs: there is no inertia term, so the Hessian is Σ H_e alone, which is singular
+wherever the energies leave a direction free (a chain at rest length hanging straight: no transverse
+stiffness). A singular factorisation is retried with a Levenberg–Marquardt shift H + μI on the free
+components, μ growing from 1e-8·max diag(H) until the factor exists; the shift changes the step, not the
+equilibrium (the gradient test decides convergence). Fixed components are a per-vertex or per-component
+(per-DOF) mask; loads and gravity can be ramped in ``load_steps`` (each step starts from the last one's
+equilibrium).
 """
 
 from __future__ import annotations
@@ -25,20 +31,27 @@ class StaticStats:
     """What :func:`solve_static` did.
 
     Attributes:
-        iterations: Newton iterations (linear solves).
-        converged: whether max_i |∇_i(E − f·x)| over the free vertices fell below ``tol`` times its initial
-            value (or the Newton step below ``tol`` times the model size).
-        gradient_norm: max_i |∇_i| over free vertices at the returned positions [N].
+        iterations: Newton iterations (linear solves), over all load steps.
+        converged: whether the last load step's max_i |∇_i(E − f·x)| over the free components fell below
+            ``tol`` times its initial value (or the Newton step below ``tol`` times the model size).
+        stop_reason: why it stopped: "converged", "max_iterations", "line search failed" (no decrease along
+            the Newton direction: the round-off floor, or a non-descent direction), or "singular" (no
+            regularised factorisation either: an unconstrained rigid motion under load).
+        gradient_norm: max over free components of |∇| at the returned positions [N].
         residuals: ``gradient_norm`` at the start of every iteration and at the end [N].
         energy: E(x) − f·x at the returned positions [J].
         line_search_backtracks: total step halvings.
         linear_iterations: total CG iterations (0 for the direct solver).
         linear_solver: "direct" or "cg".
-        fixed_count: number of fixed vertices.
+        fixed_count: number of vertices with at least one fixed component.
+        fixed_dofs: number of fixed components (3 per fully fixed vertex).
+        regularized_steps: Newton steps that needed the Levenberg–Marquardt shift (singular H).
+        load_steps: load steps taken (the last one at the full load).
     """
 
     iterations: int = 0
     converged: bool = False
+    stop_reason: str = ""
     gradient_norm: float = float("nan")
     residuals: list[float] = field(default_factory=list)
     energy: float = float("nan")
@@ -46,6 +59,9 @@ class StaticStats:
     linear_iterations: int = 0
     linear_solver: str = ""
     fixed_count: int = 0
+    fixed_dofs: int = 0
+    regularized_steps: int = 0
+    load_steps: int = 0
 
 
 @wp.kernel(enable_backward=False)
@@ -86,16 +102,52 @@ class _DeadLoads(Energy):
 
 
 @wp.kernel(enable_backward=False)
-def _fixed_gradient_stats(
+def _free_gradient_stats(
     free: wp.array(dtype=Any), grad: wp.array(dtype=Any), stats_out: wp.array(dtype=Any)
 ):
-    # Zero the fixed rows; stats[0] = max over free vertices of max_k |g_ik|.
+    # Zero the fixed components; stats[0] = max over free components of |g_ik|.
     i = wp.tid()
-    if free[i] == type(free[i])(0.0):
-        grad[i] = grad[i] * type(free[i])(0.0)
-        return
-    g = grad[i]
+    g = wp.cw_mul(grad[i], free[i])
+    grad[i] = g
     wp.atomic_max(stats_out, 0, wp.max(wp.max(wp.abs(g[0]), wp.abs(g[1])), wp.abs(g[2])))
+
+
+@wp.kernel(enable_backward=False)
+def _project_fixed_dofs(
+    free: wp.array(dtype=Any),
+    block_rows: wp.array(dtype=wp.int32),
+    block_cols: wp.array(dtype=wp.int32),
+    values: wp.array(dtype=Any),
+):
+    # Rows and columns of fixed components become those of the identity.
+    k = wp.tid()
+    r = block_rows[k]
+    c = block_cols[k]
+    fr = free[r]
+    fc = free[c]
+    m = values[k]
+    one = type(fr[0])(1.0)
+    for a in range(3):
+        for b in range(3):
+            m[a, b] = m[a, b] * fr[a] * fc[b]
+        if r == c:
+            m[a, a] = m[a, a] + (one - fr[a])
+    values[k] = m
+
+
+@wp.kernel(enable_backward=False)
+def _static_step_stats(
+    free: wp.array(dtype=Any),
+    grad: wp.array(dtype=Any),
+    dx: wp.array(dtype=Any),
+    stats_out: wp.array(dtype=Any),
+):
+    # stats[0] = max |Δx_ik| over free components, stats[1] = ∇·Δx.
+    i = wp.tid()
+    d = wp.cw_mul(dx[i], free[i])
+    dx[i] = d
+    wp.atomic_max(stats_out, 0, wp.max(wp.max(wp.abs(d[0]), wp.abs(d[1])), wp.abs(d[2])))
+    wp.atomic_add(stats_out, 1, wp.dot(grad[i], d))
 
 
 @wp.kernel(enable_backward=False)
@@ -107,10 +159,7 @@ def _static_trial(
     x_out: wp.array(dtype=Any),
 ):
     i = wp.tid()
-    x = x_in[i]
-    if free[i] != type(alpha)(0.0):
-        x = x + alpha * dx[i]
-    x_out[i] = x
+    x_out[i] = x_in[i] + alpha * wp.cw_mul(dx[i], free[i])
 
 
 def _as_vec3_array(model: Model, a: Any, what: str) -> wp.array:
@@ -132,23 +181,62 @@ def _as_vec3_array(model: Model, a: Any, what: str) -> wp.array:
 
 
 def _fixed_mask(model: Model, fixed: Any) -> np.ndarray:
-    mask = model.particle_inv_mass.numpy() == 0.0  # pins and kinematic particles
-    if fixed is not None:
-        f = np.asarray(fixed)
-        if f.dtype == bool:
-            if f.shape != (model.particle_count,):
-                raise ValueError(
-                    f"a boolean `fixed` mask must have shape ({model.particle_count},), got {f.shape}"
-                )
+    """The fixed components as a bool [N, 3] mask: pinned/kinematic vertices plus ``fixed``."""
+    n = model.particle_count
+    mask = np.repeat((model.particle_inv_mass.numpy() == 0.0)[:, None], 3, axis=1)  # pins, kinematic
+    if fixed is None:
+        return mask
+    f = np.asarray(fixed)
+    if f.dtype == bool:
+        if f.shape == (n,):
+            mask |= f[:, None]
+        elif f.shape == (n, 3):
             mask |= f
         else:
-            idx = f.astype(np.int64).reshape(-1)
-            if idx.size and (idx.min() < 0 or idx.max() >= model.particle_count):
-                raise ValueError(
-                    f"fixed indices must lie in [0, {model.particle_count}), got {idx.min()}..{idx.max()}"
-                )
-            mask[idx] = True
+            raise ValueError(
+                f"a boolean `fixed` mask must have shape ({n},) (vertices) or ({n}, 3) (components), "
+                f"got {f.shape}"
+            )
+        return mask
+    if f.size and not np.issubdtype(f.dtype, np.integer):
+        raise ValueError(f"`fixed` must be vertex indices or a boolean mask, got dtype {f.dtype}")
+    idx = f.astype(np.int64).reshape(-1)
+    if idx.size and (idx.min() < 0 or idx.max() >= n):
+        raise ValueError(f"fixed indices must lie in [0, {n}), got {idx.min()}..{idx.max()}")
+    mask[idx] = True
     return mask
+
+
+def _regularized_direct_solve(ws: Any, model: Model, free_np: np.ndarray, stats: StaticStats) -> bool:
+    """Δx = −H⁻¹∇ by SciPy's sparse LU; on a singular H, the smallest Levenberg–Marquardt shift
+    H + μI (μ = 1e-8 · 100^k · max diag H, on free components) that factors. Returns False when none does.
+    """
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+
+    n = model.particle_count
+    vals = ws.values.numpy()[: ws.nnz].astype(np.float64)
+    H = sp.bsr_matrix((vals, ws.indices, ws.indptr), shape=(3 * n, 3 * n)).tocsc()
+    g = ws.grad.numpy().astype(np.float64).reshape(-1)
+    free = free_np.reshape(-1).astype(np.float64)
+    diag = np.abs(H.diagonal()) * free
+    top = float(diag.max()) if diag.size else 0.0
+    shifts = [0.0] + [1e-8 * top * 100.0**k for k in range(6)] if top > 0 else [0.0, 1.0]
+    for mu in shifts:
+        A = H if mu == 0.0 else (H + sp.diags(mu * free)).tocsc()
+        try:
+            # Symmetric (positive semi-)definite: symmetric ordering, no pivoting ("symmetric mode").
+            lu = splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+        except RuntimeError:  # "Factor is exactly singular"
+            continue
+        dx = lu.solve(-g)
+        if not np.all(np.isfinite(dx)):
+            continue
+        if mu:
+            stats.regularized_steps += 1
+        ws.dx.assign(dx.reshape(n, 3).astype(ws.np_dtype))
+        return True
+    return False
 
 
 def solve_static(
@@ -165,38 +253,47 @@ def solve_static(
     cg_tol: float = 1e-10,
     cg_max_iterations: int = 10_000,
     max_line_search: int = 30,
+    load_steps: int = 1,
 ) -> tuple[wp.array, StaticStats]:
-    """Static equilibrium x* = argmin E(x) − f·x over the free vertices, by Newton with line search.
+    """Static equilibrium x* = argmin E(x) − f·x over the free components, by Newton with line search.
 
-    Dirichlet conditions: vertices in ``fixed``, pinned ones and kinematic ones (inverse mass 0) stay at
-    their positions in ``x0`` — move them in ``x0`` to prescribe a displacement. Each Newton step solves
-    H Δx = −∇ on the free vertices (fixed rows and columns replaced by the identity), then backtracks from
+    Dirichlet conditions: components in ``fixed``, and every component of pinned and kinematic vertices
+    (inverse mass 0), stay at their values in ``x0`` — move them in ``x0`` to prescribe a displacement.
+    Each Newton step solves H Δx = −∇ on the free components (fixed rows and columns replaced by the
+    identity), shifted to H + μI when H is singular (see the module notes), then backtracks from
     α = min(1, min_e max_step) until Armijo's condition holds on E − f·x.
 
     Args:
         model: the Model.
         energies: potential terms, e.g. ``[pl.energies.LinearElastic(), pl.energies.Gravity()]``; no
-            dissipative terms.
-        fixed: indices (or a boolean mask over particles) of vertices held in place, added to the model's
-            pinned and kinematic ones.
+            dissipative terms. ``Gravity`` is applied as the dead loads m_i g (the same potential), so that
+            it is ramped with ``loads``.
+        fixed: what is held in place, added to the model's pinned and kinematic vertices: vertex indices, a
+            boolean mask over vertices [particle_count], or a boolean mask over components
+            [particle_count, 3] (e.g. a roller: only y fixed).
         loads: constant nodal forces f [N], shape [particle_count, 3] (or one vec3 for every vertex).
-        x0: initial positions and prescribed positions of the fixed vertices [m], shape [particle_count, 3];
-            default the model's rest positions.
-        tol: relative tolerance: stop when max_i |∇_i| ≤ tol · max_i |∇_i(x0)| over free vertices (or
-            below the round-off floor of the elastic forces), or when a full Newton step moves no vertex
-            more than tol · (model size). The free vertices must be held (fixed vertices, or an energy
-            such as a ground penalty): otherwise rigid motions make the Hessian singular.
-        max_iterations: Newton iteration cap.
-        linear_solver: "direct" (SciPy sparse LU, on the host), "cg" (Jacobi-preconditioned Warp CG, any
-            device) or "auto" (direct on the CPU, CG on a GPU).
+        x0: initial positions and prescribed positions of the fixed components [m], shape
+            [particle_count, 3]; default the model's rest positions.
+        tol: relative tolerance: stop when max |∇| ≤ tol · max |∇(x0)| over free components (or below the
+            round-off floor of the elastic forces), or when a full Newton step moves no component more than
+            tol · (model size).
+        max_iterations: Newton iteration cap per load step.
+        linear_solver: "direct" (SciPy sparse LU, on the host, regularised when singular), "cg"
+            (Jacobi-preconditioned Warp CG, any device) or "auto" (direct on the CPU, CG on a GPU).
         project_psd: project element Hessians to PSD (keeps Newton a descent method far from equilibrium).
         cg_tol: CG relative residual.
         cg_max_iterations: CG iteration cap.
         max_line_search: step halvings before giving up.
+        load_steps: solve at 1/n, 2/n, ..., n/n of the loads and gravity, each from the previous
+            equilibrium (large deformations under large loads; default 1: the full load at once).
 
     Returns:
         ``(x, stats)``: the equilibrium positions (a new Warp array, shape [particle_count] of vec3) and a
-        :class:`StaticStats`.
+        :class:`StaticStats` whose ``stop_reason`` says why it stopped.
+
+    Raises:
+        SingularSystemError: (pliant.solvers) H + μI is singular for every shift tried: nothing holds the
+            free components against the load (add fixed vertices or a ground).
 
     Example::
 
@@ -205,8 +302,10 @@ def solve_static(
         model = b.finalize(dtype="float64")
         X = model.particle_q_np
         x, stats = pl.solvers.solve_static(model, [pl.energies.NeoHookean(), pl.energies.Gravity()],
-                                           fixed=np.flatnonzero(X[:, 0] < 1e-9))
+                                           fixed=np.flatnonzero(X[:, 0] < 1e-9), load_steps=4)
     """
+    from ..energies import Gravity
+
     energies = list(energies)
     for e in energies:
         if not isinstance(e, Energy):
@@ -215,10 +314,12 @@ def solve_static(
             raise ValueError(
                 f"{type(e).__name__} is dissipative (velocity dependent); statics has no velocity"
             )
-    if tol <= 0:
+    if not tol > 0:
         raise ValueError(f"tol must be > 0, got {tol}")
-    if max_iterations < 1:
+    if not 1 <= max_iterations:
         raise ValueError(f"max_iterations must be >= 1, got {max_iterations}")
+    if not (isinstance(load_steps, (int, np.integer)) and 1 <= load_steps <= 100_000):
+        raise ValueError(f"load_steps must be a whole number in [1, 100000], got {load_steps!r}")
     if linear_solver not in ("direct", "cg", "auto"):
         raise ValueError(f"linear_solver must be 'direct', 'cg' or 'auto', got {linear_solver!r}")
     # Static stiffness matrices are far worse conditioned than M + h²K: on the CPU a direct solve wins at
@@ -230,18 +331,30 @@ def solve_static(
     dev = model.device
     np_dtype = np.float32 if model.dtype == "float32" else np.float64
     mask = _fixed_mask(model, fixed)
-    free = wp.array((~mask).astype(np_dtype), dtype=model.scalar, device=dev)
-    ones = wp.array(np.ones(n, np_dtype), dtype=model.scalar, device=dev)
-    terms = list(energies)
+    free_np = (~mask).astype(np_dtype)
+    free = wp.array(free_np, dtype=model.vec3, device=dev)
+    # Dead loads: the given forces plus gravity's m_i g (Gravity's potential −Σ m_i g·x exactly), ramped.
+    f_total = np.zeros((n, 3))
     if loads is not None:
-        terms.append(_DeadLoads(_as_vec3_array(model, loads, "loads")))
+        f_total += _as_vec3_array(model, loads, "loads").numpy().astype(np.float64)
+    terms = []
+    for e in energies:
+        if type(e) is Gravity:
+            f_total += model.particle_mass_np[:, None] * np.asarray(model.gravity, dtype=np.float64)[None, :]
+        else:
+            terms.append(e)
+    load_arr = wp.zeros(n, dtype=model.vec3, device=dev)
+    if np.any(f_total):
+        terms.append(_DeadLoads(load_arr))
     x = wp.clone(model.particle_q) if x0 is None else _as_vec3_array(model, x0, "x0")
     x_np = x.numpy().astype(np.float64)
     size = float(np.max(np.ptp(x_np, axis=0))) if n > 1 else 1.0
     eps = float(np.finfo(np_dtype).eps)
 
     ws = nw._Workspace(model, terms)
-    stats = StaticStats(linear_solver=lin, fixed_count=int(mask.sum()))
+    stats = StaticStats(
+        linear_solver=lin, fixed_count=int(mask.any(axis=1).sum()), fixed_dofs=int(mask.sum())
+    )
     gstat = wp.zeros(1, dtype=model.scalar, device=dev)
     ebuf = wp.zeros(1, dtype=model.scalar, device=dev)
     sstat = wp.zeros(2, dtype=model.scalar, device=dev)
@@ -257,66 +370,89 @@ def solve_static(
         for e in terms:
             e.gradient(model, y, ws.grad)
         gstat.zero_()
-        wp.launch(_fixed_gradient_stats, n, [free, ws.grad, gstat], device=dev)
+        wp.launch(_free_gradient_stats, n, [free, ws.grad, gstat], device=dev)
         return float(gstat.numpy()[0])
 
-    g = gradient(x)
-    e0 = energy(x)
-    g0 = g
-    stats.residuals.append(g)
     # Round-off floor: elastic forces carry ~eps·μ·V^(2/3) of noise per tet, summed over ~20 tets a vertex.
     force_scale = 0.0
     if model.tet_count:
         force_scale = float(
             np.max(model.tet_mu.numpy() * np.abs(model.tet_rest_volume.numpy()) ** (2.0 / 3.0))
         )
-    target = max(tol * g0, 64.0 * eps * force_scale)
-    for _ in range(max_iterations):
-        if g <= target or g == 0.0:
-            stats.converged = True
-            break
-        # H on the fixed pattern; fixed rows/columns become the identity (free = 0 → 1·I).
-        ws.values.zero_()
-        for e, slots in zip(terms, ws.slots, strict=True):
-            if slots.shape[0]:
-                e.hessian(model, x, slots, ws.values, project_psd=project_psd, scale=1.0)
-        wp.launch(
-            nw._project_fixed, ws.nnz, [free, ones, ws.block_rows, ws.block_cols, ws.values], device=dev
-        )
-        if lin == "direct":
-            nw._direct_solve(ws, model)
-        else:
-            wp.launch(nw._inverse_diagonal, n, [ws.diag_slots, ws.values, ws.inv_diag], device=dev)
-            wp.launch(nw._negate, n, [ws.grad, ws.rhs], device=dev)
-            ws.dx.zero_()
-            it, _, _ = ws.cg(cg_tol, cg_max_iterations)()
-            stats.linear_iterations += int(it)
-        stats.iterations += 1
-        sstat.zero_()
-        wp.launch(nw._step_stats, n, [free, ws.grad, ws.dx, sstat], device=dev)
-        dx_max, gdx = (float(v) for v in sstat.numpy())
-        alpha = 1.0
-        for e in terms:
-            alpha = min(alpha, float(e.max_step(model, x, ws.dx)))
-        accepted = False
-        for _ls in range(max_line_search + 1):
-            wp.launch(_static_trial, n, [free, x, ws.dx, model.s(alpha), ws.x_trial], device=dev)
-            e1 = energy(ws.x_trial)
-            slack = 64.0 * eps * (abs(e0) + abs(e1))
-            if e1 <= e0 + 1e-4 * alpha * gdx + slack:
-                accepted = True
-                break
-            alpha *= 0.5
-            stats.line_search_backtracks += 1
-        if not accepted:
-            break  # no decrease for a tiny step: round-off floor or a non-descent direction
-        wp.copy(x, ws.x_trial)
-        e0 = e1
+    g = e0 = float("nan")
+    for step in range(1, load_steps + 1):
+        load_arr.assign((f_total * (step / load_steps)).astype(np_dtype))
+        stats.load_steps = step
+        stats.converged, stats.stop_reason = False, "max_iterations"
         g = gradient(x)
+        e0 = energy(x)
         stats.residuals.append(g)
-        if g <= target or (alpha == 1.0 and dx_max <= tol * size):
-            stats.converged = True
-            break
+        target = max(tol * g, 64.0 * eps * force_scale)
+        for _ in range(max_iterations):
+            if g <= target or g == 0.0:
+                stats.converged = True
+                break
+            # H on the fixed pattern; fixed rows/columns become the identity.
+            ws.values.zero_()
+            for e, slots in zip(terms, ws.slots, strict=True):
+                if slots.shape[0]:
+                    e.hessian(model, x, slots, ws.values, project_psd=project_psd, scale=1.0)
+            wp.launch(
+                _project_fixed_dofs, ws.nnz, [free, ws.block_rows, ws.block_cols, ws.values], device=dev
+            )
+            if lin == "direct":
+                if not _regularized_direct_solve(ws, model, free_np, stats):
+                    stats.stop_reason = "singular"
+                    break
+            else:
+                wp.launch(nw._inverse_diagonal, n, [ws.diag_slots, ws.values, ws.inv_diag], device=dev)
+                wp.launch(nw._negate, n, [ws.grad, ws.rhs], device=dev)
+                ws.dx.zero_()
+                it, _, _ = ws.cg(cg_tol, cg_max_iterations)()
+                stats.linear_iterations += int(it)
+            stats.iterations += 1
+            sstat.zero_()
+            wp.launch(_static_step_stats, n, [free, ws.grad, ws.dx, sstat], device=dev)
+            dx_max, gdx = (float(v) for v in sstat.numpy())
+            if not (np.isfinite(dx_max) and np.isfinite(gdx)):
+                stats.stop_reason = "singular"
+                break
+            alpha = 1.0
+            for e in terms:
+                alpha = min(alpha, float(e.max_step(model, x, ws.dx)))
+            accepted = False
+            for _ls in range(max_line_search + 1):
+                wp.launch(_static_trial, n, [free, x, ws.dx, model.s(alpha), ws.x_trial], device=dev)
+                e1 = energy(ws.x_trial)
+                slack = 64.0 * eps * (abs(e0) + abs(e1))
+                if e1 <= e0 + 1e-4 * alpha * gdx + slack:
+                    accepted = True
+                    break
+                alpha *= 0.5
+                stats.line_search_backtracks += 1
+            if not accepted:
+                stats.stop_reason = "line search failed"
+                break  # no decrease for a tiny step: round-off floor or a non-descent direction
+            wp.copy(x, ws.x_trial)
+            e0 = e1
+            g = gradient(x)
+            stats.residuals.append(g)
+            if g <= target or (alpha == 1.0 and dx_max <= tol * size):
+                stats.converged = True
+                break
+        if stats.converged:
+            stats.stop_reason = "converged"
+        elif step < load_steps:
+            break  # an intermediate load step failed: the later ones would start from a wrong state
+    if stats.stop_reason == "singular":
+        from ._errors import SingularSystemError
+
+        raise SingularSystemError(
+            "solve_static: the stiffness matrix is singular even with a Levenberg-Marquardt shift "
+            f"(load step {stats.load_steps} of {load_steps}, iteration {stats.iterations}): some free "
+            "vertices are held by nothing against the load; fix vertices (fixed=...), add a ground or "
+            "springs, or check for unconnected particles"
+        )
     stats.gradient_norm = g
     stats.energy = e0
     return x, stats
