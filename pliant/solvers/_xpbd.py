@@ -123,6 +123,8 @@ class XPBD(Solver):
         self.requires_grad = bool(model.requires_grad)
         if self.requires_grad:
             self._check_differentiable()
+            # Inverse masses are a differentiable parameter (the builder allocates them without a gradient).
+            model.particle_inv_mass.requires_grad = True
         d, n = model.device, model.particle_count
         #: Gravity [m/s²] as a vec3 array [1] (from ``model.gravity``); its ``.grad`` under a tape.
         self.gravity = wp.array([model.gravity], dtype=model.vec3, device=d, requires_grad=self.requires_grad)
