@@ -280,6 +280,11 @@ def test_what_cannot_be_differentiated_is_refused_clearly():
     with pytest.raises(NotImplementedError, match="ShapeMatching"):
         XPBD(model, constraints=[pc.ShapeMatching(radii=np.full(model.particle_count, 0.01))])
     solver = XPBD(model)
+    solver.constraints.insert(0, pc.Attachment([3]))  # added after construction, as scene files do
+    solver.constraints[0].bind(model, False)
+    with pytest.raises(NotImplementedError, match="Attachment"):
+        solver.step(model.state(), model.state(), None, DT)
+    solver = XPBD(model)
     control = model.control()
     control.kinematic_indices = wp.array([3], dtype=wp.int32, device="cpu")
     control.kinematic_targets = wp.array([[0.0, 0.0, 0.0]], dtype=wp.vec3d, device="cpu")

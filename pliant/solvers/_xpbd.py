@@ -279,6 +279,8 @@ class XPBD(Solver):
         n = m.particle_count
         ctx = self.context()
         grad = ctx.requires_grad
+        if grad:
+            self._check_differentiable()  # again: sets may have been added after construction
         x = state_in.particle_q
         # A differentiable step never overwrites what it has read: fresh positions per sweep (below).
         p = ctx.fresh(x) if grad else state_out.particle_q
