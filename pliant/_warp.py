@@ -134,6 +134,11 @@ def launch(kernel: Any, dim: Any, inputs: list, device: Any = None) -> None:
 
 
 # ----------------------------------------------------------------------------------------------- gradients
+class GradientError(RuntimeError):
+    """A gradient was requested (a ``requires_grad`` model, or ``pl.diff``) from a solver, option or
+    parameter that cannot give a correct one; the message says what to use instead."""
+
+
 def grad_enabled(model: Any) -> bool:
     """True when steps on ``model`` must be replayable by ``wp.Tape`` (the model was finalised with
     ``requires_grad=True``): solvers then write every intermediate into a fresh array allocated with

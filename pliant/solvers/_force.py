@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .._warp import fresh, grad_enabled, launch
+from .._warp import GradientError, fresh, grad_enabled, launch
 from ..collision._ground import ground_contact_out
 from ..energies import Energy
 from ..energies._base import _axpy
@@ -45,10 +45,6 @@ def _kinematic_out(
     else:
         x_out[i] = x_in[i]
         v_out[i] = v_in[i]
-
-
-class GradientError(RuntimeError):
-    """A gradient was requested (``requires_grad`` model) from a solver option that cannot give it."""
 
 
 @wp.kernel
@@ -211,9 +207,9 @@ class ForceSolver(Solver):
         m = self.model
         if not self.integrator.explicit and not getattr(self.integrator, "differentiable", False):
             raise GradientError(
-                f"{self.integrator.name} has no adjoint in this version: differentiate an explicit integrator "
-                "(SymplecticEuler, VelocityVerlet, RK2/Heun/Midpoint, RK4, ForwardEuler) or finalize the "
-                "model with requires_grad=False"
+                f"{self.integrator.name} has no adjoint in this version: differentiate an explicit "
+                "integrator (SymplecticEuler, VelocityVerlet, RK2/Heun/Midpoint, RK4, ForwardEuler) or "
+                "finalize the model with requires_grad=False"
             )
         if self.collisions:
             raise GradientError(
