@@ -102,7 +102,8 @@ def rollout(
     Memory: the forward pass keeps one State every ``checkpoint_every`` frames and no tape; the backward
     pass re-runs each segment of frames under a ``wp.Tape`` from its checkpoint and back-propagates the
     adjoint of its last state, so memory grows with frames × state (plus one segment's intermediates),
-    not with substeps × kernels. The work is one forward run, one recomputation and one backward pass.
+    not with substeps × kernels. The work is one forward run, one recomputation of all but the last segment
+    and one backward pass (``checkpoint_every >= frames``: no recomputation, the whole rollout on one tape).
 
     Args:
         model: a Model finalised with ``requires_grad=True`` (float64 recommended for gradient checks).
@@ -161,14 +162,12 @@ def rollout(
             state = nxt
         return state
 
-    # Forward without a tape, keeping the checkpoints.
+    # Forward without a tape, keeping the checkpoints; the last segment is run once, under the tape below.
     bounds = list(range(0, frames, checkpoint_every)) + [frames]
     checkpoints = [start]
-    s = start
-    for a, b in zip(bounds[:-1], bounds[1:], strict=False):
-        s = run(s, b - a)
-        checkpoints.append(s)
-    final = checkpoints.pop()
+    for a, b in zip(bounds[:-2], bounds[1:-1], strict=True):
+        checkpoints.append(run(checkpoints[-1], b - a))
+    final = start
 
     totals = {k: np.zeros_like(a.grad.numpy(), dtype=np.float64) for k, a in arrays.items()}
     adj: tuple[wp.array, wp.array] | None = None
@@ -183,6 +182,7 @@ def rollout(
             if adj is None:
                 loss = loss_fn(last)
         if adj is None:
+            final = last
             loss_value = float(loss.numpy()[0])
             tape.backward(loss=loss)
         else:
