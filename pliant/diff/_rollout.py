@@ -43,6 +43,9 @@ PARAMETERS: dict[str, Callable[[Model, Any, State, Control | None], Any]] = {
     "spring_damping": lambda m, s, x, c: m.spring_damping,  # dashpot γ [N s/m] per spring
     "tet_mu": lambda m, s, x, c: m.tet_mu,  # Lamé μ [Pa] per tet (E and ν via the chain rule)
     "tet_lam": lambda m, s, x, c: m.tet_lam,  # Lamé λ [Pa] per tet
+    # Masses [kg] per particle: the step reads both m (gravity) and 1/m (accelerations); rollout combines
+    # ∂L/∂m + ∂L/∂(1/m)·(−1/m²) for free particles (pinned ones keep 1/m = 0, so only the first term).
+    "particle_mass": lambda m, s, x, c: m.particle_mass,
     "x0": lambda m, s, x, c: x.particle_q,  # initial positions [m]
     "v0": lambda m, s, x, c: x.particle_qd,  # initial velocities [m/s]
     "ground_friction": _ground(0),  # Coulomb μ (a subgradient at stick/slip and contact switches)
@@ -145,6 +148,11 @@ def rollout(
     # Arrays whose gradients accumulate over segments (the initial state's come from the adjoint).
     initial = (id(start.particle_q), id(start.particle_qd))
     arrays = {id(a): a for a, _ in entries.values() if id(a) not in initial}
+    if "particle_mass" in entries:
+        # Built without gradients (constant in most rollouts): switch them on for this one.
+        model.particle_mass.requires_grad = True
+        model.particle_inv_mass.requires_grad = True
+        arrays[id(model.particle_inv_mass)] = model.particle_inv_mass
     for a in arrays.values():
         if a.grad is None:
             raise GradientError(
@@ -201,5 +209,8 @@ def rollout(
             g = adj[1].numpy().astype(np.float64)
         else:
             g = totals[id(a)]
+        if name == "particle_mass":
+            inv = model.particle_inv_mass.numpy().astype(np.float64)
+            g = g - np.where(inv > 0, totals[id(model.particle_inv_mass)] * inv * inv, 0.0)
         grads[name] = np.array(g[comp]) if comp is not None else g
     return RolloutResult(loss_value, grads, final)
