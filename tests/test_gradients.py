@@ -177,6 +177,8 @@ def check(kind, ground, integ, params, tol, fast=False):
         ) / (2 * eps)
         ad = float(np.sum(g * d))
         assert abs(fd) > 1e-9, f"{name}: the loss does not depend on it (test set-up)"
+        who = getattr(integ, "name", "FastMassSpring")
+        print(f"FD {kind} ground={ground} {who} {name}: rel {abs(ad - fd) / abs(fd):.1e}")
         assert ad == pytest.approx(fd, rel=tol), f"{name}: tape {ad} vs FD {fd}"
 
 
