@@ -22,7 +22,7 @@ from typing import Any, ClassVar
 import numpy as np
 import warp as wp
 
-from .._warp import launch
+from .._warp import _tape_active, launch
 from ._base import Integrator, System, first_order
 from ._ops import lincomb
 from ._problems import ODEProblem, SecondOrderODE
@@ -136,10 +136,28 @@ def _takes_options(fn: Any) -> bool:
     return "options" in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
 
 
-def _damp(system: System, dt: float, v: wp.array) -> None:
+def _damp(system: System, dt: float, v_raw: wp.array, v_out: wp.array) -> None:
+    """v_out = δ v_raw (in place when they are the same array, the forward path's bit-identical form)."""
     delta = system.velocity_damping(dt)
-    if delta != 1.0:
-        lincomb(system.model, v, v, [(delta - 1.0, v)])
+    if v_raw.ptr == v_out.ptr:
+        if delta != 1.0:
+            lincomb(system.model, v_out, v_out, [(delta - 1.0, v_out)])
+        return
+    lincomb(system.model, v_out, v_raw, [(delta - 1.0, v_raw)])
+
+
+def recording_gradients(model: Any) -> bool:
+    """Whether a ``wp.Tape`` records while the model was finalised with ``requires_grad=True``: the implicit
+    steps then use fresh arrays per step (the tape keeps every step's values) and no in-place updates."""
+    return bool(getattr(model, "requires_grad", False)) and _tape_active()
+
+
+def _fresh(system: System, count: int) -> list[wp.array]:
+    """``count`` new particle-sized vec3 arrays with gradients (one step's work arrays when recording)."""
+    m = system.model
+    return [
+        wp.zeros(m.particle_count, dtype=m.vec3, device=m.device, requires_grad=True) for _ in range(count)
+    ]
 
 
 class BackwardEuler(_ImplicitOptions, Integrator):
@@ -191,14 +209,15 @@ class BackwardEuler(_ImplicitOptions, Integrator):
     def step_system(self, system: System, t, dt, x_in, v_in, x_out, v_out) -> None:
         """One backward-Euler step: minimise the incremental potential, then v₁ = δ(x₁ − x₀)/Δt."""
         m = system.model
-        (x_tilde,) = self._buffers(system, 1)
+        grad = recording_gradients(m)
+        x_tilde, v_raw = _fresh(system, 2) if grad else (*self._buffers(system, 1), v_out)
         lincomb(m, x_tilde, x_in, [(dt, v_in)])
         self._minimize(system, t, dt, x_tilde, x_in, v_in, x_out)
-        _velocity_from_positions(m, x_out, x_in, 1.0 / dt, v_out)
-        _damp(system, dt, v_out)
+        _velocity_from_positions(m, x_out, x_in, 1.0 / dt, v_raw)
+        _damp(system, dt, v_raw, v_out)
 
 
-@wp.kernel(enable_backward=False)
+@wp.kernel
 def _velocity_kernel(
     x1: wp.array(dtype=Any), x0: wp.array(dtype=Any), inv_h: Any, v_out: wp.array(dtype=Any)
 ):
@@ -238,14 +257,15 @@ class ImplicitMidpoint(_ImplicitOptions, Integrator):
     def step_system(self, system: System, t, dt, x_in, v_in, x_out, v_out) -> None:
         """x_½ = argmin Φ with Δt/2; x₁ = 2x_½ − x₀, v₁ = δ(4(x_½ − x₀)/Δt − v₀)."""
         m = system.model
-        x_tilde, x_half = self._buffers(system, 2)
+        grad = recording_gradients(m)
+        x_tilde, x_half, v_raw = _fresh(system, 3) if grad else (*self._buffers(system, 2), v_out)
         h = 0.5 * dt
         lincomb(m, x_tilde, x_in, [(h, v_in)])
         self._minimize(system, t, h, x_tilde, x_in, v_in, x_half)
         # v_½ = (x_½ − x₀)/h; v₁ = 2v_½ − v₀; x₁ = 2x_½ − x₀.
-        lincomb(m, v_out, v_in, [(-2.0, v_in), (2.0 / h, x_half), (-2.0 / h, x_in)])
+        lincomb(m, v_raw, v_in, [(-2.0, v_in), (2.0 / h, x_half), (-2.0 / h, x_in)])
         lincomb(m, x_out, x_half, [(1.0, x_half), (-1.0, x_in)])
-        _damp(system, dt, v_out)
+        _damp(system, dt, v_raw, v_out)
 
 
 class BDF2(_ImplicitOptions, Integrator):
@@ -275,6 +295,7 @@ class BDF2(_ImplicitOptions, Integrator):
         """Forget the previous step (the next step is backward Euler)."""
         self._ode_prev: tuple[np.ndarray, float, np.ndarray] | None = None  # (y₋₁, h₋₁, y₀ it produced)
         self._sys_key: Any = None  # (model id, dt, x_out pointer) of the last physical step
+        self._grad_prev: tuple[wp.array, wp.array] | None = None  # (x₋₁, v₋₁) of a recorded step
 
     def step_ode(
         self, problem: ODEProblem | SecondOrderODE, t: float, dt: float, y: np.ndarray
@@ -297,7 +318,14 @@ class BDF2(_ImplicitOptions, Integrator):
     def step_system(self, system: System, t, dt, x_in, v_in, x_out, v_out) -> None:
         """One BDF2 step (backward Euler when the history is missing or stale)."""
         m = system.model
+        grad = recording_gradients(m)
         x_tilde, x_hat, x_prev, v_prev = self._buffers(system, 4)
+        v_raw = v_out
+        if grad:
+            # Fresh arrays, and the previous step's input state itself as the history (the tape keeps it).
+            x_tilde, x_hat, v_raw = _fresh(system, 3)
+            if self._grad_prev is not None:
+                x_prev, v_prev = self._grad_prev
         key = (id(m), float(dt), x_in.ptr)
         if self._sys_key is None or self._sys_key != key:
             h = dt
@@ -308,8 +336,12 @@ class BDF2(_ImplicitOptions, Integrator):
             lincomb(m, x_hat, x_in, [(1.0 / 3.0, x_in), (-1.0 / 3.0, x_prev)])
             lincomb(m, x_tilde, x_hat, [(4.0 * h / 3.0, v_in), (-h / 3.0, v_prev)])
         self._minimize(system, t, h, x_tilde, x_hat, v_in, x_out)
-        _velocity_from_positions(m, x_out, x_hat, 1.0 / h, v_out)
-        _damp(system, dt, v_out)
-        wp.copy(x_prev, x_in)
-        wp.copy(v_prev, v_in)
+        _velocity_from_positions(m, x_out, x_hat, 1.0 / h, v_raw)
+        _damp(system, dt, v_raw, v_out)
+        if grad:
+            self._grad_prev = (x_in, v_in)
+        else:
+            self._grad_prev = None
+            wp.copy(x_prev, x_in)
+            wp.copy(v_prev, v_in)
         self._sys_key = (id(m), float(dt), x_out.ptr)

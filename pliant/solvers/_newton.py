@@ -36,6 +36,7 @@ import numpy as np
 import warp as wp
 
 from .._warp import launch
+from ._implicit_adjoint import differentiable
 
 #: Defaults when ``options`` does not name a setting.
 DEFAULTS: dict[str, Any] = {
@@ -128,7 +129,7 @@ def _step_stats(
 ):
     # stats[0] = max |Δx| over free particles, stats[1] = ∇Φ·Δx (directional derivative).
     i = wp.tid()
-    if inv_mass[i] == type(stats_out[0])(0.0):
+    if inv_mass[i] == type(inv_mass[i])(0.0):  # (the type from an input: reading the output would be flagged)
         return
     d = dx[i]
     wp.atomic_max(stats_out, 0, wp.max(wp.max(wp.abs(d[0]), wp.abs(d[1])), wp.abs(d[2])))
@@ -246,7 +247,7 @@ def _stiffness_ratio(
 ):
     # max_i trace(H_ii)/(3 m_i) = 1 + h² K_ii/m_i: how much one ulp of position moves the scaled gradient.
     i = wp.tid()
-    if inv_mass[i] == type(ratio_out[0])(0.0):
+    if inv_mass[i] == type(inv_mass[i])(0.0):
         return
     b = values[diag_slots[i]]
     wp.atomic_max(ratio_out, 0, (b[0, 0] + b[1, 1] + b[2, 2]) * inv_mass[i] / type(inv_mass[i])(3.0))
@@ -439,9 +440,14 @@ def _gradient(solver: Any, ws: _Workspace, x: wp.array, x_tilde: wp.array, h: fl
     return ws.gstats.numpy().astype(np.float64)
 
 
+def control_of(problem: Any) -> Any:
+    """The Control (external forces, drag handle) of the step ``problem`` is taking, or None."""
+    return getattr(problem, "_control", None)
+
+
 def _control_terms(solver: Any, ws: _Workspace, x: wp.array, grad: wp.array, value: wp.array) -> None:
     """Add the Control's external forces and drag handle (as potentials) into ``grad`` and ``value``."""
-    c = getattr(solver, "_control", None)
+    c = control_of(solver)
     if c is None:
         return
     m = solver.model
@@ -487,7 +493,7 @@ def _assemble(
         if k in skip or slots.shape[0] == 0:
             continue  # left out, or no Hessian (e.g. gravity)
         e.hessian(m, x, slots, ws.values, project_psd=project_psd, scale=h * h)
-    c = getattr(solver, "_control", None)
+    c = control_of(solver)
     if control and c is not None and c.drag_index >= 0:
         launch(
             _drag_terms,
@@ -514,6 +520,7 @@ def _assemble(
     )
 
 
+@differentiable
 def minimize_incremental_potential(
     solver: Any,
     t: float,

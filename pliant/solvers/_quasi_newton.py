@@ -38,6 +38,7 @@ import numpy as np
 import warp as wp
 
 from .._warp import launch
+from ._implicit_adjoint import differentiable
 from ._newton import (
     NewtonStats,
     _assemble,
@@ -269,6 +270,7 @@ def _phi(g: np.ndarray, h2: float) -> float:
     return float(g[2] + h2 * g[3])
 
 
+@differentiable
 def minimize_quasi_newton(
     solver: Any,
     t: float,
