@@ -16,7 +16,6 @@ import pytest
 import warp as wp
 
 import pliant as pl
-from pliant.solvers._implicit_adjoint import GradientUnavailableError
 
 I = pl.integrators
 STEPS = 20
@@ -41,8 +40,16 @@ def _rope(ground: bool):
 def _cloth(ground: bool):
     b = pl.ModelBuilder(gravity=(0.0, -9.81, 0.0))
     b.add_cloth_grid(
-        nx=6, ny=6, size=0.5, mass=0.2, stiffness=300.0, bend_stiffness=5.0, damping=2.0, pin="none",
-        origin=(0.0, 0.03, 0.0), plane="xz",
+        nx=6,
+        ny=6,
+        size=0.5,
+        mass=0.2,
+        stiffness=300.0,
+        bend_stiffness=5.0,
+        damping=2.0,
+        pin="none",
+        origin=(0.0, 0.03, 0.0),
+        plane="xz",
     )
     if ground:
         b.add_ground(0.0, friction=0.0)
@@ -51,8 +58,15 @@ def _cloth(ground: bool):
 
 def _box(ground: bool):
     b = pl.ModelBuilder(gravity=(0.0, -9.81, 0.0))
-    b.add_soft_box(cells=(2, 2, 2), size=(0.1, 0.1, 0.1), origin=(0.0, 0.06, 0.0), E=2e4, nu=0.3,
-                   density=500.0, velocity=(0.3, -0.5, 0.0))
+    b.add_soft_box(
+        cells=(2, 2, 2),
+        size=(0.1, 0.1, 0.1),
+        origin=(0.0, 0.06, 0.0),
+        E=2e4,
+        nu=0.3,
+        density=500.0,
+        velocity=(0.3, -0.5, 0.0),
+    )
     if ground:
         b.add_ground(0.0, friction=0.0)
     return b
@@ -61,7 +75,7 @@ def _box(ground: bool):
 def _energies(kind: str, ground: bool):
     e = pl.energies
     if kind == "box":
-        out = [e.TetElasticity(model="neo_hookean"), e.Gravity()]
+        out = [e.TetElasticity(material="neohookean"), e.Gravity()]
     else:
         out = e.mass_spring()
     if ground:
@@ -88,8 +102,9 @@ def _rollout(kind, ground, integ_factory, *, perturb=None, record=False):
         a = getattr(model, name)
         a.assign(a.numpy() + eps * d)
     # ground=True: contact only through the penalty in Φ (the post-step friction is another module's).
-    solver = pl.solvers.ForceSolver(model, energies=_energies(kind, ground), integrator=integ_factory(),
-                                    contact=False)
+    solver = pl.solvers.ForceSolver(
+        model, energies=_energies(kind, ground), integrator=integ_factory(), contact=False
+    )
     states = [model.state() for _ in range(STEPS + 1)]
     wx = wp.array(np.random.default_rng(3).standard_normal((model.particle_count, 3)), dtype=wp.vec3d)
     wv = wp.array(0.1 * np.random.default_rng(4).standard_normal((model.particle_count, 3)), dtype=wp.vec3d)
@@ -160,7 +175,29 @@ INTEGRATORS = {
 }
 
 
-@pytest.mark.parametrize("integ", list(INTEGRATORS))
-@pytest.mark.parametrize("ground", [False, True])
-def test_rope_gradients(integ, ground):
-    _check("rope", ground, INTEGRATORS[integ])
+# Default suite: every integrator on the rope (per parameter), the cloth and the box on a subset; the rest of
+# the matrix (same assertions) under -m slow to keep the default suite's time down.
+FAST = {("rope", i, g) for i in INTEGRATORS for g in (False, True)} | {
+    ("cloth", "be_newton", True),
+    ("cloth", "bdf2", False),
+    ("box", "be_lbfgs", True),
+    ("box", "midpoint", False),
+}
+CASES = [
+    pytest.param(
+        k,
+        i,
+        g,
+        marks=() if (k, i, g) in FAST else pytest.mark.slow,
+        id=f"{k}-{i}-{'ground' if g else 'free'}",
+    )
+    for k in ("rope", "cloth", "box")
+    for i in INTEGRATORS
+    for g in (False, True)
+]
+
+
+@pytest.mark.parametrize(("kind", "integ", "ground"), CASES)
+def test_implicit_step_gradients_match_finite_differences(kind, integ, ground):
+    """Tape gradients (x0, v0, each parameter array) of a 20-step rollout equal central differences (1e-4)."""
+    _check(kind, ground, INTEGRATORS[integ])

@@ -250,7 +250,9 @@ class Dashpots(ModalEnergy):
         """Freeze the spring axes and the reference positions xⁿ [m] for the implicit potential."""
         if model.requires_grad:
             # Differentiable: this step's axes in a fresh array, and x itself as the reference.
-            self._axis = wp.zeros(model.spring_count, dtype=model.vec3, device=model.device, requires_grad=True)
+            self._axis = wp.zeros(
+                model.spring_count, dtype=model.vec3, device=model.device, requires_grad=True
+            )
             self._x_ref = x
         else:
             if self._axis is None or self._axis.shape[0] != model.spring_count or self._axis.requires_grad:

@@ -14,7 +14,8 @@ and for an upstream cotangent x̄₁ the cotangents of the inputs are p̄ = −w
 symmetric): one linear solve per step, whatever the number of minimiser iterations. The vector-Jacobian
 product −wᵀ ∂G/∂p is Warp's own autodiff of the energies' gradient kernels, launched once more at x₁ under
 a local ``wp.Tape`` into fresh arrays and back-propagated with the seed −w. Fixed rows: x₁ = x̃ there, and
-the free rows' residual depends on them through the energies' coupling, so x̃̄_fixed = x̄₁_fixed − (wᵀ ∂G/∂x)_fixed.
+the free rows' residual depends on them through the energies' coupling, so
+x̃̄_fixed = x̄₁_fixed − (wᵀ ∂G/∂x)_fixed.
 
 :func:`differentiable` wraps a minimiser: while a ``wp.Tape`` records and the model was finalised with
 ``requires_grad=True``, the minimisation runs with the tape paused (its iterations are not differentiated)
@@ -120,8 +121,9 @@ class _StepAdjoint:
         for name, a in (("x_tilde", x_tilde), ("x_out", x_out)):
             if not a.requires_grad:
                 raise GradientUnavailableError(
-                    f"implicit step under a recording wp.Tape: its {name} array has no gradient; allocate the "
-                    "step's states with requires_grad=True (model.state() after finalize(requires_grad=True))"
+                    f"implicit step under a recording wp.Tape: its {name} array has no gradient; allocate "
+                    "the step's states with requires_grad=True (model.state() after "
+                    "finalize(requires_grad=True))"
                 )
         if x_out.ptr in (x_tilde.ptr, x_ref.ptr):
             raise GradientUnavailableError("implicit step adjoint: x_out must not alias x_tilde or x_ref")
@@ -206,8 +208,9 @@ class _StepAdjoint:
                 return splu(H).solve(rhs.reshape(-1)).reshape(n, 3)
             except RuntimeError as exc:
                 raise GradientUnavailableError(
-                    f"implicit step adjoint: the Hessian at the step's solution is singular ({exc}); the step "
-                    "did not end at a strict minimum (raise max_newton_iterations, lower newton_tol or dt)"
+                    f"implicit step adjoint: the Hessian at the step's solution is singular ({exc}); the "
+                    "step did not end at a strict minimum (raise max_newton_iterations, lower newton_tol "
+                    "or dt)"
                 ) from None
         from ._newton import _inverse_diagonal
 
