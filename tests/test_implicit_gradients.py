@@ -21,6 +21,7 @@ I = pl.integrators
 STEPS = 20
 DT = 1.0 / 60.0
 TOL = 1e-4
+EPS_REST = 1e-6
 
 
 @wp.kernel
@@ -146,9 +147,12 @@ def _check(kind, ground, integ_factory, eps=1e-5):
         a = getattr(model, name).numpy()
         d = rng.standard_normal(a.shape) * np.abs(a)  # relative perturbation of each entry
         analytic = float(np.sum(grads[name] * d))
-        lp = _rollout(kind, ground, integ_factory, perturb=(name, d, eps))
-        lm = _rollout(kind, ground, integ_factory, perturb=(name, d, -eps))
-        fd = (lp - lm) / (2 * eps)
+        # The rollout is strongly nonlinear in the rest lengths (in-plane stress buckles the flat cloth):
+        # a smaller step keeps the differences' O(ε²) error below the tolerance.
+        e = EPS_REST if name == "spring_rest_length" else eps
+        lp = _rollout(kind, ground, integ_factory, perturb=(name, d, e))
+        lm = _rollout(kind, ground, integ_factory, perturb=(name, d, -e))
+        fd = (lp - lm) / (2 * e)
         errors[name] = (analytic, fd)
     # Initial state: the same through the model's initial arrays.
     for name, attr in (("x0", "particle_q"), ("v0", "particle_qd")):
@@ -175,13 +179,16 @@ INTEGRATORS = {
 }
 
 
-# Default suite: every integrator on the rope (per parameter), the cloth and the box on a subset; the rest of
-# the matrix (same assertions) under -m slow to keep the default suite's time down.
-FAST = {("rope", i, g) for i in INTEGRATORS for g in (False, True)} | {
+# Default suite: every integrator and each scene at least once, with and without ground; the whole matrix
+# (same assertions) under -m slow, to keep the default suite's time down.
+FAST = {
+    ("rope", "be_newton", False),
+    ("rope", "be_lbfgs", True),
+    ("rope", "midpoint", False),
+    ("rope", "bdf2", True),
     ("cloth", "be_newton", True),
-    ("cloth", "bdf2", False),
     ("box", "be_lbfgs", True),
-    ("box", "midpoint", False),
+    ("box", "bdf2", False),
 }
 CASES = [
     pytest.param(
