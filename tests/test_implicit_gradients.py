@@ -16,6 +16,7 @@ import pytest
 import warp as wp
 
 import pliant as pl
+from pliant.solvers._implicit_adjoint import GradientUnavailableError
 
 I = pl.integrators
 STEPS = 20
@@ -252,3 +253,38 @@ def test_kinematic_target_gradients_match_finite_differences(integ):
     analytic = float(np.sum(grad * d))
     assert abs(fd) > 1e-6
     assert abs(analytic - fd) <= TOL * abs(fd), f"tape {analytic:.10g} vs central differences {fd:.10g}"
+
+
+@wp.kernel(enable_backward=False)
+def _no_adjoint_pull(x: wp.array(dtype=wp.vec3d), out: wp.array(dtype=wp.vec3d)):
+    i = wp.tid()
+    wp.atomic_add(out, i, wp.float64(10.0) * x[i])
+
+
+class _OpaqueEnergy(pl.energies.Energy):
+    """E = 5|x|² with a gradient kernel Warp cannot differentiate."""
+
+    def value(self, model, x, out):
+        pass
+
+    def gradient(self, model, x, out):
+        wp.launch(_no_adjoint_pull, model.particle_count, [x, out], device=model.device)
+
+
+def test_energy_without_adjoint_raises_clear_error():
+    """An energy whose gradient kernel has no adjoint makes backward raise (no silent zero gradient)."""
+    model = _rope(False).finalize(device="cpu", dtype="float64", requires_grad=True)
+    solver = pl.solvers.ForceSolver(
+        model,
+        energies=[*pl.energies.mass_spring(), _OpaqueEnergy()],
+        integrator=I.BackwardEuler(),
+        contact=False,
+    )
+    s0, s1 = model.state(), model.state()
+    loss = wp.zeros(1, dtype=wp.float64, requires_grad=True)
+    tape = wp.Tape()
+    with tape:
+        solver.step(s0, s1, None, DT)
+        wp.launch(_weighted_sum, model.particle_count, [s1.particle_q, s1.particle_q, loss])
+    with pytest.raises(GradientUnavailableError, match="_OpaqueEnergy.*no adjoint"):
+        tape.backward(loss)
