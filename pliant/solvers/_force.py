@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .._warp import fresh, grad_enabled, launch
+from .._warp import GradientError, fresh, grad_enabled, launch
 from ..collision._ground import ground_contact_out
 from ..energies import Energy
 from ..energies._base import _axpy
@@ -47,8 +47,17 @@ def _kinematic_out(
         v_out[i] = v_in[i]
 
 
-class GradientError(RuntimeError):
-    """A gradient was requested (``requires_grad`` model) from a solver option that cannot give it."""
+@wp.kernel
+def _accel_from_force_gradient(
+    inv_mass: wp.array(dtype=Any),
+    f_in: wp.array(dtype=Any),
+    grad_in: wp.array(dtype=Any),
+    a_out: wp.array(dtype=Any),
+):
+    # Recorded steps: a = M⁻¹(F − ∇E), the potentials' gradients summed apart from the other forces so that
+    # no per-energy negation pass (and its array) is recorded.
+    i = wp.tid()
+    a_out[i] = inv_mass[i] * (f_in[i] - grad_in[i])
 
 
 @wp.kernel
@@ -163,7 +172,24 @@ class ForceSolver(Solver):
 
     def acceleration(self, t: float, x: wp.array, v: wp.array, out: wp.array) -> None:
         """a = M⁻¹F [m/s²]; zero for pinned and kinematic particles (inverse mass 0)."""
-        force = fresh(self.model) if grad_enabled(self.model) else self._force
+        m = self.model
+        if grad_enabled(m):
+            force, grad = fresh(m), fresh(m)
+            if self._control is not None:
+                _axpy(force, self._control.particle_f, 1.0, m)
+            for e in self.energies:
+                if type(e).force is Energy.force:  # a potential: −∇E
+                    e.gradient(m, x, grad)
+                else:
+                    e.force(m, x, v, force)
+            launch(
+                _accel_from_force_gradient,
+                m.particle_count,
+                [m.particle_inv_mass, force, grad, out],
+                device=m.device,
+            )
+            return
+        force = self._force
         self.forces(t, x, v, force)
         launch(
             _accel_from_force,
@@ -216,9 +242,9 @@ class ForceSolver(Solver):
         m = self.model
         if not self.integrator.explicit and not getattr(self.integrator, "differentiable", False):
             raise GradientError(
-                f"{self.integrator.name} has no adjoint in this version: differentiate an explicit integrator "
-                "(SymplecticEuler, VelocityVerlet, RK2/Heun/Midpoint, RK4, ForwardEuler) or finalize the "
-                "model with requires_grad=False"
+                f"{self.integrator.name} has no adjoint in this version: differentiate an explicit "
+                "integrator (SymplecticEuler, VelocityVerlet, RK2/Heun/Midpoint, RK4, ForwardEuler) or "
+                "finalize the model with requires_grad=False"
             )
         if self.collisions:
             raise GradientError(
