@@ -87,9 +87,9 @@ def _energies(kind: str, ground: bool):
 
 BUILD = {"rope": _rope, "cloth": _cloth, "box": _box}
 PARAMS = {
-    "rope": ("spring_stiffness", "spring_rest_length", "spring_damping"),
-    "cloth": ("spring_stiffness", "spring_rest_length", "spring_damping"),
-    "box": ("tet_mu", "tet_lam"),
+    "rope": ("spring_stiffness", "spring_rest_length", "spring_damping", "particle_mass"),
+    "cloth": ("spring_stiffness", "spring_rest_length", "spring_damping", "particle_mass"),
+    "box": ("tet_mu", "tet_lam", "particle_mass"),
 }
 
 
@@ -99,10 +99,15 @@ def _rollout(kind, ground, integ_factory, *, perturb=None, record=False):
     rng = np.random.default_rng(7)
     v0 = 0.2 * rng.standard_normal((model.particle_count, 3))
     model.particle_qd.assign(model.particle_qd.numpy() + v0)
+    if record:
+        model.particle_mass.requires_grad = True  # masses as a parameter (the step reads m, not 1/m)
     if perturb is not None:
         name, d, eps = perturb
         a = getattr(model, name)
         a.assign(a.numpy() + eps * d)
+        if name == "particle_mass":
+            inv = model.particle_inv_mass.numpy()
+            model.particle_inv_mass.assign(np.where(inv > 0, 1.0 / a.numpy(), 0.0))
     # ground=True: contact only through the penalty in Φ (the post-step friction is another module's).
     solver = pl.solvers.ForceSolver(
         model, energies=_energies(kind, ground), integrator=integ_factory(), contact=False
