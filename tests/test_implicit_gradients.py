@@ -23,6 +23,7 @@ STEPS = 20
 DT = 1.0 / 60.0
 TOL = 1e-4
 EPS_REST = 1e-6
+EPS_TET = 1e-3
 
 
 @wp.kernel
@@ -122,7 +123,9 @@ def _rollout(kind, ground, integ_factory, *, perturb=None, record=False):
     try:
         for k in range(STEPS):
             solver.step(states[k], states[k + 1], None, DT)
-            assert solver.last_stats.converged
+            st = solver.last_stats
+            # Converged, or stalled at the round-off floor far below what the finite differences resolve.
+            assert st.converged or st.gradient_norm < 1e-8, st
         wp.launch(_weighted_sum, model.particle_count, [states[-1].particle_q, wx, loss])
         wp.launch(_weighted_sum, model.particle_count, [states[-1].particle_qd, wv, loss])
     finally:
@@ -155,7 +158,9 @@ def _check(kind, ground, integ_factory, eps=1e-5):
         analytic = float(np.sum(grads[name] * d))
         # The rollout is strongly nonlinear in the rest lengths (in-plane stress buckles the flat cloth):
         # a smaller step keeps the differences' O(ε²) error below the tolerance.
-        e = EPS_REST if name == "spring_rest_length" else eps
+        # The free box barely deforms: its μ, λ derivatives are small, and L-BFGS's converged steps are
+        # exact only to ~1e-12 m, so a larger step keeps those differences above the noise.
+        e = EPS_REST if name == "spring_rest_length" else EPS_TET if name.startswith("tet_") else eps
         lp = _rollout(kind, ground, integ_factory, perturb=(name, d, e))
         lm = _rollout(kind, ground, integ_factory, perturb=(name, d, -e))
         fd = (lp - lm) / (2 * e)
