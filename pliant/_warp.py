@@ -139,7 +139,7 @@ def launch(kernel: Any, dim: Any, inputs: list, device: Any = None) -> None:
 
 
 # ----------------------------------------------------------------------------------------------- gradients
-class GradientError(RuntimeError):
+class GradientError(NotImplementedError):
     """A gradient was requested (a ``requires_grad`` model, or ``pl.diff``) from a solver, option or
     parameter that cannot give a correct one; the message says what to use instead."""
 

@@ -37,17 +37,13 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .._warp import _tape_active, launch
+from .._warp import GradientError, _tape_active, launch
 
 
 def _runtime() -> Any:
     from warp._src.context import runtime
 
     return runtime
-
-
-class GradientUnavailableError(RuntimeError):
-    """A gradient was requested through something that cannot give a correct one (says what to change)."""
 
 
 @contextlib.contextmanager
@@ -120,13 +116,13 @@ class _StepAdjoint:
 
         for name, a in (("x_tilde", x_tilde), ("x_out", x_out)):
             if not a.requires_grad:
-                raise GradientUnavailableError(
+                raise GradientError(
                     f"implicit step under a recording wp.Tape: its {name} array has no gradient; allocate "
                     "the step's states with requires_grad=True (model.state() after "
                     "finalize(requires_grad=True))"
                 )
         if x_out.ptr in (x_tilde.ptr, x_ref.ptr):
-            raise GradientUnavailableError("implicit step adjoint: x_out must not alias x_tilde or x_ref")
+            raise GradientError("implicit step adjoint: x_out must not alias x_tilde or x_ref")
         self.problem = problem
         self.model = problem.model
         self.energies = list(problem.energies)
@@ -207,7 +203,7 @@ class _StepAdjoint:
             try:
                 return splu(H).solve(rhs.reshape(-1)).reshape(n, 3)
             except RuntimeError as exc:
-                raise GradientUnavailableError(
+                raise GradientError(
                     f"implicit step adjoint: the Hessian at the step's solution is singular ({exc}); the "
                     "step did not end at a strict minimum (raise max_newton_iterations, lower newton_tol "
                     "or dt)"
@@ -229,7 +225,7 @@ def _check_adjoints(tape: wp.Tape, spans: list[tuple[Any, int, int]]) -> None:
             kernel = rec[0] if isinstance(rec, (list, tuple)) and rec else None
             options = getattr(kernel, "options", None) or {}
             if options.get("enable_backward", True) is False:
-                raise GradientUnavailableError(
+                raise GradientError(
                     f"{type(e).__name__}: its gradient kernel {getattr(kernel, 'key', kernel)!r} has no "
                     "adjoint (enable_backward=False), so gradients through implicit steps with this energy "
                     "are not available; run without requires_grad or use an energy with a differentiable "

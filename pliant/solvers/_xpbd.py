@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from .._warp import GradientError
 from ..constraints import Constraint, DihedralBending, Distance, Ground, ProjectionContext, Volume
 from ..model import Control, Model, State
 from . import _xpbd_kernels as K
@@ -163,13 +164,13 @@ class XPBD(Solver):
     def _check_differentiable(self) -> None:
         """Gradients requested (``requires_grad`` model): reject what cannot give a correct gradient."""
         if self.coloring:
-            raise NotImplementedError(
+            raise GradientError(
                 "XPBD: the colouring (Gauss–Seidel) schedule projects in place and cannot be differentiated; "
                 'use schedule="jacobi" when the model is finalized with requires_grad=True'
             )
         bad = [type(c).__name__ for c in self.constraints if not c.differentiable]
         if bad:
-            raise NotImplementedError(
+            raise GradientError(
                 f"XPBD: constraint sets {bad} are not differentiable yet; with requires_grad=True use "
                 "Distance, DihedralBending, Volume, ShapeMatching without radii and Ground, or finalize with "
                 "requires_grad=False"
@@ -312,7 +313,7 @@ class XPBD(Solver):
         )
         if control is not None and control.kinematic_indices.shape[0]:
             if grad:
-                raise NotImplementedError(
+                raise GradientError(
                     "XPBD: kinematic targets are not differentiable yet; drop them from the Control or "
                     "finalize with requires_grad=False"
                 )
