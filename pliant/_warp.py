@@ -131,3 +131,7 @@ def launch(kernel: Any, dim: Any, inputs: list, device: Any = None) -> None:
         cmd.launch()
     except RuntimeError:  # a launch capture that needs the argument list: launch the ordinary way
         wp.launch(kernel, dim, inputs, device=device)
+
+
+# Importing any layer initialises Warp once, quietly (pliant/__init__.py no longer does: it loads lazily).
+init()
