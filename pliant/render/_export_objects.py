@@ -222,16 +222,16 @@ def export_usd_objects(
     return path
 
 
-def _cells(traj: Any) -> list[tuple[str, np.ndarray]]:
+def _cells(traj: Any, lines: bool = True) -> list[tuple[str, np.ndarray]]:
     """meshio cell blocks with global particle indices: tets, triangles of objects without tets, rope
-    segments, and single vertices of point objects."""
+    segments (``lines``; else their particles as vertices), and single vertices of point objects."""
     blocks: dict[str, list[np.ndarray]] = {"tetra": [], "triangle": [], "line": [], "vertex": []}
     for p in trajectory_objects(traj):
         if p.kind == "solid":
             blocks["tetra"].append(p.tets + p.start)
         elif p.kind == "surface":
             blocks["triangle"].append(p.faces + p.start)
-        elif p.kind == "curve":
+        elif p.kind == "curve" and lines:
             i = np.arange(p.start, p.start + p.count - 1)
             blocks["line"].append(np.stack([i, i + 1], axis=1))
         else:
@@ -277,6 +277,8 @@ def export_xdmf(path: str | os.PathLike, traj: Any) -> Path:
     """Writes an XDMF time series (``path`` and its ``.h5``) through meshio. XDMF series share one
     geometry, so the frame-0 positions are the mesh and each step carries ``displacement`` (x - x0) [m]
     (ParaView: the "Warp By Vector" filter moves the mesh by it) and ``velocity`` [m/s] when recorded.
+    Ropes are line cells, or their particles as vertex cells next to other cell types (meshio 5.3 cannot
+    write lines in a mixed XDMF topology).
 
     Args:
         path: Output ``.xdmf`` file.
@@ -292,7 +294,10 @@ def export_xdmf(path: str | os.PathLike, traj: Any) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     # XML data (no HDF5, so no h5py dependency); fine for the sizes pliant exports.
     with meshio.xdmf.TimeSeriesWriter(str(path), data_format="XML") as w:
-        w.write_points_cells(xs[0], _cells(traj))
+        cells = _cells(traj)
+        if len(cells) > 1:  # meshio (5.3) cannot write line cells in a mixed XDMF topology
+            cells = _cells(traj, lines=False)
+        w.write_points_cells(xs[0], cells)
         for k in range(len(xs)):
             data = {"displacement": xs[k] - xs[0]}
             if traj.v is not None:
