@@ -44,7 +44,8 @@ def test_help_imports_no_warp_and_every_command_has_examples():
         "            pliant.cli.main(argv)\n"
         "        except SystemExit as e:\n"
         "            assert e.code == 0, (argv, e.code)\n"
-        "    assert 'examples:' in buf.getvalue() and 'pliant ' in buf.getvalue().split('examples:')[1], argv\n"
+        "    text = buf.getvalue()\n"
+        "    assert 'examples:' in text and 'pliant ' in text.split('examples:')[1], argv\n"
         "assert 'warp' not in sys.modules, 'a --help loaded warp'\n"
         "print('OK')\n"
     )
