@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import runpy
 import sys
+from pathlib import Path
 
 from . import available, packaged
 
 
-def _summary(path) -> str:
+def _summary(path: Path) -> str:
     """The first sentence of the comment block under ``# Example ...``, at most ~90 characters."""
     words = []
     for ln in path.read_text(encoding="utf-8").splitlines()[3:12]:
@@ -25,10 +26,7 @@ def main(argv: list[str]) -> int:
         print("usage: python -m pliant.examples NAME [--test] [--frames N] [--device cpu|cuda:0] ...")
         print("examples:")
         for name, path in sorted(names.items()):
-            doc = next(
-                (ln[2:].strip() for ln in path.read_text().splitlines()[3:6] if ln.startswith("# ")), ""
-            )
-            print(f"  {name:<16} {doc}")
+            print(f"  {name:<16} {_summary(path)}")
         return 0
     name = argv[0].removesuffix(".py")
     if name not in names:
