@@ -107,7 +107,7 @@ def simulate(
     """
     import numpy as np
 
-    from .. import DivergenceError
+    from ..sim import DivergenceError
     from ..io._paths import OutputPathError, check_file_stem, confined
     from ..scene import build_scene
 
