@@ -113,3 +113,15 @@ def test_cli_export_obj_keeps_vertex_indices_and_usd_per_object(tmp_path):
     assert main(["export", str(tmp_path / "t.npz"), "--out", str(tmp_path / "t.usd")]) == 0
     assert main(["export", str(tmp_path / "t.npz"), "--format", "vtu", "--out", str(tmp_path / "v")]) == 0
     assert len(list((tmp_path / "v").glob("*.vtu"))) == 3
+
+
+def test_unclaimed_particles_and_render_meshes_are_kept():
+    """Particles no object lists become their own part; a list that does not fit is ignored (one body)."""
+    from pliant.render import trajectory_objects
+
+    traj = _traj()
+    traj.meta["objects"] = traj.meta["objects"][:2]  # the rope and the points are unclaimed
+    parts = trajectory_objects(traj)
+    assert [(p.name, p.kind, p.start, p.count) for p in parts][2:] == [("particles_9", "points", 9, 5)]
+    traj.meta["render_mesh"] = True
+    assert [(p.kind, p.start, p.count) for p in trajectory_objects(traj)] == [("solid", 0, 14)]

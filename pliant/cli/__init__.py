@@ -35,7 +35,8 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         self.print_usage(sys.stderr)
-        _error(f"{self.prog}: {message}")
+        command = self.prog.removeprefix("pliant").strip()  # "run" for `pliant run`'s parser
+        _error(f"{command}: {message}" if command else message)
         raise SystemExit(EXIT_USER)
 
 

@@ -107,9 +107,9 @@ def simulate(
     """
     import numpy as np
 
-    from ..sim import DivergenceError
     from ..io._paths import OutputPathError, check_file_stem, confined
     from ..scene import build_scene
+    from ..sim import DivergenceError
 
     try:
         check_file_stem(name, "scene name")

@@ -46,12 +46,30 @@ def _local(cells: np.ndarray | None, start: int, count: int, width: int) -> np.n
 
 
 def trajectory_objects(traj: Any) -> list[ObjectPart]:
-    """The objects of ``traj`` (a :class:`pliant.io.Trajectory`), from ``meta["objects"]`` when present."""
+    """The objects of ``traj`` (a :class:`pliant.io.Trajectory`), from ``meta["objects"]`` when present.
+
+    Particles no object claims (added by hand without ``register_object``) become ``particles_<first>``
+    parts; a list that does not fit the trajectory (a ``.render.npz`` drawn mesh) is ignored: one object.
+    """
     n = traj.x.shape[1]
-    objs = traj.meta.get("objects") or [{"name": "body", "kind": "body", "start": 0, "count": n}]
+    objs = [] if traj.meta.get("render_mesh") else list(traj.meta.get("objects") or [])
+    spans = sorted((int(o["start"]), int(o["count"]), o) for o in objs)
+    if any(s < 0 or c < 0 or s + c > n for s, c, _ in spans) or any(
+        a[0] + a[1] > b[0] for a, b in zip(spans, spans[1:], strict=False)
+    ):
+        spans = []
+    listed, at = [], 0
+    for s, c, o in spans:
+        if s > at:
+            listed.append((at, s - at, {"name": f"particles_{at}", "kind": "particles"}))
+        listed.append((s, c, o))
+        at = s + c
+    if at < n:
+        listed.append((at, n - at, {"name": "body" if not spans else f"particles_{at}", "kind": "particles"}))
     parts = []
-    for o in objs:
-        start, count = int(o["start"]), int(o["count"])
+    for start, count, o in listed:
+        if count == 0:
+            continue
         faces = _local(traj.faces, start, count, 3)
         tets = _local(traj.tets, start, count, 4)
         if len(tets):
