@@ -35,16 +35,22 @@ _SUBMODULES = (
 
 
 def __getattr__(name: str):
-    # Heavier layers (renderer kernels, studies, benchmarks, CLI) load on first use, not on import.
+    # Every layer loads on first use, not on import (the CLI's --help must not wait for Warp).
     import importlib
 
     if name in _LAZY or (name in _SUBMODULES and name != "cli"):
         importlib.import_module(f"{__name__}._warp")  # Warp initialised once, quietly, before any layer
     if name in _LAZY:
-        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+        globals()[name] = value  # later look-ups skip this function
+        return value
     if name in _SUBMODULES:
         return importlib.import_module(f"{__name__}.{name}")
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY, *_SUBMODULES})
 
 
 __all__ = [
