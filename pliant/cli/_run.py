@@ -41,7 +41,7 @@ def _load(scene: str, overrides: list[str] | None = None) -> Any:
     import warnings
 
     msg = mesh_instead_of_scene(scene)
-    if msg is not None:
+    if msg is not None and Path(scene).is_file():  # a missing file gets the loader's "no such scene file"
         raise CliError(msg)
     from ..scene import load_scene
 
