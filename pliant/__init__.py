@@ -7,37 +7,55 @@ the other solvers raise ``pliant.diff.GradientError`` when asked for a gradient.
 
 from __future__ import annotations
 
-from ._warp import init as _init
-
-_init()
-
-from . import energies, integrators, io, model, solvers  # noqa: E402
-from .io import Trajectory  # noqa: E402
-from .model import Control, Model, ModelBuilder, State  # noqa: E402
-from .sim import DivergenceError, Simulator  # noqa: E402
-
 __version__ = "0.1.0"
+
+# Nothing heavy is imported here: ``import pliant`` (and so ``pliant --help``) must not load Warp. Each
+# name below loads its module on first use (PEP 562); pliant._warp initialises Warp when first imported.
+_LAZY = {
+    "Control": "model",
+    "Model": "model",
+    "ModelBuilder": "model",
+    "State": "model",
+    "Trajectory": "io",
+    "DivergenceError": "sim",
+    "Simulator": "sim",
+}
+_SUBMODULES = (
+    "energies",
+    "integrators",
+    "io",
+    "model",
+    "solvers",
+    "render",
+    "geometry",
+    "constraints",
+    "collision",
+    "studies",
+    "bench",
+    "cli",
+    "sim",
+    "scene",
+    "diff",
+)
 
 
 def __getattr__(name: str):
-    # Heavier layers (renderer kernels, studies, benchmarks, CLI) load on first use, not on import.
+    # Every layer loads on first use, not on import (the CLI's --help must not wait for Warp).
     import importlib
 
-    lazy = (
-        "render",
-        "geometry",
-        "constraints",
-        "collision",
-        "studies",
-        "bench",
-        "cli",
-        "sim",
-        "scene",
-        "diff",
-    )
-    if name in lazy:
+    if name in _LAZY or (name in _SUBMODULES and name != "cli"):
+        importlib.import_module(f"{__name__}._warp")  # Warp initialised once, quietly, before any layer
+    if name in _LAZY:
+        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+        globals()[name] = value  # later look-ups skip this function
+        return value
+    if name in _SUBMODULES:
         return importlib.import_module(f"{__name__}.{name}")
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY, *_SUBMODULES})
 
 
 __all__ = [

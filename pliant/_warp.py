@@ -156,3 +156,7 @@ def fresh(model: Any, count: int | None = None, dtype: Any = None) -> wp.array:
     ``requires_grad=True``, for one use inside a recorded step."""
     n = model.particle_count if count is None else count
     return wp.zeros(n, dtype=model.vec3 if dtype is None else dtype, device=model.device, requires_grad=True)
+
+
+# Importing any layer initialises Warp once, quietly (pliant/__init__.py no longer does: it loads lazily).
+init()

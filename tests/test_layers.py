@@ -5,6 +5,7 @@ layer. Layers, bottom to top:
 
     _warp → geometry → model → integrators / energies / constraints / collision → solvers → io → sim
     → render → scene → diff / fit / gaussians → studies / bench / cli → pliant/__init__.py
+    → examples (user code on the public surface)
 
 Modules of one layer may import each other.
 """
@@ -31,7 +32,8 @@ LAYERS: list[tuple[str, ...]] = [
     ("scene",),
     ("diff", "fit", "gaussians"),
     ("studies", "bench", "cli"),
-    ("",),  # pliant/__init__.py: the public surface, on top of everything
+    ("",),  # pliant/__init__.py: the public surface, on top of the library
+    ("examples",),  # user code shipped with the package: it uses the public surface (`import pliant as pl`)
 ]
 LEVEL = {name: i for i, names in enumerate(LAYERS) for name in names}
 

@@ -1,10 +1,14 @@
-"""Command line: ``pliant demo | run | info | bench | study | export``.
+"""Command line: ``pliant demo | run | scenes | info | bench | study | export``.
 
 Each command only parses arguments and calls the public API. User mistakes (a bad scene file, an unknown
 device, a missing file) print one ``error:`` line per problem on stderr and exit non-zero, never a
 traceback; set ``PLIANT_DEBUG=1`` to see the traceback anyway.
 
-Exit codes: 0 success, 1 user error, 2 the simulation diverged, 130 interrupted (Ctrl-C).
+Exit codes: 0 success, 1 user error (a usage mistake included), 2 the simulation diverged, 130
+interrupted (Ctrl-C).
+
+Nothing here imports Warp (nor ``pliant``'s layers) until a command runs: ``pliant --help`` answers at once
+and prints no device warning.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ import argparse
 import os
 import sys
 from collections.abc import Sequence
+from typing import Any, NoReturn
 
 EXIT_OK, EXIT_USER, EXIT_DIVERGED, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -23,6 +28,31 @@ class CliError(Exception):
     def __init__(self, message: str, exit_code: int = EXIT_USER) -> None:
         super().__init__(message)
         self.exit_code = exit_code
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with pliant's exit code for usage mistakes: 1 (argparse's 2 means "diverged" here)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.print_usage(sys.stderr)
+        command = self.prog.removeprefix("pliant").strip()  # "run" for `pliant run`'s parser
+        _error(f"{command}: {message}" if command else message)
+        raise SystemExit(EXIT_USER)
+
+
+def _examples(*lines: str) -> str:
+    """An epilog of usage examples (shown verbatim by the raw formatter)."""
+    return "examples:\n" + "\n".join(f"  {line}" for line in lines)
+
+
+def _sub(sub: Any, name: str, help: str, *examples: str) -> argparse.ArgumentParser:
+    return sub.add_parser(
+        name,
+        help=help,
+        description=help[0].upper() + help[1:] + ".",
+        epilog=_examples(*examples),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
 
 
 def _positive_int(text: str) -> int:
@@ -47,23 +77,60 @@ def _positive_float(text: str) -> float:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``pliant`` (one sub-command per action)."""
-    p = argparse.ArgumentParser(
+    from .. import __version__
+
+    p = _Parser(
         prog="pliant",
         description="Deformable-object simulation (mass-spring, PBD/XPBD, FEM) on NVIDIA Warp.",
+        epilog=_examples(
+            "pliant demo                      # the cloth demo: out/demo.mp4",
+            "pliant scenes                    # the built-in scenes",
+            "pliant run rope --frames 60      # a built-in scene",
+            "pliant run my_scene.toml --set objects[0].material.stiffness=200",
+            "pliant export out/rope.npz --out rope.usd",
+            "pliant COMMAND --help            # each command's options",
+        )
+        + "\n\nexit codes: 0 success, 1 user error, 2 the simulation diverged, 130 interrupted (Ctrl-C)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    p.add_argument("--version", action="version", version=f"pliant {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
-    d = sub.add_parser("demo", help="simulate the built-in cloth scene and write demo.mp4 + demo.npz")
+    d = _sub(
+        sub,
+        "demo",
+        "simulate the built-in cloth scene and write demo.mp4 + demo.npz",
+        "pliant demo",
+        "pliant demo --frames 30 --device cpu --out /tmp/demo",
+    )
     d.add_argument("--out", default="out", help="output folder (default: out)")
     d.add_argument("--frames", type=_positive_int, help="number of frames (default: the scene's)")
     d.add_argument("--device", help="cpu or cuda:N (default: CUDA when present)")
     d.add_argument("--no-video", action="store_true", help="skip rendering the video")
     d.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
 
-    r = sub.add_parser("run", help="run a scene file or a built-in scene (cloth, rope, soft_box, points)")
+    r = _sub(
+        sub,
+        "run",
+        "run a scene file or a built-in scene (`pliant scenes` lists them)",
+        "pliant run cloth",
+        "pliant run my_scene.toml --frames 100 --device cuda:0 --out results",
+        "pliant run rope --set objects[0].material.stiffness=200 --set scene.frames=10",
+        "pliant run rope --integrator RK4 --no-video",
+        "pliant run my_scene.toml --resume            # continue after Ctrl-C",
+    )
     r.add_argument("scene", help="a scene .toml file or a built-in scene name")
     r.add_argument("--frames", type=_positive_int, help="override [scene] frames")
+    r.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="PATH=VALUE",
+        dest="overrides",
+        help="override any scene field, e.g. objects[0].material.stiffness=200 or solver.integrator=RK4 "
+        "(VALUE is a TOML value, else a string; repeatable)",
+    )
     r.add_argument("--frame-dt", type=_positive_float, help="override [scene] frame_dt: frame duration [s]")
     r.add_argument("--dt", type=_positive_float, help="deprecated name of --frame-dt")
     r.add_argument("--substeps", type=_positive_int, help="override [scene] substeps")
@@ -76,37 +143,78 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-video", action="store_true", help="skip rendering the video")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
 
-    sub.add_parser("info", help="versions, devices and the Warp kernel cache")
+    sc = _sub(
+        sub,
+        "scenes",
+        "list the built-in scenes, or print one as a starting file",
+        "pliant scenes",
+        "pliant scenes show cloth > my_cloth.toml   # then edit and: pliant run my_cloth.toml",
+    )
+    sc.add_argument("action", nargs="?", choices=("list", "show"), default="list", help="default: list")
+    sc.add_argument("name", nargs="?", help="the scene to print (with show)")
 
-    b = sub.add_parser("bench", help="run benchmarks (one JSON line each)")
+    _sub(sub, "info", "versions, devices and the Warp kernel cache", "pliant info")
+
+    b = _sub(
+        sub,
+        "bench",
+        "run benchmarks (one JSON line each)",
+        "pliant bench --list",
+        "pliant bench --quick --json bench.jsonl",
+    )
     b.add_argument("names", nargs="*", metavar="NAME", help="benchmarks to run (default: all)")
     b.add_argument("--list", action="store_true", help="list the benchmarks and exit")
     b.add_argument("--json", metavar="PATH", help="also append the JSON lines to PATH")
     b.add_argument("--device", help="device passed to benchmarks that take one")
     b.add_argument("--quick", action="store_true", help="smaller problems (smoke test)")
 
-    s = sub.add_parser("study", help="run a study (integrators: error vs dt, stability, energy)")
+    s = _sub(
+        sub,
+        "study",
+        "run a study (integrators: error vs dt, stability, energy)",
+        "pliant study integrators --quick --out /tmp/figures",
+    )
     s.add_argument("study", choices=("integrators",))
     s.add_argument("--out", default="docs/figures", help="output folder (default: docs/figures)")
     s.add_argument("--quick", action="store_true", help="fewer step sizes (smoke test)")
 
-    e = sub.add_parser("export", help="export a trajectory NPZ to PLY / OBJ (sequences) or USD")
+    e = _sub(
+        sub,
+        "export",
+        "export a trajectory NPZ to USD (one prim per object), VTU/XDMF (ParaView), PLY / OBJ",
+        "pliant export out/cloth.npz --out cloth.usd          # Blender, Omniverse",
+        "pliant export out/fem_drop.npz --format vtu --out vtu/   # ParaView: open vtu/fem_drop.pvd",
+        "pliant export out/fem_drop.npz --out fem_drop.xdmf",
+        "pliant export out/rope.npz --format obj --out frames/",
+        "pliant export out/rope.npz --out last.ply --frame -1",
+    )
     e.add_argument("trajectory", metavar="TRAJ.npz")
-    e.add_argument("--format", choices=("ply", "obj", "usd"), help="default: from --out's extension")
-    e.add_argument("--out", required=True, help="a folder (ply/obj sequences) or a file (usd, or --frame)")
+    e.add_argument(
+        "--format", choices=("ply", "obj", "usd", "vtu", "xdmf"), help="default: from --out's extension"
+    )
+    e.add_argument(
+        "--out", required=True, help="a folder (ply/obj/vtu sequences) or a file (usd, xdmf, or --frame)"
+    )
     e.add_argument("--frame", type=int, help="export only this frame (ply/obj; negative counts from the end)")
     return p
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``pliant`` command; returns the exit code."""
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except KeyboardInterrupt:
+        return EXIT_INTERRUPTED
     debug = bool(os.environ.get("PLIANT_DEBUG"))
     try:
         if args.command in ("demo", "run"):
             from ._run import cmd_demo, cmd_run
 
             return cmd_demo(args) if args.command == "demo" else cmd_run(args)
+        if args.command == "scenes":
+            from ._scenes import cmd_scenes
+
+            return cmd_scenes(args)
         from ._misc import cmd_bench, cmd_export, cmd_info, cmd_study
 
         return {"info": cmd_info, "bench": cmd_bench, "study": cmd_study, "export": cmd_export}[args.command](

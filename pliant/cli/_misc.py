@@ -126,20 +126,25 @@ def cmd_export(args: argparse.Namespace) -> int:
     except OutputPathError as exc:
         raise CliError(str(exc)) from None
     traj = Trajectory.load(args.trajectory)
-    fmt = args.format or {".ply": "ply", ".obj": "obj", ".usd": "usd", ".usda": "usd", ".usdc": "usd"}.get(
-        out.suffix.lower()
-    )
+    suffixes = {".ply": "ply", ".obj": "obj", ".usd": "usd", ".usda": "usd", ".usdc": "usd", ".xdmf": "xdmf"}
+    fmt = args.format or suffixes.get(out.suffix.lower())
     if fmt is None:
-        raise CliError(f"cannot tell the format from --out {out}; give --format ply, obj or usd")
+        raise CliError(f"cannot tell the format from --out {out}; give --format ply, obj, usd, vtu or xdmf")
     if traj.frame_count == 0:
         raise CliError(f"{args.trajectory}: the trajectory has no frames")
-    if fmt == "usd":
+    if fmt in ("usd", "vtu", "xdmf"):
         if args.frame is not None:
-            raise CliError("--frame applies to ply/obj; USD stores the whole animation")
-        dt = traj.meta.get("dt")
-        fps = 1.0 / dt if dt else 30.0
-        path = render.export_usd(out, traj.x, traj.faces, fps, t=traj.t)
-        print(f"wrote {path} ({traj.frame_count} frames)")
+            raise CliError(f"--frame applies to ply/obj; {fmt.upper()} stores the whole animation")
+        if fmt == "usd":
+            path = render.export_usd_objects(out, traj)
+            prims = len(render.trajectory_objects(traj))
+            print(f"wrote {path} ({traj.frame_count} frames, {prims} object prim(s))")
+        elif fmt == "xdmf":
+            path = render.export_xdmf(out, traj)
+            print(f"wrote {path} ({traj.frame_count} steps; frame 0 + displacement per step)")
+        else:
+            paths = render.export_vtu_series(out, traj)
+            print(f"wrote {len(paths)} VTU files and {out / 'frame_series.pvd'} (open the .pvd in ParaView)")
         return EXIT_OK
     single = {"ply": render.export_ply, "obj": render.export_obj}[fmt]
     if args.frame is not None:

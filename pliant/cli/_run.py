@@ -11,15 +11,43 @@ from typing import Any
 
 from . import EXIT_DIVERGED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USER, CliError
 
+#: Mesh files a scene can reference (``kind = "mesh"``) but that are not scenes themselves.
+MESH_SUFFIXES = (".obj", ".ply", ".stl", ".msh", ".vtk", ".vtu", ".off", ".mesh")
 
-def _load(scene: str) -> Any:
+
+def mesh_instead_of_scene(scene: str) -> str | None:
+    """The message for a mesh file given where a scene is expected (None for anything else): the
+    three-line scene that would run it."""
+    from pathlib import PurePath
+
+    p = PurePath(scene)
+    if p.suffix.lower() not in MESH_SUFFIXES:
+        return None
+    stem = "".join(c if c.isalnum() or c in "_-" else "_" for c in p.stem) or "my_mesh"
+    return (
+        f"{scene} is a mesh, not a scene file; a scene says what to do with it. Save these lines as "
+        f"{stem}.toml next to it and run `pliant run {stem}.toml`:\n"
+        f"    [[objects]]\n"
+        f'    kind = "mesh"\n'
+        f'    path = "{p.name}"\n'
+        "    material = { stiffness = 500 }\n"
+        "(a closed surface is filled with tets, a tet mesh used as is; it falls onto the ground. Add scale, "
+        'origin, rotation = [x, y, z] degrees or up = "z" as needed; `pliant scenes show soft_box` shows '
+        "a complete scene)"
+    )
+
+
+def _load(scene: str, overrides: list[str] | None = None) -> Any:
     import warnings
 
+    msg = mesh_instead_of_scene(scene)
+    if msg is not None and Path(scene).is_file():  # a missing file gets the loader's "no such scene file"
+        raise CliError(msg)
     from ..scene import load_scene
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DeprecationWarning)
-        cfg = load_scene(scene)
+        cfg = load_scene(scene, overrides or ())
     for w in caught:  # renamed scene keys: one note each, naming the new key; other warnings as usual
         if issubclass(w.category, DeprecationWarning):
             print(f"pliant: note: {w.message}", file=sys.stderr)
@@ -79,9 +107,9 @@ def simulate(
     """
     import numpy as np
 
-    from .. import DivergenceError
     from ..io._paths import OutputPathError, check_file_stem, confined
     from ..scene import build_scene
+    from ..sim import DivergenceError
 
     try:
         check_file_stem(name, "scene name")
@@ -153,6 +181,12 @@ def simulate(
     written = []
     if cfg.output.trajectory:
         traj.meta["scene"] = cfg.scene.name
+        # What `pliant export` draws beside the objects: the drawn colliders (static meshes) and the ground.
+        traj.meta["ground"] = m.ground.height if m.ground is not None else None
+        traj.meta["colliders"] = [
+            {"points": np.asarray(p, float).round(6).tolist(), "faces": np.asarray(f).tolist()}
+            for p, f in scene.static_meshes
+        ]
         written.append(str(traj.save(traj_path)))
         if scene.embeddings and traj.frame_count > 0:
             # What the video draws (particles, the fine embedded surface, colliders) as <name>.render.npz.
@@ -200,9 +234,11 @@ def simulate(
 
 def cmd_run(args: argparse.Namespace) -> int:
     """``pliant run SCENE``."""
-    cfg = _load(args.scene)
+    cfg = _load(args.scene, args.overrides)
     _apply_overrides(cfg, args)
     hint = ["pliant", "run", args.scene, "--out", args.out]
+    for item in args.overrides:
+        hint += ["--set", item]
     for opt in ("frames", "frame_dt", "substeps", "integrator", "device", "dtype"):
         val = getattr(args, opt, None)
         if val is not None:

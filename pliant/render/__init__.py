@@ -11,13 +11,26 @@ Typical use::
     video(traj, "drop.gif")                     # any object with .x, .faces, .t
 """
 
+from .. import _warp  # noqa: F401  (Warp initialised once, quietly, before any kernel)
 from ._camera import Camera
 from ._export import export_obj, export_obj_sequence, export_ply, export_ply_sequence, export_usd
+from ._export_objects import (
+    ObjectPart,
+    export_usd_objects,
+    export_vtu_series,
+    export_xdmf,
+    trajectory_objects,
+)
 from ._plots import fit_order, plot_error_vs_dt, plot_phase_portrait, plot_series
 from ._renderer import Renderer
 from ._video import VideoError, VideoWriter, check_fps, realtime_indices, render_video, video, write_video
 
 __all__ = [
+    "ObjectPart",
+    "export_usd_objects",
+    "export_vtu_series",
+    "export_xdmf",
+    "trajectory_objects",
     "Camera",
     "Renderer",
     "VideoError",

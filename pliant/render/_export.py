@@ -171,7 +171,10 @@ def export_usd(
     point_radius: float | None = None,
     color: tuple[float, float, float] = DEFAULT_COLOR,
 ) -> Path:
-    """Writes an animated USD stage (``.usd``/``.usda``/``.usdc``), y-up, metres.
+    """Writes an animated USD stage (``.usd``/``.usda``/``.usdc``), y-up, metres, as one prim.
+
+    For a recorded trajectory, :func:`export_usd_objects` writes one prim per object (TetMesh, Mesh,
+    BasisCurves, Points), velocities, colliders and the ground; this function exports bare arrays.
 
     With faces, ``/pliant/mesh`` is a ``UsdGeom.Mesh`` with time-sampled ``points`` and
     ``extent``; without, ``/pliant/points`` is a ``UsdGeom.Points``. Needs ``usd-core``

@@ -192,6 +192,7 @@ def _embeddings(ctx: BuildContext, x0: np.ndarray) -> list[Embedding]:
 
     from ..geometry import locate_points
     from ._files import load_mesh_file
+    from ._objects import orient
 
     out = []
     tets = ctx.model.tet_indices_np
@@ -208,7 +209,8 @@ def _embeddings(ctx: BuildContext, x0: np.ndarray) -> list[Embedding]:
             v, f = np.asarray(m.vertices) + center, np.asarray(m.faces)
         else:
             mesh = load_mesh_file(ctx.cfg, rm.path, f"{at}.path")
-            v = np.asarray(mesh.points) * np.asarray(rm.scale) + center
+            # Turned like its object (up, rotation), so a rotated mesh keeps its render mesh aligned.
+            v = orient(np.asarray(mesh.points) * np.asarray(rm.scale), o) + center
             f = np.asarray(mesh.triangles)
         mine = tets[np.all((tets >= start) & (tets < stop), axis=1)]
         if mine.shape[0] == 0:

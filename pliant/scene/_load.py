@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib.resources
 import os
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,7 @@ from pydantic import ValidationError
 
 from ._errors import SceneError, line_of, problems_from
 from ._files import budget_message, max_particles
+from ._overrides import apply_overrides
 from ._registry import HANDLE_KINDS, OBJECT_KINDS, SOLVER_KINDS
 from ._schema import SceneConfig
 from ._solvers import check_solver
@@ -57,9 +59,15 @@ def _resolve(path_or_name: str | os.PathLike) -> tuple[str, str, str]:
     )
 
 
-def parse_scene(text: str, source: str = "<scene>", base_dir: str | os.PathLike = ".") -> SceneConfig:
+def parse_scene(
+    text: str,
+    source: str = "<scene>",
+    base_dir: str | os.PathLike = ".",
+    overrides: Sequence[str] = (),
+) -> SceneConfig:
     """Validate the TOML ``text`` of a scene; ``source`` names it in errors (``base_dir``: where the files
-    it refers to are looked up).
+    it refers to are looked up; ``overrides``: ``PATH=VALUE`` strings, e.g. ``"scene.frames=10"``, set
+    before validation, so they are checked like the file's own values).
 
     Raises:
         SceneError: naming the file, line, field and the fix.
@@ -76,6 +84,9 @@ def parse_scene(text: str, source: str = "<scene>", base_dir: str | os.PathLike 
         ) from None
     except RecursionError:
         raise SceneError(source, [(None, "", "TOML nesting too deep")]) from None
+    bad = apply_overrides(data, overrides)
+    if bad:
+        raise SceneError(source, [(None, p, f"(--set) {m}") for p, m in bad])
     try:
         cfg = SceneConfig.model_validate(data)
     except ValidationError as exc:
@@ -87,14 +98,15 @@ def parse_scene(text: str, source: str = "<scene>", base_dir: str | os.PathLike 
     return cfg
 
 
-def load_scene(path_or_name: str | os.PathLike) -> SceneConfig:
-    """Read and validate a scene file, or a built-in scene by name (``"cloth"``, ``"rope"`` ...).
+def load_scene(path_or_name: str | os.PathLike, overrides: Sequence[str] = ()) -> SceneConfig:
+    """Read and validate a scene file, or a built-in scene by name (``"cloth"``, ``"rope"`` ...);
+    ``overrides`` are ``PATH=VALUE`` strings (``"objects[0].material.stiffness=200"``) applied first.
 
     Raises:
         SceneError: a ``ValueError`` naming the file, line, field and the fix.
     """
     source, text, base = _resolve(path_or_name)
-    return parse_scene(text, source, base)
+    return parse_scene(text, source, base, overrides)
 
 
 def _check_models(cfg: SceneConfig, kind: str) -> list[tuple[str, str]]:

@@ -92,20 +92,53 @@ class SoftBoxObject(ObjectBase):
     render_mesh: RenderMesh | None = None
 
 
-class MeshObject(ObjectBase):
+class Oriented(Section):
+    """Orientation of a mesh or point file: ``up`` names the file's up axis, then ``rotation`` turns it.
+
+    The file's points are scaled, turned upright (``up = "z"``: the file's +z becomes pliant's +y),
+    rotated by ``rotation`` — Euler angles in degrees about the fixed x, then y, then z axes, through the
+    file's coordinate origin (points objects: their centroid) — and finally moved by ``origin``.
+    """
+
+    rotation: Vec3 = (0.0, 0.0, 0.0)  # Euler angles [deg], about fixed x, then y, then z
+    up: Literal["y", "z"] = "y"  # the file's up axis ("z": a Z-up mesh, e.g. from Blender or CAD)
+
+
+def rotation_matrix(rotation: Any, up: str = "y") -> np.ndarray | None:
+    """3×3 matrix of :class:`Oriented`'s ``up`` then ``rotation`` (None when both leave points as they
+    are, so that unrotated scenes keep their exact positions)."""
+    if up == "y" and not any(rotation):
+        return None
+    ax, ay, az = np.radians(np.asarray(rotation, np.float64))
+    cx, sx, cy, sy, cz, sz = np.cos(ax), np.sin(ax), np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
+    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    # z-up to y-up: -90 degrees about x, so (x, y, z) -> (x, z, -y) and the file's +z points up.
+    upright = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]]) if up == "z" else np.eye(3)
+    return rz @ ry @ rx @ upright
+
+
+def orient(points: np.ndarray, o: Any) -> np.ndarray:
+    """``points`` [N, 3] turned by the object's ``up`` and ``rotation`` (about the coordinate origin)."""
+    r = rotation_matrix(getattr(o, "rotation", (0.0, 0.0, 0.0)), getattr(o, "up", "y"))
+    return points if r is None else points @ r.T
+
+
+class MeshObject(ObjectBase, Oriented):
     """A mesh file (relative to the scene file): a tet mesh, or a closed surface filled by TetGen."""
 
     kind: Literal["mesh"]
     path: str
     scale: Scale3 = (1.0, 1.0, 1.0)
-    origin: Vec3 = (0.0, 0.0, 0.0)  # translation after scaling [m]
+    origin: Vec3 = (0.0, 0.0, 0.0)  # translation after scaling and rotation [m]
     density: PosFloat = 1000.0  # [kg/m³]
     velocity: Vec3 = (0.0, 0.0, 0.0)
     max_volume: PosFloat | None = None  # TetGen bound on tet volume [m³]
     render_mesh: RenderMesh | None = None
 
 
-class PointsObject(ObjectBase):
+class PointsObject(ObjectBase, Oriented):
     """A point cloud with springs to neighbours within ``radius`` (PhysTwin style).
 
     Points come from ``path`` (.npy [N, 3] or a mesh file's vertices) or fill a ``shape`` on a jittered grid.
@@ -179,7 +212,7 @@ def grid_points(o: Any, cfg: Any, at: str) -> np.ndarray:
             pts = load_points_npy(cfg, p, f"{at}.path")
         else:
             pts = np.asarray(load_mesh_file(cfg, o.path, f"{at}.path").points, np.float64)
-        return pts - pts.mean(axis=0) + np.asarray(o.origin)
+        return orient(pts - pts.mean(axis=0), o) + np.asarray(o.origin)
     half = 0.5 * np.asarray(o.size)
     axes = [np.arange(-h, h + 1e-12, o.spacing) for h in half]
     axes = [a - a.mean() for a in axes]
@@ -189,7 +222,7 @@ def grid_points(o: Any, cfg: Any, at: str) -> np.ndarray:
     if getattr(o, "jitter", 0.0):
         rng = np.random.default_rng(o.seed)
         grid = grid + rng.uniform(-o.jitter, o.jitter, grid.shape) * o.spacing
-    return grid + np.asarray(o.origin)
+    return orient(grid, o) + np.asarray(o.origin)
 
 
 def _tet_kw(o: Any, i: int) -> dict[str, Any]:
@@ -269,7 +302,7 @@ def build_mesh(ctx: Any, o: MeshObject, i: int) -> None:
     from ..geometry import TetMesh, tetrahedralize
 
     mesh = load_mesh_file(ctx.cfg, o.path, f"objects[{i}].path")
-    pts = mesh.points * np.asarray(o.scale) + np.asarray(o.origin)
+    pts = orient(mesh.points * np.asarray(o.scale), o) + np.asarray(o.origin)
     if isinstance(mesh, TetMesh):
         tets = mesh.tets
     else:
@@ -354,7 +387,7 @@ def _mesh_estimate(cfg: Any, o: MeshObject) -> float:
     if o.max_volume is None:
         return 0.0
     at = f"objects[{cfg.objects.index(o)}].path"
-    pts = np.asarray(load_mesh_file(cfg, o.path, at).points, np.float64) * np.asarray(o.scale)
+    pts = orient(np.asarray(load_mesh_file(cfg, o.path, at).points, np.float64) * np.asarray(o.scale), o)
     return _tetgen_particles(float(np.prod(np.ptp(pts, axis=0))), o.max_volume, float(len(pts)))
 
 
