@@ -9,7 +9,7 @@ import numpy as np
 import warp as wp
 
 from ..model import Model
-from ._base import Constraint, color_incidence, pbd_iteration_stiffness, sort_by_color
+from ._base import Constraint, ProjectionContext, color_incidence, pbd_iteration_stiffness, sort_by_color
 
 
 @wp.func
@@ -209,27 +209,27 @@ class ShapeMatching(Constraint):
         """Set every particle orientation back to the identity (the rest orientation)."""
         self.orientation.assign(self._ident)
 
-    def begin_step(self, solver: Any, x: wp.array, p: wp.array, dt: float) -> None:
+    def begin_step(self, ctx: ProjectionContext, x: wp.array, p: wp.array, dt: float) -> None:
         """Remember the orientations at the start of the step (oriented particles)."""
         if self.oriented:
-            solver.call(wp.copy, self._orientation_prev, self.orientation)
+            ctx.call(wp.copy, self._orientation_prev, self.orientation)
 
-    def end_step(self, solver: Any, x: wp.array, p: wp.array, v: wp.array, dt: float) -> None:
+    def end_step(self, ctx: ProjectionContext, x: wp.array, p: wp.array, v: wp.array, dt: float) -> None:
         """Angular velocities from the orientation change of the step (oriented particles)."""
         if self.oriented:
             m = self.model
-            solver.launch(
+            ctx.launch(
                 _angular_velocity,
                 m.particle_count,
                 [m.s(1.0 / dt), self._orientation_prev, self.orientation, self.angular_velocity],
             )
 
-    def project(self, solver: Any, p: wp.array, dt: float) -> None:
+    def project(self, ctx: ProjectionContext, p: wp.array, dt: float) -> None:
         """Pull each cluster towards its best-fit rigid motion of the rest shape."""
         m = self.model
-        k = pbd_iteration_stiffness(self.stiffness, solver.iterations)
-        for off, size in self.color_ranges(solver.coloring):
-            solver.launch(
+        k = pbd_iteration_stiffness(self.stiffness, ctx.iterations)
+        for off, size in self.color_ranges(ctx.coloring):
+            ctx.launch(
                 _project_shape,
                 size,
                 [
@@ -243,10 +243,10 @@ class ShapeMatching(Constraint):
                     m.s(k),
                     int(self.oriented),
                     off,
-                    int(not solver.coloring),
+                    int(not ctx.coloring),
                     p,
                     self.orientation,
-                    solver.delta,
-                    solver.delta_count,
+                    ctx.delta,
+                    ctx.delta_count,
                 ],
             )
