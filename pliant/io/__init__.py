@@ -1,8 +1,11 @@
 """Files: trajectories and checkpoints (NPZ). Scene files (TOML) are :mod:`pliant.scene`."""
 
+from ._observations import ObservationError, Observations
 from ._trajectory import Trajectory, atomic_savez, load_checkpoint, save_checkpoint
 
 __all__ = [
+    "ObservationError",
+    "Observations",
     "Trajectory",
     "atomic_savez",
     "load_checkpoint",
