@@ -19,7 +19,18 @@ def __getattr__(name: str):
     # Heavier layers (renderer kernels, studies, benchmarks, CLI) load on first use, not on import.
     import importlib
 
-    if name in ("render", "geometry", "constraints", "collision", "studies", "bench", "cli", "sim", "scene", "fit"):
+    if name in (
+        "render",
+        "geometry",
+        "constraints",
+        "collision",
+        "studies",
+        "bench",
+        "cli",
+        "sim",
+        "scene",
+        "fit",
+    ):
         return importlib.import_module(f"{__name__}.{name}")
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 

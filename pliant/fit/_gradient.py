@@ -30,13 +30,14 @@ from ._problem import Problem
 class _Rollout:
     """A scene built with gradients, its per-element arrays and the observation arrays on the device."""
 
-    def __init__(self, problem: Problem, values: dict[str, float]) -> None:
+    def __init__(self, problem: Problem, values: dict[str, float], shared: bool = False) -> None:
         self.problem = problem
         self.scene = problem.build(values, requires_grad=True)
         m = self.scene.model
         self.arrays = per_element_arrays(self.scene, problem.per_element)
         self.base = {k: a.numpy().astype(np.float64) for k, a in self.arrays.items()}
-        self.size = next(iter(self.arrays.values())).shape[0]
+        self.shared = shared
+        self.size = 1 if shared else next(iter(self.arrays.values())).shape[0]
         o, d = problem.obs, m.device
         self.particle = wp.array(o.particle.astype(np.int32), dtype=wp.int32, device=d)
         self.points = [wp.array(np.nan_to_num(p), dtype=m.vec3, device=d) for p in o.points]
@@ -59,10 +60,10 @@ class _Rollout:
 
     def grad_theta(self) -> np.ndarray:
         """dL/dθ = Σ_arrays dL/da · a (chain rule through a = a₀ exp θ)."""
-        g = np.zeros(self.size)
+        g = 0.0
         for a in self.arrays.values():
-            g += a.grad.numpy().astype(np.float64) * a.numpy().astype(np.float64)
-        return g
+            g = g + a.grad.numpy().astype(np.float64) * a.numpy().astype(np.float64)
+        return np.atleast_1d(np.sum(g)) if self.shared else g
 
     def run(self, q: wp.array, qd: wp.array, f0: int, frames: int, hist: list) -> tuple[wp.array, Any]:
         """Simulate frames f0+1 … f0+frames from (q, qd) on the current tape; returns (loss, end state)."""
@@ -125,6 +126,7 @@ def gradient_stage(
     horizon: int | None = 1,
     optimizer: str = "adam",
     max_factor: float = 100.0,
+    shared: bool = False,
     callback: Callable[[int, float], None] | None = None,
 ) -> StageResult:
     """Fit ``problem.per_element`` (log-scale factors θ per element) with gradients from the tape.
@@ -138,6 +140,7 @@ def gradient_stage(
             whole training rollout on one tape (needed by L-BFGS).
         optimizer: ``"adam"`` or ``"lbfgs"`` (SciPy L-BFGS-B on θ, whole-rollout horizon).
         max_factor: Bound of each factor: a₀ / max_factor ≤ a ≤ a₀ · max_factor.
+        shared: One factor for all elements (a global scale fitted with gradients) instead of one each.
         callback: ``callback(iteration, loss)`` after each iteration.
 
     Raises:
@@ -150,7 +153,7 @@ def gradient_stage(
     if optimizer not in ("adam", "lbfgs"):
         raise FitError(f"optimizer: expected 'adam' or 'lbfgs', got {optimizer!r}")
     t0 = time.perf_counter()
-    r = _Rollout(problem, values)
+    r = _Rollout(problem, values, shared)
     m = r.scene.model
     n_frames = problem.n_train - 1
     bound = math.log(max_factor)
@@ -175,8 +178,9 @@ def gradient_stage(
             if not np.any(g != 0.0):
                 raise FitError(
                     f"the {type(r.scene.solver).__name__} step of this scene gives exactly zero gradient for "
-                    f"{problem.per_element!r} (its step is not tape-differentiable in this version); fit "
-                    "global parameters only (no --per-element), or use a differentiable solver"
+                    f"{problem.per_element!r}: its step is not tape-differentiable in this version, or the "
+                    "parameter does not move the tracked points; fit global parameters only (no "
+                    "--per-element), or use a differentiable solver (XPBD)"
                 )
             checked[0] = True
         end = (_detach(s.particle_q), _detach(s.particle_qd))
@@ -221,7 +225,6 @@ def gradient_stage(
                 q, qd = start_state()
                 hist: list = [q]
                 epoch = 0.0
-                epoch_theta = theta.copy()
                 for f0 in range(0, n_frames, h):
                     frames = min(h, n_frames - f0)
                     value, g, (q, qd) = rollout_grad(theta, f0, frames, q, qd, hist)
@@ -234,14 +237,12 @@ def gradient_stage(
                     var = b2 * var + (1 - b2) * g * g
                     mhat, vhat = mom / (1 - b1**step), var / (1 - b2**step)
                     theta = np.clip(theta - lr * mhat / (np.sqrt(vhat) + 1e-12), -bound, bound)
-                # The epoch's loss was accumulated while θ moved: it belongs to the θ the epoch started from
-                # only approximately; the history records it as the epoch's loss.
-                if epoch < result.loss:
-                    result.loss, result.per_element = epoch, r.values(epoch_theta if it == 0 else theta)
+                # θ moved during the epoch (one step per horizon): its loss is the sum over the frames as
+                # they were simulated; the result is the θ after the epoch.
+                result.loss, result.per_element = epoch, r.values(theta)
                 result.history.append(epoch)
                 if callback is not None:
                     callback(it + 1, epoch)
-            result.per_element = r.values(theta)
     except KeyboardInterrupt:
         result.interrupted = True
     result.wall_time = time.perf_counter() - t0

@@ -68,16 +68,17 @@ def _nearest_kernel(
 ):
     # Brute force over the particles (one thread per observed point): the index is not differentiated.
     t, p = wp.tid()
-    if p < count[t]:
-        q = cloud[t * p_count + p]
-        best = 0
-        best_d = wp.length_sq(x[t * n] - q)
-        for j in range(1, n):
-            dj = wp.length_sq(x[t * n + j] - q)
-            if dj < best_d:
-                best_d = dj
-                best = j
-        nearest[t * p_count + p] = t * n + best
+    if p >= count[t]:
+        return
+    q = cloud[t * p_count + p]
+    best = wp.int32(0)  # a dynamic variable (a literal 0 would be a constant inside the loop)
+    best_d = wp.length_sq(x[t * n] - q)
+    for j in range(1, n):
+        dj = wp.length_sq(x[t * n + j] - q)
+        if dj < best_d:
+            best_d = dj
+            best = j
+    nearest[t * p_count + p] = t * n + best
 
 
 @wp.kernel

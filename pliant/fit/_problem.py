@@ -28,7 +28,8 @@ class Problem:
         dtype: ``"float32"`` / ``"float64"`` (None: the scene's).
         track_weight: Weight of the smooth-L1 tracking term.
         chamfer_weight: Weight of the one-sided Chamfer term (used when the observations have clouds).
-        acceleration_weight: Weight of the acceleration regulariser (gradient stage).
+        acceleration_weight: Weight of the acceleration regulariser (gradient stage; PhysTwin uses 0.01 on
+            real data; it is not zero at the truth, so it biases a fit of clean data: default 0).
         beta: smooth-L1 threshold [m].
 
     Raises:
@@ -48,7 +49,7 @@ class Problem:
         dtype: str | None = None,
         track_weight: float = 1.0,
         chamfer_weight: float = 1.0,
-        acceleration_weight: float = 0.01,
+        acceleration_weight: float = 0.0,
         beta: float = 0.01,
     ) -> None:
         self.cfg = cfg.model_copy(deep=True)

@@ -232,11 +232,11 @@ class Observations:
             return self
         seen = self.visible.any(axis=0)
         first = np.argmax(self.visible, axis=0)  # first visible frame of each track
-        first = np.where(first < xs.shape[0], first, 0)
         p = self.points[first, np.arange(self.tracks)]
         p = np.where(seen[:, None], p, xs[0].mean(axis=0))  # never-seen tracks: bound anywhere, never used
+        at = np.where(first < xs.shape[0], first, 0)
         # [K, N] distances: binding runs once per fit, K and N are at most a few thousand.
-        d2 = np.sum((xs[first] - p[:, None, :]) ** 2, axis=2)
+        d2 = np.sum((xs[at] - p[:, None, :]) ** 2, axis=2)
         return replace(self, particle=np.argmin(d2, axis=1).astype(np.int64))
 
     def subset(self, frames: int) -> Observations:
