@@ -29,6 +29,7 @@ def __getattr__(name: str):
         "cli",
         "sim",
         "scene",
+        "diff",
         "fit",
     ):
         return importlib.import_module(f"{__name__}.{name}")

@@ -131,3 +131,23 @@ def launch(kernel: Any, dim: Any, inputs: list, device: Any = None) -> None:
         cmd.launch()
     except RuntimeError:  # a launch capture that needs the argument list: launch the ordinary way
         wp.launch(kernel, dim, inputs, device=device)
+
+
+# ----------------------------------------------------------------------------------------------- gradients
+class GradientError(RuntimeError):
+    """A gradient was requested (a ``requires_grad`` model, or ``pl.diff``) from a solver, option or
+    parameter that cannot give a correct one; the message says what to use instead."""
+
+
+def grad_enabled(model: Any) -> bool:
+    """True when steps on ``model`` must be replayable by ``wp.Tape`` (the model was finalised with
+    ``requires_grad=True``): solvers then write every intermediate into a fresh array allocated with
+    ``requires_grad`` instead of reusing scratch buffers in place."""
+    return bool(getattr(model, "requires_grad", False))
+
+
+def fresh(model: Any, count: int | None = None, dtype: Any = None) -> wp.array:
+    """A new zeroed array of ``count`` (default: particle_count) ``dtype`` (default: the model's vec3) with
+    ``requires_grad=True``, for one use inside a recorded step."""
+    n = model.particle_count if count is None else count
+    return wp.zeros(n, dtype=model.vec3 if dtype is None else dtype, device=model.device, requires_grad=True)

@@ -22,6 +22,17 @@ def coulomb_ground(v: Any, dvn: Any, vn_new: Any, friction: Any):
     return type(v)(v[0] * scale, vn_new, v[2] * scale)
 
 
+@wp.func
+def ground_velocity(v: Any, friction: Any, restitution: Any):
+    """Velocity after hitting the ground: normal part reflected (×e) if approaching, Coulomb friction."""
+    zero = friction * type(friction)(0.0)
+    vn = v[1]
+    vn_new = wp.max(vn, zero)
+    if vn < zero:
+        vn_new = -restitution * vn
+    return coulomb_ground(v, vn_new - vn, vn_new, friction)
+
+
 @wp.kernel
 def ground_contact(
     inv_mass: wp.array(dtype=Any),
@@ -40,14 +51,37 @@ def ground_contact(
     floor = height + radius[i]
     if p[1] >= floor:
         return
-    zero = type(height)(0.0)
-    v = v_io[i]
-    vn = v[1]
-    vn_new = wp.max(vn, zero)
-    if vn < zero:
-        vn_new = -restitution * vn
-    v_io[i] = coulomb_ground(v, vn_new - vn, vn_new, friction)
+    v_io[i] = ground_velocity(v_io[i], friction, restitution)
     x_io[i] = type(p)(p[0], floor, p[2])
+
+
+@wp.kernel
+def ground_contact_out(
+    inv_mass: wp.array(dtype=Any),
+    radius: wp.array(dtype=Any),
+    height: Any,
+    coefficients: wp.array(dtype=Any),
+    x_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    x_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+):
+    """:func:`ground_contact` out of place, for recorded (``wp.Tape``) steps: reads (x_in, v_in), writes
+    (x_out, v_out); ``coefficients`` = [friction μ, restitution e] so that their gradients can be read.
+
+    Differentiable almost everywhere: the contact set, the sign of the normal velocity and the stick/slip
+    switch of Coulomb friction are piecewise, so at a switch the gradient is one-sided (a subgradient).
+    """
+    i = wp.tid()
+    p = x_in[i]
+    v = v_in[i]
+    floor = height + radius[i]
+    if inv_mass[i] != type(height)(0.0) and p[1] < floor:
+        x_out[i] = type(p)(p[0], floor, p[2])
+        v_out[i] = ground_velocity(v, coefficients[0], coefficients[1])
+    else:
+        x_out[i] = p
+        v_out[i] = v
 
 
 @wp.kernel

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from .._warp import grad_enabled
 from ..model import Control, Model, State
 from ._base import Solver
 from ._post import add_drag_force, check_collisions, finish_step
@@ -315,6 +316,12 @@ class FastMassSpring(Solver):
         if damping_rate is not None and damping_rate < 0:
             raise ValueError(f"damping_rate must be >= 0 1/s, got {damping_rate}")
         self.method = method
+        #: Under requires_grad: the same step by ForceSolver's tape-correct path (see :meth:`step`).
+        self._recorded: Any = None
+        if grad_enabled(model):
+            self._recorded = self._recorded_solver(
+                method, velocity_damping, damping_rate, contact, collisions
+            )
         self.cg_iterations = int(cg_iterations)
         self.cg_tol = float(cg_tol)
         self.velocity_damping_factor = float(velocity_damping)
@@ -337,6 +344,36 @@ class FastMassSpring(Solver):
             self._r, self._z, self._q, self._dv = (wp.zeros(n, dtype=model.vec3, device=d) for _ in range(4))
             self._p = [wp.zeros(n, dtype=model.vec3, device=d) for _ in range(2)]
             self._scalars = wp.zeros(2 * self.cg_iterations + 2, dtype=model.scalar, device=d)
+
+    def _recorded_solver(self, method, velocity_damping, damping_rate, contact, collisions) -> Any:
+        """The symplectic step as ``ForceSolver(Springs, Dashpots, Gravity; SymplecticEuler)``: the same
+        update (equal to round-off, not bit for bit: the gather kernel sums in another order), written into
+        fresh arrays so that ``wp.Tape`` can differentiate it, and reading the model's parameter arrays
+        directly (no host-side packing)."""
+        from .._warp import GradientError
+        from ..energies import Dashpots, Gravity, Springs
+        from ..integrators import SymplecticEuler
+        from ._force import ForceSolver
+
+        if method == "implicit":
+            raise GradientError(
+                "FastMassSpring(method='implicit') has no adjoint for its CG solve in this version: use "
+                "method='symplectic', or ForceSolver with an explicit integrator, or requires_grad=False"
+            )
+        return ForceSolver(
+            self.model,
+            energies=[Springs(), Dashpots(), Gravity()],
+            integrator=SymplecticEuler(),
+            velocity_damping=velocity_damping,
+            damping_rate=damping_rate,
+            contact=contact,
+            collisions=collisions,
+        )
+
+    @property
+    def ground_coefficients(self) -> wp.array | None:
+        """[friction μ, restitution e] read by recorded steps (their ``.grad`` after backward), else None."""
+        return None if self._recorded is None else self._recorded.ground_coefficients
 
     def update_parameters(self) -> None:
         """Re-pack spring rest lengths, stiffness and damping per adjacency entry (after changing them)."""
@@ -504,6 +541,9 @@ class FastMassSpring(Solver):
 
     def step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
         """Advance by ``dt`` [s]: fused step, then kinematic targets, ground contact, contact handlers."""
+        if self._recorded is not None:
+            self._recorded.step(state_in, state_out, control, dt)
+            return
         m = self.model
         f_ext = self._external(control, state_in.particle_q)
         if self.method == "implicit":
