@@ -36,7 +36,8 @@ def test_track_loss_by_hand(dtype):
 @pytest.mark.parametrize("dtype", TYPES)
 def test_chamfer_loss_by_hand(dtype):
     """Observed points (0.1, 0, 0) and (2, 1, 0) against particles (0,0,0), (2,0,0): nearest squared
-    distances 0.01 and 1.0; a padded third point is ignored. Mean 0.505. Frame 2 has one point: (0,0,3) → 9."""
+    distances 0.01 and 1.0; a padded third point is ignored. Frame 2 has one point, (0, 0, 3): 9. Mean over
+    the 3 valid points."""
     s, v = TYPES[dtype]
     x = _arr([[0, 0, 0], [2, 0, 0], [0, 0, 0], [2, 0, 0]], v)
     cloud = _arr([[0.1, 0, 0], [2, 1, 0], [50, 50, 50], [0, 0, 3], [7, 7, 7], [7, 7, 7]], v)

@@ -87,7 +87,18 @@ def cmaes(
     pad = len(x0) == 1
     if pad:
         x0.append(0.5)
-    opts = {"bounds": [0.0, 1.0], "seed": seed, "verbose": -9, "maxiter": generations}
+    # The losses of a good fit are tiny (mm² / β): cma's absolute tolerances on f (1e-11) would stop it
+    # long before the parameters settle, so it stops on the step size in the unit box only.
+    opts = {
+        "bounds": [0.0, 1.0],
+        "seed": seed,
+        "verbose": -9,
+        "maxiter": generations,
+        "tolfun": 0.0,
+        "tolfunhist": 0.0,
+        "tolflatfitness": 10 * generations,
+        "tolx": 1e-9,
+    }
     if popsize:
         opts["popsize"] = popsize
 

@@ -135,7 +135,7 @@ def gradient_stage(
         problem: The fitting problem (``per_element`` set).
         values: Global parameter values to build the scene with (stage 1's result).
         iterations: Epochs: passes over the training frames (Adam), or L-BFGS-B iterations.
-        lr: Adam's step size in θ (log-scale units; 0.05 ≈ 5 % per step).
+        lr: Adam's initial step size in θ (log-scale units; 0.05 ≈ 5 % per step), decaying to lr / 10.
         horizon: Frames per tape (1: PhysTwin's one-frame horizon, the state carried forward); None: the
             whole training rollout on one tape (needed by L-BFGS).
         optimizer: ``"adam"`` or ``"lbfgs"`` (SciPy L-BFGS-B on θ, whole-rollout horizon).
@@ -222,6 +222,8 @@ def gradient_stage(
             mom, var = np.zeros(r.size), np.zeros(r.size)
             b1, b2, step = 0.9, 0.99, 0
             for it in range(iterations):
+                # Step size decays geometrically from lr to lr / 10 over the run, so that Adam settles.
+                lr_it = lr * 0.1 ** (it / max(iterations - 1, 1))
                 q, qd = start_state()
                 hist: list = [q]
                 epoch = 0.0
@@ -236,7 +238,7 @@ def gradient_stage(
                     mom = b1 * mom + (1 - b1) * g
                     var = b2 * var + (1 - b2) * g * g
                     mhat, vhat = mom / (1 - b1**step), var / (1 - b2**step)
-                    theta = np.clip(theta - lr * mhat / (np.sqrt(vhat) + 1e-12), -bound, bound)
+                    theta = np.clip(theta - lr_it * mhat / (np.sqrt(vhat) + 1e-12), -bound, bound)
                 # θ moved during the epoch (one step per horizon): its loss is the sum over the frames as
                 # they were simulated; the result is the θ after the epoch.
                 result.loss, result.per_element = epoch, r.values(theta)

@@ -132,8 +132,8 @@ GLOBAL: dict[str, GlobalParam] = {
             "damping_rate",
             "velocity damping rate of the solver [1/s]",
             _section_field("solver", "damping_rate", 0.0),
-            False,
-            lambda v: (0.0, max(20.0, 2 * v)),
+            True,
+            lambda v: (v / 10.0, v * 10.0) if v > 0 else (1e-3, 20.0),
         ),
         GlobalParam(
             "ground_friction",
