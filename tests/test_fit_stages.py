@@ -110,7 +110,10 @@ def test_a_gradient_that_is_exactly_zero_is_an_error():
     ("kwargs", "match"),
     [
         ({"params": ["stifness"]}, r"--params: unknown parameter 'stifness'; the global parameters are"),
-        ({"params": ["E"]}, r"--params: 'E' .* does not exist in this scene; it has stiffness, damping, damping_rate"),
+        (
+            {"params": ["E"]},
+            r"--params: 'E' .* does not exist in this scene; it has stiffness, damping, damping_rate",
+        ),
         ({"params": []}, r"nothing to fit"),
         ({"params": [], "per_element": "volume"}, r"--per-element: unknown parameter 'volume'"),
         ({"params": [], "per_element": "E"}, r"--per-element: this scene's model has no tetrahedra"),
