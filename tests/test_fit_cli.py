@@ -10,7 +10,6 @@ import pytest
 
 import pliant as pl
 from pliant.cli import main
-
 from tests.test_fit_stages import CLOTH_XPBD, ROPE
 
 
