@@ -25,7 +25,16 @@ from ._cmaes import PENALTY, StageResult, cmaes, evaluate
 from ._gradient import gradient_stage
 from ._losses import acceleration_loss, chamfer_loss, track_errors, track_loss
 from ._observe import observe
-from ._params import DEFAULTS, GLOBAL, PER_ELEMENT, Bound, FitError, GlobalParam, default_params
+from ._params import (
+    DEFAULTS,
+    GLOBAL,
+    PER_ELEMENT,
+    Bound,
+    FitError,
+    GlobalParam,
+    apply_globals,
+    default_params,
+)
 from ._problem import Problem
 from ._run import PARAMS_FILE, fit, fitted_scene
 from ._toml import scene_toml
@@ -42,6 +51,7 @@ __all__ = [
     "Problem",
     "StageResult",
     "acceleration_loss",
+    "apply_globals",
     "chamfer_loss",
     "cmaes",
     "default_params",
