@@ -1,5 +1,9 @@
 """pliant: deformable-object simulation — mass-spring, position-based dynamics and tetrahedral FEM —
-with every time integrator of the lecture, on NVIDIA Warp (CPU and CUDA, differentiable)."""
+with every time integrator of the lecture, on NVIDIA Warp (CPU and CUDA).
+
+Explicit steps are differentiable with ``wp.Tape`` on a model finalised with ``requires_grad=True``
+(``ForceSolver`` with explicit integrators, ``FastMassSpring(method="symplectic")``; see ``pliant.diff``);
+the other solvers raise ``pliant.diff.GradientError`` when asked for a gradient."""
 
 from __future__ import annotations
 
