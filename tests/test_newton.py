@@ -193,6 +193,30 @@ def test_options_validated():
         I.BDF2(newton_tol=0.0)
     with pytest.raises(ValueError, match="project_psd"):
         I.ImplicitMidpoint(project_psd="always")
+    # Defined once (ImplicitOptions): every integrator and the minimisers reject the same mistakes.
+    bad = {
+        "newton_tol": [float("nan"), -1e-5, 0],
+        "max_newton_iterations": [0, 2.5],
+        "cg_max_iterations": [0],
+        "lbfgs_history": [0],
+        "lbfgs_max_iterations": [0],
+        "max_line_search": [-1],
+        "cg_tol": [1.0, float("nan")],
+    }
+    for name, values in bad.items():
+        for value in values:
+            for cls in (I.BackwardEuler, I.ImplicitMidpoint, I.BDF2):
+                with pytest.raises(ValueError, match=name):
+                    cls(**{name: value})
+            with pytest.raises(ValueError, match=name):
+                I.ImplicitOptions(**{name: value})
+    for cls in (I.BackwardEuler, I.BDF2):
+        with pytest.raises(
+            ValueError, match=r"unknown option\(s\) \['newton_tolerance'\] for .*known options"
+        ):
+            cls(newton_tolerance=1e-6)
+    integ = I.BDF2(newton_tol=1e-7, method="lbfgs")
+    assert integ.newton_tol == integ.options.newton_tol == 1e-7 and integ.lbfgs_history == 8
     model = _cloth(3)
     solver = pl.solvers.ForceSolver(model, integrator=I.BackwardEuler())
     x = model.particle_q

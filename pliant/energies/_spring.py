@@ -248,10 +248,17 @@ class Dashpots(ModalEnergy):
 
     def begin_step(self, model: Model, x: wp.array, v: wp.array, dt: float) -> None:
         """Freeze the spring axes and the reference positions xⁿ [m] for the implicit potential."""
-        if self._axis is None or self._axis.shape[0] != model.spring_count:
-            self._axis = wp.zeros(model.spring_count, dtype=model.vec3, device=model.device)
-            self._x_ref = wp.zeros(model.particle_count, dtype=model.vec3, device=model.device)
-        wp.copy(self._x_ref, x)
+        if model.requires_grad:
+            # Differentiable: this step's axes in a fresh array, and x itself as the reference.
+            self._axis = wp.zeros(
+                model.spring_count, dtype=model.vec3, device=model.device, requires_grad=True
+            )
+            self._x_ref = x
+        else:
+            if self._axis is None or self._axis.shape[0] != model.spring_count or self._axis.requires_grad:
+                self._axis = wp.zeros(model.spring_count, dtype=model.vec3, device=model.device)
+                self._x_ref = wp.zeros(model.particle_count, dtype=model.vec3, device=model.device)
+            wp.copy(self._x_ref, x)
         self._inv_dt = 1.0 / dt
         if model.spring_count:
             launch(
