@@ -131,3 +131,65 @@ def test_observation_times_must_match_the_scene():
     obs.t = obs.t * 0.5
     with pytest.raises(pl.io.ObservationError, match=r"t\[1\] = 0\.02 s but frame 1 of the scene"):
         Problem(cfg, obs)
+
+
+HANDLED = (
+    ROPE.replace('pin = "first"', 'pin = "none"')
+    + """
+[[handles]]
+kind = "points"
+points = [[0.0, 0.5, 0.0]]
+radius = 0.01
+stiffness = 200.0
+"""
+)
+
+
+def test_observed_controls_drive_the_spring_handles():
+    """`controls` replace the handles' own motion: the held end follows the observed control point."""
+    cfg = pl.scene.parse_scene(HANDLED)
+    obs = observe(pl.scene.build_scene(cfg), tracks=7)
+    obs.controls = np.zeros((obs.frames, 1, 3)) + [0.0, 0.5, 0.0]
+    obs.controls[:, 0, 0] = np.linspace(0.0, 0.1, obs.frames)  # the hand moves 10 cm along x
+    p = Problem(cfg, obs, params=["stiffness"])
+    x = p.simulate(p.build(p.nominal), p.frames)
+    end = int(np.argmin(np.linalg.norm(x[0] - [0.0, 0.5, 0.0], axis=1)))
+    assert x[-1, end, 0] == pytest.approx(0.1, abs=0.02)
+    obs.controls = np.zeros((obs.frames, 2, 3))
+    with pytest.raises(
+        pl.io.ObservationError, match=r"controls: 2 control points but the scene's spring handles"
+    ):
+        Problem(cfg, obs, params=["stiffness"])
+
+
+def test_ctrl_c_keeps_the_best_values_in_the_output_folder(tmp_path, monkeypatch):
+    """An interrupt in the middle of CMA-ES still writes fitted.toml / fit.json with the best so far."""
+    import pliant.fit._cmaes as cm
+
+    cfg, obs = _truth(ROPE, tracks=5)
+    calls = {"n": 0}
+    real = cm.evaluate
+
+    def interrupted(problem, values):
+        calls["n"] += 1
+        if calls["n"] == 8:
+            raise KeyboardInterrupt
+        return real(problem, values)
+
+    monkeypatch.setattr(cm, "evaluate", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        pl.fit.fit(
+            apply_globals(cfg, {"stiffness": 80.0}),
+            obs,
+            tmp_path,
+            params=["stiffness"],
+            progress=False,
+            video=False,
+        )
+    import json
+
+    rep = json.loads((tmp_path / "fit.json").read_text())
+    assert rep["interrupted"] is True and (tmp_path / "fitted.toml").exists()
+    assert (
+        abs(rep["params"]["stiffness"]["value"] - 50.0) <= 30.0
+    )  # the best so far, never worse than the start
