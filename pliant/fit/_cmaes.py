@@ -28,6 +28,8 @@ class StageResult:
         wall_time: Seconds.
         interrupted: Stopped by Ctrl-C (the best values so far are kept).
         per_element: Per-element arrays (``model.<array>`` / ``constraints.<i>.<array>`` → values), if any.
+        kept: Whether :func:`fit` kept this stage's values (the gradient stage's are dropped when they do
+            not lower the open-loop training loss).
     """
 
     values: dict[str, float]
@@ -37,6 +39,7 @@ class StageResult:
     wall_time: float = 0.0
     interrupted: bool = False
     per_element: dict[str, np.ndarray] = field(default_factory=dict)
+    kept: bool = True
 
 
 def evaluate(problem: Problem, values: dict[str, float]) -> float:

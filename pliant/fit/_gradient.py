@@ -122,7 +122,7 @@ def gradient_stage(
     values: dict[str, float],
     *,
     iterations: int = 20,
-    lr: float = 0.05,
+    lr: float = 0.01,
     horizon: int | None = 1,
     optimizer: str = "adam",
     max_factor: float = 100.0,
@@ -135,7 +135,7 @@ def gradient_stage(
         problem: The fitting problem (``per_element`` set).
         values: Global parameter values to build the scene with (stage 1's result).
         iterations: Epochs: passes over the training frames (Adam), or L-BFGS-B iterations.
-        lr: Adam's initial step size in θ (log-scale units; 0.05 ≈ 5 % per step), decaying to lr / 10.
+        lr: Adam's initial step size in θ (log-scale units; 0.01 ≈ 1 % per step), decaying to lr / 10.
         horizon: Frames per tape (1: PhysTwin's one-frame horizon, the state carried forward); None: the
             whole training rollout on one tape (needed by L-BFGS).
         optimizer: ``"adam"`` or ``"lbfgs"`` (SciPy L-BFGS-B on θ, whole-rollout horizon).

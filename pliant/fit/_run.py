@@ -62,7 +62,7 @@ def fit(
     epochs: int = 20,
     optimizer: str = "adam",
     horizon: int | None = 1,
-    lr: float = 0.05,
+    lr: float = 0.01,
     seed: int = 42,
     device: str | None = None,
     dtype: str | None = None,
@@ -73,7 +73,7 @@ def fit(
 
     Stage 1 (CMA-ES, forward runs only) fits the global parameters ``params`` (default: the scene model's
     material); stage 2 (Adam or L-BFGS on tape gradients) fits the per-element parameter ``per_element``
-    when one is named. Both train on the first ``train_fraction`` of the frames; the rest is the test.
+    when one is named (its values are kept only if they lower the open-loop training loss). Both train on the first ``train_fraction`` of the frames; the rest is the test.
     A Ctrl-C during a stage keeps the best values found so far, writes the outputs and re-raises.
 
     Args:
@@ -87,7 +87,7 @@ def fit(
         epochs: Gradient-stage iterations (passes over the training frames).
         optimizer: ``"adam"`` or ``"lbfgs"``.
         horizon: Frames per tape (1: PhysTwin's default), None: the whole training rollout.
-        lr: Adam step size (log-scale units).
+        lr: Adam step size (log-scale units; one step per frame with the default horizon).
         seed: CMA-ES seed.
         device: Warp device (None: the scene's).
         dtype: ``"float32"`` / ``"float64"`` (None: the scene's).
@@ -138,6 +138,14 @@ def fit(
                 bar.close()
         arrays = stages["gradient"].per_element
         interrupted = stages["gradient"].interrupted
+        # The one-frame-horizon losses are not the open-loop rollout's: keep the per-element values only if
+        # the whole training rollout improved on the global stage's.
+        before = problem.loss(problem.simulate(problem.build(values), problem.n_train))
+        after = problem.loss(problem.simulate(fitted_scene(problem, values, arrays), problem.n_train))
+        stages["gradient"].loss = after
+        if not after < before:
+            stages["gradient"].kept = False
+            arrays = {}
     report = write_outputs(problem, out, values, arrays, stages, video=video, progress=progress)
     report["wall_time"] = time.perf_counter() - t0
     report["interrupted"] = interrupted
@@ -207,6 +215,7 @@ def write_outputs(
             for k, a in per_element.items()
         },
         "loss_history": {k: s.history for k, s in stages.items()},
+        "gradient_stage_kept": stages["gradient"].kept if "gradient" in stages else None,
         "stage_wall_time": {k: s.wall_time for k, s in stages.items()},
         "evaluations": {k: s.evaluations for k, s in stages.items()},
         "error": {k: _finite(v) for k, v in problem.split_errors(x).items()},
