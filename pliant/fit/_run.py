@@ -278,10 +278,18 @@ def _video(path: Path, scene: Any, x: np.ndarray, problem: Problem, progress: bo
     colors = np.empty((t, n + k, 3))
     colors[:, :n] = (0.91, 0.42, 0.16)
     colors[:, n:] = np.where(o.visible[:t, :, None], (0.1, 0.75, 0.25), (0.85, 0.1, 0.1))
+    from scipy.spatial import cKDTree
+
+    # Radii from the particles' spacing (the observed points sit on them, which would make it ~0).
+    spacing = float(np.median(cKDTree(x[0]).query(x[0], k=2)[0][:, 1])) if n > 1 else 0.01
+    extent = float(np.ptp(x.reshape(-1, 3), axis=0).max()) or 1.0
+    r = max(min(0.3 * spacing, 0.02 * extent), 1e-3 * extent)
+    radius = np.concatenate([np.full(n, 0.7 * r), np.full(k, r)])  # observed points drawn over the particles
     render_video(
         pts,
         path,
         colors=colors,
+        point_radius=radius,
         fps=scene.fps,
         camera=scene.camera,
         progress=progress,
