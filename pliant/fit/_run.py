@@ -74,7 +74,8 @@ def fit(
     Stage 1 (CMA-ES, forward runs only) fits the global parameters ``params`` (default: the scene model's
     material); stage 2 (Adam or L-BFGS on tape gradients) fits the per-element parameter ``per_element``
     when one is named (its values are kept only if they lower the open-loop training loss). Both train on
-    the first ``train_fraction`` of the frames; the rest is the test. A Ctrl-C during a stage keeps the best values found so far, writes the outputs and re-raises.
+    the first ``train_fraction`` of the frames; the rest is the test. A Ctrl-C during a stage keeps the
+    best values found so far, writes the outputs and re-raises.
 
     Args:
         cfg: The scene (``pl.scene.load_scene``).
