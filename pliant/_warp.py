@@ -95,7 +95,9 @@ def launch(kernel: Any, dim: Any, inputs: list, device: Any = None) -> None:
     ids), which costs 3-6 µs. A replay is exactly the same launch: the key holds everything the recorded
     parameters hold, so an array freed and reallocated at the same address with the same layout is
     launched correctly, and the cache holds no references to arrays. While a ``wp.Tape`` records, launches go
-    through ``wp.launch`` so that autodiff sees them.
+    through ``wp.launch`` so that autodiff sees them, and so do launches on arrays that require gradients:
+    recorded steps write into fresh arrays each time, so their signatures never repeat and recording them
+    would only evict the replayable launches of the gradient-free path.
     """
     if _tape_active():
         wp.launch(kernel, dim, inputs, device=device)
@@ -104,6 +106,9 @@ def launch(kernel: Any, dim: Any, inputs: list, device: Any = None) -> None:
     scalars = []
     for k, a in enumerate(inputs):
         if isinstance(a, wp.array):
+            if a.requires_grad:
+                wp.launch(kernel, dim, inputs, device=device)
+                return
             parts.append((a.ptr, a.shape, a.strides, a.dtype, a.device.alias))
         elif isinstance(a, (int, float, bool)) or type(a).__module__.startswith("warp"):
             parts.append(type(a))

@@ -43,6 +43,9 @@ PARAMETERS: dict[str, Callable[[Model, Any, State, Control | None], Any]] = {
     "spring_damping": lambda m, s, x, c: m.spring_damping,  # dashpot γ [N s/m] per spring
     "tet_mu": lambda m, s, x, c: m.tet_mu,  # Lamé μ [Pa] per tet (E and ν via the chain rule)
     "tet_lam": lambda m, s, x, c: m.tet_lam,  # Lamé λ [Pa] per tet
+    # Masses [kg] per particle: the step reads both m (gravity) and 1/m (accelerations); rollout combines
+    # ∂L/∂m + ∂L/∂(1/m)·(−1/m²) for free particles (pinned ones keep 1/m = 0, so only the first term).
+    "particle_mass": lambda m, s, x, c: m.particle_mass,
     "x0": lambda m, s, x, c: x.particle_q,  # initial positions [m]
     "v0": lambda m, s, x, c: x.particle_qd,  # initial velocities [m/s]
     "ground_friction": _ground(0),  # Coulomb μ (a subgradient at stick/slip and contact switches)
@@ -102,7 +105,8 @@ def rollout(
     Memory: the forward pass keeps one State every ``checkpoint_every`` frames and no tape; the backward
     pass re-runs each segment of frames under a ``wp.Tape`` from its checkpoint and back-propagates the
     adjoint of its last state, so memory grows with frames × state (plus one segment's intermediates),
-    not with substeps × kernels. The work is one forward run, one recomputation and one backward pass.
+    not with substeps × kernels. The work is one forward run, one recomputation of all but the last segment
+    and one backward pass (``checkpoint_every >= frames``: no recomputation, the whole rollout on one tape).
 
     Args:
         model: a Model finalised with ``requires_grad=True`` (float64 recommended for gradient checks).
@@ -144,6 +148,11 @@ def rollout(
     # Arrays whose gradients accumulate over segments (the initial state's come from the adjoint).
     initial = (id(start.particle_q), id(start.particle_qd))
     arrays = {id(a): a for a, _ in entries.values() if id(a) not in initial}
+    if "particle_mass" in entries:
+        # Built without gradients (constant in most rollouts): switch them on for this one.
+        model.particle_mass.requires_grad = True
+        model.particle_inv_mass.requires_grad = True
+        arrays[id(model.particle_inv_mass)] = model.particle_inv_mass
     for a in arrays.values():
         if a.grad is None:
             raise GradientError(
@@ -161,14 +170,12 @@ def rollout(
             state = nxt
         return state
 
-    # Forward without a tape, keeping the checkpoints.
+    # Forward without a tape, keeping the checkpoints; the last segment is run once, under the tape below.
     bounds = list(range(0, frames, checkpoint_every)) + [frames]
     checkpoints = [start]
-    s = start
-    for a, b in zip(bounds[:-1], bounds[1:], strict=False):
-        s = run(s, b - a)
-        checkpoints.append(s)
-    final = checkpoints.pop()
+    for a, b in zip(bounds[:-2], bounds[1:-1], strict=True):
+        checkpoints.append(run(checkpoints[-1], b - a))
+    final = start
 
     totals = {k: np.zeros_like(a.grad.numpy(), dtype=np.float64) for k, a in arrays.items()}
     adj: tuple[wp.array, wp.array] | None = None
@@ -183,6 +190,7 @@ def rollout(
             if adj is None:
                 loss = loss_fn(last)
         if adj is None:
+            final = last
             loss_value = float(loss.numpy()[0])
             tape.backward(loss=loss)
         else:
@@ -201,5 +209,8 @@ def rollout(
             g = adj[1].numpy().astype(np.float64)
         else:
             g = totals[id(a)]
+        if name == "particle_mass":
+            inv = model.particle_inv_mass.numpy().astype(np.float64)
+            g = g - np.where(inv > 0, totals[id(model.particle_inv_mass)] * inv * inv, 0.0)
         grads[name] = np.array(g[comp]) if comp is not None else g
     return RolloutResult(loss_value, grads, final)

@@ -29,6 +29,7 @@ import numpy as np
 import warp as wp
 
 from .._warp import grad_enabled
+from ..energies import dashpot_force, spring_gradient, spring_hessian
 from ..model import Control, Model, State
 from ._base import Solver
 from ._post import add_drag_force, check_collisions, finish_step
@@ -80,16 +81,12 @@ def _symplectic_gather(
         return
     f = f_ext[i]
     for e in range(adj_offsets[i], adj_offsets[i + 1]):
-        d = x_in[adj_neighbor[e]] - xi
+        j = adj_neighbor[e]
         prm = adj_param[e]  # (rest length, stiffness, dashpot γ)
-        l = wp.length(d)
-        if l > zero:
-            inv_l = type(dt)(1.0) / l
-            # Spring pulls i toward j when stretched; the dashpot resists the relative axial speed.
-            c = prm[1] * (l - prm[0])
-            if damped != 0:
-                c += prm[2] * wp.dot(v_in[adj_neighbor[e]] - vi, d) * inv_l
-            f += d * (c * inv_l)
+        # The energies' own spring force and dashpot (issue 10: one definition of each).
+        f -= spring_gradient(xi, x_in[j], prm[1], prm[0])
+        if damped != 0:
+            f += dashpot_force(xi, x_in[j], vi, v_in[j], prm[2])
     v = delta * (vi + dt * (gravity + w * f))
     v_out[i] = v
     x_out[i] = xi + dt * v
@@ -97,17 +94,13 @@ def _symplectic_gather(
 
 # ---------------------------------------------------------------------------------------------- implicit
 @wp.func
-def _spring_blocks(d: Any, rest: Any, k: Any, gamma: Any, h: Any):
-    """(K_s, h²K_s + hD_s) for the spring with d = x_j − x_i; K_s PSD-projected (Choi & Ko)."""
-    l = wp.length(d)
-    zero = h * type(h)(0.0)
-    one = type(h)(1.0)
-    n = d / wp.max(l, type(h)(1.0e-20))
-    nn = wp.outer(n, n)
-    t = wp.max(one - rest / wp.max(l, type(h)(1.0e-20)), zero)
-    eye = wp.identity(n=3, dtype=type(h))
-    K = k * (t * (eye - nn) + nn)
-    return K, (h * h) * K + (h * gamma) * nn
+def _spring_blocks(xi: Any, xj: Any, rest: Any, k: Any, gamma: Any, h: Any):
+    """(K_s, h²K_s + hD_s) for the spring (i, j): K_s the spring energy's PSD-projected Hessian block
+    (:func:`pliant.energies.spring_hessian`, Choi & Ko), D_s = γ n̂n̂ᵀ the dashpot Jacobian."""
+    d = xj - xi
+    n = d / wp.max(wp.length(d), type(h)(1.0e-30))
+    K = spring_hessian(xi, xj, k, rest, 1)
+    return K, (h * h) * K + (h * gamma) * wp.outer(n, n)
 
 
 @wp.kernel
@@ -155,13 +148,10 @@ def _bw_assemble(
     for e in range(adj_offsets[i], adj_offsets[i + 1]):
         j = adj_neighbor[e]
         s = adj_spring[e]
-        d = x_in[j] - xi
-        l = wp.length(d)
         dvel = v_in[j] - vi
-        if l > h * type(h)(0.0):
-            n = d / l
-            f += n * (spring_stiffness[s] * (l - spring_rest_length[s]) + spring_damping[s] * wp.dot(dvel, n))
-        K, H = _spring_blocks(d, spring_rest_length[s], spring_stiffness[s], spring_damping[s], h)
+        f += dashpot_force(xi, x_in[j], vi, v_in[j], spring_damping[s])
+        f -= spring_gradient(xi, x_in[j], spring_stiffness[s], spring_rest_length[s])
+        K, H = _spring_blocks(xi, x_in[j], spring_rest_length[s], spring_stiffness[s], spring_damping[s], h)
         block_out[e] = H
         diag += H
         kv -= K * dvel  # (K v)_i = Σ_s K_s (v_i − v_j)

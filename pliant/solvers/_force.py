@@ -48,6 +48,19 @@ def _kinematic_out(
 
 
 @wp.kernel
+def _accel_from_force_gradient(
+    inv_mass: wp.array(dtype=Any),
+    f_in: wp.array(dtype=Any),
+    grad_in: wp.array(dtype=Any),
+    a_out: wp.array(dtype=Any),
+):
+    # Recorded steps: a = M⁻¹(F − ∇E), the potentials' gradients summed apart from the other forces so that
+    # no per-energy negation pass (and its array) is recorded.
+    i = wp.tid()
+    a_out[i] = inv_mass[i] * (f_in[i] - grad_in[i])
+
+
+@wp.kernel
 def _accel_from_force(inv_mass: wp.array(dtype=Any), f_in: wp.array(dtype=Any), a_out: wp.array(dtype=Any)):
     i = wp.tid()
     a_out[i] = inv_mass[i] * f_in[i]
@@ -154,7 +167,24 @@ class ForceSolver(Solver):
 
     def acceleration(self, t: float, x: wp.array, v: wp.array, out: wp.array) -> None:
         """a = M⁻¹F [m/s²]; zero for pinned and kinematic particles (inverse mass 0)."""
-        force = fresh(self.model) if grad_enabled(self.model) else self._force
+        m = self.model
+        if grad_enabled(m):
+            force, grad = fresh(m), fresh(m)
+            if self._control is not None:
+                _axpy(force, self._control.particle_f, 1.0, m)
+            for e in self.energies:
+                if type(e).force is Energy.force:  # a potential: −∇E
+                    e.gradient(m, x, grad)
+                else:
+                    e.force(m, x, v, force)
+            launch(
+                _accel_from_force_gradient,
+                m.particle_count,
+                [m.particle_inv_mass, force, grad, out],
+                device=m.device,
+            )
+            return
+        force = self._force
         self.forces(t, x, v, force)
         launch(
             _accel_from_force,
