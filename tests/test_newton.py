@@ -258,3 +258,35 @@ def test_scipy_cg_matches_direct_on_a_soft_step():
         assert solver.last_stats.converged, solver.last_stats
     err = np.abs(outs["direct"] - outs["scipy-cg"]).max()
     assert err < 1e-6, f"scipy-cg differs from direct by {err:.3g} m"
+
+
+@pytest.mark.parametrize("method", ["newton", "lbfgs"])
+def test_minimizers_read_only_the_declared_problem(method):
+    """Newton and L-BFGS need only PotentialProblem's model, energies and control (no ForceSolver fields):
+    a plain object gives bit-for-bit the ForceSolver's minimiser, the Control's force included."""
+    from pliant.solvers._quasi_newton import minimize_quasi_newton
+
+    fn = minimize_quasi_newton if method == "lbfgs" else minimize_incremental_potential
+    model = _cloth(3)
+    control = pl.Control(model)
+    control.particle_f.assign(np.tile([0.5, 0.0, 0.0], (model.particle_count, 1)))
+
+    class Problem:
+        def __init__(self) -> None:
+            self.model = model
+            self.energies = pl.energies.mass_spring(dashpots=False)
+            self.control = control
+            self.last_stats = None
+
+    solver = pl.solvers.ForceSolver(model, energies=pl.energies.mass_spring(dashpots=False), contact=False)
+    solver._control = control  # what ForceSolver.step sets for its step
+    x, v = model.particle_q, model.particle_qd
+    x_tilde = wp.clone(x)
+    outs = []
+    for problem in (Problem(), solver):
+        out = wp.clone(x)
+        stats = fn(problem, 0.0, 0.01, x_tilde, x, v, out, {"newton_tol": 1e-9})
+        assert stats.converged and problem.last_stats is stats
+        outs.append(out.numpy())
+    assert np.array_equal(outs[0], outs[1])
+    assert np.abs(outs[0] - x.numpy()).max() > 1e-6  # the force moved the cloth

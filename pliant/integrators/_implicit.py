@@ -382,7 +382,19 @@ class BDF2(_ImplicitOptions, Integrator):
             if self._grad_prev is not None:
                 x_prev, v_prev = self._grad_prev
         key = (id(m), float(dt), x_in.ptr)
-        if self._sys_key is None or self._sys_key != key:
+        stale = self._sys_key is None or self._sys_key != key
+        if grad:
+            # A recorded step's output goes through the solver's post-step stages into the next State, so
+            # the pointer cannot link the steps: the history is the previous recorded step's input, valid
+            # for the next input of the same model and Δt (``solver.reset()`` starts a new rollout).
+            prev = self._grad_prev
+            stale = not (
+                isinstance(self._sys_key, tuple)
+                and self._sys_key[:2] == key[:2]
+                and prev is not None
+                and prev[0].ptr != x_in.ptr
+            )
+        if stale:
             h = dt
             lincomb(m, x_tilde, x_in, [(h, v_in)])
             wp.copy(x_hat, x_in)

@@ -137,6 +137,11 @@ class ForceSolver(Solver):
         self.last_stats: Any = None
 
     # ------------------------------------------------------------------ System interface
+    @property
+    def control(self) -> Control | None:
+        """The Control of the step in progress (read by the implicit minimisers; None outside a step)."""
+        return self._control
+
     def velocity_damping(self, dt: float) -> float:
         """δ for a step of ``dt`` [s]: exp(−cΔt) when ``damping_rate`` c is set, else the fixed δ."""
         if self.damping_rate is not None:

@@ -30,7 +30,7 @@ Reference: D. Baraff, A. Witkin, "Large steps in cloth simulation", SIGGRAPH 199
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import warp as wp
@@ -418,9 +418,25 @@ def _gradient(solver: Any, ws: _Workspace, x: wp.array, x_tilde: wp.array, h: fl
     return ws.gstats.numpy().astype(np.float64)
 
 
-def control_of(problem: Any) -> Any:
+class PotentialProblem(Protocol):
+    """What the minimisers (Newton, L-BFGS) and the step adjoint read from the solver that owns the step.
+
+    ``model`` (masses, device, dtype), ``energies`` (the terms of Φ; their ``dissipative`` ones get
+    ``begin_step``) and ``control`` (the step's Control: external forces as −f·x, the drag handle as
+    ½k|x − target|², or None). Results go to ``last_stats``.
+    """
+
+    model: Any
+    energies: list
+    last_stats: Any
+
+    @property
+    def control(self) -> Any: ...
+
+
+def control_of(problem: PotentialProblem) -> Any:
     """The Control (external forces, drag handle) of the step ``problem`` is taking, or None."""
-    return getattr(problem, "_control", None)
+    return problem.control
 
 
 def _control_terms(solver: Any, ws: _Workspace, x: wp.array, grad: wp.array, value: wp.array) -> None:
