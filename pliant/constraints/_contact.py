@@ -39,23 +39,23 @@ def _project_ground(
 ):
     # p_out/lam_out are p_in/lam_in (in place) or, for a differentiable step, fresh arrays that every
     # thread fills (copy_through != 0).
+    # Loads only what the in-place path needs (this kernel runs every sweep plus the contact sweeps).
     i = wp.tid()
     w = inv_mass[i]
-    x = p_in[i]
-    lam = lam_in[i]
     if w == type(w)(0.0):
         if copy_through != 0:
-            p_out[i] = x
-            lam_out[i] = lam
+            p_out[i] = p_in[i]
+            lam_out[i] = lam_in[i]
         return
+    x = p_in[i]
     c = ground_c(x, normal, d, radius[i])
     if c < type(w)(0.0):
         # |∇C| = 1: Δλ = −C/w and Δx = wΔλ n = −C n (the lecture's Δp = C n with C = min(·, 0)).
-        lam_out[i] = lam - c / w
+        lam_out[i] = lam_in[i] - c / w
         p_out[i] = x - c * ground_grad(x, normal)
     elif copy_through != 0:
         p_out[i] = x
-        lam_out[i] = lam
+        lam_out[i] = lam_in[i]
 
 
 @wp.kernel
@@ -76,11 +76,11 @@ def _ground_velocity(
     i = wp.tid()
     lam = lam_in[i]
     zero = type(lam)(0.0)
-    v = v_in[i]
     if lam <= zero:
         if copy_through != 0:
-            v_out[i] = v
+            v_out[i] = v_in[i]
         return
+    v = v_in[i]
     vn = wp.dot(v, normal)
     vt = v - vn * normal
     # Coulomb: the tangential velocity change is bounded by μ times the normal one, |Δx_n|/Δt = wλ/Δt.

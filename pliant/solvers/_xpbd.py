@@ -40,11 +40,13 @@ class XPBD(Solver):
     (positions after every constraint set's sweep, λ per sweep, predicted velocities) and launches afresh
     (no replay), so ``wp.Tape`` records and replays it: gradients reach the initial state, the model's
     inverse masses, each constraint set's ``compliance_array`` (and ``rest``) and :attr:`gravity`, for
-    ``Distance``, ``DihedralBending``, ``Volume`` and ``Ground`` under ``schedule="jacobi"`` with fixed
-    ``iterations``. Ground contact, friction and restitution are piecewise smooth: at a switch (C = 0,
-    the Coulomb cone, the restitution threshold) the gradient is one-sided. Other sets (shape matching,
-    generated contacts, generic constraints), the colouring schedule and kinematic particles raise an
-    error when gradients are requested. With gradients off nothing of this runs.
+    ``Distance``, ``DihedralBending``, ``Volume``, ``ShapeMatching`` (without oriented particles) and
+    ``Ground`` under ``schedule="jacobi"`` with fixed ``iterations``. Ground contact, friction and
+    restitution are piecewise smooth: at a switch (C = 0, the Coulomb cone, the restitution threshold) the
+    gradient is one-sided. Other sets (oriented particles, generated contacts, generic constraints), the
+    colouring schedule and kinematic particles raise an error when gradients are requested. Shape
+    matching differentiates R through ``wp.svd3``'s adjoint, undefined where the cluster's moment has
+    repeated singular values (an undeformed isotropic cluster). With gradients off nothing of this runs.
 
     Limitations: overlapping shape-matching clusters with oriented particles race on the orientation under
     "jacobi".
@@ -169,7 +171,8 @@ class XPBD(Solver):
         if bad:
             raise NotImplementedError(
                 f"XPBD: constraint sets {bad} are not differentiable yet; with requires_grad=True use "
-                "Distance, DihedralBending, Volume and Ground, or finalize with requires_grad=False"
+                "Distance, DihedralBending, Volume, ShapeMatching without radii and Ground, or finalize with "
+                "requires_grad=False"
             )
 
     def context(self) -> ProjectionContext:
@@ -276,6 +279,8 @@ class XPBD(Solver):
         n = m.particle_count
         ctx = self.context()
         grad = ctx.requires_grad
+        if grad:
+            self._check_differentiable()  # again: sets may have been added after construction
         x = state_in.particle_q
         # A differentiable step never overwrites what it has read: fresh positions per sweep (below).
         p = ctx.fresh(x) if grad else state_out.particle_q
