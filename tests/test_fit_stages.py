@@ -193,3 +193,35 @@ def test_ctrl_c_keeps_the_best_values_in_the_output_folder(tmp_path, monkeypatch
     assert (
         abs(rep["params"]["stiffness"]["value"] - 50.0) <= 30.0
     )  # the best so far, never worse than the start
+
+
+POINTS = """
+[scene]
+name = "blob"
+frame_dt = 0.04
+substeps = 10
+frames = 4
+device = "cpu"
+[[objects]]
+kind = "points"
+shape = "box"
+size = [0.12, 0.12, 0.12]
+spacing = 0.04
+origin = [0.0, 0.3, 0.0]
+[objects.material]
+stiffness = 100.0
+"""
+
+
+def test_topology_parameters_rebuild_the_springs():
+    """radius and neighbours of a point-cloud object are scene values: a candidate rebuilds its springs."""
+    cfg = pl.scene.parse_scene(POINTS)
+    obs = observe(pl.scene.build_scene(cfg), tracks=8)
+    p = Problem(cfg, obs, params=["radius", "neighbours"])
+    radius, neighbours = p.globals
+    assert radius.param.topology and neighbours.param.integer
+    assert radius.nominal == pytest.approx(1.8 * 0.04) and neighbours.nominal == 12
+    few = p.build({"radius": 0.045, "neighbours": 3.0}).model.spring_count
+    many = p.build({"radius": 0.1, "neighbours": 20.0}).model.spring_count
+    assert 0 < few < many
+    assert neighbours.param.from_unit(0.37, neighbours.lo, neighbours.hi) == round(1 + 0.37 * 23)
