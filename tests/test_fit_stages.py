@@ -225,3 +225,14 @@ def test_topology_parameters_rebuild_the_springs():
     many = p.build({"radius": 0.1, "neighbours": 20.0}).model.spring_count
     assert 0 < few < many
     assert neighbours.param.from_unit(0.37, neighbours.lo, neighbours.hi) == round(1 + 0.37 * 23)
+
+
+def test_observe_records_the_handles_and_replaying_them_reproduces_the_motion():
+    """A scene driven by a moving spring handle: observe() writes its control points as `controls`, and a
+    fit problem driven by them (instead of the scene's own handle motion) reproduces the tracks exactly."""
+    cfg = pl.scene.parse_scene(HANDLED + "velocity = [0.2, 0.0, 0.0]\n")
+    obs = observe(pl.scene.build_scene(cfg), tracks=7)
+    assert obs.controls.shape == (obs.frames, 1, 3)
+    np.testing.assert_allclose(obs.controls[:, 0, 0], 0.2 * obs.t, atol=1e-12)
+    p = Problem(cfg, obs, params=["stiffness"])
+    assert p.loss(p.simulate(p.build(p.nominal), p.frames), 1, p.frames) < 1e-20

@@ -36,7 +36,8 @@ def observe(
         progress: Show the simulation's progress bar.
 
     Returns:
-        Observations with ``particle`` set to the tracked particles (frame 0 always fully visible).
+        Observations with ``particle`` set to the tracked particles (frame 0 always fully visible), and
+        ``controls`` when the scene has spring handles (their control points at each frame).
     """
     if tracks < 1:
         raise ValueError(f"--tracks: expected at least 1 track, got {tracks}")
@@ -61,6 +62,8 @@ def observe(
     visible = rng.random((frames, k)) >= dropout
     visible[0] = True
     extra: dict[str, Any] = {}
+    if scene.control_points:
+        extra["controls"] = _controls(scene, frames)
     if cloud:
         c = x + rng.normal(scale=noise, size=x.shape) if noise > 0 else x.copy()
         extra = {"cloud": c, "cloud_count": np.full(frames, n, dtype=np.int64)}
@@ -72,6 +75,18 @@ def observe(
         source="<observe>",
         **extra,
     )
+
+
+def _controls(scene: Any, frames: int) -> np.ndarray:
+    """[frames, C, 3] positions [m] of the spring handles' control points at each frame time."""
+    control = scene.model.control()
+    out = []
+    for f in range(frames):
+        # control_fn(t, control) places the points at the end of the frame that starts at t; (0, None): start.
+        scene.control_fn((f - 1) * scene.frame_dt if f else 0.0, control if f else None)
+        out.append(np.concatenate([cp.points.numpy() for cp in scene.control_points]))
+    scene.control_fn(0.0, None)
+    return np.stack(out).astype(float)
 
 
 __all__ = ["observe"]
