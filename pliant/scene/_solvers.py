@@ -72,7 +72,28 @@ def accepted_keywords(target: Any) -> dict[str, inspect.Parameter]:
                 out.setdefault(p.name, p)
         if not var_kw:
             break
+    else:
+        out.update(_implicit_option_keywords(target, out))
     return out
+
+
+def _implicit_option_keywords(
+    target: Any, have: dict[str, inspect.Parameter]
+) -> dict[str, inspect.Parameter]:
+    """The implicit integrators take ``**options`` validated by ``ImplicitOptions`` (a dataclass): its fields
+    are their keyword parameters. (Added when merging the implicit-gradient work into the fit branch.)"""
+    import dataclasses
+
+    from ..integrators import ImplicitOptions
+    from ..integrators._implicit import _ImplicitOptions
+
+    if not (isinstance(target, type) and issubclass(target, _ImplicitOptions)):
+        return {}
+    return {
+        f.name: inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY, default=f.default)
+        for f in dataclasses.fields(ImplicitOptions)
+        if f.name not in have
+    }
 
 
 def _type_problem(p: inspect.Parameter, value: Any) -> str | None:
