@@ -1,4 +1,4 @@
-"""Files: trajectories and checkpoints (NPZ). Scene files (TOML) are :mod:`pliant.scene`."""
+"""Files: trajectories, checkpoints and observations (NPZ). Scene files (TOML) are :mod:`pliant.scene`."""
 
 from ._observations import ObservationError, Observations
 from ._trajectory import Trajectory, atomic_savez, load_checkpoint, save_checkpoint
