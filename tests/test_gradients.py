@@ -40,7 +40,8 @@ def _verify_access(capfd):
         yield
     wp.config.verify_autograd_array_access = old
     text = capfd.readouterr().err + "".join(str(w.message) for w in caught)
-    assert "already been read" not in text, text[:2000]
+    # Both of Warp's messages: across launches ("already been read") and within one ("has been read").
+    assert "been read" not in text, text[:2000]
 
 
 def test_access_check_catches_an_in_place_update(capfd):
@@ -207,6 +208,8 @@ def test_fast_mass_spring_recorded_step_equals_fused_step():
     """The recorded step is FastMassSpring's own update (equal to round-off, not a different scheme)."""
     out = []
     for rg in (False, True):
+        # The gradient-free run is the in-place fast path by design: Warp's tape checks do not apply.
+        wp.config.verify_autograd_array_access = rg
         m = build("cloth", True, requires_grad=rg)
         solver = pl.solvers.FastMassSpring(m, method="symplectic", damping_rate=0.5)
         s = m.state()

@@ -29,7 +29,7 @@ import numpy as np
 import warp as wp
 
 from .._warp import grad_enabled
-from ..energies import dashpot_force, spring_gradient, spring_hessian
+from ..energies._spring import dashpot_force_axis, spring_gradient_axis, spring_hessian
 from ..model import Control, Model, State
 from ._base import Solver
 from ._post import add_drag_force, check_collisions, finish_step
@@ -83,10 +83,12 @@ def _symplectic_gather(
     for e in range(adj_offsets[i], adj_offsets[i + 1]):
         j = adj_neighbor[e]
         prm = adj_param[e]  # (rest length, stiffness, dashpot γ)
-        # The energies' own spring force and dashpot (issue 10: one definition of each).
-        f -= spring_gradient(xi, x_in[j], prm[1], prm[0])
+        # The energies' own spring force and dashpot (issue 10: one definition of each), |d| taken once.
+        d = xi - x_in[j]
+        l = wp.length(d)
+        f -= spring_gradient_axis(d, l, prm[1], prm[0])
         if damped != 0:
-            f += dashpot_force(xi, x_in[j], vi, v_in[j], prm[2])
+            f += dashpot_force_axis(d, l, vi, v_in[j], prm[2])
     v = delta * (vi + dt * (gravity + w * f))
     v_out[i] = v
     x_out[i] = xi + dt * v
@@ -149,8 +151,10 @@ def _bw_assemble(
         j = adj_neighbor[e]
         s = adj_spring[e]
         dvel = v_in[j] - vi
-        f += dashpot_force(xi, x_in[j], vi, v_in[j], spring_damping[s])
-        f -= spring_gradient(xi, x_in[j], spring_stiffness[s], spring_rest_length[s])
+        d = xi - x_in[j]
+        l = wp.length(d)
+        f += dashpot_force_axis(d, l, vi, v_in[j], spring_damping[s])
+        f -= spring_gradient_axis(d, l, spring_stiffness[s], spring_rest_length[s])
         K, H = _spring_blocks(xi, x_in[j], spring_rest_length[s], spring_stiffness[s], spring_damping[s], h)
         block_out[e] = H
         diag += H

@@ -10,7 +10,7 @@ import numpy as np
 import warp as wp
 
 from .._warp import GradientError, fresh, grad_enabled, launch
-from ..collision._ground import ground_contact_out
+from ..collision._ground_recorded import ground_contact_out
 from ..energies import Energy
 from ..energies._base import _axpy
 from ..integrators import Integrator, SymplecticEuler
