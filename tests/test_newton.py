@@ -198,7 +198,7 @@ def test_options_validated():
         "newton_tol": [float("nan"), -1e-5, 0],
         "max_newton_iterations": [0, 2.5],
         "cg_max_iterations": [0],
-        "lbfgs_history": [0],
+        "lbfgs_history": [-1, 1.5],
         "lbfgs_max_iterations": [0],
         "max_line_search": [-1],
         "cg_tol": [1.0, float("nan")],

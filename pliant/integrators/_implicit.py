@@ -80,7 +80,7 @@ class ImplicitOptions:
         project_psd: True, False or "auto" (see :class:`BackwardEuler`).
         max_line_search: step halvings allowed per iteration (≥ 0).
         method: "newton" or "lbfgs".
-        lbfgs_history: curvature pairs L-BFGS keeps (≥ 1).
+        lbfgs_history: curvature pairs L-BFGS keeps (≥ 0; 0 is descent preconditioned by the lagged H₀).
         lbfgs_max_iterations: L-BFGS iteration cap per step (≥ 1).
         lbfgs_refresh: re-assemble L-BFGS's lagged Hessian after a step that needed more iterations (≥ 1).
         lbfgs_warm_start: start each L-BFGS step from the extrapolated previous correction.
@@ -113,8 +113,9 @@ class ImplicitOptions:
         positive("newton_tol", " m/s (e.g. 1e-5)")  # NaN fails "> 0" too
         if not (isinstance(self.cg_tol, (int, float)) and 0.0 < self.cg_tol < 1.0):
             raise ValueError(f"cg_tol must be in (0, 1), got {self.cg_tol!r}")
-        for name in ("max_newton_iterations", "cg_max_iterations", "lbfgs_history", "lbfgs_max_iterations"):
+        for name in ("max_newton_iterations", "cg_max_iterations", "lbfgs_max_iterations"):
             count(name, 1)
+        count("lbfgs_history", 0)  # 0: gradient descent preconditioned by the lagged H₀ (tested, kept)
         count("lbfgs_refresh", 1)
         count("max_line_search", 0)
         if self.linear_solver not in LINEAR_SOLVERS:
