@@ -36,6 +36,7 @@ _SUBMODULES = (
     "sim",
     "scene",
     "diff",
+    "fit",
 )
 
 

@@ -173,7 +173,8 @@ def test_builtin_scenes_use_the_new_keys():
 
 
 def test_io_keeps_only_trajectory_files():
-    """pliant.io holds trajectories and checkpoints only; scene files are pliant.scene."""
+    """pliant.io holds trajectories, checkpoints and observation files (fitting) only; scene files are
+    pliant.scene."""
     assert set(pl.io.__all__) == {
         "CheckpointError",
         "CheckpointSpec",
@@ -181,6 +182,8 @@ def test_io_keeps_only_trajectory_files():
         "atomic_savez",
         "load_checkpoint",
         "save_checkpoint",
+        "ObservationError",
+        "Observations",
     }
     assert pl.scene.load_scene is load_scene
 

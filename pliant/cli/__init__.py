@@ -1,4 +1,4 @@
-"""Command line: ``pliant demo | run | scenes | info | bench | study | export``.
+"""Command line: ``pliant demo | run | scenes | info | bench | study | export | fit | observe``.
 
 Each command only parses arguments and calls the public API. User mistakes (a bad scene file, an unknown
 device, a missing file) print one ``error:`` line per problem on stderr and exit non-zero, never a
@@ -196,6 +196,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--out", required=True, help="a folder (ply/obj/vtu sequences) or a file (usd, xdmf, or --frame)"
     )
     e.add_argument("--frame", type=int, help="export only this frame (ply/obj; negative counts from the end)")
+    from ._fit import add_parsers as _fit_parsers
+
+    _fit_parsers(sub)  # fit, observe
     return p
 
 
@@ -215,6 +218,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             from ._scenes import cmd_scenes
 
             return cmd_scenes(args)
+        if args.command in ("fit", "observe"):
+            from ._fit import cmd_fit, cmd_observe
+
+            return cmd_fit(args) if args.command == "fit" else cmd_observe(args)
         from ._misc import cmd_bench, cmd_export, cmd_info, cmd_study
 
         return {"info": cmd_info, "bench": cmd_bench, "study": cmd_study, "export": cmd_export}[args.command](

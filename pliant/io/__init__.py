@@ -1,5 +1,6 @@
-"""Files: trajectories and checkpoints (NPZ). Scene files (TOML) are :mod:`pliant.scene`."""
+"""Files: trajectories, checkpoints and observations (NPZ). Scene files (TOML) are :mod:`pliant.scene`."""
 
+from ._observations import ObservationError, Observations
 from ._trajectory import (
     CheckpointError,
     CheckpointSpec,
@@ -12,6 +13,8 @@ from ._trajectory import (
 __all__ = [
     "CheckpointError",
     "CheckpointSpec",
+    "ObservationError",
+    "Observations",
     "Trajectory",
     "atomic_savez",
     "load_checkpoint",

@@ -169,13 +169,15 @@ def _select_handles(ctx: BuildContext) -> tuple[list, list]:
     return kin, springs
 
 
-def _finalize(ctx: BuildContext, device: str | None, dtype: str | None) -> None:
+def _finalize(ctx: BuildContext, device: str | None, dtype: str | None, requires_grad: bool = False) -> None:
     cfg = ctx.cfg
     g = cfg.ground
     if g is not None and g.enabled:
         ctx.builder.add_ground(g.height, friction=g.friction, restitution=g.restitution)
     try:
-        ctx.model = ctx.builder.finalize(device=device or cfg.scene.device, dtype=dtype or cfg.scene.dtype)
+        ctx.model = ctx.builder.finalize(
+            device=device or cfg.scene.device, dtype=dtype or cfg.scene.dtype, requires_grad=requires_grad
+        )
     except ValueError as exc:
         if device is None and cfg.scene.device is not None and "device" in str(exc):
             path = "scene.device"
@@ -328,13 +330,45 @@ def _camera(cfg: SceneConfig) -> Any:
     return Camera(eye=c.eye, target=c.target, up=c.up, fov_y=c.fov, width=c.width, height=c.height)
 
 
-def build_scene(cfg: SceneConfig, device: str | None = None, dtype: str | None = None) -> Scene:
+def _apply_parameters(ctx: BuildContext, solver: Any) -> None:
+    """``[scene] parameters``: per-element values (a fit's output) replace the built arrays."""
+    from ._files import scene_path
+
+    path = scene_path(ctx.cfg, ctx.cfg.scene.parameters, "scene.parameters")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except Exception as exc:
+        raise ctx.fail("scene.parameters", f"cannot read {path} ({exc})") from None
+    for key, value in data.items():
+        parts = key.split(".")
+        if parts[0] == "model" and len(parts) == 2:
+            target = getattr(ctx.model, parts[1], None)
+        elif parts[0] == "constraints" and len(parts) == 3 and parts[1].isdigit():
+            cons = getattr(solver, "constraints", [])
+            c = cons[int(parts[1])] if int(parts[1]) < len(cons) else None
+            target = getattr(c, parts[2], None)
+        else:
+            target = None
+        if target is None or not hasattr(target, "assign") or tuple(target.shape) != value.shape:
+            raise ctx.fail(
+                "scene.parameters",
+                f"{path}: {key} {value.shape} does not match this scene (expected model.<array> or "
+                "constraints.<i>.<array> of the same shape); refit or remove the parameters key",
+            )
+        target.assign(value)
+
+
+def build_scene(
+    cfg: SceneConfig, device: str | None = None, dtype: str | None = None, requires_grad: bool = False
+) -> Scene:
     """Build the Model and Solver a scene describes, on ``device`` in ``dtype`` (defaults: the file's).
 
     Args:
         cfg: A validated scene (:func:`load_scene` / :func:`parse_scene`).
         device: Warp device (``"cpu"``, ``"cuda:0"``); None: ``[scene] device`` or Warp's default.
         dtype: ``"float32"`` or ``"float64"``; None: ``[scene] dtype``.
+        requires_grad: Finalize the model with gradient arrays (tape-differentiable steps, for fitting).
 
     Raises:
         SceneError: a file, option or geometry the build cannot use, naming the field.
@@ -345,7 +379,7 @@ def build_scene(cfg: SceneConfig, device: str | None = None, dtype: str | None =
     _add_objects(ctx)
     x0 = ctx.builder.positions()
     kin, spring_handles = _select_handles(ctx)
-    _finalize(ctx, device, dtype)
+    _finalize(ctx, device, dtype, requires_grad)
     embeddings = _embeddings(ctx, x0)
     colliders, static_meshes = _colliders(ctx)
     control_points, springs = _spring_handles(ctx, spring_handles)
@@ -353,6 +387,8 @@ def build_scene(cfg: SceneConfig, device: str | None = None, dtype: str | None =
     _extra_constraints(ctx)
     _entries(ctx, "constraints", CONSTRAINT_KINDS, ctx.constraints)
     solver = SOLVER_KINDS[cfg.solver_kind()].factory(ctx)
+    if cfg.scene.parameters is not None:
+        _apply_parameters(ctx, solver)
     return Scene(
         config=cfg,
         model=ctx.model,

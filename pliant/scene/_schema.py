@@ -225,6 +225,9 @@ class SceneSection(Section):
     device: str | None = None
     dtype: Literal["float32", "float64"] = "float32"
     max_speed: Annotated[float, Strict(), Field(gt=0, le=MAX_COORD)] = 1.0e3  # divergence bound [m/s]
+    #: NPZ of per-element values (``pliant fit``) applied after building: ``model.<array>`` and
+    #: ``constraints.<i>.<array>`` keys; a path relative to the scene file.
+    parameters: str | None = None
 
     @model_validator(mode="before")
     @classmethod

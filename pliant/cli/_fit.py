@@ -1,0 +1,156 @@
+"""``pliant fit`` (fit a scene to observed motion) and ``pliant observe`` (synthetic observations)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from . import CliError, _positive_float, _positive_int, _sub
+
+
+def add_parsers(sub: Any) -> None:
+    """Register ``fit`` and ``observe`` on the ``pliant`` sub-parsers."""
+    f = _sub(
+        sub,
+        "fit",
+        "fit a scene's parameters to observed motion (observation NPZ)",
+        "pliant observe fit_rope --out obs.npz --tracks 20 --noise 0.001   # synthetic observations",
+        "pliant fit fit_rope obs.npz --out fit/                        # the material, both stages",
+        "pliant fit cloth obs.npz --out fit/ --params stiffness --per-element stiffness",
+        "pliant run fit/fitted.toml                                    # the fitted scene",
+    )
+    f.add_argument("scene", help="a scene .toml file or a built-in scene name")
+    f.add_argument("obs", metavar="OBS.npz", help="observations: t [T], points [T, K, 3], ...")
+    f.add_argument("--out", required=True, help="output folder: fitted.toml, fit.json, fit.png, fit.mp4")
+    f.add_argument(
+        "--params",
+        metavar="NAME,...",
+        help="global parameters for CMA-ES (default: the material: stiffness,damping / E,nu / compliance; "
+        "'none' for no global stage)",
+    )
+    f.add_argument("--per-element", metavar="NAME", help="gradient stage on stiffness, E or compliance")
+    f.add_argument("--train-fraction", type=_positive_float, default=0.7, help="frames to train on (0.7)")
+    f.add_argument(
+        "--iterations", type=_positive_int, help="CMA-ES generations (20) and gradient epochs (20)"
+    )
+    f.add_argument("--optimizer", choices=("adam", "lbfgs"), default="adam", help="gradient stage (adam)")
+    f.add_argument("--horizon", type=_positive_int, default=1, help="frames per tape, 0: whole rollout (1)")
+    f.add_argument("--lr", type=_positive_float, default=0.01, help="Adam step in log-scale units (0.01)")
+    f.add_argument("--seed", type=int, default=42, help="CMA-ES seed (42)")
+    f.add_argument("--device", help="cpu or cuda:N (default: the scene's)")
+    f.add_argument("--dtype", choices=("float32", "float64"), help="override [scene] dtype")
+    f.add_argument("--no-video", action="store_true", help="skip fit.mp4")
+    f.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+
+    o = _sub(
+        sub,
+        "observe",
+        "synthetic observations (tracks) of a simulated scene",
+        "pliant observe fit_rope --out obs.npz",
+        "pliant observe cloth --out obs.npz --tracks 60 --noise 0.001 --dropout 0.3 --seed 1",
+    )
+    o.add_argument("scene", help="a scene .toml file or a built-in scene name")
+    o.add_argument("--out", required=True, metavar="OBS.npz", help="observation file to write")
+    o.add_argument("--tracks", type=_positive_int, default=60, help="tracked particles K (60)")
+    o.add_argument("--noise", type=float, default=0.0, help="Gaussian noise σ per coordinate [m] (0)")
+    o.add_argument("--dropout", type=float, default=0.0, help="probability a track is hidden at a frame (0)")
+    o.add_argument("--seed", type=int, default=0, help="random seed (0)")
+    o.add_argument(
+        "--frames", type=_positive_int, help="observed frames after frame 0 (default: the scene's)"
+    )
+    o.add_argument("--cloud", action="store_true", help="also write every particle as a depth cloud")
+    o.add_argument("--unbound", action="store_true", help="omit `particle` (fit binds tracks by distance)")
+    o.add_argument("--device", help="cpu or cuda:N (default: the scene's)")
+    o.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+
+
+def _load(scene: str) -> Any:
+    from ..scene import load_scene
+
+    return load_scene(scene)
+
+
+def cmd_observe(args: argparse.Namespace) -> int:
+    """``pliant observe``: simulate and write an observation NPZ."""
+    from dataclasses import replace
+
+    from ..fit import observe
+    from ..scene import build_scene
+
+    cfg = _load(args.scene)
+    obs = observe(
+        build_scene(cfg, device=args.device),
+        frames=None if args.frames is None else args.frames + 1,
+        tracks=args.tracks,
+        noise=args.noise,
+        dropout=args.dropout,
+        seed=args.seed,
+        cloud=args.cloud,
+        progress=not args.quiet,
+    )
+    if args.unbound:
+        obs = replace(obs, particle=None)
+    path = obs.save(args.out)
+    seen = obs.visible.mean()
+    print(f"wrote {path}: {obs.frames} frames, {obs.tracks} tracks ({100 * seen:.0f}% visible)")
+    return 0
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    """``pliant fit``: both stages and the four outputs."""
+    from ..fit import FitError, fit
+    from ..io import Observations
+
+    if not 0.0 < args.train_fraction <= 1.0:
+        raise CliError(f"--train-fraction: expected a number in (0, 1], got {args.train_fraction}")
+    cfg = _load(args.scene)
+    obs = Observations.load(args.obs)
+    params = None
+    if args.params is not None:
+        params = (
+            [] if args.params.strip() == "none" else [p.strip() for p in args.params.split(",") if p.strip()]
+        )
+    n = args.iterations
+    out = Path(args.out)
+    try:
+        report = fit(
+            cfg,
+            obs,
+            out,
+            params=params,
+            per_element=args.per_element,
+            train_fraction=args.train_fraction,
+            generations=20 if n is None else n,
+            epochs=20 if n is None else n,
+            optimizer=args.optimizer,
+            horizon=None if args.horizon == 0 else args.horizon,
+            lr=args.lr,
+            seed=args.seed,
+            device=args.device,
+            dtype=args.dtype,
+            progress=not args.quiet,
+            video=not args.no_video,
+        )
+    except FitError as exc:
+        raise CliError(str(exc)) from None
+    except KeyboardInterrupt:
+        print(f"interrupted: the best parameters so far are in {out}", flush=True)
+        raise
+    for name, p in report["params"].items():
+        print(f"{name}: {p['value']:.6g} (nominal {p['nominal']:.6g})")
+    e, e0 = report["error"], report["error_nominal"]
+
+    def mm(v: float | None) -> str:
+        return "n/a" if v is None else f"{1e3 * v:.3g} mm"
+
+    print(
+        f"track error: train {mm(e['train'])}, test {mm(e['test'])} "
+        f"(nominal: {mm(e0['train'])}, {mm(e0['test'])})"
+    )
+    print(f"wrote {out / 'fitted.toml'}, fit.json, fit.png" + ("" if args.no_video else ", fit.mp4"))
+    print(f"fitted in {report['wall_time']:.1f} s")
+    return 0
+
+
+__all__ = ["add_parsers", "cmd_fit", "cmd_observe"]

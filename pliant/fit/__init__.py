@@ -1,0 +1,66 @@
+"""Fitting a simulation to observed motion (real-to-sim), the way PhysTwin builds digital twins.
+
+PhysTwin (Jiang et al., ``Jianghanxiao/PhysTwin``) fits a spring-mass twin to tracked points in two stages:
+CMA-ES over a few global and topology parameters (forward runs only), then Adam on per-spring log stiffness
+with gradients over one-frame horizons. pliant follows that method with its own code, on any scene file:
+
+- observations: :class:`pliant.io.Observations` (NPZ: ``t``, ``points``, ``visible``, ``particle``,
+  ``controls``, ``cloud``/``cloud_count``);
+- losses (Warp kernels, differentiable): smooth-L1 tracking, one-sided Chamfer, acceleration regulariser;
+- parameters: :data:`GLOBAL` (scene values, stage 1) and :data:`PER_ELEMENT` (log-scale factors on model or
+  constraint arrays, stage 2);
+- :func:`cmaes`, :func:`gradient_stage` and :func:`fit` (both stages and the outputs of ``pliant fit``);
+- :func:`observe`: synthetic observations from a simulation (``pliant observe``).
+
+Example::
+
+    cfg = pl.scene.load_scene("fit_rope")
+    obs = pl.io.Observations.load("obs.npz")
+    report = pl.fit.fit(cfg, obs, "out/fit", params=["stiffness", "damping"])
+"""
+
+from __future__ import annotations
+
+from ._cmaes import PENALTY, StageResult, cmaes, evaluate
+from ._gradient import gradient_stage
+from ._losses import acceleration_loss, chamfer_loss, track_errors, track_loss
+from ._observe import observe
+from ._params import (
+    DEFAULTS,
+    GLOBAL,
+    PER_ELEMENT,
+    Bound,
+    FitError,
+    GlobalParam,
+    apply_globals,
+    default_params,
+)
+from ._problem import Problem
+from ._run import PARAMS_FILE, fit, fitted_scene
+from ._toml import scene_toml
+
+__all__ = [
+    "DEFAULTS",
+    "GLOBAL",
+    "PARAMS_FILE",
+    "PENALTY",
+    "PER_ELEMENT",
+    "Bound",
+    "FitError",
+    "GlobalParam",
+    "Problem",
+    "StageResult",
+    "acceleration_loss",
+    "apply_globals",
+    "chamfer_loss",
+    "cmaes",
+    "default_params",
+    "evaluate",
+    "fit",
+    "fitted_scene",
+    "gradient_stage",
+    "observe",
+    "scene_toml",
+    "track_errors",
+    "track_loss",
+]

@@ -1,0 +1,254 @@
+"""Stage 2: gradient descent on per-element parameters (Adam by default, or L-BFGS-B from SciPy), with
+gradients from ``wp.Tape`` over short horizons, as PhysTwin's ``trainer_warp.py`` does.
+
+The horizon is one frame by default: the tape records one frame of substeps from the state carried forward,
+the loss compares that frame with the observations, ``tape.backward`` gives the gradient, the optimiser
+steps, and the next frame starts from the simulated end state (without gradient). ``horizon=None`` records
+the whole training rollout on one tape. Each per-element value is ``a = a₀ · exp(θ)``; θ is what is fitted,
+bounded to ``|θ| ≤ log(max_factor)``.
+
+A solver whose step is not tape-correct gives zero gradients; this stage refuses to go on when the
+gradient of a non-zero loss is exactly zero (a clear error, never a silent no-op).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+from ._cmaes import StageResult
+from ._losses import acceleration_loss, chamfer_loss, track_loss
+from ._params import FitError, per_element_arrays
+from ._problem import Problem
+
+
+class _Rollout:
+    """A scene built with gradients, its per-element arrays and the observation arrays on the device."""
+
+    def __init__(self, problem: Problem, values: dict[str, float], shared: bool = False) -> None:
+        self.problem = problem
+        self.scene = problem.build(values, requires_grad=True)
+        m = self.scene.model
+        self.arrays = per_element_arrays(self.scene, problem.per_element)
+        self.base = {k: a.numpy().astype(np.float64) for k, a in self.arrays.items()}
+        self.shared = shared
+        self.size = 1 if shared else next(iter(self.arrays.values())).shape[0]
+        o, d = problem.obs, m.device
+        self.particle = wp.array(o.particle.astype(np.int32), dtype=wp.int32, device=d)
+        self.points = [wp.array(np.nan_to_num(p), dtype=m.vec3, device=d) for p in o.points]
+        self.visible = [wp.array(v.astype(np.int32), dtype=wp.int32, device=d) for v in o.visible]
+        n_vis = o.visible[1 : problem.n_train].sum()
+        self.track_norm = 3.0 * max(int(n_vis), 1)
+        self.cloud = None
+        if o.cloud is not None:
+            self.cloud = [wp.array(c, dtype=m.vec3, device=d) for c in o.cloud]
+            self.count = [wp.array([int(c)], dtype=wp.int32, device=d) for c in o.cloud_count]
+            self.cloud_norm = max(int(o.cloud_count[1 : problem.n_train].sum()), 1)
+        self.control_fn = problem.control_fn(self.scene)
+
+    def set_theta(self, theta: np.ndarray) -> None:
+        for k, a in self.arrays.items():
+            a.assign(self.base[k] * np.exp(theta))
+
+    def values(self, theta: np.ndarray) -> dict[str, np.ndarray]:
+        return {k: self.base[k] * np.exp(theta) for k in self.arrays}
+
+    def grad_theta(self) -> np.ndarray:
+        """dL/dθ = Σ_arrays dL/da · a (chain rule through a = a₀ exp θ)."""
+        g = 0.0
+        for a in self.arrays.values():
+            g = g + a.grad.numpy().astype(np.float64) * a.numpy().astype(np.float64)
+        return np.atleast_1d(np.sum(g)) if self.shared else g
+
+    def run(self, q: wp.array, qd: wp.array, f0: int, frames: int, hist: list) -> tuple[wp.array, Any]:
+        """Simulate frames f0+1 … f0+frames from (q, qd) on the current tape; returns (loss, end state)."""
+        p, scene, m = self.problem, self.scene, self.scene.model
+        h = scene.frame_dt / scene.substeps
+        control = m.control()
+        loss = wp.zeros(1, dtype=m.scalar, device=m.device, requires_grad=True)
+        s = m.state()
+        s.particle_q, s.particle_qd = q, qd
+        for f in range(f0, f0 + frames):
+            if self.control_fn is not None:
+                self.control_fn(f * scene.frame_dt, control)
+            for _ in range(scene.substeps):
+                s_out = m.state()
+                scene.solver.step(s, s_out, control, h)
+                s = s_out
+            g = f + 1
+            if p.weights["track"]:
+                track_loss(
+                    s.particle_q,
+                    self.particle,
+                    self.points[g],
+                    self.visible[g],
+                    loss,
+                    beta=p.beta,
+                    weight=p.weights["track"],
+                    normaliser=self.track_norm,
+                )
+            if self.cloud is not None and p.weights["chamfer"]:
+                chamfer_loss(
+                    s.particle_q,
+                    self.cloud[g],
+                    self.count[g],
+                    loss,
+                    weight=p.weights["chamfer"],
+                    normaliser=self.cloud_norm,
+                )
+            hist.append(s.particle_q)
+            if p.weights["acceleration"] and len(hist) >= 4:
+                acceleration_loss(
+                    *hist[-4:],
+                    loss,
+                    beta=p.beta,
+                    weight=p.weights["acceleration"],
+                    normaliser=3.0 * m.particle_count * max(p.n_train - 3, 1),
+                )
+        return loss, s
+
+
+def _detach(a: wp.array) -> wp.array:
+    return wp.clone(a, requires_grad=True)
+
+
+def gradient_stage(
+    problem: Problem,
+    values: dict[str, float],
+    *,
+    iterations: int = 20,
+    lr: float = 0.01,
+    horizon: int | None = 1,
+    optimizer: str = "adam",
+    max_factor: float = 100.0,
+    shared: bool = False,
+    callback: Callable[[int, float], None] | None = None,
+) -> StageResult:
+    """Fit ``problem.per_element`` (log-scale factors θ per element) with gradients from the tape.
+
+    Args:
+        problem: The fitting problem (``per_element`` set).
+        values: Global parameter values to build the scene with (stage 1's result).
+        iterations: Epochs: passes over the training frames (Adam), or L-BFGS-B iterations.
+        lr: Adam's initial step size in θ (log-scale units; 0.01 ≈ 1 % per step), decaying to lr / 10.
+        horizon: Frames per tape (1: PhysTwin's one-frame horizon, the state carried forward); None: the
+            whole training rollout on one tape (needed by L-BFGS).
+        optimizer: ``"adam"`` or ``"lbfgs"`` (SciPy L-BFGS-B on θ, whole-rollout horizon).
+        max_factor: Bound of each factor: a₀ / max_factor ≤ a ≤ a₀ · max_factor.
+        shared: One factor for all elements (a global scale fitted with gradients) instead of one each.
+        callback: ``callback(iteration, loss)`` after each iteration.
+
+    Raises:
+        FitError: no per-element parameter, an unknown optimiser, or a solver that gives no gradient.
+    """
+    if problem.per_element is None:
+        raise FitError(
+            "the gradient stage needs a per-element parameter (--per-element stiffness, E, compliance)"
+        )
+    if optimizer not in ("adam", "lbfgs"):
+        raise FitError(f"optimizer: expected 'adam' or 'lbfgs', got {optimizer!r}")
+    t0 = time.perf_counter()
+    r = _Rollout(problem, values, shared)
+    m = r.scene.model
+    n_frames = problem.n_train - 1
+    bound = math.log(max_factor)
+    theta = np.zeros(r.size)
+    result = StageResult(values=dict(values), loss=float("inf"), per_element=r.values(theta))
+    checked = [False]
+
+    def rollout_grad(th: np.ndarray, f0: int, frames: int, q: wp.array, qd: wp.array, hist: list):
+        r.set_theta(th)
+        tape = wp.Tape()
+        with tape:
+            loss, s = r.run(q, qd, f0, frames, hist)
+        tape.backward(loss)
+        value = float(loss.numpy()[0])
+        g = r.grad_theta()
+        if not np.all(np.isfinite(g)) or not np.isfinite(value):
+            raise FitError(
+                f"the gradient stage got a non-finite loss or gradient at frame {f0}; lower --lr or add "
+                "substeps"
+            )
+        if value > 0 and not checked[0]:
+            if not np.any(g != 0.0):
+                raise FitError(
+                    f"the {type(r.scene.solver).__name__} step of this scene gives exactly zero gradient for "
+                    f"{problem.per_element!r}: its step is not tape-differentiable in this version, or the "
+                    "parameter does not move the tracked points; fit global parameters only (no "
+                    "--per-element), or use a differentiable solver (XPBD)"
+                )
+            checked[0] = True
+        end = (_detach(s.particle_q), _detach(s.particle_qd))
+        tape.zero()
+        return value, g, end
+
+    def start_state():
+        s = m.state()
+        return _detach(s.particle_q), _detach(s.particle_qd)
+
+    try:
+        if optimizer == "lbfgs":
+            from scipy.optimize import minimize
+
+            def fun(th: np.ndarray) -> tuple[float, np.ndarray]:
+                q, qd = start_state()
+                value, g, _ = rollout_grad(th, 0, n_frames, q, qd, [q])
+                if value < result.loss:
+                    result.loss, result.per_element = value, r.values(th)
+                result.evaluations += 1
+                return value, g
+
+            def cb(th: np.ndarray) -> None:
+                result.history.append(result.loss)
+                if callback is not None:
+                    callback(len(result.history), result.loss)
+
+            minimize(
+                fun,
+                theta,
+                jac=True,
+                method="L-BFGS-B",
+                bounds=[(-bound, bound)] * r.size,
+                options={"maxiter": iterations},
+                callback=cb,
+            )
+        else:
+            h = n_frames if horizon is None else max(1, int(horizon))
+            mom, var = np.zeros(r.size), np.zeros(r.size)
+            b1, b2, step = 0.9, 0.99, 0
+            for it in range(iterations):
+                # Step size decays geometrically from lr to lr / 10 over the run, so that Adam settles.
+                lr_it = lr * 0.1 ** (it / max(iterations - 1, 1))
+                q, qd = start_state()
+                hist: list = [q]
+                epoch = 0.0
+                for f0 in range(0, n_frames, h):
+                    frames = min(h, n_frames - f0)
+                    value, g, (q, qd) = rollout_grad(theta, f0, frames, q, qd, hist)
+                    hist[-1] = q
+                    hist[:] = hist[-3:]
+                    epoch += value
+                    result.evaluations += 1
+                    step += 1
+                    mom = b1 * mom + (1 - b1) * g
+                    var = b2 * var + (1 - b2) * g * g
+                    mhat, vhat = mom / (1 - b1**step), var / (1 - b2**step)
+                    theta = np.clip(theta - lr_it * mhat / (np.sqrt(vhat) + 1e-12), -bound, bound)
+                # θ moved during the epoch (one step per horizon): its loss is the sum over the frames as
+                # they were simulated; the result is the θ after the epoch.
+                result.loss, result.per_element = epoch, r.values(theta)
+                result.history.append(epoch)
+                if callback is not None:
+                    callback(it + 1, epoch)
+    except KeyboardInterrupt:
+        result.interrupted = True
+    result.wall_time = time.perf_counter() - t0
+    return result
+
+
+__all__ = ["gradient_stage"]

@@ -1,0 +1,310 @@
+"""Fitted parameters: global ones (scene-file values, changed by rebuilding the scene) and per-element ones
+(model arrays changed in place, with gradients from the tape).
+
+Global parameters (``GLOBAL``) live in the scene file; the CMA-ES stage searches them in a box normalised to
+[0, 1]ᵈ, log-scaled for positive magnitudes. Topology parameters (spring radius and neighbour count of
+point-cloud objects) rebuild the springs, so only the derivative-free stage may change them.
+Per-element parameters (``PER_ELEMENT``) are log-scale factors θ on model arrays, ``a = a₀ · exp(θ)``:
+``stiffness`` (per spring k) and ``E`` (per tet, μ and λ together: ν unchanged).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+
+class FitError(ValueError):
+    """A fitting set-up that cannot work (unknown parameter, nothing to fit, no gradient); one line, with the
+    fix."""
+
+
+def _materials(cfg: Any, models: tuple[str, ...]) -> list[Any]:
+    return [o.material for o in cfg.objects if o.model in models]
+
+
+def _mat_field(field: str, models: tuple[str, ...]) -> Callable[[Any], list[tuple[Any, str]]]:
+    def where(cfg: Any) -> list[tuple[Any, str]]:
+        return [(m, field) for m in _materials(cfg, models) if getattr(m, field) is not None]
+
+    return where
+
+
+def _section_field(section: str, field: str, default: float | None = None) -> Callable[[Any], list]:
+    def where(cfg: Any) -> list[tuple[Any, str]]:
+        sec = getattr(cfg, section)
+        if sec is None or (getattr(sec, "enabled", True) is False):
+            return []
+        if getattr(sec, field) is None:
+            if default is None:
+                return []
+            setattr(sec, field, default)  # an unset optional value: start the search from its default
+        return [(sec, field)]
+
+    return where
+
+
+def _compliance(cfg: Any) -> list[tuple[Any, str]]:
+    if cfg.solver_kind() != "xpbd":
+        return []
+    if cfg.solver.compliance is None:
+        cfg.solver.compliance = next(
+            (o.material.compliance for o in cfg.objects if o.material.compliance is not None), 1e-6
+        )
+    return [(cfg.solver, "compliance")]
+
+
+def _points_field(field: str, default: Callable[[Any], float]) -> Callable[[Any], list]:
+    def where(cfg: Any) -> list[tuple[Any, str]]:
+        out = []
+        for o in cfg.objects:
+            if o.kind == "points":
+                if getattr(o, field) is None:
+                    setattr(o, field, default(o))
+                out.append((o, field))
+        return out
+
+    return where
+
+
+@dataclass(frozen=True)
+class GlobalParam:
+    """A global parameter: where it lives in a scene, its scale and bounds.
+
+    Attributes:
+        name: The ``--params`` name.
+        doc: What it is, with units.
+        where: ``where(cfg) -> [(section, field)]`` the scene values it sets (all set to one value); may fill
+            in an unset optional field with its default.
+        log: Searched in log scale (positive magnitudes).
+        bounds: ``bounds(nominal) -> (lo, hi)``.
+        topology: Changes the springs (derivative-free stage only).
+        integer: Rounded to a whole number.
+    """
+
+    name: str
+    doc: str
+    where: Callable[[Any], list[tuple[Any, str]]]
+    log: bool
+    bounds: Callable[[float], tuple[float, float]]
+    topology: bool = False
+    integer: bool = False
+
+    def to_unit(self, value: float, lo: float, hi: float) -> float:
+        """Value → [0, 1] (log scale for ``log``)."""
+        if self.log:
+            return (math.log(value) - math.log(lo)) / (math.log(hi) - math.log(lo))
+        return (value - lo) / (hi - lo)
+
+    def from_unit(self, u: float, lo: float, hi: float) -> float:
+        """[0, 1] → value."""
+        u = min(max(float(u), 0.0), 1.0)
+        v = math.exp(math.log(lo) + u * (math.log(hi) - math.log(lo))) if self.log else lo + u * (hi - lo)
+        return float(round(v)) if self.integer else v
+
+
+def _around(factor: float, floor: float) -> Callable[[float], tuple[float, float]]:
+    return lambda v: (max(v, floor) / factor, max(v, floor) * factor)
+
+
+GLOBAL: dict[str, GlobalParam] = {
+    p.name: p
+    for p in [
+        GlobalParam(
+            "stiffness",
+            "spring constant k of every mass-spring object [N/m]",
+            _mat_field("stiffness", ("mass_spring",)),
+            True,
+            _around(10.0, 1e-6),
+        ),
+        GlobalParam(
+            "damping",
+            "dashpot γ along each spring of every mass-spring object [N s/m]",
+            _mat_field("damping", ("mass_spring",)),
+            True,
+            _around(10.0, 1e-5),
+        ),
+        GlobalParam(
+            "damping_rate",
+            "velocity damping rate of the solver [1/s]",
+            _section_field("solver", "damping_rate", 0.0),
+            True,
+            lambda v: (v / 10.0, v * 10.0) if v > 0 else (1e-3, 20.0),
+        ),
+        GlobalParam(
+            "ground_friction",
+            "Coulomb friction μ of the ground",
+            _section_field("ground", "friction"),
+            False,
+            lambda v: (0.0, 2.0),
+        ),
+        GlobalParam(
+            "ground_restitution",
+            "restitution e of the ground",
+            _section_field("ground", "restitution"),
+            False,
+            lambda v: (0.0, 1.0),
+        ),
+        GlobalParam(
+            "E",
+            "Young's modulus of every FEM object [Pa]",
+            _mat_field("E", ("fem",)),
+            True,
+            _around(10.0, 1.0),
+        ),
+        GlobalParam(
+            "nu",
+            "Poisson ratio of every FEM object",
+            _mat_field("nu", ("fem",)),
+            False,
+            lambda v: (0.0, 0.49),
+        ),
+        GlobalParam("compliance", "XPBD compliance α [m/N]", _compliance, True, _around(100.0, 1e-10)),
+        GlobalParam(
+            "radius",
+            "spring radius of point-cloud objects [m] (topology)",
+            _points_field("radius", lambda o: 1.8 * o.spacing),
+            False,
+            lambda v: (0.5 * v, 2.0 * v),
+            topology=True,
+        ),
+        GlobalParam(
+            "neighbours",
+            "most springs per point of point-cloud objects (topology)",
+            _points_field("max_neighbors", lambda o: o.max_neighbors),
+            False,
+            lambda v: (1.0, max(2.0 * v, 2.0)),
+            topology=True,
+            integer=True,
+        ),
+    ]
+}
+
+
+def _model_arrays(*names: str, what: str) -> Callable[[Any], dict[str, Any]]:
+    def arrays(scene: Any) -> dict[str, Any]:
+        if getattr(scene.model, names[0]).shape[0] == 0:
+            raise FitError(f"--per-element: this scene's model has no {what}")
+        return {f"model.{n}": getattr(scene.model, n) for n in names}
+
+    return arrays
+
+
+def _compliance_arrays(scene: Any) -> dict[str, Any]:
+    out = {}
+    for i, c in enumerate(getattr(scene.solver, "constraints", [])):
+        a = getattr(c, "compliance_array", None)
+        if a is not None and a.shape[0] and type(c).__name__ in ("Distance", "DihedralBending", "Volume"):
+            if not np.all(a.numpy() > 0):
+                raise FitError(
+                    f"--per-element compliance: {type(c).__name__} constraints are rigid (α = 0), which a "
+                    "log-scale factor cannot change; give the scene a compliance > 0"
+                )
+            out[f"constraints.{i}.compliance_array"] = a
+    if not out:
+        raise FitError(
+            "--per-element compliance: the scene's solver has no XPBD constraints with a compliance"
+        )
+    return out
+
+
+#: Per-element parameters: name → (the arrays scaled together by exp(θ) per element, what it is).
+PER_ELEMENT: dict[str, tuple[Callable[[Any], dict[str, Any]], str]] = {
+    "stiffness": (_model_arrays("spring_stiffness", what="springs"), "log-scale factor of each spring's k"),
+    "E": (
+        _model_arrays("tet_mu", "tet_lam", what="tetrahedra"),
+        "log-scale factor of each tet's E (μ and λ together: ν unchanged)",
+    ),
+    "compliance": (_compliance_arrays, "log-scale factor of each XPBD constraint's compliance α"),
+}
+
+#: Default parameters per object model (issue 13: the scene model's material).
+DEFAULTS = {"mass_spring": ("stiffness", "damping"), "fem": ("E", "nu"), "pbd": ("compliance",)}
+
+
+def default_params(cfg: Any) -> list[str]:
+    """The material parameters of the scene's models (mass-spring: k, γ; FEM: E, ν; XPBD: compliance)."""
+    out: list[str] = []
+    for o in cfg.objects:
+        for name in DEFAULTS.get(o.model, ()):
+            if name not in out and GLOBAL[name].where(cfg):
+                out.append(name)
+    return out
+
+
+@dataclass
+class Bound:
+    """A global parameter resolved for one scene: its nominal value and bounds."""
+
+    param: GlobalParam
+    nominal: float
+    lo: float
+    hi: float
+
+    @property
+    def name(self) -> str:
+        return self.param.name
+
+
+def resolve_globals(cfg: Any, names: list[str]) -> list[Bound]:
+    """Check ``names`` against the scene and return their nominal values and bounds.
+
+    Raises:
+        FitError: an unknown name, or one the scene has no value for (with the names that exist).
+    """
+    out = []
+    for name in names:
+        p = GLOBAL.get(name)
+        if p is None:
+            raise FitError(
+                f"--params: unknown parameter {name!r}; the global parameters are {', '.join(GLOBAL)}"
+            )
+        where = p.where(cfg)
+        if not where:
+            usable = [n for n, q in GLOBAL.items() if q.where(cfg.model_copy(deep=True))]
+            raise FitError(
+                f"--params: {name!r} ({p.doc}) does not exist in this scene; it has "
+                f"{', '.join(usable) or 'none'}"
+            )
+        nominal = float(getattr(*where[0]))
+        lo, hi = p.bounds(nominal)
+        if p.log and nominal <= 0:
+            nominal = math.sqrt(lo * hi)
+        out.append(Bound(p, min(max(nominal, lo), hi), lo, hi))
+    return out
+
+
+def apply_globals(cfg: Any, values: dict[str, float]) -> Any:
+    """A deep copy of the scene config with the global parameters set (``values``: name → value)."""
+    cfg = cfg.model_copy(deep=True)
+    for name, v in values.items():
+        p = GLOBAL[name]
+        for section, field in p.where(cfg):
+            setattr(section, field, int(v) if p.integer else float(v))
+    return cfg
+
+
+def per_element_arrays(scene: Any, name: str) -> dict[str, Any]:
+    """The arrays of per-element parameter ``name`` in a built scene (``model.<array>`` /
+    ``constraints.<i>.<array>`` → Warp array); raises FitError when unknown or absent."""
+    if name not in PER_ELEMENT:
+        raise FitError(f"--per-element: unknown parameter {name!r}; choose one of {', '.join(PER_ELEMENT)}")
+    return PER_ELEMENT[name][0](scene)
+
+
+__all__ = [
+    "DEFAULTS",
+    "GLOBAL",
+    "PER_ELEMENT",
+    "Bound",
+    "FitError",
+    "GlobalParam",
+    "apply_globals",
+    "default_params",
+    "per_element_arrays",
+    "resolve_globals",
+]

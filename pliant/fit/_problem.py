@@ -1,0 +1,187 @@
+"""A fitting problem: a scene, its observations, the parameters to fit and the train / test split."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+from ..io import ObservationError, Observations
+from ._losses import chamfer_loss, track_errors, track_loss
+from ._params import Bound, FitError, apply_globals, default_params, per_element_arrays, resolve_globals
+
+
+class Problem:
+    """Observations of a scene, the parameters to fit and the loss.
+
+    Frame ``f`` of the observations is compared with the scene's frame ``f`` (t = f · frame_dt); frames
+    ``1 … n_train − 1`` train (the first ``train_fraction`` of them), the rest are the held-out test.
+
+    Args:
+        cfg: The scene (``pl.scene.load_scene``); not modified.
+        obs: The observations (``pl.io.Observations.load``).
+        params: Global parameter names (``pl.fit.GLOBAL``); None: the scene model's material.
+        per_element: A per-element parameter name (``pl.fit.PER_ELEMENT``) for the gradient stage, or None.
+        train_fraction: Fraction of the frames used for training (PhysTwin: 0.7).
+        device: Warp device (None: the scene's).
+        dtype: ``"float32"`` / ``"float64"`` (None: the scene's).
+        track_weight: Weight of the smooth-L1 tracking term.
+        chamfer_weight: Weight of the one-sided Chamfer term (used when the observations have clouds).
+        acceleration_weight: Weight of the acceleration regulariser (gradient stage; PhysTwin uses 0.01 on
+            real data; it is not zero at the truth, so it biases a fit of clean data: default 0).
+        beta: smooth-L1 threshold [m].
+
+    Raises:
+        FitError: unknown parameters, nothing to fit, too few frames.
+        ObservationError: times that do not match the scene's frames, tracks bound beyond the particles.
+    """
+
+    def __init__(
+        self,
+        cfg: Any,
+        obs: Observations,
+        *,
+        params: list[str] | None = None,
+        per_element: str | None = None,
+        train_fraction: float = 0.7,
+        device: str | None = None,
+        dtype: str | None = None,
+        track_weight: float = 1.0,
+        chamfer_weight: float = 1.0,
+        acceleration_weight: float = 0.0,
+        beta: float = 0.01,
+    ) -> None:
+        self.cfg = cfg.model_copy(deep=True)
+        names = default_params(self.cfg) if params is None else list(params)
+        self.globals: list[Bound] = resolve_globals(self.cfg, names)
+        self.per_element = per_element
+        if not self.globals and per_element is None:
+            raise FitError(
+                "nothing to fit: the scene has none of the default material parameters; name some with "
+                "--params (e.g. stiffness, damping_rate) or --per-element"
+            )
+        if not 0.0 < train_fraction <= 1.0:
+            raise FitError(f"--train-fraction: expected a number in (0, 1], got {train_fraction}")
+        self.device, self.dtype = device, dtype
+        self.weights = {"track": track_weight, "chamfer": chamfer_weight, "acceleration": acceleration_weight}
+        self.beta = beta
+        scene = self.build(self.nominal)
+        obs.check_times(scene.frame_dt, f"the scene {cfg.source}")
+        self.frame_dt, self.frames = scene.frame_dt, obs.frames
+        self.n_train = min(max(2, int(round(train_fraction * obs.frames))), obs.frames)
+        self._check_controls(scene, obs)
+        self.obs = obs
+        x = self.simulate(scene, min(obs.frames, 8))  # bind at each track's first visible frame
+        self.obs = obs.bind(x)
+        self.x0 = x[0]
+        if per_element is not None:
+            per_element_arrays(scene, per_element)  # fail early on a name the scene does not have
+
+    # ------------------------------------------------------------------ scenes
+    @property
+    def nominal(self) -> dict[str, float]:
+        """The scene's own values of the global parameters."""
+        return {b.name: b.nominal for b in self.globals}
+
+    def config(self, values: dict[str, float]) -> Any:
+        """The scene config with global parameter ``values`` (name → value) set."""
+        return apply_globals(self.cfg, values)
+
+    def build(self, values: dict[str, float], requires_grad: bool = False) -> Any:
+        """Build the scene with global parameter ``values``."""
+        from ..scene import build_scene
+
+        return build_scene(
+            self.config(values), device=self.device, dtype=self.dtype, requires_grad=requires_grad
+        )
+
+    def _check_controls(self, scene: Any, obs: Observations) -> None:
+        if obs.controls is None:
+            return
+        n = sum(cp.point_count for cp in scene.control_points)
+        if n != obs.controls.shape[1]:
+            raise ObservationError(
+                f"{obs.source}: controls: {obs.controls.shape[1]} control points but the scene's spring "
+                f'handles have {n}; give the scene one [[handles]] kind = "points" with as many points'
+            )
+
+    def control_fn(self, scene: Any) -> Any:
+        """f(t, control) for the Simulator: the observed control points when there are any, else the
+        scene's."""
+        if self.obs.controls is None:
+            return scene.control_fn
+        ctrl, dt = self.obs.controls, self.frame_dt
+
+        def control_fn(t: float, control: Any) -> None:
+            f = min(int(round(t / dt)) + (1 if control is not None else 0), ctrl.shape[0] - 1)
+            vel = (ctrl[f] - ctrl[max(f - 1, 0)]) / dt
+            lo = 0
+            for cp in scene.control_points:
+                cp.set_positions(ctrl[f, lo : lo + cp.point_count], vel[lo : lo + cp.point_count])
+                lo += cp.point_count
+
+        return control_fn
+
+    def simulate(self, scene: Any, frames: int) -> np.ndarray:
+        """Positions [frames, N, 3] [m] of frames 0 … frames − 1 (raises DivergenceError on a blow-up)."""
+        from ..sim import Simulator
+
+        fn = self.control_fn(scene)
+        if fn is not None:
+            fn(0.0, None)
+        kw = {**scene.sim_kwargs, "control_fn": fn} if fn is not None else scene.sim_kwargs
+        sim = Simulator(scene.model, scene.solver, **kw)
+        return sim.run(frames - 1, progress=False).x
+
+    # ------------------------------------------------------------------ losses and metrics
+    def loss(self, x: np.ndarray, lo: int = 1, hi: int | None = None) -> float:
+        """Tracking (+ Chamfer) loss of simulated positions ``x`` [T, N, 3] on frames ``lo … hi − 1``."""
+        hi = self.n_train if hi is None else hi
+        if hi <= lo:
+            return 0.0
+        o, dev = self.obs, self.device or "cpu"
+        dt = wp.float64
+        vec = wp.vec3d
+        xs = wp.array(np.ascontiguousarray(x[lo:hi]).reshape(-1, 3), dtype=vec, device=dev)
+        out = wp.zeros(1, dtype=dt, device=dev)
+        if self.weights["track"]:
+            pts = np.nan_to_num(o.points[lo:hi]).reshape(-1, 3)
+            track_loss(
+                xs,
+                wp.array(o.particle.astype(np.int32), dtype=wp.int32, device=dev),
+                wp.array(pts, dtype=vec, device=dev),
+                wp.array(o.visible[lo:hi].reshape(-1).astype(np.int32), dtype=wp.int32, device=dev),
+                out,
+                frames=hi - lo,
+                beta=self.beta,
+                weight=self.weights["track"],
+            )
+        if o.cloud is not None and self.weights["chamfer"]:
+            chamfer_loss(
+                xs,
+                wp.array(o.cloud[lo:hi].reshape(-1, 3), dtype=vec, device=dev),
+                wp.array(o.cloud_count[lo:hi].astype(np.int32), dtype=wp.int32, device=dev),
+                out,
+                frames=hi - lo,
+                weight=self.weights["chamfer"],
+            )
+        return float(out.numpy()[0])
+
+    def errors(self, x: np.ndarray) -> np.ndarray:
+        """Per-frame mean track error [m] of positions ``x`` [T, N, 3] (NaN where no track is visible)."""
+        o = self.obs
+        t = min(x.shape[0], o.frames)
+        return track_errors(x[:t], o.particle, o.points[:t], o.visible[:t])
+
+    def split_errors(self, x: np.ndarray) -> dict[str, float]:
+        """Mean track error [m] over the train frames (1 … n_train − 1) and the test frames (the rest)."""
+        e = self.errors(x)
+        train, test = e[1 : self.n_train], e[self.n_train :]
+        return {
+            "train": float(np.nanmean(train)) if np.isfinite(train).any() else float("nan"),
+            "test": float(np.nanmean(test)) if np.isfinite(test).any() else float("nan"),
+        }
+
+
+__all__ = ["Problem"]

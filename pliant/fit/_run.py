@@ -1,0 +1,301 @@
+"""The whole fit (``pl.fit.fit``, ``pliant fit``): stage 1 CMA-ES on global parameters, stage 2 gradients on
+per-element parameters, then the outputs: ``fitted.toml`` (+ ``fitted_params.npz``), ``fit.json``,
+``fit.png`` and ``fit.mp4``."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..io import Observations, atomic_savez
+from ._cmaes import StageResult, cmaes
+from ._gradient import gradient_stage
+from ._problem import Problem
+from ._toml import scene_toml
+
+PARAMS_FILE = "fitted_params.npz"
+
+
+def _bar(progress: bool, total: int, desc: str) -> Any:
+    if not progress:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit="it", leave=False, dynamic_ncols=True)
+
+
+def _tick(bar: Any) -> Any:
+    def cb(it: int, loss: float) -> None:
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix_str(f"loss {loss:.4g}")
+
+    return cb
+
+
+def fitted_scene(problem: Problem, values: dict[str, float], per_element: dict[str, np.ndarray]) -> Any:
+    """The scene built with fitted global values and per-element arrays."""
+    scene = problem.build(values)
+    for key, a in per_element.items():
+        parts = key.split(".")
+        target = getattr(scene.model, parts[1]) if parts[0] == "model" else None
+        if parts[0] == "constraints":
+            target = getattr(scene.solver.constraints[int(parts[1])], parts[2])
+        target.assign(a)
+    return scene
+
+
+def fit(
+    cfg: Any,
+    obs: Observations,
+    out: str | Path,
+    *,
+    params: list[str] | None = None,
+    per_element: str | None = None,
+    train_fraction: float = 0.7,
+    generations: int = 20,
+    epochs: int = 20,
+    optimizer: str = "adam",
+    horizon: int | None = 1,
+    lr: float = 0.01,
+    seed: int = 42,
+    device: str | None = None,
+    dtype: str | None = None,
+    progress: bool = True,
+    video: bool = True,
+) -> dict[str, Any]:
+    """Fit a scene to observations and write the outputs into ``out``.
+
+    Stage 1 (CMA-ES, forward runs only) fits the global parameters ``params`` (default: the scene model's
+    material); stage 2 (Adam or L-BFGS on tape gradients) fits the per-element parameter ``per_element``
+    when one is named (its values are kept only if they lower the open-loop training loss). Both train on
+    the first ``train_fraction`` of the frames; the rest is the test. A Ctrl-C during a stage keeps the
+    best values found so far, writes the outputs and re-raises.
+
+    Args:
+        cfg: The scene (``pl.scene.load_scene``).
+        obs: The observations (``pl.io.Observations.load``).
+        out: Output folder (created).
+        params: Global parameter names (``pl.fit.GLOBAL``); None: the material; ``[]``: none.
+        per_element: Per-element parameter (``"stiffness"``, ``"E"``, ``"compliance"``) or None.
+        train_fraction: Fraction of frames to train on.
+        generations: CMA-ES generations.
+        epochs: Gradient-stage iterations (passes over the training frames).
+        optimizer: ``"adam"`` or ``"lbfgs"``.
+        horizon: Frames per tape (1: PhysTwin's default), None: the whole training rollout.
+        lr: Adam step size (log-scale units; one step per frame with the default horizon).
+        seed: CMA-ES seed.
+        device: Warp device (None: the scene's).
+        dtype: ``"float32"`` / ``"float64"`` (None: the scene's).
+        progress: Show progress bars.
+        video: Write ``fit.mp4``.
+
+    Returns:
+        The contents of ``fit.json`` (also written to ``out``).
+    """
+    t0 = time.perf_counter()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    problem = Problem(
+        cfg,
+        obs,
+        params=params,
+        per_element=per_element,
+        train_fraction=train_fraction,
+        device=device,
+        dtype=dtype,
+    )
+    stages: dict[str, StageResult] = {}
+    values, arrays = problem.nominal, {}
+    interrupted = False
+    if problem.globals and generations > 0:
+        bar = _bar(progress, generations, "fit: CMA-ES")
+        try:
+            stages["cmaes"] = cmaes(problem, generations=generations, seed=seed, callback=_tick(bar))
+        finally:
+            if bar is not None:
+                bar.close()
+        values = stages["cmaes"].values
+        interrupted = stages["cmaes"].interrupted
+    if per_element is not None and epochs > 0 and not interrupted:
+        bar = _bar(progress, epochs, f"fit: {optimizer} ({per_element})")
+        try:
+            stages["gradient"] = gradient_stage(
+                problem,
+                values,
+                iterations=epochs,
+                lr=lr,
+                horizon=horizon,
+                optimizer=optimizer,
+                callback=_tick(bar),
+            )
+        finally:
+            if bar is not None:
+                bar.close()
+        arrays = stages["gradient"].per_element
+        interrupted = stages["gradient"].interrupted
+        # The one-frame-horizon losses are not the open-loop rollout's: keep the per-element values only if
+        # the whole training rollout improved on the global stage's.
+        before = problem.loss(problem.simulate(problem.build(values), problem.n_train))
+        after = problem.loss(problem.simulate(fitted_scene(problem, values, arrays), problem.n_train))
+        stages["gradient"].loss = after
+        if not after < before:
+            stages["gradient"].kept = False
+            arrays = {}
+    report = write_outputs(problem, out, values, arrays, stages, video=video, progress=progress)
+    report["wall_time"] = time.perf_counter() - t0
+    report["interrupted"] = interrupted
+    (out / "fit.json").write_text(json.dumps(report, indent=2, default=_json_default) + "\n")
+    if interrupted:
+        raise KeyboardInterrupt
+    return report
+
+
+def _json_default(v: Any) -> Any:
+    if isinstance(v, (np.floating, np.integer)):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    raise TypeError(type(v).__name__)
+
+
+def _finite(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None
+
+
+def write_outputs(
+    problem: Problem,
+    out: Path,
+    values: dict[str, float],
+    per_element: dict[str, np.ndarray],
+    stages: dict[str, StageResult],
+    *,
+    video: bool = True,
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Write ``fitted.toml`` (+ ``fitted_params.npz``), ``fit.png`` and ``fit.mp4``; returns fit.json's
+    data."""
+    cfg = problem.config(values)
+    if per_element:
+        atomic_savez(out / PARAMS_FILE, **per_element)
+        cfg.scene.parameters = PARAMS_FILE
+    elif cfg.scene.parameters is not None:
+        cfg.scene.parameters = str((Path(cfg.base_dir) / cfg.scene.parameters).resolve())
+    scene_toml(cfg, out / "fitted.toml", comment=f"Fitted by `pliant fit` from {problem.cfg.source}")
+    x_nom = problem.simulate(problem.build(problem.nominal), problem.frames)
+    scene = fitted_scene(problem, values, per_element)
+    x = problem.simulate(scene, problem.frames)
+    err, err_nom = problem.errors(x), problem.errors(x_nom)
+    report: dict[str, Any] = {
+        "scene": problem.cfg.source,
+        "observations": problem.obs.source,
+        "frames": problem.frames,
+        "train_frames": problem.n_train,
+        "params": {
+            b.name: {
+                "value": values[b.name],
+                "nominal": b.nominal,
+                "bounds": [b.lo, b.hi],
+                "log": b.param.log,
+            }
+            for b in problem.globals
+        },
+        "per_element": {
+            k: {
+                "file": PARAMS_FILE,
+                "count": int(a.size),
+                "min": float(a.min()),
+                "median": float(np.median(a)),
+                "max": float(a.max()),
+            }
+            for k, a in per_element.items()
+        },
+        "loss_history": {k: s.history for k, s in stages.items()},
+        "gradient_stage_kept": stages["gradient"].kept if "gradient" in stages else None,
+        "stage_wall_time": {k: s.wall_time for k, s in stages.items()},
+        "evaluations": {k: s.evaluations for k, s in stages.items()},
+        "error": {k: _finite(v) for k, v in problem.split_errors(x).items()},
+        "error_nominal": {k: _finite(v) for k, v in problem.split_errors(x_nom).items()},
+        "error_per_frame": [_finite(v) for v in err],
+        "error_unit": "m (mean distance between visible tracks and their particles)",
+    }
+    _plot(out / "fit.png", stages, err, err_nom, problem.n_train, problem.frame_dt)
+    if video:
+        _video(out / "fit.mp4", scene, x, problem, progress)
+    return report
+
+
+def _plot(
+    path: Path, stages: dict[str, StageResult], err: np.ndarray, err_nom: np.ndarray, n_train: int, dt: float
+):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.8))
+    offset = 0
+    for name, s in stages.items():
+        if s.history:
+            it = np.arange(1, len(s.history) + 1) + offset
+            a.plot(it, s.history, marker=".", label=name)
+            offset += len(s.history)
+    a.set_yscale("log")
+    a.set_xlabel("iteration (CMA-ES generation, then gradient epoch)")
+    a.set_ylabel("training loss")
+    a.set_title("loss")
+    if stages:
+        a.legend()
+    t = np.arange(len(err)) * dt
+    b.plot(t[:n_train], 1e3 * err[:n_train], color="C0", label="fitted (train)")
+    b.plot(t[n_train - 1 :], 1e3 * err[n_train - 1 :], color="C3", label="fitted (test)")
+    b.plot(t, 1e3 * err_nom, color="0.6", ls="--", label="nominal")
+    b.axvline((n_train - 1) * dt, color="k", lw=0.8)
+    b.set_xlabel("time [s]")
+    b.set_ylabel("track error [mm]")
+    b.set_title("per-frame error (train | test)")
+    b.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def _video(path: Path, scene: Any, x: np.ndarray, problem: Problem, progress: bool) -> None:
+    """The fitted motion (orange particles) with observed tracks drawn over it: visible ones green, hidden
+    ones red at the position of the particle they are bound to."""
+    from ..render import render_video
+
+    o = problem.obs
+    t = min(x.shape[0], o.frames)
+    x = x[:t]
+    obs_pts = np.where(o.visible[:t, :, None], np.nan_to_num(o.points[:t]), x[:, o.particle])
+    pts = np.concatenate([x, obs_pts], axis=1)
+    n, k = x.shape[1], o.tracks
+    colors = np.empty((t, n + k, 3))
+    colors[:, :n] = (0.91, 0.42, 0.16)
+    colors[:, n:] = np.where(o.visible[:t, :, None], (0.1, 0.75, 0.25), (0.85, 0.1, 0.1))
+    from scipy.spatial import cKDTree
+
+    # Radii from the particles' spacing (the observed points sit on them, which would make it ~0).
+    spacing = float(np.median(cKDTree(x[0]).query(x[0], k=2)[0][:, 1])) if n > 1 else 0.01
+    extent = float(np.ptp(x.reshape(-1, 3), axis=0).max()) or 1.0
+    r = max(min(0.3 * spacing, 0.02 * extent), 1e-3 * extent)
+    radius = np.concatenate([np.full(n, 0.7 * r), np.full(k, r)])  # observed points drawn over the particles
+    render_video(
+        pts,
+        path,
+        colors=colors,
+        point_radius=radius,
+        fps=scene.fps,
+        camera=scene.camera,
+        progress=progress,
+        ground=scene.model.ground.height if scene.model.ground is not None else False,
+    )
+
+
+__all__ = ["PARAMS_FILE", "fit", "fitted_scene", "write_outputs"]

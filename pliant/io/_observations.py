@@ -1,0 +1,260 @@
+"""Observation files (NPZ): tracked 3D points, and optionally depth clouds and control points, of a moving
+deformable object, the input of fitting (:mod:`pliant.fit`, ``pliant fit``).
+
+The format is a contract (issue 13); every array is plain NumPy, loaded with ``allow_pickle=False``:
+
+- ``t`` [T] seconds from the scene's start, at the scene's frame times;
+- ``points`` [T, K, 3] metres, the scene's axes: K tracked points; unseen entries may be NaN;
+- ``visible`` [T, K] bool, optional (default: where ``points`` is finite);
+- ``particle`` [K] int, optional: the particle each track follows (default: nearest to its first visible
+  position, see :meth:`Observations.bind`);
+- ``controls`` [T, C, 3], optional: positions of control points (a hand, a gripper) [m];
+- ``cloud`` [T, P, 3] and ``cloud_count`` [T], optional: depth point clouds, padded to P points per frame.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from ._trajectory import atomic_savez
+
+_KNOWN = ("t", "points", "visible", "particle", "controls", "cloud", "cloud_count")
+
+
+class ObservationError(ValueError):
+    """A bad observation file or a mismatch with the scene; the message names the file, the array and the
+    fix."""
+
+
+@dataclass
+class Observations:
+    """Observed motion: K tracks over T frames (and optional clouds and control points).
+
+    Attributes:
+        t: [T] observation times [s] from the scene's start.
+        points: [T, K, 3] tracked positions [m]; entries that are not ``visible`` are ignored (may be NaN).
+        visible: [T, K] bool, where a track was seen.
+        particle: [K] int, the particle each track follows, or None until :meth:`bind` sets it.
+        controls: [T, C, 3] control-point positions [m], or None.
+        cloud: [T, P, 3] padded depth clouds [m], or None.
+        cloud_count: [T] valid points of each frame's cloud, or None.
+        source: file name for messages.
+    """
+
+    t: np.ndarray
+    points: np.ndarray
+    visible: np.ndarray
+    particle: np.ndarray | None = None
+    controls: np.ndarray | None = None
+    cloud: np.ndarray | None = None
+    cloud_count: np.ndarray | None = None
+    source: str = "<observations>"
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_arrays(
+        cls,
+        t: np.ndarray,
+        points: np.ndarray,
+        visible: np.ndarray | None = None,
+        particle: np.ndarray | None = None,
+        controls: np.ndarray | None = None,
+        cloud: np.ndarray | None = None,
+        cloud_count: np.ndarray | None = None,
+        source: str = "<observations>",
+    ) -> Observations:
+        """Validated observations from arrays (units as in the module docstring).
+
+        Raises:
+            ObservationError: wrong shapes or dtypes, non-finite visible points, all tracks invisible.
+        """
+
+        def fail(array: str, msg: str) -> ObservationError:
+            return ObservationError(f"{source}: {array}: {msg}")
+
+        t = np.asarray(t)
+        if t.ndim != 1 or t.shape[0] < 2 or not np.issubdtype(t.dtype, np.number):
+            raise fail("t", f"expected times [T] in seconds with T >= 2, got shape {t.shape} ({t.dtype})")
+        if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+            raise fail("t", "times must be finite and strictly increasing (one per frame, in seconds)")
+        T = t.shape[0]
+        points = np.asarray(points)
+        if points.ndim != 3 or points.shape[0] != T or points.shape[2] != 3 or points.shape[1] < 1:
+            raise fail("points", f"expected [T={T}, K, 3] positions in metres, got shape {points.shape}")
+        if not np.issubdtype(points.dtype, np.floating):
+            raise fail("points", f"expected floating-point positions, got {points.dtype}")
+        K = points.shape[1]
+        finite = np.all(np.isfinite(points), axis=2)
+        if visible is None:
+            visible = finite
+        else:
+            visible = np.asarray(visible)
+            if visible.shape != (T, K) or visible.dtype != np.bool_:
+                raise fail(
+                    "visible", f"expected a bool array [T={T}, K={K}], got {visible.dtype} {visible.shape}"
+                )
+            bad = visible & ~finite
+            if bad.any():
+                f, k = np.argwhere(bad)[0]
+                raise fail(
+                    "points",
+                    f"point {k} at frame {f} is NaN or inf but marked visible ({int(bad.sum())} such); "
+                    "set visible[f, k] = False where a track was not seen",
+                )
+        if not visible.any():
+            raise fail("visible", "every track is invisible at every frame: nothing to fit to")
+        if particle is not None:
+            particle = np.asarray(particle)
+            if particle.shape != (K,) or not np.issubdtype(particle.dtype, np.integer) or particle.min() < 0:
+                raise fail("particle", f"expected K={K} particle indices >= 0 (int), got {particle.shape}")
+            particle = particle.astype(np.int64)
+        if controls is not None:
+            controls = np.asarray(controls, dtype=float)
+            if controls.ndim != 3 or controls.shape[0] != T or controls.shape[2] != 3:
+                raise fail("controls", f"expected [T={T}, C, 3] positions in metres, got {controls.shape}")
+            if not np.all(np.isfinite(controls)):
+                raise fail("controls", "control-point positions must all be finite")
+        if (cloud is None) != (cloud_count is None):
+            raise fail("cloud", "give both cloud [T, P, 3] and cloud_count [T], or neither")
+        if cloud is not None:
+            cloud = np.asarray(cloud, dtype=float)
+            cloud_count = np.asarray(cloud_count)
+            if cloud.ndim != 3 or cloud.shape[0] != T or cloud.shape[2] != 3:
+                raise fail("cloud", f"expected padded clouds [T={T}, P, 3] in metres, got {cloud.shape}")
+            if cloud_count.shape != (T,) or not np.issubdtype(cloud_count.dtype, np.integer):
+                raise fail("cloud_count", f"expected [T={T}] integer counts, got {cloud_count.shape}")
+            if cloud_count.min() < 0 or cloud_count.max() > cloud.shape[1]:
+                raise fail("cloud_count", f"counts must lie in [0, P={cloud.shape[1]}]")
+            used = np.arange(cloud.shape[1])[None, :] < cloud_count[:, None]
+            if not np.all(np.isfinite(cloud[used])):
+                raise fail("cloud", "the first cloud_count[t] points of each frame must be finite")
+            cloud_count = cloud_count.astype(np.int64)
+        return cls(
+            t=t.astype(float),
+            points=np.where(visible[..., None], points, np.nan).astype(float),
+            visible=visible.astype(bool),
+            particle=particle,
+            controls=controls,
+            cloud=cloud,
+            cloud_count=cloud_count,
+            source=source,
+        )
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> Observations:
+        """Read and validate an observation NPZ (``allow_pickle=False``).
+
+        Raises:
+            FileNotFoundError: no such file.
+            ObservationError: unreadable file, missing ``t``/``points``, unknown arrays, bad shapes or values.
+        """
+        path = Path(path)
+        if not path.exists():
+            raise FileNotFoundError(f"observation file not found: {path}")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                data = {k: z[k] for k in z.files}
+        except Exception as exc:  # a truncated, pickled or foreign file: say which and why
+            raise ObservationError(f"{path}: not a readable observation NPZ ({exc})") from None
+        for k in ("t", "points"):
+            if k not in data:
+                raise ObservationError(
+                    f"{path}: {k}: missing; an observation file needs t [T] and points [T, K, 3]"
+                )
+        unknown = sorted(set(data) - set(_KNOWN))
+        if unknown:
+            raise ObservationError(
+                f"{path}: {unknown[0]}: unknown array; the known ones are {', '.join(_KNOWN)}"
+            )
+        return cls.from_arrays(**data, source=str(path))
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the observations as an NPZ (atomically); optional arrays only when present."""
+        arrays = {"t": self.t, "points": self.points, "visible": self.visible}
+        for k in ("particle", "controls", "cloud", "cloud_count"):
+            if getattr(self, k) is not None:
+                arrays[k] = getattr(self, k)
+        return atomic_savez(path, **arrays)
+
+    # ------------------------------------------------------------------ scene checks
+    @property
+    def frames(self) -> int:
+        """Number of observed frames T."""
+        return int(self.t.shape[0])
+
+    @property
+    def tracks(self) -> int:
+        """Number of tracks K."""
+        return int(self.points.shape[1])
+
+    def check_times(self, frame_dt: float, what: str = "the scene") -> None:
+        """Raise unless ``t[i] = i · frame_dt`` (every frame from t = 0, within 1e-6 of a frame).
+
+        Args:
+            frame_dt: the scene's frame duration [s].
+            what: how to name the scene in the message.
+        """
+        expect = np.arange(self.frames) * frame_dt
+        bad = np.flatnonzero(np.abs(self.t - expect) > 1e-6 * frame_dt + 1e-9)
+        if bad.size:
+            i = int(bad[0])
+            raise ObservationError(
+                f"{self.source}: t: t[{i}] = {self.t[i]:.6g} s but frame {i} of {what} is at "
+                f"{expect[i]:.6g} s "
+                f"(frame_dt {frame_dt:.6g} s); record one observation per frame from t = 0, or set the "
+                "scene's frame_dt to the observations' interval"
+            )
+
+    def bind(self, x: np.ndarray) -> Observations:
+        """Observations whose tracks are bound to particles.
+
+        Tracks without ``particle`` are bound to the particle nearest to their first visible position; with
+        ``particle`` given, the indices are checked against the particle count.
+
+        Args:
+            x: particle positions [m]: [N, 3] at t = 0, or [T', N, 3] per frame (a nominal simulation), in
+                which case each track is compared with the particles at its first visible frame (frame 0
+                positions are used beyond T').
+        """
+        x = np.asarray(x, dtype=float)
+        xs = x[None] if x.ndim == 2 else x
+        n = xs.shape[1]
+        if self.particle is not None:
+            if self.particle.max() >= n:
+                raise ObservationError(
+                    f"{self.source}: particle: index {int(self.particle.max())} but the scene has {n} "
+                    "particles; bind the tracks to this scene's particles or drop the array"
+                )
+            return self
+        seen = self.visible.any(axis=0)
+        first = np.argmax(self.visible, axis=0)  # first visible frame of each track
+        p = self.points[first, np.arange(self.tracks)]
+        p = np.where(seen[:, None], p, xs[0].mean(axis=0))  # never-seen tracks: bound anywhere, never used
+        at = np.where(first < xs.shape[0], first, 0)
+        # [K, N] distances: binding runs once per fit, K and N are at most a few thousand.
+        d2 = np.sum((xs[at] - p[:, None, :]) ** 2, axis=2)
+        return replace(self, particle=np.argmin(d2, axis=1).astype(np.int64))
+
+    def subset(self, frames: int) -> Observations:
+        """The first ``frames`` frames (a training split)."""
+        sl = slice(0, frames)
+
+        def cut(a: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None else a[sl]
+
+        return replace(
+            self,
+            t=self.t[sl],
+            points=self.points[sl],
+            visible=self.visible[sl],
+            controls=cut(self.controls),
+            cloud=cut(self.cloud),
+            cloud_count=cut(self.cloud_count),
+        )
+
+
+__all__ = ["ObservationError", "Observations"]
