@@ -34,7 +34,7 @@ def _rope() -> pl.Simulator:
     b.add_rope(n_segments=4, length=0.4, mass=0.05, stiffness=400.0, damping=0.01, start=(0.0, 0.5, 0.0))
     b.pin(0)
     model = b.finalize(device="cpu")
-    return pl.Simulator(model, pl.solvers.ForceSolver(model), dt=1 / 60, substeps=4)
+    return pl.Simulator(model, pl.solvers.ForceSolver(model), frame_dt=1 / 60, substeps=4)
 
 
 def _fem() -> pl.Simulator:
@@ -46,7 +46,7 @@ def _fem() -> pl.Simulator:
     solver = pl.solvers.ForceSolver(
         model, energies=[pl.energies.NeoHookean(), pl.energies.Gravity()], integrator=integ
     )
-    return pl.Simulator(model, solver, dt=1 / 30, substeps=1)
+    return pl.Simulator(model, solver, frame_dt=1 / 30, substeps=1)
 
 
 MAKERS = {"rope": _rope, "fem": _fem}

@@ -335,7 +335,7 @@ def test_force_solver_runs_collision_handlers():
         collisions=[colliders],
         damping_rate=2.0,
     )
-    x = pl.Simulator(m, solver, dt=1 / 60, substeps=40).run(60, progress=False).x
+    x = pl.Simulator(m, solver, frame_dt=1 / 60, substeps=40).run(60, progress=False).x
     d = np.linalg.norm(x[-1] - np.array([0.0, 0.3, 0.0]), axis=1)
     assert d.min() >= 0.25 + 0.005 - 1e-6, f"a particle is {0.255 - d.min():.3g} m inside the sphere"
     assert x[-1, :, 1].min() < 0.3, "the cloth should drape below the sphere's centre"

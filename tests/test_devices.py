@@ -25,7 +25,7 @@ def _cloth(device: str, dtype: str = "float64") -> pl.Model:
 
 
 def _run(model: pl.Model, solver: pl.solvers.Solver, frames: int, substeps: int) -> np.ndarray:
-    sim = pl.Simulator(model, solver, dt=1 / 60, substeps=substeps)
+    sim = pl.Simulator(model, solver, frame_dt=1 / 60, substeps=substeps)
     return sim.run(frames, progress=False).x
 
 

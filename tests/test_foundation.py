@@ -126,7 +126,7 @@ def _rope_sim() -> pl.Simulator:
     b.add_ground()
     model = b.finalize(device="cpu", dtype="float64")
     solver = pl.solvers.ForceSolver(model, pl.energies.mass_spring(), pl.integrators.SymplecticEuler())
-    return pl.Simulator(model, solver, dt=1 / 60, substeps=8)
+    return pl.Simulator(model, solver, frame_dt=1 / 60, substeps=8)
 
 
 def test_resume_after_interrupt_equals_uninterrupted_run(tmp_path):
@@ -160,7 +160,7 @@ def test_free_fall_matches_discrete_closed_form():
     model = b.finalize(device="cpu", dtype="float64")
     solver = pl.solvers.ForceSolver(model, [pl.energies.Gravity()], pl.integrators.SymplecticEuler())
     dt_frame, substeps = 0.02, 5
-    traj = pl.Simulator(model, solver, dt=dt_frame, substeps=substeps).run(25, progress=False)
+    traj = pl.Simulator(model, solver, frame_dt=dt_frame, substeps=substeps).run(25, progress=False)
     h = dt_frame / substeps  # the integrator's Δt
     t = np.arange(26)[:, None, None] * dt_frame
     exact = x0 + v0 * t + 0.5 * g * t**2 + 0.5 * g * h * t
@@ -178,7 +178,7 @@ def test_spring_oscillator_period():
     model = b.finalize(device="cpu", dtype="float64")
     solver = pl.solvers.ForceSolver(model, pl.energies.mass_spring(), pl.integrators.SymplecticEuler())
     dt = 0.004  # recording interval; the integrator's step is dt / 4 (ωΔt = 0.02)
-    traj = pl.Simulator(model, solver, dt=dt, substeps=4).run(350, progress=False)
+    traj = pl.Simulator(model, solver, frame_dt=dt, substeps=4).run(350, progress=False)
     u = traj.x[:, 1, 0] - rest
     i = np.flatnonzero((u[:-1] > 0) & (u[1:] <= 0))  # downward zero crossings
     crossings = traj.t[i] + dt * u[i] / (u[i] - u[i + 1])
@@ -197,10 +197,32 @@ def test_divergence_raises_naming_the_frame():
     b.add_springs([[0, 1]], stiffness=1e6, rest_length=1.0)
     model = b.finalize(device="cpu", dtype="float64")
     solver = pl.solvers.ForceSolver(model, pl.energies.mass_spring(), pl.integrators.SymplecticEuler())
-    sim = pl.Simulator(model, solver, dt=0.01, substeps=1)
+    sim = pl.Simulator(model, solver, frame_dt=0.01, substeps=1)
     with pytest.raises(pl.DivergenceError) as info:
         sim.run(50, progress=False)
     err = info.value
     assert 1 <= err.frame <= 50
     assert f"diverged at frame {err.frame}" in str(err)
     assert "substeps" in str(err)
+
+
+def test_simulator_frame_dt_and_its_deprecated_name():
+    """Issue 10: the frame duration is ``frame_dt``; ``dt`` (the solver's step everywhere else) still works
+    for the Simulator with a DeprecationWarning naming frame_dt, and giving both is an error."""
+    import warnings
+
+    b = pl.ModelBuilder()
+    b.add_particles([[0.0, 1.0, 0.0]], mass=1.0)
+    model = b.finalize(device="cpu", dtype="float64")
+    solver = pl.solvers.ForceSolver(model)
+    sim = pl.Simulator(model, solver, frame_dt=0.05, substeps=5)
+    assert sim.frame_dt == 0.05 and sim.dt == 0.05
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        old = pl.Simulator(model, solver, dt=0.05, substeps=5)
+    assert old.frame_dt == 0.05
+    assert any(issubclass(w.category, DeprecationWarning) and "frame_dt" in str(w.message) for w in caught)
+    with pytest.raises(TypeError, match="frame_dt only"):
+        pl.Simulator(model, solver, frame_dt=0.05, dt=0.05)
+    a = pl.Simulator(model, solver, frame_dt=0.05, substeps=5).run(3, progress=False).x
+    assert np.array_equal(a, old.run(3, progress=False).x)

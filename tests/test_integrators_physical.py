@@ -123,7 +123,7 @@ def _stiff_sim(integ):
     # k/m = 1e8 (ω = 1e4 rad/s), Δt = 1/60: ωΔt ≈ 167, far beyond every explicit stability limit.
     model = axial_spring_model(k=1e8, m=1.0, rest=1.0, offset=0.01)
     solver = pl.solvers.ForceSolver(model, energies=[pl.energies.Springs()], integrator=integ)
-    return model, pl.Simulator(model, solver, dt=1.0 / 60.0, substeps=1)
+    return model, pl.Simulator(model, solver, frame_dt=1.0 / 60.0, substeps=1)
 
 
 def test_stiff_spring_backward_euler_bounded():

@@ -528,7 +528,7 @@ def test_simulator_warns_once_naming_the_minimiser_that_stopped_unconverged(opti
     solver = pl.solvers.ForceSolver(
         model, [NeoHookean(), pl.energies.Gravity()], I.BackwardEuler(newton_tol=1e-9, **options)
     )
-    sim = pl.Simulator(model, solver, dt=1 / 30, substeps=1)
+    sim = pl.Simulator(model, solver, frame_dt=1 / 30, substeps=1)
     with pytest.warns(RuntimeWarning, match=f"^{name} did not converge at frame") as record:
         sim.run(12, progress=False)
     assert len([w for w in record if "did not converge" in str(w.message)]) == 1

@@ -132,7 +132,7 @@ def test_item5_displacement_speed_is_bounded(jump, diverges):
     b = pl.ModelBuilder()
     b.add_rope(n_segments=2, length=0.2, mass=0.05, stiffness=400.0, start=(0.0, 0.5, 0.0))
     model = b.finalize(device="cpu")
-    sim = pl.Simulator(model, _Teleport(model, jump), dt=1 / 60, substeps=1, max_speed=50.0)
+    sim = pl.Simulator(model, _Teleport(model, jump), frame_dt=1 / 60, substeps=1, max_speed=50.0)
     if not diverges:
         assert sim.run(3, progress=False).frame_count == 4
         return
@@ -336,7 +336,7 @@ def _rope_sim() -> pl.Simulator:
     b.add_rope(n_segments=4, length=0.4, mass=0.05, stiffness=400.0, damping=0.01, start=(0.0, 0.5, 0.0))
     b.pin(0)
     model = b.finalize(device="cpu")
-    return pl.Simulator(model, pl.solvers.ForceSolver(model), dt=1 / 60, substeps=4)
+    return pl.Simulator(model, pl.solvers.ForceSolver(model), frame_dt=1 / 60, substeps=4)
 
 
 def _mutate(path: Path, **changes) -> None:
@@ -431,7 +431,7 @@ def test_item5_fast_handle_is_a_divergence_naming_the_handle(speed, diverges):
     def drive(t, control):
         control.set_kinematic_targets(x0 + np.array([speed * (t + dt), 0.0, 0.0]))
 
-    sim = pl.Simulator(model, pl.solvers.ForceSolver(model), dt=dt, substeps=8, control_fn=drive)
+    sim = pl.Simulator(model, pl.solvers.ForceSolver(model), frame_dt=dt, substeps=8, control_fn=drive)
     if not diverges:
         assert sim.run(3, progress=False).frame_count == 4
         return

@@ -49,7 +49,7 @@ def _fem_box_sim(integrator) -> pl.Simulator:
     solver = pl.solvers.ForceSolver(
         model, energies=[pl.energies.NeoHookean(), pl.energies.Gravity()], integrator=integrator
     )
-    return pl.Simulator(model, solver, dt=1 / 30, substeps=2)
+    return pl.Simulator(model, solver, frame_dt=1 / 30, substeps=2)
 
 
 @pytest.mark.parametrize("method", ["newton", "lbfgs"])

@@ -127,7 +127,7 @@ def test_fast_mass_spring_from_a_scene_matches_the_api():
     x = scene.simulator().run(1, progress=False).x
     ref = pl.solvers.FastMassSpring(scene.model, method="implicit", cg_iterations=20)
     scene2 = build_scene(parse_scene(text, "f.toml"), device="cpu")
-    y = pl.Simulator(scene2.model, ref, dt=0.02, substeps=4).run(1, progress=False).x
+    y = pl.Simulator(scene2.model, ref, frame_dt=0.02, substeps=4).run(1, progress=False).x
     assert np.array_equal(x, y)
     with pytest.raises(
         SceneError, match=r"solver\.options\.metod: fast_mass_spring has no option 'metod'; did you"

@@ -40,7 +40,7 @@ class Example:
         solver = pl.solvers.ForceSolver(
             self.model, pl.energies.mass_spring(), pl.integrators.SymplecticEuler(), damping_rate=1.0
         )
-        self.sim = pl.Simulator(self.model, solver, dt=1 / 30, substeps=60)
+        self.sim = pl.Simulator(self.model, solver, frame_dt=1 / 30, substeps=60)
         self.frames = args.frames
         self.rest = self.model.spring_rest_length.numpy()
         self.springs = self.model.spring_indices.numpy()

@@ -41,7 +41,7 @@ class Example:
             pl.integrators.BackwardEuler(method="lbfgs"),
             damping_rate=1.0,
         )
-        self.sim = pl.Simulator(self.model, self.solver, dt=1 / 30, substeps=1)
+        self.sim = pl.Simulator(self.model, self.solver, frame_dt=1 / 30, substeps=1)
         self.frames = args.frames
 
     def run(self, progress: bool) -> None:

@@ -33,7 +33,7 @@ class Example:
         # Gravity only: no springs, no ground.
         solver = pl.solvers.ForceSolver(self.model, [pl.energies.Gravity()], pl.integrators.SymplecticEuler())
         self.substeps = 4
-        self.sim = pl.Simulator(self.model, solver, dt=1 / 60, substeps=self.substeps)
+        self.sim = pl.Simulator(self.model, solver, frame_dt=1 / 60, substeps=self.substeps)
         self.frames = args.frames
         self.traj = None
 

@@ -40,7 +40,7 @@ class Example:
             self.model, pl.energies.mass_spring(), pl.integrators.SymplecticEuler()
         )
         # Substep 1/1200 s: well inside the explicit limit 2/ω_max for these springs.
-        self.sim = pl.Simulator(self.model, self.solver, dt=1 / 30, substeps=40)
+        self.sim = pl.Simulator(self.model, self.solver, frame_dt=1 / 30, substeps=40)
         self.frames = args.frames
         self.energy0 = self.total_energy()
 

@@ -37,7 +37,7 @@ class Example:
         )
         self.model = b.finalize(device=args.device, dtype="float64")
         self.solver = pl.solvers.XPBD(self.model, iterations=10, compliance=0.0, schedule="coloring")
-        self.sim = pl.Simulator(self.model, self.solver, dt=1 / 30, substeps=20)
+        self.sim = pl.Simulator(self.model, self.solver, frame_dt=1 / 30, substeps=20)
         self.frames = args.frames
         self.mass = self.model.particle_mass_np
 

@@ -85,7 +85,7 @@ class Scene:
     @property
     def sim_kwargs(self) -> dict[str, Any]:
         """Keyword arguments of :class:`pliant.Simulator` (its ``dt`` is the frame duration)."""
-        kw = {"dt": self.frame_dt, "substeps": self.substeps, "max_speed": self.config.scene.max_speed}
+        kw = {"frame_dt": self.frame_dt, "substeps": self.substeps, "max_speed": self.config.scene.max_speed}
         if self.control_fn is not None:
             kw["control_fn"] = self.control_fn
         return kw

@@ -65,16 +65,18 @@ class Simulator:
     Args:
         model: the Model.
         solver: any Solver.
-        dt: frame duration [s] (recording interval).
-        substeps: solver steps per frame (substep Δt = dt / substeps).
+        frame_dt: frame duration [s] (the recording interval). The solver's step size is
+            ``frame_dt / substeps``: "dt" in pliant's solvers always means that step.
+        substeps: solver steps per frame (substep Δt = frame_dt / substeps).
         control: a Control (default ``model.control()``).
         max_speed: divergence bound on any particle speed [m/s]: on the velocity array and on the frame's
-            displacement divided by ``dt`` (so colliders and handles that teleport particles count too).
+            displacement divided by ``frame_dt`` (so colliders and handles that teleport particles count too).
         control_fn: optional ``f(t, control)`` called before each frame to move kinematic targets [s].
+        dt: deprecated name of ``frame_dt`` (a DeprecationWarning says so).
 
     Example::
 
-        sim = pl.Simulator(model, solver, dt=1 / 60, substeps=16)
+        sim = pl.Simulator(model, solver, frame_dt=1 / 60, substeps=16)
         traj = sim.run(frames=240)
     """
 
@@ -83,20 +85,32 @@ class Simulator:
         model: Model,
         solver: Solver,
         *,
-        dt: float = 1.0 / 60.0,
+        frame_dt: float | None = None,
         substeps: int = 16,
         control: Control | None = None,
         max_speed: float = 1.0e3,
         control_fn: Callable[[float, Control], None] | None = None,
+        dt: float | None = None,
     ) -> None:
-        if dt <= 0 or not np.isfinite(dt):
-            raise ValueError(f"dt must be a positive number of seconds, got {dt}")
+        if dt is not None:
+            if frame_dt is not None:
+                raise TypeError("Simulator: give frame_dt only (dt is its deprecated name)")
+            warnings.warn(
+                "Simulator(dt=...) is deprecated: the frame duration is frame_dt=... (dt is the solver's "
+                "step size everywhere else)",
+                DeprecationWarning,
+                stacklevel=2,
+            )
+            frame_dt = dt
+        frame_dt = 1.0 / 60.0 if frame_dt is None else frame_dt
+        if not (frame_dt > 0 and np.isfinite(frame_dt)):
+            raise ValueError(f"frame_dt must be a positive number of seconds, got {frame_dt}")
         if substeps < 1:
             raise ValueError(f"substeps must be >= 1, got {substeps}")
         if not max_speed > 0:
             raise ValueError(f"max_speed must be a positive speed [m/s], got {max_speed}")
         self.model, self.solver = model, solver
-        self.dt, self.substeps = float(dt), int(substeps)
+        self.frame_dt, self.substeps = float(frame_dt), int(substeps)
         self.control = control if control is not None else model.control()
         self.control_fn = control_fn
         self.max_speed = float(max_speed)
@@ -116,10 +130,15 @@ class Simulator:
         self._snapshot_solver = False  # copy the solver's state at each recorded frame (for checkpoints)
         self._warned_newton = False
 
+    @property
+    def dt(self) -> float:
+        """Deprecated name of :attr:`frame_dt` (the frame duration [s])."""
+        return self.frame_dt
+
     # ------------------------------------------------------------------ stepping
     def step_frame(self) -> None:
         """Advance one frame (``substeps`` solver steps); no host synchronisation."""
-        h = self.dt / self.substeps
+        h = self.frame_dt / self.substeps
         wp.copy(self._x_start, self.state_0.particle_q)
         if self.control_fn is not None:
             self.control_fn(self.time, self.control)
@@ -127,7 +146,7 @@ class Simulator:
             self.solver.step(self.state_0, self.state_1, self.control, h)
             self.state_0, self.state_1 = self.state_1, self.state_0
         self.frame += 1
-        self.time = self.frame * self.dt
+        self.time = self.frame * self.frame_dt
 
     def check_initial_state(self) -> None:
         """Frame 0 is checked like every other: raise :class:`DivergenceError` (frame 0) if the current
@@ -153,7 +172,7 @@ class Simulator:
         )
         speed2, disp2, bad, kin_speed2, kin_disp2 = (float(a) for a in self._stats.numpy())
         integrator = getattr(self.solver, "integrator", None)
-        h = self.dt / self.substeps
+        h = self.frame_dt / self.substeps
         advice = (
             f"lower dt (substep {h:.3g} s: raise substeps above {self.substeps})"
             + (
@@ -187,7 +206,7 @@ class Simulator:
                 RuntimeWarning,
                 stacklevel=2,
             )
-        kin = max(float(np.sqrt(kin_speed2)), float(np.sqrt(kin_disp2)) / self.dt)
+        kin = max(float(np.sqrt(kin_speed2)), float(np.sqrt(kin_disp2)) / self.frame_dt)
         if kin > self.max_speed:
             # Checked first: the motion is prescribed, so the solver's step size is not the cause.
             raise DivergenceError(
@@ -200,7 +219,7 @@ class Simulator:
         speed = float(np.sqrt(speed2))
         if speed > self.max_speed:
             raise DivergenceError(self.frame, "max speed (m/s)", speed, advice)
-        jump = float(np.sqrt(disp2)) / self.dt
+        jump = float(np.sqrt(disp2)) / self.frame_dt
         if jump > self.max_speed:
             raise DivergenceError(
                 self.frame,
@@ -233,7 +252,7 @@ class Simulator:
         faces = m.render_faces if m.render_faces.size else None
         tets = m.tet_indices_np if m.tet_indices_np.size else None
         meta = {
-            "dt": self.dt,
+            "dt": self.frame_dt,
             "substeps": self.substeps,
             "dtype": m.dtype,
             "device": m.device,
@@ -287,10 +306,11 @@ class Simulator:
             max_frame=max_frame,
         )
         ck = load_checkpoint(path, spec)
-        if not np.isclose(ck["time"], ck["frame"] * self.dt, rtol=1e-9, atol=0.0):
+        if not np.isclose(ck["time"], ck["frame"] * self.frame_dt, rtol=1e-9, atol=0.0):
             raise CheckpointError(
-                f"{path}: time: {ck['time']} s at frame {ck['frame']} is not frame x dt = "
-                f"{ck['frame'] * self.dt} s; resume with the frame duration (dt) that wrote the checkpoint"
+                f"{path}: time: {ck['time']} s at frame {ck['frame']} is not frame x frame_dt = "
+                f"{ck['frame'] * self.frame_dt} s; resume with the frame duration (frame_dt) that wrote the "
+                "checkpoint"
             )
         if ck["traj_v"] is None and self._record_velocity and ck["frame"] > 0:
             raise CheckpointError(
@@ -311,7 +331,7 @@ class Simulator:
         self.state_0.particle_q.assign(ck["x"])
         self.state_0.particle_qd.assign(ck["v"])
         self.frame = ck["frame"]
-        self.time = self.frame * self.dt  # as step_frame computes it, so control_fn sees the same times
+        self.time = self.frame * self.frame_dt  # as step_frame computes it, so control_fn sees the same times
         self._last_good = (ck["frame"], self.time, ck["x"], ck["v"])
         self._solver_state = dict(ck["solver_state"])
         self._xs = list(ck["traj_x"])

@@ -76,7 +76,7 @@ class XPBD(Solver):
     Example::
 
         solver = pl.solvers.XPBD(model, iterations=10, schedule="coloring")
-        sim = pl.Simulator(model, solver, dt=1 / 60, substeps=10)
+        sim = pl.Simulator(model, solver, frame_dt=1 / 60, substeps=10)
     """
 
     pbd = False

@@ -222,7 +222,7 @@ def _cloth_run(model: Any, integ: I.Integrator, substeps: int, frames: int, *, m
     from ..solvers import ForceSolver
 
     solver = ForceSolver(model, energies=[Springs(), Gravity()], integrator=integ, contact=False)
-    sim = Simulator(model, solver, dt=1.0 / 60.0, substeps=substeps)
+    sim = Simulator(model, solver, frame_dt=1.0 / 60.0, substeps=substeps)
     e0 = _total_energy(solver, sim.state_0)
     iters: list[int] = []
     wall = 0.0
