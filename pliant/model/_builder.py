@@ -329,7 +329,7 @@ class ModelBuilder:
             stiffness: spring constant k of each segment [N/m].
             damping: dashpot coefficient γ of every spring [N s/m].
             start: position of the first particle [m].
-            direction: direction the rope extends in (normalised; unitless).
+            direction: direction the rope extends in [-] (any length: it is normalised).
             bend_stiffness: k of springs joining every second particle [N/m] (0: none).
             pin: ``"first"``, ``"last"``, ``"both"``, ``"none"`` or local particle indices to fix.
             radius: contact radius of each particle [m].
