@@ -4,7 +4,9 @@ one), every tutorial/how-to page's Python code runs and checks its physics, and 
 from __future__ import annotations
 
 import inspect
+import os
 import re
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -125,21 +127,39 @@ def test_material_record_documents_its_fields():
         assert re.search(r"\[[^\]]+\]", params[f])
 
 
-def python_blocks(page: Path) -> list[str]:
-    return re.findall(r"^```python\n(.*?)^```", page.read_text(encoding="utf-8"), re.S | re.M)
+def code_blocks(page: Path) -> list[tuple[str, str]]:
+    """(language, code) of each fenced ```python / ```bash block, in page order."""
+    return re.findall(r"^```(python|bash)\n(.*?)^```", page.read_text(encoding="utf-8"), re.S | re.M)
+
+
+def _run_command(line: str, cwd: Path) -> None:
+    # `pliant ...` lines run this checkout's CLI exactly as written (the console script is `python -m pliant.cli`).
+    args = shlex.split(line)
+    assert args[0] == "pliant", f"only pliant commands are run from pages: {line!r}"
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    r = subprocess.run([sys.executable, "-m", "pliant.cli", *args[1:]], cwd=cwd, env=env,
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, f"{line!r} exited {r.returncode}:\n{r.stdout[-2000:]}{r.stderr[-2000:]}"
 
 
 @pytest.mark.parametrize("page", EXECUTED_PAGES, ids=lambda p: p.stem)
 def test_page_code_runs(page, tmp_path, monkeypatch):
-    """Every ```python block of the page runs, in order, in one namespace; the page checks its own physics."""
-    blocks = python_blocks(page)
-    assert blocks, f"{page.name} has no python blocks"
+    """Every ```python block of the page runs, in order, in one namespace, and every `pliant` command of its
+    ```bash blocks runs and exits 0; tutorials check their own physics with assertions."""
+    blocks = code_blocks(page)
+    python = [code for lang, code in blocks if lang == "python"]
+    assert python, f"{page.name} has no python blocks"
     if page.parent.name == "tutorials":
-        assert sum(b.count("assert") for b in blocks) >= 3, f"{page.name}: a tutorial must check its physics"
-    monkeypatch.chdir(tmp_path)  # pages may write files (exports, trajectories)
+        assert sum(b.count("assert") for b in python) >= 3, f"{page.name}: a tutorial must check its physics"
+    monkeypatch.chdir(tmp_path)  # pages write files (scenes, exports, trajectories)
     ns: dict = {"__name__": f"docs_{page.stem}"}
-    for i, block in enumerate(blocks):
-        exec(compile(block, f"{page.relative_to(ROOT)} [python block {i + 1}]", "exec"), ns)
+    for i, (lang, code) in enumerate(blocks):
+        if lang == "python":
+            exec(compile(code, f"{page.relative_to(ROOT)} [block {i + 1}]", "exec"), ns)
+        else:
+            for line in code.splitlines():
+                if line.strip() and not line.lstrip().startswith("#"):
+                    _run_command(line, tmp_path)
 
 
 def test_every_page_is_in_the_nav():
@@ -158,7 +178,7 @@ def test_site_builds_strict(tmp_path):
         cwd=ROOT,
         capture_output=True,
         text=True,
-        env={**__import__("os").environ, "NO_MKDOCS_2_WARNING": "1"},
+        env={**os.environ, "NO_MKDOCS_2_WARNING": "1"},
         timeout=300,
     )
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
