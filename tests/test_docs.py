@@ -105,8 +105,14 @@ def test_parameter_parser_catches_a_missing_parameter():
 
 def test_building_calls_are_covered():
     names = {n for n, _, _ in _building_calls()}
-    for must in ("ModelBuilder.add_cloth_grid", "ModelBuilder.add_rope", "ModelBuilder.add_soft_box",
-                 "ModelBuilder.add_tet_mesh", "ModelBuilder.add_point_cloud", "NeoHookean"):
+    for must in (
+        "ModelBuilder.add_cloth_grid",
+        "ModelBuilder.add_rope",
+        "ModelBuilder.add_soft_box",
+        "ModelBuilder.add_tet_mesh",
+        "ModelBuilder.add_point_cloud",
+        "NeoHookean",
+    ):
         assert must in names
 
 
@@ -133,12 +139,18 @@ def code_blocks(page: Path) -> list[tuple[str, str]]:
 
 
 def _run_command(line: str, cwd: Path) -> None:
-    # `pliant ...` lines run this checkout's CLI exactly as written (the console script is `python -m pliant.cli`).
+    # `pliant ...` lines run this checkout's CLI as written (the console script is `python -m pliant.cli`).
     args = shlex.split(line)
     assert args[0] == "pliant", f"only pliant commands are run from pages: {line!r}"
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    r = subprocess.run([sys.executable, "-m", "pliant.cli", *args[1:]], cwd=cwd, env=env,
-                       capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        [sys.executable, "-m", "pliant.cli", *args[1:]],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, f"{line!r} exited {r.returncode}:\n{r.stdout[-2000:]}{r.stderr[-2000:]}"
 
 

@@ -391,7 +391,8 @@ class ModelBuilder:
             shear_stiffness: k of the diagonal springs [N/m] (default: ``stiffness``).
             bend_stiffness: k of springs across two cells [N/m] (0: none).
             damping: dashpot coefficient γ of every spring [N s/m].
-            youngs_modulus_thickness: membrane stiffness E·t [N/m]; replaces ``stiffness``/``shear_stiffness``.
+            youngs_modulus_thickness: membrane stiffness E·t [N/m]; replaces ``stiffness`` and
+                ``shear_stiffness``.
             poisson: Poisson ratio ν [-] used with ``youngs_modulus_thickness``.
             origin: corner of the grid [m].
             plane: ``"xz"`` (horizontal), ``"xy"`` or ``"yz"``.
