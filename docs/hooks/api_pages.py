@@ -1,6 +1,7 @@
-"""mkdocs hook: API reference pages for packages that only some branches have yet (pl.diff, pl.fit,
-pl.gaussians). A page, and its nav entry, exist exactly when the package does, so the site builds strictly
-before and after those branches merge."""
+"""mkdocs hook: pages that only some branches have yet. API reference pages for pl.diff, pl.fit and
+pl.gaussians exist (with their nav entries) exactly when the package does, and the guide pages other
+branches write (``docs/gaussians.md``, ``docs/fit.md``) join the nav when present, so the site builds
+strictly before and after those branches merge."""
 
 from __future__ import annotations
 
@@ -10,6 +11,8 @@ from mkdocs.structure.files import File
 
 OPTIONAL = ("diff", "fit", "gaussians")
 SECTION = "API reference"
+#: Guide pages written on other branches: file -> nav title, placed before the API reference.
+OPTIONAL_PAGES = {"fit.md": "Fitting", "gaussians.md": "Gaussian splats"}
 
 
 def _present(config) -> list[str]:
@@ -18,7 +21,15 @@ def _present(config) -> list[str]:
 
 
 def on_config(config):
-    for entry in config.nav or []:
+    docs = Path(config.docs_dir)
+    nav = config.nav or []
+    listed = {v for entry in nav if isinstance(entry, dict) for v in entry.values() if isinstance(v, str)}
+    at = next((i for i, e in enumerate(nav) if isinstance(e, dict) and SECTION in e), len(nav))
+    for page, title in OPTIONAL_PAGES.items():
+        if (docs / page).is_file() and page not in listed:
+            nav.insert(at, {title: page})
+            at += 1
+    for entry in nav:
         if isinstance(entry, dict) and SECTION in entry:
             pages = entry[SECTION]
             listed = {p for item in pages for p in item.values()}
