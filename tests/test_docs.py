@@ -189,7 +189,7 @@ def test_site_builds_strict(tmp_path):
     pytest.importorskip("mkdocs", reason="install the test extra: pip install -e '.[test]'")
     site = tmp_path / "site"
     r = subprocess.run(
-        [sys.executable, "-m", "mkdocs", "build", "--strict", "--quiet", "--site-dir", str(site)],
+        [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(site)],
         cwd=ROOT,
         capture_output=True,
         text=True,
