@@ -83,6 +83,11 @@ def _building_calls():
         for n, f in inspect.getmembers(B, inspect.isfunction)
         if n.startswith("add_") or n in ("pin", "finalize", "register_object")
     ]
+    calls += [
+        (f"Colliders.{n}", f, f.__doc__)
+        for n, f in inspect.getmembers(pl.collision.Colliders, inspect.isfunction)
+        if n.startswith("add_")
+    ]
     E = pl.energies
     for cls in (E.TetElasticity, E.LinearElastic, E.StVK, E.Corotated, E.NeoHookean):
         calls.append((cls.__name__, cls.__init__, cls.__doc__))
