@@ -1,5 +1,9 @@
 """pliant: deformable-object simulation — mass-spring, position-based dynamics and tetrahedral FEM —
-with every time integrator of the lecture, on NVIDIA Warp (CPU and CUDA, differentiable)."""
+with every time integrator of the lecture, on NVIDIA Warp (CPU and CUDA).
+
+Explicit steps are differentiable with ``wp.Tape`` on a model finalised with ``requires_grad=True``
+(``ForceSolver`` with explicit integrators, ``FastMassSpring(method="symplectic")``; see ``pliant.diff``);
+the other solvers raise ``pliant.diff.GradientError`` when asked for a gradient."""
 
 from __future__ import annotations
 
@@ -19,7 +23,19 @@ def __getattr__(name: str):
     # Heavier layers (renderer kernels, studies, benchmarks, CLI) load on first use, not on import.
     import importlib
 
-    if name in ("render", "geometry", "constraints", "collision", "studies", "bench", "cli", "sim", "scene"):
+    lazy = (
+        "render",
+        "geometry",
+        "constraints",
+        "collision",
+        "studies",
+        "bench",
+        "cli",
+        "sim",
+        "scene",
+        "diff",
+    )
+    if name in lazy:
         return importlib.import_module(f"{__name__}.{name}")
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 

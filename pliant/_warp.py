@@ -95,7 +95,9 @@ def launch(kernel: Any, dim: Any, inputs: list, device: Any = None) -> None:
     ids), which costs 3-6 µs. A replay is exactly the same launch: the key holds everything the recorded
     parameters hold, so an array freed and reallocated at the same address with the same layout is
     launched correctly, and the cache holds no references to arrays. While a ``wp.Tape`` records, launches go
-    through ``wp.launch`` so that autodiff sees them.
+    through ``wp.launch`` so that autodiff sees them, and so do launches on arrays that require gradients:
+    recorded steps write into fresh arrays each time, so their signatures never repeat and recording them
+    would only evict the replayable launches of the gradient-free path.
     """
     if _tape_active():
         wp.launch(kernel, dim, inputs, device=device)
@@ -104,6 +106,9 @@ def launch(kernel: Any, dim: Any, inputs: list, device: Any = None) -> None:
     scalars = []
     for k, a in enumerate(inputs):
         if isinstance(a, wp.array):
+            if a.requires_grad:
+                wp.launch(kernel, dim, inputs, device=device)
+                return
             parts.append((a.ptr, a.shape, a.strides, a.dtype, a.device.alias))
         elif isinstance(a, (int, float, bool)) or type(a).__module__.startswith("warp"):
             parts.append(type(a))
@@ -131,3 +136,23 @@ def launch(kernel: Any, dim: Any, inputs: list, device: Any = None) -> None:
         cmd.launch()
     except RuntimeError:  # a launch capture that needs the argument list: launch the ordinary way
         wp.launch(kernel, dim, inputs, device=device)
+
+
+# ----------------------------------------------------------------------------------------------- gradients
+class GradientError(NotImplementedError):
+    """A gradient was requested (a ``requires_grad`` model, or ``pl.diff``) from a solver, option or
+    parameter that cannot give a correct one; the message says what to use instead."""
+
+
+def grad_enabled(model: Any) -> bool:
+    """True when steps on ``model`` must be replayable by ``wp.Tape`` (the model was finalised with
+    ``requires_grad=True``): solvers then write every intermediate into a fresh array allocated with
+    ``requires_grad`` instead of reusing scratch buffers in place."""
+    return bool(getattr(model, "requires_grad", False))
+
+
+def fresh(model: Any, count: int | None = None, dtype: Any = None) -> wp.array:
+    """A new zeroed array of ``count`` (default: particle_count) ``dtype`` (default: the model's vec3) with
+    ``requires_grad=True``, for one use inside a recorded step."""
+    n = model.particle_count if count is None else count
+    return wp.zeros(n, dtype=model.vec3 if dtype is None else dtype, device=model.device, requires_grad=True)

@@ -200,8 +200,9 @@ def _project_once(model, constraint, dt: float = 1e-2, schedule: str = "coloring
     """Positions after one sweep of ``constraint`` starting from the model's positions."""
     solver = XPBD(model, iterations=1, schedule=schedule, constraints=[constraint], contact=False)
     p = wp.clone(model.particle_q)
-    constraint.begin_step(solver, model.particle_q, p, dt)
-    constraint.project(solver, p, dt)
+    ctx = solver.context()
+    constraint.begin_step(ctx, model.particle_q, p, dt)
+    constraint.project(ctx, p, dt)
     if constraint.writes_deltas(solver.coloring):
         from pliant.solvers import _xpbd_kernels as K
 
@@ -237,7 +238,7 @@ def test_projection_conserves_momentum(kind):
             c.rest.assign(rng.normal(size=(n, 3)))
             c.rest_center.assign((m @ c.rest.numpy() / m.sum())[None])
             p = wp.clone(model.particle_q)
-            c.project(solver, p, 1e-2)
+            c.project(solver.context(), p, 1e-2)
             dx = p.numpy() - x
         else:
             dx = _project_once(model, _constraint_for(kind, rng, n)) - x
@@ -291,7 +292,7 @@ def test_shape_matching_matches_reference_twin():
         c = pc.ShapeMatching([np.arange(n)], stiffness=0.7)
         solver = XPBD(model, iterations=1, schedule="coloring", constraints=[c], contact=False)
         p = wp.array(cur, dtype=wp.vec3d, device="cpu")
-        c.project(solver, p, 1e-2)
+        c.project(solver.context(), p, 1e-2)
         np.testing.assert_allclose(p.numpy() - cur, ref.shape_match(cur, rest, m, 0.7), atol=1e-10)
 
 
@@ -387,6 +388,7 @@ def _project_once_from(model, constraint, start: np.ndarray, dt: float = 1e-2) -
     """Positions after one Gauss–Seidel sweep of ``constraint`` from positions ``start``."""
     solver = XPBD(model, iterations=1, schedule="coloring", constraints=[constraint], contact=False)
     p = wp.array(start, dtype=model.vec3, device="cpu")
-    constraint.begin_step(solver, model.particle_q, p, dt)
-    constraint.project(solver, p, dt)
+    ctx = solver.context()
+    constraint.begin_step(ctx, model.particle_q, p, dt)
+    constraint.project(ctx, p, dt)
     return p.numpy()

@@ -15,7 +15,13 @@ EXAMPLES = sorted((Path(__file__).resolve().parents[1] / "examples").glob("*.py"
 @pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.stem)
 def test_example_passes_its_checks(path):
     """The example exits 0 with --test --frames 20 (its test_final() assertions hold)."""
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    # The examples import the pliant of this checkout (not whichever one is installed in the venv).
+    root = str(path.parents[1])
+    env = {
+        **os.environ,
+        "PYTHONUNBUFFERED": "1",
+        "PYTHONPATH": os.pathsep.join([root, os.environ.get("PYTHONPATH", "")]),
+    }
     proc = subprocess.run(
         [sys.executable, str(path), "--test", "--frames", "20", "--device", "cpu"],
         capture_output=True,
@@ -30,4 +36,4 @@ def test_example_passes_its_checks(path):
 def test_examples_exist():
     """The examples the README promises are present."""
     names = {p.stem for p in EXAMPLES}
-    assert {"free_fall", "rope_swing", "cloth_drop"} <= names
+    assert {"free_fall", "rope_swing", "cloth_drop", "gradients"} <= names

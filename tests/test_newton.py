@@ -193,6 +193,30 @@ def test_options_validated():
         I.BDF2(newton_tol=0.0)
     with pytest.raises(ValueError, match="project_psd"):
         I.ImplicitMidpoint(project_psd="always")
+    # Defined once (ImplicitOptions): every integrator and the minimisers reject the same mistakes.
+    bad = {
+        "newton_tol": [float("nan"), -1e-5, 0],
+        "max_newton_iterations": [0, 2.5],
+        "cg_max_iterations": [0],
+        "lbfgs_history": [-1, 1.5],
+        "lbfgs_max_iterations": [0],
+        "max_line_search": [-1],
+        "cg_tol": [1.0, float("nan")],
+    }
+    for name, values in bad.items():
+        for value in values:
+            for cls in (I.BackwardEuler, I.ImplicitMidpoint, I.BDF2):
+                with pytest.raises(ValueError, match=name):
+                    cls(**{name: value})
+            with pytest.raises(ValueError, match=name):
+                I.ImplicitOptions(**{name: value})
+    for cls in (I.BackwardEuler, I.BDF2):
+        with pytest.raises(
+            ValueError, match=r"unknown option\(s\) \['newton_tolerance'\] for .*known options"
+        ):
+            cls(newton_tolerance=1e-6)
+    integ = I.BDF2(newton_tol=1e-7, method="lbfgs")
+    assert integ.newton_tol == integ.options.newton_tol == 1e-7 and integ.lbfgs_history == 8
     model = _cloth(3)
     solver = pl.solvers.ForceSolver(model, integrator=I.BackwardEuler())
     x = model.particle_q
@@ -234,3 +258,35 @@ def test_scipy_cg_matches_direct_on_a_soft_step():
         assert solver.last_stats.converged, solver.last_stats
     err = np.abs(outs["direct"] - outs["scipy-cg"]).max()
     assert err < 1e-6, f"scipy-cg differs from direct by {err:.3g} m"
+
+
+@pytest.mark.parametrize("method", ["newton", "lbfgs"])
+def test_minimizers_read_only_the_declared_problem(method):
+    """Newton and L-BFGS need only PotentialProblem's model, energies and control (no ForceSolver fields):
+    a plain object gives bit-for-bit the ForceSolver's minimiser, the Control's force included."""
+    from pliant.solvers._quasi_newton import minimize_quasi_newton
+
+    fn = minimize_quasi_newton if method == "lbfgs" else minimize_incremental_potential
+    model = _cloth(3)
+    control = pl.Control(model)
+    control.particle_f.assign(np.tile([0.5, 0.0, 0.0], (model.particle_count, 1)))
+
+    class Problem:
+        def __init__(self) -> None:
+            self.model = model
+            self.energies = pl.energies.mass_spring(dashpots=False)
+            self.control = control
+            self.last_stats = None
+
+    solver = pl.solvers.ForceSolver(model, energies=pl.energies.mass_spring(dashpots=False), contact=False)
+    solver._control = control  # what ForceSolver.step sets for its step
+    x, v = model.particle_q, model.particle_qd
+    x_tilde = wp.clone(x)
+    outs = []
+    for problem in (Problem(), solver):
+        out = wp.clone(x)
+        stats = fn(problem, 0.0, 0.01, x_tilde, x, v, out, {"newton_tol": 1e-9})
+        assert stats.converged and problem.last_stats is stats
+        outs.append(out.numpy())
+    assert np.array_equal(outs[0], outs[1])
+    assert np.abs(outs[0] - x.numpy()).max() > 1e-6  # the force moved the cloth

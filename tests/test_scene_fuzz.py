@@ -3,7 +3,7 @@ unknown fields, 0 / negative / NaN / inf / huge numbers, unknown kinds, odd name
 empty mesh and ``.npy`` files — through the in-process path ``pliant run`` uses (load → build → simulate one
 frame → save into ``--out``). Every case must end as a success, a ``SceneError`` naming the file, a
 ``CliError`` or a clean divergence; never another exception, a file outside the output folder, or non-finite
-output. The default run takes about 30 s; ``-m slow`` runs many more cases.
+output. The default run takes about 15-45 s (1000 cases); ``-m slow`` runs many more cases.
 """
 
 from __future__ import annotations
@@ -310,7 +310,8 @@ def bad_file(draw) -> tuple[str, bytes]:
     dtype = draw(st.sampled_from(["<f8", "<f4", "<i4", "<c16", "|b1"]))
     arr = np.random.default_rng(0).normal(size=shape).astype(dtype) * 0.05
     if draw(st.booleans()) and arr.size:
-        arr.flat[0] = draw(st.sampled_from([np.nan, np.inf, 1e39]))
+        with np.errstate(over="ignore", invalid="ignore"):  # 1e39 overflows a float32 array to inf
+            arr.flat[0] = draw(st.sampled_from([np.nan, np.inf, 1e39]))
     buf = io.BytesIO()
     np.save(buf, arr)
     return "f.npy", buf.getvalue()
@@ -376,11 +377,11 @@ def _check(case) -> None:
     STATS[outcome] = STATS.get(outcome, 0) + 1
 
 
-@settings(max_examples=1500, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+@settings(max_examples=1000, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
 @given(mutated_scene())
 def test_mutated_scenes_fail_cleanly(case):
     """Every mutated scene ends as success, a SceneError naming the file, or a clean divergence (about a
-    half minute: 1500 deterministic cases)."""
+    half minute: 1000 deterministic cases)."""
     _check(case)
 
 

@@ -61,7 +61,10 @@ def chain_model(n: int = 4, m: float = 0.1, seg: float = 0.1, k: float = 100.0):
 
 @pytest.mark.parametrize("schedule", ["coloring", "jacobi"])
 def test_hanging_chain_static_stretch_independent_of_iterations_and_dt(schedule):
-    """XPBD's static stretch of a hanging chain is Σ m g/k within 2% for 5, 20, 100 iterations and two Δt."""
+    """XPBD's static stretch of a hanging chain is Σ m g/k within 2% for 5, 20, 100 iterations and two Δt.
+
+    Here Δt √(k/m) ≤ 0.32, where a few sweeps converge each step's solve (see the next test for when not).
+    """
     n, m, k = 4, 0.1, 100.0
     model = chain_model(n, m, 0.1, k)
     expected = m * G * sum(range(1, n + 1)) / k  # link j carries the weight of the particles below it
@@ -76,6 +79,43 @@ def test_hanging_chain_static_stretch_independent_of_iterations_and_dt(schedule)
         assert abs(st - expected) / expected < 0.02, (
             f"{schedule} {key}: stretch {st:.5f} m, expected {expected:.5f}"
         )
+
+
+def _top_link_stretch(model, schedule: str, iterations: int, substeps: int) -> float:
+    """Stretch [m] of the top link after 2 s hanging at ``substeps`` XPBD steps per 1/60 s frame."""
+    dt = 1.0 / 60.0 / substeps
+    solver = XPBD(model, iterations=iterations, schedule=schedule, damping=8.0)
+    y = run(model, solver, int(round(2.0 / dt)), dt).particle_q.numpy()[:, 1]
+    return (y[0] - y[1]) - 0.1
+
+
+def test_static_stretch_depends_on_iterations_unless_substeps_make_each_solve_converge():
+    """What holds (docs/design.md, "XPBD schedules"): the converged static stretch is exact under both
+    schedules, but λ restarts from 0 every step, so a truncated solve settles over-stretched when
+    Δt √(k/m) is not small. 10-link chain, m = 0.1 kg, k = 1000 N/m (Δt √(k/m) = 1.67 at 1/60 s): top link
+    exact 9.81 mm; one step per frame gives 17.4 mm at 5 Jacobi iterations (11.5 mm colouring) and the
+    exact value at 100; 4 substeps bring 5 iterations within 1%, 20 substeps one iteration within 2%."""
+    model = chain_model(10, 0.1, 0.1, 1000.0)
+    exact = 10 * 0.1 * G / 1000.0
+    rel = {
+        (sched, it, sub): _top_link_stretch(model, sched, it, sub) / exact - 1.0
+        for sched, it, sub in [
+            ("jacobi", 5, 1),
+            ("jacobi", 100, 1),
+            ("coloring", 5, 1),
+            ("coloring", 100, 1),
+            ("jacobi", 5, 4),
+            ("coloring", 5, 4),
+            ("jacobi", 1, 20),
+            ("coloring", 1, 20),
+        ]
+    }
+    assert rel[("jacobi", 5, 1)] > 0.5 and rel[("coloring", 5, 1)] > 0.1, rel  # the dependence is real
+    assert abs(rel[("jacobi", 100, 1)]) < 0.005 and abs(rel[("coloring", 100, 1)]) < 0.005, rel
+    for key in [("jacobi", 5, 4), ("coloring", 5, 4)]:
+        assert abs(rel[key]) < 0.01, (key, rel[key])
+    for key in [("jacobi", 1, 20), ("coloring", 1, 20)]:
+        assert abs(rel[key]) < 0.02, (key, rel[key])
 
 
 def cloth_model(

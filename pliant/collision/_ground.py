@@ -22,6 +22,17 @@ def coulomb_ground(v: Any, dvn: Any, vn_new: Any, friction: Any):
     return type(v)(v[0] * scale, vn_new, v[2] * scale)
 
 
+@wp.func
+def ground_velocity(v: Any, friction: Any, restitution: Any):
+    """Velocity after hitting the ground: normal part reflected (×e) if approaching, Coulomb friction."""
+    zero = friction * type(friction)(0.0)
+    vn = v[1]
+    vn_new = wp.max(vn, zero)
+    if vn < zero:
+        vn_new = -restitution * vn
+    return coulomb_ground(v, vn_new - vn, vn_new, friction)
+
+
 @wp.kernel
 def ground_contact(
     inv_mass: wp.array(dtype=Any),
@@ -40,13 +51,7 @@ def ground_contact(
     floor = height + radius[i]
     if p[1] >= floor:
         return
-    zero = type(height)(0.0)
-    v = v_io[i]
-    vn = v[1]
-    vn_new = wp.max(vn, zero)
-    if vn < zero:
-        vn_new = -restitution * vn
-    v_io[i] = coulomb_ground(v, vn_new - vn, vn_new, friction)
+    v_io[i] = ground_velocity(v_io[i], friction, restitution)
     x_io[i] = type(p)(p[0], floor, p[2])
 
 

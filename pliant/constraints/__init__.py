@@ -7,6 +7,7 @@ Every constraint object is a set of one kind (``Distance``, ``DihedralBending``,
 
 from ._base import (
     Constraint,
+    ProjectionContext,
     color_constraints,
     color_incidence,
     pbd_delta_lambda,
@@ -24,6 +25,7 @@ from ._contact import (
     point_triangle_grad,
 )
 from ._distance import Attachment, Distance, distance_c, distance_grad
+from ._factory import FixedArityConstraint, ProjectionKernels, projection_kernels
 from ._four import (
     DihedralBending,
     IsometricBending,
@@ -46,11 +48,14 @@ __all__ = [
     "Constraint",
     "DihedralBending",
     "Distance",
+    "FixedArityConstraint",
     "GenericConstraint",
     "Ground",
     "IsometricBending",
     "ParticleCollision",
     "PointTriangleCollision",
+    "ProjectionContext",
+    "ProjectionKernels",
     "ShapeMatching",
     "Volume",
     "color_constraints",
@@ -72,6 +77,7 @@ __all__ = [
     "point_triangle_c",
     "point_triangle_grad",
     "polar_rotation",
+    "projection_kernels",
     "shape_matching_goal",
     "tet_volume",
     "volume_c",

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -115,6 +117,41 @@ def sort_by_color(colors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return order, offsets
 
 
+@dataclass
+class ProjectionContext:
+    """What a constraint set may use from the solver projecting it (XPBD/PBD build one per step).
+
+    Attributes:
+        model: the Model (device, dtype, inverse masses, radii).
+        iterations: projection sweeps per step (PBD's k' = 1 − (1 − k)^(1/n) needs it).
+        coloring: True for the Gauss–Seidel colour schedule, False for Jacobi.
+        relaxation: ω of the bilateral Jacobi corrections.
+        pbd: PBD (stiffness k) instead of XPBD (compliance α).
+        requires_grad: tape-differentiable step: write fresh arrays (:meth:`fresh`), never in place.
+        launch: ``launch(kernel, dim, inputs)`` on the model's device (recorded for replay).
+        call: ``call(fn, *args)`` runs a non-kernel operation of the step (recorded for replay).
+        delta: Jacobi correction accumulator [N] (vec3) of the current sweep.
+        delta_count: Jacobi correction counts [N] (int32) of the current sweep.
+        v_pred: the predicted velocity ṽ of this step [m/s] (restitution reads it).
+    """
+
+    model: Model
+    iterations: int
+    coloring: bool
+    relaxation: float
+    pbd: bool
+    requires_grad: bool
+    launch: Callable[..., None]
+    call: Callable[..., None]
+    delta: wp.array
+    delta_count: wp.array
+    v_pred: wp.array
+
+    def fresh(self, like: wp.array) -> wp.array:
+        """A zeroed array shaped like ``like``, tracking gradients when the step is differentiable."""
+        return wp.zeros_like(like, requires_grad=self.requires_grad and like.dtype != wp.int32)
+
+
 class Constraint:
     """A set of constraints of one kind: indices, rest data, compliance α and multipliers λ.
 
@@ -136,6 +173,8 @@ class Constraint:
     is_contact = False
     #: Whether the set's Jacobi kernels apply the relaxation ω themselves (to Δλ and Δx together).
     relaxes_itself = False
+    #: Whether the set supports a tape-differentiable step (fresh arrays per sweep; see XPBD).
+    differentiable = False
 
     def __init__(self, *, compliance: float | None = None, stiffness: float = 1.0) -> None:
         if compliance is not None and compliance < 0:
@@ -182,29 +221,38 @@ class Constraint:
         return [(int(off[c]), int(off[c + 1] - off[c])) for c in range(len(off) - 1) if off[c + 1] > off[c]]
 
     # ------------------------------------------------------------------ per step
-    def begin_step(self, solver: Any, x: wp.array, p: wp.array, dt: float) -> None:
+    def begin_step(self, ctx: ProjectionContext, x: wp.array, p: wp.array, dt: float) -> None:
         """Reset λ (XPBD multipliers start at 0 every step); contacts are generated here."""
         if self.lam is not None:
-            solver.call(self.lam.zero_)
+            if ctx.requires_grad:
+                self.lam = ctx.fresh(self.lam)  # the tape keeps every step's multipliers
+            else:
+                ctx.call(self.lam.zero_)
 
-    def project(self, solver: Any, p: wp.array, dt: float) -> None:
-        """One sweep over the constraints, writing ``p`` (Gauss–Seidel) or ``solver`` deltas (Jacobi)."""
+    def project(self, ctx: ProjectionContext, p: wp.array, dt: float) -> wp.array | None:
+        """One sweep over the constraints, writing ``p`` (Gauss–Seidel) or ``ctx`` deltas (Jacobi).
+
+        Returns None, or (sets that move particles directly in a differentiable step) the fresh array of
+        projected positions that replaces ``p``.
+        """
         raise NotImplementedError
 
-    def residual(self, solver: Any, p: wp.array, dt: float, out: wp.array) -> None:
+    def residual(self, ctx: ProjectionContext, p: wp.array, dt: float, out: wp.array) -> None:
         """Add Σ (C + α̃λ)² over the constraints into ``out[0]`` and their number into ``out[1]``."""
 
-    def end_step(self, solver: Any, x: wp.array, p: wp.array, v: wp.array, dt: float) -> None:
-        """Velocity pass (friction, restitution) after v = (p − x)/dt."""
+    def end_step(
+        self, ctx: ProjectionContext, x: wp.array, p: wp.array, v: wp.array, dt: float
+    ) -> wp.array | None:
+        """Velocity pass (friction, restitution) after v = (p − x)/dt; a fresh v, or None (in place)."""
 
     def writes_deltas(self, coloring: bool) -> bool:
         """Whether a sweep accumulates into the solver's deltas (which the solver then averages)."""
         return self.uses_deltas and (self.always_jacobi or not coloring)
 
-    def pbd_k(self, solver: Any) -> float:
+    def pbd_k(self, ctx: ProjectionContext) -> float:
         """The per-iteration PBD stiffness k', or −1 for XPBD (the kernels branch on the sign)."""
-        if getattr(solver, "pbd", False):
-            return pbd_iteration_stiffness(self.stiffness, solver.iterations)
+        if ctx.pbd:
+            return pbd_iteration_stiffness(self.stiffness, ctx.iterations)
         return -1.0
 
     def describe(self) -> dict:

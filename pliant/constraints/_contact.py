@@ -9,7 +9,7 @@ import warp as wp
 
 from ..collision._hashgrid import ParticleGrid, TriangleBVH
 from ..model import Model
-from ._base import Constraint
+from ._base import Constraint, ProjectionContext
 
 
 # ---------------------------------------------------------------------- ground
@@ -31,19 +31,31 @@ def _project_ground(
     radius: wp.array(dtype=Any),
     normal: Any,
     d: Any,
-    p_io: wp.array(dtype=Any),
-    lam_io: wp.array(dtype=Any),
+    copy_through: int,
+    p_in: wp.array(dtype=Any),
+    lam_in: wp.array(dtype=Any),
+    p_out: wp.array(dtype=Any),
+    lam_out: wp.array(dtype=Any),
 ):
+    # p_out/lam_out are p_in/lam_in (in place) or, for a differentiable step, fresh arrays that every
+    # thread fills (copy_through != 0).
+    # Loads only what the in-place path needs (this kernel runs every sweep plus the contact sweeps).
     i = wp.tid()
     w = inv_mass[i]
     if w == type(w)(0.0):
+        if copy_through != 0:
+            p_out[i] = p_in[i]
+            lam_out[i] = lam_in[i]
         return
-    x = p_io[i]
+    x = p_in[i]
     c = ground_c(x, normal, d, radius[i])
     if c < type(w)(0.0):
         # |∇C| = 1: Δλ = −C/w and Δx = wΔλ n = −C n (the lecture's Δp = C n with C = min(·, 0)).
-        lam_io[i] = lam_io[i] - c / w
-        p_io[i] = x - c * ground_grad(x, normal)
+        lam_out[i] = lam_in[i] - c / w
+        p_out[i] = x - c * ground_grad(x, normal)
+    elif copy_through != 0:
+        p_out[i] = x
+        lam_out[i] = lam_in[i]
 
 
 @wp.kernel
@@ -54,16 +66,21 @@ def _ground_velocity(
     restitution: Any,
     threshold: Any,
     inv_dt: Any,
+    copy_through: int,
     lam_in: wp.array(dtype=Any),
     v_pre_in: wp.array(dtype=Any),
-    v_io: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
 ):
+    # v_out is v_in (in place) or a fresh array every thread fills (copy_through != 0).
     i = wp.tid()
     lam = lam_in[i]
     zero = type(lam)(0.0)
     if lam <= zero:
+        if copy_through != 0:
+            v_out[i] = v_in[i]
         return
-    v = v_io[i]
+    v = v_in[i]
     vn = wp.dot(v, normal)
     vt = v - vn * normal
     # Coulomb: the tangential velocity change is bounded by μ times the normal one, |Δx_n|/Δt = wλ/Δt.
@@ -76,7 +93,7 @@ def _ground_velocity(
     vn_new = wp.max(vn, zero)
     if vn_pre < -threshold:
         vn_new = -restitution * vn_pre
-    v_io[i] = vt * scale + vn_new * normal
+    v_out[i] = vt * scale + vn_new * normal
 
 
 class Ground(Constraint):
@@ -95,6 +112,7 @@ class Ground(Constraint):
 
     uses_deltas = False
     is_contact = True
+    differentiable = True
 
     def __init__(
         self,
@@ -125,20 +143,45 @@ class Ground(Constraint):
         self.count = model.particle_count
         self.lam = wp.zeros(self.count, dtype=model.scalar, device=model.device)
 
-    def project(self, solver: Any, p: wp.array, dt: float) -> None:
-        """Push particles onto the plane (each thread touches only its own particle)."""
+    def project(self, ctx: ProjectionContext, p: wp.array, dt: float) -> wp.array | None:
+        """Push particles onto the plane (each thread touches only its own particle).
+
+        In a differentiable step the projection writes fresh positions and λ and returns the positions.
+        Its gradient is that of the active set: exact away from the contact switch C = 0, a one-sided
+        (sub)gradient at it.
+        """
         m = self.model
-        solver.launch(
+        p_out, lam_out = (ctx.fresh(p), ctx.fresh(self.lam)) if ctx.requires_grad else (p, self.lam)
+        ctx.launch(
             _project_ground,
             self.count,
-            [m.particle_inv_mass, m.particle_radius, m.vec3(*self.normal), m.s(self.offset), p, self.lam],
+            [
+                m.particle_inv_mass,
+                m.particle_radius,
+                m.vec3(*self.normal),
+                m.s(self.offset),
+                int(ctx.requires_grad),
+                p,
+                self.lam,
+                p_out,
+                lam_out,
+            ],
         )
+        self.lam = lam_out
+        return p_out if ctx.requires_grad else None
 
-    def end_step(self, solver: Any, x: wp.array, p: wp.array, v: wp.array, dt: float) -> None:
-        """Friction and restitution for the particles the plane pushed this step."""
+    def end_step(
+        self, ctx: ProjectionContext, x: wp.array, p: wp.array, v: wp.array, dt: float
+    ) -> wp.array | None:
+        """Friction and restitution for the particles the plane pushed this step.
+
+        Differentiable as far as smooth: the Coulomb clamp max(|v_t| − μΔv_n, 0) and the restitution
+        switch (approach speed above 2|g|Δt) give one-sided gradients at their kinks.
+        """
         m = self.model
         g = float(np.linalg.norm(m.gravity))
-        solver.launch(
+        v_out = ctx.fresh(v) if ctx.requires_grad else v
+        ctx.launch(
             _ground_velocity,
             self.count,
             [
@@ -148,11 +191,14 @@ class Ground(Constraint):
                 m.s(self.restitution),
                 m.s(2.0 * g * dt),  # below this approach speed a contact rests instead of bouncing
                 m.s(1.0 / dt),
+                int(ctx.requires_grad),
                 self.lam,
-                solver.v_pred,
+                ctx.v_pred,
                 v,
+                v_out,
             ],
         )
+        return v_out if ctx.requires_grad else None
 
 
 # ---------------------------------------------------------------------- particle–particle
@@ -228,14 +274,14 @@ class ParticleCollision(Constraint):
         self.grid = ParticleGrid(model.device, model.dtype, self._cell or self.query_radius)
         self.count = model.particle_count
 
-    def begin_step(self, solver: Any, x: wp.array, p: wp.array, dt: float) -> None:
+    def begin_step(self, ctx: ProjectionContext, x: wp.array, p: wp.array, dt: float) -> None:
         """Rebuild the grid over the predicted positions."""
-        solver.call(self.grid.build, p)
+        ctx.call(self.grid.build, p)
 
-    def project(self, solver: Any, p: wp.array, dt: float) -> None:
-        """Accumulate contact corrections into ``solver.delta``."""
+    def project(self, ctx: ProjectionContext, p: wp.array, dt: float) -> None:
+        """Accumulate contact corrections into ``ctx.delta``."""
         m = self.model
-        solver.launch(
+        ctx.launch(
             _project_particle_collision,
             self.count,
             [
@@ -244,8 +290,8 @@ class ParticleCollision(Constraint):
                 m.particle_radius,
                 m.s(self.query_radius),
                 p,
-                solver.delta,
-                solver.delta_count,
+                ctx.delta,
+                ctx.delta_count,
             ],
         )
 
@@ -486,12 +532,12 @@ class PointTriangleCollision(Constraint):
         self._min = wp.zeros(1, dtype=f, device=d)
         self.count = self.capacity
 
-    def begin_step(self, solver: Any, x: wp.array, p: wp.array, dt: float) -> None:
+    def begin_step(self, ctx: ProjectionContext, x: wp.array, p: wp.array, dt: float) -> None:
         """Refit the BVH at the predicted positions and generate this step's contacts."""
         m = self.model
-        self.bvh.update(p, solver)
-        solver.call(self.contact_count.zero_)
-        solver.launch(
+        self.bvh.update(p, ctx)
+        ctx.call(self.contact_count.zero_)
+        ctx.launch(
             _detect_point_triangle,
             m.particle_count,
             [
@@ -519,10 +565,10 @@ class PointTriangleCollision(Constraint):
             self.contact_side,
         ]
 
-    def project(self, solver: Any, p: wp.array, dt: float) -> None:
-        """Accumulate contact corrections into ``solver.delta``."""
+    def project(self, ctx: ProjectionContext, p: wp.array, dt: float) -> None:
+        """Accumulate contact corrections into ``ctx.delta``."""
         m = self.model
-        solver.launch(
+        ctx.launch(
             _project_point_triangle,
             self.capacity,
             [
@@ -531,8 +577,8 @@ class PointTriangleCollision(Constraint):
                 m.s(self.thickness),
                 *self._contact_args(),
                 p,
-                solver.delta,
-                solver.delta_count,
+                ctx.delta,
+                ctx.delta_count,
             ],
         )
 

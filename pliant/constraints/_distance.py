@@ -8,7 +8,8 @@ import numpy as np
 import warp as wp
 
 from ..model import Model
-from ._base import Constraint, constraint_delta_lambda
+from ._base import Constraint, ProjectionContext, constraint_delta_lambda
+from ._factory import FixedArityConstraint, projection_kernels
 
 
 @wp.func
@@ -28,105 +29,12 @@ def distance_grad(x0: Any, x1: Any):
     return n, -n
 
 
-@wp.kernel
-def _project_distance_jacobi(
-    # Constraints:
-    indices: wp.array2d(dtype=wp.int32),
-    rest: wp.array(dtype=Any),
-    compliance: wp.array(dtype=Any),
-    split: wp.array(dtype=wp.int32),
-    # Model:
-    inv_mass: wp.array(dtype=Any),
-    # Parameters:
-    inv_dt2: Any,
-    pbd_k: Any,
-    omega: Any,
-    # In/out:
-    p_in: wp.array(dtype=Any),
-    lam_io: wp.array(dtype=Any),
-    delta_out: wp.array(dtype=Any),
-    count_out: wp.array(dtype=wp.int32),
-):
-    s = wp.tid()
-    i = indices[s, 0]
-    j = indices[s, 1]
-    # Mass splitting: each of the n_i constraints at particle i sees the mass m_i/n_i.
-    wi = inv_mass[i] * type(omega)(split[i])
-    wj = inv_mass[j] * type(omega)(split[j])
-    xi = p_in[i]
-    xj = p_in[j]
-    c = distance_c(xi, xj, rest[s])
-    gi, gj = distance_grad(xi, xj)
-    lam = lam_io[s]
-    dl = constraint_delta_lambda(c, wi + wj, compliance[s] * inv_dt2, lam, pbd_k) * omega
-    lam_io[s] = lam + dl
-    wp.atomic_add(delta_out, i, (wi * dl) * gi)
-    wp.atomic_add(delta_out, j, (wj * dl) * gj)
-    wp.atomic_add(count_out, i, 1)
-    wp.atomic_add(count_out, j, 1)
-
-
-@wp.kernel
-def _project_distance_gs(
-    # Constraints:
-    indices: wp.array2d(dtype=wp.int32),
-    rest: wp.array(dtype=Any),
-    compliance: wp.array(dtype=Any),
-    # Model:
-    inv_mass: wp.array(dtype=Any),
-    # Parameters:
-    inv_dt2: Any,
-    pbd_k: Any,
-    offset: int,
-    omega: Any,
-    # In/out:
-    p_io: wp.array(dtype=Any),
-    lam_io: wp.array(dtype=Any),
-):
-    # The Gauss–Seidel sweep alone: a lean kernel (no Jacobi branch or buffers) runs ~1.5x faster on CPU.
-    s = offset + wp.tid()
-    i = indices[s, 0]
-    j = indices[s, 1]
-    wi = inv_mass[i]
-    wj = inv_mass[j]
-    xi = p_io[i]
-    xj = p_io[j]
-    c = distance_c(xi, xj, rest[s])
-    gi, gj = distance_grad(xi, xj)
-    lam = lam_io[s]
-    dl = constraint_delta_lambda(c, wi + wj, compliance[s] * inv_dt2, lam, pbd_k) * omega
-    lam_io[s] = lam + dl
-    p_io[i] = xi + (wi * dl) * gi
-    p_io[j] = xj + (wj * dl) * gj
-
-
-@wp.kernel
-def _residual_distance(
-    indices: wp.array2d(dtype=wp.int32),
-    rest: wp.array(dtype=Any),
-    compliance: wp.array(dtype=Any),
-    inv_mass: wp.array(dtype=Any),
-    inv_dt2: Any,
-    p_in: wp.array(dtype=Any),
-    lam_in: wp.array(dtype=Any),
-    out: wp.array(dtype=Any),
-):
-    s = wp.tid()
-    i = indices[s, 0]
-    j = indices[s, 1]
-    if inv_mass[i] + inv_mass[j] == type(inv_dt2)(0.0):
-        return
-    r = distance_c(p_in[i], p_in[j], rest[s]) + compliance[s] * inv_dt2 * lam_in[s]
-    wp.atomic_add(out, 0, r * r)
-    wp.atomic_add(out, 1, type(r)(1.0))
-
-
 def _as_pairs(indices: Any) -> np.ndarray:
     idx = np.asarray(indices, np.int64).reshape(-1, 2)
     return idx.astype(np.int32)
 
 
-class Distance(Constraint):
+class Distance(FixedArityConstraint):
     """Stretching: C(x_i, x_j) = |x_i − x_j| − l = 0, with compliance α = 1/k [m/N].
 
     By default the constraint set is the model's springs with α = 1/k from ``model.spring_stiffness``
@@ -144,7 +52,7 @@ class Distance(Constraint):
         solver = pl.solvers.XPBD(model, constraints=[pl.constraints.Distance(compliance=1e-6)])
     """
 
-    relaxes_itself = True
+    kernels = projection_kernels("distance", distance_c, distance_grad, 2, unit_gradient=True)
 
     def __init__(
         self,
@@ -184,65 +92,12 @@ class Distance(Constraint):
         comp = np.broadcast_to(np.asarray(comp, np.float64), (n,))
         if np.any(comp < 0):
             raise ValueError("Distance: compliance must be >= 0 m/N")
-        order, self.color_offsets = self._colors(idx, coloring)
-        self.count = n
-        d, f = model.device, model.scalar
-        self.indices = wp.array(idx[order].astype(np.int32), dtype=wp.int32, device=d)
-        self.rest_length = wp.array(rest[order], dtype=f, device=d)
-        self.compliance_array = wp.array(comp[order], dtype=f, device=d)
-        self.lam = wp.zeros(n, dtype=f, device=d)
-        self.split = wp.array(self._split_counts(idx), dtype=wp.int32, device=d)
-        self.order = order
+        self._device_arrays(np.asarray(idx).reshape(-1, 2), rest, comp, coloring)
 
-    def project(self, solver: Any, p: wp.array, dt: float) -> None:
-        """One sweep: Gauss–Seidel per colour, or Jacobi into ``solver.delta``."""
-        m = self.model
-        k = m.s(self.pbd_k(solver))
-        inv_dt2 = m.s(1.0 / (dt * dt))
-        omega = m.s(solver.relaxation)
-        for off, size in self.color_ranges(solver.coloring):
-            if solver.coloring:
-                args = [self.indices, self.rest_length, self.compliance_array, m.particle_inv_mass]
-                solver.launch(_project_distance_gs, size, [*args, inv_dt2, k, off, omega, p, self.lam])
-                continue
-            solver.launch(
-                _project_distance_jacobi,
-                size,
-                [
-                    self.indices,
-                    self.rest_length,
-                    self.compliance_array,
-                    self.split,
-                    m.particle_inv_mass,
-                    inv_dt2,
-                    k,
-                    omega,
-                    p,
-                    self.lam,
-                    solver.delta,
-                    solver.delta_count,
-                ],
-            )
-
-    def residual(self, solver: Any, p: wp.array, dt: float, out: wp.array) -> None:
-        """Σ (C + α̃λ)² into out[0], count into out[1]."""
-        m = self.model
-        if self.count:
-            wp.launch(
-                _residual_distance,
-                self.count,
-                [
-                    self.indices,
-                    self.rest_length,
-                    self.compliance_array,
-                    m.particle_inv_mass,
-                    m.s(1.0 / (dt * dt)),
-                    p,
-                    self.lam,
-                    out,
-                ],
-                device=m.device,
-            )
+    @property
+    def rest_length(self) -> wp.array:
+        """Rest lengths [m] in colour order (the factory's ``rest``)."""
+        return self.rest
 
 
 @wp.kernel
@@ -323,11 +178,11 @@ class Attachment(Constraint):
         """Move the attachment points [m], shape [K, 3] (between steps)."""
         self.targets.assign(np.asarray(targets, float).reshape(self.count, 3))
 
-    def project(self, solver: Any, p: wp.array, dt: float) -> None:
+    def project(self, ctx: ProjectionContext, p: wp.array, dt: float) -> None:
         """Each particle is touched by one attachment: a direct (conflict-free) update."""
         m = self.model
         if self.count:
-            solver.launch(
+            ctx.launch(
                 _project_attachment,
                 self.count,
                 [
@@ -337,7 +192,7 @@ class Attachment(Constraint):
                     self.compliance_array,
                     m.particle_inv_mass,
                     m.s(1.0 / (dt * dt)),
-                    m.s(self.pbd_k(solver)),
+                    m.s(self.pbd_k(ctx)),
                     p,
                     self.lam,
                 ],

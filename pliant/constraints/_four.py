@@ -8,7 +8,8 @@ import numpy as np
 import warp as wp
 
 from ..model import Model
-from ._base import Constraint, constraint_delta_lambda
+from ._base import Constraint, ProjectionContext, constraint_delta_lambda
+from ._factory import FixedArityConstraint, projection_kernels
 
 
 # ---------------------------------------------------------------------- dihedral bending
@@ -102,181 +103,7 @@ def volume_grad(x0: Any, x1: Any, x2: Any, x3: Any):
     return -(g1 + g2 + g3), g1, g2, g3
 
 
-# ---------------------------------------------------------------------- shared update
-@wp.func
-def _apply4(
-    i0: int,
-    i1: int,
-    i2: int,
-    i3: int,
-    w0: Any,
-    w1: Any,
-    w2: Any,
-    w3: Any,
-    g0: Any,
-    g1: Any,
-    g2: Any,
-    g3: Any,
-    dl: Any,
-    jacobi: int,
-    p_io: wp.array(dtype=Any),
-    delta_out: wp.array(dtype=Any),
-    count_out: wp.array(dtype=wp.int32),
-):
-    if jacobi != 0:
-        wp.atomic_add(delta_out, i0, (w0 * dl) * g0)
-        wp.atomic_add(delta_out, i1, (w1 * dl) * g1)
-        wp.atomic_add(delta_out, i2, (w2 * dl) * g2)
-        wp.atomic_add(delta_out, i3, (w3 * dl) * g3)
-        wp.atomic_add(count_out, i0, 1)
-        wp.atomic_add(count_out, i1, 1)
-        wp.atomic_add(count_out, i2, 1)
-        wp.atomic_add(count_out, i3, 1)
-    else:
-        p_io[i0] = p_io[i0] + (w0 * dl) * g0
-        p_io[i1] = p_io[i1] + (w1 * dl) * g1
-        p_io[i2] = p_io[i2] + (w2 * dl) * g2
-        p_io[i3] = p_io[i3] + (w3 * dl) * g3
-
-
-@wp.kernel
-def _project_four(
-    # Constraints:
-    indices: wp.array2d(dtype=wp.int32),
-    rest: wp.array(dtype=Any),
-    compliance: wp.array(dtype=Any),
-    split: wp.array(dtype=wp.int32),
-    # Model:
-    inv_mass: wp.array(dtype=Any),
-    # Parameters:
-    kind: int,
-    inv_dt2: Any,
-    pbd_k: Any,
-    offset: int,
-    jacobi: int,
-    omega: Any,
-    # In/out:
-    p_io: wp.array(dtype=Any),
-    lam_io: wp.array(dtype=Any),
-    delta_out: wp.array(dtype=Any),
-    count_out: wp.array(dtype=wp.int32),
-):
-    s = offset + wp.tid()
-    i0 = indices[s, 0]
-    i1 = indices[s, 1]
-    i2 = indices[s, 2]
-    i3 = indices[s, 3]
-    x0 = p_io[i0]
-    x1 = p_io[i1]
-    x2 = p_io[i2]
-    x3 = p_io[i3]
-    w0 = inv_mass[i0]
-    w1 = inv_mass[i1]
-    w2 = inv_mass[i2]
-    w3 = inv_mass[i3]
-    c = rest[s] * type(rest[s])(0.0)
-    g0 = x0 * c
-    g1 = x0 * c
-    g2 = x0 * c
-    g3 = x0 * c
-    if kind == 0:
-        c = dihedral_c(x0, x1, x2, x3, rest[s])
-        g0, g1, g2, g3 = dihedral_grad(x0, x1, x2, x3)
-    else:
-        c = volume_c(x0, x1, x2, x3, rest[s])
-        g0, g1, g2, g3 = volume_grad(x0, x1, x2, x3)
-    if jacobi != 0:
-        # Mass splitting: each of the n_i constraints at particle i sees the mass m_i/n_i.
-        w0 = w0 * type(w0)(split[i0])
-        w1 = w1 * type(w0)(split[i1])
-        w2 = w2 * type(w0)(split[i2])
-        w3 = w3 * type(w0)(split[i3])
-    wgs = w0 * wp.dot(g0, g0) + w1 * wp.dot(g1, g1) + w2 * wp.dot(g2, g2) + w3 * wp.dot(g3, g3)
-    lam = lam_io[s]
-    dl = constraint_delta_lambda(c, wgs, compliance[s] * inv_dt2, lam, pbd_k)
-    dl = dl * omega  # (over-)relaxation of λ and x together keeps them consistent
-    lam_io[s] = lam + dl
-    _apply4(i0, i1, i2, i3, w0, w1, w2, w3, g0, g1, g2, g3, dl, jacobi, p_io, delta_out, count_out)
-
-
-@wp.kernel
-def _project_four_gs(
-    indices: wp.array2d(dtype=wp.int32),
-    rest: wp.array(dtype=Any),
-    compliance: wp.array(dtype=Any),
-    inv_mass: wp.array(dtype=Any),
-    kind: int,
-    inv_dt2: Any,
-    pbd_k: Any,
-    offset: int,
-    omega: Any,
-    p_io: wp.array(dtype=Any),
-    lam_io: wp.array(dtype=Any),
-):
-    # The Gauss–Seidel sweep alone (no Jacobi buffers or branches): markedly faster on the CPU.
-    s = offset + wp.tid()
-    i0 = indices[s, 0]
-    i1 = indices[s, 1]
-    i2 = indices[s, 2]
-    i3 = indices[s, 3]
-    x0 = p_io[i0]
-    x1 = p_io[i1]
-    x2 = p_io[i2]
-    x3 = p_io[i3]
-    w0 = inv_mass[i0]
-    w1 = inv_mass[i1]
-    w2 = inv_mass[i2]
-    w3 = inv_mass[i3]
-    c = rest[s] * type(rest[s])(0.0)
-    g0 = x0 * c
-    g1 = x0 * c
-    g2 = x0 * c
-    g3 = x0 * c
-    if kind == 0:
-        c = dihedral_c(x0, x1, x2, x3, rest[s])
-        g0, g1, g2, g3 = dihedral_grad(x0, x1, x2, x3)
-    else:
-        c = volume_c(x0, x1, x2, x3, rest[s])
-        g0, g1, g2, g3 = volume_grad(x0, x1, x2, x3)
-    wgs = w0 * wp.dot(g0, g0) + w1 * wp.dot(g1, g1) + w2 * wp.dot(g2, g2) + w3 * wp.dot(g3, g3)
-    lam = lam_io[s]
-    dl = constraint_delta_lambda(c, wgs, compliance[s] * inv_dt2, lam, pbd_k) * omega
-    lam_io[s] = lam + dl
-    p_io[i0] = x0 + (w0 * dl) * g0
-    p_io[i1] = x1 + (w1 * dl) * g1
-    p_io[i2] = x2 + (w2 * dl) * g2
-    p_io[i3] = x3 + (w3 * dl) * g3
-
-
-@wp.kernel
-def _residual_four(
-    indices: wp.array2d(dtype=wp.int32),
-    rest: wp.array(dtype=Any),
-    compliance: wp.array(dtype=Any),
-    kind: int,
-    inv_dt2: Any,
-    p_in: wp.array(dtype=Any),
-    lam_in: wp.array(dtype=Any),
-    out: wp.array(dtype=Any),
-):
-    s = wp.tid()
-    x0 = p_in[indices[s, 0]]
-    x1 = p_in[indices[s, 1]]
-    x2 = p_in[indices[s, 2]]
-    x3 = p_in[indices[s, 3]]
-    c = rest[s]
-    if kind == 0:
-        c = dihedral_c(x0, x1, x2, x3, rest[s])
-    else:
-        c = volume_c(x0, x1, x2, x3, rest[s])
-    r = c + compliance[s] * inv_dt2 * lam_in[s]
-    wp.atomic_add(out, 0, r * r)
-    wp.atomic_add(out, 1, type(r)(1.0))
-
-
-class _FourPoint(Constraint):
-    relaxes_itself = True
-    _kind = 0
+class _FourPoint(FixedArityConstraint):
     _name = ""
 
     def __init__(self, indices: Any, rest: Any, compliance: Any, stiffness: float) -> None:
@@ -310,70 +137,7 @@ class _FourPoint(Constraint):
         comp = np.broadcast_to(np.asarray(comp, np.float64), (n,))
         if np.any(comp < 0):
             raise ValueError(f"{self._name}: compliance must be >= 0")
-        order, self.color_offsets = self._colors(idx, coloring)
-        self.count = n
-        d, f = model.device, model.scalar
-        self.indices = wp.array(idx[order].astype(np.int32).reshape(-1, 4), dtype=wp.int32, device=d)
-        self.rest = wp.array(rest[order], dtype=f, device=d)
-        self.compliance_array = wp.array(comp[order], dtype=f, device=d)
-        self.lam = wp.zeros(n, dtype=f, device=d)
-        self.split = wp.array(self._split_counts(idx), dtype=wp.int32, device=d)
-        self.order = order
-
-    def project(self, solver: Any, p: wp.array, dt: float) -> None:
-        """One sweep: Gauss–Seidel per colour, or Jacobi into ``solver.delta``."""
-        m = self.model
-        k = m.s(self.pbd_k(solver))
-        for off, size in self.color_ranges(solver.coloring):
-            if solver.coloring:
-                args = [self.indices, self.rest, self.compliance_array, m.particle_inv_mass, self._kind]
-                solver.launch(
-                    _project_four_gs,
-                    size,
-                    [*args, m.s(1.0 / (dt * dt)), k, off, m.s(solver.relaxation), p, self.lam],
-                )
-                continue
-            solver.launch(
-                _project_four,
-                size,
-                [
-                    self.indices,
-                    self.rest,
-                    self.compliance_array,
-                    self.split,
-                    m.particle_inv_mass,
-                    self._kind,
-                    m.s(1.0 / (dt * dt)),
-                    k,
-                    off,
-                    int(not solver.coloring),
-                    m.s(solver.relaxation),
-                    p,
-                    self.lam,
-                    solver.delta,
-                    solver.delta_count,
-                ],
-            )
-
-    def residual(self, solver: Any, p: wp.array, dt: float, out: wp.array) -> None:
-        """Σ (C + α̃λ)² into out[0], count into out[1]."""
-        m = self.model
-        if self.count:
-            wp.launch(
-                _residual_four,
-                self.count,
-                [
-                    self.indices,
-                    self.rest,
-                    self.compliance_array,
-                    self._kind,
-                    m.s(1.0 / (dt * dt)),
-                    p,
-                    self.lam,
-                    out,
-                ],
-                device=m.device,
-            )
+        self._device_arrays(np.asarray(idx).reshape(-1, 4), rest, comp, coloring)
 
 
 def dihedral_angles_np(q: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -403,8 +167,8 @@ class DihedralBending(_FourPoint):
         stiffness: PBD stiffness k in [0, 1].
     """
 
-    _kind = 0
     _name = "DihedralBending"
+    kernels = projection_kernels("dihedral", dihedral_c, dihedral_grad, 4)
 
     def __init__(
         self, indices: Any = None, *, rest_angle: Any = None, compliance: Any = None, stiffness: float = 1.0
@@ -437,8 +201,8 @@ class Volume(_FourPoint):
         stiffness: PBD stiffness k in [0, 1].
     """
 
-    _kind = 1
     _name = "Volume"
+    kernels = projection_kernels("volume", volume_c, volume_grad, 4)
 
     def __init__(
         self, indices: Any = None, *, rest_volume: Any = None, compliance: Any = None, stiffness: float = 1.0
@@ -598,12 +362,12 @@ class IsometricBending(Constraint):
         self.split = wp.array(self._split_counts(idx), dtype=wp.int32, device=d)
         self.order = order
 
-    def project(self, solver: Any, p: wp.array, dt: float) -> None:
-        """One sweep: Gauss–Seidel per colour, or Jacobi into ``solver.delta``."""
+    def project(self, ctx: ProjectionContext, p: wp.array, dt: float) -> None:
+        """One sweep: Gauss–Seidel per colour, or Jacobi into ``ctx.delta``."""
         m = self.model
-        k = m.s(self.pbd_k(solver))
-        for off, size in self.color_ranges(solver.coloring):
-            solver.launch(
+        k = m.s(self.pbd_k(ctx))
+        for off, size in self.color_ranges(ctx.coloring):
+            ctx.launch(
                 _project_isometric,
                 size,
                 [
@@ -616,10 +380,10 @@ class IsometricBending(Constraint):
                     m.s(1.0 / (dt * dt)),
                     k,
                     off,
-                    int(not solver.coloring),
-                    m.s(solver.relaxation),
+                    int(not ctx.coloring),
+                    m.s(ctx.relaxation),
                     p,
-                    solver.delta,
-                    solver.delta_count,
+                    ctx.delta,
+                    ctx.delta_count,
                 ],
             )

@@ -8,7 +8,7 @@ import numpy as np
 import warp as wp
 
 from ..model import Model
-from ._base import Constraint, constraint_delta_lambda
+from ._base import Constraint, ProjectionContext, constraint_delta_lambda
 
 
 @wp.kernel(enable_backward=False)
@@ -159,7 +159,7 @@ class GenericConstraint(Constraint):
             device=m.device,
         )
 
-    def _sweep(self, solver: Any, p: wp.array, dt: float) -> None:
+    def _sweep(self, ctx: ProjectionContext, p: wp.array, dt: float) -> None:
         m = self.model
         self.evaluate(p)
         wp.launch(
@@ -172,18 +172,18 @@ class GenericConstraint(Constraint):
                 self.split,
                 m.particle_inv_mass,
                 m.s(1.0 / (dt * dt)),
-                m.s(self.pbd_k(solver)),
+                m.s(self.pbd_k(ctx)),
                 int(self.unilateral),
                 self.c,
                 self.grad,
                 self.lam,
-                solver.delta,
-                solver.delta_count,
+                ctx.delta,
+                ctx.delta_count,
             ],
             device=m.device,
         )
 
-    def project(self, solver: Any, p: wp.array, dt: float) -> None:
-        """Evaluate C and ∇C (adjoint launch), then accumulate the corrections into ``solver.delta``."""
+    def project(self, ctx: ProjectionContext, p: wp.array, dt: float) -> None:
+        """Evaluate C and ∇C (adjoint launch), then accumulate the corrections into ``ctx.delta``."""
         if self.count:
-            solver.call(self._sweep, solver, p, dt)
+            ctx.call(self._sweep, ctx, p, dt)

@@ -9,7 +9,7 @@ import numpy as np
 import warp as wp
 
 from ..model import Model
-from ._base import Constraint, color_incidence, pbd_iteration_stiffness, sort_by_color
+from ._base import Constraint, ProjectionContext, color_incidence, pbd_iteration_stiffness, sort_by_color
 
 
 @wp.func
@@ -19,9 +19,12 @@ def polar_rotation(A: Any):
     With A = U Σ Vᵀ, R = U Vᵀ; when det(U Vᵀ) < 0 (a reflection) the column of U belonging to the
     smallest singular value is negated, which gives the closest proper rotation.
     """
-    U = A
-    sigma = wp.get_diag(A)
-    V = A
+    # Zero-valued outputs for svd3 to fill: initialising them as copies of A (same values after svd3)
+    # would also route their adjoints back into A and corrupt ∂R/∂A.
+    zero = A[0, 0] * type(A[0, 0])(0.0)
+    U = A * zero
+    sigma = wp.get_diag(A) * zero
+    V = A * zero
     wp.svd3(A, U, sigma, V)
     R = U * wp.transpose(V)
     if wp.determinant(R) < type(sigma[0])(0.0):
@@ -105,6 +108,71 @@ def _project_shape(
             orientation_io[i] = q
 
 
+# ---------------------------------------------------------------------- differentiable path
+# The same update split into per-member and per-cluster kernels that accumulate with atomics and write
+# fresh arrays, so that a wp.Tape can replay it (the fused kernel above loops over a cluster's members
+# with loop-carried sums, which Warp's adjoint does not replay).
+@wp.kernel
+def _cluster_center(
+    member_cluster: wp.array(dtype=wp.int32),
+    members: wp.array(dtype=wp.int32),
+    member_mass: wp.array(dtype=Any),
+    cluster_mass: wp.array(dtype=Any),
+    p_in: wp.array(dtype=Any),
+    center_out: wp.array(dtype=Any),
+):
+    k = wp.tid()
+    s = member_cluster[k]
+    wp.atomic_add(center_out, s, (member_mass[k] / cluster_mass[s]) * p_in[members[k]])
+
+
+@wp.kernel
+def _cluster_moment(
+    member_cluster: wp.array(dtype=wp.int32),
+    members: wp.array(dtype=wp.int32),
+    member_mass: wp.array(dtype=Any),
+    rest: wp.array(dtype=Any),
+    rest_center: wp.array(dtype=Any),
+    center_in: wp.array(dtype=Any),
+    p_in: wp.array(dtype=Any),
+    moment_out: wp.array(dtype=Any),
+):
+    k = wp.tid()
+    s = member_cluster[k]
+    wp.atomic_add(
+        moment_out, s, member_mass[k] * wp.outer(p_in[members[k]] - center_in[s], rest[k] - rest_center[s])
+    )
+
+
+@wp.kernel
+def _cluster_rotation(moment_in: wp.array(dtype=Any), rotation_out: wp.array(dtype=Any)):
+    s = wp.tid()
+    rotation_out[s] = polar_rotation(moment_in[s])
+
+
+@wp.kernel
+def _shape_deltas(
+    member_cluster: wp.array(dtype=wp.int32),
+    members: wp.array(dtype=wp.int32),
+    rest: wp.array(dtype=Any),
+    rest_center: wp.array(dtype=Any),
+    inv_mass: wp.array(dtype=Any),
+    k_s: Any,
+    center_in: wp.array(dtype=Any),
+    rotation_in: wp.array(dtype=Any),
+    p_in: wp.array(dtype=Any),
+    delta_out: wp.array(dtype=Any),
+    count_out: wp.array(dtype=wp.int32),
+):
+    k = wp.tid()
+    s = member_cluster[k]
+    i = members[k]
+    if inv_mass[i] > type(k_s)(0.0):
+        goal = shape_matching_goal(rotation_in[s], rest[k], rest_center[s], center_in[s])
+        wp.atomic_add(delta_out, i, k_s * (goal - p_in[i]))
+        wp.atomic_add(count_out, i, 1)
+
+
 @wp.kernel
 def _angular_velocity(
     inv_dt: Any,
@@ -147,6 +215,7 @@ class ShapeMatching(Constraint):
     """
 
     uses_deltas = True
+    differentiable = True
 
     def __init__(
         self, clusters: Sequence[Any] | None = None, *, stiffness: float = 1.0, radii: Any = None
@@ -189,6 +258,8 @@ class ShapeMatching(Constraint):
                 raise ValueError(f"ShapeMatching: radii need one entry per particle ({n}), got {r.shape[0]}")
             radii = r[mem]
             self.oriented = True
+        # Oriented particles write orientations in place (and race under Jacobi): not differentiable.
+        self.differentiable = not self.oriented
         d, f, v = model.device, model.scalar, model.vec3
         self.count = len(clusters)
         self.offsets = wp.array(offsets, dtype=wp.int32, device=d)
@@ -204,32 +275,40 @@ class ShapeMatching(Constraint):
         self.angular_velocity = wp.zeros(n, dtype=v, device=d)
         self._ident = ident
         self.order = order
+        sizes = np.diff(offsets)
+        self.member_cluster = wp.array(np.repeat(np.arange(len(clusters)), sizes).astype(np.int32), device=d)
+        cmass = np.array([model.particle_mass_np[c].sum() for c in clusters])
+        self.cluster_mass = wp.array(cmass, dtype=f, device=d)
+        self._mat = model.mat33
 
     def reset_orientations(self) -> None:
         """Set every particle orientation back to the identity (the rest orientation)."""
         self.orientation.assign(self._ident)
 
-    def begin_step(self, solver: Any, x: wp.array, p: wp.array, dt: float) -> None:
+    def begin_step(self, ctx: ProjectionContext, x: wp.array, p: wp.array, dt: float) -> None:
         """Remember the orientations at the start of the step (oriented particles)."""
         if self.oriented:
-            solver.call(wp.copy, self._orientation_prev, self.orientation)
+            ctx.call(wp.copy, self._orientation_prev, self.orientation)
 
-    def end_step(self, solver: Any, x: wp.array, p: wp.array, v: wp.array, dt: float) -> None:
+    def end_step(self, ctx: ProjectionContext, x: wp.array, p: wp.array, v: wp.array, dt: float) -> None:
         """Angular velocities from the orientation change of the step (oriented particles)."""
         if self.oriented:
             m = self.model
-            solver.launch(
+            ctx.launch(
                 _angular_velocity,
                 m.particle_count,
                 [m.s(1.0 / dt), self._orientation_prev, self.orientation, self.angular_velocity],
             )
 
-    def project(self, solver: Any, p: wp.array, dt: float) -> None:
+    def project(self, ctx: ProjectionContext, p: wp.array, dt: float) -> None:
         """Pull each cluster towards its best-fit rigid motion of the rest shape."""
         m = self.model
-        k = pbd_iteration_stiffness(self.stiffness, solver.iterations)
-        for off, size in self.color_ranges(solver.coloring):
-            solver.launch(
+        k = pbd_iteration_stiffness(self.stiffness, ctx.iterations)
+        if ctx.requires_grad:
+            self._project_differentiable(ctx, p, m.s(k))
+            return
+        for off, size in self.color_ranges(ctx.coloring):
+            ctx.launch(
                 _project_shape,
                 size,
                 [
@@ -243,10 +322,61 @@ class ShapeMatching(Constraint):
                     m.s(k),
                     int(self.oriented),
                     off,
-                    int(not solver.coloring),
+                    int(not ctx.coloring),
                     p,
                     self.orientation,
-                    solver.delta,
-                    solver.delta_count,
+                    ctx.delta,
+                    ctx.delta_count,
                 ],
             )
+
+    def _project_differentiable(self, ctx: ProjectionContext, p: wp.array, k_s: Any) -> None:
+        """The Jacobi sweep in four tape-replayable kernels writing fresh arrays (gradients requested).
+
+        ∂R/∂A goes through ``wp.svd3``'s adjoint, which divides by σ_i² − σ_j²: a cluster whose current
+        moment A has repeated singular values (an undeformed isotropic cluster, e.g. a cube of equal
+        masses) has no usable gradient there; use clusters with distinct principal extents.
+        """
+        m = self.model
+        n, c = self.members.shape[0], self.count
+        d = m.device
+        center = wp.zeros(c, dtype=m.vec3, device=d, requires_grad=True)
+        moment = wp.zeros(c, dtype=self._mat, device=d, requires_grad=True)
+        rotation = wp.zeros(c, dtype=self._mat, device=d, requires_grad=True)
+        ctx.launch(
+            _cluster_center,
+            n,
+            [self.member_cluster, self.members, self.member_mass, self.cluster_mass, p, center],
+        )
+        ctx.launch(
+            _cluster_moment,
+            n,
+            [
+                self.member_cluster,
+                self.members,
+                self.member_mass,
+                self.rest,
+                self.rest_center,
+                center,
+                p,
+                moment,
+            ],
+        )
+        ctx.launch(_cluster_rotation, c, [moment, rotation])
+        ctx.launch(
+            _shape_deltas,
+            n,
+            [
+                self.member_cluster,
+                self.members,
+                self.rest,
+                self.rest_center,
+                m.particle_inv_mass,
+                k_s,
+                center,
+                rotation,
+                p,
+                ctx.delta,
+                ctx.delta_count,
+            ],
+        )

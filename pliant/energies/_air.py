@@ -31,7 +31,7 @@ def _air_force(
 ):
     i = wp.tid()
     if particle_inv_mass[i] != c * type(c)(0.0):
-        f_out[i] = f_out[i] + air_drag_force(v_in[i], wind, c, c2)
+        wp.atomic_add(f_out, i, air_drag_force(v_in[i], wind, c, c2))
 
 
 @wp.kernel
@@ -62,7 +62,7 @@ def _air_implicit(
     if mode == 0:
         wp.atomic_add(value_out, 0, type(c)(0.5) * g * wp.dot(r, r))
     elif mode == 1:
-        grad_out[i] = grad_out[i] + g * r
+        wp.atomic_add(grad_out, i, g * r)
     else:
         wp.atomic_add(hess_out, slots[i], (scale * g) * wp.identity(n=3, dtype=type(c)))
 

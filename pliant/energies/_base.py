@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .._warp import launch
+from .._warp import fresh, grad_enabled, launch
 from ..model import Model
 
 
@@ -74,8 +74,11 @@ class Energy(abc.ABC):
 
     def force(self, model: Model, x: wp.array, v: wp.array, out: wp.array) -> None:
         """Add the force [N] at (x, v) into ``out``; default −∇E(x) (dissipative terms override)."""
-        tmp = self._scratch(model)
-        tmp.zero_()
+        if grad_enabled(model):
+            tmp = fresh(model)  # recorded steps: every evaluation keeps its own gradient for the tape
+        else:
+            tmp = self._scratch(model)
+            tmp.zero_()
         self.gradient(model, x, tmp)
         _axpy(out, tmp, -1.0, model)
 
@@ -148,7 +151,9 @@ class ModalEnergy(Energy):
 @wp.kernel
 def _axpy_kernel(out: wp.array(dtype=Any), x: wp.array(dtype=Any), a: Any):
     i = wp.tid()
-    out[i] = out[i] + a * x[i]
+    # An atomic add, not out[i] = out[i] + ...: a read-then-write of the same array cannot be replayed
+    # by wp.Tape; the arithmetic (one addition) is the same.
+    wp.atomic_add(out, i, a * x[i])
 
 
 def _axpy(out: wp.array, x: wp.array, a: float, model: Model) -> None:

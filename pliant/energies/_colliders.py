@@ -50,7 +50,7 @@ def _penalty(
             if mode == 0:
                 wp.atomic_add(value_out, 0, type(stiffness)(0.5) * stiffness * p * p)
             elif mode == 1:
-                grad_out[i] = grad_out[i] - stiffness * p * n
+                wp.atomic_sub(grad_out, i, stiffness * p * n)
             else:
                 h = wp.outer(n, n)
                 if project == 0:

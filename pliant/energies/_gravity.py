@@ -20,7 +20,8 @@ def _gravity_value(mass: wp.array(dtype=Any), g: Any, x_in: wp.array(dtype=Any),
 @wp.kernel
 def _gravity_gradient(mass: wp.array(dtype=Any), g: Any, grad_out: wp.array(dtype=Any)):
     i = wp.tid()
-    grad_out[i] = grad_out[i] - mass[i] * g
+    # An atomic add rather than a read-then-write, so that wp.Tape can replay it (same arithmetic).
+    wp.atomic_sub(grad_out, i, mass[i] * g)
 
 
 class Gravity(Energy):

@@ -20,14 +20,19 @@ def spring_energy(xi: Any, xj: Any, k: Any, rest: Any):
 
 
 @wp.func
-def spring_gradient(xi: Any, xj: Any, k: Any, rest: Any):
-    """∂E/∂x_i = k (|d| − l) d/|d|, d = x_i − x_j  [N]; zero for coincident endpoints."""
-    d = xi - xj
-    l = wp.length(d)
+def spring_gradient_axis(d: Any, l: Any, k: Any, rest: Any):
+    """:func:`spring_gradient` from d = x_i − x_j and l = |d| already computed (fused solvers)."""
     g = d * type(k)(0.0)
     if l > type(k)(0.0):
         g = d * (k * (l - rest) / l)
     return g
+
+
+@wp.func
+def spring_gradient(xi: Any, xj: Any, k: Any, rest: Any):
+    """∂E/∂x_i = k (|d| − l) d/|d|, d = x_i − x_j  [N]; zero for coincident endpoints."""
+    d = xi - xj
+    return spring_gradient_axis(d, wp.length(d), k, rest)
 
 
 @wp.func
@@ -143,15 +148,20 @@ class Springs(Energy):
 
 
 @wp.func
-def dashpot_force(xi: Any, xj: Any, vi: Any, vj: Any, gamma: Any):
-    """F_i = −γ((v_i − v_j)·d̂)d̂, d̂ = (x_i − x_j)/|x_i − x_j|  [N] (the lecture's dashpot as a vector)."""
-    d = xi - xj
-    l = wp.length(d)
+def dashpot_force_axis(d: Any, l: Any, vi: Any, vj: Any, gamma: Any):
+    """:func:`dashpot_force` from d = x_i − x_j and l = |d| already computed (fused solvers)."""
     f = d * type(gamma)(0.0)
     if l > type(gamma)(0.0):
         n = d / l
         f = -gamma * wp.dot(vi - vj, n) * n
     return f
+
+
+@wp.func
+def dashpot_force(xi: Any, xj: Any, vi: Any, vj: Any, gamma: Any):
+    """F_i = −γ((v_i − v_j)·d̂)d̂, d̂ = (x_i − x_j)/|x_i − x_j|  [N] (the lecture's dashpot as a vector)."""
+    d = xi - xj
+    return dashpot_force_axis(d, wp.length(d), vi, vj, gamma)
 
 
 @wp.kernel
@@ -248,10 +258,17 @@ class Dashpots(ModalEnergy):
 
     def begin_step(self, model: Model, x: wp.array, v: wp.array, dt: float) -> None:
         """Freeze the spring axes and the reference positions xⁿ [m] for the implicit potential."""
-        if self._axis is None or self._axis.shape[0] != model.spring_count:
-            self._axis = wp.zeros(model.spring_count, dtype=model.vec3, device=model.device)
-            self._x_ref = wp.zeros(model.particle_count, dtype=model.vec3, device=model.device)
-        wp.copy(self._x_ref, x)
+        if model.requires_grad:
+            # Differentiable: this step's axes in a fresh array, and x itself as the reference.
+            self._axis = wp.zeros(
+                model.spring_count, dtype=model.vec3, device=model.device, requires_grad=True
+            )
+            self._x_ref = x
+        else:
+            if self._axis is None or self._axis.shape[0] != model.spring_count or self._axis.requires_grad:
+                self._axis = wp.zeros(model.spring_count, dtype=model.vec3, device=model.device)
+                self._x_ref = wp.zeros(model.particle_count, dtype=model.vec3, device=model.device)
+            wp.copy(self._x_ref, x)
         self._inv_dt = 1.0 / dt
         if model.spring_count:
             launch(

@@ -3,7 +3,7 @@
 from ._base import Integrator, Solution, System
 from ._dopri import DormandPrince
 from ._explicit import RK2, RK4, ExplicitRK, ForwardEuler, Heun, Midpoint
-from ._implicit import BDF2, BackwardEuler, ImplicitMidpoint
+from ._implicit import BDF2, BackwardEuler, ImplicitMidpoint, ImplicitOptions
 from ._problems import ODEProblem, SecondOrderODE, harmonic_oscillator, lecture_oscillator
 from ._symplectic import SymplecticEuler
 from ._verlet import Leapfrog, VelocityVerlet
@@ -18,6 +18,7 @@ __all__ = [
     "ForwardEuler",
     "Heun",
     "ImplicitMidpoint",
+    "ImplicitOptions",
     "Integrator",
     "Leapfrog",
     "Midpoint",

@@ -9,6 +9,7 @@ from typing import Any, ClassVar, Protocol
 import numpy as np
 import warp as wp
 
+from .._warp import fresh, grad_enabled
 from ._problems import ODEProblem, SecondOrderODE
 
 
@@ -130,8 +131,14 @@ class Integrator(abc.ABC):
         """Advance positions [m] and velocities [m/s] by ``dt`` [s]; never writes ``x_in``/``v_in``."""
 
     def _buffers(self, system: System, count: int) -> list[wp.array]:
-        """``count`` particle-sized vec3 work arrays, allocated once per model (no allocation per step)."""
+        """``count`` particle-sized vec3 work arrays, allocated once per model (no allocation per step).
+
+        When the model requires gradients every call returns fresh arrays (with ``requires_grad``): a
+        ``wp.Tape`` replays each stage backwards and needs every intermediate that stage wrote intact.
+        """
         model = system.model
+        if grad_enabled(model):
+            return [fresh(model) for _ in range(count)]
         key = (id(model), count)
         cache = getattr(self, "_ws", None)
         if cache is None or cache[0] != key:

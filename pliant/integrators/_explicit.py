@@ -7,6 +7,7 @@ from typing import ClassVar
 import numpy as np
 import warp as wp
 
+from .._warp import grad_enabled
 from ._base import Integrator, System, first_order
 from ._ops import lincomb
 from ._problems import ODEProblem, SecondOrderODE
@@ -63,21 +64,33 @@ class ExplicitRK(Integrator):
         V = [v_in] + bufs[: s - 1]
         A = bufs[s - 1 : 2 * s - 1]
         X = bufs[2 * s - 1]
+        # Recorded steps keep every stage position (the tape re-reads them backwards).
+        stage_x = self._buffers(system, s) if grad_enabled(m) else [X] * s
         system.acceleration(t, x_in, v_in, A[0])
         for i in range(1, s):
             row = self.a[i]
+            X = stage_x[i]
             lincomb(m, X, x_in, [(dt * row[j], V[j]) for j in range(i)])
             lincomb(m, V[i], v_in, [(dt * row[j], A[j]) for j in range(i)])
             system.acceleration(t + self.c[i] * dt, X, V[i], A[i])
         lincomb(m, x_out, x_in, [(dt * self.b[j], V[j]) for j in range(s)])
-        lincomb(m, v_out, v_in, [(dt * self.b[j], A[j]) for j in range(s)])
-        _scale_velocity(system, dt, v_out)
+        damped = system.velocity_damping(dt) != 1.0
+        # Recorded steps scale δ out of place (a tape cannot replay v ← δv).
+        v_end = self._buffers(system, 1)[0] if damped and grad_enabled(m) else v_out
+        lincomb(m, v_end, v_in, [(dt * self.b[j], A[j]) for j in range(s)])
+        scale_velocity(system, dt, v_end, v_out)
 
 
-def _scale_velocity(system: System, dt: float, v: wp.array) -> None:
+def scale_velocity(system: System, dt: float, v_in: wp.array, v_out: wp.array) -> None:
+    """v_out = δ v_in with δ = ``system.velocity_damping(dt)`` (v_out may alias v_in without gradients).
+
+    Computed as v + (δ − 1) v, the form the golden trajectories were recorded with.
+    """
     delta = system.velocity_damping(dt)
     if delta != 1.0:
-        lincomb(system.model, v, v, [(delta - 1.0, v)])
+        lincomb(system.model, v_out, v_in, [(delta - 1.0, v_in)])
+    elif v_out.ptr != v_in.ptr:
+        wp.copy(v_out, v_in)
 
 
 class ForwardEuler(ExplicitRK):

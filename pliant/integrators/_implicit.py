@@ -17,12 +17,13 @@ from __future__ import annotations
 
 import functools
 import inspect
+from dataclasses import dataclass, fields
 from typing import Any, ClassVar
 
 import numpy as np
 import warp as wp
 
-from .._warp import launch
+from .._warp import _tape_active, fresh, launch
 from ._base import Integrator, System, first_order
 from ._ops import lincomb
 from ._problems import ODEProblem, SecondOrderODE
@@ -66,59 +67,120 @@ def _theta_stage(problem: ODEProblem, t: float, c: float, y_base: np.ndarray) ->
     )
 
 
-class _ImplicitOptions:
-    """Newton settings the physical path hands to ``system.minimize`` (``options=self``)."""
+@dataclass(frozen=True)
+class ImplicitOptions:
+    """Settings of the implicit steps' minimiser, defined and validated once (integrators and minimisers).
 
-    def __init__(
-        self,
-        *,
-        newton_tol: float = 1e-5,
-        max_newton_iterations: int = 20,
-        linear_solver: str = "auto",
-        cg_tol: float = 1e-6,
-        cg_max_iterations: int = 2000,
-        project_psd: bool | str = True,
-        method: str = "newton",
-        lbfgs_history: int = 8,
-        lbfgs_refresh: int = 40,
-        lbfgs_warm_start: bool = True,
-        lbfgs_max_iterations: int = 200,
-    ) -> None:
-        if method not in ("newton", "lbfgs"):
-            raise ValueError(f"method must be 'newton' or 'lbfgs', got {method!r}")
-        if lbfgs_history < 0:
-            raise ValueError(f"lbfgs_history must be >= 0, got {lbfgs_history}")
-        if lbfgs_refresh < 1:
-            raise ValueError(f"lbfgs_refresh must be >= 1, got {lbfgs_refresh}")
-        self.method = method
-        self.lbfgs_history = int(lbfgs_history)
-        self.lbfgs_refresh = int(lbfgs_refresh)
-        self.lbfgs_warm_start = bool(lbfgs_warm_start)
-        if lbfgs_max_iterations < 1:
-            raise ValueError(f"lbfgs_max_iterations must be >= 1, got {lbfgs_max_iterations}")
-        self.lbfgs_max_iterations = int(lbfgs_max_iterations)
-        if newton_tol <= 0:
-            raise ValueError(f"newton_tol must be > 0 m/s, got {newton_tol}")
-        if max_newton_iterations < 1:
-            raise ValueError(f"max_newton_iterations must be >= 1, got {max_newton_iterations}")
-        if linear_solver not in ("cg", "scipy-cg", "direct", "auto"):
+    Attributes:
+        newton_tol: tolerance [m/s] on ‖Δx‖∞/h and on max_i |∇Φ_i|/(m_i h) (> 0).
+        max_newton_iterations: Newton iteration cap per step (≥ 1).
+        linear_solver: "cg", "scipy-cg", "direct" or "auto" (direct on the CPU, cg on a GPU).
+        cg_tol: relative residual of CG, in (0, 1) (raised to 30 eps of the model's dtype).
+        cg_max_iterations: CG iteration cap per linear solve (≥ 1).
+        project_psd: True, False or "auto" (see :class:`BackwardEuler`).
+        max_line_search: step halvings allowed per iteration (≥ 0).
+        method: "newton" or "lbfgs".
+        lbfgs_history: curvature pairs L-BFGS keeps (≥ 0; 0 is descent preconditioned by the lagged H₀).
+        lbfgs_max_iterations: L-BFGS iteration cap per step (≥ 1).
+        lbfgs_refresh: re-assemble L-BFGS's lagged Hessian after a step that needed more iterations (≥ 1).
+        lbfgs_warm_start: start each L-BFGS step from the extrapolated previous correction.
+    """
+
+    newton_tol: float = 1e-5
+    max_newton_iterations: int = 20
+    linear_solver: str = "auto"
+    cg_tol: float = 1e-6
+    cg_max_iterations: int = 2000
+    project_psd: bool | str = True
+    max_line_search: int = 20
+    method: str = "newton"
+    lbfgs_history: int = 8
+    lbfgs_max_iterations: int = 200
+    lbfgs_refresh: int = 40
+    lbfgs_warm_start: bool = True
+
+    def __post_init__(self) -> None:
+        def positive(name: str, unit: str = "") -> None:
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and not isinstance(value, bool) and value > 0):
+                raise ValueError(f"{name} must be a number > 0{unit}, got {value!r}")
+
+        def count(name: str, low: int) -> None:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+
+        positive("newton_tol", " m/s (e.g. 1e-5)")  # NaN fails "> 0" too
+        if not (isinstance(self.cg_tol, (int, float)) and 0.0 < self.cg_tol < 1.0):
+            raise ValueError(f"cg_tol must be in (0, 1), got {self.cg_tol!r}")
+        for name in ("max_newton_iterations", "cg_max_iterations", "lbfgs_max_iterations"):
+            count(name, 1)
+        count("lbfgs_history", 0)  # 0: gradient descent preconditioned by the lagged H₀ (tested, kept)
+        count("lbfgs_refresh", 1)
+        count("max_line_search", 0)
+        if self.linear_solver not in LINEAR_SOLVERS:
             raise ValueError(
-                f"linear_solver must be 'cg', 'scipy-cg', 'direct' or 'auto', got {linear_solver!r}"
+                f"linear_solver must be 'cg', 'scipy-cg', 'direct' or 'auto', got {self.linear_solver!r}"
             )
-        if not 0 < cg_tol < 1:
-            raise ValueError(f"cg_tol must be in (0, 1), got {cg_tol}")
-        self.newton_tol = float(newton_tol)
-        self.max_newton_iterations = int(max_newton_iterations)
-        self.linear_solver = linear_solver
-        self.cg_tol = float(cg_tol)
-        self.cg_max_iterations = int(cg_max_iterations)
-        if project_psd not in (True, False, "auto"):
-            raise ValueError(f"project_psd must be True, False or 'auto', got {project_psd!r}")
-        self.project_psd = project_psd
+        if not (self.project_psd is True or self.project_psd is False or self.project_psd == "auto"):
+            raise ValueError(f"project_psd must be True, False or 'auto', got {self.project_psd!r}")
+        if self.method not in ("newton", "lbfgs"):
+            raise ValueError(f"method must be 'newton' or 'lbfgs', got {self.method!r}")
+        if not isinstance(self.lbfgs_warm_start, bool):
+            raise ValueError(f"lbfgs_warm_start must be True or False, got {self.lbfgs_warm_start!r}")
+
+    @classmethod
+    def create(cls, owner: str = "the implicit step", **options: Any) -> ImplicitOptions:
+        """Options from keyword arguments; an unknown name is a ValueError listing the known ones."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(options) - known)
+        if unknown:
+            raise ValueError(f"unknown option(s) {unknown} for {owner}; known options: {sorted(known)}")
+        return cls(**options)
+
+    @classmethod
+    def coerce(cls, options: Any) -> ImplicitOptions:
+        """``options`` as ImplicitOptions: None (the defaults), an ImplicitOptions, a dict of some settings,
+        or an object with ``options`` (an implicit integrator)."""
+        if options is None:
+            return _DEFAULT_OPTIONS
+        if isinstance(options, cls):
+            return options
+        if isinstance(options, dict):
+            return cls.create("minimize", **options)
+        inner = getattr(options, "options", None)
+        if isinstance(inner, cls):
+            return inner
+        raise TypeError(f"options must be ImplicitOptions, a dict or None, got {type(options).__name__}")
+
+
+LINEAR_SOLVERS = ("cg", "scipy-cg", "direct", "auto")
+_DEFAULT_OPTIONS = ImplicitOptions()
+_OPTION_NAMES = frozenset(f.name for f in fields(ImplicitOptions))
+
+
+class _ImplicitOptions:
+    """The implicit integrators' settings: an :class:`ImplicitOptions` handed to ``system.minimize``."""
+
+    #: Gradients through the physical path: the adjoint of each step's minimisation
+    #: (``pliant.solvers._implicit_adjoint``), recorded on an active ``wp.Tape``.
+    differentiable: ClassVar[bool] = True
+    #: The keyword options ``__init__(**options)`` accepts: the fields of this dataclass (scene files check
+    #: ``integrator_options`` against them).
+    options_type: ClassVar[type] = ImplicitOptions
+
+    def __init__(self, **options: Any) -> None:
+        self.options = ImplicitOptions.create(type(self).__name__, **options)
+
+    def __getattr__(self, name: str) -> Any:
+        # Read access to each setting as an attribute (integ.newton_tol), from the one options object.
+        if name in _OPTION_NAMES and "options" in self.__dict__:
+            return getattr(self.__dict__["options"], name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     def _minimize(self, system: System, t, h, x_tilde, x_ref, v_ref, x_out) -> Any:
         if _accepts_options(system.minimize):
-            return system.minimize(t, h, x_tilde, x_ref, v_ref, x_out, options=self)
+            return system.minimize(t, h, x_tilde, x_ref, v_ref, x_out, options=self.options)
         return system.minimize(t, h, x_tilde, x_ref, v_ref, x_out)
 
 
@@ -136,10 +198,25 @@ def _takes_options(fn: Any) -> bool:
     return "options" in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
 
 
-def _damp(system: System, dt: float, v: wp.array) -> None:
+def _damp(system: System, dt: float, v_raw: wp.array, v_out: wp.array) -> None:
+    """v_out = δ v_raw (in place when they are the same array, the forward path's bit-identical form)."""
     delta = system.velocity_damping(dt)
-    if delta != 1.0:
-        lincomb(system.model, v, v, [(delta - 1.0, v)])
+    if v_raw.ptr == v_out.ptr:
+        if delta != 1.0:
+            lincomb(system.model, v_out, v_out, [(delta - 1.0, v_out)])
+        return
+    lincomb(system.model, v_out, v_raw, [(delta - 1.0, v_raw)])
+
+
+def recording_gradients(model: Any) -> bool:
+    """Whether a ``wp.Tape`` records while the model was finalised with ``requires_grad=True``: the implicit
+    steps then use fresh arrays per step (the tape keeps every step's values) and no in-place updates."""
+    return bool(getattr(model, "requires_grad", False)) and _tape_active()
+
+
+def _fresh(system: System, count: int) -> list[wp.array]:
+    """``count`` new particle-sized vec3 arrays with gradients (one step's work arrays when recording)."""
+    return [fresh(system.model) for _ in range(count)]
 
 
 class BackwardEuler(_ImplicitOptions, Integrator):
@@ -191,14 +268,15 @@ class BackwardEuler(_ImplicitOptions, Integrator):
     def step_system(self, system: System, t, dt, x_in, v_in, x_out, v_out) -> None:
         """One backward-Euler step: minimise the incremental potential, then v₁ = δ(x₁ − x₀)/Δt."""
         m = system.model
-        (x_tilde,) = self._buffers(system, 1)
+        grad = recording_gradients(m)
+        x_tilde, v_raw = _fresh(system, 2) if grad else (*self._buffers(system, 1), v_out)
         lincomb(m, x_tilde, x_in, [(dt, v_in)])
         self._minimize(system, t, dt, x_tilde, x_in, v_in, x_out)
-        _velocity_from_positions(m, x_out, x_in, 1.0 / dt, v_out)
-        _damp(system, dt, v_out)
+        _velocity_from_positions(m, x_out, x_in, 1.0 / dt, v_raw)
+        _damp(system, dt, v_raw, v_out)
 
 
-@wp.kernel(enable_backward=False)
+@wp.kernel
 def _velocity_kernel(
     x1: wp.array(dtype=Any), x0: wp.array(dtype=Any), inv_h: Any, v_out: wp.array(dtype=Any)
 ):
@@ -238,14 +316,15 @@ class ImplicitMidpoint(_ImplicitOptions, Integrator):
     def step_system(self, system: System, t, dt, x_in, v_in, x_out, v_out) -> None:
         """x_½ = argmin Φ with Δt/2; x₁ = 2x_½ − x₀, v₁ = δ(4(x_½ − x₀)/Δt − v₀)."""
         m = system.model
-        x_tilde, x_half = self._buffers(system, 2)
+        grad = recording_gradients(m)
+        x_tilde, x_half, v_raw = _fresh(system, 3) if grad else (*self._buffers(system, 2), v_out)
         h = 0.5 * dt
         lincomb(m, x_tilde, x_in, [(h, v_in)])
         self._minimize(system, t, h, x_tilde, x_in, v_in, x_half)
         # v_½ = (x_½ − x₀)/h; v₁ = 2v_½ − v₀; x₁ = 2x_½ − x₀.
-        lincomb(m, v_out, v_in, [(-2.0, v_in), (2.0 / h, x_half), (-2.0 / h, x_in)])
+        lincomb(m, v_raw, v_in, [(-2.0, v_in), (2.0 / h, x_half), (-2.0 / h, x_in)])
         lincomb(m, x_out, x_half, [(1.0, x_half), (-1.0, x_in)])
-        _damp(system, dt, v_out)
+        _damp(system, dt, v_raw, v_out)
 
 
 class BDF2(_ImplicitOptions, Integrator):
@@ -275,6 +354,7 @@ class BDF2(_ImplicitOptions, Integrator):
         """Forget the previous step (the next step is backward Euler)."""
         self._ode_prev: tuple[np.ndarray, float, np.ndarray] | None = None  # (y₋₁, h₋₁, y₀ it produced)
         self._sys_key: Any = None  # (model id, dt, x_out pointer) of the last physical step
+        self._grad_prev: tuple[wp.array, wp.array] | None = None  # (x₋₁, v₋₁) of a recorded step
 
     def step_ode(
         self, problem: ODEProblem | SecondOrderODE, t: float, dt: float, y: np.ndarray
@@ -297,9 +377,28 @@ class BDF2(_ImplicitOptions, Integrator):
     def step_system(self, system: System, t, dt, x_in, v_in, x_out, v_out) -> None:
         """One BDF2 step (backward Euler when the history is missing or stale)."""
         m = system.model
+        grad = recording_gradients(m)
         x_tilde, x_hat, x_prev, v_prev = self._buffers(system, 4)
+        v_raw = v_out
+        if grad:
+            # Fresh arrays, and the previous step's input state itself as the history (the tape keeps it).
+            x_tilde, x_hat, v_raw = _fresh(system, 3)
+            if self._grad_prev is not None:
+                x_prev, v_prev = self._grad_prev
         key = (id(m), float(dt), x_in.ptr)
-        if self._sys_key is None or self._sys_key != key:
+        stale = self._sys_key is None or self._sys_key != key
+        if grad:
+            # A recorded step's output goes through the solver's post-step stages into the next State, so
+            # the pointer cannot link the steps: the history is the previous recorded step's input, valid
+            # for the next input of the same model and Δt (``solver.reset()`` starts a new rollout).
+            prev = self._grad_prev
+            stale = not (
+                isinstance(self._sys_key, tuple)
+                and self._sys_key[:2] == key[:2]
+                and prev is not None
+                and prev[0].ptr != x_in.ptr
+            )
+        if stale:
             h = dt
             lincomb(m, x_tilde, x_in, [(h, v_in)])
             wp.copy(x_hat, x_in)
@@ -308,10 +407,14 @@ class BDF2(_ImplicitOptions, Integrator):
             lincomb(m, x_hat, x_in, [(1.0 / 3.0, x_in), (-1.0 / 3.0, x_prev)])
             lincomb(m, x_tilde, x_hat, [(4.0 * h / 3.0, v_in), (-h / 3.0, v_prev)])
         self._minimize(system, t, h, x_tilde, x_hat, v_in, x_out)
-        _velocity_from_positions(m, x_out, x_hat, 1.0 / h, v_out)
-        _damp(system, dt, v_out)
-        wp.copy(x_prev, x_in)
-        wp.copy(v_prev, v_in)
+        _velocity_from_positions(m, x_out, x_hat, 1.0 / h, v_raw)
+        _damp(system, dt, v_raw, v_out)
+        if grad:
+            self._grad_prev = (x_in, v_in)
+        else:
+            self._grad_prev = None
+            wp.copy(x_prev, x_in)
+            wp.copy(v_prev, v_in)
         self._sys_key = (id(m), float(dt), x_out.ptr)
 
     # ------------------------------------------------------------------ checkpoints

@@ -6,7 +6,7 @@ from typing import Any
 
 import warp as wp
 
-from .._warp import launch
+from .._warp import fresh, grad_enabled, launch
 
 
 @wp.kernel
@@ -27,8 +27,15 @@ def _lincomb4(
 
 
 def lincomb(model: Any, out: wp.array, base: wp.array, terms: list[tuple[float, wp.array]]) -> None:
-    """out = base + Σ c_k a_k (chunks of four terms per launch; ``out`` may alias ``base``)."""
+    """out = base + Σ c_k a_k (chunks of four terms per launch; ``out`` may alias ``base``).
+
+    When the model requires gradients, ``out`` must not alias ``base`` or a term (a tape cannot replay an
+    in-place update), and the partial sums of more than four terms go to fresh arrays.
+    """
     s = model.s
+    grad = grad_enabled(model)
+    if grad and (out.ptr == base.ptr or any(a.ptr == out.ptr for _, a in terms)):
+        raise ValueError("lincomb: out aliases an input, which a wp.Tape cannot replay (requires_grad model)")
     terms = [(c, a) for c, a in terms if c != 0.0]
     if not terms:
         if out.ptr != base.ptr:
@@ -39,10 +46,11 @@ def lincomb(model: Any, out: wp.array, base: wp.array, terms: list[tuple[float, 
         chunk = terms[k : k + 4]
         while len(chunk) < 4:
             chunk.append((0.0, chunk[0][1]))
+        dst = fresh(model, out.shape[0], out.dtype) if grad and k + 4 < len(terms) else out
         launch(
             _lincomb4,
             out.shape[0],
-            [src, *(a for _, a in chunk), *(s(c) for c, _ in chunk), out],
+            [src, *(a for _, a in chunk), *(s(c) for c, _ in chunk), dst],
             device=model.device,
         )
-        src = out
+        src = dst

@@ -67,10 +67,11 @@ class Control:
     def __init__(self, model: Model) -> None:
         self._model = model
         d = model.device
-        self.particle_f = wp.zeros(model.particle_count, dtype=model.vec3, device=d)
+        rg = model.requires_grad  # forces and targets are differentiable inputs of a recorded rollout
+        self.particle_f = wp.zeros(model.particle_count, dtype=model.vec3, device=d, requires_grad=rg)
         self.kinematic_indices = wp.array(model.kinematic_indices_np, dtype=wp.int32, device=d)
         self.kinematic_targets = wp.array(
-            model.particle_q_np[model.kinematic_indices_np], dtype=model.vec3, device=d
+            model.particle_q_np[model.kinematic_indices_np], dtype=model.vec3, device=d, requires_grad=rg
         )
         self.drag_index = -1
         self.drag_target = np.zeros(3)

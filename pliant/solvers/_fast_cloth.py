@@ -28,6 +28,8 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from .._warp import grad_enabled
+from ..energies._spring import dashpot_force_axis, spring_gradient_axis, spring_hessian
 from ..model import Control, Model, State
 from ._base import Solver
 from ._post import add_drag_force, check_collisions, finish_step
@@ -79,16 +81,14 @@ def _symplectic_gather(
         return
     f = f_ext[i]
     for e in range(adj_offsets[i], adj_offsets[i + 1]):
-        d = x_in[adj_neighbor[e]] - xi
+        j = adj_neighbor[e]
         prm = adj_param[e]  # (rest length, stiffness, dashpot γ)
+        # The energies' own spring force and dashpot (issue 10: one definition of each), |d| taken once.
+        d = xi - x_in[j]
         l = wp.length(d)
-        if l > zero:
-            inv_l = type(dt)(1.0) / l
-            # Spring pulls i toward j when stretched; the dashpot resists the relative axial speed.
-            c = prm[1] * (l - prm[0])
-            if damped != 0:
-                c += prm[2] * wp.dot(v_in[adj_neighbor[e]] - vi, d) * inv_l
-            f += d * (c * inv_l)
+        f -= spring_gradient_axis(d, l, prm[1], prm[0])
+        if damped != 0:
+            f += dashpot_force_axis(d, l, vi, v_in[j], prm[2])
     v = delta * (vi + dt * (gravity + w * f))
     v_out[i] = v
     x_out[i] = xi + dt * v
@@ -96,17 +96,13 @@ def _symplectic_gather(
 
 # ---------------------------------------------------------------------------------------------- implicit
 @wp.func
-def _spring_blocks(d: Any, rest: Any, k: Any, gamma: Any, h: Any):
-    """(K_s, h²K_s + hD_s) for the spring with d = x_j − x_i; K_s PSD-projected (Choi & Ko)."""
-    l = wp.length(d)
-    zero = h * type(h)(0.0)
-    one = type(h)(1.0)
-    n = d / wp.max(l, type(h)(1.0e-20))
-    nn = wp.outer(n, n)
-    t = wp.max(one - rest / wp.max(l, type(h)(1.0e-20)), zero)
-    eye = wp.identity(n=3, dtype=type(h))
-    K = k * (t * (eye - nn) + nn)
-    return K, (h * h) * K + (h * gamma) * nn
+def _spring_blocks(xi: Any, xj: Any, rest: Any, k: Any, gamma: Any, h: Any):
+    """(K_s, h²K_s + hD_s) for the spring (i, j): K_s the spring energy's PSD-projected Hessian block
+    (:func:`pliant.energies.spring_hessian`, Choi & Ko), D_s = γ n̂n̂ᵀ the dashpot Jacobian."""
+    d = xj - xi
+    n = d / wp.max(wp.length(d), type(h)(1.0e-30))
+    K = spring_hessian(xi, xj, k, rest, 1)
+    return K, (h * h) * K + (h * gamma) * wp.outer(n, n)
 
 
 @wp.kernel
@@ -154,13 +150,12 @@ def _bw_assemble(
     for e in range(adj_offsets[i], adj_offsets[i + 1]):
         j = adj_neighbor[e]
         s = adj_spring[e]
-        d = x_in[j] - xi
-        l = wp.length(d)
         dvel = v_in[j] - vi
-        if l > h * type(h)(0.0):
-            n = d / l
-            f += n * (spring_stiffness[s] * (l - spring_rest_length[s]) + spring_damping[s] * wp.dot(dvel, n))
-        K, H = _spring_blocks(d, spring_rest_length[s], spring_stiffness[s], spring_damping[s], h)
+        d = xi - x_in[j]
+        l = wp.length(d)
+        f += dashpot_force_axis(d, l, vi, v_in[j], spring_damping[s])
+        f -= spring_gradient_axis(d, l, spring_stiffness[s], spring_rest_length[s])
+        K, H = _spring_blocks(xi, x_in[j], spring_rest_length[s], spring_stiffness[s], spring_damping[s], h)
         block_out[e] = H
         diag += H
         kv -= K * dvel  # (K v)_i = Σ_s K_s (v_i − v_j)
@@ -315,6 +310,12 @@ class FastMassSpring(Solver):
         if damping_rate is not None and damping_rate < 0:
             raise ValueError(f"damping_rate must be >= 0 1/s, got {damping_rate}")
         self.method = method
+        #: Under requires_grad: the same step by ForceSolver's tape-correct path (see :meth:`step`).
+        self._recorded: Any = None
+        if grad_enabled(model):
+            self._recorded = self._recorded_solver(
+                method, velocity_damping, damping_rate, contact, collisions
+            )
         self.cg_iterations = int(cg_iterations)
         self.cg_tol = float(cg_tol)
         self.velocity_damping_factor = float(velocity_damping)
@@ -337,6 +338,36 @@ class FastMassSpring(Solver):
             self._r, self._z, self._q, self._dv = (wp.zeros(n, dtype=model.vec3, device=d) for _ in range(4))
             self._p = [wp.zeros(n, dtype=model.vec3, device=d) for _ in range(2)]
             self._scalars = wp.zeros(2 * self.cg_iterations + 2, dtype=model.scalar, device=d)
+
+    def _recorded_solver(self, method, velocity_damping, damping_rate, contact, collisions) -> Any:
+        """The symplectic step as ``ForceSolver(Springs, Dashpots, Gravity; SymplecticEuler)``: the same
+        update (equal to round-off, not bit for bit: the gather kernel sums in another order), written into
+        fresh arrays so that ``wp.Tape`` can differentiate it, and reading the model's parameter arrays
+        directly (no host-side packing)."""
+        from .._warp import GradientError
+        from ..energies import Dashpots, Gravity, Springs
+        from ..integrators import SymplecticEuler
+        from ._force import ForceSolver
+
+        if method == "implicit":
+            raise GradientError(
+                "FastMassSpring(method='implicit') has no adjoint for its CG solve in this version: use "
+                "method='symplectic', or ForceSolver with an explicit integrator, or requires_grad=False"
+            )
+        return ForceSolver(
+            self.model,
+            energies=[Springs(), Dashpots(), Gravity()],
+            integrator=SymplecticEuler(),
+            velocity_damping=velocity_damping,
+            damping_rate=damping_rate,
+            contact=contact,
+            collisions=collisions,
+        )
+
+    @property
+    def ground_coefficients(self) -> wp.array | None:
+        """[friction μ, restitution e] read by recorded steps (their ``.grad`` after backward), else None."""
+        return None if self._recorded is None else self._recorded.ground_coefficients
 
     def update_parameters(self) -> None:
         """Re-pack spring rest lengths, stiffness and damping per adjacency entry (after changing them)."""
@@ -504,6 +535,9 @@ class FastMassSpring(Solver):
 
     def step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
         """Advance by ``dt`` [s]: fused step, then kinematic targets, ground contact, contact handlers."""
+        if self._recorded is not None:
+            self._recorded.step(state_in, state_out, control, dt)
+            return
         m = self.model
         f_ext = self._external(control, state_in.particle_q)
         if self.method == "implicit":

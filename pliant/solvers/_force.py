@@ -9,12 +9,55 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .._warp import launch
+from .._warp import GradientError, fresh, grad_enabled, launch
+from ..collision._ground_recorded import ground_contact_out
 from ..energies import Energy
+from ..energies._base import _axpy
 from ..integrators import Integrator, SymplecticEuler
 from ..model import Control, Model, State
 from ._base import Solver
 from ._post import add_drag_force, check_collisions, finish_step
+
+
+@wp.kernel
+def _kinematic_map(indices: wp.array(dtype=wp.int32), slot_out: wp.array(dtype=wp.int32)):
+    k = wp.tid()
+    slot_out[indices[k]] = k
+
+
+@wp.kernel
+def _kinematic_out(
+    slot: wp.array(dtype=wp.int32),
+    targets: wp.array(dtype=Any),
+    inv_dt: Any,
+    x_start: wp.array(dtype=Any),
+    x_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    x_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+):
+    # Kinematic targets out of place (recorded steps): each output element written once.
+    i = wp.tid()
+    k = slot[i]
+    if k >= 0:
+        x_out[i] = targets[k]
+        v_out[i] = (targets[k] - x_start[i]) * inv_dt
+    else:
+        x_out[i] = x_in[i]
+        v_out[i] = v_in[i]
+
+
+@wp.kernel
+def _accel_from_force_gradient(
+    inv_mass: wp.array(dtype=Any),
+    f_in: wp.array(dtype=Any),
+    grad_in: wp.array(dtype=Any),
+    a_out: wp.array(dtype=Any),
+):
+    # Recorded steps: a = M⁻¹(F − ∇E), the potentials' gradients summed apart from the other forces so that
+    # no per-energy negation pass (and its array) is recorded.
+    i = wp.tid()
+    a_out[i] = inv_mass[i] * (f_in[i] - grad_in[i])
 
 
 @wp.kernel
@@ -82,10 +125,23 @@ class ForceSolver(Solver):
         self.collisions = check_collisions(collisions)
         d = model.device
         self._force = wp.zeros(model.particle_count, dtype=model.vec3, device=d)
+        #: [friction μ, restitution e] of the ground as read by recorded steps; their ``.grad`` holds
+        #: ∂loss/∂μ and ∂loss/∂e after ``tape.backward`` (None without gradients or ground contact).
+        self.ground_coefficients: wp.array | None = None
+        if grad_enabled(model) and self.contact:
+            g = model.ground
+            self.ground_coefficients = wp.array(
+                [g.friction, g.restitution], dtype=model.scalar, device=d, requires_grad=True
+            )
         self._control: Control | None = None
         self.last_stats: Any = None
 
     # ------------------------------------------------------------------ System interface
+    @property
+    def control(self) -> Control | None:
+        """The Control of the step in progress (read by the implicit minimisers; None outside a step)."""
+        return self._control
+
     def velocity_damping(self, dt: float) -> float:
         """δ for a step of ``dt`` [s]: exp(−cΔt) when ``damping_rate`` c is set, else the fixed δ."""
         if self.damping_rate is not None:
@@ -96,7 +152,11 @@ class ForceSolver(Solver):
         """Write the total force [N] at (x, v) into ``out``: −∇E, dissipation, control forces."""
         m = self.model
         c = self._control
-        if c is not None:
+        if grad_enabled(m):
+            # ``out`` is a fresh zeroed array (see acceleration): no zeroing outside the tape.
+            if c is not None:
+                _axpy(out, c.particle_f, 1.0, m)
+        elif c is not None:
             wp.copy(out, c.particle_f)
         else:
             out.zero_()
@@ -112,11 +172,29 @@ class ForceSolver(Solver):
 
     def acceleration(self, t: float, x: wp.array, v: wp.array, out: wp.array) -> None:
         """a = M⁻¹F [m/s²]; zero for pinned and kinematic particles (inverse mass 0)."""
-        self.forces(t, x, v, self._force)
+        m = self.model
+        if grad_enabled(m):
+            force, grad = fresh(m), fresh(m)
+            if self._control is not None:
+                _axpy(force, self._control.particle_f, 1.0, m)
+            for e in self.energies:
+                if type(e).force is Energy.force:  # a potential: −∇E
+                    e.gradient(m, x, grad)
+                else:
+                    e.force(m, x, v, force)
+            launch(
+                _accel_from_force_gradient,
+                m.particle_count,
+                [m.particle_inv_mass, force, grad, out],
+                device=m.device,
+            )
+            return
+        force = self._force
+        self.forces(t, x, v, force)
         launch(
             _accel_from_force,
             self.model.particle_count,
-            [self.model.particle_inv_mass, self._force, out],
+            [self.model.particle_inv_mass, force, out],
             device=self.model.device,
         )
 
@@ -135,6 +213,9 @@ class ForceSolver(Solver):
         """Advance by ``dt`` [s]: integrate, then kinematic targets, then ground contact."""
         m = self.model
         self._control = control
+        if grad_enabled(m):
+            self._step_recorded(state_in, state_out, control, dt)
+            return
         self.integrator.step_system(
             self,
             0.0,
@@ -154,6 +235,59 @@ class ForceSolver(Solver):
             collisions=self.collisions,
             ground_penalty=self._ground_penalty(),
         )
+
+    def _step_recorded(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
+        """The step as ``wp.Tape`` can replay it: integrate into fresh arrays, then kinematic targets and
+        the ground response, each reading its input and writing a fresh output (no in-place update)."""
+        m = self.model
+        if not self.integrator.explicit and not getattr(self.integrator, "differentiable", False):
+            raise GradientError(
+                f"{self.integrator.name} has no adjoint in this version: differentiate an explicit "
+                "integrator (SymplecticEuler, VelocityVerlet, RK2/Heun/Midpoint, RK4, ForwardEuler) or "
+                "finalize the model with requires_grad=False"
+            )
+        if self.collisions:
+            raise GradientError(
+                "contact handlers (collisions=) correct the state in place and are not differentiable yet; "
+                "use the ground plane (model.ground) or finalize with requires_grad=False"
+            )
+        if control is not None and control.drag_index >= 0:
+            raise GradientError("the drag handle is interactive and not differentiable: release_drag() first")
+        kinematic = control is not None and control.kinematic_indices.shape[0] > 0
+        stages = int(kinematic) + int(self.contact)
+        outs = [(fresh(m), fresh(m)) for _ in range(stages)] + [(state_out.particle_q, state_out.particle_qd)]
+        x, v = outs[0]
+        self.integrator.step_system(self, 0.0, dt, state_in.particle_q, state_in.particle_qd, x, v)
+        k = 1
+        if kinematic:
+            slot = wp.full(m.particle_count, -1, dtype=wp.int32, device=m.device)
+            n = control.kinematic_indices.shape[0]
+            wp.launch(_kinematic_map, n, [control.kinematic_indices, slot], device=m.device)
+            xo, vo = outs[k]
+            wp.launch(
+                _kinematic_out,
+                m.particle_count,
+                [slot, control.kinematic_targets, m.s(1.0 / dt), state_in.particle_q, x, v, xo, vo],
+                device=m.device,
+            )
+            x, v, k = xo, vo, k + 1
+        if self.contact:
+            xo, vo = outs[k]
+            wp.launch(
+                ground_contact_out,
+                m.particle_count,
+                [
+                    m.particle_inv_mass,
+                    m.particle_radius,
+                    m.s(m.ground.height),
+                    self.ground_coefficients,
+                    x,
+                    v,
+                    xo,
+                    vo,
+                ],
+                device=m.device,
+            )
 
     def reset(self) -> None:
         """Forget what earlier steps leave for the next: the L-BFGS curvature pairs and warm start, a

@@ -29,31 +29,18 @@ Reference: D. Baraff, A. Witkin, "Large steps in cloth simulation", SIGGRAPH 199
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass, field, fields
+from typing import Any, Protocol
 
 import numpy as np
 import warp as wp
 
 from .._warp import launch
+from ..integrators._implicit import ImplicitOptions
+from ._implicit_adjoint import differentiable
 
-#: Defaults when ``options`` does not name a setting.
-DEFAULTS: dict[str, Any] = {
-    "newton_tol": 1e-5,  # [m/s] on ‖Δx‖∞/h and on max_i |∇Φ_i|/(m_i h)
-    "max_newton_iterations": 20,
-    "linear_solver": "auto",  # "cg" | "scipy-cg" | "direct" | "auto"
-    "cg_tol": 1e-6,  # relative residual of CG (at least 30 eps of the dtype)
-    "cg_max_iterations": 2000,
-    "project_psd": True,
-    "max_line_search": 20,
-    "method": "newton",  # "newton" | "lbfgs" (pliant.solvers._quasi_newton)
-    "lbfgs_history": 8,
-    "lbfgs_max_iterations": 200,
-    "lbfgs_refresh": 40,
-    "lbfgs_warm_start": True,
-}
-
-#: auto: direct on the CPU below this many degrees of freedom, CG otherwise.
+#: Defaults when ``options`` does not name a setting (read-only view of ImplicitOptions' defaults).
+DEFAULTS: dict[str, Any] = {f.name: getattr(ImplicitOptions(), f.name) for f in fields(ImplicitOptions)}
 
 
 @dataclass
@@ -128,7 +115,7 @@ def _step_stats(
 ):
     # stats[0] = max |Δx| over free particles, stats[1] = ∇Φ·Δx (directional derivative).
     i = wp.tid()
-    if inv_mass[i] == type(stats_out[0])(0.0):
+    if inv_mass[i] == type(inv_mass[i])(0.0):  # (the type from an input: reading the output would be flagged)
         return
     d = dx[i]
     wp.atomic_max(stats_out, 0, wp.max(wp.max(wp.abs(d[0]), wp.abs(d[1])), wp.abs(d[2])))
@@ -246,7 +233,7 @@ def _stiffness_ratio(
 ):
     # max_i trace(H_ii)/(3 m_i) = 1 + h² K_ii/m_i: how much one ulp of position moves the scaled gradient.
     i = wp.tid()
-    if inv_mass[i] == type(ratio_out[0])(0.0):
+    if inv_mass[i] == type(inv_mass[i])(0.0):
         return
     b = values[diag_slots[i]]
     wp.atomic_max(ratio_out, 0, (b[0, 0] + b[1, 1] + b[2, 2]) * inv_mass[i] / type(inv_mass[i])(3.0))
@@ -347,12 +334,9 @@ class _Workspace:
 
 
 def _option(options: Any, name: str) -> Any:
-    if options is None:
-        return DEFAULTS[name]
-    if isinstance(options, dict):
-        return options.get(name, DEFAULTS[name])
-    value = getattr(options, name, None)
-    return DEFAULTS[name] if value is None else value
+    """One setting of ``options`` (None, a dict of some settings, ImplicitOptions, an implicit integrator),
+    validated by :class:`pliant.integrators.ImplicitOptions`."""
+    return getattr(ImplicitOptions.coerce(options), name)
 
 
 def _workspace(solver: Any) -> _Workspace:
@@ -365,12 +349,7 @@ def _workspace(solver: Any) -> _Workspace:
     return ws
 
 
-LINEAR_SOLVERS = ("cg", "scipy-cg", "direct", "auto")
-
-
 def _resolve_linear_solver(name: str, model: Any) -> str:
-    if name not in LINEAR_SOLVERS:
-        raise ValueError(f"linear_solver must be one of {LINEAR_SOLVERS}, got {name!r}")
     if name == "auto":
         # The sparse LU stays the CPU default: "scipy-cg" (block-Jacobi CG on the host) is ~3x faster per
         # step on a 4k-DOF FEM box (12 ms vs 72 ms per solve) but its inexact directions stalled Newton just
@@ -439,9 +418,30 @@ def _gradient(solver: Any, ws: _Workspace, x: wp.array, x_tilde: wp.array, h: fl
     return ws.gstats.numpy().astype(np.float64)
 
 
+class PotentialProblem(Protocol):
+    """What the minimisers (Newton, L-BFGS) and the step adjoint read from the solver that owns the step.
+
+    ``model`` (masses, device, dtype), ``energies`` (the terms of Φ; their ``dissipative`` ones get
+    ``begin_step``) and ``control`` (the step's Control: external forces as −f·x, the drag handle as
+    ½k|x − target|², or None). Results go to ``last_stats``.
+    """
+
+    model: Any
+    energies: list
+    last_stats: Any
+
+    @property
+    def control(self) -> Any: ...
+
+
+def control_of(problem: PotentialProblem) -> Any:
+    """The Control (external forces, drag handle) of the step ``problem`` is taking, or None."""
+    return problem.control
+
+
 def _control_terms(solver: Any, ws: _Workspace, x: wp.array, grad: wp.array, value: wp.array) -> None:
     """Add the Control's external forces and drag handle (as potentials) into ``grad`` and ``value``."""
-    c = getattr(solver, "_control", None)
+    c = control_of(solver)
     if c is None:
         return
     m = solver.model
@@ -487,7 +487,7 @@ def _assemble(
         if k in skip or slots.shape[0] == 0:
             continue  # left out, or no Hessian (e.g. gravity)
         e.hessian(m, x, slots, ws.values, project_psd=project_psd, scale=h * h)
-    c = getattr(solver, "_control", None)
+    c = control_of(solver)
     if control and c is not None and c.drag_index >= 0:
         launch(
             _drag_terms,
@@ -514,6 +514,7 @@ def _assemble(
     )
 
 
+@differentiable
 def minimize_incremental_potential(
     solver: Any,
     t: float,
@@ -534,10 +535,9 @@ def minimize_incremental_potential(
         x_ref: positions at the start of the step [m] (dissipation reference).
         v_ref: velocities at the start of the step [m/s].
         x_out: the minimiser [m] (may not alias the inputs).
-        options: an object or dict with ``newton_tol`` [m/s], ``max_newton_iterations``, ``linear_solver``
-            ("cg" | "scipy-cg" | "direct" | "auto"), ``cg_tol``, ``cg_max_iterations``, ``project_psd``
-            (True | False | "auto": exact Hessians until one fails to give descent, then projected ones);
-            missing ones take :data:`DEFAULTS`.
+        options: :class:`pliant.integrators.ImplicitOptions` (or a dict of some of its settings, or None
+            for the defaults): ``newton_tol`` [m/s], ``max_newton_iterations``, ``linear_solver``,
+            ``cg_tol``, ``cg_max_iterations``, ``project_psd``, ``max_line_search``.
 
     Returns:
         :class:`NewtonStats`.
@@ -545,16 +545,14 @@ def minimize_incremental_potential(
     m = solver.model
     n = m.particle_count
     ws = _workspace(solver)
-    tol_opt = float(_option(options, "newton_tol"))
-    max_it = int(_option(options, "max_newton_iterations"))
-    lin = _resolve_linear_solver(str(_option(options, "linear_solver")), m)
-    cg_tol = max(float(_option(options, "cg_tol")), 30.0 * float(np.finfo(ws.np_dtype).eps))
-    cg_max = int(_option(options, "cg_max_iterations"))
-    project_psd = _option(options, "project_psd")
-    if project_psd not in (True, False, "auto"):
-        raise ValueError(f"project_psd must be True, False or 'auto', got {project_psd!r}")
-    project_psd = "project" if project_psd is True else project_psd
-    max_ls = int(_option(options, "max_line_search"))
+    opts = ImplicitOptions.coerce(options)
+    tol_opt = float(opts.newton_tol)
+    max_it = int(opts.max_newton_iterations)
+    lin = _resolve_linear_solver(opts.linear_solver, m)
+    cg_tol = max(float(opts.cg_tol), 30.0 * float(np.finfo(ws.np_dtype).eps))
+    cg_max = int(opts.cg_max_iterations)
+    project_psd = "project" if opts.project_psd is True else opts.project_psd
+    max_ls = int(opts.max_line_search)
     eps = float(np.finfo(np.float32 if m.dtype == "float32" else np.float64).eps)
     stats = NewtonStats(linear_solver=lin)
 

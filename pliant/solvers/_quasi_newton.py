@@ -38,12 +38,13 @@ import numpy as np
 import warp as wp
 
 from .._warp import launch
+from ..integrators._implicit import ImplicitOptions
+from ._implicit_adjoint import differentiable
 from ._newton import (
     NewtonStats,
     _assemble,
     _control_terms,
     _gradient,
-    _option,
     _trial_point,
     _Workspace,
     _workspace,
@@ -285,6 +286,7 @@ def _phi(g: np.ndarray, h2: float) -> float:
     return float(g[2] + h2 * g[3])
 
 
+@differentiable
 def minimize_quasi_newton(
     solver: Any,
     t: float,
@@ -311,12 +313,13 @@ def minimize_quasi_newton(
     n = m.particle_count
     ws = _workspace(solver)
     h0, hist, memo = _state(solver, ws)
-    hist.size = int(_option(options, "lbfgs_history"))
-    max_it = int(_option(options, "lbfgs_max_iterations"))
-    refresh_after = int(_option(options, "lbfgs_refresh"))
-    warm = bool(_option(options, "lbfgs_warm_start"))
-    tol_opt = float(_option(options, "newton_tol"))
-    max_ls = int(_option(options, "max_line_search"))
+    opts = ImplicitOptions.coerce(options)
+    hist.size = int(opts.lbfgs_history)
+    max_it = int(opts.lbfgs_max_iterations)
+    refresh_after = int(opts.lbfgs_refresh)
+    warm = bool(opts.lbfgs_warm_start)
+    tol_opt = float(opts.newton_tol)
+    max_ls = int(opts.max_line_search)
     eps = float(np.finfo(ws.np_dtype).eps)
     h2 = h * h
     stats = NewtonStats(linear_solver="lbfgs", projected=True)

@@ -9,7 +9,8 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from ..constraints import Constraint, DihedralBending, Distance, Ground, Volume
+from .._warp import GradientError
+from ..constraints import Constraint, DihedralBending, Distance, Ground, ProjectionContext, Volume
 from ..model import Control, Model, State
 from . import _xpbd_kernels as K
 from ._base import Solver
@@ -36,8 +37,20 @@ class XPBD(Solver):
     Contacts are always averaged. On the CPU (serial threads) a colour-sorted sweep runs as one launch;
     on CUDA each colour is a launch. Repeated identical steps replay recorded launches (``wp.Launch``).
 
-    Limitations: not tape-differentiable (positions are projected in place); overlapping shape-matching
-    clusters with oriented particles race on the orientation under "jacobi".
+    Differentiable: when the model was finalized with ``requires_grad=True`` each step writes fresh arrays
+    (positions after every constraint set's sweep, λ per sweep, predicted velocities) and launches afresh
+    (no replay), so ``wp.Tape`` records and replays it: gradients reach the initial state, the model's
+    inverse masses, each constraint set's ``compliance_array`` (and ``rest``) and :attr:`gravity`, for
+    ``Distance``, ``DihedralBending``, ``Volume``, ``ShapeMatching`` (without oriented particles) and
+    ``Ground`` under ``schedule="jacobi"`` with fixed ``iterations``. Ground contact, friction and
+    restitution are piecewise smooth: at a switch (C = 0, the Coulomb cone, the restitution threshold) the
+    gradient is one-sided. Other sets (oriented particles, generated contacts, generic constraints), the
+    colouring schedule and kinematic particles raise an error when gradients are requested. Shape
+    matching differentiates R through ``wp.svd3``'s adjoint, undefined where the cluster's moment has
+    repeated singular values (an undeformed isotropic cluster). With gradients off nothing of this runs.
+
+    Limitations: overlapping shape-matching clusters with oriented particles race on the orientation under
+    "jacobi".
 
     Args:
         model: the Model; by default the constraints are its springs (``Distance``, α = 1/k), bending
@@ -87,10 +100,6 @@ class XPBD(Solver):
         collisions: Sequence[Any] = (),
     ) -> None:
         super().__init__(model, collisions)
-        if model.requires_grad:
-            raise NotImplementedError(
-                "XPBD projects in place and is not tape-differentiable yet; finalize with requires_grad=False"
-            )
         if int(iterations) < 1:
             raise ValueError(f"iterations must be >= 1, got {iterations}")
         if schedule not in _SCHEDULES:
@@ -114,7 +123,14 @@ class XPBD(Solver):
             if not isinstance(c, Constraint):
                 raise TypeError(f"constraints must be pl.constraints objects, got {type(c).__name__}")
             c.bind(model, self.coloring)
+        self.requires_grad = bool(model.requires_grad)
+        if self.requires_grad:
+            self._check_differentiable()
+            # Inverse masses are a differentiable parameter (the builder allocates them without a gradient).
+            model.particle_inv_mass.requires_grad = True
         d, n = model.device, model.particle_count
+        #: Gravity [m/s²] as a vec3 array [1] (from ``model.gravity``); its ``.grad`` under a tape.
+        self.gravity = wp.array([model.gravity], dtype=model.vec3, device=d, requires_grad=self.requires_grad)
         self.delta = wp.zeros(n, dtype=model.vec3, device=d)
         self.delta_count = wp.zeros(n, dtype=wp.int32, device=d)
         self.v_pred = wp.zeros(n, dtype=model.vec3, device=d)
@@ -122,7 +138,7 @@ class XPBD(Solver):
         self._last_dt: float | None = None
         self._last_p: wp.array | None = None
         #: Replay recorded launches for repeated identical steps (set False to launch afresh every step).
-        self.replay = True
+        self.replay = not self.requires_grad
         self._plans: dict[tuple, list] = {}
         self._recording: list | None = None
 
@@ -144,6 +160,37 @@ class XPBD(Solver):
 
     def _stiffness(self, which: str) -> float:
         return 1.0
+
+    def _check_differentiable(self) -> None:
+        """Gradients requested (``requires_grad`` model): reject what cannot give a correct gradient."""
+        if self.coloring:
+            raise GradientError(
+                "XPBD: the colouring (Gauss–Seidel) schedule projects in place and cannot be differentiated; "
+                'use schedule="jacobi" when the model is finalized with requires_grad=True'
+            )
+        bad = [type(c).__name__ for c in self.constraints if not c.differentiable]
+        if bad:
+            raise GradientError(
+                f"XPBD: constraint sets {bad} are not differentiable yet; with requires_grad=True use "
+                "Distance, DihedralBending, Volume, ShapeMatching without radii and Ground, or finalize with "
+                "requires_grad=False"
+            )
+
+    def context(self) -> ProjectionContext:
+        """What the constraint sets read from this solver during a step (a fresh, declared interface)."""
+        return ProjectionContext(
+            model=self.model,
+            iterations=self.iterations,
+            coloring=self.coloring,
+            relaxation=self.relaxation,
+            pbd=self.pbd,
+            requires_grad=self.requires_grad,
+            launch=self.launch,
+            call=self.call,
+            delta=self.delta,
+            delta_count=self.delta_count,
+            v_pred=self.v_pred,
+        )
 
     # ------------------------------------------------------------------ launching
     def launch(self, kernel, dim: int, inputs: list) -> None:
@@ -194,12 +241,23 @@ class XPBD(Solver):
         """Forget the recorded steps; call after changing options (iterations, relaxation, constraints)."""
         self._plans.clear()
 
-    def _project(self, c: Constraint, p: wp.array, dt: float) -> None:
-        c.project(self, p, dt)
-        if c.writes_deltas(self.coloring):
-            omega = 1.0 if (self.coloring or c.always_jacobi or c.relaxes_itself) else self.relaxation
-            m = self.model
+    def _project(self, ctx: ProjectionContext, c: Constraint, p: wp.array, dt: float) -> wp.array:
+        """One sweep of set ``c``; returns the positions after it (``p`` itself unless differentiable)."""
+        m = self.model
+        if not c.writes_deltas(self.coloring):
+            out = c.project(ctx, p, dt)
+            return p if out is None else out
+        if ctx.requires_grad:
+            ctx.delta = ctx.fresh(self.delta)
+            ctx.delta_count = ctx.fresh(self.delta_count)
+        c.project(ctx, p, dt)
+        omega = 1.0 if (self.coloring or c.always_jacobi or c.relaxes_itself) else self.relaxation
+        if not ctx.requires_grad:
             self.launch(K.apply_deltas, m.particle_count, [m.s(omega), p, self.delta, self.delta_count])
+            return p
+        p_next = ctx.fresh(p)
+        self.launch(K.apply_deltas_to, m.particle_count, [m.s(omega), p, ctx.delta, ctx.delta_count, p_next])
+        return p_next
 
     def _plan_key(self, state_in: State, state_out: State, control: Control | None, dt: float) -> tuple:
         arrays = (state_in.particle_q, state_in.particle_qd, state_out.particle_q, state_out.particle_qd)
@@ -220,7 +278,15 @@ class XPBD(Solver):
     def _step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
         m = self.model
         n = m.particle_count
-        x, p, v = state_in.particle_q, state_out.particle_q, state_out.particle_qd
+        ctx = self.context()
+        grad = ctx.requires_grad
+        if grad:
+            self._check_differentiable()  # again: sets may have been added after construction
+        x = state_in.particle_q
+        # A differentiable step never overwrites what it has read: fresh positions per sweep (below).
+        p = ctx.fresh(x) if grad else state_out.particle_q
+        if grad:
+            ctx.v_pred = ctx.fresh(self.v_pred)
         if control is not None:
             f_ext = control.particle_f
             drag = control.drag_index
@@ -233,7 +299,7 @@ class XPBD(Solver):
             n,
             [
                 m.particle_inv_mass,
-                m.gravity_vec,
+                self.gravity,
                 f_ext,
                 drag,
                 drag_target,
@@ -242,29 +308,38 @@ class XPBD(Solver):
                 x,
                 state_in.particle_qd,
                 p,
-                self.v_pred,
+                ctx.v_pred,
             ],
         )
         if control is not None and control.kinematic_indices.shape[0]:
+            if grad:
+                raise GradientError(
+                    "XPBD: kinematic targets are not differentiable yet; drop them from the Control or "
+                    "finalize with requires_grad=False"
+                )
             self.launch(
                 K.apply_kinematic,
                 control.kinematic_indices.shape[0],
                 [control.kinematic_indices, control.kinematic_targets, p],
             )
         for c in self.constraints:
-            c.begin_step(self, x, p, dt)
+            c.begin_step(ctx, x, p, dt)
         for _ in range(self.iterations):
             for c in self.constraints:
-                self._project(c, p, dt)
+                p = self._project(ctx, c, p, dt)
         # Contacts last: extra sweeps of the unilateral constraints alone, so that averaging with the
         # bilateral corrections does not leave particles inside what they touch at the end of the step.
         contacts = [c for c in self.constraints if c.is_contact]
         for _ in range(self.contact_iterations if contacts else 0):
             for c in contacts:
-                self._project(c, p, dt)
+                p = self._project(ctx, c, p, dt)
+        v = ctx.fresh(state_out.particle_qd) if grad else state_out.particle_qd
         self.launch(K.update_velocity, n, [m.s(1.0 / dt), m.s(math.exp(-self.damping * dt)), x, p, v])
         for c in self.constraints:
-            c.end_step(self, x, p, v, dt)
+            out = c.end_step(ctx, x, p, v, dt)
+            v = v if out is None else out
+        if grad:
+            self.launch(K.write_state, n, [p, v, state_out.particle_q, state_out.particle_qd])
 
     # ------------------------------------------------------------------ diagnostics
     def residual(self) -> float:
@@ -272,8 +347,9 @@ class XPBD(Solver):
         if self._last_dt is None:
             raise RuntimeError("residual() needs a step first")
         self._residual.zero_()
+        ctx = self.context()
         for c in self.constraints:
-            c.residual(self, self._last_p, self._last_dt, self._residual)
+            c.residual(ctx, self._last_p, self._last_dt, self._residual)
         s, n = self._residual.numpy()
         return float(math.sqrt(s / n)) if n > 0 else 0.0
 

@@ -13,7 +13,7 @@ from ._post import drag_force
 def predict(
     # Model:
     inv_mass: wp.array(dtype=Any),
-    gravity: Any,
+    gravity: wp.array(dtype=Any),
     # Control:
     f_ext: wp.array(dtype=Any),
     drag_index: int,
@@ -40,7 +40,7 @@ def predict(
     if i == drag_index:
         # The drag handle: the same zero-length spring as the force solvers add (_post.drag_force).
         f = f + drag_force(drag_target, drag_stiffness, x)
-    v = v_in[i] + dt * (gravity + w * f)
+    v = v_in[i] + dt * (gravity[0] + w * f)
     p_out[i] = x + dt * v
     v_pred_out[i] = v
 
@@ -83,3 +83,33 @@ def update_velocity(
     """Algorithm 1, lines 12–13: v ← (p − x)/Δt, scaled by exp(−cΔt) (x ← p is the state swap)."""
     i = wp.tid()
     v_out[i] = ((p_in[i] - x_in[i]) * inv_dt) * damping_factor
+
+
+@wp.kernel
+def apply_deltas_to(
+    relaxation: Any,
+    p_in: wp.array(dtype=Any),
+    delta_in: wp.array(dtype=Any),
+    count_in: wp.array(dtype=wp.int32),
+    p_out: wp.array(dtype=Any),
+):
+    """Jacobi into a fresh array (differentiable step): p_out = p_in + ω Σ_c Δp_i^c / n_i."""
+    i = wp.tid()
+    n = count_in[i]
+    x = p_in[i]
+    if n > 0:
+        x = x + (relaxation / type(relaxation)(n)) * delta_in[i]
+    p_out[i] = x
+
+
+@wp.kernel
+def write_state(
+    p_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    q_out: wp.array(dtype=Any),
+    qd_out: wp.array(dtype=Any),
+):
+    """The end of a differentiable step: the last projected positions and velocities into the state."""
+    i = wp.tid()
+    q_out[i] = p_in[i]
+    qd_out[i] = v_in[i]

@@ -1,0 +1,14 @@
+"""Differentiable simulation: rollouts with loss and gradients, and a PyTorch bridge.
+
+Plain Warp path (what :func:`rollout` automates): finalise the model with ``requires_grad=True``, make one
+State per step, call ``solver.step`` inside a ``wp.Tape``, then ``tape.backward(loss)`` and read the model's
+arrays' ``.grad`` (``spring_stiffness``, ``tet_mu``, ...) and the first state's. Differentiable solvers:
+``ForceSolver`` with any explicit integrator (with ground contact and kinematic targets) and
+``FastMassSpring(method="symplectic")``; others raise :class:`GradientError` when asked.
+"""
+
+from .._warp import GradientError
+from ._rollout import PARAMETERS, RolloutResult, rollout
+from ._torch import torch_rollout
+
+__all__ = ["PARAMETERS", "GradientError", "RolloutResult", "rollout", "torch_rollout"]
