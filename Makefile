@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 PIP_FLAGS ?= -q --disable-pip-version-check
 
-.PHONY: demo test lint format bench study clean
+.PHONY: demo test docs lint format bench study clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -18,13 +18,23 @@ $(VENV)/.installed-test: $(BIN)/python pyproject.toml
 	$(BIN)/python -m pip install $(PIP_FLAGS) -e ".[test]"
 	touch $@ $(VENV)/.installed
 
+$(VENV)/.installed-docs: $(BIN)/python pyproject.toml
+	$(BIN)/python -m pip install $(PIP_FLAGS) -e ".[docs]"
+	touch $@ $(VENV)/.installed
+
 demo: $(VENV)/.installed
 	$(BIN)/pliant demo --out out
 
+# The docs are part of the suite: tests/test_docs.py builds the site with `mkdocs build --strict` and runs
+# every tutorial's code, so `make test` stays CI's single entry.
 test: $(VENV)/.installed-test
 	$(BIN)/ruff check pliant tests benchmarks examples
 	$(BIN)/ruff format --check pliant tests benchmarks examples
 	$(BIN)/python -m pytest -q
+
+# The documentation site (mkdocs-material + mkdocstrings) into site/; warnings are errors.
+docs: $(VENV)/.installed-docs
+	NO_MKDOCS_2_WARNING=1 $(BIN)/python -m mkdocs build --strict --site-dir site
 
 lint: $(VENV)/.installed-test
 	$(BIN)/ruff check --fix pliant tests benchmarks examples
@@ -37,4 +47,4 @@ study: $(VENV)/.installed
 	$(BIN)/pliant study integrators --out docs/figures
 
 clean:
-	rm -rf $(VENV) out .pytest_cache .ruff_cache *.egg-info
+	rm -rf $(VENV) out site .pytest_cache .ruff_cache *.egg-info

@@ -235,7 +235,17 @@ class Colliders:
     def add_sphere(
         self, center: Sequence[float], radius: float, *, friction: float = 0.5, restitution: float = 0.0
     ) -> int:
-        """A sphere of ``radius`` [m] at ``center`` [m]; returns its index."""
+        """A sphere.
+
+        Args:
+            center: centre [m].
+            radius: radius [m], > 0.
+            friction: Coulomb friction coefficient μ [-], >= 0.
+            restitution: normal restitution coefficient e [-], in [0, 1].
+
+        Returns:
+            The collider's index.
+        """
         if radius <= 0:
             raise ValueError(f"sphere radius must be > 0 m, got {radius}")
         c = _vec(center, "sphere center")
@@ -251,7 +261,20 @@ class Colliders:
         friction: float = 0.5,
         restitution: float = 0.0,
     ) -> int:
-        """A box of ``half_extents`` [m] at ``center``, rotated by a 3×3 matrix or (x, y, z, w) quaternion."""
+        """A box, optionally rotated and with rounded edges.
+
+        Args:
+            center: centre [m].
+            half_extents: half side lengths along the box's own axes [m], each > 0.
+            rotation: world-from-box rotation [-], a 3×3 matrix or an (x, y, z, w) quaternion; None: axis
+                aligned.
+            rounding: radius [m] the surface is offset outwards by (rounded edges and corners), >= 0.
+            friction: Coulomb friction coefficient μ [-], >= 0.
+            restitution: normal restitution coefficient e [-], in [0, 1].
+
+        Returns:
+            The collider's index.
+        """
         he = _vec(half_extents, "box half_extents")
         if np.any(he <= 0):
             raise ValueError(f"box half_extents must be > 0 m, got {half_extents}")
@@ -269,7 +292,18 @@ class Colliders:
         friction: float = 0.5,
         restitution: float = 0.0,
     ) -> int:
-        """A capsule: the segment a–b [m] thickened by ``radius`` [m]."""
+        """A capsule: the segment a–b thickened by ``radius``.
+
+        Args:
+            a: first end of the axis segment [m].
+            b: second end of the axis segment [m].
+            radius: radius [m], > 0.
+            friction: Coulomb friction coefficient μ [-], >= 0.
+            restitution: normal restitution coefficient e [-], in [0, 1].
+
+        Returns:
+            The collider's index.
+        """
         pa, pb = _vec(a, "capsule a"), _vec(b, "capsule b")
         if radius <= 0:
             raise ValueError(f"capsule radius must be > 0 m, got {radius}")
@@ -278,7 +312,17 @@ class Colliders:
         return self._add(CAPSULE, pa, pb, np.eye(3), radius, friction, restitution)
 
     def add_mesh(self, vertices: Any, faces: Any, *, friction: float = 0.5, restitution: float = 0.0) -> int:
-        """A closed, outward-wound triangle mesh (vertices [V, 3] m, faces [F, 3]) queried through a BVH."""
+        """A closed, outward-wound triangle mesh, queried through a BVH.
+
+        Args:
+            vertices: [V, 3] vertex positions [m].
+            faces: [F, 3] vertex indices per triangle (counter-clockwise seen from outside).
+            friction: Coulomb friction coefficient μ [-], >= 0.
+            restitution: normal restitution coefficient e [-], in [0, 1].
+
+        Returns:
+            The collider's index.
+        """
         v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
         f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
         if f.size == 0 or f.min() < 0 or f.max() >= v.shape[0]:

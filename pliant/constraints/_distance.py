@@ -134,7 +134,7 @@ class Attachment(Constraint):
 
     Args:
         indices: particles [K].
-        targets: world points [K, 3] [m]; default the particles' initial positions.
+        targets: world points [m], shape [K, 3]; default the particles' initial positions.
         rest_length: [K] or scalar tether length [m] (default 0).
         compliance: α [m/N] (default 0: rigid).
     """
@@ -175,7 +175,7 @@ class Attachment(Constraint):
         self.lam = wp.zeros(n, dtype=f, device=d)
 
     def set_targets(self, targets: Any) -> None:
-        """Move the attachment points [K, 3] [m] (between steps)."""
+        """Move the attachment points [m], shape [K, 3] (between steps)."""
         self.targets.assign(np.asarray(targets, float).reshape(self.count, 3))
 
     def project(self, ctx: ProjectionContext, p: wp.array, dt: float) -> None:

@@ -316,10 +316,12 @@ class TetElasticity(Energy):
     spurious stress.
 
     Args:
-        material: material model name.
+        material: material model name (``"linear"``, ``"stvk"``, ``"corotated"``, ``"neohookean"``);
+            None: the class's ``default_material``.
         E: Young's modulus [Pa] overriding the model's per-tet values (None: use the model's).
-        nu: Poisson's ratio used with ``E``.
-        inversion_margin: η ∈ [0, 1): the smallest fraction of its volume an element may keep in one step.
+        nu: Poisson's ratio [-] used with ``E``, in (-1, 0.5).
+        inversion_margin: η ∈ [0, 1) [-]: the smallest fraction of its volume an element may keep in one
+            step.
 
     Example::
 
@@ -462,7 +464,15 @@ class TetElasticity(Energy):
 class LinearElastic(TetElasticity):
     """Linear elasticity ψ = μ ε:ε + λ/2 tr(ε)², ε = ½(F + Fᵀ) − I (small strains; not rotation invariant).
 
-    See :class:`TetElasticity` for the arguments.
+    See :class:`TetElasticity` for the energy, forces, Hessian and step bound.
+
+    Args:
+        material: None (``"linear"``); another model name turns it into that model.
+        E: Young's modulus [Pa] overriding the model's per-tet values (None: use the model's, set by
+            ``ModelBuilder.add_tetrahedra`` / ``add_soft_box`` / ``add_tet_mesh``).
+        nu: Poisson's ratio [-] used with ``E``, in (-1, 0.5).
+        inversion_margin: η ∈ [0, 1) [-]: the smallest fraction of its volume an element may keep in one
+            step.
     """
 
     default_material: ClassVar[str] = "linear"
@@ -471,7 +481,15 @@ class LinearElastic(TetElasticity):
 class StVK(TetElasticity):
     """St. Venant–Kirchhoff ψ = μ E:E + λ/2 tr(E)², E = ½(FᵀF − I) (softens, and can invert, in compression).
 
-    See :class:`TetElasticity` for the arguments.
+    See :class:`TetElasticity` for the energy, forces, Hessian and step bound.
+
+    Args:
+        material: None (``"stvk"``); another model name turns it into that model.
+        E: Young's modulus [Pa] overriding the model's per-tet values (None: use the model's, set by
+            ``ModelBuilder.add_tetrahedra`` / ``add_soft_box`` / ``add_tet_mesh``).
+        nu: Poisson's ratio [-] used with ``E``, in (-1, 0.5).
+        inversion_margin: η ∈ [0, 1) [-]: the smallest fraction of its volume an element may keep in one
+            step.
     """
 
     default_material: ClassVar[str] = "stvk"
@@ -480,7 +498,15 @@ class StVK(TetElasticity):
 class Corotated(TetElasticity):
     """Fixed corotated ψ = μ ‖F − R‖² + λ/2 (J − 1)², F = R S (Stomakhin et al. 2012).
 
-    See :class:`TetElasticity` for the arguments.
+    See :class:`TetElasticity` for the energy, forces, Hessian and step bound.
+
+    Args:
+        material: None (``"corotated"``); another model name turns it into that model.
+        E: Young's modulus [Pa] overriding the model's per-tet values (None: use the model's, set by
+            ``ModelBuilder.add_tetrahedra`` / ``add_soft_box`` / ``add_tet_mesh``).
+        nu: Poisson's ratio [-] used with ``E``, in (-1, 0.5).
+        inversion_margin: η ∈ [0, 1) [-]: the smallest fraction of its volume an element may keep in one
+            step.
     """
 
     default_material: ClassVar[str] = "corotated"
@@ -489,7 +515,15 @@ class Corotated(TetElasticity):
 class NeoHookean(TetElasticity):
     """Stable neo-Hookean ψ = μ/2 (I_C − 3) − μ (J − 1) + (λ + μ)/2 (J − 1)² (Smith, de Goes, Kim 2018).
 
-    See :class:`TetElasticity` for the arguments.
+    See :class:`TetElasticity` for the energy, forces, Hessian and step bound.
+
+    Args:
+        material: None (``"neohookean"``); another model name turns it into that model.
+        E: Young's modulus [Pa] overriding the model's per-tet values (None: use the model's, set by
+            ``ModelBuilder.add_tetrahedra`` / ``add_soft_box`` / ``add_tet_mesh``).
+        nu: Poisson's ratio [-] used with ``E``, in (-1, 0.5).
+        inversion_margin: η ∈ [0, 1) [-]: the smallest fraction of its volume an element may keep in one
+            step.
     """
 
     default_material: ClassVar[str] = "neohookean"

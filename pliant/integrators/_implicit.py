@@ -226,7 +226,7 @@ class BackwardEuler(_ImplicitOptions, Integrator):
     search (``pliant.solvers.ForceSolver.minimize``). On the undamped oscillator it divides the energy by
     1 + ω²Δt² each step: unconditionally stable, visibly damped.
 
-    Args:
+    Keyword Args:
         newton_tol: Newton tolerance [m/s] on ‖Δx‖∞/Δt and on the mass-scaled gradient.
         max_newton_iterations: Newton iteration cap per step.
         linear_solver: "cg" (warp.optim.linear.cg, any device), "scipy-cg" (SciPy CG, block-Jacobi, host),

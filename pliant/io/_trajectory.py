@@ -70,7 +70,7 @@ def _load_npz(
 
 @dataclass
 class Trajectory:
-    """Recorded motion: ``x`` [T, N, 3] positions [m] at times ``t`` [T] [s], plus topology and metadata."""
+    """Recorded motion: ``x`` [T, N, 3] positions [m] at times ``t`` [s] (shape [T]), topology, metadata."""
 
     x: np.ndarray
     t: np.ndarray

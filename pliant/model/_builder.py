@@ -48,6 +48,9 @@ class ModelBuilder:
         b.add_cloth_grid(nx=32, ny=32, size=1.0, mass=0.2, stiffness=1e3, pin="top-corners")
         b.add_ground()
         model = b.finalize(device="cpu")
+
+    Args:
+        gravity: gravitational acceleration [m/s²] (x, y, z); y is up.
     """
 
     def __init__(self, *, gravity: Sequence[float] = (0.0, -9.81, 0.0)) -> None:
@@ -136,13 +139,21 @@ class ModelBuilder:
             )
 
     def pin(self, indices: Any) -> None:
-        """Fix particles in place (infinite mass: inverse mass 0)."""
+        """Fix particles in place (infinite mass: inverse mass 0).
+
+        Args:
+            indices: global particle indices (int or sequence of ints) to fix.
+        """
         idx = np.asarray(indices, dtype=np.int64).reshape(-1)
         self._check_range(idx.reshape(-1, 1), "pin")
         self._pinned.update(int(i) for i in idx)
 
     def add_kinematic(self, indices: Any) -> None:
-        """Mark particles as kinematic: their positions follow ``Control.kinematic_targets``."""
+        """Mark particles as kinematic: their positions follow ``Control.kinematic_targets``.
+
+        Args:
+            indices: global particle indices (int or sequence of ints) driven by the targets [m].
+        """
         idx = np.asarray(indices, dtype=np.int64).reshape(-1)
         self._check_range(idx.reshape(-1, 1), "kinematic particle")
         self._kinematic.extend(int(i) for i in idx)
@@ -185,7 +196,12 @@ class ModelBuilder:
         self._springs.append((idx, rest, k, g))
 
     def add_triangles(self, indices: Any, *, render: bool = True) -> None:
-        """Add surface triangles (used for rendering, bending, collisions); rejects degenerate ones."""
+        """Add surface triangles (used for rendering, bending, collisions); rejects degenerate ones.
+
+        Args:
+            indices: [F, 3] particle indices per triangle.
+            render: also draw these triangles (renderer and mesh export).
+        """
         idx = _as_index_array(indices, 3, "triangle")
         self._check_range(idx, "triangle")
         q = self.positions()
@@ -206,6 +222,12 @@ class ModelBuilder:
         """Add linear tetrahedral elements with Young's modulus ``E`` [Pa] and Poisson ratio ``nu``.
 
         Inverted (negative-volume) tets raise unless ``fix_orientation``; degenerate ones always raise.
+
+        Args:
+            indices: [E, 4] particle indices per tetrahedron.
+            E: [E] or scalar Young's modulus [Pa], > 0.
+            nu: [E] or scalar Poisson ratio [-], in (-1, 0.5).
+            fix_orientation: swap two vertices of inverted tets instead of raising.
         """
         from ._materials import lame_parameters
 
@@ -240,14 +262,25 @@ class ModelBuilder:
         self._tets.append((idx, np.broadcast_to(mu, (n,)).copy(), np.broadcast_to(lam, (n,)).copy()))
 
     def add_bending(self, indices: Any, *, stiffness: Any) -> None:
-        """Add dihedral bending elements [B, 4]: shared edge (0, 1), opposite vertices (2, 3)."""
+        """Add dihedral bending elements: shared edge (0, 1), opposite vertices (2, 3).
+
+        Args:
+            indices: [B, 4] particle indices per element.
+            stiffness: [B] or scalar bending stiffness [N m/rad].
+        """
         idx = _as_index_array(indices, 4, "bending element")
         self._check_range(idx, "bending element")
         if idx.shape[0]:
             self._bending.append((idx, _per_item(stiffness, idx.shape[0], "bending stiffness", "N m/rad")))
 
     def add_ground(self, height: float = 0.0, *, friction: float = 0.5, restitution: float = 0.0) -> None:
-        """Add the ground plane y = ``height`` [m] with Coulomb ``friction`` and ``restitution`` in [0, 1]."""
+        """Add the ground plane y = ``height``.
+
+        Args:
+            height: height of the plane [m].
+            friction: Coulomb friction coefficient μ [-], >= 0.
+            restitution: normal restitution coefficient [-], in [0, 1].
+        """
         if friction < 0:
             raise ValueError(f"ground friction must be >= 0, got {friction}")
         if not 0 <= restitution <= 1:
@@ -261,6 +294,12 @@ class ModelBuilder:
         ``add_*`` shape methods call it; call it after :meth:`add_particles` for a body made by hand, so that
         ``model.objects`` (ranges used by renderers, handles and scene files) lists it. ``extra`` items are
         stored with it (e.g. ``nx``, ``ny`` of a cloth grid).
+
+        Args:
+            name: the object's name.
+            kind: its kind label (``"cloth"``, ``"rope"``, ...).
+            start: index of its first particle.
+            **extra: more items stored with the record.
         """
         self.objects.append(
             {"name": name, "kind": kind, "start": start, "count": self._count - start, **extra}
@@ -281,9 +320,23 @@ class ModelBuilder:
         radius: float = 0.01,
         name: str = "rope",
     ) -> int:
-        """Add a rope of ``n_segments`` springs; ``mass`` [kg] is spread evenly; returns the first index.
+        """Add a straight rope of ``n_segments`` springs (``n_segments + 1`` particles).
 
-        ``pin`` is "first", "last", "both", "none" or explicit local indices.
+        Args:
+            n_segments: number of springs along the rope.
+            length: total rest length [m].
+            mass: total mass [kg], spread evenly over the particles.
+            stiffness: spring constant k of each segment [N/m].
+            damping: dashpot coefficient γ of every spring [N s/m].
+            start: position of the first particle [m].
+            direction: direction the rope extends in [-] (any length: it is normalised).
+            bend_stiffness: k of springs joining every second particle [N/m] (0: none).
+            pin: ``"first"``, ``"last"``, ``"both"``, ``"none"`` or local particle indices to fix.
+            radius: contact radius of each particle [m].
+            name: object name (errors, ``model.objects``).
+
+        Returns:
+            The global index of the first particle.
         """
         from ..geometry import rope
 
@@ -327,7 +380,29 @@ class ModelBuilder:
 
         Mass [kg] is lumped by triangle area. Give either spring ``stiffness`` [N/m] or the membrane
         stiffness ``youngs_modulus_thickness`` E·t [N/m] with ``poisson`` (mapped by
-        :func:`pliant.energies.cloth_spring_stiffness`). Returns the first particle index.
+        :func:`pliant.energies.cloth_spring_stiffness`).
+
+        Args:
+            nx: cells along the first in-plane axis ((nx + 1) particles).
+            ny: cells along the second in-plane axis ((ny + 1) particles).
+            size: side length [m], or the two side lengths (u, v) [m].
+            mass: total mass [kg].
+            stiffness: k of the structural springs [N/m]; required unless ``youngs_modulus_thickness``.
+            shear_stiffness: k of the diagonal springs [N/m] (default: ``stiffness``).
+            bend_stiffness: k of springs across two cells [N/m] (0: none).
+            damping: dashpot coefficient γ of every spring [N s/m].
+            youngs_modulus_thickness: membrane stiffness E·t [N/m]; replaces ``stiffness`` and
+                ``shear_stiffness``.
+            poisson: Poisson ratio ν [-] used with ``youngs_modulus_thickness``.
+            origin: corner of the grid [m].
+            plane: ``"xz"`` (horizontal), ``"xy"`` or ``"yz"``.
+            pin: ``"none"``, ``"top-corners"``, ``"top-edge"``, ``"corners"``, ``"top-left"``,
+                ``"top-right"`` or local particle indices to fix.
+            radius: contact radius of each particle [m].
+            name: object name (errors, ``model.objects``).
+
+        Returns:
+            The global index of the first particle.
         """
         from ..geometry import cloth_grid
 
@@ -382,8 +457,24 @@ class ModelBuilder:
     ) -> int:
         """Add a box meshed into 6 tets per cell; mass is lumped (ρV/4 per tet vertex).
 
-        ``stiffness`` [N/m] adds tet-edge springs (a mass-spring volume); ``E`` [Pa] adds FEM tetrahedra.
-        ``origin`` is the box centre. Returns the first particle index.
+        ``stiffness`` adds tet-edge springs (a mass-spring volume); ``E`` adds FEM tetrahedra (both may be
+        given).
+
+        Args:
+            cells: cells along x, y, z (6 tets each).
+            size: box side lengths along x, y, z [m].
+            origin: centre of the box [m].
+            density: mass density ρ [kg/m³], > 0.
+            stiffness: k of the tet-edge springs [N/m] (None: no springs).
+            damping: dashpot coefficient γ of those springs [N s/m].
+            E: Young's modulus of the FEM tetrahedra [Pa] (None: no FEM elements).
+            nu: Poisson ratio ν [-] used with ``E``.
+            velocity: initial velocity of every particle [m/s].
+            radius: contact radius of each particle [m].
+            name: object name (errors, ``model.objects``).
+
+        Returns:
+            The global index of the first particle.
         """
         from ..geometry import box_tets
 
@@ -409,7 +500,23 @@ class ModelBuilder:
     ) -> int:
         """Add a tetrahedral mesh as a mass-spring volume (``stiffness``) and/or FEM body (``E``).
 
-        ``kind`` is the label it gets in ``model.objects`` (e.g. ``"soft_sphere"``).
+        Mass is lumped (ρV/4 per tet vertex).
+
+        Args:
+            points: [N, 3] vertex positions [m].
+            tets: [E, 4] vertex indices per tetrahedron (0-based, into ``points``).
+            density: mass density ρ [kg/m³], > 0.
+            stiffness: k of the tet-edge springs [N/m] (None: no springs).
+            damping: dashpot coefficient γ of those springs [N s/m].
+            E: Young's modulus of the FEM tetrahedra [Pa] (None: no FEM elements).
+            nu: Poisson ratio ν [-] used with ``E``.
+            velocity: initial velocity of every particle [m/s].
+            radius: contact radius of each particle [m].
+            name: object name (errors, ``model.objects``).
+            kind: the label it gets in ``model.objects`` (e.g. ``"soft_sphere"``).
+
+        Returns:
+            The global index of the first particle.
         """
         return self._add_tet_mesh(
             points, tets, density, stiffness, damping, E, nu, velocity, radius, name, kind
@@ -452,7 +559,21 @@ class ModelBuilder:
         particle_radius: float = 0.005,
         name: str = "points",
     ) -> int:
-        """Add a point cloud with PhysTwin-style springs to up to ``max_neighbors`` within ``radius``."""
+        """Add a point cloud with PhysTwin-style springs to up to ``max_neighbors`` within ``radius``.
+
+        Args:
+            points: [N, 3] positions [m].
+            mass: total mass [kg], spread evenly.
+            stiffness: spring constant k [N/m].
+            radius: connection radius [m]: springs join points closer than this.
+            max_neighbors: most springs per point.
+            damping: dashpot coefficient γ [N s/m].
+            particle_radius: contact radius of each particle [m].
+            name: object name (errors, ``model.objects``).
+
+        Returns:
+            The global index of the first particle.
+        """
         from ..geometry import springs_from_points
 
         pts = np.asarray(points, np.float64).reshape(-1, 3)
@@ -470,7 +591,13 @@ class ModelBuilder:
     def finalize(
         self, device: str | None = None, dtype: str = "float32", requires_grad: bool = False
     ) -> Model:
-        """Validate everything and copy it to ``device`` as a :class:`Model` in ``dtype``."""
+        """Validate everything and copy it to ``device`` as a :class:`Model` in ``dtype``.
+
+        Args:
+            device: Warp device (``"cpu"``, ``"cuda"``, ``"cuda:0"``); None: CUDA when present, else CPU.
+            dtype: ``"float32"`` or ``"float64"``.
+            requires_grad: allocate arrays that record gradients (differentiable runs).
+        """
         init()
         device = resolve_device(device)
         f = np_dtype(dtype)

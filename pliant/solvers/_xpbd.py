@@ -382,7 +382,8 @@ class PBD(XPBD):
         stiffness: k of the default distance constraints.
         bending_stiffness: k of the default bending constraints (added for every element when > 0).
         volume_stiffness: k of the default volume constraints.
-        Other keyword arguments as :class:`XPBD`; constraint objects carry their own ``stiffness``.
+
+    Other keyword arguments as :class:`XPBD`; constraint objects carry their own ``stiffness``.
     """
 
     pbd = True
