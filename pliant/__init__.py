@@ -19,7 +19,7 @@ def __getattr__(name: str):
     # Heavier layers (renderer kernels, studies, benchmarks, CLI) load on first use, not on import.
     import importlib
 
-    if name in ("render", "geometry", "constraints", "collision", "studies", "bench", "cli", "sim", "scene"):
+    if name in ("render", "geometry", "constraints", "collision", "studies", "bench", "cli", "sim", "scene", "gaussians"):
         return importlib.import_module(f"{__name__}.{name}")
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 

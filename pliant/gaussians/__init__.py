@@ -1,0 +1,20 @@
+"""3D Gaussian splats: a differentiable rasteriser in Warp (CPU and CUDA), PLY files, and bindings that move
+Gaussians with simulated particles.
+
+Typical use::
+
+    import pliant as pl
+    g = pl.gaussians.load_ply("object.ply")
+    cam = pl.gaussians.Camera(K, world_to_camera, width=640, height=480)
+    colour, alpha, depth = pl.gaussians.render(g, cam, background=(1, 1, 1))
+    pl.gaussians.save_ply(g, "copy.ply")
+
+Methods: 3D Gaussian splatting (Kerbl, Kopanas, Leimkühler, Drettakis 2023) and EWA splatting (Zwicker et al.
+2002); the implementation here is pliant's own, written from the papers' equations.
+"""
+
+from ._camera import Camera
+from ._gaussians import SH_C0, Gaussians
+from ._render import RenderOutput, render
+
+__all__ = ["SH_C0", "Camera", "Gaussians", "RenderOutput", "render"]
