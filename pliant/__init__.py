@@ -19,7 +19,19 @@ def __getattr__(name: str):
     # Heavier layers (renderer kernels, studies, benchmarks, CLI) load on first use, not on import.
     import importlib
 
-    if name in ("render", "geometry", "constraints", "collision", "studies", "bench", "cli", "sim", "scene", "gaussians"):
+    lazy = (
+        "render",
+        "geometry",
+        "constraints",
+        "collision",
+        "studies",
+        "bench",
+        "cli",
+        "sim",
+        "scene",
+        "gaussians",
+    )
+    if name in lazy:
         return importlib.import_module(f"{__name__}.{name}")
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 

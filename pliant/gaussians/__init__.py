@@ -15,6 +15,7 @@ Methods: 3D Gaussian splatting (Kerbl, Kopanas, Leimkühler, Drettakis 2023) and
 
 from ._camera import Camera
 from ._gaussians import SH_C0, Gaussians
+from ._ply import PlyError, load_ply, save_ply
 from ._render import RenderOutput, render
 
-__all__ = ["SH_C0", "Camera", "Gaussians", "RenderOutput", "render"]
+__all__ = ["SH_C0", "Camera", "Gaussians", "PlyError", "RenderOutput", "load_ply", "render", "save_ply"]

@@ -47,7 +47,8 @@ class Camera:
         if ortho > 1e-5 or np.linalg.det(R) < 0.0:
             raise ValueError(
                 "Camera: world_to_camera is not rigid: its 3x3 block must be a rotation "
-                f"(|R Rᵀ − I|max = {ortho:.3g}, det R = {np.linalg.det(R):.6g}); scale and shear are not allowed"
+                f"(|R Rᵀ − I|max = {ortho:.3g}, det R = {np.linalg.det(R):.6g}); "
+                "scale, shear and reflections are not allowed"
             )
         self.K = K
         self.world_to_camera = T
@@ -138,15 +139,15 @@ class Camera:
             ValueError: the size differs from the camera's, or the image holds NaN/inf.
         """
         a = np.asarray(image.numpy() if hasattr(image, "numpy") else image, dtype=np.float64)
+        if a.ndim not in (2, 3):
+            raise ValueError(f"{name} must have shape [H, W, 3] or [H, W], got {a.shape}")
         if a.shape[:2] != (self.height, self.width):
             raise ValueError(
-                f"{name} has size {a.shape[1] if a.ndim > 1 else '?'} x {a.shape[0]} (W x H) but the camera is "
+                f"{name} has size {a.shape[1]} x {a.shape[0]} (W x H) but the camera is "
                 f"{self.width} x {self.height}"
             )
         if a.ndim == 3 and a.shape[2] != 3:
             raise ValueError(f"{name} must have 3 channels, got shape {a.shape}")
-        if a.ndim not in (2, 3):
-            raise ValueError(f"{name} must have shape [H, W, 3] or [H, W], got {a.shape}")
         bad = ~np.isfinite(a)
         if bad.any():
             raise ValueError(f"{name} holds {int(bad.sum())} non-finite values (NaN or inf)")

@@ -27,7 +27,9 @@ _KEY_SHIFT = 4294967296  # 2**32: key = tile · 2³² + depth rank
 
 @wp.kernel
 def depth_keys_kernel(
-    depth: wp.array(dtype=Any), tile_count: wp.array(dtype=wp.int32), keys: wp.array(dtype=Any),
+    depth: wp.array(dtype=Any),
+    tile_count: wp.array(dtype=wp.int32),
+    keys: wp.array(dtype=Any),
     vals: wp.array(dtype=wp.int32),
 ):
     g = wp.tid()
@@ -208,12 +210,18 @@ def composite_backward_kernel(
             D_pre = D_pre + z * w
             S_C = C_tot - C_pre
             S_D = D_tot - D_pre
-            d_alpha = T * (wp.dot(dC, c) + dD * z) - (wp.dot(dC, S_C) + dD * S_D + dT_end * T_end) / (one - alpha)
+            d_alpha = T * (wp.dot(dC, c) + dD * z) - (wp.dot(dC, S_C) + dD * S_D + dT_end * T_end) / (
+                one - alpha
+            )
             T = T * (one - alpha)
             if a_raw < type(background[0])(ALPHA_MAX):
                 wp.atomic_add(adj_opacity, g, d_alpha * G)
                 d_pow = d_alpha * a_raw
                 dx = px - m[0]
                 dy = py - m[1]
-                wp.atomic_add(adj_mean2d, g, type(m)(d_pow * (q[0] * dx + q[1] * dy), d_pow * (q[1] * dx + q[2] * dy)))
-                wp.atomic_add(adj_conic, g, type(q)(-half * d_pow * dx * dx, -d_pow * dx * dy, -half * d_pow * dy * dy))
+                wp.atomic_add(
+                    adj_mean2d, g, type(m)(d_pow * (q[0] * dx + q[1] * dy), d_pow * (q[1] * dx + q[2] * dy))
+                )
+                wp.atomic_add(
+                    adj_conic, g, type(q)(-half * d_pow * dx * dx, -d_pow * dx * dy, -half * d_pow * dy * dy)
+                )

@@ -95,7 +95,9 @@ class Gaussians:
     def _array(self, a: Any, wtype: Any, width: int, name: str, requires_grad: bool, n: int | None = None):
         if isinstance(a, wp.array):
             if a.dtype != wtype or a.ndim != 1:
-                raise ValueError(f"{name} must be a 1-d Warp array of {wtype.__name__}, got {a.dtype} {a.shape}")
+                raise ValueError(
+                    f"{name} must be a 1-d Warp array of {wtype.__name__}, got {a.dtype} {a.shape}"
+                )
             if str(a.device) != self.device:
                 raise ValueError(f"{name} is on {a.device} but the Gaussians are on {self.device}")
             out = a
@@ -104,7 +106,9 @@ class Gaussians:
             shape = (arr.shape[0],) if arr.ndim >= 1 else ()
             want = shape + ((width,) if width else ())
             if arr.ndim != (2 if width else 1) or arr.shape != want:
-                raise ValueError(f"{name} must have shape [N{', ' + str(width) if width else ''}], got {arr.shape}")
+                raise ValueError(
+                    f"{name} must have shape [N{', ' + str(width) if width else ''}], got {arr.shape}"
+                )
             _finite(arr, name)
             out = wp.array(arr, dtype=wtype, device=self.device, requires_grad=requires_grad)
         if n is not None and out.shape[0] != n:
@@ -141,8 +145,12 @@ class Gaussians:
         """
         means = np.asarray(means, dtype=np.float64).reshape(-1, 3)
         n = len(means)
-        sc = np.broadcast_to(np.asarray(scales, dtype=np.float64).reshape(-1, 1) if np.ndim(scales) == 1
-                             else np.asarray(scales, dtype=np.float64), (n, 3))
+        sc = np.broadcast_to(
+            np.asarray(scales, dtype=np.float64).reshape(-1, 1)
+            if np.ndim(scales) == 1
+            else np.asarray(scales, dtype=np.float64),
+            (n, 3),
+        )
         if np.any(sc <= 0.0):
             raise ValueError("scales must be positive")
         op = np.broadcast_to(np.asarray(opacities, dtype=np.float64), (n,))
@@ -152,8 +160,16 @@ class Gaussians:
         rgb = np.full((n, 3), 0.5) if colors is None else np.asarray(colors, np.float64).reshape(n, 3)
         sh = np.zeros((n, (sh_degree_of((sh_degree + 1) ** 2) + 1) ** 2, 3))
         sh[:, 0] = (rgb - 0.5) / SH_C0
-        return cls(means, q, np.log(sc), np.log(op / (1.0 - op)), sh, dtype=dtype, device=device,
-                   requires_grad=requires_grad)
+        return cls(
+            means,
+            q,
+            np.log(sc),
+            np.log(op / (1.0 - op)),
+            sh,
+            dtype=dtype,
+            device=device,
+            requires_grad=requires_grad,
+        )
 
     # ------------------------------------------------------------------------------------------ accessors
     @property
@@ -196,16 +212,34 @@ class Gaussians:
     def copy(self, *, dtype: str | None = None, device: str | None = None, requires_grad: bool = False):
         """A deep copy, optionally in another dtype or on another device."""
         p = self.numpy()
-        return Gaussians(p["means"], p["quats"], p["log_scales"], p["opacity_logits"], p["sh"],
-                         dtype=dtype or self.dtype, device=device or self.device, requires_grad=requires_grad)
+        return Gaussians(
+            p["means"],
+            p["quats"],
+            p["log_scales"],
+            p["opacity_logits"],
+            p["sh"],
+            dtype=dtype or self.dtype,
+            device=device or self.device,
+            requires_grad=requires_grad,
+        )
 
     def with_means(self, means: wp.array, quats: wp.array | None = None) -> Gaussians:
         """The same Gaussians with other means (and rotations): arrays are shared, not copied."""
-        return Gaussians(means, self.quats if quats is None else quats, self.log_scales, self.opacity_logits,
-                         self.sh, dtype=self.dtype, device=self.device)
+        return Gaussians(
+            means,
+            self.quats if quats is None else quats,
+            self.log_scales,
+            self.opacity_logits,
+            self.sh,
+            dtype=self.dtype,
+            device=self.device,
+        )
 
     def __repr__(self) -> str:
-        return f"Gaussians(count={self.count}, sh_degree={self.sh_degree}, dtype={self.dtype}, device={self.device})"
+        return (
+            f"Gaussians(count={self.count}, sh_degree={self.sh_degree}, dtype={self.dtype}, "
+            f"device={self.device})"
+        )
 
 
 def _finite(a: np.ndarray, name: str) -> None:

@@ -73,7 +73,10 @@ def sh_colour(sh: Any, g: int, degree: int, d: Any):
                     + type(x)(-0.5900435899266435) * y * (three * xx - yy) * sh[g, 9]
                     + type(x)(2.890611442640554) * x * y * z * sh[g, 10]
                     + type(x)(-0.4570457994644658) * y * (four * zz - xx - yy) * sh[g, 11]
-                    + type(x)(0.3731763325901154) * z * (type(x)(2.0) * zz - three * xx - three * yy) * sh[g, 12]
+                    + type(x)(0.3731763325901154)
+                    * z
+                    * (type(x)(2.0) * zz - three * xx - three * yy)
+                    * sh[g, 12]
                     + type(x)(-0.4570457994644658) * x * (four * zz - xx - yy) * sh[g, 13]
                     + type(x)(1.445305721320277) * z * (xx - yy) * sh[g, 14]
                     + type(x)(-0.5900435899266435) * x * (xx - three * yy) * sh[g, 15]

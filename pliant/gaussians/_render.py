@@ -37,7 +37,7 @@ class RenderOutput(NamedTuple):
 
 
 class _Frame:
-    """Everything one render keeps for its backward pass (projected Gaussians, sorted lists, per-pixel sums)."""
+    """What one render keeps for its backward pass (projected Gaussians, sorted lists, per-pixel sums)."""
 
 
 def _active_tape():
@@ -106,10 +106,24 @@ def render(
             project_kernel,
             dim=n,
             inputs=[
-                gaussians.means, gaussians.quats, gaussians.log_scales, gaussians.opacity_logits, gaussians.sh,
-                gaussians.sh_degree, m33(*camera.rotation.flatten()), v3(*camera.translation),
-                v3(*camera.position), s(camera.fx), s(camera.fy), s(camera.cx), s(camera.cy),
-                *(s(v) for v in lim), s(near), s(eps2d), tiles_x, tiles_y,
+                gaussians.means,
+                gaussians.quats,
+                gaussians.log_scales,
+                gaussians.opacity_logits,
+                gaussians.sh,
+                gaussians.sh_degree,
+                m33(*camera.rotation.flatten()),
+                v3(*camera.translation),
+                v3(*camera.position),
+                s(camera.fx),
+                s(camera.fy),
+                s(camera.cx),
+                s(camera.cy),
+                *(s(v) for v in lim),
+                s(near),
+                s(eps2d),
+                tiles_x,
+                tiles_y,
             ],
             outputs=[f.mean2d, f.conic, f.depth, f.opacity, f.colour, rect, tile_count],
             device=dev,
@@ -140,9 +154,27 @@ def render(
                 composite_backward_kernel,
                 dim=(H, W),
                 inputs=[
-                    f.ranges, f.vals, f.mean2d, f.conic, f.opacity, f.colour, f.depth, f.background, f.tiles_x,
-                    f.T, f.C, f.D, f.last, out_colour.grad, out_alpha.grad, out_depth.grad,
-                    f.mean2d.grad, f.conic.grad, f.opacity.grad, f.colour.grad, f.depth.grad,
+                    f.ranges,
+                    f.vals,
+                    f.mean2d,
+                    f.conic,
+                    f.opacity,
+                    f.colour,
+                    f.depth,
+                    f.background,
+                    f.tiles_x,
+                    f.T,
+                    f.C,
+                    f.D,
+                    f.last,
+                    out_colour.grad,
+                    out_alpha.grad,
+                    out_depth.grad,
+                    f.mean2d.grad,
+                    f.conic.grad,
+                    f.opacity.grad,
+                    f.colour.grad,
+                    f.depth.grad,
                 ],
                 device=dev,
                 record_tape=False,
@@ -169,14 +201,19 @@ def _bin(depth, rect, tile_count, tiles_x: int, tile_total: int, n: int, s, dev)
     # tile · 2³² + depth rank and sort once more: each tile's list comes out front to back.
     dkeys = wp.empty(2 * n, dtype=s, device=dev)
     dvals = wp.empty(2 * n, dtype=wp.int32, device=dev)
-    wp.launch(depth_keys_kernel, dim=n, inputs=[depth, tile_count, dkeys, dvals], device=dev, record_tape=False)
+    wp.launch(
+        depth_keys_kernel, dim=n, inputs=[depth, tile_count, dkeys, dvals], device=dev, record_tape=False
+    )
     wp.utils.radix_sort_pairs(dkeys, dvals, n)
     rank = wp.empty(n, dtype=wp.int32, device=dev)
     wp.launch(ranks_kernel, dim=n, inputs=[dvals, rank], device=dev, record_tape=False)
     keys = wp.empty(2 * total, dtype=wp.int64, device=dev)
     vals = wp.empty(2 * total, dtype=wp.int32, device=dev)
     wp.launch(
-        duplicate_kernel, dim=n, inputs=[rect, tile_count, offsets, rank, tiles_x, keys, vals], device=dev,
+        duplicate_kernel,
+        dim=n,
+        inputs=[rect, tile_count, offsets, rank, tiles_x, keys, vals],
+        device=dev,
         record_tape=False,
     )
     end_bit = 32 + max(1, int(tile_total).bit_length())

@@ -11,17 +11,26 @@ import numpy as np
 C0 = 0.28209479177387814
 C1 = 0.4886025119029199
 C2 = [1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396]
-C3 = [-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154, -0.4570457994644658,
-      1.445305721320277, -0.5900435899266435]
+C3 = [
+    -0.5900435899266435,
+    2.890611442640554,
+    -0.4570457994644658,
+    0.3731763325901154,
+    -0.4570457994644658,
+    1.445305721320277,
+    -0.5900435899266435,
+]
 
 
 def quat_matrix(q: np.ndarray) -> np.ndarray:
     w, x, y, z = q / np.linalg.norm(q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def sh_rgb(sh: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -34,14 +43,20 @@ def sh_rgb(sh: np.ndarray, d: np.ndarray) -> np.ndarray:
         basis += [C2[0] * x * y, C2[1] * y * z, C2[2] * (2 * zz - xx - yy), C2[3] * x * z, C2[4] * (xx - yy)]
     if len(sh) > 9:
         xx, yy, zz = x * x, y * y, z * z
-        basis += [C3[0] * y * (3 * xx - yy), C3[1] * x * y * z, C3[2] * y * (4 * zz - xx - yy),
-                  C3[3] * z * (2 * zz - 3 * xx - 3 * yy), C3[4] * x * (4 * zz - xx - yy), C3[5] * z * (xx - yy),
-                  C3[6] * x * (xx - 3 * yy)]
+        basis += [
+            C3[0] * y * (3 * xx - yy),
+            C3[1] * x * y * z,
+            C3[2] * y * (4 * zz - xx - yy),
+            C3[3] * z * (2 * zz - 3 * xx - 3 * yy),
+            C3[4] * x * (4 * zz - xx - yy),
+            C3[5] * z * (xx - yy),
+            C3[6] * x * (xx - 3 * yy),
+        ]
     return np.maximum(np.asarray(basis) @ sh + 0.5, 0.0)
 
 
 def reference_render(p: dict, cam, background=(0.0, 0.0, 0.0), near: float = 0.01, eps2d: float = 0.3):
-    """Dense render of parameters ``p`` (``Gaussians.numpy()``) → (colour [H,W,3], alpha [H,W], depth [H,W])."""
+    """Dense render of ``p`` (``Gaussians.numpy()``) → (colour [H,W,3], alpha [H,W], depth [H,W])."""
     H, W = cam.height, cam.width
     R, t = cam.rotation, cam.translation
     fx, fy, cx, cy = cam.fx, cam.fy, cam.cx, cam.cy
@@ -94,3 +109,22 @@ def reference_render(p: dict, cam, background=(0.0, 0.0, 0.0), near: float = 0.0
     A = 1 - T
     depth = np.where(A > 0, D / np.where(A > 0, A, 1), 0.0)
     return C + T[..., None] * np.asarray(background), A, depth
+
+
+def test_reference_sh_basis_is_orthonormal():
+    # The oracle's SH constants are checked on their own: ∫ Y_i Y_j dΩ = δ_ij (Fibonacci-sphere quadrature).
+    # (sh_rgb clamps at 0, so this evaluates each basis function in a range where 0.5 + Y_k stays ≥ 0 by
+    # scaling the coefficient down and back up.)
+    m = 4000
+    i = np.arange(m) + 0.5
+    z = 1 - 2 * i / m
+    phi = np.pi * (1 + 5**0.5) * i
+    d = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], axis=1)
+    B = np.zeros((m, 16))
+    for k in range(1, 16):
+        sh = np.zeros((16, 3))
+        sh[k] = 0.1  # |0.1 Y_k| < 0.5: no clamping
+        B[:, k] = [(sh_rgb(sh, di)[0] - 0.5) / 0.1 for di in d]
+    B[:, 0] = C0
+    gram = 4 * np.pi * B.T @ B / m
+    np.testing.assert_allclose(gram, np.eye(16), atol=2e-3)
