@@ -19,20 +19,10 @@ def __getattr__(name: str):
     # Heavier layers (renderer kernels, studies, benchmarks, CLI) load on first use, not on import.
     import importlib
 
-    lazy = (
-        "render",
-        "geometry",
-        "constraints",
-        "collision",
-        "studies",
-        "bench",
-        "cli",
-        "sim",
-        "scene",
-        "gaussians",
-    )
-    if name in lazy:
+    if name in ("render", "geometry", "constraints", "collision", "studies", "bench", "cli", "sim", "scene"):
         return importlib.import_module(f"{__name__}.{name}")
+    if name == "gaussians":  # 3D Gaussian splats (their own rasteriser kernels): loaded on first use too
+        return importlib.import_module(f"{__name__}.gaussians")
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
