@@ -72,7 +72,8 @@ def reference_render(p: dict, cam, background=(0.0, 0.0, 0.0), near: float = 0.0
         tx = np.clip(pc[0] / z, -lims[0], lims[1]) * z
         ty = np.clip(pc[1] / z, -lims[2], lims[3]) * z
         J = np.array([[fx / z, 0, -fx * tx / z**2], [0, fy / z, -fy * ty / z**2]])
-        M = R @ quat_matrix(p["quats"][g]) @ np.diag(np.exp(p["log_scales"][g]))
+        A = p["transforms"][g] if "transforms" in p else np.eye(3)
+        M = R @ A @ quat_matrix(p["quats"][g]) @ np.diag(np.exp(p["log_scales"][g]))
         cov = J @ M @ M.T @ J.T + eps2d * np.eye(2)
         det = np.linalg.det(cov)
         if det <= 0:

@@ -13,9 +13,21 @@ Methods: 3D Gaussian splatting (Kerbl, Kopanas, Leimkühler, Drettakis 2023) and
 2002); the implementation here is pliant's own, written from the papers' equations.
 """
 
+from ._bind import Binding, bind
 from ._camera import Camera
 from ._gaussians import SH_C0, Gaussians
 from ._ply import PlyError, load_ply, save_ply
 from ._render import RenderOutput, render
 
-__all__ = ["SH_C0", "Camera", "Gaussians", "PlyError", "RenderOutput", "load_ply", "render", "save_ply"]
+__all__ = [
+    "Binding",
+    "bind",
+    "SH_C0",
+    "Camera",
+    "Gaussians",
+    "PlyError",
+    "RenderOutput",
+    "load_ply",
+    "render",
+    "save_ply",
+]

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .._warp import DTYPES, np_dtype, resolve_device, scalar_type, vec3_type
+from .._warp import DTYPES, mat33_type, np_dtype, resolve_device, scalar_type, vec3_type
 
 #: Zeroth spherical-harmonic basis constant, Y_00 = 1 / (2 √π): colour = SH_C0 · f_dc + 0.5.
 SH_C0 = 0.28209479177387814
@@ -49,6 +49,9 @@ class Gaussians:
         device: Warp device (default: CUDA when present).
         requires_grad: Allocate gradients for every parameter (ignored for Warp arrays passed in, which
             are kept as they are so that gradients flow into whatever produced them).
+        transforms: Optional local linear maps A [N, 3, 3] (or a Warp mat33 array) applied to each Gaussian's
+            shape, Σ = A R S Sᵀ Rᵀ Aᵀ (what a binding produces: the deformation gradient of the embedding,
+            or the blended rotation of skinning). ``None`` is the identity.
     """
 
     def __init__(
@@ -62,6 +65,7 @@ class Gaussians:
         dtype: str = "float32",
         device: str | None = None,
         requires_grad: bool = False,
+        transforms: Any = None,
     ) -> None:
         if dtype not in DTYPES:
             raise ValueError(f"dtype must be one of {DTYPES}, got {dtype!r}")
@@ -91,6 +95,21 @@ class Gaussians:
             _finite(a, "sh")
             self.sh = wp.array(a, dtype=v3, device=self.device, requires_grad=requires_grad)
         self.sh_degree = sh_degree_of(self.sh.shape[1])
+        self.transforms = None
+        if transforms is not None:
+            m33 = mat33_type(dtype)
+            if isinstance(transforms, wp.array):
+                if transforms.dtype != m33 or transforms.shape != (n,):
+                    raise ValueError(
+                        f"transforms must be a Warp array of {n} {m33.__name__}, got {transforms}"
+                    )
+                self.transforms = transforms
+            else:
+                a = np.asarray(transforms, dtype=np_dtype(dtype))
+                if a.shape != (n, 3, 3):
+                    raise ValueError(f"transforms must have shape [N={n}, 3, 3], got {a.shape}")
+                _finite(a, "transforms")
+                self.transforms = wp.array(a, dtype=m33, device=self.device, requires_grad=requires_grad)
 
     def _array(self, a: Any, wtype: Any, width: int, name: str, requires_grad: bool, n: int | None = None):
         if isinstance(a, wp.array):
@@ -183,21 +202,26 @@ class Gaussians:
     @property
     def requires_grad(self) -> bool:
         """Whether any parameter array carries a gradient."""
-        return any(a.requires_grad for a in self.parameters())
+        extra = [] if self.transforms is None else [self.transforms]
+        return any(a.requires_grad for a in self.parameters() + extra)
 
     def parameters(self) -> list[wp.array]:
         """The parameter arrays: means, quats, log_scales, opacity_logits, sh."""
         return [self.means, self.quats, self.log_scales, self.opacity_logits, self.sh]
 
     def numpy(self) -> dict[str, np.ndarray]:
-        """Parameters as NumPy arrays (float64 copies): means, quats, log_scales, opacity_logits, sh."""
-        return {
+        """Parameters as NumPy arrays (float64 copies): means, quats, log_scales, opacity_logits, sh, and
+        transforms when the set has them."""
+        out = {
             "means": self.means.numpy().astype(np.float64),
             "quats": self.quats.numpy().astype(np.float64),
             "log_scales": self.log_scales.numpy().astype(np.float64),
             "opacity_logits": self.opacity_logits.numpy().astype(np.float64),
             "sh": self.sh.numpy().astype(np.float64),
         }
+        if self.transforms is not None:
+            out["transforms"] = self.transforms.numpy().astype(np.float64)
+        return out
 
     @property
     def scales(self) -> np.ndarray:
@@ -211,20 +235,17 @@ class Gaussians:
 
     def copy(self, *, dtype: str | None = None, device: str | None = None, requires_grad: bool = False):
         """A deep copy, optionally in another dtype or on another device."""
-        p = self.numpy()
         return Gaussians(
-            p["means"],
-            p["quats"],
-            p["log_scales"],
-            p["opacity_logits"],
-            p["sh"],
+            **self.numpy(),
             dtype=dtype or self.dtype,
             device=device or self.device,
             requires_grad=requires_grad,
         )
 
-    def with_means(self, means: wp.array, quats: wp.array | None = None) -> Gaussians:
-        """The same Gaussians with other means (and rotations): arrays are shared, not copied."""
+    def with_means(
+        self, means: wp.array, quats: wp.array | None = None, transforms: wp.array | None = None
+    ) -> Gaussians:
+        """The same Gaussians with other means (and rotations, transforms): arrays are shared, not copied."""
         return Gaussians(
             means,
             self.quats if quats is None else quats,
@@ -233,7 +254,23 @@ class Gaussians:
             self.sh,
             dtype=self.dtype,
             device=self.device,
+            transforms=transforms,
         )
+
+    def baked(self) -> Gaussians:
+        """An equivalent set without ``transforms``: each A R S Sᵀ Rᵀ Aᵀ re-expressed as a rotation and scales
+        (its eigen-decomposition), as PLY files and other renderers expect. A copy, not on any tape."""
+        p = self.numpy()
+        A = p.pop("transforms", None)
+        if A is None:
+            return self.copy()
+        q = p["quats"] / np.linalg.norm(p["quats"], axis=1, keepdims=True)
+        M = A @ _quat_matrices(q) * np.exp(p["log_scales"])[:, None, :]
+        evals, evecs = np.linalg.eigh(M @ M.transpose(0, 2, 1))
+        evecs[np.linalg.det(evecs) < 0, :, 0] *= -1.0  # a proper rotation
+        p["quats"] = _matrix_quats(evecs)
+        p["log_scales"] = 0.5 * np.log(np.maximum(evals, 1e-300))
+        return Gaussians(**p, dtype=self.dtype, device=self.device)
 
     def __repr__(self) -> str:
         return (
@@ -245,3 +282,37 @@ class Gaussians:
 def _finite(a: np.ndarray, name: str) -> None:
     if not np.all(np.isfinite(a)):
         raise ValueError(f"{name} holds non-finite values (NaN or inf)")
+
+
+def _quat_matrices(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices [N, 3, 3] of unit quaternions w, x, y, z [N, 4]."""
+    w, x, y, z = q.T
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=1,
+    )
+
+
+def _matrix_quats(R: np.ndarray) -> np.ndarray:
+    """Unit quaternions w, x, y, z [N, 4] of rotation matrices [N, 3, 3] (Shepperd: the largest of the four
+    candidate components is computed from the diagonal, the others from off-diagonal sums; vectorised)."""
+    m = R
+    tr = np.trace(m, axis1=1, axis2=2)
+    d = np.stack([tr, m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], axis=1)
+    k = np.argmax(d, axis=1)
+    s = 2.0 * np.sqrt(np.maximum(1.0 + 2.0 * d[np.arange(len(m)), k] - tr, 1e-300))
+    a21, a12, a02, a20, a10, a01 = m[:, 2, 1], m[:, 1, 2], m[:, 0, 2], m[:, 2, 0], m[:, 1, 0], m[:, 0, 1]
+    branches = np.stack(
+        [
+            np.stack([0.25 * s, (a21 - a12) / s, (a02 - a20) / s, (a10 - a01) / s], -1),
+            np.stack([(a21 - a12) / s, 0.25 * s, (a01 + a10) / s, (a02 + a20) / s], -1),
+            np.stack([(a02 - a20) / s, (a01 + a10) / s, 0.25 * s, (a12 + a21) / s], -1),
+            np.stack([(a10 - a01) / s, (a02 + a20) / s, (a12 + a21) / s, 0.25 * s], -1),
+        ],
+        axis=1,
+    )
+    return branches[np.arange(len(m)), k]

@@ -162,10 +162,10 @@ def save_ply(gaussians: Gaussians, path: str | os.PathLike) -> None:
     """Write ``gaussians`` as a binary little-endian 3D Gaussian splatting PLY (float32 properties).
 
     Args:
-        gaussians: The set to write (any dtype or device).
+        gaussians: The set to write (any dtype or device); ``transforms`` are baked into rotations and scales.
         path: File path (overwritten).
     """
-    p = gaussians.numpy()
+    p = (gaussians if gaussians.transforms is None else gaussians.baked()).numpy()
     n, k = p["sh"].shape[:2]
     rest = p["sh"][:, 1:].transpose(0, 2, 1).reshape(n, 3 * (k - 1))
     cols = [

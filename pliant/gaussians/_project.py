@@ -93,6 +93,8 @@ def project_kernel(
     opacity_logits: wp.array(dtype=Any),
     sh: wp.array2d(dtype=Any),
     sh_degree: int,
+    transforms: wp.array(dtype=Any),
+    has_transform: int,
     rot: Any,
     trans: Any,
     campos: Any,
@@ -133,6 +135,9 @@ def project_kernel(
     s = log_scales[g]
     S = wp.matrix(wp.exp(s[0]), zero, zero, zero, wp.exp(s[1]), zero, zero, zero, wp.exp(s[2]), shape=(3, 3))
     M = rot * Rq * S
+    if has_transform != 0:
+        # an embedded Gaussian deformed by the local linear map A: Σ = A R S Sᵀ Rᵀ Aᵀ
+        M = rot * transforms[g] * Rq * S
     T = J * M
     cov = T * wp.transpose(T)
     a = cov[0, 0] + eps2d

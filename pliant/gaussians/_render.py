@@ -101,6 +101,9 @@ def render(
         (camera.cy + 0.3 * H) / camera.fy,
         (H - camera.cy + 0.3 * H) / camera.fy,
     )
+    transforms = gaussians.transforms
+    if transforms is None:
+        transforms = wp.array([np.eye(3)], dtype=m33, device=dev)
     if n > 0:
         wp.launch(
             project_kernel,
@@ -112,6 +115,8 @@ def render(
                 gaussians.opacity_logits,
                 gaussians.sh,
                 gaussians.sh_degree,
+                transforms,
+                int(gaussians.transforms is not None),
                 m33(*camera.rotation.flatten()),
                 v3(*camera.translation),
                 v3(*camera.position),
