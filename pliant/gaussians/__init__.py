@@ -15,19 +15,27 @@ Methods: 3D Gaussian splatting (Kerbl, Kopanas, Leimkühler, Drettakis 2023) and
 
 from ._bind import Binding, bind
 from ._camera import Camera
+from ._fit import DEFAULT_LRS, VisualCorrector, fit_appearance
 from ._gaussians import SH_C0, Gaussians
+from ._optim import Adam, photometric_loss, psnr
 from ._ply import PlyError, load_ply, save_ply
 from ._render import RenderOutput, render
 
 __all__ = [
-    "Binding",
-    "bind",
+    "DEFAULT_LRS",
     "SH_C0",
+    "Adam",
+    "Binding",
     "Camera",
     "Gaussians",
     "PlyError",
     "RenderOutput",
+    "VisualCorrector",
+    "bind",
+    "fit_appearance",
     "load_ply",
+    "photometric_loss",
+    "psnr",
     "render",
     "save_ply",
 ]
