@@ -240,3 +240,11 @@ def test_bad_gaussians_rejected():
         Gaussians(np.zeros((1, 3)), [[1, 0, 0, 0]], np.zeros((1, 3)), [0.0], np.zeros((1, 5, 3)))
     with pytest.raises(ValueError, match="opacities"):
         Gaussians.from_values(np.zeros((1, 3)), opacities=1.5)
+
+
+def test_raster_benchmark_quick():
+    from pliant import bench
+
+    r = bench.run("gaussians_raster", quick=True, device="cpu")
+    assert r["gaussian_pixels_per_s_forward"] > 0 and r["forward_backward_s"] >= 0
+    assert 0.05 < r["sanity_covered_fraction"] < 1.0
