@@ -26,7 +26,7 @@ def _rotation(seed=0):
 
 
 def _block(n=3):
-    """A cube [-0.5, 0.5]³ of (n+1)³ particles split into 5 n³ tets... via the geometry helpers."""
+    """A cube [-0.5, 0.5]³ of (n+1)³ particles, each cell split into 6 tets around its diagonal."""
     g = np.linspace(-0.5, 0.5, n + 1)
     X = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
     idx = np.arange(len(X)).reshape(n + 1, n + 1, n + 1)
@@ -60,10 +60,11 @@ def _gaussians(n=30, seed=2, device="cpu", dtype="float64"):
 
 def _binding(method, g, X, tets):
     clusters = [np.flatnonzero(X[:, 0] < 0), np.flatnonzero(X[:, 0] >= 0)]
-    return bind(g, X, method=method, tets=tets, clusters=clusters, k=8, neighbours=8)
+    tris = np.concatenate([tets[:, [0, 1, 2]], tets[:, [0, 1, 3]]])  # a surface mesh stand-in
+    return bind(g, X, method=method, tets=tets, triangles=tris, clusters=clusters, k=8, neighbours=8)
 
 
-@pytest.mark.parametrize("method", ["lbs", "barycentric", "rigid"])
+@pytest.mark.parametrize("method", ["lbs", "barycentric", "triangles", "rigid"])
 def test_rest_and_rigid_motion_are_exact(method, device):
     X, tets = _block()
     g = _gaussians(device=device)
@@ -105,7 +106,7 @@ def test_transforms_render_like_the_reference_and_like_baked_gaussians():
         np.testing.assert_allclose(c.numpy(), r, atol=1e-9)
 
 
-@pytest.mark.parametrize("method", ["lbs", "barycentric", "rigid"])
+@pytest.mark.parametrize("method", ["lbs", "barycentric", "triangles", "rigid"])
 def test_render_gradient_wrt_particles_matches_finite_differences(method):
     X, tets = _block()
     rng = np.random.default_rng(4)
@@ -136,7 +137,7 @@ def test_render_gradient_wrt_particles_matches_finite_differences(method):
 def test_particle_weights_partition_unity():
     X, tets = _block()
     g = _gaussians()
-    for method in ("lbs", "barycentric", "rigid"):
+    for method in ("lbs", "barycentric", "triangles", "rigid"):
         gi, pi, w = _binding(method, g, X, tets).particle_weights()
         np.testing.assert_allclose(np.bincount(gi, weights=w, minlength=g.count), 1.0, atol=1e-12)
         assert pi.min() >= 0 and pi.max() < len(X)
@@ -149,6 +150,8 @@ def test_bind_errors():
         bind(g, X, method="magic")
     with pytest.raises(ValueError, match="needs tets"):
         bind(g, X, method="barycentric")
+    with pytest.raises(ValueError, match="needs triangles"):
+        bind(g, X, method="triangles")
     with pytest.raises(ValueError, match="needs clusters"):
         bind(g, X, method="rigid")
     b = bind(g, X)

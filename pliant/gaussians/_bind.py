@@ -48,6 +48,26 @@ def _barycentric_kernel(
 
 
 @wp.kernel
+def _triangle_kernel(
+    x: wp.array(dtype=Any),
+    tris: wp.array2d(dtype=wp.int32),
+    gauss_tri: wp.array(dtype=wp.int32),
+    local: wp.array(dtype=Any),
+    rest_inv: wp.array(dtype=Any),
+    means: wp.array(dtype=Any),
+    transforms: wp.array(dtype=Any),
+):
+    g = wp.tid()
+    e = gauss_tri[g]
+    x0 = x[tris[e, 0]]
+    e1 = x[tris[e, 1]] - x0
+    e2 = x[tris[e, 2]] - x0
+    F = wp.matrix_from_cols(e1, e2, wp.normalize(wp.cross(e1, e2))) * rest_inv[e]
+    means[g] = x0 + F * local[g]
+    transforms[g] = F
+
+
+@wp.kernel
 def _group_centre_kernel(
     x: wp.array(dtype=Any),
     member: wp.array(dtype=wp.int32),
@@ -162,7 +182,15 @@ class Binding:
         dev, n = g.device, g.count
         means = wp.zeros(n, dtype=vec3_type(g.dtype), device=dev, requires_grad=rg)
         transforms = wp.zeros(n, dtype=mat33_type(g.dtype), device=dev, requires_grad=rg)
-        if self.method == "barycentric":
+        if self.method == "triangles":
+            wp.launch(
+                _triangle_kernel,
+                dim=n,
+                inputs=[particle_q, self.tris, self.gauss_tri, self.local, self.rest_inv],
+                outputs=[means, transforms],
+                device=dev,
+            )
+        elif self.method == "barycentric":
             wp.launch(
                 _barycentric_kernel,
                 dim=n,
@@ -232,6 +260,16 @@ class Binding:
         For skinning each link's weight is split over its group's members by their centroid weights; for
         tets the weights are the barycentric coordinates. The weights of one Gaussian sum to 1.
         """
+        if self.method == "triangles":
+            # μ⁰ − X₀ = a E₁ + b E₂ + c N: the in-plane part splits as barycentric (1 − a − b, a, b)
+            inv = self.rest_inv.numpy().astype(np.float64)[self.gauss_tri.numpy()]
+            ab = np.einsum("gij,gj->gi", inv, self.local.numpy().astype(np.float64))
+            n = self.gaussians.count
+            w = np.stack([1.0 - ab[:, 0] - ab[:, 1], ab[:, 0], ab[:, 1]], axis=1)
+            w = np.clip(w, 0.0, None)
+            w /= np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
+            tris = self.tris.numpy()[self.gauss_tri.numpy()]
+            return np.repeat(np.arange(n), 3), tris.reshape(-1), w.reshape(-1)
         if self.method == "barycentric":
             n = self.gaussians.count
             tets = self.tets.numpy()[self.gauss_tet.numpy()]
@@ -262,6 +300,7 @@ def bind(
     k: int = 16,
     neighbours: int = 16,
     tets: np.ndarray | None = None,
+    triangles: np.ndarray | None = None,
     clusters: Sequence[Any] | None = None,
 ) -> Binding:
     """Bind ``gaussians`` (placed at rest) to particles at ``rest_positions``.
@@ -269,10 +308,13 @@ def bind(
     Args:
         gaussians: The Gaussian set in the rest configuration.
         rest_positions: Particle positions at rest [m], shape [P, 3].
-        method: ``"lbs"`` (PhysTwin's skinning), ``"barycentric"`` (tets) or ``"rigid"`` (clusters).
+        method: ``"lbs"`` (PhysTwin's skinning), ``"barycentric"`` (tets), ``"triangles"`` (a surface such as
+            cloth: each Gaussian in the frame (edge 1, edge 2, unit normal) of its nearest triangle, so
+            μ = x₀ + F (μ⁰ − X₀) with F = [e₁ e₂ n][E₁ E₂ N]⁻¹) or ``"rigid"`` (clusters).
         k: Bones (nearest particles) per Gaussian for ``"lbs"``.
         neighbours: Particles in each bone's Procrustes neighbourhood for ``"lbs"`` (itself included).
         tets: Tetrahedra [E, 4] for ``"barycentric"``.
+        triangles: Triangles [T, 3] for ``"triangles"``.
         clusters: Particle index lists, one per rigid cluster, for ``"rigid"`` (each Gaussian goes with the
             cluster of its nearest particle; the first such cluster where clusters overlap).
 
@@ -304,6 +346,33 @@ def bind(
         b.gauss_tet = wp.array(tet_ids.astype(np.int32), dtype=wp.int32, device=dev)
         b.bary = wp.array(bary.astype(nd), dtype=s, device=dev)
         b.rest_inv = wp.array(np.linalg.inv(Dm).astype(nd), dtype=m33, device=dev)
+        return b
+    if method == "triangles":
+        if triangles is None:
+            raise ValueError('bind(method="triangles") needs triangles [T, 3]')
+        tris = np.asarray(triangles, dtype=np.int64)
+        if tris.ndim != 2 or tris.shape[1] != 3 or len(tris) == 0 or tris.min() < 0 or tris.max() >= P:
+            raise ValueError(f"triangles must have shape [T, 3] indexing {P} particles, got {tris.shape}")
+        E1, E2 = X[tris[:, 1]] - X[tris[:, 0]], X[tris[:, 2]] - X[tris[:, 0]]
+        N = np.cross(E1, E2)
+        area2 = np.linalg.norm(N, axis=1)
+        if np.any(area2 < 1e-300):
+            raise ValueError(f"bind: {int(np.sum(area2 < 1e-300))} rest triangles are degenerate")
+        N /= area2[:, None]
+        # nearest triangle: among the 8 nearest centroids, the smallest distance to the clamped projection
+        kc = int(min(8, len(tris)))
+        _, cand = cKDTree(X[tris].mean(axis=1)).query(mu, k=kc)
+        cand = np.asarray(cand).reshape(len(mu), kc)
+        frames = np.linalg.inv(np.stack([E1, E2, N], axis=2))  # [T, 3, 3]: (a, b, c) of a point - X0
+        abc = np.einsum("gkij,gkj->gki", frames[cand], mu[:, None, :] - X[tris[cand, 0]])
+        w = np.stack([1.0 - abc[..., 0] - abc[..., 1], abc[..., 0], abc[..., 1]], axis=-1).clip(0.0, None)
+        w /= np.maximum(w.sum(axis=-1, keepdims=True), 1e-300)
+        foot = np.einsum("gki,gkij->gkj", w, X[tris[cand]])
+        best = cand[np.arange(len(mu)), np.argmin(np.linalg.norm(foot - mu[:, None, :], axis=2), axis=1)]
+        b.tris = wp.array(tris.astype(np.int32), dtype=wp.int32, device=dev)
+        b.gauss_tri = wp.array(best.astype(np.int32), dtype=wp.int32, device=dev)
+        b.local = wp.array((mu - X[tris[best, 0]]).astype(nd), dtype=v3, device=dev)
+        b.rest_inv = wp.array(frames.astype(nd), dtype=m33, device=dev)
         return b
     if method == "lbs":
         kb = int(min(max(neighbours, 1), P))
@@ -338,7 +407,9 @@ def bind(
         link_gauss, link_weight = np.arange(len(mu)), np.ones(len(mu))
         group_count = len(cl)
     else:
-        raise ValueError(f'unknown binding method {method!r}; use "lbs", "barycentric" or "rigid"')
+        raise ValueError(
+            f'unknown binding method {method!r}; use "lbs", "barycentric", "triangles" or "rigid"'
+        )
     counts = np.bincount(group, minlength=group_count).astype(np.float64)
     member_weight = 1.0 / counts[group]  # centroid weights; the moment uses the same weights
     C = np.zeros((group_count, 3))
