@@ -248,3 +248,25 @@ def test_raster_benchmark_quick():
     r = bench.run("gaussians_raster", quick=True, device="cpu")
     assert r["gaussian_pixels_per_s_forward"] > 0 and r["forward_backward_s"] >= 0
     assert 0.05 < r["sanity_covered_fraction"] < 1.0
+
+
+def test_render_inside_a_tape_without_gradients_is_harmless():
+    # Gaussians that need no gradient: the render is recorded but backward leaves everything finite
+    g = _scene(n=10)
+    cam = _camera()
+    x = wp.array(np.ones(3), dtype=wp.float64, requires_grad=True)
+    y = wp.zeros(3, dtype=wp.float64, requires_grad=True)
+    tape = wp.Tape()
+    with tape:
+        c, _, _ = render(g, cam)
+        wp.launch(_double, dim=3, inputs=[x, y])
+    tape.backward(grads={y: wp.array(np.ones(3), dtype=wp.float64)})
+    np.testing.assert_array_equal(x.grad.numpy(), 2.0)
+    ref = reference_render(g.numpy(), cam)
+    np.testing.assert_allclose(c.numpy(), ref[0], atol=1e-10)
+
+
+@wp.kernel
+def _double(x: wp.array(dtype=wp.float64), y: wp.array(dtype=wp.float64)):
+    i = wp.tid()
+    y[i] = wp.float64(2.0) * x[i]
