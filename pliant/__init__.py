@@ -52,6 +52,8 @@ def __getattr__(name: str):
         return value
     if name in _SUBMODULES:
         return importlib.import_module(f"{__name__}.{name}")
+    if name == "gaussians":  # 3D Gaussian splats (their own rasteriser kernels): loaded on first use too
+        return importlib.import_module(f"{__name__}.gaussians")
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 

@@ -1,0 +1,41 @@
+"""3D Gaussian splats: a differentiable rasteriser in Warp (CPU and CUDA), PLY files, and bindings that move
+Gaussians with simulated particles.
+
+Typical use::
+
+    import pliant as pl
+    g = pl.gaussians.load_ply("object.ply")
+    cam = pl.gaussians.Camera(K, world_to_camera, width=640, height=480)
+    colour, alpha, depth = pl.gaussians.render(g, cam, background=(1, 1, 1))
+    pl.gaussians.save_ply(g, "copy.ply")
+
+Methods: 3D Gaussian splatting (Kerbl, Kopanas, Leimkühler, Drettakis 2023) and EWA splatting (Zwicker et al.
+2002); the implementation here is pliant's own, written from the papers' equations.
+"""
+
+from ._bind import Binding, bind
+from ._camera import Camera
+from ._fit import DEFAULT_LRS, VisualCorrector, fit_appearance
+from ._gaussians import SH_C0, Gaussians
+from ._optim import Adam, photometric_loss, psnr
+from ._ply import PlyError, load_ply, save_ply
+from ._render import RenderOutput, render
+
+__all__ = [
+    "DEFAULT_LRS",
+    "SH_C0",
+    "Adam",
+    "Binding",
+    "Camera",
+    "Gaussians",
+    "PlyError",
+    "RenderOutput",
+    "VisualCorrector",
+    "bind",
+    "fit_appearance",
+    "load_ply",
+    "photometric_loss",
+    "psnr",
+    "render",
+    "save_ply",
+]

@@ -1,0 +1,227 @@
+"""`render`: project, bin, sort and composite a Gaussian set for one camera; differentiable under wp.Tape."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+import warp as wp
+
+from .._warp import mat33_type, scalar_type, vec3_type
+from ._camera import Camera
+from ._composite import (
+    composite_backward_kernel,
+    composite_kernel,
+    depth_keys_kernel,
+    duplicate_kernel,
+    ranges_kernel,
+    ranks_kernel,
+)
+from ._gaussians import Gaussians, vec2_type
+from ._project import TILE, project_kernel
+
+
+class RenderOutput(NamedTuple):
+    """What :func:`render` returns (unpacks as ``colour, alpha, depth``).
+
+    Attributes:
+        colour: RGB [H, W] of vec3 (``.numpy()`` gives [H, W, 3]), background composited behind.
+        alpha: Accumulated opacity 1 − T_end in [0, 1], [H, W].
+        depth: Expected camera-space depth [m] of the visible Gaussians, Σ z_i α_i T_i / alpha (0 where alpha
+            is 0), [H, W].
+    """
+
+    colour: wp.array
+    alpha: wp.array
+    depth: wp.array
+
+
+class _Frame:
+    """What one render keeps for its backward pass (projected Gaussians, sorted lists, per-pixel sums)."""
+
+
+def _active_tape():
+    try:
+        from warp._src.context import runtime
+    except ImportError:  # another Warp layout
+        from warp.context import runtime  # type: ignore[no-redef]
+    return getattr(runtime, "tape", None)
+
+
+def render(
+    gaussians: Gaussians,
+    camera: Camera,
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    *,
+    near: float = 0.01,
+    eps2d: float = 0.3,
+) -> RenderOutput:
+    """Rasterise ``gaussians`` seen by ``camera`` (3D Gaussian splatting, tiles of 16×16 pixels).
+
+    Under an active ``wp.Tape`` the result is differentiable: ``tape.backward(grads={colour: ...})`` (or a
+    loss computed from the outputs by Warp kernels) fills the gradients of the Gaussians' means, quats,
+    log_scales, opacity_logits and sh, and of whatever produced them on the tape (a binding, a simulation).
+
+    Args:
+        gaussians: The Gaussian set (its dtype and device are the render's).
+        camera: Intrinsics, pose and image size.
+        background: RGB behind the Gaussians, each in [0, 1].
+        near: Gaussians with camera depth ≤ ``near`` [m] are culled.
+        eps2d: Low-pass dilation [px²] added to the diagonal of every 2D covariance (as in 3DGS).
+
+    Returns:
+        :class:`RenderOutput` (colour [H, W, 3], alpha [H, W], depth [H, W]) as Warp arrays.
+    """
+    if not isinstance(camera, Camera):
+        raise TypeError(f"camera must be a pliant.gaussians.Camera, got {type(camera).__name__}")
+    bg = np.asarray(background, dtype=np.float64)
+    if bg.shape != (3,) or not np.all(np.isfinite(bg)):
+        raise ValueError(f"background must be 3 finite numbers, got {background!r}")
+    dev, dt = gaussians.device, gaussians.dtype
+    s, v2, v3, m33 = scalar_type(dt), vec2_type(dt), vec3_type(dt), mat33_type(dt)
+    n = gaussians.count
+    H, W = camera.height, camera.width
+    tiles_x, tiles_y = (W + TILE - 1) // TILE, (H + TILE - 1) // TILE
+    tape = _active_tape()
+    grad = tape is not None and gaussians.requires_grad
+
+    f = _Frame()
+    f.mean2d = wp.zeros(n, dtype=v2, device=dev, requires_grad=grad)
+    f.conic = wp.zeros(n, dtype=v3, device=dev, requires_grad=grad)
+    f.depth = wp.zeros(n, dtype=s, device=dev, requires_grad=grad)
+    f.opacity = wp.zeros(n, dtype=s, device=dev, requires_grad=grad)
+    f.colour = wp.zeros(n, dtype=v3, device=dev, requires_grad=grad)
+    rect = wp.zeros(n, dtype=wp.vec4i, device=dev)
+    tile_count = wp.zeros(n, dtype=wp.int32, device=dev)
+    # Perspective Jacobians are evaluated with x/z, y/z clamped to 1.3× the field of view (as 3DGS does), so
+    # Gaussians far outside the image do not get huge footprints.
+    lim = (
+        (camera.cx + 0.3 * W) / camera.fx,
+        (W - camera.cx + 0.3 * W) / camera.fx,
+        (camera.cy + 0.3 * H) / camera.fy,
+        (H - camera.cy + 0.3 * H) / camera.fy,
+    )
+    transforms = gaussians.transforms
+    if transforms is None:
+        transforms = wp.array([np.eye(3)], dtype=m33, device=dev)
+    if n > 0:
+        wp.launch(
+            project_kernel,
+            dim=n,
+            inputs=[
+                gaussians.means,
+                gaussians.quats,
+                gaussians.log_scales,
+                gaussians.opacity_logits,
+                gaussians.sh,
+                gaussians.sh_degree,
+                transforms,
+                int(gaussians.transforms is not None),
+                m33(*camera.rotation.flatten()),
+                v3(*camera.translation),
+                v3(*camera.position),
+                s(camera.fx),
+                s(camera.fy),
+                s(camera.cx),
+                s(camera.cy),
+                *(s(v) for v in lim),
+                s(near),
+                s(eps2d),
+                tiles_x,
+                tiles_y,
+            ],
+            outputs=[f.mean2d, f.conic, f.depth, f.opacity, f.colour, rect, tile_count],
+            device=dev,
+        )
+    f.ranges, f.vals = _bin(f.depth, rect, tile_count, tiles_x, tiles_x * tiles_y, n, s, dev)
+
+    out_colour = wp.zeros((H, W), dtype=v3, device=dev, requires_grad=grad)
+    out_alpha = wp.zeros((H, W), dtype=s, device=dev, requires_grad=grad)
+    out_depth = wp.zeros((H, W), dtype=s, device=dev, requires_grad=grad)
+    f.T = wp.zeros((H, W), dtype=s, device=dev)
+    f.C = wp.zeros((H, W), dtype=v3, device=dev)
+    f.D = wp.zeros((H, W), dtype=s, device=dev)
+    f.last = wp.zeros((H, W), dtype=wp.int32, device=dev)
+    f.background = v3(*bg)
+    f.tiles_x = tiles_x
+    wp.launch(
+        composite_kernel,
+        dim=(H, W),
+        inputs=[f.ranges, f.vals, f.mean2d, f.conic, f.opacity, f.colour, f.depth, f.background, tiles_x],
+        outputs=[out_colour, out_alpha, out_depth, f.T, f.C, f.D, f.last],
+        device=dev,
+        record_tape=False,
+    )
+    if grad:
+
+        def backward() -> None:
+            wp.launch(
+                composite_backward_kernel,
+                dim=(H, W),
+                inputs=[
+                    f.ranges,
+                    f.vals,
+                    f.mean2d,
+                    f.conic,
+                    f.opacity,
+                    f.colour,
+                    f.depth,
+                    f.background,
+                    f.tiles_x,
+                    f.T,
+                    f.C,
+                    f.D,
+                    f.last,
+                    out_colour.grad,
+                    out_alpha.grad,
+                    out_depth.grad,
+                    f.mean2d.grad,
+                    f.conic.grad,
+                    f.opacity.grad,
+                    f.colour.grad,
+                    f.depth.grad,
+                ],
+                device=dev,
+                record_tape=False,
+            )
+
+        tape.record_func(
+            backward=backward,
+            arrays=[out_colour, out_alpha, out_depth, f.mean2d, f.conic, f.opacity, f.colour, f.depth],
+        )
+    return RenderOutput(out_colour, out_alpha, out_depth)
+
+
+def _bin(depth, rect, tile_count, tiles_x: int, tile_total: int, n: int, s, dev):
+    """Per-tile lists of Gaussian ids sorted front to back: (ranges [tiles] vec2i, ids [entries] int32)."""
+    ranges = wp.zeros(tile_total, dtype=wp.vec2i, device=dev)
+    if n == 0:
+        return ranges, wp.zeros(1, dtype=wp.int32, device=dev)
+    offsets = wp.zeros(n, dtype=wp.int32, device=dev)
+    wp.utils.array_scan(tile_count, offsets, inclusive=False)
+    total = int(offsets[n - 1 : n].numpy()[0] + tile_count[n - 1 : n].numpy()[0])
+    if total == 0:
+        return ranges, wp.zeros(1, dtype=wp.int32, device=dev)
+    # 1. order the Gaussians by depth (radix sort on the float depth), 2. key every (tile, Gaussian) pair by
+    # tile · 2³² + depth rank and sort once more: each tile's list comes out front to back.
+    dkeys = wp.empty(2 * n, dtype=s, device=dev)
+    dvals = wp.empty(2 * n, dtype=wp.int32, device=dev)
+    wp.launch(
+        depth_keys_kernel, dim=n, inputs=[depth, tile_count, dkeys, dvals], device=dev, record_tape=False
+    )
+    wp.utils.radix_sort_pairs(dkeys, dvals, n)
+    rank = wp.empty(n, dtype=wp.int32, device=dev)
+    wp.launch(ranks_kernel, dim=n, inputs=[dvals, rank], device=dev, record_tape=False)
+    keys = wp.empty(2 * total, dtype=wp.int64, device=dev)
+    vals = wp.empty(2 * total, dtype=wp.int32, device=dev)
+    wp.launch(
+        duplicate_kernel,
+        dim=n,
+        inputs=[rect, tile_count, offsets, rank, tiles_x, keys, vals],
+        device=dev,
+        record_tape=False,
+    )
+    end_bit = 32 + max(1, int(tile_total).bit_length())
+    wp.utils.radix_sort_pairs(keys, vals, total, 0, end_bit)
+    wp.launch(ranges_kernel, dim=total, inputs=[keys, total, ranges], device=dev, record_tape=False)
+    return ranges, vals
