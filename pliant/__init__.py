@@ -37,6 +37,7 @@ _SUBMODULES = (
     "scene",
     "diff",
     "fit",
+    "gaussians",
 )
 
 
@@ -52,8 +53,6 @@ def __getattr__(name: str):
         return value
     if name in _SUBMODULES:
         return importlib.import_module(f"{__name__}.{name}")
-    if name == "gaussians":  # 3D Gaussian splats (their own rasteriser kernels): loaded on first use too
-        return importlib.import_module(f"{__name__}.gaussians")
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 

@@ -80,8 +80,10 @@ def gaussians_visual_correction(quick: bool = False) -> dict:
     """
     import warp as wp
 
-    from .. import ModelBuilder, Simulator, energies, integrators, solvers
+    from .. import energies, integrators, solvers
     from ..gaussians import Camera, Gaussians, VisualCorrector, bind, render
+    from ..model import ModelBuilder
+    from ..sim import Simulator
 
     frames = 10 if quick else 30
 
@@ -95,7 +97,7 @@ def gaussians_visual_correction(quick: bool = False) -> dict:
         s = solvers.ForceSolver(
             m, energies.mass_spring(), integrators.SymplecticEuler(), damping_rate=0.5, contact=False
         )
-        return Simulator(m, s, dt=1 / 30, substeps=40)
+        return Simulator(m, s, frame_dt=1 / 30, substeps=40)
 
     real = make(300.0)
     X = real.model.particle_q.numpy().astype(np.float64)

@@ -206,7 +206,10 @@ def acceleration_loss(
     """Add ``weight × Σ_i smooth_l1((x3 − 2x2 + x1) − (x2 − 2x1 + x0)) / normaliser`` into ``out``.
 
     Args:
-        x0, x1, x2, x3: [N] positions [m] of four consecutive frames.
+        x0: [N] positions [m] of the first of four consecutive frames.
+        x1: [N] positions [m] of the second.
+        x2: [N] positions [m] of the third.
+        x3: [N] positions [m] of the fourth.
         out: [1] scalar array the loss is added to.
         beta: smooth-L1 threshold [m].
         weight: factor of this term.

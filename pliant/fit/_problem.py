@@ -124,7 +124,7 @@ class Problem:
         return control_fn
 
     def simulate(self, scene: Any, frames: int) -> np.ndarray:
-        """Positions [frames, N, 3] [m] of frames 0 … frames − 1 (raises DivergenceError on a blow-up)."""
+        """Positions [m], shape [frames, N, 3], of frames 0 … frames − 1 (DivergenceError on a blow-up)."""
         from ..sim import Simulator
 
         fn = self.control_fn(scene)

@@ -310,7 +310,7 @@ def bind(
         rest_positions: Particle positions at rest [m], shape [P, 3].
         method: ``"lbs"`` (PhysTwin's skinning), ``"barycentric"`` (tets), ``"triangles"`` (a surface such as
             cloth: each Gaussian in the frame (edge 1, edge 2, unit normal) of its nearest triangle, so
-            μ = x₀ + F (μ⁰ − X₀) with F = [e₁ e₂ n][E₁ E₂ N]⁻¹) or ``"rigid"`` (clusters).
+            μ = x₀ + F (μ⁰ − X₀) with ``F = [e₁ e₂ n][E₁ E₂ N]⁻¹``) or ``"rigid"`` (clusters).
         k: Bones (nearest particles) per Gaussian for ``"lbs"``.
         neighbours: Particles in each bone's Procrustes neighbourhood for ``"lbs"`` (itself included).
         tets: Tetrahedra [E, 4] for ``"barycentric"``.
