@@ -10,7 +10,7 @@ import numpy as np
 import warp as wp
 
 from .._warp import GradientError, fresh, grad_enabled, launch
-from ..collision._ground_recorded import ground_contact_out
+from ..collision._ground_recorded import ground_contact_out, ground_penalty_friction_out
 from ..energies import Energy
 from ..energies._base import _axpy
 from ..integrators import Integrator, SymplecticEuler
@@ -271,7 +271,28 @@ class ForceSolver(Solver):
                 device=m.device,
             )
             x, v, k = xo, vo, k + 1
-        if self.contact:
+        kappa = self._ground_penalty()
+        if self.contact and kappa is not None:
+            # The same response as the unrecorded step (finish_step): friction for the penalty's impulse.
+            xo, vo = outs[k]
+            wp.launch(
+                ground_penalty_friction_out,
+                m.particle_count,
+                [
+                    m.particle_inv_mass,
+                    m.particle_radius,
+                    m.s(m.ground.height),
+                    self.ground_coefficients,
+                    m.s(kappa),
+                    m.s(dt),
+                    x,
+                    v,
+                    xo,
+                    vo,
+                ],
+                device=m.device,
+            )
+        elif self.contact:
             xo, vo = outs[k]
             wp.launch(
                 ground_contact_out,
