@@ -53,6 +53,11 @@ def test_scene_name_is_one_safe_file_name(name, why):
             "did you mean 'newton_tol'",
         ),
         ('integrator = "BackwardEuler"\nintegrator_options = { newton_tol = nan }', "newton_tol", "finite"),
+        (
+            'integrator = "BackwardEuler"\nintegrator_options = { metod = "lbfgs" }',
+            "solver.integrator_options.metod",
+            "did you mean 'method'",
+        ),
         ("iterations = 5", "solver.iterations", "does not apply to solver kind 'force'"),
     ],
 )
@@ -62,6 +67,16 @@ def test_force_solver_options_are_checked_at_load(solver, field, hint):
     with pytest.raises(SceneError) as info:
         parse_scene(HEAD + ROPE + "[solver]\n" + solver + "\n", "s.toml")
     assert field in str(info.value) and hint in str(info.value), str(info.value)
+
+
+def test_implicit_option_values_are_checked_before_simulating():
+    """Item 7: the implicit integrators' option values (one validated dataclass) fail at build time with
+    the field and the allowed range, before any step."""
+    msg = _error(
+        HEAD + ROPE + '[solver]\nintegrator = "ImplicitMidpoint"\n'
+        "integrator_options = { max_newton_iterations = 0 }\n"
+    )
+    assert "solver.integrator_options" in msg and "max_newton_iterations must be an integer >= 1" in msg, msg
 
 
 @pytest.mark.parametrize(

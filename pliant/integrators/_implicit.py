@@ -165,6 +165,9 @@ class _ImplicitOptions:
     #: Gradients through the physical path: the adjoint of each step's minimisation
     #: (``pliant.solvers._implicit_adjoint``), recorded on an active ``wp.Tape``.
     differentiable: ClassVar[bool] = True
+    #: The keyword options ``__init__(**options)`` accepts: the fields of this dataclass (scene files check
+    #: ``integrator_options`` against them).
+    options_type: ClassVar[type] = ImplicitOptions
 
     def __init__(self, **options: Any) -> None:
         self.options = ImplicitOptions.create(type(self).__name__, **options)

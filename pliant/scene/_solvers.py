@@ -59,7 +59,8 @@ def make_integrator(
 # ---------------------------------------------------------------------------------------------- options
 def accepted_keywords(target: Any) -> dict[str, inspect.Parameter]:
     """Keyword parameters of ``target`` (a class or a function); a class whose ``__init__`` takes
-    ``**kwargs`` and passes them on contributes its base classes' parameters too."""
+    ``**kwargs`` and passes them on contributes its base classes' parameters too, and where no class
+    in the chain names them, the fields of its ``options_type`` dataclass (the implicit integrators)."""
     out: dict[str, inspect.Parameter] = {}
     chain = [c for c in target.__mro__ if "__init__" in vars(c)] if isinstance(target, type) else [target]
     for fn in chain:
@@ -72,6 +73,12 @@ def accepted_keywords(target: Any) -> dict[str, inspect.Parameter]:
                 out.setdefault(p.name, p)
         if not var_kw:
             break
+    else:
+        # ``**options`` all the way down: a class may name the dataclass those options fill.
+        options_type = getattr(target, "options_type", None)
+        if options_type is not None:
+            for p in inspect.signature(options_type).parameters.values():
+                out.setdefault(p.name, p)
     return out
 
 
