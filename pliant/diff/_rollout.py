@@ -143,6 +143,12 @@ def rollout(
             "frames, substeps and checkpoint_every must be >= 1, "
             f"got {frames}, {substeps}, {checkpoint_every}"
         )
+    if getattr(solver, "collisions", None):
+        # XPBD's handlers would run in place on the tape (a wrong gradient): refused for every solver here.
+        raise GradientError(
+            "contact handlers (collisions=) correct the state in place and are not differentiable yet; "
+            "use the ground plane (model.ground) or finalize with requires_grad=False"
+        )
     integrator = getattr(solver, "integrator", None)
     if getattr(integrator, "multistep", False) and checkpoint_every < frames:
         raise GradientError(

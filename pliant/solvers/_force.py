@@ -244,7 +244,7 @@ class ForceSolver(Solver):
             raise GradientError(
                 f"{self.integrator.name} has no adjoint in this version: differentiate an explicit "
                 "integrator (SymplecticEuler, VelocityVerlet, RK2/Heun/Midpoint, RK4, ForwardEuler) or "
-                "finalize the model with requires_grad=False"
+                "BackwardEuler, ImplicitMidpoint, BDF2, or finalize the model with requires_grad=False"
             )
         if self.collisions:
             raise GradientError(
