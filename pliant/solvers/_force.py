@@ -16,6 +16,7 @@ from ..energies._base import _axpy
 from ..integrators import Integrator, SymplecticEuler
 from ..model import Control, Model, State
 from ._base import Solver
+from ._newton_workspace import MinimizerCache
 from ._post import add_drag_force, check_collisions, finish_step
 
 
@@ -135,6 +136,8 @@ class ForceSolver(Solver):
             )
         self._control: Control | None = None
         self.last_stats: Any = None
+        #: What the implicit minimisers keep between steps (Hessian pattern, L-BFGS pairs and warm start).
+        self.minimizer_cache = MinimizerCache()
 
     # ------------------------------------------------------------------ System interface
     @property
@@ -314,11 +317,7 @@ class ForceSolver(Solver):
         """Forget what earlier steps leave for the next: the L-BFGS curvature pairs and warm start, a
         multistep integrator's history. Set-up that depends only on the model (Hessian patterns, the lagged
         Hessian's factorisation) is kept."""
-        st = getattr(self, "_lbfgs_state", None)  # (workspace, lagged Hessian, history, warm-start memo)
-        if st is not None:
-            _, _, history, memo = st
-            history.clear()
-            memo.clear()
+        self.minimizer_cache.reset()
         if hasattr(self.integrator, "reset"):
             self.integrator.reset()
 
@@ -363,7 +362,7 @@ class ForceSolver(Solver):
         """L-BFGS's history and warm start (``lbfgs_*``) and the integrator's (e.g. BDF2's ``bdf2_*``)."""
         from ._quasi_newton import lbfgs_checkpoint_state
 
-        out = lbfgs_checkpoint_state(self)
+        out = lbfgs_checkpoint_state(self.minimizer_cache)
         own = getattr(self.integrator, "checkpoint_state", None)
         if own is not None:
             out.update(own())
