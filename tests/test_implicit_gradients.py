@@ -344,7 +344,7 @@ def _plain_loss(integ: str, dx0: np.ndarray | None = None, stiffness: float = 40
     return float(_rope_loss(model)(a).numpy()[0]), a
 
 
-@pytest.mark.parametrize("integ", ["be_newton"])
+@pytest.mark.parametrize("integ", ["be_newton", pytest.param("be_lbfgs", marks=pytest.mark.slow)])
 def test_recorded_implicit_step_with_default_contact_equals_plain_step_and_fd(integ):
     """Default contact on an implicit step: the recorded step applies the same penalty friction as the plain
     one (the same trajectory bit for bit), and pl.diff.rollout's ∂L/∂x0 and ∂L/∂k match central differences
@@ -360,16 +360,17 @@ def test_recorded_implicit_step_with_default_contact_equals_plain_step_and_fd(in
     np.testing.assert_array_equal(res.state.particle_q.numpy(), plain_state.particle_q.numpy())
     np.testing.assert_array_equal(res.state.particle_qd.numpy(), plain_state.particle_qd.numpy())
     assert res.loss == plain
+    # The differences by Newton: with the default penalty (κ = 1e6 1/s²) L-BFGS stalls at ~5e-6 in one
+    # step, which is noise for differences (theirs vary by 40 % with ε) but not for its adjoint.
+    ref = "be_newton"
     rng = np.random.default_rng(5)
     d = 0.01 * rng.standard_normal((model.particle_count, 3))
     eps = 1e-5
-    fd = (_plain_loss(integ, eps * d)[0] - _plain_loss(integ, -eps * d)[0]) / (2 * eps)
+    fd = (_plain_loss(ref, eps * d)[0] - _plain_loss(ref, -eps * d)[0]) / (2 * eps)
     assert abs(fd) > 1e-6
     assert float(np.sum(res.grads["x0"] * d)) == pytest.approx(fd, rel=TOL)
     dk = 0.04
-    fd_k = (_plain_loss(integ, stiffness=400.0 + dk)[0] - _plain_loss(integ, stiffness=400.0 - dk)[0]) / (
-        2 * dk
-    )
+    fd_k = (_plain_loss(ref, stiffness=400.0 + dk)[0] - _plain_loss(ref, stiffness=400.0 - dk)[0]) / (2 * dk)
     assert abs(fd_k) > 1e-8
     assert float(np.sum(res.grads["spring_stiffness"])) == pytest.approx(fd_k, rel=TOL)
 
