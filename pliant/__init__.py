@@ -1,9 +1,11 @@
 """pliant: deformable-object simulation — mass-spring, position-based dynamics and tetrahedral FEM —
 with every time integrator of the lecture, on NVIDIA Warp (CPU and CUDA).
 
-Explicit steps are differentiable with ``wp.Tape`` on a model finalised with ``requires_grad=True``
-(``ForceSolver`` with explicit integrators, ``FastMassSpring(method="symplectic")``; see ``pliant.diff``);
-the other solvers raise ``pliant.diff.GradientError`` when asked for a gradient."""
+Steps are differentiable with ``wp.Tape`` on a model finalised with ``requires_grad=True`` (see
+``pliant.diff``): ``ForceSolver`` with explicit integrators, or with BackwardEuler / ImplicitMidpoint / BDF2
+(Newton or L-BFGS, implicit-function-theorem adjoint); ``FastMassSpring(method="symplectic")``; ``XPBD`` /
+``PBD`` with the Jacobi schedule. What cannot give a gradient (``FastMassSpring(method="implicit")``, the
+colouring schedule, ``collisions=`` handlers, the drag handle, ...) raises ``pliant.diff.GradientError``."""
 
 from __future__ import annotations
 

@@ -11,7 +11,7 @@ from typing import Any
 
 import warp as wp
 
-from ._ground import ground_velocity
+from ._ground import coulomb_ground, ground_velocity
 
 
 @wp.kernel
@@ -40,4 +40,34 @@ def ground_contact_out(
         v_out[i] = ground_velocity(v, coefficients[0], coefficients[1])
     else:
         x_out[i] = p
+        v_out[i] = v
+
+
+@wp.kernel
+def ground_penalty_friction_out(
+    inv_mass: wp.array(dtype=Any),
+    radius: wp.array(dtype=Any),
+    height: Any,
+    coefficients: wp.array(dtype=Any),
+    kappa: Any,
+    dt: Any,
+    x_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    x_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+):
+    """:func:`ground_penalty_friction` out of place, for recorded implicit steps: positions pass through,
+    tangential speed drops by μ κ d Δt for particles at depth d > 0 (``coefficients`` = [μ, e]).
+
+    A subgradient where a particle enters or leaves the contact set or friction switches stick/slip.
+    """
+    i = wp.tid()
+    p = x_in[i]
+    v = v_in[i]
+    x_out[i] = p
+    d = height + radius[i] - p[1]
+    zero = type(height)(0.0)
+    if inv_mass[i] != zero and d > zero:
+        v_out[i] = coulomb_ground(v, kappa * d * dt, v[1], coefficients[0])
+    else:
         v_out[i] = v

@@ -3,8 +3,10 @@
 Plain Warp path (what :func:`rollout` automates): finalise the model with ``requires_grad=True``, make one
 State per step, call ``solver.step`` inside a ``wp.Tape``, then ``tape.backward(loss)`` and read the model's
 arrays' ``.grad`` (``spring_stiffness``, ``tet_mu``, ...) and the first state's. Differentiable solvers:
-``ForceSolver`` with any explicit integrator (with ground contact and kinematic targets) and
-``FastMassSpring(method="symplectic")``; others raise :class:`GradientError` when asked.
+``ForceSolver`` with any explicit integrator or BackwardEuler / ImplicitMidpoint / BDF2 (Newton or L-BFGS,
+implicit-function-theorem adjoint), with ground contact and kinematic targets;
+``FastMassSpring(method="symplectic")``; ``XPBD`` / ``PBD`` with ``schedule="jacobi"``. What cannot give a
+correct gradient raises :class:`GradientError` when asked.
 """
 
 from .._warp import GradientError

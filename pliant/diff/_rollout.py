@@ -110,8 +110,11 @@ def rollout(
 
     Args:
         model: a Model finalised with ``requires_grad=True`` (float64 recommended for gradient checks).
-        solver: a differentiable solver on ``model`` (``ForceSolver`` with an explicit integrator,
-            ``FastMassSpring(method="symplectic")``; others raise :class:`pliant.diff.GradientError`).
+        solver: a differentiable solver on ``model``: ``ForceSolver`` with an explicit integrator or an
+            implicit one (BackwardEuler, ImplicitMidpoint, BDF2; Newton or L-BFGS, differentiated by the
+            implicit-function-theorem adjoint; BDF2 needs ``checkpoint_every >= frames``),
+            ``FastMassSpring(method="symplectic")``, ``XPBD``/``PBD`` with ``schedule="jacobi"``; others
+            raise :class:`pliant.diff.GradientError`. ``solver.reset()`` is called first.
         loss_fn: maps the final State to a 1-element Warp array of the model's scalar type holding the loss,
             computed with Warp kernels (so the tape records it).
         frames: number of frames (checkpoint granularity).
@@ -140,6 +143,20 @@ def rollout(
             "frames, substeps and checkpoint_every must be >= 1, "
             f"got {frames}, {substeps}, {checkpoint_every}"
         )
+    if getattr(solver, "collisions", None):
+        # XPBD's handlers would run in place on the tape (a wrong gradient): refused for every solver here.
+        raise GradientError(
+            "contact handlers (collisions=) correct the state in place and are not differentiable yet; "
+            "use the ground plane (model.ground) or finalize with requires_grad=False"
+        )
+    integrator = getattr(solver, "integrator", None)
+    if getattr(integrator, "multistep", False) and checkpoint_every < frames:
+        raise GradientError(
+            f"{integrator.name} is a multistep method: its history cannot cross a checkpoint boundary; "
+            f"pass checkpoint_every={frames} (one segment, the whole rollout on one tape)"
+        )
+    if hasattr(solver, "reset"):
+        solver.reset()  # no L-BFGS pairs or BDF2 history from an earlier run
     start = _copy_state(model.state() if state0 is None else state0)
     entries = {
         name: e if isinstance(e, tuple) else (e, None)

@@ -39,7 +39,8 @@ def torch_rollout(
 
     Args:
         model: Model finalised with ``requires_grad=True``.
-        solver: a differentiable solver on ``model``.
+        solver: a differentiable solver on ``model`` (any solver :func:`pliant.diff.rollout` accepts:
+            explicit or implicit ForceSolver, FastMassSpring symplectic, XPBD/PBD Jacobi).
         loss_fn: final State → 1-element Warp array with the loss (see :func:`pliant.diff.rollout`).
         params: parameter names, one per tensor argument of f.
         **rollout_kwargs: ``frames``, ``dt``, ``substeps``, ``state0``, ``control``, ``checkpoint_every``.

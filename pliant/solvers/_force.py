@@ -10,12 +10,13 @@ import numpy as np
 import warp as wp
 
 from .._warp import GradientError, fresh, grad_enabled, launch
-from ..collision._ground_recorded import ground_contact_out
+from ..collision._ground_recorded import ground_contact_out, ground_penalty_friction_out
 from ..energies import Energy
 from ..energies._base import _axpy
 from ..integrators import Integrator, SymplecticEuler
 from ..model import Control, Model, State
 from ._base import Solver
+from ._newton_workspace import MinimizerCache
 from ._post import add_drag_force, check_collisions, finish_step
 
 
@@ -135,6 +136,8 @@ class ForceSolver(Solver):
             )
         self._control: Control | None = None
         self.last_stats: Any = None
+        #: What the implicit minimisers keep between steps (Hessian pattern, L-BFGS pairs and warm start).
+        self.minimizer_cache = MinimizerCache()
 
     # ------------------------------------------------------------------ System interface
     @property
@@ -244,7 +247,7 @@ class ForceSolver(Solver):
             raise GradientError(
                 f"{self.integrator.name} has no adjoint in this version: differentiate an explicit "
                 "integrator (SymplecticEuler, VelocityVerlet, RK2/Heun/Midpoint, RK4, ForwardEuler) or "
-                "finalize the model with requires_grad=False"
+                "BackwardEuler, ImplicitMidpoint, BDF2, or finalize the model with requires_grad=False"
             )
         if self.collisions:
             raise GradientError(
@@ -271,7 +274,28 @@ class ForceSolver(Solver):
                 device=m.device,
             )
             x, v, k = xo, vo, k + 1
-        if self.contact:
+        kappa = self._ground_penalty()
+        if self.contact and kappa is not None:
+            # The same response as the unrecorded step (finish_step): friction for the penalty's impulse.
+            xo, vo = outs[k]
+            wp.launch(
+                ground_penalty_friction_out,
+                m.particle_count,
+                [
+                    m.particle_inv_mass,
+                    m.particle_radius,
+                    m.s(m.ground.height),
+                    self.ground_coefficients,
+                    m.s(kappa),
+                    m.s(dt),
+                    x,
+                    v,
+                    xo,
+                    vo,
+                ],
+                device=m.device,
+            )
+        elif self.contact:
             xo, vo = outs[k]
             wp.launch(
                 ground_contact_out,
@@ -293,11 +317,7 @@ class ForceSolver(Solver):
         """Forget what earlier steps leave for the next: the L-BFGS curvature pairs and warm start, a
         multistep integrator's history. Set-up that depends only on the model (Hessian patterns, the lagged
         Hessian's factorisation) is kept."""
-        st = getattr(self, "_lbfgs_state", None)  # (workspace, lagged Hessian, history, warm-start memo)
-        if st is not None:
-            _, _, history, memo = st
-            history.clear()
-            memo.clear()
+        self.minimizer_cache.reset()
         if hasattr(self.integrator, "reset"):
             self.integrator.reset()
 
@@ -342,7 +362,7 @@ class ForceSolver(Solver):
         """L-BFGS's history and warm start (``lbfgs_*``) and the integrator's (e.g. BDF2's ``bdf2_*``)."""
         from ._quasi_newton import lbfgs_checkpoint_state
 
-        out = lbfgs_checkpoint_state(self)
+        out = lbfgs_checkpoint_state(self.minimizer_cache)
         own = getattr(self.integrator, "checkpoint_state", None)
         if own is not None:
             out.update(own())

@@ -38,6 +38,15 @@ import warp as wp
 from .._warp import launch
 from ..integrators._implicit import ImplicitOptions
 from ._implicit_adjoint import differentiable
+from ._newton_workspace import (  # noqa: F401  (re-exported: _static and tests build workspaces here)
+    MinimizerCache,
+    _direct_solve,
+    _host_cg_solve,
+    _resolve_linear_solver,
+    _Workspace,
+    _workspace,
+    cache_of,
+)
 
 #: Defaults when ``options`` does not name a setting (read-only view of ImplicitOptions' defaults).
 DEFAULTS: dict[str, Any] = {f.name: getattr(ImplicitOptions(), f.name) for f in fields(ImplicitOptions)}
@@ -245,157 +254,10 @@ def _negate(src: wp.array(dtype=Any), out: wp.array(dtype=Any)):
     out[i] = -src[i]
 
 
-# ----------------------------------------------------------------------------------------------- workspace
-class _Workspace:
-    """Everything allocated once per (model, energies): the BSR pattern, slots, Newton vectors, CG state."""
-
-    def __init__(self, model: Any, energies: list) -> None:
-        from warp.sparse import bsr_from_triplets
-
-        n = model.particle_count
-        d = model.device
-        self.key = (id(model), tuple(id(e) for e in energies))
-        patterns = [e.hessian_pattern(model) for e in energies]
-        diag = np.arange(n, dtype=np.int64)
-        rows = np.concatenate([diag] + [np.asarray(p[0], np.int64) for p in patterns])
-        cols = np.concatenate([diag] + [np.asarray(p[1], np.int64) for p in patterns])
-        keys = np.unique(rows * n + cols)  # sorted by (row, col): BSR order
-        self.nnz = keys.size
-        brow = (keys // n).astype(np.int32)
-        bcol = (keys % n).astype(np.int32)
-        self.indptr = np.searchsorted(brow, np.arange(n + 1)).astype(np.int32)
-        self.indices = bcol
-        mat = model.mat33
-        zeros = wp.zeros(self.nnz, dtype=mat, device=d)
-        self.A = bsr_from_triplets(
-            n,
-            n,
-            wp.array(brow, dtype=wp.int32, device=d),
-            wp.array(bcol, dtype=wp.int32, device=d),
-            zeros,
-            prune_numerical_zeros=False,
-        )
-        # The value order must be our sorted key order (checked once, at build time).
-        if not (
-            np.array_equal(self.A.offsets.numpy()[: n + 1], self.indptr)
-            and np.array_equal(self.A.columns.numpy()[: self.nnz], bcol)
-        ):
-            raise RuntimeError(
-                "warp.sparse built a BSR layout that differs from the sorted (row, col) pattern"
-            )
-        self.values = self.A.values
-        self.block_rows = wp.array(brow, dtype=wp.int32, device=d)
-        self.block_cols = wp.array(bcol, dtype=wp.int32, device=d)
-        self.diag_slots = wp.array(
-            np.searchsorted(keys, diag * n + diag).astype(np.int32), dtype=wp.int32, device=d
-        )
-        self.slots = []
-        for r, c in patterns:
-            k = np.asarray(r, np.int64) * n + np.asarray(c, np.int64)
-            self.slots.append(wp.array(np.searchsorted(keys, k).astype(np.int32), dtype=wp.int32, device=d))
-        v3 = model.vec3
-        self.grad = wp.zeros(n, dtype=v3, device=d)
-        self.egrad = wp.zeros(n, dtype=v3, device=d)
-        self.egrad_scratch = wp.zeros(n, dtype=v3, device=d)  # gradient nobody reads (line-search values)
-        self.rhs = wp.zeros(n, dtype=v3, device=d)
-        self.dx = wp.zeros(n, dtype=v3, device=d)
-        self.x_trial = wp.zeros(n, dtype=v3, device=d)
-        self.inv_diag = wp.zeros(n, dtype=v3, device=d)
-        self.hstats = wp.zeros(1, dtype=model.scalar, device=d)  # max_i H_ii/m_i
-        self.gstats = wp.zeros(4, dtype=model.scalar, device=d)  # max|g|/mh, max|x|, inertia, E
-        self.tstats = wp.zeros(4, dtype=model.scalar, device=d)  # inertia(trial), E(trial), max|dx|, g·dx
-        # Views made once (Energy.value adds into out[0]).
-        self.gstats_e = self.gstats[3:4]
-        self.tstats_phi = self.tstats[0:2]
-        self.tstats_e = self.tstats[1:2]
-        self.tstats_step = self.tstats[2:4]
-        self.np_dtype = np.float32 if model.dtype == "float32" else np.float64
-        self._cg: Any = None
-        self._cg_key: Any = None
-
-    def cg(self, tol: float, maxiter: int) -> Any:
-        """The pre-allocated CG functor (Jacobi preconditioner on ``inv_diag``)."""
-        from warp.optim.linear import aslinearoperator, cg
-
-        key = (tol, maxiter)
-        if self._cg is None or self._cg_key != key:
-            self._cg = cg(
-                self.A,
-                self.rhs,
-                self.dx,
-                tol=tol,
-                atol=0.0,  # Warp takes atol = tol when unset; the residual must be relative to ‖b‖ only
-                maxiter=maxiter,
-                M=aslinearoperator(self.inv_diag),
-                run=False,
-            )
-            self._cg_key = key
-        return self._cg
-
-
 def _option(options: Any, name: str) -> Any:
     """One setting of ``options`` (None, a dict of some settings, ImplicitOptions, an implicit integrator),
     validated by :class:`pliant.integrators.ImplicitOptions`."""
     return getattr(ImplicitOptions.coerce(options), name)
-
-
-def _workspace(solver: Any) -> _Workspace:
-    model = solver.model
-    key = (id(model), tuple(id(e) for e in solver.energies))
-    ws = getattr(solver, "_newton_ws", None)
-    if ws is None or ws.key != key:
-        ws = _Workspace(model, solver.energies)
-        solver._newton_ws = ws
-    return ws
-
-
-def _resolve_linear_solver(name: str, model: Any) -> str:
-    if name == "auto":
-        # The sparse LU stays the CPU default: "scipy-cg" (block-Jacobi CG on the host) is ~3x faster per
-        # step on a 4k-DOF FEM box (12 ms vs 72 ms per solve) but its inexact directions stalled Newton just
-        # above tolerance on a 1 GPa body, where the exact solve converges.
-        return "direct" if wp.get_device(model.device).is_cpu else "cg"
-    return name
-
-
-def _direct_solve(ws: _Workspace, model: Any) -> None:
-    """Δx = −H⁻¹∇Φ by a SciPy sparse LU (float64 on the host; one copy each way)."""
-    import scipy.sparse as sp
-    from scipy.sparse.linalg import splu
-
-    n = model.particle_count
-    vals = ws.values.numpy()[: ws.nnz].astype(np.float64)
-    H = sp.bsr_matrix((vals, ws.indices, ws.indptr), shape=(3 * n, 3 * n)).tocsc()
-    g = ws.grad.numpy().astype(np.float64).reshape(-1)
-    # H is symmetric positive definite: symmetric ordering, no pivoting (SuperLU's "symmetric mode").
-    lu = splu(H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-    dx = lu.solve(-g)
-    ws.dx.assign(dx.reshape(n, 3).astype(ws.np_dtype))
-
-
-def _host_cg_solve(ws: _Workspace, model: Any, rtol: float, maxiter: int) -> int:
-    """Δx = −H⁻¹∇Φ by SciPy CG with a 3×3 block-Jacobi preconditioner (float64, host); returns iterations."""
-    import scipy.sparse as sp
-    from scipy.sparse.linalg import LinearOperator, cg
-
-    n = model.particle_count
-    vals = ws.values.numpy()[: ws.nnz].astype(np.float64)
-    H = sp.bsr_matrix((vals, ws.indices, ws.indptr), shape=(3 * n, 3 * n)).tocsr()
-    d_inv = np.linalg.inv(vals[ws.diag_slots.numpy()])
-    precond = LinearOperator(
-        H.shape,
-        matvec=lambda r: np.einsum("nij,nj->ni", d_inv, r.reshape(n, 3)).reshape(-1),
-        dtype=np.float64,
-    )
-    g = ws.grad.numpy().astype(np.float64).reshape(-1)
-    count = [0]
-
-    def tick(_: np.ndarray) -> None:
-        count[0] += 1
-
-    dx, _ = cg(H, -g, rtol=rtol, atol=0.0, maxiter=maxiter, M=precond, callback=tick)
-    ws.dx.assign(dx.reshape(n, 3).astype(ws.np_dtype))
-    return count[0]
 
 
 # ----------------------------------------------------------------------------------------------- Newton
@@ -429,6 +291,9 @@ class PotentialProblem(Protocol):
     model: Any
     energies: list
     last_stats: Any
+    #: Optional: where the minimisers keep their workspace and L-BFGS's state between steps
+    #: (:class:`~pliant.solvers._newton_workspace.MinimizerCache`); without it nothing is reused.
+    minimizer_cache: MinimizerCache
 
     @property
     def control(self) -> Any: ...

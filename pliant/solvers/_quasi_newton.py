@@ -47,8 +47,8 @@ from ._newton import (
     _gradient,
     _trial_point,
     _Workspace,
-    _workspace,
 )
+from ._newton_workspace import MinimizerCache, cache_of
 
 
 def nested_dissection(points: np.ndarray, rows: np.ndarray, cols: np.ndarray, leaf: int = 32) -> np.ndarray:
@@ -264,11 +264,12 @@ class _History:
         return -r
 
 
-def _state(solver: Any, ws: _Workspace) -> tuple[_LaggedHessian, _History, dict]:
-    st = getattr(solver, "_lbfgs_state", None)
+def _state(cache: MinimizerCache, ws: _Workspace, model: Any, energies: list):
+    """L-BFGS's (lagged H₀, history, warm-start memo) in ``cache``, new when the workspace changed."""
+    st = cache.lbfgs
     if st is None or st[0] is not ws:
-        st = (ws, _LaggedHessian(ws, solver.model, solver.energies), _History(5), {})
-        solver._lbfgs_state = st
+        st = (ws, _LaggedHessian(ws, model, energies), _History(5), {})
+        cache.lbfgs = st
     return st[1], st[2], st[3]
 
 
@@ -311,8 +312,9 @@ def minimize_quasi_newton(
     """
     m = solver.model
     n = m.particle_count
-    ws = _workspace(solver)
-    h0, hist, memo = _state(solver, ws)
+    cache = cache_of(solver)
+    ws = cache.workspace(m, solver.energies)
+    h0, hist, memo = _state(cache, ws, m, solver.energies)
     opts = ImplicitOptions.coerce(options)
     hist.size = int(opts.lbfgs_history)
     max_it = int(opts.lbfgs_max_iterations)
@@ -459,9 +461,9 @@ _CKPT_KEYS = (
 )
 
 
-def lbfgs_checkpoint_state(solver: Any) -> dict[str, np.ndarray]:
-    """L-BFGS's state between steps on ``solver`` (copies; empty before its first step)."""
-    st = getattr(solver, "_lbfgs_state", None)
+def lbfgs_checkpoint_state(cache: MinimizerCache) -> dict[str, np.ndarray]:
+    """L-BFGS's state between steps kept in ``cache`` (copies; empty before its first step)."""
+    st = cache.lbfgs
     if st is None:
         return {}
     _, h0, hist, memo = st
@@ -496,7 +498,8 @@ def _ck_array(state: dict, key: str, shape: tuple[int, ...], kind: str = "f") ->
 
 
 def lbfgs_restore_checkpoint_state(solver: Any, state: dict[str, np.ndarray]) -> None:
-    """Set L-BFGS's state on ``solver`` from :func:`lbfgs_checkpoint_state`'s arrays (validated first).
+    """Set L-BFGS's state in ``solver.minimizer_cache`` from :func:`lbfgs_checkpoint_state`'s arrays
+    (validated first); ``solver`` is a PotentialProblem that declares a cache.
 
     Raises:
         ValueError: an unknown key, or an array of the wrong shape, dtype or with non-finite values.
@@ -504,15 +507,13 @@ def lbfgs_restore_checkpoint_state(solver: Any, state: dict[str, np.ndarray]) ->
     unknown = sorted(set(state) - set(_CKPT_KEYS))
     if unknown:
         raise ValueError(f"unknown L-BFGS state keys {unknown}")
+    cache = solver.minimizer_cache
     if not state:
-        st = getattr(solver, "_lbfgs_state", None)
-        if st is not None:
-            st[2].clear()
-            st[3].clear()
+        cache.reset()
         return
     n = solver.model.particle_count
-    ws = _workspace(solver)
-    h0, hist, memo = _state(solver, ws)
+    ws = cache.workspace(solver.model, solver.energies)
+    h0, hist, memo = _state(cache, ws, solver.model, solver.energies)
     nnz = h0.rows.size
     # Validate everything before changing anything.
     pairs = 0
