@@ -146,3 +146,13 @@ def test_allowed_exceptions_are_still_needed():
 def test_every_subpackage_has_a_layer(sub):
     """Every subpackage of pliant is placed in a layer."""
     assert sub in LEVEL
+
+
+def test_no_source_file_over_the_size_limit():
+    """Issue 10: no source file over ~600 lines (a long file is usually two ideas)."""
+    long = {
+        str(p.relative_to(ROOT.parent)): n
+        for p in ROOT.rglob("*.py")
+        if (n := p.read_text(encoding="utf-8").count("\n")) > 620
+    }
+    assert not long, f"split these files: {long}"

@@ -13,6 +13,7 @@ import pytest
 import warp as wp
 
 import pliant.constraints as pc
+from pliant.collision import Colliders
 from pliant.model import ModelBuilder, State
 from pliant.solvers import PBD, XPBD
 
@@ -290,6 +291,13 @@ def test_what_cannot_be_differentiated_is_refused_clearly():
     control.kinematic_targets = wp.array([[0.0, 0.0, 0.0]], dtype=wp.vec3d, device="cpu")
     with pytest.raises(NotImplementedError, match="kinematic"):
         solver.step(model.state(), model.state(), control, DT)
+    # Contact handlers correct the step in place: refused under a tape, still run without one.
+    colliders = Colliders()
+    colliders.add_sphere((0.0, -1.0, 0.0), 0.5)
+    solver = XPBD(model, collisions=[colliders])
+    solver.step(model.state(), model.state(), None, DT)
+    with wp.Tape(), pytest.raises(NotImplementedError, match="collisions="):
+        solver.step(model.state(), model.state(), None, DT)
 
 
 def test_gradient_off_path_records_and_replays_as_before():

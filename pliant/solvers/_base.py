@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from .._warp import GradientError, _tape_active, grad_enabled
 from ..model import Control, Model, State
 from ._post import check_collisions
 
@@ -34,6 +35,14 @@ class Solver(abc.ABC):
 
     def apply_collisions(self, state_in: State, state_out: State, dt: float) -> None:
         """Run each contact handler on the finished step (``state_out`` is corrected in place)."""
+        if self.collisions and grad_enabled(self.model) and _tape_active():
+            # The handlers correct state_out in place: a tape cannot replay that, and a silently wrong
+            # gradient is worse than none.
+            raise GradientError(
+                f"{type(self).__name__}: contact handlers (collisions=) run in place and cannot be "
+                "differentiated; drop them while recording a wp.Tape (the ground is differentiable through "
+                "the solver's own contact, colliders through energies.ColliderPenalty with ForceSolver)"
+            )
         for c in self.collisions:
             c.apply(self.model, state_in, state_out, dt)
 
