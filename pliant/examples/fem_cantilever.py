@@ -15,13 +15,13 @@
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 
 import pliant as pl
 import pliant.geometry
 import pliant.render
+from pliant.examples import _common
 
 
 class Example:
@@ -72,22 +72,8 @@ class Example:
 
 
 def create_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(description=__doc__)
-    p.add_argument("--device", default=None, help="cpu or cuda:N (default: CUDA when present)")
-    p.add_argument("--frames", "--num-frames", dest="frames", type=int, default=60)
-    p.add_argument("--output", default=None, help="write a video (.mp4 or .gif)")
-    p.add_argument("--test", action="store_true", help="run the physics checks of test_final()")
-    return p
+    return _common.create_parser(__doc__, frames=60)
 
 
 if __name__ == "__main__":
-    args = create_parser().parse_args()
-    example = Example(args)
-    t0 = time.perf_counter()
-    example.run(progress=not args.test)
-    print(f"{example.frames} frames in {time.perf_counter() - t0:.2f} s")
-    if args.output:
-        example.render(args.output)
-        print(f"wrote {args.output}")
-    if args.test:
-        example.test_final()
+    _common.main(Example, create_parser().parse_args())
