@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from . import CliError, _positive_float, _positive_int, _sub
+from ._run import _load
 
 
 def add_parsers(sub: Any) -> None:
@@ -15,7 +16,7 @@ def add_parsers(sub: Any) -> None:
         sub,
         "fit",
         "fit a scene's parameters to observed motion (observation NPZ)",
-        "pliant observe fit_rope --out obs.npz --tracks 20 --noise 0.001   # synthetic observations",
+        "pliant observe fit_rope --out obs.npz --set objects[0].material.stiffness=480   # the 'real' rope",
         "pliant fit fit_rope obs.npz --out fit/                        # the material, both stages",
         "pliant fit cloth obs.npz --out fit/ --params stiffness --per-element stiffness",
         "pliant run fit/fitted.toml                                    # the fitted scene",
@@ -41,6 +42,14 @@ def add_parsers(sub: Any) -> None:
     f.add_argument("--device", help="cpu or cuda:N (default: the scene's)")
     f.add_argument("--dtype", choices=("float32", "float64"), help="override [scene] dtype")
     f.add_argument("--no-video", action="store_true", help="skip fit.mp4")
+    f.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="PATH=VALUE",
+        dest="overrides",
+        help="override a scene field first, as in `pliant run` (repeatable)",
+    )
     f.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
 
     o = _sub(
@@ -62,13 +71,15 @@ def add_parsers(sub: Any) -> None:
     o.add_argument("--cloud", action="store_true", help="also write every particle as a depth cloud")
     o.add_argument("--unbound", action="store_true", help="omit `particle` (fit binds tracks by distance)")
     o.add_argument("--device", help="cpu or cuda:N (default: the scene's)")
+    o.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="PATH=VALUE",
+        dest="overrides",
+        help="override a scene field first, as in `pliant run` (repeatable)",
+    )
     o.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
-
-
-def _load(scene: str) -> Any:
-    from ..scene import load_scene
-
-    return load_scene(scene)
 
 
 def cmd_observe(args: argparse.Namespace) -> int:
@@ -78,7 +89,7 @@ def cmd_observe(args: argparse.Namespace) -> int:
     from ..fit import observe
     from ..scene import build_scene
 
-    cfg = _load(args.scene)
+    cfg = _load(args.scene, args.overrides)
     obs = observe(
         build_scene(cfg, device=args.device),
         frames=None if args.frames is None else args.frames + 1,
@@ -104,7 +115,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
     if not 0.0 < args.train_fraction <= 1.0:
         raise CliError(f"--train-fraction: expected a number in (0, 1], got {args.train_fraction}")
-    cfg = _load(args.scene)
+    cfg = _load(args.scene, args.overrides)
     obs = Observations.load(args.obs)
     params = None
     if args.params is not None:
