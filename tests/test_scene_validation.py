@@ -284,3 +284,12 @@ def test_tetgen_bound_is_budgeted_before_tetgen_runs(tmp_path):
     assert build_scene(
         parse_scene(HEAD + body.format(v="1e-4"), "s.toml", tmp_path), device="cpu"
     ).model.particle_count
+
+
+@pytest.mark.parametrize("cell", ["-1", "0.0", "nan"])
+def test_constraint_entry_options_are_checked_before_building_the_solver(cell):
+    """Found by the long fuzz: a [[constraints]] entry's bad value (a negative hash-grid cell) is a SceneError
+    naming the entry, raised by the constraint's constructor rather than deep inside the solver's set-up."""
+    text = HEAD + PBD_ROPE + f'[[constraints]]\nkind = "particle_collision"\ncell_size = {cell}\n'
+    msg = _error(text)
+    assert "constraints[0]" in msg and "cell_size" in msg, msg

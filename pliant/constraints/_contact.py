@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -262,6 +263,9 @@ class ParticleCollision(Constraint):
 
     def __init__(self, *, cell_size: float | None = None) -> None:
         super().__init__(compliance=0.0)
+        if cell_size is not None and not (math.isfinite(cell_size) and cell_size > 0):
+            # Checked here, not when bind() builds the grid, so a scene names the field before any work.
+            raise ValueError(f"cell_size must be a positive length [m] (or omitted), got {cell_size}")
         self._cell = cell_size
 
     def bind(self, model: Model, coloring: bool) -> None:
