@@ -2,7 +2,9 @@
 
 Plain Warp path (what :func:`rollout` automates): finalise the model with ``requires_grad=True``, make one
 State per step, call ``solver.step`` inside a ``wp.Tape``, then ``tape.backward(loss)`` and read the model's
-arrays' ``.grad`` (``spring_stiffness``, ``tet_mu``, ...) and the first state's. Differentiable solvers:
+arrays' ``.grad`` (``spring_stiffness``, ``tet_mu``, ...), the solver's (``ground_coefficients``,
+``gravity``, ``damping_rate_array``) and the first state's. Gravity and the damping rate are differentiable
+for ForceSolver with explicit integrators (and ``XPBD``'s ``solver.gravity``). Differentiable solvers:
 ``ForceSolver`` with any explicit integrator or BackwardEuler / ImplicitMidpoint / BDF2 (Newton or L-BFGS,
 implicit-function-theorem adjoint), with ground contact and kinematic targets;
 ``FastMassSpring(method="symplectic")``; ``XPBD`` / ``PBD`` with ``schedule="jacobi"``. What cannot give a

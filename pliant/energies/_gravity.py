@@ -24,6 +24,13 @@ def _gravity_gradient(mass: wp.array(dtype=Any), g: Any, grad_out: wp.array(dtyp
     wp.atomic_sub(grad_out, i, mass[i] * g)
 
 
+@wp.kernel
+def _gravity_gradient_array(mass: wp.array(dtype=Any), g: wp.array(dtype=Any), grad_out: wp.array(dtype=Any)):
+    # Recorded steps: g read from a 1-element array so that the tape carries ∂/∂g.
+    i = wp.tid()
+    wp.atomic_sub(grad_out, i, mass[i] * g[0])
+
+
 class Gravity(Energy):
     """E = −Σ_i m_i g·x_i [J], with g = ``model.gravity`` [m/s²]; its Hessian is zero."""
 
@@ -43,4 +50,11 @@ class Gravity(Energy):
             model.particle_count,
             [model.particle_mass, model.gravity_vec, out],
             device=model.device,
+        )
+
+    def gradient_from(self, model: Model, g: wp.array, out: wp.array) -> None:
+        """Add −m_i g [N] into ``out`` with g [m/s²] read from the 1-element vec3 array ``g`` (recorded
+        steps that differentiate gravity: ``g.grad`` then receives ∂loss/∂g)."""
+        launch(
+            _gravity_gradient_array, model.particle_count, [model.particle_mass, g, out], device=model.device
         )

@@ -149,6 +149,15 @@ class Integrator(abc.ABC):
         return self._ws[1]
 
 
+def damping_rate_array(system: System) -> wp.array | None:
+    """The 1-element array holding the damping rate c [1/s] that recorded steps read (δ = exp(−cΔt)), so
+    that ``tape.backward`` gives ∂loss/∂c in its ``.grad``; None when gradients are off or the system has
+    no ``damping_rate_array`` (then δ = ``system.velocity_damping(dt)``, a constant)."""
+    if not grad_enabled(system.model):
+        return None
+    return getattr(system, "damping_rate_array", None)
+
+
 def initial_state(
     problem: ODEProblem | SecondOrderODE, y0: np.ndarray | tuple[np.ndarray, np.ndarray]
 ) -> np.ndarray:

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 import warp as wp
 
-from .._warp import grad_enabled
-from ._base import Integrator, System, first_order
+from .._warp import grad_enabled, launch
+from ._base import Integrator, System, damping_rate_array, first_order
 from ._ops import lincomb
 from ._problems import ODEProblem, SecondOrderODE
 
@@ -74,18 +74,36 @@ class ExplicitRK(Integrator):
             lincomb(m, V[i], v_in, [(dt * row[j], A[j]) for j in range(i)])
             system.acceleration(t + self.c[i] * dt, X, V[i], A[i])
         lincomb(m, x_out, x_in, [(dt * self.b[j], V[j]) for j in range(s)])
-        damped = system.velocity_damping(dt) != 1.0
+        damped = is_damped(system, dt)
         # Recorded steps scale δ out of place (a tape cannot replay v ← δv).
         v_end = self._buffers(system, 1)[0] if damped and grad_enabled(m) else v_out
         lincomb(m, v_end, v_in, [(dt * self.b[j], A[j]) for j in range(s)])
         scale_velocity(system, dt, v_end, v_out)
 
 
+@wp.kernel
+def _scale_by_rate(rate: wp.array(dtype=Any), dt: Any, v_in: wp.array(dtype=Any), v_out: wp.array(dtype=Any)):
+    # Recorded steps: δ = exp(−cΔt) read from an array so that the tape carries ∂/∂c.
+    i = wp.tid()
+    v_out[i] = v_in[i] * wp.exp(-rate[0] * dt)
+
+
+def is_damped(system: System, dt: float) -> bool:
+    """True when the step scales velocities: δ ≠ 1, or a recorded step reads δ from the rate array."""
+    return system.velocity_damping(dt) != 1.0 or damping_rate_array(system) is not None
+
+
 def scale_velocity(system: System, dt: float, v_in: wp.array, v_out: wp.array) -> None:
     """v_out = δ v_in with δ = ``system.velocity_damping(dt)`` (v_out may alias v_in without gradients).
 
-    Computed as v + (δ − 1) v, the form the golden trajectories were recorded with.
+    Computed as v + (δ − 1) v, the form the golden trajectories were recorded with. Recorded steps whose
+    system holds a ``damping_rate_array`` compute δ = exp(−cΔt) in the kernel from that array instead.
     """
+    rate = damping_rate_array(system)
+    if rate is not None:
+        m = system.model
+        launch(_scale_by_rate, m.particle_count, [rate, m.s(dt), v_in, v_out], device=m.device)
+        return
     delta = system.velocity_damping(dt)
     if delta != 1.0:
         lincomb(system.model, v_out, v_in, [(delta - 1.0, v_in)])

@@ -8,7 +8,7 @@ import numpy as np
 import warp as wp
 
 from .._warp import launch
-from ._base import Integrator, System, second_order_split
+from ._base import Integrator, System, damping_rate_array, second_order_split
 from ._problems import ODEProblem, SecondOrderODE
 
 
@@ -25,6 +25,26 @@ def _symplectic_update(
 ):
     i = wp.tid()
     v = delta * (v_in[i] + dt * a_in[i])
+    if inv_mass[i] == type(dt)(0.0):
+        v = v_in[i]
+    v_out[i] = v
+    x_out[i] = x_in[i] + dt * v
+
+
+@wp.kernel
+def _symplectic_update_rate(
+    inv_mass: wp.array(dtype=Any),
+    x_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    a_in: wp.array(dtype=Any),
+    dt: Any,
+    rate: wp.array(dtype=Any),
+    x_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+):
+    # Recorded steps: δ = exp(−cΔt) read from an array so that the tape carries ∂/∂c.
+    i = wp.tid()
+    v = wp.exp(-rate[0] * dt) * (v_in[i] + dt * a_in[i])
     if inv_mass[i] == type(dt)(0.0):
         v = v_in[i]
     v_out[i] = v
@@ -58,6 +78,15 @@ class SymplecticEuler(Integrator):
         m = system.model
         (a,) = self._buffers(system, 1)
         system.acceleration(t, x_in, v_in, a)
+        rate = damping_rate_array(system)
+        if rate is not None:
+            launch(
+                _symplectic_update_rate,
+                m.particle_count,
+                [m.particle_inv_mass, x_in, v_in, a, m.s(dt), rate, x_out, v_out],
+                device=m.device,
+            )
+            return
         launch(
             _symplectic_update,
             m.particle_count,

@@ -8,7 +8,7 @@ import numpy as np
 
 from .._warp import grad_enabled
 from ._base import Integrator, System, second_order_split
-from ._explicit import scale_velocity
+from ._explicit import is_damped, scale_velocity
 from ._ops import lincomb
 from ._problems import ODEProblem, SecondOrderODE
 
@@ -56,7 +56,7 @@ class VelocityVerlet(Integrator):
         lincomb(m, x_out, x_in, [(dt, v_in), (0.5 * dt * dt, a0)])
         lincomb(m, vp, v_in, [(dt, a0)])
         system.acceleration(t + dt, x_out, vp, a1)
-        damped = system.velocity_damping(dt) != 1.0
+        damped = is_damped(system, dt)
         # Recorded steps scale δ out of place (a tape cannot replay v ← δv).
         v_end = self._buffers(system, 1)[0] if damped and grad_enabled(m) else v_out
         lincomb(m, v_end, v_in, [(0.5 * dt, a0), (0.5 * dt, a1)])

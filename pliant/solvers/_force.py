@@ -11,7 +11,7 @@ import warp as wp
 
 from .._warp import GradientError, fresh, grad_enabled, launch
 from ..collision._ground_recorded import ground_contact_out, ground_penalty_friction_out
-from ..energies import Energy
+from ..energies import Energy, Gravity
 from ..energies._base import _axpy
 from ..integrators import Integrator, SymplecticEuler
 from ..model import Control, Model, State
@@ -134,6 +134,17 @@ class ForceSolver(Solver):
             self.ground_coefficients = wp.array(
                 [g.friction, g.restitution], dtype=model.scalar, device=d, requires_grad=True
             )
+        #: Recorded explicit steps read gravity g [m/s²] (1-element vec3) and the damping rate c [1/s]
+        #: (1-element, only with ``damping_rate``) from these arrays; their ``.grad`` holds ∂loss/∂g and
+        #: ∂loss/∂c after ``tape.backward``. None without gradients or with an implicit integrator.
+        self.gravity: wp.array | None = None
+        self.damping_rate_array: wp.array | None = None
+        if grad_enabled(model) and self.integrator.explicit:
+            self.gravity = wp.array([model.gravity], dtype=model.vec3, device=d, requires_grad=True)
+            if damping_rate is not None:
+                self.damping_rate_array = wp.array(
+                    [damping_rate], dtype=model.scalar, device=d, requires_grad=True
+                )
         self._control: Control | None = None
         self.last_stats: Any = None
         #: What the implicit minimisers keep between steps (Hessian pattern, L-BFGS pairs and warm start).
@@ -181,7 +192,9 @@ class ForceSolver(Solver):
             if self._control is not None:
                 _axpy(force, self._control.particle_f, 1.0, m)
             for e in self.energies:
-                if type(e).force is Energy.force:  # a potential: −∇E
+                if isinstance(e, Gravity) and self.gravity is not None:
+                    e.gradient_from(m, self.gravity, grad)
+                elif type(e).force is Energy.force:  # a potential: −∇E
                     e.gradient(m, x, grad)
                 else:
                     e.force(m, x, v, force)
