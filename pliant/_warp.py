@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -77,12 +79,31 @@ _LAUNCHES: dict[tuple, tuple[Any, tuple[int, ...]]] = {}
 _LAUNCHES_MAX = 2048
 
 
+def active_tape() -> Any:
+    """The ``wp.Tape`` now recording, or None. The one place that reads Warp's runtime for it."""
+    from warp._src.context import runtime
+
+    return getattr(runtime, "tape", None)
+
+
 def _tape_active() -> bool:
     try:
-        from warp._src.context import runtime
+        return active_tape() is not None
     except ImportError:  # another Warp layout: be safe, never replay
         return True
-    return getattr(runtime, "tape", None) is not None
+
+
+@contextlib.contextmanager
+def tape_paused() -> Iterator[Any]:
+    """Run the block with no active ``wp.Tape`` (yields the tape that was active, or None)."""
+    from warp._src.context import runtime
+
+    tape = getattr(runtime, "tape", None)
+    runtime.tape = None
+    try:
+        yield tape
+    finally:
+        runtime.tape = tape
 
 
 def launch(kernel: Any, dim: Any, inputs: list, device: Any = None) -> None:

@@ -29,40 +29,21 @@ the step converged (tighten ``newton_tol`` when gradients matter).
 
 from __future__ import annotations
 
-import contextlib
 import functools
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 import warp as wp
 
-from .._warp import GradientError, _tape_active, launch
-
-
-def _runtime() -> Any:
-    from warp._src.context import runtime
-
-    return runtime
-
-
-@contextlib.contextmanager
-def _tape_paused() -> Iterator[Any]:
-    """Run the block with no active ``wp.Tape`` (yields the tape that was active, or None)."""
-    runtime = _runtime()
-    tape = getattr(runtime, "tape", None)
-    runtime.tape = None
-    try:
-        yield tape
-    finally:
-        runtime.tape = tape
+from .._warp import GradientError, _tape_active, active_tape, launch, tape_paused
 
 
 def _recording(model: Any) -> Any:
     """The active tape when gradients of this model are being recorded, else None."""
     if not (_tape_active() and getattr(model, "requires_grad", False)):
         return None
-    return _runtime().tape
+    return active_tape()
 
 
 @wp.kernel
@@ -100,7 +81,7 @@ def differentiable(minimize: Callable[..., Any]) -> Callable[..., Any]:
         if tape is None:
             return minimize(problem, t, h, x_tilde, x_ref, v_ref, x_out, options, **kwargs)
         adjoint = _StepAdjoint(problem, h, x_tilde, x_ref, v_ref, x_out)
-        with _tape_paused():
+        with tape_paused():
             stats = minimize(problem, t, h, x_tilde, x_ref, v_ref, x_out, options, **kwargs)
         tape.record_func(adjoint.backward, adjoint.arrays())
         return stats
@@ -156,7 +137,7 @@ class _StepAdjoint:
             for e in self.energies:
                 if e.dissipative:
                     e.begin_step(m, self.x_ref, self.v_ref, self.h)
-        with _tape_paused():
+        with tape_paused():
             ws = _workspace(self.problem)
             _assemble(self.problem, ws, self.x_out, self.h, False, control=self.drag is not None)
             rhs = np.where(free[:, None], xbar, 0.0)
