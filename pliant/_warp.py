@@ -79,11 +79,18 @@ _LAUNCHES: dict[tuple, tuple[Any, tuple[int, ...]]] = {}
 _LAUNCHES_MAX = 2048
 
 
+def _runtime() -> Any:
+    """Warp's runtime object, which holds the recording tape (its module moved between Warp versions)."""
+    try:
+        from warp._src.context import runtime
+    except ImportError:  # an older Warp layout
+        from warp.context import runtime  # type: ignore[no-redef]
+    return runtime
+
+
 def active_tape() -> Any:
     """The ``wp.Tape`` now recording, or None. The one place that reads Warp's runtime for it."""
-    from warp._src.context import runtime
-
-    return getattr(runtime, "tape", None)
+    return getattr(_runtime(), "tape", None)
 
 
 def _tape_active() -> bool:
@@ -96,8 +103,7 @@ def _tape_active() -> bool:
 @contextlib.contextmanager
 def tape_paused() -> Iterator[Any]:
     """Run the block with no active ``wp.Tape`` (yields the tape that was active, or None)."""
-    from warp._src.context import runtime
-
+    runtime = _runtime()
     tape = getattr(runtime, "tape", None)
     runtime.tape = None
     try:

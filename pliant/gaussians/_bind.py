@@ -20,10 +20,9 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .._warp import mat33_type, np_dtype, scalar_type, vec3_type
+from .._warp import active_tape, mat33_type, np_dtype, scalar_type, vec3_type
 from ..constraints import polar_rotation
 from ._gaussians import Gaussians
-from ._render import _active_tape
 
 
 @wp.kernel
@@ -226,7 +225,7 @@ class Binding:
                 device=dev,
                 record_tape=False,
             )
-            tape = _active_tape()
+            tape = active_tape()
             if tape is not None and rg:
                 tape.record_func(
                     backward=lambda: wp.launch(

@@ -7,7 +7,7 @@ from typing import NamedTuple
 import numpy as np
 import warp as wp
 
-from .._warp import mat33_type, scalar_type, vec3_type
+from .._warp import active_tape, mat33_type, scalar_type, vec3_type
 from ._camera import Camera
 from ._composite import (
     composite_backward_kernel,
@@ -38,14 +38,6 @@ class RenderOutput(NamedTuple):
 
 class _Frame:
     """What one render keeps for its backward pass (projected Gaussians, sorted lists, per-pixel sums)."""
-
-
-def _active_tape():
-    try:
-        from warp._src.context import runtime
-    except ImportError:  # another Warp layout
-        from warp.context import runtime  # type: ignore[no-redef]
-    return getattr(runtime, "tape", None)
 
 
 def render(
@@ -82,7 +74,7 @@ def render(
     n = gaussians.count
     H, W = camera.height, camera.width
     tiles_x, tiles_y = (W + TILE - 1) // TILE, (H + TILE - 1) // TILE
-    tape = _active_tape()
+    tape = active_tape()
     grad = tape is not None and gaussians.requires_grad
 
     f = _Frame()
