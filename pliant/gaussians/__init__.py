@@ -15,7 +15,8 @@ Methods: 3D Gaussian splatting (Kerbl, Kopanas, Leimkühler, Drettakis 2023) and
 
 from ._bind import Binding, bind
 from ._camera import Camera
-from ._fit import DEFAULT_LRS, VisualCorrector, fit_appearance
+from ._correct import VisualCorrector
+from ._fit import DEFAULT_LRS, fit_appearance
 from ._gaussians import SH_C0, Gaussians
 from ._optim import Adam, photometric_loss, psnr
 from ._ply import PlyError, load_ply, save_ply

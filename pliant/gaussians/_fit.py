@@ -1,16 +1,14 @@
-"""Appearance fitting (Adam on all Gaussian parameters against calibrated images) and visual correction
-(Physically Embodied Gaussians: per-frame optimiser steps on the means turned into particle forces)."""
+"""Appearance fitting: Adam on all Gaussian parameters against calibrated images (visual correction, which
+reuses the helpers here, lives in ``_correct.py``)."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from typing import Any
 
-import numpy as np
 import warp as wp
 
 from .._warp import vec3_type
-from ._bind import Binding
 from ._camera import Camera
 from ._gaussians import Gaussians
 from ._optim import Adam, image_to_warp, photometric_loss
@@ -90,101 +88,3 @@ def fit_appearance(
         history.append(_accumulate(g, views, background, mask_weight))
         opt.step()
     return g, history
-
-
-@wp.kernel
-def _spread_kernel(
-    link_gauss: wp.array(dtype=wp.int32),
-    link_particle: wp.array(dtype=wp.int32),
-    link_weight: wp.array(dtype=Any),
-    means: wp.array(dtype=Any),
-    means0: wp.array(dtype=Any),
-    opacity_logits: wp.array(dtype=Any),
-    gain: Any,
-    forces: wp.array(dtype=Any),
-):
-    k = wp.tid()
-    g = link_gauss[k]
-    one = type(gain)(1.0)
-    o = one / (one + wp.exp(-opacity_logits[g]))
-    wp.atomic_add(forces, link_particle[k], (link_weight[k] * gain * o) * (means[g] - means0[g]))
-
-
-class VisualCorrector:
-    """Corrective particle forces from images (Physically Embodied Gaussians' "visual forces").
-
-    Each call places the Gaussians with the binding, takes ``iterations`` Adam steps of the photometric loss
-    with respect to their means only, and turns each displacement Δμ_g into a force
-    f_g = gain · opacity_g · Δμ_g, spread onto the particles with the binding's weights.
-
-    Args:
-        binding: Gaussians bound to the simulated particles.
-        cameras: The calibrated cameras the images come from.
-        iterations: Optimiser steps per frame (EG: 3).
-        lr_means: Adam learning rate of the means [m] (EG: 1.5e-3).
-        gain: k_p [N/m] (EG: 4).
-        background: RGB behind the Gaussians in the images.
-    """
-
-    def __init__(
-        self,
-        binding: Binding,
-        cameras: Sequence[Camera],
-        *,
-        iterations: int = 3,
-        lr_means: float = 1.5e-3,
-        gain: float = 4.0,
-        background: tuple[float, float, float] = (0.0, 0.0, 0.0),
-    ) -> None:
-        self.binding = binding
-        self.cameras = list(cameras)
-        self.iterations = int(iterations)
-        self.lr_means = float(lr_means)
-        self.gain = float(gain)
-        self.background = background
-        gi, pi, w = binding.particle_weights()
-        g = binding.gaussians
-        dev = g.device
-        self._links = (
-            wp.array(gi.astype(np.int32), dtype=wp.int32, device=dev),
-            wp.array(pi.astype(np.int32), dtype=wp.int32, device=dev),
-            wp.array(w, dtype=g.opacity_logits.dtype, device=dev),
-        )
-
-    def forces(self, particle_q: wp.array, images: Sequence[Any]) -> wp.array:
-        """Corrective forces [N] per particle (vec3 [particle_count]) for positions ``particle_q`` [m]."""
-        g = self.binding.gaussians
-        views = _views(self.cameras, images, None, g.dtype, g.device)
-        placed = self.binding.deform(wp.clone(particle_q, requires_grad=False))
-        means = wp.clone(placed.means, requires_grad=True)
-        moving = placed.with_means(means, transforms=placed.transforms)
-        opt = Adam([means], [self.lr_means])
-        for _ in range(self.iterations):
-            means.grad.zero_()
-            _accumulate(moving, views, self.background, 0.0)
-            opt.step()
-        f = wp.zeros(self.binding.particle_count, dtype=vec3_type(g.dtype), device=g.device)
-        s = g.opacity_logits.dtype
-        wp.launch(
-            _spread_kernel,
-            dim=self._links[0].shape[0],
-            inputs=[*self._links, means, placed.means, g.opacity_logits, s(self.gain)],
-            outputs=[f],
-            device=g.device,
-        )
-        return f
-
-    def apply(self, particle_q: wp.array, control: Any, images: Sequence[Any]) -> wp.array:
-        """Add the corrective forces to ``control.particle_f`` (a :class:`pliant.Control`); returns them."""
-        f = self.forces(particle_q, images)
-        cur = control.particle_f
-        if cur.shape != f.shape or cur.dtype != f.dtype:
-            raise ValueError(f"control.particle_f is {cur.shape} {cur.dtype.__name__}, forces are {f.shape}")
-        wp.launch(_add_kernel, dim=f.shape[0], inputs=[cur, f], device=f.device, record_tape=False)
-        return f
-
-
-@wp.kernel
-def _add_kernel(a: wp.array(dtype=Any), b: wp.array(dtype=Any)):
-    i = wp.tid()
-    a[i] = a[i] + b[i]
