@@ -141,6 +141,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--resume", action="store_true", help="continue from <out>/<name>.ckpt.npz")
     r.add_argument("--checkpoint-every", type=_positive_int, metavar="N", help="frames between checkpoints")
     r.add_argument("--no-video", action="store_true", help="skip rendering the video")
+    r.add_argument(
+        "--renderer",
+        choices=("auto", "mesh", "splats"),
+        default="auto",
+        help="draw the video as meshes or as the [gaussians] splats (auto: splats when the scene has them)",
+    )
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
 
     sc = _sub(

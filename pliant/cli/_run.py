@@ -98,6 +98,7 @@ def simulate(
     video: bool = True,
     quiet: bool = False,
     resume_hint: str = "",
+    renderer: str = "auto",
 ) -> int:
     """Build, run, save ``<out>/<name>.npz`` (+ ``.mp4``, ``.ckpt.npz``) and print a summary.
 
@@ -140,6 +141,9 @@ def simulate(
             raise CliError(f"video frame rate (output.fps, default 1/dt): {exc}; or use --no-video") from None
     if resume and not ckpt.exists():
         raise CliError(f"--resume: no checkpoint at {ckpt}; run once without --resume first")
+    from ._splats import splat_run
+
+    splats = splat_run(cfg, scene, renderer, quiet=quiet)  # [gaussians]: splats, twin, corrector
     sim = scene.simulator()
     info = sim.solver.describe()
     counts = f"{m.particle_count} particles, {m.spring_count} springs" + (
@@ -167,6 +171,7 @@ def simulate(
             checkpoint=ckpt,
             checkpoint_every=cfg.output.checkpoint_every,
             resume=resume,
+            on_frame=splats.on_frame if splats is not None else None,
         )
     except KeyboardInterrupt:
         traj, status = sim.trajectory(), EXIT_INTERRUPTED
@@ -197,22 +202,27 @@ def simulate(
             written.append(str(fine.save(render_path)))
     rate = f", {m.particle_count * steps / wall:.3g} particle-substeps/s" if wall > 0 and steps else ""
     print(f"simulated {traj.frame_count - 1} frames in {wall:.2f} s{rate}", flush=True)
+    if splats is not None and splats.twin_x is not None and status == EXIT_OK:
+        print(splats.drift_summary(traj.x), flush=True)
     if want_video and traj.frame_count > 0:
         t1 = time.perf_counter()
         try:
             from ..render import render_video
 
             xr, fr, colors = scene.render_mesh(traj.x, traj.faces)
-            render_video(
-                xr,
-                video_path,
-                faces=fr,
-                colors=colors,
-                fps=scene.fps,
-                camera=scene.camera,
-                progress=not quiet,
-                ground=m.ground.height if m.ground is not None else False,
-            )
+            if splats is not None and splats.draw:
+                splats.render_video(traj.x, video_path, scene.fps, progress=not quiet)
+            else:
+                render_video(
+                    xr,
+                    video_path,
+                    faces=fr,
+                    colors=colors,
+                    fps=scene.fps,
+                    camera=scene.camera,
+                    progress=not quiet,
+                    ground=m.ground.height if m.ground is not None else False,
+                )
             written.append(str(video_path))
             print(f"rendered {traj.frame_count} frames in {time.perf_counter() - t1:.2f} s", flush=True)
         except KeyboardInterrupt:
@@ -253,6 +263,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         video=not args.no_video,
         quiet=args.quiet,
         resume_hint=shlex.join(hint),
+        renderer=args.renderer,
     )
 
 

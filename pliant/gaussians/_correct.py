@@ -203,18 +203,26 @@ class VisualCorrector:
         r = np.full(x0.shape, self.max_step)
         if fixed is not None:
             r[np.asarray(fixed, dtype=bool)] = 0.0
+        best = [np.inf, x0]  # the lowest loss evaluated: a budget-limited run may end on a rejected trial
+
+        def fun(z: np.ndarray) -> tuple[float, np.ndarray]:
+            x = x0 + r * z.reshape(-1, 3)
+            loss, grad = self._loss_and_gradient(x, views)
+            if loss < best[0]:
+                best[0], best[1] = loss, x
+            return loss, grad * r.reshape(-1)
+
         n = self.iterations
-        bounds = list(zip((x0 - r).reshape(-1), (x0 + r).reshape(-1), strict=True))
-        res = minimize(
-            lambda z: self._loss_and_gradient(z.reshape(-1, 3), views),
-            x0.reshape(-1),
+        minimize(
+            fun,
+            np.zeros(x0.size),
             jac=True,
             method="L-BFGS-B",
-            bounds=bounds,
+            bounds=[(-1.0, 1.0)] * x0.size,  # in units of max_step: the trust region is the unit box
             # run the whole budget: the loss scale depends on the images, so relative tolerances mislead
             options={"maxfun": n, "maxiter": n, "maxcor": 20, "ftol": 0.0, "gtol": 0.0},
         )
-        return res.x.reshape(-1, 3)
+        return best[1]
 
     # ------------------------------------------------------------------ the per-frame entry point
     def correct(self, sim: Any, images: Sequence[Any]) -> wp.array:

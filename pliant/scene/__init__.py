@@ -1,7 +1,8 @@
 """Scene files (TOML): load, validate and build a Model, a Solver and a Simulator.
 
 A scene file has the sections ``[scene]``, ``[[objects]]`` (one per body), ``[[colliders]]``, ``[[handles]]``,
-``[[energies]]``, ``[[constraints]]``, ``[ground]``, ``[solver]``, ``[camera]`` and ``[output]``; README.md
+``[[energies]]``, ``[[constraints]]``, ``[ground]``, ``[solver]``, ``[camera]``, ``[output]`` and registered
+sections such as ``[gaussians]`` (``register_section``); README.md
 documents every field. Errors name the file, the line when it can be found, the field as a dotted path
 (``objects[1].material.E``) and the fix. Object, collider, handle and solver kinds, energies and
 constraints are registries (``register_*``): a new kind is one registered function.
@@ -9,7 +10,7 @@ constraints are registries (``register_*``): a new kind is one registered functi
 
 from __future__ import annotations
 
-from . import _contacts, _objects  # noqa: F401 - register the built-in kinds
+from . import _contacts, _gaussians, _objects  # noqa: F401 - register the built-in kinds and sections
 from ._build import Embedding, Scene, build_scene
 from ._context import BuildContext
 from ._errors import SceneError
@@ -20,6 +21,7 @@ from ._registry import (
     register_energy,
     register_handle_kind,
     register_object_kind,
+    register_section,
     register_solver,
 )
 from ._schema import ColliderBase, Material, ObjectBase, SceneConfig
@@ -48,5 +50,6 @@ __all__ = [
     "register_energy",
     "register_handle_kind",
     "register_object_kind",
+    "register_section",
     "register_solver",
 ]

@@ -15,7 +15,7 @@ from pydantic import ValidationError
 from ._errors import SceneError, line_of, problems_from
 from ._files import budget_message, max_particles
 from ._overrides import apply_overrides
-from ._registry import HANDLE_KINDS, OBJECT_KINDS, SOLVER_KINDS
+from ._registry import HANDLE_KINDS, OBJECT_KINDS, SECTIONS, SOLVER_KINDS
 from ._schema import SceneConfig
 from ._solvers import check_solver
 
@@ -245,6 +245,10 @@ def check(cfg: SceneConfig) -> list[tuple[str, str]]:
     out += _check_models(cfg, kind)
     out += _check_handles(cfg, kind)
     out += _check_view(cfg)
+    for sec in SECTIONS.values():
+        value = getattr(cfg, sec.name, None)
+        if value is not None and sec.check is not None:
+            out += sec.check(cfg, value)
     if not out:
         out += _check_budget(cfg)
     return out

@@ -107,7 +107,19 @@ class TermKind:
     solvers: tuple[str, ...] = field(default=())
 
 
+@dataclass(frozen=True)
+class SectionKind:
+    """An optional top-level section (``[name]``) added to :class:`SceneConfig` by a module above the core
+    schema: ``schema`` validates it (``cfg.<name>`` is None when absent) and ``check(cfg, section) ->
+    [(path, message)]`` holds its cross-field rules (run at load time, like the built-in ones)."""
+
+    name: str
+    schema: type[BaseModel]
+    check: Callable[..., list[tuple[str, str]]] | None = None
+
+
 OBJECT_KINDS: dict[str, ObjectKind] = {}
+SECTIONS: dict[str, SectionKind] = {}
 COLLIDER_KINDS: dict[str, ColliderKind] = {}
 HANDLE_KINDS: dict[str, HandleKind] = {}
 SOLVER_KINDS: dict[str, SolverKind] = {}
@@ -154,6 +166,19 @@ def register_collider_kind(name: str, schema: type[BaseModel], add: Callable[...
     _check_schema(name, schema, ColliderBase)
     COLLIDER_KINDS[name] = ColliderKind(name, schema, add)
     _rebuild()
+
+
+def register_section(
+    name: str, schema: type[BaseModel], *, check: Callable[..., list[tuple[str, str]]] | None = None
+) -> None:
+    """Make ``[name]`` an optional scene-file section validated by ``schema`` (see :class:`SectionKind`)."""
+    from pydantic.fields import FieldInfo
+
+    if name in SceneConfig.model_fields and name not in SECTIONS:
+        raise ValueError(f"[{name}] is a built-in scene section")
+    SECTIONS[name] = SectionKind(name, schema, check)
+    SceneConfig.model_fields[name] = FieldInfo.from_annotated_attribute(Union[schema, None], None)  # noqa: UP007
+    SceneConfig.model_rebuild(force=True)
 
 
 def register_handle_kind(
