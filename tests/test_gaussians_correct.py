@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from pliant.bench._gaussians import _beam_sim, _cloth_sim, visual_correction_drift
+from pliant.bench._gaussians import _beam_sim, _cloth_sim, _cloth_sim_implicit, visual_correction_drift
 from pliant.gaussians import Camera, Gaussians, VisualCorrector, bind, render
 
 
@@ -69,7 +69,9 @@ def test_correction_reduces_the_drift_of_a_too_soft_cloth_force_solver():
 
 @pytest.mark.slow
 @pytest.mark.parametrize(
-    "make,k_true,k_sim", [(_cloth_sim, 300.0, 100.0), (_beam_sim, 0.3, 0.1)], ids=["cloth", "xpbd_beam"]
+    "make,k_true,k_sim",
+    [(_cloth_sim, 300.0, 100.0), (_cloth_sim_implicit, 300.0, 100.0), (_beam_sim, 0.3, 0.1)],
+    ids=["cloth", "cloth_backward_euler", "xpbd_beam"],
 )
 def test_visual_correction_figure(make, k_true, k_sim):
     # the figure: 3x wrong stiffness, 3 cameras, >= 50 % less mean drift over 30 frames (1 s),

@@ -70,8 +70,9 @@ def gaussians_raster(device: str | None = None, quick: bool = False) -> dict:
     }
 
 
-def _cloth_sim(k: float, xpbd: bool = False):
-    """The 8 x 8-cell cloth (1 m, 0.2 kg, pinned at two corners) with springs of stiffness ``k`` [N/m]."""
+def _cloth_sim(k: float, implicit: bool = False):
+    """The 8 x 8-cell cloth (1 m, 0.2 kg, pinned at two corners) with springs of stiffness ``k`` [N/m]:
+    symplectic Euler, 40 substeps per frame, or backward Euler with 4 (``implicit``)."""
     from .. import energies, integrators, solvers
     from ..model import ModelBuilder
     from ..sim import Simulator
@@ -82,10 +83,14 @@ def _cloth_sim(k: float, xpbd: bool = False):
         origin=(-0.5, 0.5, -0.5), plane="xz", pin=[0, 8],
     )  # fmt: skip
     m = b.finalize(device="cpu", dtype="float32")
-    s = solvers.ForceSolver(
-        m, energies.mass_spring(), integrators.SymplecticEuler(), damping_rate=0.5, contact=False
-    )
-    return Simulator(m, s, frame_dt=1 / 30, substeps=40)
+    integrator = integrators.BackwardEuler() if implicit else integrators.SymplecticEuler()
+    s = solvers.ForceSolver(m, energies.mass_spring(), integrator, damping_rate=0.5, contact=False)
+    return Simulator(m, s, frame_dt=1 / 30, substeps=4 if implicit else 40)
+
+
+def _cloth_sim_implicit(k: float):
+    """:func:`_cloth_sim` with backward Euler."""
+    return _cloth_sim(k, implicit=True)
 
 
 def _beam_sim(k_s: float):
@@ -165,16 +170,17 @@ def visual_correction_drift(make, k_true: float, k_sim: float, frames: int, **co
 def gaussians_visual_correction(quick: bool = False) -> dict:
     """Drift of simulations with 3x wrong stiffness, with and without visual correction (3 cameras).
 
-    Two cases: the 8 x 8-cell cloth pinned at two corners (ForceSolver, symplectic Euler, k = 300 N/m
-    "real" and 100 N/m simulated), and a clamped soft beam under XPBD shape matching (k_S = 0.3 real,
-    0.1 simulated). Each reports the default corrector ("state") and Embodied Gaussians' visual forces
-    ("forces", 3 Adam steps, lr 1.5e-3, k_p = 4 N/m) against the uncorrected run (see
-    :func:`visual_correction_drift`).
+    Three cases: the 8 x 8-cell cloth pinned at two corners (ForceSolver, k = 300 N/m "real" and 100 N/m
+    simulated) with symplectic Euler and with backward Euler, and a clamped soft beam under XPBD shape
+    matching (k_S = 0.3 real, 0.1 simulated). Each reports the default corrector ("state") and Embodied
+    Gaussians' visual forces ("forces", 3 Adam steps, lr 1.5e-3, k_p = 4 N/m) against the uncorrected run
+    (see :func:`visual_correction_drift`).
     """
     frames = 10 if quick else 30
     out: dict = {"device": "cpu", "frames": frames, "cameras": 3}
     for name, make, k_true, k_sim in (
         ("cloth_force_solver_k300_vs_k100", _cloth_sim, 300.0, 100.0),
+        ("cloth_backward_euler_k300_vs_k100", _cloth_sim_implicit, 300.0, 100.0),
         ("beam_xpbd_shape_matching_ks0.3_vs_ks0.1", _beam_sim, 0.3, 0.1),
     ):
         for method in ("state", "forces"):
