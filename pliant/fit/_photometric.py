@@ -340,11 +340,14 @@ def refine_globals(
     start, _ = gg.evaluate(theta0, grad=False)
     result = StageResult(values=dict(values), loss=start, evaluations=1, kept=False)
 
+    scale = 1.0 / start if start > 0 else 1.0  # the optimisers see L / L(start): tolerances are relative
+
     def fun(theta: np.ndarray) -> tuple[float, np.ndarray]:
         value, g = gg.evaluate(theta)
         result.evaluations += 1
         if not (np.isfinite(value) and np.all(np.isfinite(g))):
-            raise FitError("the image-gradient stage got a non-finite loss or gradient; add substeps")
+            # A step too stiff for the substep diverged: a high loss without slope sends the line search back.
+            return 10.0, np.zeros_like(theta)
         if value > 0 and not np.any(g != 0.0):
             raise FitError(
                 f"the {type(gg.scene.solver).__name__} step of this scene gives exactly zero image gradient "
@@ -352,7 +355,7 @@ def refine_globals(
             )
         if value < result.loss:
             result.loss, result.values, result.kept = value, {**values, **gg.values(theta)}, True
-        return value, g
+        return value * scale, g * scale
 
     try:
         if optimizer == "lbfgs":
@@ -369,7 +372,7 @@ def refine_globals(
                 jac=True,
                 method="L-BFGS-B",
                 bounds=box,
-                options={"maxiter": iterations},
+                options={"maxiter": iterations, "ftol": 1e-12, "gtol": 1e-10},
                 callback=cb,
             )
         else:

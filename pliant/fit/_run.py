@@ -15,6 +15,7 @@ import numpy as np
 from ..io import Observations, atomic_savez
 from ._cmaes import StageResult, cmaes
 from ._gradient import gradient_stage
+from ._photometric import problem_for, refinable, refine_globals
 from ._problem import Problem
 from ._toml import scene_toml
 
@@ -101,7 +102,7 @@ def fit(
     t0 = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    problem = Problem(
+    problem = problem_for(obs)(  # images in the file: the photometric loss (_photometric.py)
         cfg,
         obs,
         params=params,
@@ -122,6 +123,17 @@ def fit(
                 bar.close()
         values = stages["cmaes"].values
         interrupted = stages["cmaes"].interrupted
+    if getattr(problem, "photometric", False) and epochs > 0 and not interrupted and refinable(problem):
+        # From images, stage 2 refines the global values with image gradients through the rollout.
+        bar = _bar(progress, epochs, f"fit: {optimizer} (image gradients)")
+        try:
+            stages["gradient"] = refine_globals(
+                problem, values, iterations=epochs, optimizer=optimizer, lr=lr, callback=_tick(bar)
+            )
+        finally:
+            if bar is not None:
+                bar.close()
+        values, interrupted = stages["gradient"].values, stages["gradient"].interrupted
     if per_element is not None and epochs > 0 and not interrupted:
         bar = _bar(progress, epochs, f"fit: {optimizer} ({per_element})")
         try:
@@ -224,6 +236,8 @@ def write_outputs(
         "error_per_frame": [_finite(v) for v in err],
         "error_unit": "m (mean distance between visible tracks and their particles)",
     }
+    if hasattr(problem, "image_report"):  # photometric fits: per-frame image loss and PSNR
+        report["photometric"] = problem.image_report(x, x_nom)
     _plot(out / "fit.png", stages, err, err_nom, problem.n_train, problem.frame_dt)
     if video:
         _video(out / "fit.mp4", scene, x, problem, progress)
