@@ -206,16 +206,18 @@ def cmd_fit(args: argparse.Namespace) -> int:
         print(f"{name}: {p['value']:.6g} (nominal {p['nominal']:.6g})")
     if "photometric" in report:
         ph = report["photometric"]["fitted"]
-        print(f"image loss: train {ph['loss_train']:.4g}, test {ph['loss_test'] or float('nan'):.4g}")
+        test = "n/a" if ph["loss_test"] is None else f"{ph['loss_test']:.4g}"
+        print(f"image loss: train {ph['loss_train']:.4g}, test {test} (mean squared error per pixel)")
     e, e0 = report["error"], report["error_nominal"]
 
     def mm(v: float | None) -> str:
         return "n/a" if v is None else f"{1e3 * v:.3g} mm"
 
-    print(
-        f"track error: train {mm(e['train'])}, test {mm(e['test'])} "
-        f"(nominal: {mm(e0['train'])}, {mm(e0['test'])})"
-    )
+    if obs.tracks:  # an image-only file has no tracks to measure
+        print(
+            f"track error: train {mm(e['train'])}, test {mm(e['test'])} "
+            f"(nominal: {mm(e0['train'])}, {mm(e0['test'])})"
+        )
     print(f"wrote {out / 'fitted.toml'}, fit.json, fit.png" + ("" if args.no_video else ", fit.mp4"))
     print(f"fitted in {report['wall_time']:.1f} s")
     return 0
