@@ -302,3 +302,39 @@ def test_issue_figure_stiffness_from_three_videos_within_5_percent():
     row = bench.run("clean", *bench.CASES["clean"])
     assert row["cameras"] == 3 and row["within_5pct"], row
     assert row["psnr_test_db"] > row["psnr_test_db_nominal"] + 10.0
+
+
+def test_an_image_gradient_that_is_exactly_zero_is_an_error(truth):
+    """Every particle pinned: the stiffness cannot move the cloth, the images differ from the swinging truth,
+    and the image-gradient stage says so instead of 'converging'."""
+    from pliant.fit import refine_globals
+
+    cfg, obs = truth
+    pinned = pl.scene.parse_scene(CLOTH.replace('pin = "top-corners"', f"pin = {list(range(25))}"))
+    p = PhotometricProblem(pinned, obs, params=["stiffness"])
+    with pytest.raises(FitError, match=r"exactly zero image gradient for stiffness"):
+        refine_globals(p, p.nominal, iterations=2)
+
+
+def test_tracks_and_videos_together_and_a_trial_step_that_blows_up(tmp_path):
+    """Tracks kept beside the videos are reported as track errors (the loss is the images'). From 70 N/m the
+    first L-BFGS trial step after CMA-ES is too stiff for the explicit substep: the cloth leaves every view
+    (finite loss, zero slope), and the line search steps back instead of stopping with an error."""
+    cfg = pl.scene.parse_scene(CLOTH)
+    scene = pl.scene.build_scene(cfg)
+    tracks = pl.fit.observe(scene, tracks=5, cloud=True)
+    obs = observe_images(scene, cameras=2, image_size=(24, 18), tracks=tracks)
+    assert obs.tracks == 5 and obs.cloud is not None and obs.cameras == 2
+    rep = pl.fit.fit(
+        apply_globals(cfg, {"stiffness": 70.0}),
+        obs,
+        tmp_path,
+        params=["stiffness"],
+        generations=3,
+        epochs=3,
+        optimizer="lbfgs",
+        progress=False,
+        video=False,
+    )
+    assert rep["params"]["stiffness"]["value"] == pytest.approx(50.0, rel=0.05)
+    assert rep["error"]["test"] < 0.01 * rep["error_nominal"]["test"]

@@ -40,8 +40,8 @@ def observe_images(
         uint8: Store 8-bit images (quantised) instead of float32.
         per_triangle: Gaussians per surface triangle (1 or 3); a fit must use the same.
         seed: Seed of the pixel noise.
-        tracks: Track observations of the same scene and frames to keep in the file (``points`` etc.), or
-            None for images only.
+        tracks: Track observations of the same scene and frames to keep in the file (``points``,
+            ``visible``, ``particle``, ``controls``, ``cloud``), or None for images only.
         progress: Show the simulation's progress bar.
 
     Returns:
@@ -83,8 +83,9 @@ def observe_images(
     kw: dict[str, Any] = {}
     if tracks is not None:
         kw = {"points": tracks.points, "visible": tracks.visible, "particle": tracks.particle}
-        if tracks.controls is not None:
-            kw["controls"] = tracks.controls
+        for k in ("controls", "cloud", "cloud_count"):
+            if getattr(tracks, k) is not None:
+                kw[k] = getattr(tracks, k)
     elif scene.control_points:
         from ._observe import _controls
 

@@ -24,6 +24,7 @@ footage.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from collections.abc import Callable
@@ -217,9 +218,7 @@ class PhotometricProblem(Problem):
         views = len(self.cameras) * (self.n_train - 1)
         loss = wp.zeros(1, dtype=m.scalar, device=m.device, requires_grad=tape is not None)
         s = m.state()
-        if tape is not None:
-            tape.__enter__()
-        try:
+        with tape if tape is not None else contextlib.nullcontext():
             for f in range(self.n_train - 1):
                 if fn is not None:
                     fn(f * scene.frame_dt, control)
@@ -228,9 +227,6 @@ class PhotometricProblem(Problem):
                     scene.solver.step(s, nxt, control, h)
                     s = nxt
                 self.add_frame_loss(s.particle_q, f + 1, loss, views)
-        finally:
-            if tape is not None:
-                tape.__exit__(None, None, None)
         return loss
 
 
@@ -342,17 +338,22 @@ def refine_globals(
 
     scale = 1.0 / start if start > 0 else 1.0  # the optimisers see L / L(start): tolerances are relative
 
+    first = [True]
+
     def fun(theta: np.ndarray) -> tuple[float, np.ndarray]:
         value, g = gg.evaluate(theta)
         result.evaluations += 1
         if not (np.isfinite(value) and np.all(np.isfinite(g))):
             # A step too stiff for the substep diverged: a high loss without slope sends the line search back.
             return 10.0, np.zeros_like(theta)
-        if value > 0 and not np.any(g != 0.0):
+        if first[0] and value > 0 and not np.any(g != 0.0):
+            # Checked at the start only: a trial step that throws the object out of every view (a too-stiff
+            # explicit step blowing up) also has zero slope, and the line search must just step back.
             raise FitError(
                 f"the {type(gg.scene.solver).__name__} step of this scene gives exactly zero image gradient "
                 f"for {', '.join(names)}: its step is not tape-differentiable, or the object is not seen"
             )
+        first[0] = False
         if value < result.loss:
             result.loss, result.values, result.kept = value, {**values, **gg.values(theta)}, True
         return value * scale, g * scale
