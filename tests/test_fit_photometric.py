@@ -178,13 +178,20 @@ def test_surface_gaussians_are_deterministic_textured_and_cover_the_cloth(truth)
 
 
 # ---------------------------------------------------------------------------------------------- gradient
-def test_image_loss_gradient_wrt_stiffness_equals_central_differences(truth):
+@pytest.mark.parametrize("masks", [False, True])
+def test_image_loss_gradient_wrt_stiffness_equals_central_differences(truth, masks):
     """∂L/∂log k by the tape (image → Gaussians → triangle binding → particles → 50 substeps of symplectic
-    Euler → spring stiffness) against central differences of the loss of scenes rebuilt at k(1 ± ε)."""
+    Euler → spring stiffness) against central differences of the loss of scenes rebuilt at k(1 ± ε); with
+    masks the alpha term's gradient goes through the compositing adjoint's alpha path too."""
     from pliant.fit._photometric import _GlobalGradient
 
     cfg, obs = truth
-    p = PhotometricProblem(apply_globals(cfg, {"stiffness": 60.0}), obs, params=["stiffness"])
+    if masks:
+        obs = observe_images(pl.scene.build_scene(cfg), cameras=2, image_size=(24, 18), masks=True)
+        assert obs.masks.max() > 0.5
+    p = PhotometricProblem(
+        apply_globals(cfg, {"stiffness": 60.0}), obs, params=["stiffness"], mask_weight=3.0
+    )
     gg = _GlobalGradient(p, p.nominal, ["stiffness"])
     loss, grad = gg.evaluate(np.zeros(1))
     # the tape's forward pass is the Simulator's
@@ -196,6 +203,10 @@ def test_image_loss_gradient_wrt_stiffness_equals_central_differences(truth):
 
     fd = (at(k * (1 + eps)) - at(k * (1 - eps))) / (2 * eps)  # ∂L/∂log k
     assert grad[0] > 0 and abs(grad[0] - fd) <= 1e-4 * abs(fd)
+    if masks:  # the mask term contributes to the gradient (it is not a no-op)
+        p.mask_weight = 0.0
+        _, colour_only = gg.evaluate(np.zeros(1))
+        assert abs(grad[0] - colour_only[0]) > 0.01 * abs(grad[0])
 
 
 # ---------------------------------------------------------------------------------------------- fitting
