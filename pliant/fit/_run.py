@@ -236,16 +236,27 @@ def write_outputs(
         "error_per_frame": [_finite(v) for v in err],
         "error_unit": "m (mean distance between visible tracks and their particles)",
     }
+    ylabel, scale = "track error [mm]", 1e3
     if hasattr(problem, "image_report"):  # photometric fits: per-frame image loss and PSNR
-        report["photometric"] = problem.image_report(x, x_nom)
-    _plot(out / "fit.png", stages, err, err_nom, problem.n_train, problem.frame_dt)
+        report["photometric"] = ph = problem.image_report(x, x_nom)
+        if not problem.obs.tracks:  # no tracks to plot: the per-frame RMS image error instead
+            err, err_nom = (np.sqrt(ph[k]["loss_per_frame"]) for k in ("fitted", "nominal"))
+            ylabel, scale = "RMS image error (0-1 per channel)", 1.0
+    _plot(out / "fit.png", stages, err, err_nom, problem.n_train, problem.frame_dt, ylabel, scale)
     if video:
         _video(out / "fit.mp4", scene, x, problem, progress)
     return report
 
 
 def _plot(
-    path: Path, stages: dict[str, StageResult], err: np.ndarray, err_nom: np.ndarray, n_train: int, dt: float
+    path: Path,
+    stages: dict[str, StageResult],
+    err: np.ndarray,
+    err_nom: np.ndarray,
+    n_train: int,
+    dt: float,
+    ylabel: str = "track error [mm]",
+    scale: float = 1e3,
 ):
     import matplotlib
 
@@ -266,12 +277,12 @@ def _plot(
     if stages:
         a.legend()
     t = np.arange(len(err)) * dt
-    b.plot(t[:n_train], 1e3 * err[:n_train], color="C0", label="fitted (train)")
-    b.plot(t[n_train - 1 :], 1e3 * err[n_train - 1 :], color="C3", label="fitted (test)")
-    b.plot(t, 1e3 * err_nom, color="0.6", ls="--", label="nominal")
+    b.plot(t[:n_train], scale * err[:n_train], color="C0", label="fitted (train)")
+    b.plot(t[n_train - 1 :], scale * err[n_train - 1 :], color="C3", label="fitted (test)")
+    b.plot(t, scale * err_nom, color="0.6", ls="--", label="nominal")
     b.axvline((n_train - 1) * dt, color="k", lw=0.8)
     b.set_xlabel("time [s]")
-    b.set_ylabel("track error [mm]")
+    b.set_ylabel(ylabel)
     b.set_title("per-frame error (train | test)")
     b.legend()
     fig.tight_layout()
