@@ -272,6 +272,7 @@ def test_cli_observe_cameras_then_fit(tmp_path, capsys):
     # 8-bit images: quantisation noise of 1/510 rms per channel still leaves the stiffness within 5 %
     assert rep["params"]["stiffness"]["value"] == pytest.approx(50.0, rel=0.05)
     assert "image loss: train" in capsys.readouterr().out
+    assert (out / "fit.png").stat().st_size > 0 and len(rep["photometric"]["fitted"]["loss_per_frame"]) == 7
     assert main(["observe", str(truth), "--out", str(obs), "--cameras", "2", "--image-size", "24by18"]) == 1
     assert "--image-size: expected WxH" in capsys.readouterr().err
 
