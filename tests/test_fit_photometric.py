@@ -350,3 +350,40 @@ def test_tracks_and_videos_together_and_a_trial_step_that_blows_up(tmp_path):
     )
     assert rep["params"]["stiffness"]["value"] == pytest.approx(50.0, rel=0.05)
     assert rep["error"]["test"] < 0.01 * rep["error_nominal"]["test"]
+
+
+def test_stiffness_and_dashpot_damping_from_three_videos(tmp_path):
+    """Two global parameters: both image gradients (through spring_stiffness and spring_damping) equal central
+    differences, and the fit recovers k = 50 N/m and γ = 0.05 N s/m within 5 % from (70, 0.1)."""
+    from pliant.fit._photometric import _GlobalGradient
+
+    text = CLOTH.replace("stiffness = 50.0", "stiffness = 50.0\ndamping = 0.05").replace(
+        "frames = 6", "frames = 10"
+    )
+    cfg = pl.scene.parse_scene(text)
+    obs = observe_images(pl.scene.build_scene(cfg), cameras=3, image_size=(32, 24))
+    start = apply_globals(cfg, {"stiffness": 70.0, "damping": 0.1})
+    p = PhotometricProblem(start, obs, params=["stiffness", "damping"])
+    _, grad = _GlobalGradient(p, p.nominal, ["stiffness", "damping"]).evaluate(np.zeros(2))
+    eps = 1e-5
+    for i, name in enumerate(["stiffness", "damping"]):
+        v = p.nominal
+
+        def at(f: float, v=v, name=name) -> float:
+            return p.loss(p.simulate(p.build({**v, name: v[name] * f}), p.n_train))
+
+        fd = (at(1 + eps) - at(1 - eps)) / (2 * eps)
+        assert abs(grad[i] - fd) <= 1e-4 * abs(fd), name
+    rep = pl.fit.fit(
+        start,
+        obs,
+        tmp_path,
+        params=["stiffness", "damping"],
+        generations=5,
+        epochs=15,
+        optimizer="lbfgs",
+        progress=False,
+        video=False,
+    )
+    assert rep["params"]["stiffness"]["value"] == pytest.approx(50.0, rel=0.05)
+    assert rep["params"]["damping"]["value"] == pytest.approx(0.05, rel=0.05)
