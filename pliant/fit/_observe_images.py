@@ -38,7 +38,8 @@ def observe_images(
         noise: Standard deviation of Gaussian pixel noise (in [0, 1] units; the images are clipped to [0, 1]).
         masks: Also write ``masks``: the rendered alpha (a soft object mask in [0, 1]).
         uint8: Store 8-bit images (quantised) instead of float32.
-        per_triangle: Gaussians per surface triangle (1 or 3); a fit must use the same.
+        per_triangle: Gaussians per surface triangle (1 or 3); ``pliant fit`` renders 1 (3 here gives
+            videos drawn with other splats than the fit's).
         seed: Seed of the pixel noise.
         tracks: Track observations of the same scene and frames to keep in the file (``points``,
             ``visible``, ``particle``, ``controls``, ``cloud``), or None for images only.

@@ -79,7 +79,8 @@ class PhotometricProblem(Problem):
         obs: Observations with ``images``, ``K`` and ``world_to_camera`` (tracks optional and unused by the
             loss; they are still reported as track errors when present).
         mask_weight: Weight w_m of the mask term (used when the observations have ``masks``).
-        per_triangle: Gaussians per surface triangle (1 or 3); must match how the images were made.
+        per_triangle: Gaussians per surface triangle (1 or 3) of the generated splats the fit renders
+            (``pliant fit`` uses 1, as ``pliant observe --cameras`` does).
         **kwargs: As :class:`pliant.fit.Problem` (``params``, ``train_fraction``, ``device``, ``dtype``);
             ``per_element`` is refused (per-element fits from images are not supported).
 
