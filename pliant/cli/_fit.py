@@ -22,7 +22,12 @@ def add_parsers(sub: Any) -> None:
         "pliant run fit/fitted.toml                                    # the fitted scene",
     )
     f.add_argument("scene", help="a scene .toml file or a built-in scene name")
-    f.add_argument("obs", metavar="OBS.npz", help="observations: t [T], points [T, K, 3], ...")
+    f.add_argument(
+        "obs",
+        metavar="OBS.npz",
+        help="observations: t [T], points [T, K, 3], ... and/or camera images [C, T, H, W, 3] with K and "
+        "world_to_camera (a photometric fit)",
+    )
     f.add_argument("--out", required=True, help="output folder: fitted.toml, fit.json, fit.png, fit.mp4")
     f.add_argument(
         "--params",
@@ -58,10 +63,13 @@ def add_parsers(sub: Any) -> None:
         "synthetic observations (tracks) of a simulated scene",
         "pliant observe fit_rope --out obs.npz",
         "pliant observe cloth --out obs.npz --tracks 60 --noise 0.001 --dropout 0.3 --seed 1",
+        "pliant observe cloth --out obs.npz --cameras 3 --image-size 96x72   # camera videos, no tracks",
     )
     o.add_argument("scene", help="a scene .toml file or a built-in scene name")
     o.add_argument("--out", required=True, metavar="OBS.npz", help="observation file to write")
-    o.add_argument("--tracks", type=_positive_int, default=60, help="tracked particles K (60)")
+    o.add_argument(
+        "--tracks", type=_positive_int, help="tracked particles K (60; none by default with --cameras)"
+    )
     o.add_argument("--noise", type=float, default=0.0, help="Gaussian noise σ per coordinate [m] (0)")
     o.add_argument("--dropout", type=float, default=0.0, help="probability a track is hidden at a frame (0)")
     o.add_argument("--seed", type=int, default=0, help="random seed (0)")
@@ -70,6 +78,16 @@ def add_parsers(sub: Any) -> None:
     )
     o.add_argument("--cloud", action="store_true", help="also write every particle as a depth cloud")
     o.add_argument("--unbound", action="store_true", help="omit `particle` (fit binds tracks by distance)")
+    o.add_argument(
+        "--cameras",
+        type=_positive_int,
+        help="also render camera videos from this many cameras (images, K, world_to_camera): the object as "
+        "Gaussians generated from its surface",
+    )
+    o.add_argument("--image-size", default="96x72", metavar="WxH", help="video size with --cameras (96x72)")
+    o.add_argument("--image-noise", type=float, default=0.0, help="pixel noise σ in [0, 1] units (0)")
+    o.add_argument("--masks", action="store_true", help="with --cameras: also write masks (rendered alpha)")
+    o.add_argument("--uint8", action="store_true", help="with --cameras: 8-bit images (default float32)")
     o.add_argument("--device", help="cpu or cuda:N (default: the scene's)")
     o.add_argument(
         "--set",
@@ -90,22 +108,58 @@ def cmd_observe(args: argparse.Namespace) -> int:
     from ..scene import build_scene
 
     cfg = _load(args.scene, args.overrides)
-    obs = observe(
-        build_scene(cfg, device=args.device),
-        frames=None if args.frames is None else args.frames + 1,
-        tracks=args.tracks,
-        noise=args.noise,
-        dropout=args.dropout,
-        seed=args.seed,
-        cloud=args.cloud,
-        progress=not args.quiet,
-    )
-    if args.unbound:
-        obs = replace(obs, particle=None)
+    scene = build_scene(cfg, device=args.device)
+    frames = None if args.frames is None else args.frames + 1
+    obs = None
+    if args.cameras is None or args.tracks is not None:
+        obs = observe(
+            scene,
+            frames=frames,
+            tracks=60 if args.tracks is None else args.tracks,
+            noise=args.noise,
+            dropout=args.dropout,
+            seed=args.seed,
+            cloud=args.cloud,
+            progress=not args.quiet,
+        )
+        if args.unbound:
+            obs = replace(obs, particle=None)
+    if args.cameras is not None:
+        obs = _observe_images(scene, frames, obs, args)
     path = obs.save(args.out)
-    seen = obs.visible.mean()
-    print(f"wrote {path}: {obs.frames} frames, {obs.tracks} tracks ({100 * seen:.0f}% visible)")
+    what = f"{obs.tracks} tracks ({100 * obs.visible.mean():.0f}% visible)" if obs.tracks else "no tracks"
+    if obs.cameras:
+        h, w = obs.images.shape[2:4]
+        what += f", {obs.cameras} camera videos of {w}x{h} px"
+    print(f"wrote {path}: {obs.frames} frames, {what}")
     return 0
+
+
+def _observe_images(scene: Any, frames: int | None, tracks: Any, args: argparse.Namespace) -> Any:
+    """``pliant observe --cameras``: render camera videos (with the tracks, if any, kept in the file)."""
+    from ..fit import observe_images
+
+    try:
+        w, h = (int(v) for v in args.image_size.lower().split("x"))
+    except ValueError:
+        raise CliError(
+            f"--image-size: expected WxH in pixels such as 96x72, got {args.image_size!r}"
+        ) from None
+    try:
+        return observe_images(
+            scene,
+            frames=frames,
+            cameras=args.cameras,
+            image_size=(w, h),
+            noise=args.image_noise,
+            masks=args.masks,
+            uint8=args.uint8,
+            seed=args.seed,
+            tracks=tracks,
+            progress=not args.quiet,
+        )
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
@@ -150,15 +204,20 @@ def cmd_fit(args: argparse.Namespace) -> int:
         raise
     for name, p in report["params"].items():
         print(f"{name}: {p['value']:.6g} (nominal {p['nominal']:.6g})")
+    if "photometric" in report:
+        ph = report["photometric"]["fitted"]
+        test = "n/a" if ph["loss_test"] is None else f"{ph['loss_test']:.4g}"
+        print(f"image loss: train {ph['loss_train']:.4g}, test {test} (mean squared error per pixel)")
     e, e0 = report["error"], report["error_nominal"]
 
     def mm(v: float | None) -> str:
         return "n/a" if v is None else f"{1e3 * v:.3g} mm"
 
-    print(
-        f"track error: train {mm(e['train'])}, test {mm(e['test'])} "
-        f"(nominal: {mm(e0['train'])}, {mm(e0['test'])})"
-    )
+    if obs.tracks:  # an image-only file has no tracks to measure
+        print(
+            f"track error: train {mm(e['train'])}, test {mm(e['test'])} "
+            f"(nominal: {mm(e0['train'])}, {mm(e0['test'])})"
+        )
     print(f"wrote {out / 'fitted.toml'}, fit.json, fit.png" + ("" if args.no_video else ", fit.mp4"))
     print(f"fitted in {report['wall_time']:.1f} s")
     return 0

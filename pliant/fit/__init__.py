@@ -10,7 +10,10 @@ with gradients over one-frame horizons. pliant follows that method with its own 
 - parameters: :data:`GLOBAL` (scene values, stage 1) and :data:`PER_ELEMENT` (log-scale factors on model or
   constraint arrays, stage 2);
 - :func:`cmaes`, :func:`gradient_stage` and :func:`fit` (both stages and the outputs of ``pliant fit``);
-- :func:`observe`: synthetic observations from a simulation (``pliant observe``).
+- :func:`observe`: synthetic observations from a simulation (``pliant observe``);
+- photometric system identification from camera videos alone: :class:`PhotometricProblem` (used by
+  :func:`fit` when the observations carry ``images``), :func:`refine_globals` (image gradients through the
+  rollout) and :func:`observe_images` (synthetic videos, ``pliant observe --cameras``).
 
 Example::
 
@@ -25,6 +28,7 @@ from ._cmaes import PENALTY, StageResult, cmaes, evaluate
 from ._gradient import gradient_stage
 from ._losses import acceleration_loss, chamfer_loss, track_errors, track_loss
 from ._observe import observe
+from ._observe_images import observe_images
 from ._params import (
     DEFAULTS,
     GLOBAL,
@@ -35,6 +39,7 @@ from ._params import (
     apply_globals,
     default_params,
 )
+from ._photometric import PhotometricProblem, refine_globals
 from ._problem import Problem
 from ._run import PARAMS_FILE, fit, fitted_scene
 from ._toml import scene_toml
@@ -48,6 +53,7 @@ __all__ = [
     "Bound",
     "FitError",
     "GlobalParam",
+    "PhotometricProblem",
     "Problem",
     "StageResult",
     "acceleration_loss",
@@ -60,6 +66,8 @@ __all__ = [
     "fitted_scene",
     "gradient_stage",
     "observe",
+    "observe_images",
+    "refine_globals",
     "scene_toml",
     "track_errors",
     "track_loss",

@@ -15,6 +15,7 @@ import numpy as np
 from ..io import Observations, atomic_savez
 from ._cmaes import StageResult, cmaes
 from ._gradient import gradient_stage
+from ._photometric import problem_for, refinable, refine_globals
 from ._problem import Problem
 from ._toml import scene_toml
 
@@ -101,7 +102,7 @@ def fit(
     t0 = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    problem = Problem(
+    problem = problem_for(obs)(  # images in the file: the photometric loss (_photometric.py)
         cfg,
         obs,
         params=params,
@@ -122,6 +123,17 @@ def fit(
                 bar.close()
         values = stages["cmaes"].values
         interrupted = stages["cmaes"].interrupted
+    if getattr(problem, "photometric", False) and epochs > 0 and not interrupted and refinable(problem):
+        # From images, stage 2 refines the global values with image gradients through the rollout.
+        bar = _bar(progress, epochs, f"fit: {optimizer} (image gradients)")
+        try:
+            stages["gradient"] = refine_globals(
+                problem, values, iterations=epochs, optimizer=optimizer, lr=lr, callback=_tick(bar)
+            )
+        finally:
+            if bar is not None:
+                bar.close()
+        values, interrupted = stages["gradient"].values, stages["gradient"].interrupted
     if per_element is not None and epochs > 0 and not interrupted:
         bar = _bar(progress, epochs, f"fit: {optimizer} ({per_element})")
         try:
@@ -224,14 +236,27 @@ def write_outputs(
         "error_per_frame": [_finite(v) for v in err],
         "error_unit": "m (mean distance between visible tracks and their particles)",
     }
-    _plot(out / "fit.png", stages, err, err_nom, problem.n_train, problem.frame_dt)
+    ylabel, scale = "track error [mm]", 1e3
+    if hasattr(problem, "image_report"):  # photometric fits: per-frame image loss and PSNR
+        report["photometric"] = ph = problem.image_report(x, x_nom)
+        if not problem.obs.tracks:  # no tracks to plot: the per-frame RMS image error instead
+            err, err_nom = (np.sqrt(ph[k]["loss_per_frame"]) for k in ("fitted", "nominal"))
+            ylabel, scale = "RMS image error (0-1 per channel)", 1.0
+    _plot(out / "fit.png", stages, err, err_nom, problem.n_train, problem.frame_dt, ylabel, scale)
     if video:
         _video(out / "fit.mp4", scene, x, problem, progress)
     return report
 
 
 def _plot(
-    path: Path, stages: dict[str, StageResult], err: np.ndarray, err_nom: np.ndarray, n_train: int, dt: float
+    path: Path,
+    stages: dict[str, StageResult],
+    err: np.ndarray,
+    err_nom: np.ndarray,
+    n_train: int,
+    dt: float,
+    ylabel: str = "track error [mm]",
+    scale: float = 1e3,
 ):
     import matplotlib
 
@@ -252,12 +277,12 @@ def _plot(
     if stages:
         a.legend()
     t = np.arange(len(err)) * dt
-    b.plot(t[:n_train], 1e3 * err[:n_train], color="C0", label="fitted (train)")
-    b.plot(t[n_train - 1 :], 1e3 * err[n_train - 1 :], color="C3", label="fitted (test)")
-    b.plot(t, 1e3 * err_nom, color="0.6", ls="--", label="nominal")
+    b.plot(t[:n_train], scale * err[:n_train], color="C0", label="fitted (train)")
+    b.plot(t[n_train - 1 :], scale * err[n_train - 1 :], color="C3", label="fitted (test)")
+    b.plot(t, scale * err_nom, color="0.6", ls="--", label="nominal")
     b.axvline((n_train - 1) * dt, color="k", lw=0.8)
     b.set_xlabel("time [s]")
-    b.set_ylabel("track error [mm]")
+    b.set_ylabel(ylabel)
     b.set_title("per-frame error (train | test)")
     b.legend()
     fig.tight_layout()

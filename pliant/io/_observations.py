@@ -9,7 +9,14 @@ The format is a contract (issue 13); every array is plain NumPy, loaded with ``a
 - ``particle`` [K] int, optional: the particle each track follows (default: nearest to its first visible
   position, see :meth:`Observations.bind`);
 - ``controls`` [T, C, 3], optional: positions of control points (a hand, a gripper) [m];
-- ``cloud`` [T, P, 3] and ``cloud_count`` [T], optional: depth point clouds, padded to P points per frame.
+- ``cloud`` [T, P, 3] and ``cloud_count`` [T], optional: depth point clouds, padded to P points per frame;
+- ``images`` [C, T, H, W, 3], optional: C calibrated camera videos, uint8 (0-255) or floats in [0, 1], one
+  image per camera at every time of ``t``; they need ``K`` [C, 3, 3] (OpenCV intrinsics [px]: fx, fy > 0, no
+  skew, principal point inside the image) and ``world_to_camera`` [C, 4, 4] (rigid, metres, OpenCV axes:
+  x right, y down, z forward), and may carry ``masks`` [C, T, H, W] (object masks, bool / uint8 / [0, 1]).
+
+``points`` may be left out when ``images`` are given (a photometric fit from the videos alone); a file must
+carry at least one of the two. Files without images read and write exactly as before.
 """
 
 from __future__ import annotations
@@ -20,9 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ._observation_images import IMAGE_ARRAYS, check_image_arrays, to_unit_float
 from ._trajectory import atomic_savez
 
-_KNOWN = ("t", "points", "visible", "particle", "controls", "cloud", "cloud_count")
+_KNOWN = ("t", "points", "visible", "particle", "controls", "cloud", "cloud_count", *IMAGE_ARRAYS)
 
 
 class ObservationError(ValueError):
@@ -42,7 +50,13 @@ class Observations:
         controls: [T, C, 3] control-point positions [m], or None.
         cloud: [T, P, 3] padded depth clouds [m], or None.
         cloud_count: [T] valid points of each frame's cloud, or None.
+        images: [C, T, H, W, 3] camera videos (uint8 or floats in [0, 1], kept as stored), or None.
+        K: [C, 3, 3] intrinsics [px] of each camera, or None.
+        world_to_camera: [C, 4, 4] rigid world → camera transforms [m], or None.
+        masks: [C, T, H, W] object masks, or None.
         source: file name for messages.
+
+    Without ``points`` in the file (images only) there are no tracks: ``points`` is [T, 0, 3].
     """
 
     t: np.ndarray
@@ -52,6 +66,10 @@ class Observations:
     controls: np.ndarray | None = None
     cloud: np.ndarray | None = None
     cloud_count: np.ndarray | None = None
+    images: np.ndarray | None = None
+    K: np.ndarray | None = None
+    world_to_camera: np.ndarray | None = None
+    masks: np.ndarray | None = None
     source: str = "<observations>"
 
     # ------------------------------------------------------------------ construction
@@ -59,18 +77,23 @@ class Observations:
     def from_arrays(
         cls,
         t: np.ndarray,
-        points: np.ndarray,
+        points: np.ndarray | None = None,
         visible: np.ndarray | None = None,
         particle: np.ndarray | None = None,
         controls: np.ndarray | None = None,
         cloud: np.ndarray | None = None,
         cloud_count: np.ndarray | None = None,
+        images: np.ndarray | None = None,
+        K: np.ndarray | None = None,
+        world_to_camera: np.ndarray | None = None,
+        masks: np.ndarray | None = None,
         source: str = "<observations>",
     ) -> Observations:
         """Validated observations from arrays (units as in the module docstring).
 
         Raises:
-            ObservationError: wrong shapes or dtypes, non-finite visible points, all tracks invisible.
+            ObservationError: wrong shapes or dtypes, non-finite visible points, all tracks invisible, neither
+                points nor images, bad cameras or images (see :mod:`pliant.io._observation_images`).
         """
 
         def fail(array: str, msg: str) -> ObservationError:
@@ -82,20 +105,36 @@ class Observations:
         if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
             raise fail("t", "times must be finite and strictly increasing (one per frame, in seconds)")
         T = t.shape[0]
+        images, K, world_to_camera, masks = check_image_arrays(T, images, K, world_to_camera, masks, fail)
+        if points is None:
+            if images is None:
+                raise fail(
+                    "points", "missing: an observation file needs points [T, K, 3] or images [C, T, H, W, 3]"
+                )
+            if visible is not None or particle is not None:
+                raise fail("visible" if visible is not None else "particle", "given without points; drop it")
+            points = np.zeros((T, 0, 3))
         points = np.asarray(points)
-        if points.ndim != 3 or points.shape[0] != T or points.shape[2] != 3 or points.shape[1] < 1:
+        no_tracks = images is not None and points.ndim == 3 and points.shape[1] == 0
+        if (
+            points.ndim != 3
+            or points.shape[0] != T
+            or points.shape[2] != 3
+            or (points.shape[1] < 1 and not no_tracks)
+        ):
             raise fail("points", f"expected [T={T}, K, 3] positions in metres, got shape {points.shape}")
         if not np.issubdtype(points.dtype, np.floating):
             raise fail("points", f"expected floating-point positions, got {points.dtype}")
-        K = points.shape[1]
+        n_tracks = points.shape[1]
         finite = np.all(np.isfinite(points), axis=2)
         if visible is None:
             visible = finite
         else:
             visible = np.asarray(visible)
-            if visible.shape != (T, K) or visible.dtype != np.bool_:
+            if visible.shape != (T, n_tracks) or visible.dtype != np.bool_:
                 raise fail(
-                    "visible", f"expected a bool array [T={T}, K={K}], got {visible.dtype} {visible.shape}"
+                    "visible",
+                    f"expected a bool array [T={T}, K={n_tracks}], got {visible.dtype} {visible.shape}",
                 )
             bad = visible & ~finite
             if bad.any():
@@ -105,12 +144,18 @@ class Observations:
                     f"point {k} at frame {f} is NaN or inf but marked visible ({int(bad.sum())} such); "
                     "set visible[f, k] = False where a track was not seen",
                 )
-        if not visible.any():
+        if not visible.any() and not no_tracks:
             raise fail("visible", "every track is invisible at every frame: nothing to fit to")
         if particle is not None:
             particle = np.asarray(particle)
-            if particle.shape != (K,) or not np.issubdtype(particle.dtype, np.integer) or particle.min() < 0:
-                raise fail("particle", f"expected K={K} particle indices >= 0 (int), got {particle.shape}")
+            if (
+                particle.shape != (n_tracks,)
+                or not np.issubdtype(particle.dtype, np.integer)
+                or particle.min() < 0
+            ):
+                raise fail(
+                    "particle", f"expected K={n_tracks} particle indices >= 0 (int), got {particle.shape}"
+                )
             particle = particle.astype(np.int64)
         if controls is not None:
             controls = np.asarray(controls, dtype=float)
@@ -141,6 +186,10 @@ class Observations:
             controls=controls,
             cloud=cloud,
             cloud_count=cloud_count,
+            images=images,
+            K=K,
+            world_to_camera=world_to_camera,
+            masks=masks,
             source=source,
         )
 
@@ -160,11 +209,15 @@ class Observations:
                 data = {k: z[k] for k in z.files}
         except Exception as exc:  # a truncated, pickled or foreign file: say which and why
             raise ObservationError(f"{path}: not a readable observation NPZ ({exc})") from None
-        for k in ("t", "points"):
-            if k not in data:
-                raise ObservationError(
-                    f"{path}: {k}: missing; an observation file needs t [T] and points [T, K, 3]"
-                )
+        if "t" not in data:
+            raise ObservationError(
+                f"{path}: t: missing; an observation file needs t [T] and points [T, K, 3]"
+            )
+        if "points" not in data and "images" not in data:
+            raise ObservationError(
+                f"{path}: points: missing; an observation file needs t [T] and points [T, K, 3] (or camera "
+                "images [C, T, H, W, 3] with K and world_to_camera)"
+            )
         unknown = sorted(set(data) - set(_KNOWN))
         if unknown:
             raise ObservationError(
@@ -173,9 +226,12 @@ class Observations:
         return cls.from_arrays(**data, source=str(path))
 
     def save(self, path: str | os.PathLike) -> Path:
-        """Write the observations as an NPZ (atomically); optional arrays only when present."""
-        arrays = {"t": self.t, "points": self.points, "visible": self.visible}
-        for k in ("particle", "controls", "cloud", "cloud_count"):
+        """Write the observations as an NPZ (atomically); optional arrays only when present (no ``points``
+        when there are no tracks but images)."""
+        arrays = {"t": self.t}
+        if self.tracks or self.images is None:
+            arrays.update(points=self.points, visible=self.visible)
+        for k in ("particle", "controls", "cloud", "cloud_count", *IMAGE_ARRAYS):
             if getattr(self, k) is not None:
                 arrays[k] = getattr(self, k)
         return atomic_savez(path, **arrays)
@@ -188,8 +244,23 @@ class Observations:
 
     @property
     def tracks(self) -> int:
-        """Number of tracks K."""
+        """Number of tracks K (0 for images only)."""
         return int(self.points.shape[1])
+
+    @property
+    def cameras(self) -> int:
+        """Number of cameras C (0 without images)."""
+        return 0 if self.images is None else int(self.images.shape[0])
+
+    def image(self, camera: int, frame: int) -> np.ndarray:
+        """Camera ``camera``'s RGB image at ``frame`` as float64 [H, W, 3] in [0, 1]."""
+        if self.images is None:
+            raise ObservationError(f"{self.source}: images: this file has no camera images")
+        return to_unit_float(self.images[camera, frame])
+
+    def mask(self, camera: int, frame: int) -> np.ndarray | None:
+        """Camera ``camera``'s object mask at ``frame`` as float64 [H, W] in [0, 1], or None."""
+        return None if self.masks is None else to_unit_float(self.masks[camera, frame])
 
     def check_times(self, frame_dt: float, what: str = "the scene") -> None:
         """Raise unless ``t[i] = i · frame_dt`` (every frame from t = 0, within 1e-6 of a frame).
@@ -223,6 +294,8 @@ class Observations:
         x = np.asarray(x, dtype=float)
         xs = x[None] if x.ndim == 2 else x
         n = xs.shape[1]
+        if self.tracks == 0:
+            return replace(self, particle=np.zeros(0, dtype=np.int64))
         if self.particle is not None:
             if self.particle.max() >= n:
                 raise ObservationError(
@@ -254,6 +327,8 @@ class Observations:
             controls=cut(self.controls),
             cloud=cut(self.cloud),
             cloud_count=cut(self.cloud_count),
+            images=None if self.images is None else self.images[:, sl],
+            masks=None if self.masks is None else self.masks[:, sl],
         )
 
 

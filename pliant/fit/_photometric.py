@@ -1,0 +1,411 @@
+"""Photometric system identification: physical parameters fitted to calibrated camera videos alone.
+
+The observation file carries ``images`` [C, T, H, W, 3] with ``K`` and ``world_to_camera`` (no tracks, no
+point clouds needed). The simulated object is drawn as 3D Gaussians bound to its particles
+(:func:`pliant.gaussians._surface.surface_gaussians`: generated deterministically from the object's surface,
+the same way ``pliant observe --cameras`` made the images), rendered by pliant's Warp rasteriser from every
+camera at every training frame, and compared with the images:
+
+    L = 1/(C·F) Σ_c Σ_f [ mean_pixels,channels |I_cf − Î_cf|² + w_m · mean_pixels (α_cf − M_cf)² ]
+
+(the mask term only when the file has ``masks``). Frames f = 1 … n_train − 1 train, as in every fit.
+
+- Stage 1 (CMA-ES, forward runs only) is the ordinary one: :class:`PhotometricProblem` only replaces the loss.
+- Stage 2 (:func:`refine_globals`) follows the gradient of the same loss through the whole training rollout:
+  image → Gaussians (hand-written compositing adjoint) → binding → particle positions → every substep of the
+  solver (``wp.Tape``) → per-spring (per-tet) arrays → the global parameter. A global value enters the model
+  as arrays proportional to it (found once by building the scene at twice the value), so
+  ∂L/∂log p = Σ_i ∂L/∂a_i · a_i over the proportional entries; L-BFGS-B (or Adam) on log p within its bounds.
+
+This is pliant → pliant data: the same Gaussians and the same renderer made the images (an "inverse crime");
+it measures the gradient path and the identifiability of a parameter from images, not robustness to real
+footage.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+from ..io import Observations
+from ._cmaes import StageResult
+from ._params import FitError
+from ._problem import Problem
+
+#: Background colour behind the Gaussians in observed and rendered images (RGB in [0, 1]).
+BACKGROUND = (0.0, 0.0, 0.0)
+
+#: Global parameters stage 2 can differentiate: name → model arrays proportional to its value.
+GRADIENT_ARRAYS: dict[str, tuple[str, ...]] = {
+    "stiffness": ("spring_stiffness",),
+    "damping": ("spring_damping",),
+    "E": ("tet_mu", "tet_lam"),
+}
+
+
+@wp.kernel
+def _image_loss_kernel(
+    colour: wp.array2d(dtype=Any),
+    alpha: wp.array2d(dtype=Any),
+    target: wp.array2d(dtype=Any),
+    mask: wp.array2d(dtype=Any),
+    has_mask: int,
+    colour_weight: Any,
+    mask_weight: Any,
+    out: wp.array(dtype=Any),
+):
+    # Straight-line per pixel: Warp's automatic adjoint gives ∂L/∂colour and ∂L/∂alpha on the tape, which
+    # the rasteriser's hand-written compositing adjoint then reads.
+    y, x = wp.tid()
+    d = colour[y, x] - target[y, x]
+    loss = colour_weight * wp.dot(d, d)
+    if has_mask != 0:
+        e = alpha[y, x] - mask[y, x]
+        loss = loss + mask_weight * e * e
+    wp.atomic_add(out, 0, loss)
+
+
+class PhotometricProblem(Problem):
+    """A fitting problem whose loss compares rendered images with observed camera videos.
+
+    Args:
+        cfg: The scene (``pl.scene.load_scene``); not modified.
+        obs: Observations with ``images``, ``K`` and ``world_to_camera`` (tracks optional and unused by the
+            loss; they are still reported as track errors when present).
+        mask_weight: Weight w_m of the mask term (used when the observations have ``masks``).
+        per_triangle: Gaussians per surface triangle (1 or 3) of the generated splats the fit renders
+            (``pliant fit`` uses 1, as ``pliant observe --cameras`` does).
+        **kwargs: As :class:`pliant.fit.Problem` (``params``, ``train_fraction``, ``device``, ``dtype``);
+            ``per_element`` is refused (per-element fits from images are not supported).
+
+    Raises:
+        FitError: no images, or a per-element parameter.
+        ObservationError: as :class:`Problem` (times that do not match the scene's frames).
+    """
+
+    photometric = True
+
+    def __init__(
+        self, cfg: Any, obs: Observations, *, mask_weight: float = 1.0, per_triangle: int = 1, **kwargs: Any
+    ) -> None:
+        from ..gaussians import Camera
+        from ..gaussians._surface import object_surface, surface_gaussians
+
+        if obs.images is None:
+            raise FitError(f"{obs.source}: images: a photometric fit needs camera images in the observations")
+        if kwargs.get("per_element") is not None:
+            raise FitError(
+                "--per-element: per-element parameters cannot be fitted from images yet; fit global ones "
+                "(--params stiffness, ...): stage 2 refines them with image gradients"
+            )
+        super().__init__(cfg, obs, **kwargs)
+        scene = self.build(self.nominal)
+        m = scene.model
+        self.scalar, self.vec3, self.model_device = m.scalar, m.vec3, str(m.device)
+        self.dtype_name = "float64" if m.scalar == wp.float64 else "float32"
+        H, W = obs.images.shape[2:4]
+        self.cameras = [Camera(obs.K[c], obs.world_to_camera[c], W, H) for c in range(obs.cameras)]
+        self.gaussians, self.binding = surface_gaussians(
+            m.particle_q_np,
+            object_surface(m),
+            per_triangle=per_triangle,
+            dtype=self.dtype_name,
+            device=self.model_device,
+        )
+        self.mask_weight = float(mask_weight)
+        self._targets: dict[tuple[int, int], tuple[wp.array, wp.array | None]] = {}
+
+    # ------------------------------------------------------------------ images
+    def target(self, camera: int, frame: int) -> tuple[wp.array, wp.array | None]:
+        """Observed image (vec3 [H, W]) and mask ([H, W] or None) of ``camera`` at ``frame`` (device)."""
+        key = (camera, frame)
+        if key not in self._targets:
+            img = wp.array(self.obs.image(camera, frame), dtype=self.vec3, device=self.model_device)
+            mk = self.obs.mask(camera, frame)
+            mk = None if mk is None else wp.array(mk, dtype=self.scalar, device=self.model_device)
+            self._targets[key] = (img, mk)
+        return self._targets[key]
+
+    def render(self, q: wp.array, camera: int) -> Any:
+        """Colour, alpha and depth of the Gaussians bound to particle positions ``q`` seen by ``camera``."""
+        from ..gaussians import render
+
+        return render(self.binding.deform(q), self.cameras[camera], BACKGROUND)
+
+    def add_frame_loss(self, q: wp.array, frame: int, out: wp.array, views: int) -> None:
+        """Add frame ``frame``'s photometric loss of positions ``q`` (vec3 [N]), over all cameras, divided by
+        ``views`` (the number of camera × frame terms averaged), into ``out`` [1] (recorded by an active
+        tape).
+        """
+        H, W = self.cameras[0].height, self.cameras[0].width
+        s = self.scalar
+        for c in range(len(self.cameras)):
+            colour, alpha, _ = self.render(q, c)
+            img, mk = self.target(c, frame)
+            wp.launch(
+                _image_loss_kernel,
+                dim=(H, W),
+                inputs=[
+                    colour,
+                    alpha,
+                    img,
+                    alpha if mk is None else mk,
+                    int(mk is not None),
+                    s(1.0 / (3.0 * H * W * views)),
+                    s(self.mask_weight / (H * W * views)),
+                ],
+                outputs=[out],
+                device=self.model_device,
+            )
+
+    def frame_losses(self, x: np.ndarray, lo: int = 1, hi: int | None = None) -> np.ndarray:
+        """Photometric loss of each frame ``lo … hi − 1`` of positions ``x`` [T, N, 3] (mean over cameras)."""
+        hi = min(self.frames, x.shape[0]) if hi is None else hi
+        out = np.full(max(hi - lo, 0), np.nan)
+        for i, f in enumerate(range(lo, hi)):
+            acc = wp.zeros(1, dtype=self.scalar, device=self.model_device)
+            q = wp.array(np.ascontiguousarray(x[f]), dtype=self.vec3, device=self.model_device)
+            self.add_frame_loss(q, f, acc, len(self.cameras))
+            out[i] = float(acc.numpy()[0])
+        return out
+
+    def loss(self, x: np.ndarray, lo: int = 1, hi: int | None = None) -> float:
+        """Photometric loss (mean over cameras and frames ``lo … hi − 1``; default: the training frames) of
+        simulated positions ``x`` [T, N, 3]."""
+        hi = self.n_train if hi is None else hi
+        if hi <= lo:
+            return 0.0
+        return float(np.mean(self.frame_losses(x, lo, hi)))
+
+    def image_report(self, x: np.ndarray, x_nominal: np.ndarray) -> dict[str, Any]:
+        """Per-frame photometric loss of the fitted and nominal motions, train / test means and, without
+        masks, PSNR [dB] (for ``fit.json``)."""
+        n = self.n_train
+        out: dict[str, Any] = {
+            "cameras": len(self.cameras),
+            "image_size": [self.cameras[0].width, self.cameras[0].height],
+            "gaussians": self.gaussians.count,
+        }
+        for key, pos in (("fitted", x), ("nominal", x_nominal)):
+            per_frame = self.frame_losses(pos, 0)
+            split = {"train": per_frame[1:n], "test": per_frame[n:]}
+            out[key] = {"loss_per_frame": per_frame.tolist()}
+            for part, v in split.items():
+                mean = float(np.mean(v)) if len(v) else None
+                out[key][f"loss_{part}"] = mean
+                if self.obs.masks is None and mean is not None:  # the loss is then the colour MSE
+                    out[key][f"psnr_{part}_db"] = -10.0 * math.log10(mean) if mean > 0 else None
+        return out
+
+    # ------------------------------------------------------------------ differentiable rollout
+    def rollout_loss(self, scene: Any, *, tape: wp.Tape | None = None) -> wp.array:
+        """The training loss of ``scene`` (built with ``requires_grad`` for gradients) simulated from its
+        initial state, every substep and render recorded on ``tape`` when one is given; returns the [1]
+        loss array (the same value as :meth:`loss` of :meth:`simulate`'s positions)."""
+        m = scene.model
+        h = scene.frame_dt / scene.substeps
+        control = m.control()
+        fn = self.control_fn(scene)
+        if fn is not None:
+            fn(0.0, None)
+        if hasattr(scene.solver, "reset"):
+            scene.solver.reset()
+        views = len(self.cameras) * (self.n_train - 1)
+        loss = wp.zeros(1, dtype=m.scalar, device=m.device, requires_grad=tape is not None)
+        s = m.state()
+        with tape if tape is not None else contextlib.nullcontext():
+            for f in range(self.n_train - 1):
+                if fn is not None:
+                    fn(f * scene.frame_dt, control)
+                for _ in range(scene.substeps):
+                    nxt = m.state()
+                    scene.solver.step(s, nxt, control, h)
+                    s = nxt
+                self.add_frame_loss(s.particle_q, f + 1, loss, views)
+        return loss
+
+
+class _GlobalGradient:
+    """Loss and ∂loss/∂log p of global parameters ``names`` through one requires_grad scene whose
+    proportional arrays are rescaled in place (no rebuild per evaluation)."""
+
+    def __init__(self, problem: PhotometricProblem, values: dict[str, float], names: list[str]) -> None:
+        self.problem, self.names = problem, names
+        self.v0 = {n: float(values[n]) for n in names}
+        self.scene = problem.build(values, requires_grad=True)
+        plain = problem.build(values)
+        self.arrays: dict[str, wp.array] = {}
+        self.base: dict[str, np.ndarray] = {}
+        self.masks: dict[str, dict[str, np.ndarray]] = {}
+        for name in names:
+            twice = problem.build({**values, name: 2.0 * values[name]})
+            self.masks[name] = {}
+            for arr in GRADIENT_ARRAYS[name]:
+                a0 = getattr(plain.model, arr).numpy().astype(np.float64)
+                a1 = getattr(twice.model, arr).numpy().astype(np.float64)
+                prop = (a0 != 0) & np.isclose(a1, 2.0 * a0, rtol=1e-6, atol=0.0)
+                same = np.isclose(a1, a0, rtol=1e-12, atol=0.0)
+                if not np.all(prop | same):
+                    raise FitError(
+                        f"--params {name}: the model's {arr} is not proportional to {name} in this scene, "
+                        "so its image gradient is not defined here; fit it with CMA-ES only (--iterations "
+                        "for the generations, and no gradient stage)"
+                    )
+                if prop.any():
+                    self.masks[name][arr] = prop
+                    self.arrays[arr] = getattr(self.scene.model, arr)
+                    self.base[arr] = getattr(self.scene.model, arr).numpy().astype(np.float64)
+            if not self.masks[name]:
+                raise FitError(f"--params {name}: no model array of this scene depends on it")
+
+    def evaluate(self, theta: np.ndarray, grad: bool = True) -> tuple[float, np.ndarray]:
+        """(loss, ∂loss/∂θ) at log factors θ (p = p₀ · exp θ for each name)."""
+        for arr, a in self.arrays.items():
+            log_f = sum(t * self.masks[n].get(arr, 0.0) for t, n in zip(theta, self.names, strict=True))
+            a.assign(self.base[arr] * np.exp(log_f))
+            if a.grad is not None:
+                a.grad.zero_()
+        tape = wp.Tape() if grad else None
+        loss = self.problem.rollout_loss(self.scene, tape=tape)
+        value = float(loss.numpy()[0])
+        g = np.zeros(len(self.names))
+        if tape is not None:
+            tape.backward(loss)
+            for i, n in enumerate(self.names):
+                for arr, mask in self.masks[n].items():
+                    a = self.arrays[arr]
+                    g[i] += float(np.sum(mask * a.grad.numpy() * a.numpy()))
+            tape.zero()
+            tape.reset()
+        return value, g
+
+    def values(self, theta: np.ndarray) -> dict[str, float]:
+        return {n: self.v0[n] * math.exp(float(t)) for n, t in zip(self.names, theta, strict=True)}
+
+
+def refinable(problem: Problem) -> list[str]:
+    """The problem's global parameters that :func:`refine_globals` can differentiate."""
+    return [b.name for b in problem.globals if b.name in GRADIENT_ARRAYS]
+
+
+def refine_globals(
+    problem: PhotometricProblem,
+    values: dict[str, float],
+    *,
+    iterations: int = 20,
+    optimizer: str = "lbfgs",
+    lr: float = 0.01,
+    callback: Callable[[int, float], None] | None = None,
+) -> StageResult:
+    """Stage 2 of a photometric fit: gradient descent on the log of the global parameters that enter the
+    model as proportional arrays (:data:`GRADIENT_ARRAYS`: stiffness, damping, E), from ``values``.
+
+    Args:
+        problem: The photometric problem.
+        values: Starting global values (stage 1's); the others are held.
+        iterations: L-BFGS-B iterations, or Adam steps (each one whole training rollout plus its backward).
+        optimizer: ``"lbfgs"`` (SciPy L-BFGS-B within the parameters' bounds) or ``"adam"``.
+        lr: Adam's step in log units (decaying to lr / 10).
+        callback: ``callback(iteration, best_loss)`` after each iteration.
+
+    Returns:
+        A StageResult whose ``values`` are the best found (never worse than ``values``: ``kept`` says
+        whether they improved on them).
+
+    Raises:
+        FitError: no differentiable global parameter, an unknown optimiser, or a gradient that is exactly
+            zero or not finite.
+    """
+    names = refinable(problem)
+    if not names:
+        raise FitError(
+            f"the image-gradient stage refines {', '.join(GRADIENT_ARRAYS)}; none of them is fitted here"
+        )
+    if optimizer not in ("adam", "lbfgs"):
+        raise FitError(f"optimizer: expected 'adam' or 'lbfgs', got {optimizer!r}")
+    t0 = time.perf_counter()
+    gg = _GlobalGradient(problem, values, names)
+    bounds = {b.name: b for b in problem.globals}
+    box = [(math.log(bounds[n].lo / gg.v0[n]), math.log(bounds[n].hi / gg.v0[n])) for n in names]
+    theta0 = np.zeros(len(names))
+    start, _ = gg.evaluate(theta0, grad=False)
+    result = StageResult(values=dict(values), loss=start, evaluations=1, kept=False)
+
+    scale = 1.0 / start if start > 0 else 1.0  # the optimisers see L / L(start): tolerances are relative
+
+    first = [True]
+
+    def fun(theta: np.ndarray) -> tuple[float, np.ndarray]:
+        value, g = gg.evaluate(theta)
+        result.evaluations += 1
+        if not (np.isfinite(value) and np.all(np.isfinite(g))):
+            # A step too stiff for the substep diverged: a high loss without slope sends the line search back.
+            return 10.0, np.zeros_like(theta)
+        if first[0] and value > 0 and not np.any(g != 0.0):
+            # Checked at the start only: a trial step that throws the object out of every view (a too-stiff
+            # explicit step blowing up) also has zero slope, and the line search must just step back.
+            raise FitError(
+                f"the {type(gg.scene.solver).__name__} step of this scene gives exactly zero image gradient "
+                f"for {', '.join(names)}: its step is not tape-differentiable, or the object is not seen"
+            )
+        first[0] = False
+        if value < result.loss:
+            result.loss, result.values, result.kept = value, {**values, **gg.values(theta)}, True
+        return value * scale, g * scale
+
+    try:
+        if optimizer == "lbfgs":
+            from scipy.optimize import minimize
+
+            def cb(theta: np.ndarray) -> None:
+                result.history.append(result.loss)
+                if callback is not None:
+                    callback(len(result.history), result.loss)
+
+            minimize(
+                fun,
+                theta0,
+                jac=True,
+                method="L-BFGS-B",
+                bounds=box,
+                options={"maxiter": iterations, "ftol": 1e-12, "gtol": 1e-10},
+                callback=cb,
+            )
+        else:
+            theta, mom, var = theta0.copy(), np.zeros(len(names)), np.zeros(len(names))
+            lo, hi = np.array([b[0] for b in box]), np.array([b[1] for b in box])
+            for it in range(iterations):
+                _, g = fun(theta)
+                mom = 0.9 * mom + 0.1 * g
+                var = 0.99 * var + 0.01 * g * g
+                step = lr * 0.1 ** (it / max(iterations - 1, 1))
+                mhat, vhat = mom / (1 - 0.9 ** (it + 1)), var / (1 - 0.99 ** (it + 1))
+                theta = np.clip(theta - step * mhat / (np.sqrt(vhat) + 1e-12), lo, hi)
+                result.history.append(result.loss)
+                if callback is not None:
+                    callback(it + 1, result.loss)
+    except KeyboardInterrupt:
+        result.interrupted = True
+    result.wall_time = time.perf_counter() - t0
+    return result
+
+
+def problem_for(obs: Observations) -> type[Problem]:
+    """The problem class of an observation file: photometric when it carries images, else tracks."""
+    return PhotometricProblem if obs.images is not None else Problem
+
+
+__all__ = [
+    "BACKGROUND",
+    "GRADIENT_ARRAYS",
+    "PhotometricProblem",
+    "problem_for",
+    "refinable",
+    "refine_globals",
+]
