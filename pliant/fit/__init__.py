@@ -22,7 +22,7 @@ Example::
 from __future__ import annotations
 
 from ._cmaes import PENALTY, StageResult, cmaes, evaluate
-from ._gradient import gradient_stage
+from ._gradient import Smoothness, gradient_stage
 from ._losses import acceleration_loss, chamfer_loss, track_errors, track_loss
 from ._observe import observe
 from ._params import (
@@ -49,6 +49,7 @@ __all__ = [
     "FitError",
     "GlobalParam",
     "Problem",
+    "Smoothness",
     "StageResult",
     "acceleration_loss",
     "apply_globals",

@@ -29,7 +29,9 @@ class StageResult:
         interrupted: Stopped by Ctrl-C (the best values so far are kept).
         per_element: Per-element arrays (``model.<array>`` / ``constraints.<i>.<array>`` → values), if any.
         kept: Whether :func:`fit` kept this stage's values (the gradient stage's are dropped when they do
-            not lower the open-loop training loss).
+            not lower the open-loop loss on the validation frames).
+        validation: The gradient stage's validation frames [lo, hi) and their open-loop loss before and
+            after it (set by :func:`fit`; None when it trained on every training frame).
     """
 
     values: dict[str, float]
@@ -40,6 +42,7 @@ class StageResult:
     interrupted: bool = False
     per_element: dict[str, np.ndarray] = field(default_factory=dict)
     kept: bool = True
+    validation: dict | None = None
 
 
 def evaluate(problem: Problem, values: dict[str, float]) -> float:
