@@ -41,7 +41,8 @@ CLOTH = dict(
     substeps=200,
 )
 # Beam: 6 × 2 × 2 cells, 0.36 × 0.1 × 0.1 m, centred at (0, 0.6, 0), clamped at its x = −0.18 face,
-# released straight under gravity; ρ = 1000 kg/m³, E = 2e5 Pa, ν = 0.3, tet damping k_damp = 2.
+# released straight under gravity; ρ = 1000 kg/m³, E = 2e5 Pa, ν = 0.3, tet viscosity k_damp = 100 Pa s
+# (Newton damps the rate of deformation; pliant's FEM has no such term, only a velocity damping rate).
 BEAM = dict(
     cells=(6, 2, 2),
     size=(0.36, 0.1, 0.1),
@@ -49,7 +50,7 @@ BEAM = dict(
     density=1000.0,
     E=2.0e5,
     nu=0.3,
-    k_damp=2.0,
+    k_damp=100.0,
     substeps=100,
 )
 

@@ -212,7 +212,7 @@ def write_outputs(
     elif cfg.scene.parameters is not None:
         cfg.scene.parameters = str((Path(cfg.base_dir) / cfg.scene.parameters).resolve())
     scene_toml(cfg, out / "fitted.toml", comment=f"Fitted by `pliant fit` from {problem.cfg.source}")
-    x_nom = problem.simulate(problem.build(problem.nominal), problem.frames)
+    x_nom = problem.simulate(problem.build({}), problem.frames)  # the scene as given
     scene = fitted_scene(problem, values, per_element)
     x = problem.simulate(scene, problem.frames)
     err, err_nom = problem.errors(x), problem.errors(x_nom)
