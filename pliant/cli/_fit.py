@@ -44,6 +44,12 @@ def add_parsers(sub: Any) -> None:
         default=0.0,
         help="total-variation prior on per-element values over neighbours (0; e.g. 1e-4)",
     )
+    f.add_argument(
+        "--validation",
+        type=float,
+        default=0.2,
+        help="last fraction of the training frames that decides whether per-element values are kept (0.2)",
+    )
     f.add_argument("--seed", type=int, default=42, help="CMA-ES seed (42)")
     f.add_argument("--device", help="cpu or cuda:N (default: the scene's)")
     f.add_argument("--dtype", choices=("float32", "float64"), help="override [scene] dtype")
@@ -144,6 +150,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
             horizon=None if args.horizon == 0 else args.horizon,
             lr=args.lr,
             smoothness=args.smoothness,
+            validation=args.validation,
             seed=args.seed,
             device=args.device,
             dtype=args.dtype,

@@ -108,6 +108,10 @@ def fit(
         The contents of ``fit.json`` (also written to ``out``).
     """
     t0 = time.perf_counter()
+    if not 0.0 <= validation < 1.0:
+        raise FitError(f"--validation: expected a fraction in [0, 1), got {validation}")
+    if not (math.isfinite(smoothness) and smoothness >= 0):
+        raise FitError(f"--smoothness: expected a weight >= 0, got {smoothness}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     problem = Problem(
@@ -132,8 +136,6 @@ def fit(
         values = stages["cmaes"].values
         interrupted = stages["cmaes"].interrupted
     if per_element is not None and epochs > 0 and not interrupted:
-        if not 0.0 <= validation < 1.0:
-            raise FitError(f"validation: expected a fraction in [0, 1), got {validation}")
         n = problem.n_train
         n_fit = n - int(round(validation * (n - 1))) if n >= 6 else n
         n_fit = min(max(n_fit, 2), n)
