@@ -74,6 +74,10 @@ def test_bad_inputs_exit_1_with_one_line(rope, tmp_path, capsys):
     assert "--params: unknown parameter 'stifness'" in _err(capsys)
     assert main(["fit", str(scene), str(obs), "--out", out, "--params", "none", "-q"]) == 1
     assert "nothing to fit" in _err(capsys)
+    assert main(["fit", str(scene), str(obs), "--out", out, "--smoothness", "-1", "-q"]) == 1
+    assert "--smoothness: expected a weight >= 0, got -1.0" in _err(capsys)
+    assert main(["fit", str(scene), str(obs), "--out", out, "--validation", "1.5", "-q"]) == 1
+    assert "--validation: expected a fraction in [0, 1), got 1.5" in _err(capsys)
     z = dict(np.load(obs))
     np.savez(tmp_path / "slow.npz", **{**z, "t": z["t"] * 2})
     assert main(["fit", str(scene), str(tmp_path / "slow.npz"), "--out", out, "-q"]) == 1

@@ -43,6 +43,18 @@ def add_parsers(sub: Any) -> None:
     f.add_argument("--optimizer", choices=("adam", "lbfgs"), default="adam", help="gradient stage (adam)")
     f.add_argument("--horizon", type=_positive_int, default=1, help="frames per tape, 0: whole rollout (1)")
     f.add_argument("--lr", type=_positive_float, default=0.01, help="Adam step in log-scale units (0.01)")
+    f.add_argument(
+        "--smoothness",
+        type=float,
+        default=0.0,
+        help="total-variation prior on per-element values over neighbours (0; e.g. 1e-4)",
+    )
+    f.add_argument(
+        "--validation",
+        type=float,
+        default=0.2,
+        help="last fraction of the training frames that decides whether per-element values are kept (0.2)",
+    )
     f.add_argument("--seed", type=int, default=42, help="CMA-ES seed (42)")
     f.add_argument("--device", help="cpu or cuda:N (default: the scene's)")
     f.add_argument("--dtype", choices=("float32", "float64"), help="override [scene] dtype")
@@ -191,6 +203,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
             optimizer=args.optimizer,
             horizon=None if args.horizon == 0 else args.horizon,
             lr=args.lr,
+            smoothness=args.smoothness,
+            validation=args.validation,
             seed=args.seed,
             device=args.device,
             dtype=args.dtype,

@@ -25,7 +25,7 @@ Example::
 from __future__ import annotations
 
 from ._cmaes import PENALTY, StageResult, cmaes, evaluate
-from ._gradient import gradient_stage
+from ._gradient import Smoothness, gradient_stage
 from ._losses import acceleration_loss, chamfer_loss, track_errors, track_loss
 from ._observe import observe
 from ._observe_images import observe_images
@@ -55,6 +55,7 @@ __all__ = [
     "GlobalParam",
     "PhotometricProblem",
     "Problem",
+    "Smoothness",
     "StageResult",
     "acceleration_loss",
     "apply_globals",

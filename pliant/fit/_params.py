@@ -122,6 +122,14 @@ GLOBAL: dict[str, GlobalParam] = {
             _around(10.0, 1e-6),
         ),
         GlobalParam(
+            "Et",
+            "membrane stiffness E·t of every mass-spring cloth given by it [N/m] (sets its structural and "
+            "shear springs)",
+            lambda cfg: [(m, f) for m, f in _mat_field("Et", ("mass_spring",))(cfg) if m.stiffness is None],
+            True,
+            _around(10.0, 1e-6),
+        ),
+        GlobalParam(
             "damping",
             "dashpot γ along each spring of every mass-spring object [N s/m]",
             _mat_field("damping", ("mass_spring",)),
@@ -223,7 +231,7 @@ PER_ELEMENT: dict[str, tuple[Callable[[Any], dict[str, Any]], str]] = {
 }
 
 #: Default parameters per object model (issue 13: the scene model's material).
-DEFAULTS = {"mass_spring": ("stiffness", "damping"), "fem": ("E", "nu"), "pbd": ("compliance",)}
+DEFAULTS = {"mass_spring": ("stiffness", "Et", "damping"), "fem": ("E", "nu"), "pbd": ("compliance",)}
 
 
 def default_params(cfg: Any) -> list[str]:
@@ -288,6 +296,19 @@ def apply_globals(cfg: Any, values: dict[str, float]) -> Any:
     return cfg
 
 
+def per_element_incidence(scene: Any, name: str) -> np.ndarray:
+    """The particles of each element of per-element parameter ``name``, int [n_elements, k] (springs: 2,
+    tets: 4, constraints: their arity): which elements are neighbours for the smoothness term."""
+    key = next(iter(per_element_arrays(scene, name)))
+    parts = key.split(".")
+    if parts[0] == "constraints":
+        c = scene.solver.constraints[int(parts[1])]
+        return c.indices.numpy().reshape(c.count, -1)
+    if parts[1].startswith("spring_"):
+        return scene.model.spring_indices.numpy().reshape(-1, 2)
+    return scene.model.tet_indices.numpy().reshape(-1, 4)
+
+
 def per_element_arrays(scene: Any, name: str) -> dict[str, Any]:
     """The arrays of per-element parameter ``name`` in a built scene (``model.<array>`` /
     ``constraints.<i>.<array>`` → Warp array); raises FitError when unknown or absent."""
@@ -306,5 +327,6 @@ __all__ = [
     "apply_globals",
     "default_params",
     "per_element_arrays",
+    "per_element_incidence",
     "resolve_globals",
 ]

@@ -15,6 +15,7 @@ import numpy as np
 from ..io import Observations, atomic_savez
 from ._cmaes import StageResult, cmaes
 from ._gradient import gradient_stage
+from ._params import FitError
 from ._photometric import problem_for, refinable, refine_globals
 from ._problem import Problem
 from ._toml import scene_toml
@@ -64,6 +65,8 @@ def fit(
     optimizer: str = "adam",
     horizon: int | None = 1,
     lr: float = 0.01,
+    smoothness: float = 0.0,
+    validation: float = 0.2,
     seed: int = 42,
     device: str | None = None,
     dtype: str | None = None,
@@ -90,6 +93,12 @@ def fit(
         optimizer: ``"adam"`` or ``"lbfgs"``.
         horizon: Frames per tape (1: PhysTwin's default), None: the whole training rollout.
         lr: Adam step size (log-scale units; one step per frame with the default horizon).
+        smoothness: Weight of the total-variation prior over neighbouring elements in the gradient stage
+            (``pl.fit.Smoothness``; 0: none; 1e-4 separates a two-material cloth, see docs/fitting.md).
+        validation: Fraction of the training frames (the last ones) the gradient stage does not train on;
+            its per-element values are kept only if they lower the open-loop loss on these frames (a
+            prediction, like the test) without raising it on the whole training window. 0: train on all
+            and keep on the training loss alone.
         seed: CMA-ES seed.
         device: Warp device (None: the scene's).
         dtype: ``"float32"`` / ``"float64"`` (None: the scene's).
@@ -100,6 +109,10 @@ def fit(
         The contents of ``fit.json`` (also written to ``out``).
     """
     t0 = time.perf_counter()
+    if not 0.0 <= validation < 1.0:
+        raise FitError(f"--validation: expected a fraction in [0, 1), got {validation}")
+    if not (math.isfinite(smoothness) and smoothness >= 0):
+        raise FitError(f"--smoothness: expected a weight >= 0, got {smoothness}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     problem = problem_for(obs)(  # images in the file: the photometric loss (_photometric.py)
@@ -135,6 +148,9 @@ def fit(
                 bar.close()
         values, interrupted = stages["gradient"].values, stages["gradient"].interrupted
     if per_element is not None and epochs > 0 and not interrupted:
+        n = problem.n_train
+        n_fit = n - int(round(validation * (n - 1))) if n >= 6 else n
+        n_fit = min(max(n_fit, 2), n)
         bar = _bar(progress, epochs, f"fit: {optimizer} ({per_element})")
         try:
             stages["gradient"] = gradient_stage(
@@ -144,6 +160,8 @@ def fit(
                 lr=lr,
                 horizon=horizon,
                 optimizer=optimizer,
+                smoothness=smoothness,
+                frames=n_fit,
                 callback=_tick(bar),
             )
         finally:
@@ -151,12 +169,21 @@ def fit(
                 bar.close()
         arrays = stages["gradient"].per_element
         interrupted = stages["gradient"].interrupted
-        # The one-frame-horizon losses are not the open-loop rollout's: keep the per-element values only if
-        # the whole training rollout improved on the global stage's.
-        before = problem.loss(problem.simulate(problem.build(values), problem.n_train))
-        after = problem.loss(problem.simulate(fitted_scene(problem, values, arrays), problem.n_train))
+        # The one-frame-horizon losses are not the open-loop rollout's, and many per-element values can fit
+        # the training frames and predict worse (over-fitting): keep them only if the open-loop rollout
+        # predicts the held-back validation frames better than the global stage's, and the whole training
+        # window no worse.
+        x0 = problem.simulate(problem.build(values), n)
+        x1 = problem.simulate(fitted_scene(problem, values, arrays), n)
+        before, after = problem.loss(x0), problem.loss(x1)
         stages["gradient"].loss = after
-        if not after < before:
+        if n_fit < n:
+            v0, v1 = problem.loss(x0, n_fit, n), problem.loss(x1, n_fit, n)
+            stages["gradient"].validation = {"frames": [n_fit, n], "before": v0, "after": v1}
+            keep = v1 < v0 and after <= before
+        else:
+            keep = after < before
+        if not keep:
             stages["gradient"].kept = False
             arrays = {}
     report = write_outputs(problem, out, values, arrays, stages, video=video, progress=progress)
@@ -199,7 +226,7 @@ def write_outputs(
     elif cfg.scene.parameters is not None:
         cfg.scene.parameters = str((Path(cfg.base_dir) / cfg.scene.parameters).resolve())
     scene_toml(cfg, out / "fitted.toml", comment=f"Fitted by `pliant fit` from {problem.cfg.source}")
-    x_nom = problem.simulate(problem.build(problem.nominal), problem.frames)
+    x_nom = problem.simulate(problem.build({}), problem.frames)  # the scene as given
     scene = fitted_scene(problem, values, per_element)
     x = problem.simulate(scene, problem.frames)
     err, err_nom = problem.errors(x), problem.errors(x_nom)
@@ -229,6 +256,7 @@ def write_outputs(
         },
         "loss_history": {k: s.history for k, s in stages.items()},
         "gradient_stage_kept": stages["gradient"].kept if "gradient" in stages else None,
+        "gradient_validation": stages["gradient"].validation if "gradient" in stages else None,
         "stage_wall_time": {k: s.wall_time for k, s in stages.items()},
         "evaluations": {k: s.evaluations for k, s in stages.items()},
         "error": {k: _finite(v) for k, v in problem.split_errors(x).items()},
