@@ -45,6 +45,25 @@ def _solver_array(attr: str, what: str) -> Callable[[Model, Any, State, Control 
     return get
 
 
+def _compliance(kind: str) -> Callable[[Model, Any, State, Control | None], wp.array]:
+    def get(model, solver, state0, control):
+        sets = [c for c in getattr(solver, "constraints", ()) if type(c).__name__ == kind]
+        arrays = [getattr(c, "compliance_array", None) for c in sets]
+        if not sets or arrays[0] is None:
+            raise GradientError(
+                f"'compliance_{kind.lower()}' needs an XPBD solver with a {kind} constraint set "
+                "(PBD sets use a stiffness, not a compliance)"
+            )
+        if len(sets) > 1:
+            raise GradientError(
+                f"'compliance_{kind.lower()}': the solver has {len(sets)} {kind} sets; read "
+                "constraint.compliance_array.grad on the plain tape path to tell them apart"
+            )
+        return arrays[0]
+
+    return get
+
+
 #: Parameter name → where its array lives. Each entry returns the array (or (array, component) for a
 #: scalar held in a shared array). Values are per element: per spring, per tet, per particle, per target.
 PARAMETERS: dict[str, Callable[[Model, Any, State, Control | None], Any]] = {
@@ -69,6 +88,10 @@ PARAMETERS: dict[str, Callable[[Model, Any, State, Control | None], Any]] = {
     "v0": lambda m, s, x, c: x.particle_qd,  # initial velocities [m/s]
     "ground_friction": _ground(0),  # Coulomb μ (a subgradient at stick/slip and contact switches)
     "ground_restitution": _ground(1),  # restitution e
+    # XPBD compliance α per constraint [m/N for Distance; 1/(N m) for bending; 1/(N m²)-like for Volume].
+    "compliance_distance": _compliance("Distance"),
+    "compliance_dihedralbending": _compliance("DihedralBending"),
+    "compliance_volume": _compliance("Volume"),
     "particle_f": _control("particle_f"),  # external forces [N], held over the rollout
     "kinematic_targets": _control("kinematic_targets"),  # targets [m] of the kinematic particles
 }
