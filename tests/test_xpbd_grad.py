@@ -350,7 +350,9 @@ def test_rollout_compliance_by_name_matches_tape_and_fd(scene):
 
     r = Rollout(scene, False)
     n = r.model.particle_count
-    names = ["compliance_distance", "compliance_dihedralbending"] if scene == "cloth" else ["compliance_volume"]
+    names = (
+        ["compliance_distance", "compliance_dihedralbending"] if scene == "cloth" else ["compliance_volume"]
+    )
 
     def loss(state):
         out = wp.zeros(1, dtype=wp.float64, device="cpu", requires_grad=True)
@@ -378,6 +380,4 @@ def test_rollout_compliance_name_without_such_constraint_is_refused():
 
     r = Rollout("rope", False)
     with pytest.raises(pl.diff.GradientError, match="Volume"):
-        pl.diff.rollout(
-            r.model, r.solver, lambda s: None, frames=1, dt=DT, params=["compliance_volume"]
-        )
+        pl.diff.rollout(r.model, r.solver, lambda s: None, frames=1, dt=DT, params=["compliance_volume"])

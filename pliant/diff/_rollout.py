@@ -75,14 +75,11 @@ PARAMETERS: dict[str, Callable[[Model, Any, State, Control | None], Any]] = {
     # Masses [kg] per particle: the step reads both m (gravity) and 1/m (accelerations); rollout combines
     # ∂L/∂m + ∂L/∂(1/m)·(−1/m²) for free particles (pinned ones keep 1/m = 0, so only the first term).
     "particle_mass": lambda m, s, x, c: m.particle_mass,
-    # Gravity g [m/s²] (1 vec3): ForceSolver with an explicit integrator, XPBD/PBD (``solver.gravity``).
-    "gravity": _solver_array(
-        "gravity", "with ForceSolver and an explicit integrator, or XPBD/PBD, on a requires_grad model"
-    ),
-    # Global damping rate c [1/s] of v ← v·exp(−cΔt) (1 scalar): ForceSolver(damping_rate=...), explicit.
+    # Gravity g [m/s²] (1 vec3): ForceSolver (any integrator), XPBD/PBD (``solver.gravity``).
+    "gravity": _solver_array("gravity", "with ForceSolver or XPBD/PBD on a requires_grad model"),
+    # Global damping rate c [1/s] of v ← v·exp(−cΔt) (1 scalar): ForceSolver(damping_rate=...).
     "damping_rate": _solver_array(
-        "damping_rate_array",
-        "with ForceSolver(damping_rate=c) and an explicit integrator on a requires_grad model",
+        "damping_rate_array", "with ForceSolver(damping_rate=c) on a requires_grad model"
     ),
     "x0": lambda m, s, x, c: x.particle_q,  # initial positions [m]
     "v0": lambda m, s, x, c: x.particle_qd,  # initial velocities [m/s]

@@ -5,7 +5,7 @@ from ._base import Energy
 from ._cloth import cloth_spring_stiffness
 from ._colliders import ColliderPenalty
 from ._fem import Corotated, LinearElastic, NeoHookean, StVK, TetElasticity
-from ._gravity import Gravity
+from ._gravity import Gravity, GravityFromArray
 from ._ground import GroundPenalty
 from ._handles import ControlPoints
 from ._materials import (
@@ -48,6 +48,7 @@ __all__ = [
     "Dashpots",
     "Energy",
     "Gravity",
+    "GravityFromArray",
     "GroundPenalty",
     "Springs",
     "cloth_spring_stiffness",

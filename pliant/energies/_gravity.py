@@ -18,6 +18,14 @@ def _gravity_value(mass: wp.array(dtype=Any), g: Any, x_in: wp.array(dtype=Any),
 
 
 @wp.kernel
+def _gravity_value_array(
+    mass: wp.array(dtype=Any), g: wp.array(dtype=Any), x_in: wp.array(dtype=Any), out: wp.array(dtype=Any)
+):
+    i = wp.tid()
+    wp.atomic_add(out, 0, -mass[i] * wp.dot(g[0], x_in[i]))
+
+
+@wp.kernel
 def _gravity_gradient(mass: wp.array(dtype=Any), g: Any, grad_out: wp.array(dtype=Any)):
     i = wp.tid()
     # An atomic add rather than a read-then-write, so that wp.Tape can replay it (same arithmetic).
@@ -58,3 +66,30 @@ class Gravity(Energy):
         launch(
             _gravity_gradient_array, model.particle_count, [model.particle_mass, g, out], device=model.device
         )
+
+
+class GravityFromArray(Gravity):
+    """Gravity with g [m/s²] read from a 1-element vec3 array (``ForceSolver.gravity`` on a
+    ``requires_grad`` model), so that a recorded step, explicit or implicit, carries ∂loss/∂g into
+    ``g.grad``; the same energy as :class:`Gravity` otherwise (zero Hessian).
+
+    Args:
+        g: the 1-element vec3 array holding g [m/s²].
+    """
+
+    def __init__(self, g: wp.array) -> None:
+        super().__init__()
+        self.g = g
+
+    def value(self, model: Model, x: wp.array, out: wp.array) -> None:
+        """Add −Σ m_i g·x_i [J] into ``out[0]``."""
+        launch(
+            _gravity_value_array,
+            model.particle_count,
+            [model.particle_mass, self.g, x, out],
+            device=model.device,
+        )
+
+    def gradient(self, model: Model, x: wp.array, out: wp.array) -> None:
+        """Add −m_i g [N] into ``out``."""
+        self.gradient_from(model, self.g, out)

@@ -23,8 +23,9 @@ from typing import Any, ClassVar
 import numpy as np
 import warp as wp
 
-from .._warp import _tape_active, fresh, launch
+from .._warp import _tape_active, fresh, grad_enabled, launch
 from ._base import Integrator, System, first_order
+from ._explicit import scale_velocity
 from ._ops import lincomb
 from ._problems import ODEProblem, SecondOrderODE
 
@@ -198,16 +199,6 @@ def _takes_options(fn: Any) -> bool:
     return "options" in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
 
 
-def _damp(system: System, dt: float, v_raw: wp.array, v_out: wp.array) -> None:
-    """v_out = δ v_raw (in place when they are the same array, the forward path's bit-identical form)."""
-    delta = system.velocity_damping(dt)
-    if v_raw.ptr == v_out.ptr:
-        if delta != 1.0:
-            lincomb(system.model, v_out, v_out, [(delta - 1.0, v_out)])
-        return
-    lincomb(system.model, v_out, v_raw, [(delta - 1.0, v_raw)])
-
-
 def recording_gradients(model: Any) -> bool:
     """Whether a ``wp.Tape`` records while the model was finalised with ``requires_grad=True``: the implicit
     steps then use fresh arrays per step (the tape keeps every step's values) and no in-place updates."""
@@ -273,7 +264,7 @@ class BackwardEuler(_ImplicitOptions, Integrator):
         lincomb(m, x_tilde, x_in, [(dt, v_in)])
         self._minimize(system, t, dt, x_tilde, x_in, v_in, x_out)
         _velocity_from_positions(m, x_out, x_in, 1.0 / dt, v_raw)
-        _damp(system, dt, v_raw, v_out)
+        scale_velocity(system, dt, v_raw, v_out)  # δ from the rate array when recording (∂/∂c)
 
 
 @wp.kernel
@@ -324,7 +315,7 @@ class ImplicitMidpoint(_ImplicitOptions, Integrator):
         # v_½ = (x_½ − x₀)/h; v₁ = 2v_½ − v₀; x₁ = 2x_½ − x₀.
         lincomb(m, v_raw, v_in, [(-2.0, v_in), (2.0 / h, x_half), (-2.0 / h, x_in)])
         lincomb(m, x_out, x_half, [(1.0, x_half), (-1.0, x_in)])
-        _damp(system, dt, v_raw, v_out)
+        scale_velocity(system, dt, v_raw, v_out)  # δ from the rate array when recording (∂/∂c)
 
 
 class BDF2(_ImplicitOptions, Integrator):
@@ -377,7 +368,10 @@ class BDF2(_ImplicitOptions, Integrator):
     def step_system(self, system: System, t, dt, x_in, v_in, x_out, v_out) -> None:
         """One BDF2 step (backward Euler when the history is missing or stale)."""
         m = system.model
-        grad = recording_gradients(m)
+        # A requires_grad model takes the recorded form with or without a tape: its solver's post-step
+        # stages write fresh arrays (and _buffers hands out fresh ones), so neither the output pointer nor
+        # the work buffers can carry the history; the previous step's input arrays do.
+        grad = grad_enabled(m)
         x_tilde, x_hat, x_prev, v_prev = self._buffers(system, 4)
         v_raw = v_out
         if grad:
@@ -408,7 +402,7 @@ class BDF2(_ImplicitOptions, Integrator):
             lincomb(m, x_tilde, x_hat, [(4.0 * h / 3.0, v_in), (-h / 3.0, v_prev)])
         self._minimize(system, t, h, x_tilde, x_hat, v_in, x_out)
         _velocity_from_positions(m, x_out, x_hat, 1.0 / h, v_raw)
-        _damp(system, dt, v_raw, v_out)
+        scale_velocity(system, dt, v_raw, v_out)  # δ from the rate array when recording (∂/∂c)
         if grad:
             self._grad_prev = (x_in, v_in)
         else:

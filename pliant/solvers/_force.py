@@ -11,7 +11,7 @@ import warp as wp
 
 from .._warp import GradientError, fresh, grad_enabled, launch
 from ..collision._ground_recorded import ground_contact_out, ground_penalty_friction_out
-from ..energies import Energy, Gravity
+from ..energies import Energy, Gravity, GravityFromArray
 from ..energies._base import _axpy
 from ..integrators import Integrator, SymplecticEuler
 from ..model import Control, Model, State
@@ -136,11 +136,15 @@ class ForceSolver(Solver):
             )
         #: Recorded explicit steps read gravity g [m/s²] (1-element vec3) and the damping rate c [1/s]
         #: (1-element, only with ``damping_rate``) from these arrays; their ``.grad`` holds ∂loss/∂g and
-        #: ∂loss/∂c after ``tape.backward``. None without gradients or with an implicit integrator.
+        #: ∂loss/∂c after ``tape.backward``. None without gradients. Explicit and implicit steps alike read
+        #: g through :class:`~pliant.energies.GravityFromArray`, which replaces the Gravity energies here.
         self.gravity: wp.array | None = None
         self.damping_rate_array: wp.array | None = None
-        if grad_enabled(model) and self.integrator.explicit:
+        if grad_enabled(model):
             self.gravity = wp.array([model.gravity], dtype=model.vec3, device=d, requires_grad=True)
+            self.energies = [
+                GravityFromArray(self.gravity) if type(e) is Gravity else e for e in self.energies
+            ]
             if damping_rate is not None:
                 self.damping_rate_array = wp.array(
                     [damping_rate], dtype=model.scalar, device=d, requires_grad=True
@@ -192,9 +196,7 @@ class ForceSolver(Solver):
             if self._control is not None:
                 _axpy(force, self._control.particle_f, 1.0, m)
             for e in self.energies:
-                if isinstance(e, Gravity) and self.gravity is not None:
-                    e.gradient_from(m, self.gravity, grad)
-                elif type(e).force is Energy.force:  # a potential: −∇E
+                if type(e).force is Energy.force:  # a potential: −∇E
                     e.gradient(m, x, grad)
                 else:
                     e.force(m, x, v, force)
