@@ -34,6 +34,15 @@ class Energy(abc.ABC):
     def begin_step(self, model: Model, x: wp.array, v: wp.array, dt: float) -> None:  # noqa: B027
         """Freeze per-step data (e.g. the dashpot axis) at the start of a step; default: nothing."""
 
+    def step_inputs(self) -> tuple:
+        """Arrays this energy reads besides the model and x that may be swapped between steps (moving
+        control points): the implicit steps' adjoint captures them when a step runs and puts them back
+        while it back-propagates that step. Default: none."""
+        return ()
+
+    def set_step_inputs(self, inputs: tuple) -> None:  # noqa: B027
+        """Put back what :meth:`step_inputs` returned; default: nothing."""
+
     @abc.abstractmethod
     def value(self, model: Model, x: wp.array, out: wp.array) -> None:
         """Add E(x) [J] into ``out[0]``."""

@@ -120,18 +120,46 @@ class ControlPoints(ModalEnergy):
         self.link_rest = wp.array(np.concatenate(rests), dtype=model.scalar, device=dev)
         self.points = wp.array(pts, dtype=model.vec3, device=dev)
         self.point_velocities = wp.zeros(pts.shape[0], dtype=model.vec3, device=dev)
+        #: The arrays this energy allocated (NumPy input is copied into them, never into a user's array).
+        self._owned = {"points": self.points, "velocities": self.point_velocities}
         self._np = np.float64 if model.dtype == "float64" else np.float32
         self.stiffness = float(stiffness)
         self.damping = float(damping)
 
     def set_positions(self, points: Any, velocities: Any = None) -> None:
-        """Move the control points to ``points`` [K, 3] m (velocities [K, 3] m/s for the dashpots)."""
-        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        if pts.shape[0] != self.point_count:
-            raise ValueError(f"expected {self.point_count} control points, got {pts.shape[0]}")
-        self.points.assign(pts.astype(self._np))
+        """Move the control points to ``points`` [K, 3] m (velocities [K, 3] m/s for the dashpots).
+
+        NumPy input is copied into the energy's own arrays. A Warp array (``model.vec3``, shape [K]) is
+        used as it is, by reference: give each step its own array (``requires_grad=True``) and a
+        ``wp.Tape`` carries ∂loss/∂(control path) into their ``.grad``, explicit and implicit steps alike
+        (overwriting one array in place between recorded steps would give the tape only the last values).
+        """
+        self.points = self._take(points, "points")
         if velocities is not None:
-            self.point_velocities.assign(np.asarray(velocities, dtype=self._np).reshape(-1, 3))
+            self.point_velocities = self._take(velocities, "velocities")
+
+    def _take(self, values: Any, what: str) -> wp.array:
+        own = self._owned[what]
+        if isinstance(values, wp.array):
+            if values.shape != (self.point_count,) or values.dtype != own.dtype:
+                raise ValueError(
+                    f"control point {what}: expected a wp.array of {self.point_count} {own.dtype.__name__}, "
+                    f"got shape {values.shape} of {values.dtype.__name__}"
+                )
+            return values
+        pts = np.asarray(values, dtype=np.float64).reshape(-1, 3)
+        if pts.shape[0] != self.point_count:
+            raise ValueError(f"expected {self.point_count} control {what}, got {pts.shape[0]}")
+        own.assign(pts.astype(self._np))  # never into an array a user handed over
+        return own
+
+    def step_inputs(self) -> tuple:
+        """The control points' positions and velocities this step reads (see :meth:`set_positions`)."""
+        return (self.points, self.point_velocities)
+
+    def set_step_inputs(self, inputs: tuple) -> None:
+        """Put back a step's positions and velocities (the implicit adjoint, during ``tape.backward``)."""
+        self.points, self.point_velocities = inputs
 
     def _launch_mode(self, model, x, mode, scale, project, outputs) -> None:
         """The link energy Σ ½ k (|x_i − c_k| − l)²; ``project`` clamps the compressive transverse term."""

@@ -107,6 +107,8 @@ class _StepAdjoint:
         self.problem = problem
         self.model = problem.model
         self.energies = list(problem.energies)
+        # What each energy reads besides x that may be swapped before the next step (moving control points).
+        self.inputs = [e.step_inputs() for e in self.energies]
         self.h = float(h)
         self.x_tilde, self.x_ref, self.v_ref, self.x_out = x_tilde, x_ref, v_ref, x_out
         c = control_of(problem)
@@ -124,6 +126,16 @@ class _StepAdjoint:
 
     def backward(self) -> None:
         """x̄₁ (in ``x_out.grad``) → cotangents of x̃, the dissipation's reference state, θ and f."""
+        now = [e.step_inputs() for e in self.energies]
+        try:
+            for e, inputs in zip(self.energies, self.inputs, strict=True):
+                e.set_step_inputs(inputs)  # this step's control points, not the latest
+            self._backward()
+        finally:
+            for e, inputs in zip(self.energies, now, strict=True):
+                e.set_step_inputs(inputs)
+
+    def _backward(self) -> None:
         from ._newton import _assemble, _workspace
 
         m = self.model
