@@ -109,6 +109,44 @@ def collider_sdf(kind: int, pos: Any, aux: Any, rot: Any, radius: Any, mesh: wp.
     return phi, n, H
 
 
+@wp.func
+def collider_contact(
+    kind: int,
+    pos: Any,
+    aux: Any,
+    rot: Any,
+    radius: Any,
+    mesh: wp.uint64,
+    friction: Any,
+    restitution: Any,
+    particle_radius: Any,
+    x: Any,
+    v: Any,
+):
+    """One collider's velocity-level response for one particle: (x, v) → (x', v'), pushed out along n,
+    normal velocity reflected with restitution e, tangential speed cut by at most μ·Δv_n (Coulomb)."""
+    zero = particle_radius * type(particle_radius)(0.0)
+    phi, n, H = collider_sdf(kind, pos, aux, rot, radius, mesh, x)
+    pen = particle_radius - phi
+    x_new = x
+    v_new = v
+    if pen > zero:
+        x_new = x + pen * n
+        vn = wp.dot(v, n)
+        vn_new = wp.max(vn, zero)
+        if vn < zero:
+            vn_new = -restitution * vn
+        dvn = vn_new - vn
+        vt = v - vn * n
+        st = wp.length(vt)
+        scale = zero
+        if st > zero:
+            # Coulomb: the tangential impulse is at most μ times the normal one.
+            scale = wp.max(st - friction * dvn, zero) / st
+        v_new = scale * vt + vn_new * n
+    return x_new, v_new
+
+
 @wp.kernel
 def _collider_response(
     # Colliders:
@@ -134,22 +172,19 @@ def _collider_response(
     x = x_io[i]
     v = v_io[i]
     for c in range(kind.shape[0]):
-        phi, n, H = collider_sdf(kind[c], pos[c], aux[c], rot[c], radius[c], mesh[c], x)
-        pen = particle_radius[i] - phi
-        if pen > zero:
-            x = x + pen * n
-            vn = wp.dot(v, n)
-            vn_new = wp.max(vn, zero)
-            if vn < zero:
-                vn_new = -restitution[c] * vn
-            dvn = vn_new - vn
-            vt = v - vn * n
-            st = wp.length(vt)
-            scale = zero
-            if st > zero:
-                # Coulomb: the tangential impulse is at most μ times the normal one.
-                scale = wp.max(st - friction[c] * dvn, zero) / st
-            v = scale * vt + vn_new * n
+        x, v = collider_contact(
+            kind[c],
+            pos[c],
+            aux[c],
+            rot[c],
+            radius[c],
+            mesh[c],
+            friction[c],
+            restitution[c],
+            particle_radius[i],
+            x,
+            v,
+        )
     x_io[i] = x
     v_io[i] = v
 
@@ -349,17 +384,18 @@ class Colliders:
             for v, f in self._meshes
         ]
         rows = self._rows
+        rg = bool(getattr(model, "requires_grad", False))  # μ, e and positions carry gradients then
         arr = {
             "kind": wp.array([r[0] for r in rows], dtype=wp.int32, device=d),
-            "pos": wp.array(np.array([r[1] for r in rows]), dtype=model.vec3, device=d),
+            "pos": wp.array(np.array([r[1] for r in rows]), dtype=model.vec3, device=d, requires_grad=rg),
             "aux": wp.array(np.array([r[2] for r in rows]), dtype=model.vec3, device=d),
             "rot": wp.array(np.array([r[3] for r in rows]), dtype=model.mat33, device=d),
             "radius": wp.array([r[4] for r in rows], dtype=model.scalar, device=d),
             "mesh": wp.array(
                 [meshes[r[7]].id if r[0] == MESH else 0 for r in rows], dtype=wp.uint64, device=d
             ),
-            "friction": wp.array([r[5] for r in rows], dtype=model.scalar, device=d),
-            "restitution": wp.array([r[6] for r in rows], dtype=model.scalar, device=d),
+            "friction": wp.array([r[5] for r in rows], dtype=model.scalar, device=d, requires_grad=rg),
+            "restitution": wp.array([r[6] for r in rows], dtype=model.scalar, device=d, requires_grad=rg),
             "_meshes": meshes,  # keep the BVHs alive
         }
         self._cache[key] = arr
@@ -387,6 +423,37 @@ class Colliders:
             ],
             device=model.device,
         )
+
+    def apply_out(self, model: Any, x_in: wp.array, v_in: wp.array, x_out: wp.array, v_out: wp.array) -> None:
+        """:meth:`apply` out of place, for recorded (``wp.Tape``) steps: reads (x_in, v_in), writes
+        (x_out, v_out), one launch per collider into fresh arrays (a loop carrying x and v through the
+        colliders inside one kernel would not differentiate correctly). The friction μ and restitution e
+        arrays (``arrays(model)["friction"]``, ``["restitution"]``, one value per collider) and the
+        colliders' positions (``["pos"]``) receive gradients. Piecewise smooth: where a particle enters or
+        leaves contact or friction switches stick/slip the gradient is one-sided (a subgradient). Mesh
+        colliders raise :class:`~pliant.diff.GradientError` (Warp's BVH query has no adjoint here).
+        """
+        from .._warp import GradientError, fresh
+        from ._colliders_recorded import collider_response_out
+
+        if any(r[0] == MESH for r in self._rows):
+            raise GradientError(
+                "mesh colliders are not differentiable: use spheres, boxes and capsules, or "
+                "finalize(requires_grad=False)"
+            )
+        a = self.arrays(model)
+        count = len(self._rows)
+        for c in range(count):
+            last = c == count - 1
+            xo, vo = (x_out, v_out) if last else (fresh(model), fresh(model))
+            launch(
+                collider_response_out,
+                model.particle_count,
+                [c, *self.geometry_inputs(model), a["friction"], a["restitution"]]
+                + [model.particle_inv_mass, model.particle_radius, x_in, v_in, xo, vo],
+                device=model.device,
+            )
+            x_in, v_in = xo, vo
 
     def query(self, model: Any, x: wp.array) -> tuple[np.ndarray, np.ndarray]:
         """Smallest signed distance φ [m] over the colliders and its normal, per point (host arrays)."""

@@ -64,6 +64,19 @@ def _compliance(kind: str) -> Callable[[Model, Any, State, Control | None], wp.a
     return get
 
 
+def _collider(key: str) -> Callable[[Model, Any, State, Control | None], wp.array]:
+    def get(model, solver, state0, control):
+        found = [c for c in getattr(solver, "collisions", ()) if callable(getattr(c, "apply_out", None))]
+        if len(found) != 1:
+            raise GradientError(
+                f"'collider_{key}' needs exactly one pl.collision.Colliders in the solver's collisions= "
+                f"(found {len(found)})"
+            )
+        return found[0].arrays(model)[key]
+
+    return get
+
+
 #: Parameter name → where its array lives. Each entry returns the array (or (array, component) for a
 #: scalar held in a shared array). Values are per element: per spring, per tet, per particle, per target.
 PARAMETERS: dict[str, Callable[[Model, Any, State, Control | None], Any]] = {
@@ -89,6 +102,10 @@ PARAMETERS: dict[str, Callable[[Model, Any, State, Control | None], Any]] = {
     "compliance_distance": _compliance("Distance"),
     "compliance_dihedralbending": _compliance("DihedralBending"),
     "compliance_volume": _compliance("Volume"),
+    # Colliders (ForceSolver collisions=[pl.collision.Colliders]): per collider μ, e and centre [m].
+    "collider_friction": _collider("friction"),
+    "collider_restitution": _collider("restitution"),
+    "collider_pos": _collider("pos"),
     "particle_f": _control("particle_f"),  # external forces [N], held over the rollout
     "kinematic_targets": _control("kinematic_targets"),  # targets [m] of the kinematic particles
 }
@@ -182,12 +199,14 @@ def rollout(
             "frames, substeps and checkpoint_every must be >= 1, "
             f"got {frames}, {substeps}, {checkpoint_every}"
         )
-    if getattr(solver, "collisions", None):
-        # XPBD's handlers would run in place on the tape (a wrong gradient): refused for every solver here.
-        raise GradientError(
-            "contact handlers (collisions=) correct the state in place and are not differentiable yet; "
-            "use the ground plane (model.ground) or finalize with requires_grad=False"
-        )
+    for c in getattr(solver, "collisions", None) or ():
+        if not (callable(getattr(c, "apply_out", None)) and hasattr(solver, "_step_recorded")):
+            # The handler would correct the state in place on the tape (a wrong gradient).
+            raise GradientError(
+                f"the contact handler {type(c).__name__} (collisions=) of {type(solver).__name__} is not "
+                "differentiable: use ForceSolver with pl.collision.Colliders (spheres, boxes, capsules), "
+                "the ground plane (model.ground), or finalize with requires_grad=False"
+            )
     integrator = getattr(solver, "integrator", None)
     if getattr(integrator, "multistep", False) and checkpoint_every < frames:
         raise GradientError(

@@ -264,15 +264,17 @@ class ForceSolver(Solver):
                 "integrator (SymplecticEuler, VelocityVerlet, RK2/Heun/Midpoint, RK4, ForwardEuler) or "
                 "BackwardEuler, ImplicitMidpoint, BDF2, or finalize the model with requires_grad=False"
             )
-        if self.collisions:
-            raise GradientError(
-                "contact handlers (collisions=) correct the state in place and are not differentiable yet; "
-                "use the ground plane (model.ground) or finalize with requires_grad=False"
-            )
+        for c in self.collisions:
+            if not callable(getattr(c, "apply_out", None)):
+                raise GradientError(
+                    f"the contact handler {type(c).__name__} (collisions=) corrects the state in place and "
+                    "has no apply_out for recorded steps: use pl.collision.Colliders, the ground plane "
+                    "(model.ground), or finalize with requires_grad=False"
+                )
         if control is not None and control.drag_index >= 0:
             raise GradientError("the drag handle is interactive and not differentiable: release_drag() first")
         kinematic = control is not None and control.kinematic_indices.shape[0] > 0
-        stages = int(kinematic) + int(self.contact)
+        stages = int(kinematic) + int(self.contact) + len(self.collisions)
         outs = [(fresh(m), fresh(m)) for _ in range(stages)] + [(state_out.particle_q, state_out.particle_qd)]
         x, v = outs[0]
         self.integrator.step_system(self, 0.0, dt, state_in.particle_q, state_in.particle_qd, x, v)
@@ -327,6 +329,12 @@ class ForceSolver(Solver):
                 ],
                 device=m.device,
             )
+        if self.contact:
+            x, v, k = xo, vo, k + 1
+        for c in self.collisions:  # then each handler, in the order of the unrecorded step (finish_step)
+            xo, vo = outs[k]
+            c.apply_out(m, x, v, xo, vo)
+            x, v, k = xo, vo, k + 1
 
     def reset(self) -> None:
         """Forget what earlier steps leave for the next: the L-BFGS curvature pairs and warm start, a
