@@ -3,9 +3,10 @@ with every time integrator of the lecture, on NVIDIA Warp (CPU and CUDA).
 
 Steps are differentiable with ``wp.Tape`` on a model finalised with ``requires_grad=True`` (see
 ``pliant.diff``): ``ForceSolver`` with explicit integrators, or with BackwardEuler / ImplicitMidpoint / BDF2
-(Newton or L-BFGS, implicit-function-theorem adjoint); ``FastMassSpring(method="symplectic")``; ``XPBD`` /
-``PBD`` with the Jacobi schedule. What cannot give a gradient (``FastMassSpring(method="implicit")``, the
-colouring schedule, ``collisions=`` handlers, the drag handle, ...) raises ``pliant.diff.GradientError``."""
+(Newton or L-BFGS, implicit-function-theorem adjoint); ``FastMassSpring`` (symplectic, or implicit through
+the adjoint of its linear solve); ``XPBD`` / ``PBD`` with the Jacobi schedule; ForceSolver's collider contact.
+What cannot give a gradient (the colouring schedule, mesh colliders, in-place ``collisions=`` handlers, the
+drag handle, ...) raises ``pliant.diff.GradientError``."""
 
 from __future__ import annotations
 

@@ -112,6 +112,20 @@ def tape_paused() -> Iterator[Any]:
         runtime.tape = tape
 
 
+@contextlib.contextmanager
+def untaped_in_place() -> Iterator[None]:
+    """Run in-place kernels outside any tape: the tape is paused and Warp's read-then-write check
+    (``wp.config.verify_autograd_array_access``, applied when a module is built) is off, because these
+    launches are never replayed (e.g. the CG iterations a hand-written adjoint stands in for)."""
+    old = wp.config.verify_autograd_array_access
+    wp.config.verify_autograd_array_access = False
+    try:
+        with tape_paused():
+            yield
+    finally:
+        wp.config.verify_autograd_array_access = old
+
+
 def launch(kernel: Any, dim: Any, inputs: list, device: Any = None) -> None:
     """``wp.launch(kernel, dim, inputs, device=device)``, replaying a recorded ``wp.Launch`` when it can.
 

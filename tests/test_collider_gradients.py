@@ -36,7 +36,13 @@ def _setup(integ: str):
     m.particle_qd.assign(np.array([0.4, -1.5, 0.2]) + 0.1 * rng.normal(size=(m.particle_count, 3)))
     col = pl.collision.Colliders()
     col.add_sphere((0.02, 0.0, 0.01), 0.2, friction=0.4, restitution=0.3)
-    col.add_box((0.2, 0.1, 0.0), (0.05, 0.1, 0.2), rotation=(0.0, 0.1494, 0.0498, 0.9875), friction=0.2, restitution=0.1)
+    col.add_box(
+        (0.2, 0.1, 0.0),
+        (0.05, 0.1, 0.2),
+        rotation=(0.0, 0.1494, 0.0498, 0.9875),
+        friction=0.2,
+        restitution=0.1,
+    )
     integrator = (
         pl.integrators.SymplecticEuler()
         if integ == "symplectic"

@@ -36,14 +36,22 @@ def _loss_kernel() -> Any:
     return height_sum
 
 
-def _bench(n: int, substeps: int) -> Callable[..., dict]:
+def _bench(n: int, substeps: int, implicit: bool = False) -> Callable[..., dict]:
+    """The row for an n × n cloth: ForceSolver + symplectic Euler with ``substeps`` per frame, or
+    (``implicit``) FastMassSpring's Baraff–Witkin step, whose gradient is the adjoint of its linear solve."""
+
     def bench(device: str | None = "cpu", quick: bool = False) -> dict:
         import warp as wp
 
         from .. import diff
         from ..integrators import SymplecticEuler
-        from ..solvers import ForceSolver
+        from ..solvers import FastMassSpring, ForceSolver
         from ._mass_spring import cloth_drape_model
+
+        def make_solver(model: Any) -> Any:
+            if implicit:
+                return FastMassSpring(model, method="implicit", cg_iterations=40, damping_rate=1.0)
+            return ForceSolver(model, integrator=SymplecticEuler(), damping_rate=1.0)
 
         cells, frames = (8, 3) if quick else (n, FRAMES)
         dt = FRAME_DT / substeps
@@ -56,7 +64,7 @@ def _bench(n: int, substeps: int) -> Callable[..., dict]:
             return out
 
         def forward(model: Any) -> float:
-            solver = ForceSolver(model, integrator=SymplecticEuler(), damping_rate=1.0)
+            solver = make_solver(model)
             s0, s1 = model.state(), model.state()
             solver.step(s0, s1, None, dt)  # warm-up (compilation)
             wp.synchronize_device(model.device)
@@ -68,7 +76,7 @@ def _bench(n: int, substeps: int) -> Callable[..., dict]:
             return time.perf_counter() - t0
 
         def timed_recorded(model: Any) -> float:
-            solver = ForceSolver(model, integrator=SymplecticEuler(), damping_rate=1.0)
+            solver = make_solver(model)
             s = model.state()
             t0 = time.perf_counter()
             for _ in range(frames * substeps):
@@ -83,7 +91,7 @@ def _bench(n: int, substeps: int) -> Callable[..., dict]:
         model = cloth_drape_model(cells, device=device, dtype="float64", damping=0.01)
         model = _with_grad(model)
         t_rec = timed_recorded(model)
-        solver = ForceSolver(model, integrator=SymplecticEuler(), damping_rate=1.0)
+        solver = make_solver(model)
         # Warm-up: compiles the adjoint kernels (not part of the gradient's cost).
         diff.rollout(model, solver, loss, frames=1, substeps=1, dt=dt, params=["spring_stiffness"])
         t0 = time.perf_counter()
@@ -94,8 +102,8 @@ def _bench(n: int, substeps: int) -> Callable[..., dict]:
         t_grad = time.perf_counter() - t0
         return {
             "scene": f"cloth_drape_{cells}",
-            "solver": "ForceSolver",
-            "integrator": "SymplecticEuler",
+            "solver": "FastMassSpring" if implicit else "ForceSolver",
+            "integrator": "BaraffWitkin" if implicit else "SymplecticEuler",
             "device": str(model.device),
             "dtype": "float64",
             "particles": model.particle_count,
@@ -134,6 +142,7 @@ def _with_grad(model: Any) -> Any:
 
 BENCHMARKS: dict[str, Callable[..., dict]] = {
     "gradient_cloth_32_symplectic": _bench(32, 40),
+    "gradient_cloth_32_implicit": _bench(32, 1, implicit=True),
 }
 
 

@@ -310,12 +310,6 @@ class FastMassSpring(Solver):
         if damping_rate is not None and damping_rate < 0:
             raise ValueError(f"damping_rate must be >= 0 1/s, got {damping_rate}")
         self.method = method
-        #: Under requires_grad: the same step by ForceSolver's tape-correct path (see :meth:`step`).
-        self._recorded: Any = None
-        if grad_enabled(model):
-            self._recorded = self._recorded_solver(
-                method, velocity_damping, damping_rate, contact, collisions
-            )
         self.cg_iterations = int(cg_iterations)
         self.cg_tol = float(cg_tol)
         self.velocity_damping_factor = float(velocity_damping)
@@ -338,21 +332,35 @@ class FastMassSpring(Solver):
             self._r, self._z, self._q, self._dv = (wp.zeros(n, dtype=model.vec3, device=d) for _ in range(4))
             self._p = [wp.zeros(n, dtype=model.vec3, device=d) for _ in range(2)]
             self._scalars = wp.zeros(2 * self.cg_iterations + 2, dtype=model.scalar, device=d)
+        self._np_dtype = np.float64 if model.dtype == "float64" else np.float32
+        #: Under requires_grad: the same step by ForceSolver's tape-correct path (see :meth:`step`).
+        self._recorded: Any = None
+        if grad_enabled(model):
+            self._recorded = self._recorded_solver(
+                method, velocity_damping, damping_rate, contact, collisions
+            )
 
     def _recorded_solver(self, method, velocity_damping, damping_rate, contact, collisions) -> Any:
         """The symplectic step as ``ForceSolver(Springs, Dashpots, Gravity; SymplecticEuler)``: the same
         update (equal to round-off, not bit for bit: the gather kernel sums in another order), written into
         fresh arrays so that ``wp.Tape`` can differentiate it, and reading the model's parameter arrays
         directly (no host-side packing)."""
-        from .._warp import GradientError
         from ..energies import Dashpots, Gravity, Springs
         from ..integrators import SymplecticEuler
         from ._force import ForceSolver
 
         if method == "implicit":
-            raise GradientError(
-                "FastMassSpring(method='implicit') has no adjoint for its CG solve in this version: use "
-                "method='symplectic', or ForceSolver with an explicit integrator, or requires_grad=False"
+            from ._fast_cloth_adjoint import BaraffWitkinStep
+
+            # The same Δv by the same kernels, with the adjoint of the linear solve on the tape.
+            return ForceSolver(
+                self.model,
+                energies=[Springs(), Dashpots(), Gravity()],
+                integrator=BaraffWitkinStep(self),
+                velocity_damping=velocity_damping,
+                damping_rate=damping_rate,
+                contact=contact,
+                collisions=collisions,
             )
         return ForceSolver(
             self.model,
@@ -363,6 +371,16 @@ class FastMassSpring(Solver):
             contact=contact,
             collisions=collisions,
         )
+
+    @property
+    def gravity(self) -> wp.array | None:
+        """g [m/s²] (1-element vec3) read by recorded steps (its ``.grad`` after backward), else None."""
+        return None if self._recorded is None else self._recorded.gravity
+
+    @property
+    def damping_rate_array(self) -> wp.array | None:
+        """The damping rate c [1/s] read by recorded steps (with ``damping_rate``), else None."""
+        return None if self._recorded is None else self._recorded.damping_rate_array
 
     @property
     def ground_coefficients(self) -> wp.array | None:
@@ -488,39 +506,7 @@ class FastMassSpring(Solver):
                     record_cmd=True,
                 )
             ]
-            tol2 = s(self.cg_tol**2)
-            for k in range(self.cg_iterations):
-                p_old, p_new = self._p[(k + 1) % 2], self._p[k % 2]
-                cmds.append(
-                    wp.launch(
-                        _bw_apply,
-                        n,
-                        [
-                            self.adj_offsets,
-                            self.adj_neighbor,
-                            m.particle_mass,
-                            m.particle_inv_mass,
-                            self._block,
-                            self._z,
-                            p_old,
-                            self._scalars,
-                            k,
-                            p_new,
-                            self._q,
-                        ],
-                        device=dev,
-                        record_cmd=True,
-                    )
-                )
-                cmds.append(
-                    wp.launch(
-                        _bw_update,
-                        n,
-                        [self._precond, p_new, self._q, self._scalars, k, tol2, self._dv, self._r, self._z],
-                        device=dev,
-                        record_cmd=True,
-                    )
-                )
+            cmds += self._cg(record=True)
             cmds.append(
                 wp.launch(
                     _bw_finish,
@@ -532,6 +518,41 @@ class FastMassSpring(Solver):
             )
         self._cmds[key] = cmds
         return cmds
+
+    def _cg(self, record: bool) -> list:
+        """The CG iterations on the assembled system (``_bw_apply``, ``_bw_update`` per iteration), as
+        recorded commands (``record``) or launched now."""
+        m, s, dev = self.model, self.model.s, self.model.device
+        n = m.particle_count
+        tol2 = s(self.cg_tol**2)
+        cmds = []
+        for k in range(self.cg_iterations):
+            p_old, p_new = self._p[(k + 1) % 2], self._p[k % 2]
+            cmds.append(
+                wp.launch(
+                    _bw_apply,
+                    n,
+                    [self.adj_offsets, self.adj_neighbor, m.particle_mass, m.particle_inv_mass, self._block]
+                    + [self._z, p_old, self._scalars, k, p_new, self._q],
+                    device=dev,
+                    record_cmd=record,
+                )
+            )
+            cmds.append(
+                wp.launch(
+                    _bw_update,
+                    n,
+                    [self._precond, p_new, self._q, self._scalars, k, tol2, self._dv, self._r, self._z],
+                    device=dev,
+                    record_cmd=record,
+                )
+            )
+        return cmds
+
+    def run_cg(self, h: float) -> None:
+        """Run CG now on what ``_bw_assemble`` left in the work buffers (the recorded step's forward solve;
+        ``h`` [s] is the step, unused by the iterations themselves)."""
+        self._cg(record=False)
 
     def step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
         """Advance by ``dt`` [s]: fused step, then kinematic targets, ground contact, contact handlers."""
