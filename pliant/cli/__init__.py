@@ -202,6 +202,16 @@ def build_parser() -> argparse.ArgumentParser:
         "--out", required=True, help="a folder (ply/obj/vtu sequences) or a file (usd, xdmf, or --frame)"
     )
     e.add_argument("--frame", type=int, help="export only this frame (ply/obj; negative counts from the end)")
+    vw = _sub(
+        sub,
+        "view",
+        "look at a trajectory in the browser: objects, colliders, ground, a timeline (needs pliant[viewer])",
+        "pliant view out/cloth.npz                 # then open http://127.0.0.1:8080",
+        "pliant view out/fem_drop.npz --host 0.0.0.0 --port 8090",
+    )
+    vw.add_argument("trajectory", metavar="TRAJ.npz")
+    vw.add_argument("--host", default="127.0.0.1", help="interface (0.0.0.0: reachable from other machines)")
+    vw.add_argument("--port", type=int, default=8080, help="TCP port (default 8080)")
     from ._fit import add_parsers as _fit_parsers
 
     _fit_parsers(sub)  # fit, observe
@@ -228,6 +238,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             from ._fit import cmd_fit, cmd_observe
 
             return cmd_fit(args) if args.command == "fit" else cmd_observe(args)
+        if args.command == "view":
+            from ._view import cmd_view
+
+            return cmd_view(args)
         from ._misc import cmd_bench, cmd_export, cmd_info, cmd_study
 
         return {"info": cmd_info, "bench": cmd_bench, "study": cmd_study, "export": cmd_export}[args.command](

@@ -24,8 +24,12 @@ from ._export_objects import (
 from ._plots import fit_order, plot_error_vs_dt, plot_phase_portrait, plot_series
 from ._renderer import Renderer
 from ._video import VideoError, VideoWriter, check_fps, realtime_indices, render_video, video, write_video
+from ._viewer import Viewer, ViewerError, serve_viewer
 
 __all__ = [
+    "Viewer",
+    "ViewerError",
+    "serve_viewer",
     "ObjectPart",
     "export_usd_objects",
     "export_vtu_series",

@@ -1,0 +1,32 @@
+"""``pliant view``: serve a trajectory in the browser until Ctrl-C."""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from . import EXIT_OK, CliError
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    """Load the trajectory, start the viewer and keep serving it (Ctrl-C stops: exit 130)."""
+    from ..io import Trajectory
+    from ..render._viewer import serve_viewer
+
+    try:
+        traj = Trajectory.load(args.trajectory)
+    except (OSError, ValueError, KeyError) as exc:
+        raise CliError(
+            f"{args.trajectory}: not a pliant trajectory ({exc}); write one with pliant run"
+        ) from None
+    viewer = serve_viewer(traj, host=args.host, port=args.port)
+    print(
+        f"pliant view: {args.trajectory} ({traj.frame_count} frames) at {viewer.url} (Ctrl-C to stop)",
+        flush=True,
+    )
+    try:
+        while True:
+            time.sleep(1.0)
+    finally:
+        viewer.stop()
+    return EXIT_OK

@@ -1,0 +1,127 @@
+"""``pliant view``: the viser server starts headless, serves the page, holds one scene node per object (plus
+colliders and ground), moves them along the timeline, and a headless Chromium screenshot shows the object."""
+
+from __future__ import annotations
+
+import shutil
+import socket
+import subprocess
+import sys
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("viser", reason="the viewer extra: pip install 'pliant[viewer]'")
+
+from pliant.geometry import cloth_grid  # noqa: E402
+from pliant.io import Trajectory  # noqa: E402
+from pliant.render._viewer import PALETTE, serve_viewer  # noqa: E402
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _trajectory() -> Trajectory:
+    """A falling 5 × 5 cloth (25 particles) and a 4-particle rope beside it, a box collider and the ground."""
+    cloth = cloth_grid(4, 4, 0.8)
+    n_c = cloth.points.shape[0]
+    rope = np.array([[0.6, 0.5, 0.0], [0.8, 0.5, 0.0], [1.0, 0.5, 0.0], [1.2, 0.5, 0.0]])
+    x0 = np.vstack([cloth.points + [0.0, 0.5, 0.0], rope])
+    frames = np.stack([x0 + [0.0, -0.02 * k, 0.0] for k in range(10)])
+    meta = {
+        "dt": 1 / 30,
+        "objects": [
+            {"name": "cloth", "kind": "cloth", "start": 0, "count": n_c},
+            {"name": "rope", "kind": "rope", "start": n_c, "count": 4},
+        ],
+        "colliders": [{"points": [[0, 0, 0], [0.2, 0, 0], [0, 0.2, 0]], "faces": [[0, 1, 2]]}],
+        "ground": 0.0,
+    }
+    return Trajectory(x=frames, t=np.arange(10) / 30, faces=cloth.triangles, meta=meta)
+
+
+def test_viewer_serves_every_object_and_follows_the_timeline():
+    traj = _trajectory()
+    v = serve_viewer(traj, port=_free_port())
+    try:
+        assert urllib.request.urlopen(v.url, timeout=10).status == 200
+        assert v.nodes == {
+            "/pliant/cloth": "mesh",
+            "/pliant/rope": "curve",
+            "/pliant/colliders/collider0": "collider",
+            "/pliant/ground": "ground",
+        }
+        mesh = v._handles[0][0]
+        np.testing.assert_allclose(mesh.vertices, traj.x[0, :25], atol=1e-6)
+        v.show(-1)  # the last frame
+        assert v.frame == 9
+        np.testing.assert_allclose(mesh.vertices, traj.x[9, :25], atol=1e-6)
+        rope = v._handles[1][0]
+        np.testing.assert_allclose(rope.points[:, 0], traj.x[9, 25:28], atol=1e-6)
+    finally:
+        v.stop()
+
+
+def test_bad_trajectory_and_missing_viser_are_clear_errors(tmp_path, monkeypatch):
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, y=np.zeros(3))
+    r = subprocess.run(
+        [sys.executable, "-m", "pliant.cli", "view", str(bad)], capture_output=True, text=True, timeout=120
+    )
+    assert r.returncode == 1 and "bad.npz" in r.stderr, r.stderr
+    import pliant.render._viewer as viewer
+
+    monkeypatch.setitem(sys.modules, "viser", None)
+    with pytest.raises(viewer.ViewerError, match=r"pliant\[viewer\]"):
+        viewer.serve_viewer(_trajectory())
+
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+@pytest.mark.skipif(
+    CHROMIUM is None, reason="no chromium on this machine (.ci/run installs Debian's package)"
+)
+def test_headless_chromium_screenshot_shows_the_object(tmp_path):
+    traj = _trajectory()
+    v = serve_viewer(traj, port=_free_port())
+    shot = tmp_path / "shot.png"
+    try:
+        subprocess.run(
+            [
+                CHROMIUM,
+                "--headless",
+                "--no-sandbox",
+                "--disable-gpu",
+                "--disable-quic",
+                "--no-first-run",
+                "--disable-background-networking",
+                "--disable-component-update",
+                "--disable-sync",
+                f"--user-data-dir={tmp_path / 'profile'}",
+                "--use-angle=swiftshader",
+                "--enable-unsafe-swiftshader",  # WebGL in software: no GPU here
+                "--window-size=800,600",
+                "--virtual-time-budget=8000",
+                f"--screenshot={shot}",
+                v.url,
+            ],
+            capture_output=True,
+            timeout=90,
+        )
+    finally:
+        v.stop()
+    assert shot.exists()
+    import imageio.v3 as iio
+
+    img = np.asarray(iio.imread(Path(shot)))[..., :3].astype(int)
+    r, g, b = PALETTE[0]
+    # The cloth's colour (lit: brightness varies, hue stays blue) covers part of the middle of the view.
+    middle = img[150:450, 200:600]
+    blue = (middle[..., 2] > middle[..., 0] + 40) & (middle[..., 2] > 150)
+    assert blue.mean() > 0.02, f"cloth colour {(r, g, b)} covers {blue.mean():.3%} of the middle"
