@@ -41,7 +41,7 @@ class SplatRun:
     def _twin(self) -> None:
         """Simulate the twin (the scene file with ``correction.set``), render it, make the corrector."""
         from ..gaussians import VisualCorrector
-        from ..gaussians._scene import ring_cameras
+        from ..gaussians._surface import ring_cameras
         from ..scene import SceneError, build_scene, parse_scene
 
         cfg, spec = self.cfg, self.spec
@@ -61,7 +61,9 @@ class SplatRun:
         t0 = time.perf_counter()
         self.twin_x = twin.simulator().run(self.scene.frames, progress=False).x
         lo, hi = self.splats.lo, self.splats.hi
-        self.cameras = ring_cameras(self.twin_x[:, lo:hi], spec.cameras, spec.width, spec.height)
+        self.cameras = ring_cameras(
+            self.twin_x[:, lo:hi], spec.cameras, width=spec.width, height=spec.height, elevation=30.0
+        )
         self.images = [[self.splats.image(x, c) for c in self.cameras] for x in self.twin_x]
         if not self.quiet:
             print(

@@ -157,20 +157,3 @@ def scene_splats(cfg: Any, scene: Any) -> SceneSplats:
     except ValueError as exc:
         raise _fail(cfg, "gaussians.bind", str(exc)) from None
     return SceneSplats(b, lo, hi, tuple(float(c) for c in spec.background))
-
-
-def ring_cameras(
-    points: np.ndarray, count: int, width: int, height: int, fov_y: float = 50.0
-) -> list[Camera]:
-    """``count`` cameras evenly around the bounding box of ``points`` [..., 3] (y-up), 30° above it, each
-    far enough to see the whole box."""
-    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    lo, hi = p.min(axis=0), p.max(axis=0)
-    centre, radius = 0.5 * (lo + hi), max(0.5 * float(np.linalg.norm(hi - lo)), 1e-3)
-    half = np.radians(0.5 * fov_y) * min(1.0, width / height)
-    dist = 1.15 * radius / np.sin(half)
-    cams = []
-    for a in np.linspace(0.0, 2.0 * np.pi, count, endpoint=False) + 0.3:
-        eye = centre + dist * np.array([np.sin(a) * np.cos(0.52), np.sin(0.52), np.cos(a) * np.cos(0.52)])
-        cams.append(Camera.look_at(eye, centre, fov_y=fov_y, width=width, height=height))
-    return cams
