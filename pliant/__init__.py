@@ -41,6 +41,7 @@ _SUBMODULES = (
     "diff",
     "fit",
     "gaussians",
+    "sweep",
 )
 
 

@@ -12,7 +12,7 @@ from mkdocs.structure.files import File
 OPTIONAL = ("diff", "fit", "gaussians")
 SECTION = "API reference"
 #: Guide pages written on other branches: file -> nav title, placed before the API reference.
-OPTIONAL_PAGES = {"fit.md": "Fitting", "gaussians.md": "Gaussian splats"}
+OPTIONAL_PAGES = {"fit.md": "Fitting", "gaussians.md": "Gaussian splats", "sweep.md": "Parameter sweeps"}
 
 
 def _present(config) -> list[str]:

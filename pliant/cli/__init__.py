@@ -202,6 +202,32 @@ def build_parser() -> argparse.ArgumentParser:
         "--out", required=True, help="a folder (ply/obj/vtu sequences) or a file (usd, xdmf, or --frame)"
     )
     e.add_argument("--frame", type=int, help="export only this frame (ply/obj; negative counts from the end)")
+    sw = _sub(
+        sub,
+        "sweep",
+        "run a scene over a grid of --set values (batched copies, or Ray tasks) into DIR/results.csv",
+        "pliant sweep cloth --set objects[0].material.stiffness=100,200,400 --out sweep/",
+        "pliant sweep rope --set objects[0].material.stiffness=50,100 --set solver.damping_rate=0,1 --out s/",
+        "pliant sweep cloth --set objects[0].material.stiffness=100,200 --ray --out sweep/   # pliant[ray]",
+    )
+    sw.add_argument("scene", metavar="SCENE")
+    sw.add_argument(
+        "--set",
+        dest="sets",
+        action="append",
+        default=[],
+        metavar="PATH=V1,V2,...",
+        help="a scene field and its values (repeat: the grid is the product)",
+    )
+    sw.add_argument("--out", required=True, help="output folder (results.csv; a re-run skips finished runs)")
+    sw.add_argument(
+        "--worlds", type=int, default=16, help="runs stepped together in one simulation (default 16)"
+    )
+    sw.add_argument("--frames", type=int, help="frames per run (default: the scene's)")
+    sw.add_argument("--ray", action="store_true", help="run chunks as Ray tasks (local cluster by default)")
+    sw.add_argument("--address", help="an existing Ray cluster's address (with --ray)")
+    sw.add_argument("--save-trajectories", action="store_true", help="also write each run's positions")
+    sw.add_argument("-q", "--quiet", action="store_true", help="no progress line")
     vw = _sub(
         sub,
         "view",
@@ -238,6 +264,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             from ._fit import cmd_fit, cmd_observe
 
             return cmd_fit(args) if args.command == "fit" else cmd_observe(args)
+        if args.command == "sweep":
+            from ._sweep import cmd_sweep
+
+            return cmd_sweep(args)
         if args.command == "view":
             from ._view import cmd_view
 

@@ -1,0 +1,300 @@
+"""The sweep: grid of overrides → chunks (batched copies when allowed) → rows of results.csv."""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import os
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+#: Columns of results.csv after the override columns.
+COLUMNS = [
+    "status",
+    "error",
+    "centroid_x",
+    "centroid_y",
+    "centroid_z",
+    "sag",
+    "max_speed",
+    "frames",
+    "batched",
+    "wall_time",
+]
+#: Columns that are equal whatever executes the runs (all but how and how long).
+FIGURES = ["status", "error", "centroid_x", "centroid_y", "centroid_z", "sag", "max_speed", "frames"]
+
+
+class SweepError(ValueError):
+    """A malformed ``--set`` list or sweep option (the message names it and the fix)."""
+
+
+def _split_values(text: str) -> list[str]:
+    """``100,200`` → ["100", "200"]; commas inside brackets or quotes stay (``[0,1,0],[1,0,0]``)."""
+    out, depth, quote, cur = [], 0, "", ""
+    for ch in text:
+        if quote:
+            quote = "" if ch == quote else quote
+        elif ch in "\"'":
+            quote = ch
+        elif ch == "[":
+            depth += 1
+        elif ch == "]":
+            depth -= 1
+        elif ch == "," and depth == 0:
+            out.append(cur)
+            cur = ""
+            continue
+        cur += ch
+    out.append(cur)
+    return [v.strip() for v in out]
+
+
+def grid(sets: Sequence[str]) -> list[list[str]]:
+    """The cartesian product of ``PATH=V1,V2,...`` lists, as lists of ``PATH=V`` overrides (one per run).
+
+    Raises:
+        SweepError: a list without ``=`` or with an empty value.
+    """
+    axes = []
+    for s in sets:
+        path, eq, values = s.partition("=")
+        if not eq or not path.strip():
+            raise SweepError(
+                f"--set {s!r}: expected PATH=V1,V2,... (e.g. objects[0].material.stiffness=100,200)"
+            )
+        vals = _split_values(values)
+        if any(v == "" for v in vals):
+            raise SweepError(f"--set {s!r}: an empty value in the list; write PATH=V1,V2 without empty items")
+        axes.append([f"{path.strip()}={v}" for v in vals])
+    return [list(run) for run in itertools.product(*axes)] if axes else [[]]
+
+
+def summarize(x: np.ndarray, frame_dt: float) -> dict[str, float]:
+    """Summary figures of positions ``x`` [T, N, 3] [m]: the final centroid [m], the sag (drop of the
+    centroid's height from frame 0 to the last) [m] and the largest particle speed between frames [m/s]."""
+    c0, c1 = x[0].mean(axis=0), x[-1].mean(axis=0)
+    speed = np.linalg.norm(np.diff(x, axis=0), axis=2).max() / frame_dt if len(x) > 1 else 0.0
+    return {
+        "centroid_x": float(c1[0]),
+        "centroid_y": float(c1[1]),
+        "centroid_z": float(c1[2]),
+        "sag": float(c0[1] - c1[1]),
+        "max_speed": float(speed),
+    }
+
+
+def _object_only(run: Sequence[str]) -> bool:
+    return all(o.strip().startswith("objects[") for o in run)
+
+
+def _batchable(cfg: Any) -> bool:
+    # Handles drive particles by object index and self-collision would couple the copies.
+    return not cfg.handles and getattr(cfg.solver, "self_collision", None) is None
+
+
+def run_chunk(scene: str, runs: list[list[str]], frames: int | None, traj_dir: str | None) -> list[dict]:
+    """Run ``runs`` (override lists) of ``scene``: as copies in one simulation when they change only object
+    sections, else (or when that simulation diverges) one by one. Returns one result dict per run."""
+    from ..scene import SceneError, build_scene, load_scene
+    from ..sim import DivergenceError
+
+    t0 = time.perf_counter()
+    base = load_scene(scene)
+    if len(runs) > 1 and all(_object_only(r) for r in runs) and _batchable(base):
+        try:
+            cfgs = [load_scene(scene, r) for r in runs]
+            merged = base.model_copy(deep=True)
+            per = len(base.objects)
+            merged.objects = [
+                o.model_copy(update={"name": f"{o.name or 'object'}_w{w}"})
+                for w, c in enumerate(cfgs)
+                for o in c.objects
+            ]
+            built = build_scene(merged)
+            n = frames if frames is not None else built.frames
+            traj = _simulate(built, n)
+            spans = built.model.objects
+            out = []
+            for w, r in enumerate(runs):
+                lo = spans[w * per]["start"]
+                hi = spans[(w + 1) * per - 1]["start"] + spans[(w + 1) * per - 1]["count"]
+                x = traj[:, lo:hi]
+                _save(traj_dir, r, x, built.frame_dt)
+                out.append(
+                    {
+                        "status": "ok",
+                        "error": "",
+                        **summarize(x, built.frame_dt),
+                        "frames": n,
+                        "batched": len(runs),
+                    }
+                )
+            wall = (time.perf_counter() - t0) / len(runs)
+            return [{**o, "wall_time": wall} for o in out]
+        except (DivergenceError, SceneError, ValueError):
+            pass  # one run alone at a time: the failure is then recorded for its run only
+    return [_run_one(scene, r, frames, traj_dir) for r in runs]
+
+
+def _simulate(built: Any, frames: int) -> np.ndarray:
+    from ..sim import Simulator
+
+    sim = Simulator(built.model, built.solver, **built.sim_kwargs)
+    return sim.run(frames, progress=False).x
+
+
+def _run_one(scene: str, run: list[str], frames: int | None, traj_dir: str | None) -> dict:
+    from ..scene import SceneError, build_scene, load_scene
+    from ..sim import DivergenceError
+
+    t0 = time.perf_counter()
+    row: dict[str, Any] = {"status": "ok", "error": "", "batched": 1}
+    try:
+        built = build_scene(load_scene(scene, run))
+        n = frames if frames is not None else built.frames
+        x = _simulate(built, n)
+        _save(traj_dir, run, x, built.frame_dt)
+        row.update(summarize(x, built.frame_dt), frames=n)
+    except DivergenceError as exc:
+        row.update(status="diverged", error=str(exc).splitlines()[0])
+    except (SceneError, ValueError) as exc:
+        row.update(status="error", error=str(exc).splitlines()[0])
+    row["wall_time"] = time.perf_counter() - t0
+    return row
+
+
+def _key(run: Sequence[str]) -> str:
+    return ";".join(run)
+
+
+def _save(traj_dir: str | None, run: Sequence[str], x: np.ndarray, frame_dt: float) -> None:
+    if traj_dir is None:
+        return
+    import hashlib
+
+    from ..io import atomic_savez
+
+    name = hashlib.sha1(_key(run).encode()).hexdigest()[:12]
+    atomic_savez(
+        Path(traj_dir) / f"run_{name}.npz", x=x, t=np.arange(len(x)) * frame_dt, overrides=np.array(_key(run))
+    )
+
+
+def _write(path: Path, paths: list[str], rows: list[dict]) -> None:
+    tmp = path.with_suffix(".csv.tmp")
+    with open(tmp, "w", newline="", encoding="utf-8") as f:
+        w = csv.DictWriter(f, fieldnames=paths + COLUMNS, extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow(r)
+    os.replace(tmp, path)
+    try:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+    except ImportError:
+        return
+    pq.write_table(
+        pa.Table.from_pylist([{k: r.get(k) for k in paths + COLUMNS} for r in rows]),
+        path.with_suffix(".parquet"),
+    )
+
+
+def _done(path: Path) -> dict[str, dict]:
+    """The finished runs of an earlier sweep into the same folder (numbers read back as numbers)."""
+    if not path.exists():
+        return {}
+    with open(path, newline="", encoding="utf-8") as f:
+        rows = {r["overrides"]: r for r in csv.DictReader(f) if r.get("status") == "ok"}
+    for r in rows.values():
+        for k in ("centroid_x", "centroid_y", "centroid_z", "sag", "max_speed", "wall_time"):
+            r[k] = float(r[k])
+        for k in ("frames", "batched"):
+            r[k] = int(r[k])
+    return rows
+
+
+def run_sweep(
+    scene: str,
+    sets: Sequence[str],
+    out: str | os.PathLike,
+    *,
+    worlds: int = 16,
+    frames: int | None = None,
+    ray: bool = False,
+    address: str | None = None,
+    save_trajectories: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[dict]:
+    """Run every combination of ``sets`` on ``scene`` and write ``out/results.csv``.
+
+    Args:
+        scene: A scene file or built-in scene name.
+        sets: ``PATH=V1,V2,...`` lists (the grid is their cartesian product).
+        out: Output folder (created).
+        worlds: Runs per simulation (copies stepped together) when they change only objects (≥ 1).
+        frames: Frames to simulate (default: the scene's).
+        ray: Run chunks of ``worlds`` runs as Ray tasks (``pip install 'pliant[ray]'``).
+        address: An existing Ray cluster (default with ``ray``: a local one).
+        save_trajectories: Also write each run's positions to ``out/trajectories/run_<hash>.npz``.
+        progress: ``progress(done, total)`` after each chunk.
+
+    Returns:
+        The rows of results.csv (dicts), in grid order.
+    """
+    from ..scene import load_scene
+
+    if worlds < 1:
+        raise SweepError(f"--worlds: expected at least 1, got {worlds}")
+    runs = grid(sets)
+    load_scene(scene, runs[0])  # a bad scene or path fails here, before any work
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    traj_dir = str(out / "trajectories") if save_trajectories else None
+    if traj_dir:
+        Path(traj_dir).mkdir(exist_ok=True)
+    table = out / "results.csv"
+    done = _done(table)
+    paths = ["overrides"]
+    todo = [r for r in runs if _key(r) not in done]
+    chunks = [todo[i : i + worlds] for i in range(0, len(todo), worlds)]
+    results: dict[str, dict] = {k: dict(v) for k, v in done.items()}
+
+    def keep(chunk: list[list[str]], rows: list[dict]) -> None:
+        for r, row in zip(chunk, rows, strict=True):
+            results[_key(r)] = {"overrides": _key(r), **row}
+        _write(table, paths, [results[_key(r)] for r in runs if _key(r) in results])
+        if progress is not None:
+            progress(sum(_key(r) in results for r in runs), len(runs))
+
+    if ray and chunks:
+        for chunk, rows in _ray_map(scene, chunks, frames, traj_dir, address):
+            keep(chunk, rows)
+    else:
+        for chunk in chunks:
+            keep(chunk, run_chunk(scene, chunk, frames, traj_dir))
+    if not chunks:
+        _write(table, paths, [results[_key(r)] for r in runs])
+    return [results[_key(r)] for r in runs]
+
+
+def _ray_map(scene: str, chunks: list, frames: int | None, traj_dir: str | None, address: str | None):
+    try:
+        import ray
+    except ImportError:
+        raise SweepError("--ray needs Ray, an optional extra: pip install 'pliant[ray]'") from None
+    started = not ray.is_initialized()
+    if started:
+        ray.init(address=address, include_dashboard=False, log_to_driver=False, ignore_reinit_error=True)
+    try:
+        task = ray.remote(run_chunk)
+        refs = [task.remote(scene, c, frames, traj_dir) for c in chunks]
+        for c, ref in zip(chunks, refs, strict=True):
+            yield c, ray.get(ref)
+    finally:
+        if started:
+            ray.shutdown()
