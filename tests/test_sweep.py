@@ -56,7 +56,9 @@ def test_rerun_skips_finished_runs(tmp_path, monkeypatch):
 
 def test_cli_sweep_writes_the_table_and_rejects_bad_input(tmp_path):
     cmd = [sys.executable, "-m", "pliant.cli", "sweep", "rope", "--frames", "4", "-q", "--out", str(tmp_path)]
-    r = subprocess.run([*cmd, "--set", "objects[0].material.stiffness=100,200"], capture_output=True, text=True)
+    r = subprocess.run(
+        [*cmd, "--set", "objects[0].material.stiffness=100,200"], capture_output=True, text=True
+    )
     assert r.returncode == 0, r.stderr
     assert "2 ok" in r.stdout and (tmp_path / "results.csv").exists()
     r = subprocess.run(cmd, capture_output=True, text=True)
