@@ -13,7 +13,7 @@ from pliant.fit._cmaes import batchable, evaluate, evaluate_batch
 def _problem(integrator: str, params: list[str]):
     truth = pl.scene.load_scene("fit_rope", ["objects[0].material.stiffness=480"])
     obs = pl.fit.observe(pl.scene.build_scene(truth), frames=12, tracks=6, seed=3)
-    cfg = pl.scene.load_scene("fit_rope", [f'solver.integrator="{integrator}"', "scene.dtype=\"float64\""])
+    cfg = pl.scene.load_scene("fit_rope", [f'solver.integrator="{integrator}"', 'scene.dtype="float64"'])
     return pl.fit.Problem(cfg, obs, params=params)
 
 
