@@ -132,7 +132,15 @@ def cloth_drape(
         "damping_rate": damping_rate,
         **speed_fields(timing, model.particle_count),
         **sag_fields(model, state, REFERENCE_SAG.get(n, float("nan"))),
+        # The whole fall against the converged curve (pliant.bench._drape_motion), not only the rest.
+        **_motion(n, method, substeps, cg_iterations, damping_rate, dtype=dtype, device=device),
     }
+
+
+def _motion(n: int, method: str, substeps: int, cg_iterations: int, damping_rate: float, **kw: Any) -> dict:
+    from ._drape_motion import motion_fields
+
+    return motion_fields(n, method, substeps, cg_iterations, damping_rate, **kw)
 
 
 def reference_sag(

@@ -1,0 +1,103 @@
+"""The drape's whole motion, not only its rest: the sag per frame against a converged reference.
+
+A speed figure means little if the solver buys it by damping the motion away (truncated CG acts as heavy
+damping; a benchmark's extra velocity damping slows the fall). ``trajectory_error`` is the largest deviation
+of a run's sag curve (pin height minus the lowest particle, every frame) from the converged curve of the
+same physics, relative to the reference's final sag, over the fall: the first 30 frames (0.5 s), where
+truncated iterations and extra damping show (the issue's 128 × 128 drape: sag 0.61 m at frame 30 with 20 CG
+iterations, 0.97 m converged). Later the undamped drape (no dashpots, no bending) folds chaotically and no
+run converges over long windows (n = 16, 60 frames: 320 and 640 substeps per frame still differ by 8 %),
+so the window stops at the fall. The references are float64 symplectic Euler at 640 substeps per frame
+(n = 16: 320 substeps are within 6e-5 of it, first-order convergence measured 40 → 320), undamped, computed
+once and stored in ``pliant/bench/references/cloth_drape_<n>.npz``; regenerate with
+``python -m pliant.bench._drape_motion N`` (n = 16: a second; n = 128: about a minute on one core).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ._mass_spring import FRAME_DT, cloth_drape_model, make_solver, sag
+
+REFERENCES = Path(__file__).parent / "references"
+#: Substeps per frame of the references (8× or more the stable benchmark setting).
+REFERENCE_SUBSTEPS = {16: 640, 64: 640, 128: 1280}
+#: Frames of 1/60 s the references cover: the fall.
+REFERENCE_FRAMES = 30
+
+
+def sag_curve(
+    n: int,
+    method: str,
+    *,
+    substeps: int,
+    cg_iterations: int = 20,
+    damping_rate: float = 0.0,
+    frames: int = REFERENCE_FRAMES,
+    dtype: str = "float32",
+    device: str | None = "cpu",
+) -> np.ndarray:
+    """Sag [m] at frames 0 … ``frames`` of the n × n drape run with a benchmark solver (``method``:
+    "implicit", "symplectic" or "force"; see :func:`pliant.bench._mass_spring.make_solver`)."""
+    model = cloth_drape_model(n, device=device, dtype=dtype)
+    solver = make_solver(model, method, cg_iterations=cg_iterations, damping_rate=damping_rate)
+    control = model.control()
+    s0, s1 = model.state(), model.state()
+    out = [sag(model, s0.particle_q.numpy())]
+    dt = FRAME_DT / substeps
+    for _ in range(frames):
+        for _ in range(substeps):
+            solver.step(s0, s1, control, dt)
+            s0, s1 = s1, s0
+        out.append(sag(model, s0.particle_q.numpy()))
+    return np.asarray(out)
+
+
+def reference_curve(n: int) -> np.ndarray:
+    """The stored converged sag curve [m] of the n × n drape (frames 0 … 30)."""
+    path = REFERENCES / f"cloth_drape_{n}.npz"
+    if not path.exists():
+        raise FileNotFoundError(
+            f"{path}: no reference for n = {n}; make it with python -m pliant.bench._drape_motion {n}"
+        )
+    with np.load(path, allow_pickle=False) as d:
+        return np.asarray(d["sag"], dtype=np.float64)
+
+
+def compute_reference(n: int) -> np.ndarray:
+    """The converged curve: float64 symplectic Euler, undamped, at :data:`REFERENCE_SUBSTEPS`."""
+    return sag_curve(n, "symplectic", substeps=REFERENCE_SUBSTEPS[n], dtype="float64")
+
+
+def trajectory_error(curve: np.ndarray, reference: np.ndarray) -> float:
+    """max_k |curve_k − reference_k| / reference_final over the frames both have."""
+    k = min(len(curve), len(reference))
+    if not np.all(np.isfinite(curve[:k])):
+        return float("inf")
+    return float(np.max(np.abs(curve[:k] - reference[:k])) / abs(reference[-1]))
+
+
+def motion_fields(
+    n: int, method: str, substeps: int, cg_iterations: int, damping_rate: float, **kw: Any
+) -> dict:
+    """The ``trajectory_error`` column of a drape row: a second, untimed run of the row's settings over
+    the reference's frames (None when there is no reference for n)."""
+    if not (REFERENCES / f"cloth_drape_{n}.npz").exists():
+        return {"trajectory_error": None}
+    curve = sag_curve(
+        n, method, substeps=substeps, cg_iterations=cg_iterations, damping_rate=damping_rate, **kw
+    )
+    return {"trajectory_error": round(trajectory_error(curve, reference_curve(n)), 5)}
+
+
+if __name__ == "__main__":
+    for arg in sys.argv[1:]:
+        size = int(arg)
+        REFERENCES.mkdir(exist_ok=True)
+        curve = compute_reference(size)
+        np.savez(REFERENCES / f"cloth_drape_{size}.npz", sag=curve, substeps=REFERENCE_SUBSTEPS[size])
+        print(f"cloth_drape_{size}: final sag {curve[-1]:.6f} m, max {curve.max():.6f} m")
