@@ -94,3 +94,28 @@ def free_mass_spring_body(*, dtype: str = "float64", seed: int = 0) -> tuple[pl.
     state.particle_q.assign(x)
     state.particle_qd.assign(v)
     return model, state
+
+
+#: A tiny float64 rope scene for the fitting tests (7 particles, 10 frames).
+FIT_ROPE = """
+[scene]
+name = "tiny_rope"
+frame_dt = 0.04
+substeps = 10
+frames = 10
+dtype = "float64"
+device = "cpu"
+[[objects]]
+kind = "rope"
+n_segments = 6
+length = 0.3
+origin = [0.0, 0.5, 0.0]
+direction = [1.0, 0.0, 0.0]
+mass = 0.05
+pin = "first"
+[objects.material]
+stiffness = 50.0
+[solver]
+integrator = "SymplecticEuler"
+damping_rate = 0.5
+"""

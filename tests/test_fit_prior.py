@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import FIT_ROPE
 
 import pliant as pl
 from pliant.fit import FitError, Smoothness
@@ -75,28 +76,7 @@ def test_negative_smoothness_is_refused():
         pl.fit.gradient_stage(p, {}, iterations=1, smoothness=-1.0)
 
 
-ROPE = """
-[scene]
-name = "tiny_rope"
-frame_dt = 0.04
-substeps = 10
-frames = 10
-dtype = "float64"
-device = "cpu"
-[[objects]]
-kind = "rope"
-n_segments = 6
-length = 0.3
-origin = [0.0, 0.5, 0.0]
-direction = [1.0, 0.0, 0.0]
-mass = 0.05
-pin = "first"
-[objects.material]
-stiffness = 50.0
-[solver]
-integrator = "SymplecticEuler"
-damping_rate = 0.5
-"""
+ROPE = FIT_ROPE
 
 
 def test_validation_frames_decide_whether_the_gradient_stage_is_kept(tmp_path):

@@ -5,33 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import FIT_ROPE
 
 import pliant as pl
 from pliant.fit import FitError, Problem, cmaes, gradient_stage, observe
 from pliant.fit._params import apply_globals
 
-ROPE = """
-[scene]
-name = "tiny_rope"
-frame_dt = 0.04
-substeps = 10
-frames = 10
-dtype = "float64"
-device = "cpu"
-[[objects]]
-kind = "rope"
-n_segments = 6
-length = 0.3
-origin = [0.0, 0.5, 0.0]
-direction = [1.0, 0.0, 0.0]
-mass = 0.05
-pin = "first"
-[objects.material]
-stiffness = 50.0
-[solver]
-integrator = "SymplecticEuler"
-damping_rate = 0.5
-"""
+ROPE = FIT_ROPE
 
 CLOTH_XPBD = """
 [scene]
@@ -177,6 +157,8 @@ def test_ctrl_c_keeps_the_best_values_in_the_output_folder(tmp_path, monkeypatch
         return real(problem, values)
 
     monkeypatch.setattr(cm, "evaluate", interrupted)
+    # A batched generation is interrupted the same way: route it through the candidates one by one.
+    monkeypatch.setattr(cm, "evaluate_batch", lambda problem, cands: [cm.evaluate(problem, v) for v in cands])
     with pytest.raises(KeyboardInterrupt):
         pl.fit.fit(
             apply_globals(cfg, {"stiffness": 80.0}),
