@@ -89,6 +89,13 @@ def test_ply_splats_bind_to_the_object_and_bad_ply_is_named(tmp_path, capsys):
     cfg = load_scene(scene_file)
     s = scene_splats(cfg, build_scene(cfg, device="cpu"))
     assert s.binding.method == "lbs" and s.binding.gaussians.count == 20
+    # `pliant fit` writes fitted.toml into another folder: the PLY path becomes absolute and still loads
+    from pliant.fit._toml import scene_toml
+
+    (tmp_path / "fit").mkdir()
+    moved = load_scene(scene_toml(cfg, tmp_path / "fit" / "fitted.toml"))
+    assert moved.gaussians.ply == str(tmp_path.resolve() / "splats.ply")
+    assert scene_splats(moved, build_scene(moved, device="cpu")).binding.gaussians.count == 20
     # a PLY without the Gaussian properties: the CLI names the scene file, the field and what is missing,
     # and writes nothing
     (tmp_path / "splats.ply").write_text(

@@ -1,6 +1,8 @@
 """Synthetic camera videos of a simulation (``pliant observe --cameras``): the object drawn as Gaussians bound
-to its particles (generated deterministically from its surface), rendered by pliant's rasteriser from a ring
-of cameras. Synthetic data for tutorials, tests and known-truth studies, never a substitute for footage."""
+to its particles (the scene's ``[gaussians]`` section, else generated deterministically from its surface:
+:func:`pliant.gaussians._scene.scene_gaussians`, as the photometric fit does), rendered by pliant's rasteriser
+from a ring of cameras. Synthetic data for tutorials, tests and known-truth studies, never a substitute for
+footage."""
 
 from __future__ import annotations
 
@@ -10,7 +12,6 @@ import numpy as np
 import warp as wp
 
 from ..io import Observations
-from ._photometric import BACKGROUND
 
 
 def observe_images(
@@ -38,8 +39,9 @@ def observe_images(
         noise: Standard deviation of Gaussian pixel noise (in [0, 1] units; the images are clipped to [0, 1]).
         masks: Also write ``masks``: the rendered alpha (a soft object mask in [0, 1]).
         uint8: Store 8-bit images (quantised) instead of float32.
-        per_triangle: Gaussians per surface triangle (1 or 3); ``pliant fit`` renders 1 (3 here gives
-            videos drawn with other splats than the fit's).
+        per_triangle: Gaussians per surface triangle (1 or 3) of generated splats; ``pliant fit`` renders 1
+            (3 here gives videos drawn with other splats than the fit's). A scene with a ``[gaussians]``
+            section is drawn with the section's splats and background (``per_triangle`` must be 1).
         seed: Seed of the pixel noise.
         tracks: Track observations of the same scene and frames to keep in the file (``points``,
             ``visible``, ``particle``, ``controls``, ``cloud``), or None for images only.
@@ -47,9 +49,13 @@ def observe_images(
 
     Returns:
         Observations with ``images`` [C, T, H, W, 3], ``K``, ``world_to_camera`` (and ``masks``).
+
+    Raises:
+        ValueError: a bad size, noise or frame count, or a ``[gaussians]`` section that cannot be built
+            (:class:`pliant.gaussians._scene.SplatSceneError`, naming the scene file and the field).
     """
-    from ..gaussians import render
-    from ..gaussians._surface import object_surface, ring_cameras, surface_gaussians
+    from ..gaussians._scene import scene_gaussians
+    from ..gaussians._surface import ring_cameras
 
     width, height = (int(v) for v in image_size)
     if width < 1 or height < 1:
@@ -59,19 +65,16 @@ def observe_images(
     frames = scene.frames + 1 if frames is None else frames
     if frames < 2:
         raise ValueError(f"--frames: observations need at least 2 frames, got {frames}")
+    splats = scene_gaussians(scene, per_triangle=per_triangle)  # before simulating: fail early
     x = scene.simulator().run(frames - 1, progress=progress).x
     m = scene.model
-    dtype = "float64" if m.scalar == wp.float64 else "float32"
-    _, binding = surface_gaussians(
-        m.particle_q_np, object_surface(m), per_triangle=per_triangle, dtype=dtype, device=str(m.device)
-    )
-    cams = ring_cameras(x, cameras, width=width, height=height)
+    cams = ring_cameras(x[:, splats.lo : splats.hi], cameras, width=width, height=height)
     images = np.empty((cameras, frames, height, width, 3), dtype=np.float32)
     alpha = np.empty((cameras, frames, height, width), dtype=np.float32)
     for f in range(frames):
-        placed = binding.deform(wp.array(np.ascontiguousarray(x[f]), dtype=m.vec3, device=m.device))
+        q = wp.array(np.ascontiguousarray(x[f]), dtype=m.vec3, device=m.device)
         for c, cam in enumerate(cams):
-            colour, a, _ = render(placed, cam, BACKGROUND)
+            colour, a, _ = splats.render(q, cam)
             images[c, f] = colour.numpy()
             alpha[c, f] = a.numpy()
     if noise > 0:

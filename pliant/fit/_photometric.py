@@ -2,9 +2,10 @@
 
 The observation file carries ``images`` [C, T, H, W, 3] with ``K`` and ``world_to_camera`` (no tracks, no
 point clouds needed). The simulated object is drawn as 3D Gaussians bound to its particles
-(:func:`pliant.gaussians._surface.surface_gaussians`: generated deterministically from the object's surface,
-the same way ``pliant observe --cameras`` made the images), rendered by pliant's Warp rasteriser from every
-camera at every training frame, and compared with the images:
+(:func:`pliant.gaussians._scene.scene_gaussians`: the scene's ``[gaussians]`` section when it has one, else
+Gaussians generated deterministically from the object's surface; ``pliant observe --cameras`` made the
+images the same way), rendered by pliant's Warp rasteriser from every camera at every training frame, and
+compared with the images:
 
     L = 1/(C·F) Σ_c Σ_f [ mean_pixels,channels |I_cf − Î_cf|² + w_m · mean_pixels (α_cf − M_cf)² ]
 
@@ -27,19 +28,21 @@ from __future__ import annotations
 import contextlib
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
 import warp as wp
 
+from ..gaussians._surface import GENERATED_BACKGROUND
 from ..io import Observations
 from ._cmaes import StageResult
 from ._params import FitError
 from ._problem import Problem
 
-#: Background colour behind the Gaussians in observed and rendered images (RGB in [0, 1]).
-BACKGROUND = (0.0, 0.0, 0.0)
+#: Background colour behind generated Gaussians in observed and rendered images (RGB in [0, 1]); a scene's
+#: ``[gaussians]`` section sets its own.
+BACKGROUND = GENERATED_BACKGROUND
 
 #: Global parameters stage 2 can differentiate: name → model arrays proportional to its value.
 GRADIENT_ARRAYS: dict[str, tuple[str, ...]] = {
@@ -80,12 +83,13 @@ class PhotometricProblem(Problem):
             loss; they are still reported as track errors when present).
         mask_weight: Weight w_m of the mask term (used when the observations have ``masks``).
         per_triangle: Gaussians per surface triangle (1 or 3) of the generated splats the fit renders
-            (``pliant fit`` uses 1, as ``pliant observe --cameras`` does).
+            (``pliant fit`` uses 1, as ``pliant observe --cameras`` does); a scene with a ``[gaussians]``
+            section renders the section's splats instead (and refuses ``per_triangle`` != 1).
         **kwargs: As :class:`pliant.fit.Problem` (``params``, ``train_fraction``, ``device``, ``dtype``);
             ``per_element`` is refused (per-element fits from images are not supported).
 
     Raises:
-        FitError: no images, or a per-element parameter.
+        FitError: no images, a per-element parameter, or a ``[gaussians]`` section that cannot be built.
         ObservationError: as :class:`Problem` (times that do not match the scene's frames).
     """
 
@@ -95,7 +99,7 @@ class PhotometricProblem(Problem):
         self, cfg: Any, obs: Observations, *, mask_weight: float = 1.0, per_triangle: int = 1, **kwargs: Any
     ) -> None:
         from ..gaussians import Camera
-        from ..gaussians._surface import object_surface, surface_gaussians
+        from ..gaussians._scene import SplatSceneError, scene_gaussians
 
         if obs.images is None:
             raise FitError(f"{obs.source}: images: a photometric fit needs camera images in the observations")
@@ -111,13 +115,12 @@ class PhotometricProblem(Problem):
         self.dtype_name = "float64" if m.scalar == wp.float64 else "float32"
         H, W = obs.images.shape[2:4]
         self.cameras = [Camera(obs.K[c], obs.world_to_camera[c], W, H) for c in range(obs.cameras)]
-        self.gaussians, self.binding = surface_gaussians(
-            m.particle_q_np,
-            object_surface(m),
-            per_triangle=per_triangle,
-            dtype=self.dtype_name,
-            device=self.model_device,
-        )
+        try:
+            self.splats = scene_gaussians(scene, per_triangle=per_triangle)
+        except SplatSceneError as exc:
+            raise FitError(str(exc)) from None
+        self.binding = self.splats.binding
+        self.gaussians = self.binding.gaussians
         self.mask_weight = float(mask_weight)
         self._targets: dict[tuple[int, int], tuple[wp.array, wp.array | None]] = {}
 
@@ -134,9 +137,7 @@ class PhotometricProblem(Problem):
 
     def render(self, q: wp.array, camera: int) -> Any:
         """Colour, alpha and depth of the Gaussians bound to particle positions ``q`` seen by ``camera``."""
-        from ..gaussians import render
-
-        return render(self.binding.deform(q), self.cameras[camera], BACKGROUND)
+        return self.splats.render(q, self.cameras[camera])
 
     def add_frame_loss(self, q: wp.array, frame: int, out: wp.array, views: int) -> None:
         """Add frame ``frame``'s photometric loss of positions ``q`` (vec3 [N]), over all cameras, divided by
@@ -202,6 +203,32 @@ class PhotometricProblem(Problem):
                 if self.obs.masks is None and mean is not None:  # the loss is then the colour MSE
                     out[key][f"psnr_{part}_db"] = -10.0 * math.log10(mean) if mean > 0 else None
         return out
+
+    def comparison_frames(
+        self, x: np.ndarray, camera: int = 0, min_height: int = 240
+    ) -> Iterator[np.ndarray]:
+        """Video frames for ``fit.mp4``: the observed image of ``camera`` (left) beside the simulated
+        positions ``x`` drawn as the fit's splats from the same camera (right), for every observed frame.
+
+        Args:
+            x: Simulated positions [m], shape [T, N, 3] (the fitted motion).
+            camera: Index of the observation camera.
+            min_height: Both images are enlarged by the smallest integer factor (nearest pixel) that makes
+                them at least this tall [px], so that small observation videos stay visible.
+
+        Yields:
+            uint8 RGB frames [s·H, 2·s·W + 2·s, 3] (a grey bar between the two halves).
+        """
+        H = self.cameras[camera].height
+        s = max(1, -(-int(min_height) // H))
+        bar = np.full((H, 2, 3), 0.5)
+        for f in range(min(x.shape[0], self.obs.frames)):
+            q = wp.array(np.ascontiguousarray(x[f]), dtype=self.vec3, device=self.model_device)
+            observed = np.asarray(self.obs.image(camera, f), dtype=np.float64)
+            fitted = self.render(q, camera).colour.numpy().astype(np.float64)
+            row = np.concatenate([observed, bar, fitted], axis=1)
+            row = np.repeat(np.repeat(row, s, axis=0), s, axis=1)
+            yield np.round(np.clip(row, 0.0, 1.0) * 255.0).astype(np.uint8)
 
     # ------------------------------------------------------------------ differentiable rollout
     def rollout_loss(self, scene: Any, *, tape: wp.Tape | None = None) -> wp.array:

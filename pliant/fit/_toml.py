@@ -64,8 +64,8 @@ def dumps(data: dict[str, Any], comment: str = "") -> str:
 def scene_toml(cfg: Any, path: str | Path, comment: str = "") -> Path:
     """Write a scene config as a TOML file runnable by ``pliant run``.
 
-    Fields left at their defaults are omitted; relative file paths of the scene (meshes, point files) are
-    made absolute, since the new file may live in another folder.
+    Fields left at their defaults are omitted; relative file paths of the scene (meshes, point files, a
+    ``[gaussians]`` PLY) are made absolute, since the new file may live in another folder.
     """
     data = cfg.model_dump(mode="json", exclude_unset=True, exclude_none=True)
     base = Path(cfg.base_dir)
@@ -81,6 +81,9 @@ def scene_toml(cfg: Any, path: str | Path, comment: str = "") -> Path:
                 and not Path(rm["path"]).is_absolute()
             ):
                 rm["path"] = str((base / rm["path"]).resolve())
+    g = data.get("gaussians")  # a [gaussians] PLY, relative to the scene file
+    if isinstance(g, dict) and isinstance(g.get("ply"), str) and not Path(g["ply"]).is_absolute():
+        g["ply"] = str((base / g["ply"]).resolve())
     path = Path(path)
     path.write_text(dumps(data, comment))
     return path

@@ -1,5 +1,7 @@
-"""Gaussians for a scene's ``[gaussians]`` section: load or generate the splats, bind them to the object,
-and make the cameras that render or watch it (the scene layer only validates the section)."""
+"""The Gaussians of a scene: its ``[gaussians]`` section's (load or generate the splats, bind them to the
+object; the scene layer only validates the section), or, without one, Gaussians generated from the model's
+surface (:func:`scene_gaussians` decides; ``pliant run``, ``pliant observe --cameras`` and the photometric
+fit all call it or :func:`scene_splats`)."""
 
 from __future__ import annotations
 
@@ -11,9 +13,16 @@ import warp as wp
 
 from ._bind import Binding, bind
 from ._camera import Camera
-from ._gaussians import Gaussians, _matrix_quats
+from ._gaussians import Gaussians
 from ._ply import PlyError, load_ply
-from ._render import render
+from ._render import RenderOutput, render
+from ._surface import (
+    GENERATED_BACKGROUND,
+    object_surface,
+    particle_splats,
+    surface_gaussians,
+    triangle_splats,
+)
 
 
 class SplatSceneError(ValueError):
@@ -40,7 +49,8 @@ class SceneSplats:
         """The splats for model positions ``x`` [m] (NumPy [N, 3] of the whole model, or a Warp array)."""
         b = self.binding
         if isinstance(x, wp.array):
-            q = x[self.lo : self.hi]
+            # a view (its gradient is the same view of x.grad), or x itself when the object is the model
+            q = x if (self.lo, self.hi) == (0, x.shape[0]) else x[self.lo : self.hi]
         else:
             from .._warp import np_dtype, vec3_type
 
@@ -52,9 +62,14 @@ class SceneSplats:
             )
         return b.deform(q)
 
+    def render(self, x: Any, camera: Camera) -> RenderOutput:
+        """Colour, alpha and depth of the splats at model positions ``x`` seen by ``camera`` (differentiable
+        w.r.t. a Warp ``x`` under ``wp.Tape``)."""
+        return render(self.place(x), camera, self.background)
+
     def image(self, x: Any, camera: Camera) -> np.ndarray:
         """RGB image [H, W, 3] in [0, 1] of the object at model positions ``x`` seen by ``camera``."""
-        return render(self.place(x), camera, self.background).colour.numpy()
+        return self.render(x, camera).colour.numpy()
 
 
 def _fail(cfg: Any, field: str, msg: str) -> SplatSceneError:
@@ -70,26 +85,13 @@ def _object_range(cfg: Any, model: Any, index: int) -> tuple[int, int]:
 
 
 def _generate(spec: Any, X: np.ndarray, faces: np.ndarray, dtype: str, device: str) -> Gaussians:
-    """One flat splat per surface triangle (or one round splat per particle when there is no surface)."""
+    """One flat splat per surface triangle (or one round splat per particle when there is no surface),
+    coloured ``color`` or in a checker of ``color`` / ``color2``."""
     if len(faces):
-        P = X[faces]  # [F, 3, 3]
-        centre = P.mean(axis=1)
-        e1 = P[:, 1] - P[:, 0]
-        n = np.cross(e1, P[:, 2] - P[:, 0])
-        area = 0.5 * np.linalg.norm(n, axis=1)
-        n /= np.maximum(2.0 * area, 1e-300)[:, None]
-        e1 /= np.maximum(np.linalg.norm(e1, axis=1), 1e-300)[:, None]
-        R = np.stack([e1, np.cross(n, e1), n], axis=2)  # columns: in-plane, in-plane, normal
-        s = 0.5 * spec.scale * np.sqrt(2.0 * area)  # about half a triangle leg
-        scales = np.stack([s, s, np.maximum(0.05 * s, 1e-5)], axis=1)
-        quats = _matrix_quats(R)
+        # σ = scale · half a triangle leg
+        centre, scales, quats = triangle_splats(X, faces, size=0.5 * spec.scale)
     else:
-        from scipy.spatial import cKDTree
-
-        centre = X
-        d = cKDTree(X).query(X, k=2)[0][:, 1] if len(X) > 1 else np.array([0.01])
-        scales = np.repeat((0.5 * spec.scale * np.maximum(np.median(d), 1e-4)) * np.ones((len(X), 1)), 3, 1)
-        quats = np.tile([1.0, 0.0, 0.0, 0.0], (len(X), 1))
+        centre, scales, quats = X, particle_splats(X, size=0.5 * spec.scale), None
     colours = np.tile(np.asarray(spec.color, dtype=np.float64), (len(centre), 1))
     if spec.checker > 0:
         odd = np.floor(centre / spec.checker).astype(np.int64).sum(axis=1) % 2 == 1
@@ -119,7 +121,8 @@ def scene_splats(cfg: Any, scene: Any) -> SceneSplats:
     index = object_index(cfg, spec)
     lo, hi = _object_range(cfg, model, index)
     X = model.particle_q_np[lo:hi].astype(np.float64)
-    faces = np.asarray(model.render_faces, dtype=np.int64).reshape(-1, 3)
+    surface = object_surface(model)
+    faces = np.zeros((0, 3), dtype=np.int64) if surface is None else surface.astype(np.int64)
     faces = faces[np.all((faces >= lo) & (faces < hi), axis=1)] - lo
     tets = np.asarray(model.tet_indices_np, dtype=np.int64).reshape(-1, 4)
     tets = tets[np.all((tets >= lo) & (tets < hi), axis=1)] - lo
@@ -133,7 +136,10 @@ def scene_splats(cfg: Any, scene: Any) -> SceneSplats:
         except (PlyError, OSError) as exc:
             raise _fail(cfg, "gaussians.ply", str(exc)) from None
     else:
-        g = _generate(spec, X, faces, dtype, device)
+        try:
+            g = _generate(spec, X, faces, dtype, device)
+        except ValueError as exc:
+            raise _fail(cfg, "gaussians.generate", str(exc)) from None
     method = spec.bind
     if method is None:
         method = "barycentric" if len(tets) else ("triangles" if len(faces) and spec.ply is None else "lbs")
@@ -157,3 +163,33 @@ def scene_splats(cfg: Any, scene: Any) -> SceneSplats:
     except ValueError as exc:
         raise _fail(cfg, "gaussians.bind", str(exc)) from None
     return SceneSplats(b, lo, hi, tuple(float(c) for c in spec.background))
+
+
+def scene_gaussians(scene: Any, *, per_triangle: int = 1) -> SceneSplats:
+    """The Gaussians that draw a built ``scene`` (the one place that decides which): its ``[gaussians]``
+    section's (:func:`scene_splats`) when it has one, else Gaussians generated deterministically from the
+    whole model's surface on a black background (:func:`pliant.gaussians._surface.surface_gaussians`).
+
+    Used by ``pliant observe --cameras`` and the photometric fit, so that both draw the same splats.
+
+    Args:
+        scene: A built scene (``pl.scene.build_scene``); its ``config`` carries the section.
+        per_triangle: Generated Gaussians per surface triangle (1 or 3) of a scene *without* a section.
+
+    Raises:
+        SplatSceneError: the section cannot be built (see :func:`scene_splats`), or ``per_triangle`` != 1
+            with a section (its splats are the section's).
+    """
+    cfg = scene.config
+    if getattr(cfg, "gaussians", None) is not None:
+        if per_triangle != 1:
+            raise SplatSceneError(
+                f"{cfg.source}: gaussians: per_triangle = {per_triangle} applies to generated surface "
+                "splats; this scene's [gaussians] section defines its own (remove the section or the option)"
+            )
+        return scene_splats(cfg, scene)
+    m = scene.model
+    _, binding = surface_gaussians(
+        m.particle_q_np, object_surface(m), per_triangle=per_triangle, dtype=m.dtype, device=str(m.device)
+    )
+    return SceneSplats(binding, 0, m.particle_count, GENERATED_BACKGROUND)

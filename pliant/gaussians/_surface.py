@@ -29,12 +29,70 @@ from ._gaussians import Gaussians, _matrix_quats
 _TEXTURE_DIRS = np.array([[0.8, 0.15, 0.58], [-0.3, 0.9, 0.31], [0.45, -0.4, -0.8]])
 _TEXTURE_PHASE = np.array([0.3, 1.9, 4.1])
 
+#: Background (RGB in [0, 1]) behind generated surface Gaussians in synthetic and fitted images.
+GENERATED_BACKGROUND = (0.0, 0.0, 0.0)
+
 
 def texture(points: np.ndarray, size: float) -> np.ndarray:
     """Procedural RGB in [0.15, 0.85] at rest positions ``points`` [m], shape [N, 3], for an object of
     extent ``size`` [m]."""
     lam = 0.5 * max(float(size), 1e-9)
     return 0.5 + 0.35 * np.sin(2.0 * math.pi * (points @ _TEXTURE_DIRS.T) / lam + _TEXTURE_PHASE)
+
+
+def triangle_splats(
+    rest_positions: np.ndarray, triangles: np.ndarray, *, size: float, per_triangle: int = 1
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Flat Gaussians on surface triangles: their means, scales and rotations (the one generator of
+    per-triangle splats, for scenes' ``[gaussians] generate = "mesh"`` and for :func:`surface_gaussians`).
+
+    Each Gaussian's two large axes lie in its triangle's plane (the first along the edge v₀v₁) with standard
+    deviation ``size`` · √(2·area) / √per_triangle (√(2·area) is a leg of a right isosceles triangle), and a
+    thin one (5 %) along the normal: a surface, not a volume.
+
+    Args:
+        rest_positions: Particle positions [m], shape [P, 3].
+        triangles: Triangles [F, 3] (particle indices).
+        size: In-plane standard deviation relative to √(2·area) (dimensionless).
+        per_triangle: 1 (at the centroid) or 3 (at the barycentric points (2/3, 1/6, 1/6) and permutations).
+
+    Returns:
+        (means [F·per_triangle, 3] [m], scales [F·per_triangle, 3] [m], quaternions wxyz [F·per_triangle, 4]).
+
+    Raises:
+        ValueError: a bad ``per_triangle``, or degenerate (zero-area) triangles.
+    """
+    if per_triangle not in (1, 3):
+        raise ValueError(f"per_triangle must be 1 or 3, got {per_triangle}")
+    v = np.asarray(rest_positions, dtype=np.float64)[np.asarray(triangles, dtype=np.int64).reshape(-1, 3)]
+    e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
+    n = np.cross(e1, e2)
+    area2 = np.linalg.norm(n, axis=1)  # twice the area
+    if np.any(area2 <= 0.0):
+        raise ValueError(f"{int(np.sum(area2 <= 0.0))} surface triangles are degenerate (zero area)")
+    n /= area2[:, None]
+    u = e1 / np.linalg.norm(e1, axis=1, keepdims=True)
+    R = np.stack([u, np.cross(n, u), n], axis=2)  # columns: in-plane u, in-plane w, normal
+    if per_triangle == 1:
+        bary = np.array([[1.0, 1.0, 1.0]]) / 3.0
+    else:
+        bary = np.array([[4.0, 1.0, 1.0], [1.0, 4.0, 1.0], [1.0, 1.0, 4.0]]) / 6.0
+    means = np.einsum("bk,fkd->fbd", bary, v).reshape(-1, 3)
+    # Neighbouring splats overlap and cover the surface without holes at size ≈ 0.3-0.5.
+    s_in = np.repeat(size * np.sqrt(area2), per_triangle) / math.sqrt(per_triangle)
+    scales = np.stack([s_in, s_in, 0.05 * s_in], axis=1)
+    return means, scales, _matrix_quats(np.repeat(R, per_triangle, axis=0))
+
+
+def particle_splats(rest_positions: np.ndarray, *, size: float) -> np.ndarray:
+    """Isotropic standard deviations [m], shape [P], of one round Gaussian per particle (objects without a
+    surface): ``size`` times the median distance between nearest particles (dimensionless ``size``)."""
+    from scipy.spatial import cKDTree
+
+    X = np.asarray(rest_positions, dtype=np.float64)
+    extent = float(np.ptp(X, axis=0).max()) if len(X) else 0.0
+    spacing = float(np.median(cKDTree(X).query(X, k=2)[0][:, 1])) if len(X) > 1 else 0.1 * extent
+    return np.full(len(X), size * max(spacing, 1e-4))
 
 
 def surface_gaussians(
@@ -46,7 +104,8 @@ def surface_gaussians(
     dtype: str = "float64",
     device: str | None = None,
 ) -> tuple[Gaussians, Binding]:
-    """Gaussians on an object's surface (or at its particles) and their binding to the particles.
+    """Gaussians on an object's surface (or at its particles) and their binding to the particles: the
+    splats of scenes without a ``[gaussians]`` section (:func:`pliant.gaussians._scene.scene_gaussians`).
 
     Args:
         rest_positions: Particle positions [m] at rest, shape [P, 3].
@@ -69,39 +128,21 @@ def surface_gaussians(
     size = float(np.ptp(X, axis=0).max()) or 1.0
     tris = None if triangles is None else np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
     if tris is None or len(tris) == 0:
-        from scipy.spatial import cKDTree
-
-        spacing = float(np.median(cKDTree(X).query(X, k=2)[0][:, 1])) if len(X) > 1 else 0.1 * size
         g = Gaussians.from_values(
-            X, scales=0.6 * spacing, opacities=opacity, colors=texture(X, size), dtype=dtype, device=device
+            X,
+            scales=particle_splats(X, size=0.6),
+            opacities=opacity,
+            colors=texture(X, size),
+            dtype=dtype,
+            device=device,
         )
-        k = min(4, len(X))
-        return g, bind(g, X, method="lbs", k=k, neighbours=min(8, len(X)))
-    if per_triangle not in (1, 3):
-        raise ValueError(f"per_triangle must be 1 or 3, got {per_triangle}")
-    v = X[tris]  # [F, 3, 3]
-    e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
-    n = np.cross(e1, e2)
-    area2 = np.linalg.norm(n, axis=1)
-    if np.any(area2 <= 0.0):
-        raise ValueError(f"surface_gaussians: {int(np.sum(area2 <= 0.0))} triangles are degenerate")
-    n /= area2[:, None]
-    u = e1 / np.linalg.norm(e1, axis=1, keepdims=True)
-    R = np.stack([u, np.cross(n, u), n], axis=2)  # columns: in-plane u, in-plane w, normal
-    if per_triangle == 1:
-        bary = np.array([[1.0, 1.0, 1.0]]) / 3.0
-    else:
-        bary = np.array([[4.0, 1.0, 1.0], [1.0, 4.0, 1.0], [1.0, 1.0, 4.0]]) / 6.0
-    means = np.einsum("bk,fkd->fbd", bary, v).reshape(-1, 3)
-    R = np.repeat(R, per_triangle, axis=0)
-    # In-plane standard deviation from the triangle's area: neighbouring splats overlap and cover the
-    # surface without holes; the normal axis is thin (a surface, not a volume).
-    s_in = np.repeat(0.42 * np.sqrt(0.5 * area2), per_triangle) / math.sqrt(per_triangle)
-    scales = np.stack([s_in, s_in, 0.05 * s_in], axis=1)
+        return g, bind(g, X, method="lbs", k=min(4, len(X)), neighbours=min(8, len(X)))
+    # 0.42 √area: the in-plane σ that covers a cloth's triangles without holes or blur (size 0.42 / √2).
+    means, scales, quats = triangle_splats(X, tris, size=0.42 * math.sqrt(0.5), per_triangle=per_triangle)
     g = Gaussians.from_values(
         means,
         scales=scales,
-        rotations=_matrix_quats(R),
+        rotations=quats,
         opacities=opacity,
         colors=texture(means, size),
         dtype=dtype,
@@ -171,4 +212,12 @@ def ring_cameras(
     return cams
 
 
-__all__ = ["object_surface", "ring_cameras", "surface_gaussians", "texture"]
+__all__ = [
+    "GENERATED_BACKGROUND",
+    "object_surface",
+    "particle_splats",
+    "ring_cameras",
+    "surface_gaussians",
+    "texture",
+    "triangle_splats",
+]
