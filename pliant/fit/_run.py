@@ -320,8 +320,13 @@ def _plot(
 
 def _video(path: Path, scene: Any, x: np.ndarray, problem: Problem, progress: bool) -> None:
     """The fitted motion (orange particles) with observed tracks drawn over it: visible ones green, hidden
-    ones red at the position of the particle they are bound to."""
-    from ..render import render_video
+    ones red at the position of the particle they are bound to. From camera videos: the first camera's
+    observed images beside the fitted motion drawn as splats from that camera."""
+    from ..render import render_video, write_video
+
+    if getattr(problem, "photometric", False):
+        write_video(problem.comparison_frames(x), path, fps=scene.fps)
+        return
 
     o = problem.obs
     t = min(x.shape[0], o.frames)
