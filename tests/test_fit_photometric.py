@@ -265,7 +265,7 @@ def test_cli_observe_cameras_then_fit(tmp_path, capsys):
     out = tmp_path / "fit"
     code = main(
         ["fit", str(scene), str(obs), "--out", str(out), "--params", "stiffness", "--iterations", "4"]
-        + ["--optimizer", "lbfgs", "--no-video", "-q"]
+        + ["--no-video", "-q"]  # the gradient stage is L-BFGS by default for images
     )
     assert code == 0, capsys.readouterr().err
     rep = json.loads((out / "fit.json").read_text())
@@ -387,3 +387,135 @@ def test_stiffness_and_dashpot_damping_from_three_videos(tmp_path):
     )
     assert rep["params"]["stiffness"]["value"] == pytest.approx(50.0, rel=0.05)
     assert rep["params"]["damping"]["value"] == pytest.approx(0.05, rel=0.05)
+
+
+# ---------------------------------------------------------------------------------------------- [gaussians]
+#: The swinging cloth as the second object (particles 9 …), behind a fully pinned 2×2 cloth that no camera
+#: draws, and a [gaussians] section: checker splats on a white background, drawn for the sheet only.
+SECTION = (
+    CLOTH.replace(
+        "[[objects]]",
+        '[[objects]]\nkind = "cloth"\nname = "anchor"\nnx = 2\nny = 2\nsize = 0.1\n'
+        'origin = [1.0, 0.5, 1.0]\nplane = "xz"\nmass = 0.01\npin = [0, 1, 2, 3, 4, 5, 6, 7, 8]\n'
+        'model = "mass_spring"\nmaterial = {stiffness = 50.0}\n[[objects]]\nname = "sheet"',
+        1,
+    )
+    + '[gaussians]\nobject = "sheet"\ngenerate = "mesh"\nchecker = 0.1\nbackground = [1.0, 1.0, 1.0]\n'
+)
+
+
+def test_a_gaussians_section_draws_the_observations_and_the_fit(tmp_path):
+    """With a [gaussians] section, `observe_images` and the photometric fit both render the section's splats
+    (one place builds them: pliant.gaussians._scene.scene_gaussians): the videos have its white background
+    and checker colours, the fit's images of the true motion equal them, the image gradient through the
+    section's binding of the second object (a view of the particle array) equals central differences, and
+    the stiffness comes back within 5 %."""
+    from pliant.fit._photometric import _GlobalGradient
+    from pliant.gaussians._scene import scene_gaussians
+
+    cfg = pl.scene.parse_scene(SECTION)
+    scene = pl.scene.build_scene(cfg)
+    splats = scene_gaussians(scene)
+    assert (splats.lo, splats.hi) == (9, 34) and splats.binding.gaussians.count == 2 * 4 * 4
+    assert splats.background == (1.0, 1.0, 1.0)
+    obs = observe_images(scene, cameras=2, image_size=(24, 18))
+    img = obs.images
+    assert (img == 1.0).all(axis=-1).mean() > 0.3  # the section's white background, not the generated black
+    assert len(np.unique(img.reshape(-1, 3).round(2), axis=0)) < 0.2 * img[..., 0].size  # two checker colours
+    with pytest.raises(ValueError, match=r"gaussians: per_triangle = 3 applies to generated surface splats"):
+        observe_images(scene, cameras=2, image_size=(24, 18), per_triangle=3)
+    p = PhotometricProblem(cfg, obs, params=["stiffness"])
+    assert p.binding is not None and p.gaussians.count == 32 and p.splats.lo == 9
+    assert p.loss(p.simulate(p.build(p.nominal), p.n_train)) < 1e-12  # the fit draws what observe drew
+    q = PhotometricProblem(apply_globals(cfg, {"stiffness": 60.0}), obs, params=["stiffness"])
+    _, grad = _GlobalGradient(q, q.nominal, ["stiffness"]).evaluate(np.zeros(1))
+    eps = 1e-5
+
+    def at(v: float) -> float:
+        return q.loss(q.simulate(q.build({"stiffness": v}), q.n_train))
+
+    fd = (at(60.0 * (1 + eps)) - at(60.0 * (1 - eps))) / (2 * eps)
+    assert grad[0] > 0 and abs(grad[0] - fd) <= 1e-4 * abs(fd)
+    rep = pl.fit.fit(
+        apply_globals(cfg, {"stiffness": 80.0}),
+        obs,
+        tmp_path,
+        params=["stiffness"],
+        generations=2,
+        epochs=6,
+        optimizer="lbfgs",
+        progress=False,
+        video=False,
+    )
+    assert rep["params"]["stiffness"]["value"] == pytest.approx(50.0, rel=0.05)
+    assert "[gaussians]" in (tmp_path / "fitted.toml").read_text()
+
+
+def test_scenes_without_a_section_get_the_generated_surface_gaussians(truth):
+    from pliant.gaussians._scene import scene_gaussians
+
+    cfg, _ = truth
+    m = pl.scene.build_scene(cfg).model
+    s = scene_gaussians(pl.scene.build_scene(cfg))
+    g, b = surface_gaussians(m.particle_q_np, object_surface(m))
+    assert (s.lo, s.hi, s.background) == (
+        0,
+        m.particle_count,
+        (0.0, 0.0, 0.0),
+    ) and s.binding.method == b.method
+    for k, v in g.numpy().items():
+        np.testing.assert_array_equal(s.binding.gaussians.numpy()[k], v)
+
+
+def test_fit_video_shows_observed_images_beside_the_fitted_splats(truth, tmp_path):
+    """fit.mp4 of an image fit: each frame is camera 0's observed image (left) beside the fitted motion drawn
+    as the fit's splats from that camera (right), both enlarged by the same integer factor."""
+    cfg, obs = truth
+    p = PhotometricProblem(cfg, obs, params=["stiffness"])
+    x = p.simulate(p.build(p.nominal), p.frames)
+    frames = list(p.comparison_frames(x, min_height=36))
+    assert len(frames) == obs.frames and frames[0].shape == (36, 2 * (2 * 24) + 2 * 2, 3)
+    for f in (0, obs.frames - 1):
+        left, right = frames[f][::2, 0:48:2] / 255.0, frames[f][::2, 52::2] / 255.0
+        np.testing.assert_allclose(left, obs.image(0, f), atol=0.5 / 255 + 1e-9)
+        # the true motion drawn by the fit's splats is the observation itself
+        np.testing.assert_allclose(right, obs.image(0, f), atol=0.5 / 255 + 1e-6)
+    # a wrong motion (the rest pose at every frame) differs on the right, not on the left
+    still = np.repeat(x[:1], len(x), axis=0)
+    last = list(p.comparison_frames(still, min_height=36))[-1]
+    np.testing.assert_array_equal(last[:, :48], frames[-1][:, :48])
+    assert np.abs(last[:, 52:].astype(int) - frames[-1][:, 52:].astype(int)).mean() > 2.0
+    from pliant.fit._run import write_outputs
+
+    write_outputs(p, tmp_path, p.nominal, {}, {}, video=True)
+    import imageio.v3 as iio
+
+    video = iio.imread(tmp_path / "fit.mp4", index=None)
+    assert video.shape[0] == obs.frames and video.shape[1:3] == (18 * 14, 2 * 24 * 14 + 2 * 14)
+
+
+def test_cli_defaults_to_lbfgs_for_image_observations(tmp_path, monkeypatch):
+    """`pliant fit` without --optimizer: L-BFGS for camera videos, Adam for tracks; an explicit one wins."""
+    import pliant.fit
+
+    seen = []
+
+    def fake_fit(*args, **kwargs):
+        seen.append(kwargs["optimizer"])
+        raise FitError("stop")
+
+    monkeypatch.setattr(pliant.fit, "fit", fake_fit)
+    scene = tmp_path / "cloth.toml"
+    scene.write_text(CLOTH)
+    a = _image_arrays(T=7)
+    a["t"] = np.arange(7) * 0.04
+    Observations.from_arrays(**a).save(tmp_path / "images.npz")
+    Observations.from_arrays(t=a["t"], points=np.zeros((7, 2, 3))).save(tmp_path / "tracks.npz")
+    for obs, extra, expected in [
+        ("images.npz", [], "lbfgs"),
+        ("images.npz", ["--optimizer", "adam"], "adam"),
+        ("tracks.npz", [], "adam"),
+        ("tracks.npz", ["--optimizer", "lbfgs"], "lbfgs"),
+    ]:
+        assert main(["fit", str(scene), str(tmp_path / obs), "--out", str(tmp_path / "o"), "-q"] + extra) == 1
+        assert seen[-1] == expected, (obs, extra)

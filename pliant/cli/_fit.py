@@ -40,7 +40,11 @@ def add_parsers(sub: Any) -> None:
     f.add_argument(
         "--iterations", type=_positive_int, help="CMA-ES generations (20) and gradient epochs (20)"
     )
-    f.add_argument("--optimizer", choices=("adam", "lbfgs"), default="adam", help="gradient stage (adam)")
+    f.add_argument(
+        "--optimizer",
+        choices=("adam", "lbfgs"),
+        help="gradient stage (default: lbfgs for camera images, adam for tracks)",
+    )
     f.add_argument("--horizon", type=_positive_int, default=1, help="frames per tape, 0: whole rollout (1)")
     f.add_argument("--lr", type=_positive_float, default=0.01, help="Adam step in log-scale units (0.01)")
     f.add_argument(
@@ -200,7 +204,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
             train_fraction=args.train_fraction,
             generations=20 if n is None else n,
             epochs=20 if n is None else n,
-            optimizer=args.optimizer,
+            # L-BFGS for images: a few whole-rollout gradients of one smooth loss (docs/gaussians.md)
+            optimizer=args.optimizer or ("lbfgs" if obs.images is not None else "adam"),
             horizon=None if args.horizon == 0 else args.horizon,
             lr=args.lr,
             smoothness=args.smoothness,
