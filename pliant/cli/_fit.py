@@ -98,7 +98,7 @@ def add_parsers(sub: Any) -> None:
         "--cameras",
         type=_positive_int,
         help="also render camera videos from this many cameras (images, K, world_to_camera): the object as "
-        "Gaussians generated from its surface",
+        "the scene's [gaussians] splats, else Gaussians generated from its surface",
     )
     o.add_argument("--image-size", default="96x72", metavar="WxH", help="video size with --cameras (96x72)")
     o.add_argument("--image-noise", type=float, default=0.0, help="pixel noise σ in [0, 1] units (0)")
