@@ -69,17 +69,26 @@ LBFGS_TOL = {"float32": 3e-2, "float64": 1e-2}
 IMPLICIT_DTYPE = "float64"
 
 
-def make_solver(model: Any, method: str, *, newton_tol: float | None = None, minimizer: str = "lbfgs") -> Any:
+def make_solver(
+    model: Any,
+    method: str,
+    *,
+    newton_tol: float | None = None,
+    minimizer: str = "lbfgs",
+    integrator: str = "BackwardEuler",
+) -> Any:
     """ForceSolver with NeoHookean + Gravity: "implicit" (BackwardEuler) or "explicit" (SymplecticEuler).
 
     Ground contact: for the implicit rows ForceSolver adds a :class:`~pliant.energies.GroundPenalty` to the
     potential (so that Newton sees the ground: a projection after the step alone lets an implicit step push
     whole layers of particles through the floor and flattens them) and applies Coulomb friction for the
     penalty's impulse after the step; the explicit rows use the post-step projection with friction.
-    ``minimizer`` ("lbfgs" or "newton") picks the implicit step's minimiser.
+    ``minimizer`` ("lbfgs" or "newton") picks the implicit step's minimiser and ``integrator`` the implicit
+    integrator ("BackwardEuler"; "BDF2" or "ImplicitMidpoint", second order, for the motion references).
     """
+    from .. import integrators
     from ..energies import Gravity, NeoHookean
-    from ..integrators import BackwardEuler, SymplecticEuler
+    from ..integrators import SymplecticEuler
     from ..solvers import ForceSolver
 
     energies = [NeoHookean(), Gravity()]
@@ -89,12 +98,12 @@ def make_solver(model: Any, method: str, *, newton_tol: float | None = None, min
         # Projected Hessians: with exact ones (project_psd="auto") the stable neo-Hookean Hessian of the
         # elements crushed at impact is indefinite, Newton returns 0.1-0.7 m steps that max_step cuts to
         # α ~ 1e-5, and the step stalls (measured at 20³ cells). L-BFGS lags a projected Hessian.
-        integrator = BackwardEuler(newton_tol=tol, project_psd=True, method=minimizer)
+        stepper = getattr(integrators, integrator)(newton_tol=tol, project_psd=True, method=minimizer)
     elif method == "explicit":
-        integrator = SymplecticEuler()
+        stepper = SymplecticEuler()
     else:
         raise ValueError(f"method must be 'implicit' or 'explicit', got {method!r}")
-    return ForceSolver(model, energies=energies, integrator=integrator)
+    return ForceSolver(model, energies=energies, integrator=stepper)
 
 
 def _peak_mem_mb(device: str) -> float:
@@ -115,6 +124,7 @@ def soft_box_drop(
     quick: bool = False,
     minimizer: str = "lbfgs",
     trajectory: str | None = None,
+    integrator: str = "BackwardEuler",
 ) -> dict:
     """Drop the n³-cell box for ``frames`` frames of 1/60 s; one dict of speed and height figures."""
     import warp as wp
@@ -126,7 +136,7 @@ def soft_box_drop(
     device = str(resolve_device(device))
     t0 = time.perf_counter()
     model = soft_box_model(n, device=device, dtype=dtype)
-    solver = make_solver(model, method, minimizer=minimizer)
+    solver = make_solver(model, method, minimizer=minimizer, integrator=integrator)
     elastic = solver.energies[0]
     dt = FRAME_DT / substeps
     s0, s1 = model.state(), model.state()
@@ -151,8 +161,8 @@ def soft_box_drop(
             s0, s1 = s1, s0
             if method == "implicit":
                 iterations += solver.last_stats.iterations
-        if trajectory:
-            com.append(float(mass @ s0.particle_q.numpy()[:, 1].astype(np.float64) / mass.sum()))
+        # The motion check's data, every frame (a copy of N positions: microseconds beside a step).
+        com.append(float(mass @ s0.particle_q.numpy()[:, 1].astype(np.float64) / mass.sum()))
     wp.synchronize_device(device)
     wall = time.perf_counter() - t0
     if trajectory:
@@ -191,7 +201,15 @@ def soft_box_drop(
         "final_max_speed": round(float(np.abs(v).max()), 5) if finite else None,
         "final_min_det_F": round(float(min_det), 5) if finite else None,
         "stable": finite,
+        # The whole drop against the converged centre-of-mass curve (pliant.bench._box_motion).
+        **_motion(n, np.asarray(com)),
     }
+
+
+def _motion(n: int, com: np.ndarray) -> dict:
+    from ._box_motion import motion_fields
+
+    return motion_fields(n, com)
 
 
 #: Substeps per 1/60 s frame that keep symplectic Euler stable (CFL of the smallest tet; measured).

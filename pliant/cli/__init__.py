@@ -252,6 +252,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_INTERRUPTED
     debug = bool(os.environ.get("PLIANT_DEBUG"))
     try:
+        if (
+            args.command in ("demo", "run", "sweep", "fit", "observe")
+            and os.environ.get("PLIANT_PREBUILD") != "0"
+        ):
+            from .._prebuild import warm_up
+
+            # Compiles the first kernel (and Clang's header cache) while the imports and the scene build run.
+            warm_up(getattr(args, "device", None))
         if args.command in ("demo", "run"):
             from ._run import cmd_demo, cmd_run
 

@@ -97,12 +97,27 @@ def color_incidence(
     return color.astype(np.int32)
 
 
-def color_constraints(indices: np.ndarray, inv_mass: np.ndarray) -> np.ndarray:
-    """Colours for constraints with fixed arity, indices [n, k]; pinned particles (w = 0) never conflict."""
+def color_constraints(indices: np.ndarray, inv_mass: np.ndarray, worlds: int = 1) -> np.ndarray:
+    """Colours for constraints with fixed arity, indices [n, k]; pinned particles (w = 0) never conflict.
+
+    With ``worlds`` > 1 and constraints that are ``worlds`` shifted copies of the first block (what
+    ``ModelBuilder.replicate`` makes), the first block is coloured and its colours repeated: each world is
+    then swept in the order it has alone, so worlds equal runs alone bit for bit.
+    """
     idx = np.asarray(indices, np.int64)
     n, k = idx.shape
     if n == 0:
         return np.zeros(0, np.int32)
+    inv_mass = np.asarray(inv_mass)
+    if worlds > 1 and n % worlds == 0 and len(inv_mass) % worlds == 0:
+        n0, p = n // worlds, len(inv_mass) // worlds
+        shift = (np.arange(worlds, dtype=np.int64) * p)[:, None, None]
+        blocks = idx.reshape(worlds, n0, k) - shift
+        same_pins = np.array_equal(
+            (inv_mass.reshape(worlds, p) > 0), np.broadcast_to(inv_mass[:p] > 0, (worlds, p))
+        )
+        if same_pins and np.array_equal(blocks, np.broadcast_to(blocks[0], blocks.shape)):
+            return np.tile(color_constraints(idx[:n0], inv_mass[:p]), worlds)
     cid = np.repeat(np.arange(n), k)
     pid = idx.reshape(-1)
     keep = np.asarray(inv_mass)[pid] > 0.0
@@ -198,7 +213,7 @@ class Constraint:
         n = indices.shape[0]
         if not coloring or n == 0:
             return np.arange(n), np.array([0, n], np.int64)
-        colors = color_constraints(indices, self.model.particle_inv_mass.numpy())
+        colors = color_constraints(indices, self.model.particle_inv_mass.numpy(), self.model.world_count)
         return sort_by_color(colors)
 
     def _split_counts(self, indices: np.ndarray) -> np.ndarray:

@@ -351,6 +351,10 @@ class TetElasticity(Energy):
         self._lame = None if E is None else lame_parameters(E, nu)
         self.inversion_margin = float(inversion_margin)
         self._cache: dict[str, Any] = {}
+        if self.material.name not in _KERNELS:
+            # Create the material's kernels now, not at the first step: a scene's background prebuild
+            # (pliant._prebuild) can then compile their modules before the simulation needs them.
+            _KERNELS[self.material.name] = _build_material_kernels(self.material.name)
 
     def __repr__(self) -> str:
         extra = "" if self.E is None else f", E={self.E:g}, nu={self.nu:g}"

@@ -84,6 +84,45 @@ class Trajectory:
         """Number of recorded frames T."""
         return int(self.x.shape[0])
 
+    @property
+    def world_count(self) -> int:
+        """Number of worlds recorded together (1 unless the model was replicated)."""
+        return int(self.meta.get("worlds", {}).get("count", 1))
+
+    def world(self, w: int) -> Trajectory:
+        """World ``w``'s particles as a trajectory of their own: faces and tets of that world re-indexed,
+        the world's objects in ``meta`` (starts re-based), ``meta["world"] = w``.
+
+        Raises:
+            ValueError: ``w`` out of range.
+        """
+        n = self.world_count
+        if isinstance(w, bool) or not isinstance(w, (int, np.integer)) or not 0 <= w < n:
+            raise ValueError(f"world index {w!r} out of range [0, {n}) (this trajectory has {n} worlds)")
+        if n == 1:
+            return self
+        off = self.meta["worlds"]["particle_offsets"]
+        lo, hi = int(off[w]), int(off[w + 1])
+
+        def local(cells: np.ndarray | None) -> np.ndarray | None:
+            if cells is None:
+                return None
+            keep = np.all((cells >= lo) & (cells < hi), axis=1)
+            return (cells[keep] - lo).astype(cells.dtype)
+
+        meta = {k: v for k, v in self.meta.items() if k != "worlds"}
+        meta["objects"] = [
+            {**o, "start": int(o["start"]) - lo}
+            for o in self.meta.get("objects", [])
+            if o.get("world", 0) == w
+        ]
+        meta["world"] = int(w)
+        diverged = self.meta["worlds"].get("diverged", {}).get(str(w))
+        if diverged is not None:
+            meta["diverged"] = diverged
+        v = None if self.v is None else self.v[:, lo:hi]
+        return Trajectory(self.x[:, lo:hi], self.t, v, local(self.faces), local(self.tets), meta)
+
     def save(self, path: str | os.PathLike) -> Path:
         """Write the NPZ described in DESIGN.md (atomically)."""
         arrays: dict[str, Any] = {"x": self.x, "t": self.t, "meta": np.array(json.dumps(self.meta))}

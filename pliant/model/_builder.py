@@ -46,6 +46,7 @@ class ModelBuilder(ShapesMixin):
         self._tet_host: list[np.ndarray] = []  # tets of every volume, FEM or not, for export
         self.ground: Ground | None = None
         self.objects: list[dict] = []
+        self._worlds: dict | None = None  # set by replicate()
 
     # ------------------------------------------------------------------ particles
     @property
@@ -281,6 +282,26 @@ class ModelBuilder(ShapesMixin):
             {"name": name, "kind": kind, "start": start, "count": self._count - start, **extra}
         )
 
+    def replicate(self, n: int, *, spacing: Sequence[float] = (0.0, 0.0, 0.0)) -> None:
+        """Turn everything added so far into world 0 and append ``n`` − 1 independent copies (worlds).
+
+        Each world's particles and elements are one contiguous block (``model.world_slice``); no element
+        couples two worlds, so all are stepped by the same launches and every solver treats them as one
+        block-diagonal model. Per-world parameters: ``model.set_world_parameter`` /
+        ``set_world_material`` / ``set_world_state``; per-world reset: ``model.reset_world``; per-world
+        output: ``Trajectory.world(w)``. Call it last: nothing may be added afterwards.
+
+        Args:
+            n: number of worlds, >= 1.
+            spacing: offset [m] between consecutive worlds' positions (for viewing; the ground is shared).
+
+        Raises:
+            ValueError: n < 1, nothing added yet, or called twice.
+        """
+        from ._worlds import replicate
+
+        replicate(self, n, spacing)
+
     # ------------------------------------------------------------------ finalize
     def finalize(
         self, device: str | None = None, dtype: str = "float32", requires_grad: bool = False
@@ -292,6 +313,9 @@ class ModelBuilder(ShapesMixin):
             dtype: ``"float32"`` or ``"float64"``.
             requires_grad: allocate arrays that record gradients (differentiable runs).
         """
+        from ._worlds import offsets
+
+        world_offsets = offsets(self)  # checks that nothing was added after replicate()
         init()
         device = resolve_device(device)
         f = np_dtype(dtype)
@@ -382,6 +406,8 @@ class ModelBuilder(ShapesMixin):
             render_faces=faces.astype(np.int32),
             tet_indices_np=tet_host.astype(np.int32),
             objects=list(self.objects),
+            world_count=1 if world_offsets is None else self._worlds["count"],
+            world_offsets=world_offsets,
         )
 
 

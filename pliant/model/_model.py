@@ -145,6 +145,10 @@ class Model:
     tet_indices_np: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 4), np.int32))
     objects: list[dict] = field(default_factory=list)
     material: str | None = None
+    #: Worlds (:meth:`pliant.ModelBuilder.replicate`): their count and, when more than one, the offsets
+    #: [W + 1] of each element kind ("particle", "spring", "tri", "tet", "bending") per world.
+    world_count: int = 1
+    world_offsets: dict[str, np.ndarray] | None = field(default=None, repr=False)
 
     @property
     def scalar(self) -> Any:
@@ -180,6 +184,57 @@ class Model:
     def gravity_vec(self) -> Any:
         """Gravity [m/s²] as this model's vec3."""
         return self.vec3(*self.gravity)
+
+    # ------------------------------------------------------------------ worlds
+    def world_slice(self, kind: str, w: int) -> slice:
+        """Index range of world ``w``'s elements of ``kind`` ("particle", "spring", "tri", "tet",
+        "bending") in this model's arrays."""
+        from ._worlds import world_slice
+
+        return world_slice(self, kind, w)
+
+    def particle_world(self) -> np.ndarray:
+        """World index of every particle, int32 [particle_count] (zeros for one world)."""
+        if self.world_offsets is None:
+            return np.zeros(self.particle_count, np.int32)
+        per = int(self.world_offsets["particle"][1])
+        return (np.arange(self.particle_count) // per).astype(np.int32)
+
+    def set_world_parameter(self, name: str, w: int, value: Any) -> None:
+        """Set world ``w``'s per-element parameter ``name``: ``spring_stiffness`` [N/m], ``spring_damping``
+        [N s/m], ``spring_rest_length`` [m], ``bending_stiffness`` [N m/rad], ``tet_mu`` / ``tet_lam``
+        [Pa] or ``particle_mass`` [kg] (the inverse masses follow; fixed particles stay fixed).
+
+        ``value`` is a scalar or one value per element of the world. Solvers that precompute from the
+        parameters must be told: call ``FastMassSpring.update_parameters()`` and ``ForceSolver.reset()``
+        (its lagged L-BFGS Hessian) after changing them.
+
+        Raises:
+            ValueError: an unknown name, a world out of range, a wrong count or a value out of range.
+        """
+        from ._worlds import set_world_parameter
+
+        set_world_parameter(self, name, w, value)
+
+    def set_world_material(self, w: int, E: Any, nu: Any) -> None:
+        """Young's modulus ``E`` [Pa] and Poisson ratio ``nu`` [-] of world ``w``'s tets (via Lamé)."""
+        from ._worlds import set_world_material
+
+        set_world_material(self, w, E, nu)
+
+    def set_world_state(self, w: int, x: Any = None, v: Any = None) -> None:
+        """Replace world ``w``'s initial positions ``x`` [m] and/or velocities ``v`` [m/s], [P, 3] each
+        (what :meth:`state` and :meth:`reset_world` start from)."""
+        from ._worlds import set_world_state
+
+        set_world_state(self, w, x, v)
+
+    def reset_world(self, state: State, w: int) -> None:
+        """Put world ``w`` of ``state`` back to its initial positions and velocities; the other worlds are
+        untouched (two device copies, no host transfer)."""
+        from ._worlds import reset_world
+
+        reset_world(self, state, w)
 
     def total_mass(self) -> float:
         """Sum of particle masses [kg]."""

@@ -11,6 +11,7 @@ import numpy as np
 
 from ._context import BuildContext
 from ._errors import SceneError
+from ._kernels import maybe_prebuild
 from ._registry import (
     COLLIDER_KINDS,
     CONSTRAINT_KINDS,
@@ -389,6 +390,7 @@ def build_scene(
     solver = SOLVER_KINDS[cfg.solver_kind()].factory(ctx)
     if cfg.scene.parameters is not None:
         _apply_parameters(ctx, solver)
+    maybe_prebuild(cfg.scene.name, ctx.model)  # compile its kernels on both cores while the caller goes on
     return Scene(
         config=cfg,
         model=ctx.model,

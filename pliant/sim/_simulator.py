@@ -59,6 +59,31 @@ def _health(
             wp.atomic_max(stats_out, 4, dd)
 
 
+@wp.kernel
+def _health_worlds(
+    v: wp.array(dtype=Any),
+    x: wp.array(dtype=Any),
+    x_start: wp.array(dtype=Any),
+    inv_mass: wp.array(dtype=Any),
+    particle_world: wp.array(dtype=wp.int32),
+    stats_out: wp.array2d(dtype=Any),
+):
+    # Per world w: [w, 0] max |v|², [w, 1] max |x − x_start|² over the frame, [w, 2] non-finite particles,
+    # of the moving particles (inverse mass > 0: handles are checked by _health, for the whole model).
+    i = wp.tid()
+    if inv_mass[i] == inv_mass[i] * type(inv_mass[i])(0.0):
+        return
+    w = particle_world[i]
+    s = wp.dot(v[i], v[i])
+    p = wp.dot(x[i], x[i])
+    d = x[i] - x_start[i]
+    if wp.isnan(s) or wp.isinf(s) or wp.isnan(p) or wp.isinf(p):
+        wp.atomic_add(stats_out, w, 2, type(s)(1.0))
+    else:
+        wp.atomic_max(stats_out, w, 0, s)
+        wp.atomic_max(stats_out, w, 1, wp.dot(d, d))
+
+
 class Simulator:
     """Owns model, solver, two states and the control; runs frames of ``substeps`` solver steps.
 
@@ -73,6 +98,12 @@ class Simulator:
             displacement divided by ``frame_dt`` (so colliders and handles that teleport particles count too).
         control_fn: optional ``f(t, control)`` called before each frame to move kinematic targets [s].
         dt: deprecated name of ``frame_dt`` (a DeprecationWarning says so).
+        per_world_divergence: with several worlds (:meth:`pliant.ModelBuilder.replicate`), a world that
+            diverges is frozen at its last good frame (velocities 0, inverse masses 0) and listed in
+            :attr:`diverged_worlds` while the others run on; only when every world has diverged does the run
+            raise. False: any divergence raises, as with one world. Worlds stay independent under
+            explicit solvers and XPBD; an implicit solve shares one linear system, so a non-finite world
+            can spoil the others within that step.
 
     Example::
 
@@ -91,6 +122,7 @@ class Simulator:
         max_speed: float = 1.0e3,
         control_fn: Callable[[float, Control], None] | None = None,
         dt: float | None = None,
+        per_world_divergence: bool = True,
     ) -> None:
         if dt is not None:
             if frame_dt is not None:
@@ -129,6 +161,12 @@ class Simulator:
         self._record_velocity = False
         self._snapshot_solver = False  # copy the solver's state at each recorded frame (for checkpoints)
         self._warned_newton = False
+        #: Worlds frozen after diverging: world → {"frame", "quantity", "value"}.
+        self.diverged_worlds: dict[int, dict] = {}
+        self._per_world = per_world_divergence and model.world_count > 1
+        if self._per_world:
+            self._particle_world = wp.array(model.particle_world(), dtype=wp.int32, device=model.device)
+            self._world_stats = wp.zeros((model.world_count, 3), dtype=model.scalar, device=model.device)
 
     @property
     def dt(self) -> float:
@@ -171,6 +209,8 @@ class Simulator:
             device=self.model.device,
         )
         speed2, disp2, bad, kin_speed2, kin_disp2 = (float(a) for a in self._stats.numpy())
+        if self._per_world and self.frame > 0:
+            speed2, disp2, bad = self._check_worlds(speed2, disp2, bad)
         integrator = getattr(self.solver, "integrator", None)
         h = self.frame_dt / self.substeps
         advice = (
@@ -230,6 +270,61 @@ class Simulator:
                 f"unstable step ({advice}); raise max_speed only if such speeds are meant",
             )
 
+    def _check_worlds(self, speed2: float, disp2: float, bad: float) -> tuple[float, float, float]:
+        """Freeze each world that is non-finite or too fast at its last recorded frame; return the whole
+        model's figures over the worlds that remain (what :meth:`check` goes on to judge)."""
+        m = self.model
+        limit2 = self.max_speed**2
+        if bad == 0 and speed2 <= limit2 and disp2 <= limit2 * self.frame_dt**2:
+            return speed2, disp2, bad
+        self._world_stats.zero_()
+        s = self.state_0
+        wp.launch(
+            _health_worlds,
+            m.particle_count,
+            [s.particle_qd, s.particle_q, self._x_start, m.particle_inv_mass, self._particle_world],
+            outputs=[self._world_stats],
+            device=m.device,
+        )
+        stats = self._world_stats.numpy()
+        failing = []
+        for w in range(m.world_count):
+            if w in self.diverged_worlds:
+                continue
+            v2, d2, nonfinite = (float(a) for a in stats[w])
+            if nonfinite:
+                failing.append((w, "non-finite positions/velocities in particles:", nonfinite))
+            elif v2 > limit2:
+                failing.append((w, "max speed (m/s)", v2**0.5))
+            elif d2 > limit2 * self.frame_dt**2:
+                failing.append((w, "max displacement speed (m/s)", d2**0.5 / self.frame_dt))
+        if len(failing) + len(self.diverged_worlds) >= m.world_count:
+            return speed2, disp2, bad  # every world is gone: check() raises as for one world
+        x = self.state_0.particle_q.numpy()
+        v = self.state_0.particle_qd.numpy()
+        inv = m.particle_inv_mass.numpy()
+        last = self._xs[-1]
+        for w, quantity, value in failing:
+            sl = m.world_slice("particle", w)
+            x[sl], v[sl], inv[sl] = last[sl], 0.0, 0.0
+            self.diverged_worlds[w] = {"frame": self.frame, "quantity": quantity, "value": float(value)}
+            warnings.warn(
+                f"world {w} diverged at frame {self.frame} ({quantity} {value:.3g}); it is frozen at frame "
+                f"{self.frame - 1} and the other worlds run on",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+        self.state_0.particle_q.assign(x)
+        self.state_0.particle_qd.assign(v)
+        m.particle_inv_mass.assign(inv)
+        for hook in ("update_parameters", "reset"):  # solvers that cached masses or curvature
+            fn = getattr(self.solver, hook, None)
+            if callable(fn):
+                fn()
+        # The remaining worlds' figures: the largest over the worlds still running.
+        alive = [w for w in range(m.world_count) if w not in self.diverged_worlds]
+        return float(stats[alive, 0].max()), float(stats[alive, 1].max()), float(stats[alive, 2].sum())
+
     # ------------------------------------------------------------------ recording
     def _record(self, with_velocity: bool) -> None:
         x = self.state_0.particle_q.numpy().copy()
@@ -259,6 +354,12 @@ class Simulator:
             **self.solver.describe(),
             "objects": m.objects,
         }
+        if m.world_count > 1:
+            meta["worlds"] = {
+                "count": m.world_count,
+                "particle_offsets": [int(o) for o in m.world_offsets["particle"]],
+                "diverged": {str(w): d for w, d in self.diverged_worlds.items()},
+            }
         return Trajectory(x=x, t=np.asarray(self._ts), v=v, faces=faces, tets=tets, meta=meta)
 
     # ------------------------------------------------------------------ checkpoints

@@ -32,6 +32,7 @@ from .._warp import grad_enabled
 from ..energies._spring import dashpot_force_axis, spring_gradient_axis, spring_hessian
 from ..model import Control, Model, State
 from ._base import Solver
+from ._fast_cloth_cg import _bw_apply, _bw_update
 from ._post import add_drag_force, check_collisions, finish_step
 
 
@@ -170,79 +171,6 @@ def _bw_assemble(
 
 
 @wp.kernel
-def _bw_apply(
-    # Model:
-    adj_offsets: wp.array(dtype=wp.int32),
-    adj_neighbor: wp.array(dtype=wp.int32),
-    particle_mass: wp.array(dtype=Any),
-    particle_inv_mass: wp.array(dtype=Any),
-    block: wp.array(dtype=Any),
-    # CG:
-    z_in: wp.array(dtype=Any),
-    p_in: wp.array(dtype=Any),
-    scalars: wp.array(dtype=Any),
-    k: int,
-    p_out: wp.array(dtype=Any),
-    q_out: wp.array(dtype=Any),
-):
-    # p_new = z + β p_old (β = rz_k / rz_{k−1}; none at k = 0), then q = A p_new, accumulating p·q.
-    # Neighbours' p_new are recomputed from z and p_old, so nobody reads a value written in this launch.
-    i = wp.tid()
-    zero = scalars[0] * type(scalars[0])(0.0)
-    beta = zero
-    if k > 0:
-        den = scalars[2 * k - 2]
-        if den > zero:
-            beta = scalars[2 * k] / den
-    # Pinned rows have z = 0 (zero preconditioner), hence p = 0: they never move.
-    pi = z_in[i]
-    if k > 0:
-        pi = pi + beta * p_in[i]
-    q = particle_mass[i] * pi
-    for e in range(adj_offsets[i], adj_offsets[i + 1]):
-        j = adj_neighbor[e]
-        pj = z_in[j]
-        if k > 0:
-            pj = pj + beta * p_in[j]
-        q += block[e] * (pi - pj)
-    if particle_inv_mass[i] == zero:
-        q = q * zero
-    p_out[i] = pi
-    q_out[i] = q
-    wp.atomic_add(scalars, 2 * k + 1, wp.dot(pi, q))
-
-
-@wp.kernel
-def _bw_update(
-    precond: wp.array(dtype=Any),
-    p_in: wp.array(dtype=Any),
-    q_in: wp.array(dtype=Any),
-    scalars: wp.array(dtype=Any),
-    k: int,
-    tol2: Any,
-    dv_io: wp.array(dtype=Any),
-    r_io: wp.array(dtype=Any),
-    z_out: wp.array(dtype=Any),
-):
-    # α = rz_k / (p·Ap); frozen (α = 0) once rz_k ≤ tol²·rz_0, so a fixed launch count needs no host sync.
-    i = wp.tid()
-    rz = scalars[2 * k]
-    pq = scalars[2 * k + 1]
-    zero = rz * type(rz)(0.0)
-    alpha = zero
-    if pq > zero and rz > tol2 * scalars[0]:
-        alpha = rz / pq
-    dv_io[i] = dv_io[i] + alpha * p_in[i]
-    r = r_io[i] - alpha * q_in[i]
-    r_io[i] = r
-    z = precond[i] * r
-    if alpha == zero:
-        z = z * zero
-    z_out[i] = z
-    wp.atomic_add(scalars, 2 * k + 2, wp.dot(r, z))
-
-
-@wp.kernel
 def _bw_finish(
     particle_inv_mass: wp.array(dtype=Any),
     x_in: wp.array(dtype=Any),
@@ -270,8 +198,12 @@ class FastMassSpring(Solver):
         model: the Model (springs only; FEM tetrahedra are rejected — use ForceSolver).
         method: ``"symplectic"`` (one fused kernel per step; stable for Δt ≲ 2/ω_max) or ``"implicit"``
             (Baraff–Witkin linearised backward Euler, unconditionally stable; one Newton step per call).
-        cg_iterations: CG iterations per implicit step (a fixed count: no host synchronisation).
-        cg_tol: relative residual (preconditioned norm) at which CG stops updating.
+        cg_iterations: the most CG iterations per implicit step.
+        cg_tol: relative residual (preconditioned norm, √(rᵀP⁻¹r / r₀ᵀP⁻¹r₀)) at which CG stops.
+        cg_check_every: iterations between host reads of the residual; the step stops launching once it
+            is reached (``last_cg_iterations`` says after how many). None: 4 on the CPU, where a read is a
+            copy of a few numbers, 16 on CUDA, where it synchronises; 0: never read (all ``cg_iterations``
+            launched, the update frozen on the device after convergence).
         velocity_damping: the lecture's δ, multiplying velocities each step (1 = none).
         damping_rate: c [1/s]: v ← v·exp(−cΔt), Δt-independent; overrides ``velocity_damping``.
         contact: resolve ground contact after each step (needs ``model.ground``).
@@ -291,6 +223,7 @@ class FastMassSpring(Solver):
         method: str = "symplectic",
         cg_iterations: int = 50,
         cg_tol: float = 1.0e-6,
+        cg_check_every: int | None = None,
         velocity_damping: float = 1.0,
         damping_rate: float | None = None,
         contact: bool = True,
@@ -312,6 +245,18 @@ class FastMassSpring(Solver):
         self.method = method
         self.cg_iterations = int(cg_iterations)
         self.cg_tol = float(cg_tol)
+        if not cg_tol > 0:
+            raise ValueError(f"cg_tol must be > 0 (a relative residual), got {cg_tol}")
+        if cg_check_every is None:
+            cg_check_every = 4 if wp.get_device(model.device).is_cpu else 16
+        if cg_check_every < 0:
+            raise ValueError(f"cg_check_every must be >= 0 iterations (0: never check), got {cg_check_every}")
+        self.cg_check_every = int(cg_check_every)
+        #: CG iterations the last implicit step took to reach ``cg_tol`` (``cg_iterations`` if it did not).
+        self.last_cg_iterations = 0
+        #: Implicit steps taken and CG iterations summed over them (for means over a run).
+        self.cg_steps = 0
+        self.cg_iterations_total = 0
         self.velocity_damping_factor = float(velocity_damping)
         self.damping_rate = damping_rate
         self.contact = contact and model.ground is not None
@@ -549,6 +494,32 @@ class FastMassSpring(Solver):
             )
         return cmds
 
+    def _launch_cg(self, cg: list) -> None:
+        """Launch the recorded CG iterations (two launches each) in chunks of ``cg_check_every``, stopping
+        after the chunk in which the residual reached ``cg_tol``; record how many iterations that took."""
+        total = len(cg) // 2
+        every = self.cg_check_every or total
+        tol2 = self.cg_tol**2
+        done = 0
+        while done < total:
+            end = min(total, done + every)
+            for cmd in cg[2 * done : 2 * end]:
+                cmd.launch()
+            done = end
+            if done < total and self._converged_at(done, tol2) is not None:
+                break
+        used = self._converged_at(done, tol2)
+        self.last_cg_iterations = total if used is None else used
+        self.cg_steps += 1
+        self.cg_iterations_total += self.last_cg_iterations
+
+    def _converged_at(self, k_max: int, tol2: float) -> int | None:
+        """The first iteration k ≤ ``k_max`` whose residual rz_k ≤ tol²·rz_0 (one host read), else None."""
+        sc = self._scalars.numpy()
+        rz = sc[0 : 2 * k_max + 1 : 2]
+        hit = np.flatnonzero(rz <= tol2 * sc[0])
+        return int(hit[0]) if hit.size else None
+
     def run_cg(self, h: float) -> None:
         """Run CG now on what ``_bw_assemble`` left in the work buffers (the recorded step's forward solve;
         ``h`` [s] is the step, unused by the iterations themselves)."""
@@ -561,10 +532,15 @@ class FastMassSpring(Solver):
             return
         m = self.model
         f_ext = self._external(control, state_in.particle_q)
+        cmds = self._commands(state_in, state_out, f_ext, float(dt))
         if self.method == "implicit":
             self._scalars.zero_()
-        for cmd in self._commands(state_in, state_out, f_ext, float(dt)):
-            cmd.launch()
+            cmds[0].launch()
+            self._launch_cg(cmds[1:-1])
+            cmds[-1].launch()
+        else:
+            for cmd in cmds:
+                cmd.launch()
         finish_step(m, control, state_in, state_out, dt, contact=self.contact, collisions=self.collisions)
 
     def describe(self) -> dict:

@@ -1,0 +1,195 @@
+"""Worlds (ModelBuilder.replicate): W copies stepped together equal W runs alone — bit for bit under
+explicit solvers and XPBD, to the solver tolerance under implicit ones — with per-world parameters, reset,
+trajectories and divergence."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import pliant as pl
+from pliant.io import Trajectory
+
+W = 3
+STIFF = [150.0, 300.0, 600.0]
+
+
+def _cloth(worlds: int | None, *, ground: bool = True):
+    b = pl.ModelBuilder()
+    b.add_cloth_grid(nx=5, ny=5, size=0.4, mass=0.05, stiffness=300.0, damping=0.01, origin=(0, 0.3, 0))
+    b.pin([0])
+    if ground:
+        b.add_ground(0.0, friction=0.5)
+    if worlds is not None:
+        b.replicate(worlds)
+    return b.finalize(device="cpu", dtype="float64")
+
+
+def _force_solver(model):
+    return pl.solvers.ForceSolver(
+        model, energies=pl.energies.mass_spring(), integrator=pl.integrators.SymplecticEuler()
+    )
+
+
+def _run(model, solver, frames=6, substeps=20, **kw):
+    sim = pl.Simulator(model, solver, frame_dt=1 / 60, substeps=substeps, **kw)
+    return sim, sim.run(frames, progress=False)
+
+
+def _solo(k: float, make_solver, **kw) -> Trajectory:
+    model = _cloth(None, **kw)
+    model.set_world_parameter("spring_stiffness", 0, k)
+    return _run(model, make_solver(model))[1]
+
+
+@pytest.mark.parametrize(
+    "make_solver",
+    [
+        _force_solver,
+        lambda m: pl.solvers.FastMassSpring(m, method="symplectic"),
+        lambda m: pl.solvers.XPBD(m, iterations=2, schedule="coloring"),
+        lambda m: pl.solvers.XPBD(m, iterations=2, schedule="jacobi"),
+    ],
+    ids=["force", "fast_symplectic", "xpbd_coloring", "xpbd_jacobi"],
+)
+def test_explicit_worlds_equal_runs_alone_bit_for_bit(make_solver):
+    model = _cloth(W)
+    for w, k in enumerate(STIFF):
+        model.set_world_parameter("spring_stiffness", w, k)
+    solver = make_solver(model)
+    if hasattr(solver, "update_parameters"):
+        solver.update_parameters()
+    _, traj = _run(model, solver)
+    assert traj.world_count == W
+    finals = []
+    for w, k in enumerate(STIFF):
+        alone = _solo(k, make_solver)
+        mine = traj.world(w)
+        np.testing.assert_array_equal(mine.x, alone.x)
+        finals.append(mine.x[-1])
+    assert not np.array_equal(finals[0], finals[2])  # the stiffnesses do differ
+
+
+def test_implicit_worlds_equal_runs_alone_to_the_tolerance():
+    def make(model):
+        return pl.solvers.ForceSolver(
+            model,
+            energies=[pl.energies.NeoHookean(), pl.energies.Gravity()],
+            integrator=pl.integrators.BackwardEuler(newton_tol=1e-9),
+        )
+
+    def box(worlds):
+        b = pl.ModelBuilder()
+        b.add_soft_box(cells=(2, 2, 2), size=(0.2, 0.2, 0.2), origin=(0, 0.3, 0), E=2e4, nu=0.3, density=500)
+        b.add_ground(0.0)
+        if worlds:
+            b.replicate(worlds)
+        return b.finalize(device="cpu", dtype="float64")
+
+    youngs = [1e4, 3e4]
+    model = box(2)
+    for w, e in enumerate(youngs):
+        model.set_world_material(w, e, 0.3)
+    _, traj = _run(model, make(model), frames=8, substeps=2)
+    for w, e in enumerate(youngs):
+        solo = box(None)
+        solo.set_world_material(0, e, 0.3)
+        _, alone = _run(solo, make(solo), frames=8, substeps=2)
+        np.testing.assert_allclose(traj.world(w).x, alone.x, rtol=0, atol=1e-7)
+
+
+def test_reset_world_restores_one_world_only():
+    model = _cloth(W)
+    sim, _ = _run(model, _force_solver(model), frames=3)
+    before = sim.state_0.particle_q.numpy().copy()
+    model.reset_world(sim.state_0, 1)
+    after = sim.state_0.particle_q.numpy()
+    s0, s1, s2 = (model.world_slice("particle", w) for w in range(W))
+    np.testing.assert_array_equal(after[s1], model.particle_q.numpy()[s1])
+    np.testing.assert_array_equal(sim.state_0.particle_qd.numpy()[s1], model.particle_qd.numpy()[s1])
+    np.testing.assert_array_equal(after[s0], before[s0])
+    np.testing.assert_array_equal(after[s2], before[s2])
+    assert not np.array_equal(before[s1], after[s1])
+
+
+def test_set_world_state_moves_one_world_start():
+    model = _cloth(2)
+    sl = model.world_slice("particle", 1)
+    x1 = model.particle_q.numpy()[sl] + np.array([1.0, 0.0, 0.0])
+    model.set_world_state(1, x=x1)
+    np.testing.assert_allclose(model.state().particle_q.numpy()[sl], x1)
+    np.testing.assert_array_equal(
+        model.state().particle_q.numpy()[model.world_slice("particle", 0)],
+        _cloth(None).particle_q.numpy(),
+    )
+
+
+def test_a_diverging_world_is_frozen_and_the_others_run_on():
+    model = _cloth(W)
+    model.set_world_parameter("spring_stiffness", 1, 1e9)  # far past the explicit limit at this step
+    with pytest.warns(RuntimeWarning, match="world 1 diverged"):
+        sim, traj = _run(model, _force_solver(model), frames=6)
+    assert list(sim.diverged_worlds) == [1]
+    frozen = traj.world(1)
+    assert np.all(np.isfinite(frozen.x)) and frozen.meta["diverged"]["frame"] >= 1
+    np.testing.assert_array_equal(frozen.x[-1], frozen.x[-2])  # it stays where it last was good
+    for w in (0, 2):
+        solo = _cloth(None)
+        solo.set_world_parameter("spring_stiffness", 0, 300.0)
+        _, alone = _run(solo, _force_solver(solo), frames=6)
+        np.testing.assert_array_equal(traj.world(w).x, alone.x)
+
+
+def test_every_world_diverging_raises():
+    model = _cloth(2)
+    for w in range(2):
+        model.set_world_parameter("spring_stiffness", w, 1e9)
+    with pytest.raises(pl.sim.DivergenceError):
+        _run(model, _force_solver(model), frames=6)
+
+
+def test_world_trajectory_round_trips_through_a_file(tmp_path):
+    model = _cloth(2)
+    _, traj = _run(model, _force_solver(model), frames=2)
+    back = Trajectory.load(traj.save(tmp_path / "worlds.npz"))
+    w1 = back.world(1)
+    assert back.world_count == 2 and w1.x.shape[1] == model.particle_count // 2
+    np.testing.assert_array_equal(w1.x, traj.world(1).x)
+    assert w1.faces.min() == 0 and w1.faces.max() < w1.x.shape[1]
+    assert [o["world"] for o in w1.meta["objects"]] == [1] and w1.meta["objects"][0]["start"] == 0
+
+
+def test_replicate_and_world_parameters_reject_bad_input():
+    b = pl.ModelBuilder()
+    with pytest.raises(ValueError, match="nothing to copy"):
+        b.replicate(2)
+    b.add_rope(n_segments=3, length=0.3, mass=0.01, stiffness=10.0)
+    for bad in (0, -1, 1.5, True):
+        with pytest.raises(ValueError, match="positive number of worlds"):
+            b.replicate(bad)
+    b.replicate(2)
+    with pytest.raises(ValueError, match="once"):
+        b.replicate(2)
+    b.add_particles([[0, 0, 0]], 0.1)
+    with pytest.raises(ValueError, match="added after"):
+        b.finalize(device="cpu")
+    model = _cloth(2)
+    with pytest.raises(ValueError, match="unknown parameter"):
+        model.set_world_parameter("stiffness", 0, 1.0)
+    with pytest.raises(ValueError, match="out of range"):
+        model.set_world_parameter("spring_stiffness", 2, 1.0)
+    with pytest.raises(ValueError, match="one per spring"):
+        model.set_world_parameter("spring_stiffness", 0, [1.0, 2.0])
+    with pytest.raises(ValueError, match=">= 0"):
+        model.set_world_parameter("spring_stiffness", 0, -1.0)
+    with pytest.raises(ValueError, match="> 0"):
+        model.set_world_parameter("particle_mass", 0, 0.0)
+
+
+def test_world_mass_keeps_pins_fixed():
+    model = _cloth(2)
+    sl = model.world_slice("particle", 1)
+    model.set_world_parameter("particle_mass", 1, 0.5)
+    inv = model.particle_inv_mass.numpy()[sl]
+    assert inv[0] == 0.0 and np.allclose(inv[1:], 2.0)
+    assert np.all(model.particle_inv_mass.numpy()[model.world_slice("particle", 0)][1:] != 2.0)
