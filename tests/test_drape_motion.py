@@ -84,3 +84,59 @@ def test_cg_options_are_checked():
         FastMassSpring(model, method="implicit", cg_tol=0.0)
     with pytest.raises(ValueError, match="cg_check_every"):
         FastMassSpring(model, method="implicit", cg_check_every=-1)
+
+
+# ----------------------------------------------------------------------- θ: backward Euler ↔ midpoint
+def _vertical_oscillator(theta: float, steps: int, t_end: float = 1.0):
+    """A particle hanging from a pinned one by a spring along y (a linear oscillator about its equilibrium):
+    returns (y(t_end) − exact, the total energy's relative change)."""
+    import pliant as pl
+
+    k, m, rest, g = 40.0, 0.1, 0.5, 9.81
+    b = pl.ModelBuilder(gravity=(0.0, -g, 0.0))
+    b.add_particles([[0.0, 1.0, 0.0], [0.0, 1.0 - rest - 0.05, 0.0]], [m, m])
+    b.pin([0])
+    b.add_springs([[0, 1]], stiffness=k, rest_length=rest)
+    model = b.finalize(device="cpu", dtype="float64")
+    solver = pl.solvers.FastMassSpring(model, method="implicit", theta=theta, cg_tol=1e-14, cg_iterations=10)
+    s0, s1 = model.state(), model.state()
+    h = t_end / steps
+
+    def energy(s):
+        y, v = s.particle_q.numpy()[1, 1], s.particle_qd.numpy()[1, 1]
+        return 0.5 * m * v * v + m * g * y + 0.5 * k * (1.0 - y - rest) ** 2
+
+    e0 = energy(s0)
+    for _ in range(steps):
+        solver.step(s0, s1, model.control(), h)
+        s0, s1 = s1, s0
+    omega = (k / m) ** 0.5
+    y_eq = 1.0 - rest - m * g / k
+    exact = y_eq + (1.0 - rest - 0.05 - y_eq) * np.cos(omega * t_end)
+    return s0.particle_q.numpy()[1, 1] - exact, (energy(s0) - e0) / abs(e0)
+
+
+def test_theta_half_is_second_order_and_keeps_the_energy():
+    """θ = ½ (linearised implicit midpoint) is exact for a linear oscillator's energy and converges at second
+    order; θ = 1 (backward Euler) loses energy and converges at first order."""
+    err_h, drift_half = _vertical_oscillator(0.5, 50)
+    err_h2, _ = _vertical_oscillator(0.5, 100)
+    assert abs(drift_half) < 1e-10
+    assert 3.6 < abs(err_h / err_h2) < 4.4  # second order
+    _, drift_be = _vertical_oscillator(1.0, 50)
+    assert drift_be < -0.01  # backward Euler dissipates
+    be_h, _ = _vertical_oscillator(1.0, 1600)  # first order (asymptotic once ω²h·t ≪ 1: 1600 steps)
+    be_h2, _ = _vertical_oscillator(1.0, 3200)
+    assert 1.8 < abs(be_h / be_h2) < 2.2
+
+
+def test_theta_is_checked():
+    from pliant.bench._mass_spring import cloth_drape_model
+    from pliant.solvers import FastMassSpring
+
+    with pytest.raises(ValueError, match="theta"):
+        FastMassSpring(cloth_drape_model(4, device="cpu"), method="implicit", theta=0.3)
+    grad_model = cloth_drape_model(4, device="cpu", dtype="float64")
+    grad_model.requires_grad = True
+    with pytest.raises(ValueError, match="no adjoint"):
+        FastMassSpring(grad_model, method="implicit", theta=0.5)

@@ -27,7 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-REFERENCES = Path(__file__).parent / "references"
+from ._common import REFERENCES, curve_deviation, load_reference
+
 #: Substeps per frame of the references (n = 4: 256; n = 10: 64).
 REFERENCE_SUBSTEPS = {4: 256, 10: 512}
 #: The drop height [m]: the scale of ``trajectory_error``.
@@ -87,13 +88,7 @@ def com_curve(
 
 def reference_curve(n: int) -> np.ndarray:
     """The stored converged centre-of-mass curve [m] of the n³ drop (frames 1 … :data:`WINDOW`)."""
-    path = REFERENCES / f"soft_box_{n}.npz"
-    if not path.exists():
-        raise FileNotFoundError(
-            f"{path}: no reference for n = {n}; make it with python -m pliant.bench._box_motion {n}"
-        )
-    with np.load(path, allow_pickle=False) as d:
-        return np.asarray(d["com"], dtype=np.float64)
+    return load_reference(f"soft_box_{n}", "com", f"python -m pliant.bench._box_motion {n}")
 
 
 def compute_reference(n: int, substeps: int | None = None) -> np.ndarray:
@@ -105,10 +100,7 @@ def compute_reference(n: int, substeps: int | None = None) -> np.ndarray:
 def trajectory_error(curve: np.ndarray, reference: np.ndarray) -> float:
     """max_k |curve_k − reference_k| / :data:`DROP_HEIGHT` over the frames both have (inf if not finite):
     the reference's :data:`WINDOW` frames."""
-    k = min(len(curve), len(reference))
-    if not np.all(np.isfinite(curve[:k])):
-        return float("inf")
-    return float(np.max(np.abs(curve[:k] - reference[:k])) / DROP_HEIGHT)
+    return curve_deviation(curve, reference, DROP_HEIGHT)
 
 
 def motion_fields(n: int, curve: np.ndarray) -> dict:

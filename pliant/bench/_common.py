@@ -11,6 +11,7 @@ import resource
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 
@@ -110,3 +111,30 @@ def print_rows(benchmarks: Mapping[str, Callable[..., dict]], names: Sequence[st
     """Run the named benchmarks (all when ``names`` is empty) and print one JSON line each."""
     for name in names or list(benchmarks):
         print(json.dumps({"benchmark": name, **benchmarks[name]()}), flush=True)
+
+
+#: Converged motion references stored with the package (pliant/bench/references/*.npz).
+REFERENCES = Path(__file__).parent / "references"
+
+
+def load_reference(stem: str, key: str, remake: str) -> Any:
+    """Array ``key`` of ``references/<stem>.npz`` as float64; FileNotFoundError naming ``remake`` (the
+    command that makes it) when the file is missing."""
+    import numpy as np
+
+    path = REFERENCES / f"{stem}.npz"
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such reference; make it with {remake}")
+    with np.load(path, allow_pickle=False) as d:
+        return np.asarray(d[key], dtype=np.float64)
+
+
+def curve_deviation(curve: Any, reference: Any, scale: float) -> float:
+    """max_k |curve_k − reference_k| / ``scale`` over the frames both have; inf if ``curve`` is not finite
+    there (the ``trajectory_error`` of the motion benchmarks)."""
+    import numpy as np
+
+    k = min(len(curve), len(reference))
+    if not np.all(np.isfinite(curve[:k])):
+        return float("inf")
+    return float(np.max(np.abs(np.asarray(curve[:k]) - np.asarray(reference[:k]))) / scale)

@@ -16,14 +16,13 @@ once and stored in ``pliant/bench/references/cloth_drape_<n>.npz``; regenerate w
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ._common import REFERENCES, curve_deviation, load_reference
 from ._mass_spring import FRAME_DT, cloth_drape_model, make_solver, sag
 
-REFERENCES = Path(__file__).parent / "references"
 #: Substeps per frame of the references (8× or more the stable benchmark setting).
 REFERENCE_SUBSTEPS = {16: 640, 64: 640, 128: 1280}
 #: Frames of 1/60 s the references cover: the fall.
@@ -66,13 +65,7 @@ def solver_curve(model: Any, solver: Any, *, substeps: int, frames: int = REFERE
 
 def reference_curve(n: int) -> np.ndarray:
     """The stored converged sag curve [m] of the n × n drape (frames 0 … 30)."""
-    path = REFERENCES / f"cloth_drape_{n}.npz"
-    if not path.exists():
-        raise FileNotFoundError(
-            f"{path}: no reference for n = {n}; make it with python -m pliant.bench._drape_motion {n}"
-        )
-    with np.load(path, allow_pickle=False) as d:
-        return np.asarray(d["sag"], dtype=np.float64)
+    return load_reference(f"cloth_drape_{n}", "sag", f"python -m pliant.bench._drape_motion {n}")
 
 
 def compute_reference(n: int) -> np.ndarray:
@@ -81,11 +74,8 @@ def compute_reference(n: int) -> np.ndarray:
 
 
 def trajectory_error(curve: np.ndarray, reference: np.ndarray) -> float:
-    """max_k |curve_k − reference_k| / reference_final over the frames both have."""
-    k = min(len(curve), len(reference))
-    if not np.all(np.isfinite(curve[:k])):
-        return float("inf")
-    return float(np.max(np.abs(curve[:k] - reference[:k])) / abs(reference[-1]))
+    """max_k |curve_k − reference_k| / reference_final over the frames both have (inf if not finite)."""
+    return curve_deviation(curve, reference, abs(reference[-1]))
 
 
 def curve_error(n: int, curve: np.ndarray) -> dict:
@@ -108,7 +98,26 @@ def motion_fields(
     return curve_error(n, curve)
 
 
+def export_network(n: int, path: str) -> None:
+    """Write the n × n drape's spring network for peers (benchmarks/peers/cloth_drape_newton.py): positions
+    ``x`` [P, 3] m, lumped ``mass`` [P] kg, ``free`` [P] (False: pinned), ``springs`` [S, 2], ``rest`` [S] m
+    and ``stiffness`` [S] N/m."""
+    model = cloth_drape_model(n, device="cpu", dtype="float64")
+    np.savez(
+        path,
+        x=model.particle_q.numpy(),
+        mass=model.particle_mass.numpy(),
+        free=model.particle_inv_mass.numpy() > 0,
+        springs=model.spring_indices.numpy(),
+        rest=model.spring_rest_length.numpy(),
+        stiffness=model.spring_stiffness.numpy(),
+    )
+
+
 if __name__ == "__main__":
+    if sys.argv[1:2] == ["export"]:
+        export_network(int(sys.argv[2]), sys.argv[3])
+        sys.exit(0)
     for arg in sys.argv[1:]:
         size = int(arg)
         REFERENCES.mkdir(exist_ok=True)

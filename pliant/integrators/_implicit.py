@@ -73,7 +73,9 @@ class ImplicitOptions:
     """Settings of the implicit steps' minimiser, defined and validated once (integrators and minimisers).
 
     Attributes:
-        newton_tol: tolerance [m/s] on ‖Δx‖∞/h and on max_i |∇Φ_i|/(m_i h) (> 0).
+        newton_tol: tolerance [m/s] on ‖Δx‖∞/h and on max_i |∇Φ_i|/(m_i h) (> 0): a velocity error per
+            step. Keep it well below g·h: a looser one accepts the inertial prediction x̃ of a free-fall
+            step as converged, and a body at rest under gravity never starts to fall.
         max_newton_iterations: Newton iteration cap per step (≥ 1).
         linear_solver: "cg", "scipy-cg", "direct" or "auto" (direct on the CPU, cg on a GPU).
         cg_tol: relative residual of CG, in (0, 1) (raised to 30 eps of the model's dtype).

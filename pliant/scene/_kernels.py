@@ -1,8 +1,8 @@
 """Kernel manifests of the built-in scenes: which Warp modules and overloads their first frames launch.
 
 ``build_scene`` hands a built-in scene's manifest to :func:`pliant._prebuild.prebuild`, which compiles them
-on two threads before the first step (docs/performance.md, "First frame"). Regenerate the file after
-changing kernels or scenes::
+on two threads before the first step (docs/design.md, "First frame on a fresh kernel cache"). Regenerate the
+file after changing kernels or scenes::
 
     python -m pliant.scene._kernels          # rewrites pliant/scenes/kernels.json (about a minute)
 

@@ -160,7 +160,7 @@ class BaraffWitkinStep(Integrator):
         launch(
             _bw_assemble,
             m.particle_count,
-            [*inputs, f_ext, x_in, v_in, m.s(h), fast._block, fast._precond]
+            [*inputs, f_ext, x_in, v_in, m.s(h), m.s(1.0), fast._block, fast._precond]
             + [fast._r, fast._z, fast._p[0], fast._dv, fast._scalars],
             device=m.device,
         )

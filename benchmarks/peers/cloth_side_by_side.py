@@ -1,0 +1,107 @@
+"""The cloth drape at equal accuracy: pliant's rows and Newton 1.8 on the same spring network, interleaved
+on one core; every run's speed beside its ``trajectory_error`` (the sag over the 30-frame fall against
+pliant's converged float64 reference), medians and paired ratios.
+
+Run from the repository root with pliant's venv (Newton runs from ``--peers-python``, a venv with
+newton==1.8.0; see README.md):
+
+    .venv/bin/python benchmarks/peers/cloth_side_by_side.py --n 64 128 --rounds 3
+
+A speed claim stands only where both sides are at ``trajectory_error`` ≤ 2 %.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+PEERS = Path(__file__).resolve().parent
+
+#: (label, pliant benchmark row or None, Newton solver, substeps, iterations) per cloth size.
+CONFIGS = {
+    64: [
+        ("pliant FastMassSpring symplectic, 80 substeps", "cloth_drape_64_symplectic", None, 0, 0),
+        ("pliant XPBD colouring, 100 x 1", "xpbd_cloth_drape_64_coloring", None, 0, 0),
+        ("pliant Baraff-Witkin, 32 steps, CG 1e-2", "cloth_drape_64_implicit", None, 0, 0),
+        ("newton SemiImplicit, 80 substeps", None, "semi", 80, 1),
+        ("newton XPBD, 100 x 1", None, "xpbd", 100, 1),
+    ],
+    128: [
+        ("pliant FastMassSpring symplectic, 160 substeps", "cloth_drape_128_symplectic", None, 0, 0),
+        ("pliant XPBD colouring, 250 x 1", "xpbd_cloth_drape_128_coloring", None, 0, 0),
+        ("newton SemiImplicit, 160 substeps", None, "semi", 160, 1),
+        ("newton XPBD, 250 x 1", None, "xpbd", 250, 1),
+    ],
+}
+
+
+def _last_json(text: str) -> dict:
+    return json.loads([ln for ln in text.splitlines() if ln.startswith("{")][-1])
+
+
+def run_pliant(row: str, core: str) -> dict:
+    out = subprocess.run(
+        ["taskset", "-c", core, sys.executable, "-m", "pliant.cli", "bench", row],
+        capture_output=True, text=True, check=True,
+    ).stdout  # fmt: skip
+    r = _last_json(out)
+    return {"fps": r["fps"], "trajectory_error": r["trajectory_error"]}
+
+
+def run_newton(py: str, network: str, n: int, solver: str, substeps: int, iterations: int, core: str) -> dict:
+    import numpy as np
+
+    from pliant.bench._drape_motion import reference_curve, trajectory_error
+
+    cmd = [py, str(PEERS / "cloth_drape_newton.py"), "--network", network, "--solver", solver]
+    cmd += ["--substeps", str(substeps), "--iterations", str(iterations)]
+    r = _last_json(
+        subprocess.run(["taskset", "-c", core, *cmd], capture_output=True, text=True, check=True).stdout
+    )
+    err = trajectory_error(np.asarray(r["sag_curve"]), reference_curve(n))
+    return {"fps": r["fps"], "trajectory_error": round(err, 5)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, nargs="+", default=[64])
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--core", default="1")
+    ap.add_argument("--peers-python", default="/work/peers-venv/bin/python")
+    args = ap.parse_args()
+    from pliant.bench._drape_motion import export_network
+
+    for n in args.n:
+        network = str(Path(tempfile.mkdtemp()) / f"drape{n}.npz")
+        export_network(n, network)
+        rows: dict[str, list[dict]] = {c[0]: [] for c in CONFIGS[n]}
+        for r in range(args.rounds):
+            for label, row, solver, sub, it in CONFIGS[n]:  # interleaved: A B C ... A B C ...
+                res = (
+                    run_pliant(row, args.core)
+                    if row
+                    else run_newton(args.peers_python, network, n, solver, sub, it, args.core)
+                )
+                rows[label].append(res)
+                print(json.dumps({"n": n, "config": label, "round": r, **res}), file=sys.stderr, flush=True)
+        first = CONFIGS[n][0][0]
+        print(
+            f"\ncloth {n}x{n}, 30-frame fall, medians of {args.rounds} interleaved rounds on core {args.core}"
+        )
+        print(f"{'config':48s} {'fps':>8s} {'traj err':>9s} {'fps / first (paired)':>21s}")
+        for label in rows:
+            fps = statistics.median(x["fps"] for x in rows[label])
+            err = statistics.median(x["trajectory_error"] for x in rows[label])
+            paired = statistics.median(
+                a["fps"] / b["fps"] for a, b in zip(rows[first], rows[label], strict=True)
+            )
+            print(f"{label:48s} {fps:8.2f} {100 * err:8.2f}% {paired:20.2f}x")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,33 @@
+"""The soft box's motion measure (``trajectory_error``: the centre-of-mass height over the fall, the impact
+and the rebound against a converged float64 reference): it separates a converged run from one implicit step
+per frame, which damps the impact, and the stored reference reproduces."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pliant.bench._box_motion import (
+    DROP_HEIGHT,
+    WINDOW,
+    com_curve,
+    compute_reference,
+    reference_curve,
+    trajectory_error,
+)
+
+
+def test_one_implicit_step_per_frame_is_caught_and_small_steps_follow_the_reference():
+    ref = reference_curve(4)
+    assert len(ref) == WINDOW and ref.min() < ref[0] - 0.9 * DROP_HEIGHT  # it falls, hits and rebounds
+    coarse = com_curve(4, substeps=1, frames=WINDOW)
+    fine = com_curve(4, substeps=32, frames=WINDOW)
+    assert trajectory_error(coarse, ref) > 0.2  # the benchmark's former setting: the impact damped
+    assert trajectory_error(fine, ref) < 0.02
+    assert coarse.min() > ref.min() + 0.005  # bottoms out higher: the damped impact
+    assert trajectory_error(np.full(WINDOW, np.nan), ref) == float("inf")
+
+
+@pytest.mark.slow
+def test_stored_box_reference_reproduces():
+    np.testing.assert_allclose(compute_reference(4), reference_curve(4), rtol=0, atol=1e-9)
