@@ -93,10 +93,11 @@ def main() -> None:
         print(
             f"\ncloth {n}x{n}, 30-frame fall, medians of {args.rounds} interleaved rounds on core {args.core}"
         )
-        print(f"{'config':48s} {'fps':>8s} {'traj err':>9s} {'fps / first (paired)':>21s}")
+        print(f"{'config':48s} {'fps':>8s} {'traj err':>9s} {'first is N x faster':>21s}")
         for label in rows:
             fps = statistics.median(x["fps"] for x in rows[label])
             err = statistics.median(x["trajectory_error"] for x in rows[label])
+            # the first row's fps over this row's, within each round (same load), then the median
             paired = statistics.median(
                 a["fps"] / b["fps"] for a, b in zip(rows[first], rows[label], strict=True)
             )
