@@ -193,3 +193,48 @@ def test_world_mass_keeps_pins_fixed():
     inv = model.particle_inv_mass.numpy()[sl]
     assert inv[0] == 0.0 and np.allclose(inv[1:], 2.0)
     assert np.all(model.particle_inv_mass.numpy()[model.world_slice("particle", 0)][1:] != 2.0)
+
+
+@pytest.mark.parametrize(
+    "make_solver",
+    [_force_solver, lambda m: pl.solvers.XPBD(m, iterations=2, schedule="coloring")],
+    ids=["force", "xpbd"],
+)
+def test_simulator_reset_world_restarts_one_world_exactly(make_solver):
+    model = _cloth(W)
+    for w, k in enumerate(STIFF):
+        model.set_world_parameter("spring_stiffness", w, k)
+    sim = pl.Simulator(model, make_solver(model), frame_dt=1 / 60, substeps=20)
+    sim.run(3, progress=False)
+    sim.reset_world(1)
+    traj = sim.run(6, progress=False)
+    assert sim.world_resets == [(3, 1)] and traj.meta["worlds"]["resets"] == [[3, 1]]
+    for w, k in enumerate(STIFF):
+        alone = _solo(k, make_solver)
+        if w == 1:  # frames 0-3 as alone, then it starts over: frames 4-6 are frames 1-3 alone
+            np.testing.assert_array_equal(traj.world(w).x[:4], alone.x[:4])
+            np.testing.assert_array_equal(traj.world(w).x[4:], alone.x[1:4])
+        else:  # the others never notice
+            np.testing.assert_array_equal(traj.world(w).x, alone.x)
+
+
+def test_reset_world_thaws_a_diverged_world_with_new_parameters():
+    model = _cloth(2)
+    model.set_world_parameter("spring_stiffness", 1, 1e9)
+    sim = pl.Simulator(model, _force_solver(model), frame_dt=1 / 60, substeps=20)
+    with pytest.warns(RuntimeWarning, match="world 1 diverged"):
+        sim.run(3, progress=False)
+    assert list(sim.diverged_worlds) == [1]
+    model.set_world_parameter("spring_stiffness", 1, 300.0)
+    sim.reset_world(1)
+    assert sim.diverged_worlds == {}
+    np.testing.assert_array_equal(
+        model.particle_inv_mass.numpy()[model.world_slice("particle", 1)],
+        model.particle_inv_mass.numpy()[model.world_slice("particle", 0)],
+    )
+    traj = sim.run(6, progress=False)
+    alone = _solo(300.0, _force_solver)
+    np.testing.assert_array_equal(traj.world(1).x[4:], alone.x[1:4])
+    np.testing.assert_array_equal(traj.world(0).x, alone.x)
+    with pytest.raises(ValueError, match="out of range"):
+        sim.reset_world(2)
