@@ -172,7 +172,7 @@ def set_world_parameter(model: Any, name: str, w: int, value: Any) -> None:
         inv = model.particle_inv_mass.numpy()
         free = inv[sl] > 0  # pinned and kinematic particles keep inverse mass 0
         inv_w = inv[sl]
-        inv_w[free] = 1.0 / host[sl][free]
+        inv_w[free] = 1.0 / v[free]  # in float64, then rounded, as the builder does
         inv[sl] = inv_w
         model.particle_inv_mass.assign(inv)
         model.particle_mass_np[sl] = v
