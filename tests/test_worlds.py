@@ -238,3 +238,32 @@ def test_reset_world_thaws_a_diverged_world_with_new_parameters():
     np.testing.assert_array_equal(traj.world(0).x, alone.x)
     with pytest.raises(ValueError, match="out of range"):
         sim.reset_world(2)
+
+
+def test_sweep_of_material_values_runs_as_worlds_equal_to_runs_alone(tmp_path, monkeypatch):
+    import pliant.sweep._sweep as sw
+
+    def no_copies(*a, **k):
+        raise AssertionError("material-only runs must be batched as worlds, not as object copies")
+
+    monkeypatch.setattr(sw, "_as_copies", no_copies)
+    sets = ["objects[0].material.stiffness=100,400", "objects[0].material.damping=0,0.05"]
+    batched = sw.run_sweep("rope", sets, tmp_path / "a", worlds=4, frames=6)
+    alone = sw.run_sweep("rope", sets, tmp_path / "b", worlds=1, frames=6)
+    assert [r["batched"] for r in batched] == [4] * 4
+    for a, b in zip(batched, alone, strict=True):
+        assert {k: a[k] for k in sw.FIGURES} == {k: b[k] for k in sw.FIGURES}  # bit for bit (explicit)
+    assert len({r["sag"] for r in batched}) == 4
+
+
+def test_build_worlds_rejects_configs_that_differ_beyond_materials():
+    from pliant.scene import SceneError, build_scene, build_worlds, load_scene
+
+    with pytest.raises(SceneError, match="differs from world 0"):
+        build_worlds([load_scene("rope"), load_scene("rope", ["objects[0].n_segments=20"])], device="cpu")
+    with pytest.raises(SceneError, match="cannot build 2 worlds of this scene: handles"):
+        build_scene(load_scene("cantilever"), device="cpu", worlds=2)
+    from pliant.scene._worlds import material_only
+
+    assert material_only(["objects[0].material.E=1e5", "objects[1].material.nu=0.2"])
+    assert not material_only(["objects[0].material.law=stvk"]) and not material_only(["scene.substeps=4"])
