@@ -267,3 +267,39 @@ def test_build_worlds_rejects_configs_that_differ_beyond_materials():
 
     assert material_only(["objects[0].material.E=1e5", "objects[1].material.nu=0.2"])
     assert not material_only(["objects[0].material.law=stvk"]) and not material_only(["scene.substeps=4"])
+
+
+def test_fast_mass_spring_implicit_worlds_equal_runs_alone_to_the_cg_tolerance():
+    def make(m):
+        return pl.solvers.FastMassSpring(m, method="implicit")
+
+    model = _cloth(W)
+    for w, k in enumerate(STIFF):
+        model.set_world_parameter("spring_stiffness", w, k)
+    solver = make(model)
+    solver.update_parameters()
+    _, traj = _run(model, solver)
+    for w, k in enumerate(STIFF):
+        alone = _solo(k, make)
+        moved = np.abs(alone.x[-1] - alone.x[0]).max()
+        # one CG over all worlds stops on the residual of all of them: each within 1e-5 of its motion
+        np.testing.assert_allclose(traj.world(w).x, alone.x, rtol=0, atol=1e-5 * moved)
+
+
+def test_world_mass_rounds_like_the_builder():
+    masses = np.random.default_rng(3).uniform(0.001, 0.1, 64)  # float64 masses, not float32 numbers
+    pos = np.random.default_rng(4).uniform(-1, 1, (64, 3))
+    b = pl.ModelBuilder()
+    b.add_particles(pos, masses)
+    b.pin([0])
+    alone = b.finalize(device="cpu")  # float32: 1/m computed in float64 by the builder, then rounded
+    b2 = pl.ModelBuilder()
+    b2.add_particles(pos, 0.02)
+    b2.pin([0])
+    b2.replicate(2)
+    model = b2.finalize(device="cpu")
+    model.set_world_parameter("particle_mass", 1, masses)
+    sl = model.world_slice("particle", 1)
+    np.testing.assert_array_equal(model.particle_inv_mass.numpy()[sl], alone.particle_inv_mass.numpy())
+    np.testing.assert_array_equal(model.particle_mass.numpy()[sl], alone.particle_mass.numpy())
+    assert model.particle_inv_mass.numpy()[sl][0] == 0.0  # the pin holds
