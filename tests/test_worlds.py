@@ -303,3 +303,22 @@ def test_world_mass_rounds_like_the_builder():
     np.testing.assert_array_equal(model.particle_inv_mass.numpy()[sl], alone.particle_inv_mass.numpy())
     np.testing.assert_array_equal(model.particle_mass.numpy()[sl], alone.particle_mass.numpy())
     assert model.particle_inv_mass.numpy()[sl][0] == 0.0  # the pin holds
+
+
+def test_a_resumed_run_keeps_its_frozen_world_frozen(tmp_path):
+    def sim_of():
+        model = _cloth(W)
+        model.set_world_parameter("spring_stiffness", 1, 1e9)
+        return pl.Simulator(model, _force_solver(model), frame_dt=1 / 60, substeps=20)
+
+    with pytest.warns(RuntimeWarning, match="world 1 diverged"):
+        whole = sim_of().run(6, progress=False)
+    ck = tmp_path / "ck.npz"
+    first = sim_of()
+    with pytest.warns(RuntimeWarning, match="world 1 diverged"):
+        first.run(3, progress=False, checkpoint=ck)
+    resumed = sim_of()
+    traj = resumed.run(6, progress=False, checkpoint=ck, resume=True)  # no new divergence: no warning
+    assert list(resumed.diverged_worlds) == [1]
+    assert resumed.diverged_worlds[1]["frame"] == whole.meta["worlds"]["diverged"]["1"]["frame"]
+    np.testing.assert_array_equal(traj.x, whole.x)

@@ -478,6 +478,28 @@ class Simulator:
         self._ts = list(ck["traj_t"])
         # Velocities only when this run records them too (else the trajectory's v would stop short of x).
         self._vs = list(ck["traj_v"]) if ck["traj_v"] is not None and self._record_velocity else []
+        self._restore_worlds(ck["meta"].get("worlds", {}), path)
+
+    def _restore_worlds(self, worlds: dict, path: Any) -> None:
+        """Freeze again the worlds a checkpoint lists as diverged (as the run that wrote it had them)."""
+        m = self.model
+        try:
+            diverged = {int(w): dict(d) for w, d in worlds.get("diverged", {}).items()}
+            diverged = diverged if self._per_world else {}
+            resets = [(int(f), int(w)) for f, w in worlds.get("resets", [])]
+            for w in [*diverged, *(w for _, w in resets)]:
+                m.world_slice("particle", w)
+        except (ValueError, TypeError, AttributeError) as exc:
+            raise CheckpointError(f"{path}: worlds: {exc}; resume with the scene that wrote it") from None
+        self.diverged_worlds, self.world_resets = diverged, resets
+        if diverged:
+            inv = m.particle_inv_mass.numpy()
+            for w in diverged:
+                sl = m.world_slice("particle", w)
+                self._frozen_inv[w] = inv[sl].copy()
+                inv[sl] = 0.0
+            m.particle_inv_mass.assign(inv)
+            self._solver_changed()
 
     # ------------------------------------------------------------------ the loop
     def run(
