@@ -193,3 +193,132 @@ def test_world_mass_keeps_pins_fixed():
     inv = model.particle_inv_mass.numpy()[sl]
     assert inv[0] == 0.0 and np.allclose(inv[1:], 2.0)
     assert np.all(model.particle_inv_mass.numpy()[model.world_slice("particle", 0)][1:] != 2.0)
+
+
+@pytest.mark.parametrize(
+    "make_solver",
+    [_force_solver, lambda m: pl.solvers.XPBD(m, iterations=2, schedule="coloring")],
+    ids=["force", "xpbd"],
+)
+def test_simulator_reset_world_restarts_one_world_exactly(make_solver):
+    model = _cloth(W)
+    for w, k in enumerate(STIFF):
+        model.set_world_parameter("spring_stiffness", w, k)
+    sim = pl.Simulator(model, make_solver(model), frame_dt=1 / 60, substeps=20)
+    sim.run(3, progress=False)
+    sim.reset_world(1)
+    traj = sim.run(6, progress=False)
+    assert sim.world_resets == [(3, 1)] and traj.meta["worlds"]["resets"] == [[3, 1]]
+    for w, k in enumerate(STIFF):
+        alone = _solo(k, make_solver)
+        if w == 1:  # frames 0-3 as alone, then it starts over: frames 4-6 are frames 1-3 alone
+            np.testing.assert_array_equal(traj.world(w).x[:4], alone.x[:4])
+            np.testing.assert_array_equal(traj.world(w).x[4:], alone.x[1:4])
+        else:  # the others never notice
+            np.testing.assert_array_equal(traj.world(w).x, alone.x)
+
+
+def test_reset_world_thaws_a_diverged_world_with_new_parameters():
+    model = _cloth(2)
+    model.set_world_parameter("spring_stiffness", 1, 1e9)
+    sim = pl.Simulator(model, _force_solver(model), frame_dt=1 / 60, substeps=20)
+    with pytest.warns(RuntimeWarning, match="world 1 diverged"):
+        sim.run(3, progress=False)
+    assert list(sim.diverged_worlds) == [1]
+    model.set_world_parameter("spring_stiffness", 1, 300.0)
+    sim.reset_world(1)
+    assert sim.diverged_worlds == {}
+    np.testing.assert_array_equal(
+        model.particle_inv_mass.numpy()[model.world_slice("particle", 1)],
+        model.particle_inv_mass.numpy()[model.world_slice("particle", 0)],
+    )
+    traj = sim.run(6, progress=False)
+    alone = _solo(300.0, _force_solver)
+    np.testing.assert_array_equal(traj.world(1).x[4:], alone.x[1:4])
+    np.testing.assert_array_equal(traj.world(0).x, alone.x)
+    with pytest.raises(ValueError, match="out of range"):
+        sim.reset_world(2)
+
+
+def test_sweep_of_material_values_runs_as_worlds_equal_to_runs_alone(tmp_path, monkeypatch):
+    import pliant.sweep._sweep as sw
+
+    def no_copies(*a, **k):
+        raise AssertionError("material-only runs must be batched as worlds, not as object copies")
+
+    monkeypatch.setattr(sw, "_as_copies", no_copies)
+    sets = ["objects[0].material.stiffness=100,400", "objects[0].material.damping=0,0.05"]
+    batched = sw.run_sweep("rope", sets, tmp_path / "a", worlds=4, frames=6)
+    alone = sw.run_sweep("rope", sets, tmp_path / "b", worlds=1, frames=6)
+    assert [r["batched"] for r in batched] == [4] * 4
+    for a, b in zip(batched, alone, strict=True):
+        assert {k: a[k] for k in sw.FIGURES} == {k: b[k] for k in sw.FIGURES}  # bit for bit (explicit)
+    assert len({r["sag"] for r in batched}) == 4
+
+
+def test_build_worlds_rejects_configs_that_differ_beyond_materials():
+    from pliant.scene import SceneError, build_scene, build_worlds, load_scene
+
+    with pytest.raises(SceneError, match="differs from world 0"):
+        build_worlds([load_scene("rope"), load_scene("rope", ["objects[0].n_segments=20"])], device="cpu")
+    with pytest.raises(SceneError, match="cannot build 2 worlds of this scene: handles"):
+        build_scene(load_scene("cantilever"), device="cpu", worlds=2)
+    from pliant.scene._worlds import material_only
+
+    assert material_only(["objects[0].material.E=1e5", "objects[1].material.nu=0.2"])
+    assert not material_only(["objects[0].material.law=stvk"]) and not material_only(["scene.substeps=4"])
+
+
+def test_fast_mass_spring_implicit_worlds_equal_runs_alone_to_the_cg_tolerance():
+    def make(m):
+        return pl.solvers.FastMassSpring(m, method="implicit")
+
+    model = _cloth(W)
+    for w, k in enumerate(STIFF):
+        model.set_world_parameter("spring_stiffness", w, k)
+    solver = make(model)
+    solver.update_parameters()
+    _, traj = _run(model, solver)
+    for w, k in enumerate(STIFF):
+        alone = _solo(k, make)
+        moved = np.abs(alone.x[-1] - alone.x[0]).max()
+        # one CG over all worlds stops on the residual of all of them: each within 1e-5 of its motion
+        np.testing.assert_allclose(traj.world(w).x, alone.x, rtol=0, atol=1e-5 * moved)
+
+
+def test_world_mass_rounds_like_the_builder():
+    masses = np.random.default_rng(3).uniform(0.001, 0.1, 64)  # float64 masses, not float32 numbers
+    pos = np.random.default_rng(4).uniform(-1, 1, (64, 3))
+    b = pl.ModelBuilder()
+    b.add_particles(pos, masses)
+    b.pin([0])
+    alone = b.finalize(device="cpu")  # float32: 1/m computed in float64 by the builder, then rounded
+    b2 = pl.ModelBuilder()
+    b2.add_particles(pos, 0.02)
+    b2.pin([0])
+    b2.replicate(2)
+    model = b2.finalize(device="cpu")
+    model.set_world_parameter("particle_mass", 1, masses)
+    sl = model.world_slice("particle", 1)
+    np.testing.assert_array_equal(model.particle_inv_mass.numpy()[sl], alone.particle_inv_mass.numpy())
+    np.testing.assert_array_equal(model.particle_mass.numpy()[sl], alone.particle_mass.numpy())
+    assert model.particle_inv_mass.numpy()[sl][0] == 0.0  # the pin holds
+
+
+def test_a_resumed_run_keeps_its_frozen_world_frozen(tmp_path):
+    def sim_of():
+        model = _cloth(W)
+        model.set_world_parameter("spring_stiffness", 1, 1e9)
+        return pl.Simulator(model, _force_solver(model), frame_dt=1 / 60, substeps=20)
+
+    with pytest.warns(RuntimeWarning, match="world 1 diverged"):
+        whole = sim_of().run(6, progress=False)
+    ck = tmp_path / "ck.npz"
+    first = sim_of()
+    with pytest.warns(RuntimeWarning, match="world 1 diverged"):
+        first.run(3, progress=False, checkpoint=ck)
+    resumed = sim_of()
+    traj = resumed.run(6, progress=False, checkpoint=ck, resume=True)  # no new divergence: no warning
+    assert list(resumed.diverged_worlds) == [1]
+    assert resumed.diverged_worlds[1]["frame"] == whole.meta["worlds"]["diverged"]["1"]["frame"]
+    np.testing.assert_array_equal(traj.x, whole.x)

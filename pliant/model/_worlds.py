@@ -164,19 +164,27 @@ def set_world_parameter(model: Any, name: str, w: int, value: Any) -> None:
         raise ValueError(
             f"set_world_parameter({name!r}, {w}): values must be {'> 0' if positive else '>= 0'} {unit}"
         )
-    arr = getattr(model, name)
-    host = arr.numpy()
-    host[sl] = v.astype(host.dtype)
-    arr.assign(host)
+    _write_range(getattr(model, name), sl, v, model.dtype)
     if name == "particle_mass":
-        inv = model.particle_inv_mass.numpy()
-        free = inv[sl] > 0  # pinned and kinematic particles keep inverse mass 0
-        inv_w = inv[sl]
-        inv_w[free] = 1.0 / host[sl][free]
-        inv[sl] = inv_w
-        model.particle_inv_mass.assign(inv)
+        inv_w = model.particle_inv_mass.numpy()[sl].astype(np.float64)
+        free = inv_w > 0  # pinned and kinematic particles keep inverse mass 0
+        inv_w[free] = 1.0 / v[free]  # in float64, then rounded, as the builder does
+        _write_range(model.particle_inv_mass, sl, inv_w, model.dtype)
         model.particle_mass_np[sl] = v
     wp.synchronize_device(model.device)
+
+
+def _write_range(arr: Any, sl: slice, values: np.ndarray, dtype: str) -> None:
+    """``arr[sl] = values`` on ``arr``'s device: one small upload and a device copy, so setting every
+    world's values costs O(elements), not O(worlds × elements)."""
+    import warp as wp
+
+    if sl.stop <= sl.start:
+        return
+    from .._warp import np_dtype
+
+    src = wp.array(np.ascontiguousarray(values, dtype=np_dtype(dtype)), dtype=arr.dtype, device=arr.device)
+    wp.copy(arr, src, dest_offset=sl.start, src_offset=0, count=sl.stop - sl.start)
 
 
 def set_world_material(model: Any, w: int, E: Any, nu: Any) -> None:
@@ -210,10 +218,7 @@ def set_world_state(model: Any, w: int, x: Any = None, v: Any = None) -> None:
             )
         if name == "particle_qd":
             a = np.where(model.particle_inv_mass.numpy()[sl, None] > 0, a, 0.0)  # fixed particles stay still
-        arr = getattr(model, name)
-        host = arr.numpy()
-        host[sl] = a.astype(host.dtype)
-        arr.assign(host)
+        _write_range(getattr(model, name), sl, a, model.dtype)
         if name == "particle_q":
             model.particle_q_np[sl] = a
 

@@ -27,6 +27,7 @@ from ._registry import (
 from ._schema import ColliderBase, Material, ObjectBase, SceneConfig
 from ._solvers import integrator_names, make_integrator
 from ._terms import register_builtin_terms
+from ._worlds import build_worlds
 
 register_builtin_terms()
 
@@ -40,6 +41,7 @@ __all__ = [
     "SceneConfig",
     "SceneError",
     "build_scene",
+    "build_worlds",
     "builtin_scenes",
     "integrator_names",
     "load_scene",

@@ -4,6 +4,7 @@ the Solver from the registered solver kind; :class:`Scene` holds what a run and 
 from __future__ import annotations
 
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -361,7 +362,13 @@ def _apply_parameters(ctx: BuildContext, solver: Any) -> None:
 
 
 def build_scene(
-    cfg: SceneConfig, device: str | None = None, dtype: str | None = None, requires_grad: bool = False
+    cfg: SceneConfig,
+    device: str | None = None,
+    dtype: str | None = None,
+    requires_grad: bool = False,
+    *,
+    worlds: int = 1,
+    world_parameters: Sequence[dict[str, Any]] | None = None,
 ) -> Scene:
     """Build the Model and Solver a scene describes, on ``device`` in ``dtype`` (defaults: the file's).
 
@@ -370,6 +377,10 @@ def build_scene(
         device: Warp device (``"cpu"``, ``"cuda:0"``); None: ``[scene] device`` or Warp's default.
         dtype: ``"float32"`` or ``"float64"``; None: ``[scene] dtype``.
         requires_grad: Finalize the model with gradient arrays (tape-differentiable steps, for fitting).
+        worlds: Replicate the objects into this many worlds (``ModelBuilder.replicate``); see
+            :func:`~pliant.scene.build_worlds` for worlds of different material values.
+        world_parameters: Per world, ``{model array: values}`` set with ``Model.set_world_parameter``
+            before the solver is made.
 
     Raises:
         SceneError: a file, option or geometry the build cannot use, naming the field.
@@ -380,7 +391,14 @@ def build_scene(
     _add_objects(ctx)
     x0 = ctx.builder.positions()
     kin, spring_handles = _select_handles(ctx)
+    if worlds != 1:
+        from ._worlds import replicate_scene
+
+        replicate_scene(ctx, worlds)
     _finalize(ctx, device, dtype, requires_grad)
+    for w, params in enumerate(world_parameters or ()):
+        for name, value in params.items():
+            ctx.model.set_world_parameter(name, w, value)
     embeddings = _embeddings(ctx, x0)
     colliders, static_meshes = _colliders(ctx)
     control_points, springs = _spring_handles(ctx, spring_handles)

@@ -163,6 +163,9 @@ class Simulator:
         self._warned_newton = False
         #: Worlds frozen after diverging: world → {"frame", "quantity", "value"}.
         self.diverged_worlds: dict[int, dict] = {}
+        #: (frame, world) of every :meth:`reset_world`, in order.
+        self.world_resets: list[tuple[int, int]] = []
+        self._frozen_inv: dict[int, np.ndarray] = {}  # a frozen world's inverse masses before freezing
         self._per_world = per_world_divergence and model.world_count > 1
         if self._per_world:
             self._particle_world = wp.array(model.particle_world(), dtype=wp.int32, device=model.device)
@@ -306,6 +309,7 @@ class Simulator:
         last = self._xs[-1]
         for w, quantity, value in failing:
             sl = m.world_slice("particle", w)
+            self._frozen_inv[w] = inv[sl].copy()
             x[sl], v[sl], inv[sl] = last[sl], 0.0, 0.0
             self.diverged_worlds[w] = {"frame": self.frame, "quantity": quantity, "value": float(value)}
             warnings.warn(
@@ -317,13 +321,47 @@ class Simulator:
         self.state_0.particle_q.assign(x)
         self.state_0.particle_qd.assign(v)
         m.particle_inv_mass.assign(inv)
+        self._solver_changed()
+        # The remaining worlds' figures: the largest over the worlds still running.
+        alive = [w for w in range(m.world_count) if w not in self.diverged_worlds]
+        return float(stats[alive, 0].max()), float(stats[alive, 1].max()), float(stats[alive, 2].sum())
+
+    def _solver_changed(self) -> None:
+        """Tell the solver the model's masses or a world's state changed under it."""
         for hook in ("update_parameters", "reset"):  # solvers that cached masses or curvature
             fn = getattr(self.solver, hook, None)
             if callable(fn):
                 fn()
-        # The remaining worlds' figures: the largest over the worlds still running.
-        alive = [w for w in range(m.world_count) if w not in self.diverged_worlds]
-        return float(stats[alive, 0].max()), float(stats[alive, 1].max()), float(stats[alive, 2].sum())
+
+    def reset_world(self, w: int) -> None:
+        """Put world ``w`` back to the model's initial positions and velocities (``Model.set_world_state``
+        sets them); the other worlds' states are untouched. A world frozen after diverging is thawed
+        (its inverse masses restored, removed from :attr:`diverged_worlds`), so change its parameters
+        first (``Model.set_world_parameter``) to run it again differently. Recorded with the frame in
+        :attr:`world_resets` and the trajectory's ``meta["worlds"]["resets"]``.
+
+        Solver history is shared by all worlds: solvers that carry some between steps (L-BFGS curvature
+        pairs and warm start, BDF2's previous state) forget it for every world (``Solver.reset``), so under
+        those the other worlds' next step starts like a first step and is no longer bit-identical to an
+        uninterrupted run. Explicit solvers and XPBD keep none: the other worlds go on exactly as if
+        nothing happened (tested bit for bit).
+
+        Args:
+            w: world index in [0, model.world_count).
+
+        Raises:
+            ValueError: ``w`` out of range.
+        """
+        m = self.model
+        sl = m.world_slice("particle", w)
+        m.reset_world(self.state_0, w)
+        frozen = self._frozen_inv.pop(int(w), None)
+        if frozen is not None:
+            src = wp.array(frozen, dtype=m.scalar, device=m.device)
+            wp.copy(m.particle_inv_mass, src, dest_offset=sl.start, src_offset=0, count=sl.stop - sl.start)
+            self.diverged_worlds.pop(int(w), None)
+        self.world_resets.append((self.frame, int(w)))
+        self._solver_changed()
 
     # ------------------------------------------------------------------ recording
     def _record(self, with_velocity: bool) -> None:
@@ -359,6 +397,7 @@ class Simulator:
                 "count": m.world_count,
                 "particle_offsets": [int(o) for o in m.world_offsets["particle"]],
                 "diverged": {str(w): d for w, d in self.diverged_worlds.items()},
+                "resets": [list(r) for r in self.world_resets],
             }
         return Trajectory(x=x, t=np.asarray(self._ts), v=v, faces=faces, tets=tets, meta=meta)
 
@@ -439,6 +478,28 @@ class Simulator:
         self._ts = list(ck["traj_t"])
         # Velocities only when this run records them too (else the trajectory's v would stop short of x).
         self._vs = list(ck["traj_v"]) if ck["traj_v"] is not None and self._record_velocity else []
+        self._restore_worlds(ck["meta"].get("worlds", {}), path)
+
+    def _restore_worlds(self, worlds: dict, path: Any) -> None:
+        """Freeze again the worlds a checkpoint lists as diverged (as the run that wrote it had them)."""
+        m = self.model
+        try:
+            diverged = {int(w): dict(d) for w, d in worlds.get("diverged", {}).items()}
+            diverged = diverged if self._per_world else {}
+            resets = [(int(f), int(w)) for f, w in worlds.get("resets", [])]
+            for w in [*diverged, *(w for _, w in resets)]:
+                m.world_slice("particle", w)
+        except (ValueError, TypeError, AttributeError) as exc:
+            raise CheckpointError(f"{path}: worlds: {exc}; resume with the scene that wrote it") from None
+        self.diverged_worlds, self.world_resets = diverged, resets
+        if diverged:
+            inv = m.particle_inv_mass.numpy()
+            for w in diverged:
+                sl = m.world_slice("particle", w)
+                self._frozen_inv[w] = inv[sl].copy()
+                inv[sl] = 0.0
+            m.particle_inv_mass.assign(inv)
+            self._solver_changed()
 
     # ------------------------------------------------------------------ the loop
     def run(

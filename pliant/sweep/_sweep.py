@@ -6,6 +6,7 @@ import csv
 import itertools
 import os
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -98,47 +99,85 @@ def _batchable(cfg: Any) -> bool:
 
 
 def run_chunk(scene: str, runs: list[list[str]], frames: int | None, traj_dir: str | None) -> list[dict]:
-    """Run ``runs`` (override lists) of ``scene``: as copies in one simulation when they change only object
-    sections, else (or when that simulation diverges) one by one. Returns one result dict per run."""
-    from ..scene import SceneError, build_scene, load_scene
-    from ..sim import DivergenceError
+    """Run ``runs`` (override lists) of ``scene``: as worlds of one model when they change only material
+    values (``ModelBuilder.replicate``, each world's parameters its own), else as copies of the objects in
+    one simulation when they change only object sections, else (or when that fails) one by one. A run
+    whose world diverges is run again alone, so its row is the one it has alone. Returns one result dict
+    per run."""
+    from ..scene import load_scene
+    from ..scene._worlds import material_only, worlds_unsupported
 
     t0 = time.perf_counter()
     base = load_scene(scene)
-    if len(runs) > 1 and all(_object_only(r) for r in runs) and _batchable(base):
-        try:
-            cfgs = [load_scene(scene, r) for r in runs]
-            merged = base.model_copy(deep=True)
-            per = len(base.objects)
-            merged.objects = [
-                o.model_copy(update={"name": f"{o.name or 'object'}_w{w}"})
-                for w, c in enumerate(cfgs)
-                for o in c.objects
-            ]
-            built = build_scene(merged)
-            n = frames if frames is not None else built.frames
-            traj = _simulate(built, n)
-            spans = built.model.objects
-            out = []
-            for w, r in enumerate(runs):
-                lo = spans[w * per]["start"]
-                hi = spans[(w + 1) * per - 1]["start"] + spans[(w + 1) * per - 1]["count"]
-                x = traj[:, lo:hi]
-                _save(traj_dir, r, x, built.frame_dt)
-                out.append(
-                    {
-                        "status": "ok",
-                        "error": "",
-                        **summarize(x, built.frame_dt),
-                        "frames": n,
-                        "batched": len(runs),
-                    }
-                )
-            wall = (time.perf_counter() - t0) / len(runs)
-            return [{**o, "wall_time": wall} for o in out]
-        except (DivergenceError, SceneError, ValueError):
-            pass  # one run alone at a time: the failure is then recorded for its run only
-    return [_run_one(scene, r, frames, traj_dir) for r in runs]
+    out = None
+    if len(runs) > 1 and _batchable(base):
+        if all(material_only(r) for r in runs) and worlds_unsupported(base) is None:
+            out = _as_worlds(scene, runs, frames, traj_dir)
+        if out is None and all(_object_only(r) for r in runs):
+            out = _as_copies(scene, base, runs, frames, traj_dir)
+    if out is None:
+        return [_run_one(scene, r, frames, traj_dir) for r in runs]
+    wall = (time.perf_counter() - t0) / len(runs)
+    return [o if "wall_time" in o else {**o, "wall_time": wall} for o in out]
+
+
+def _ok(x: np.ndarray, frame_dt: float, frames: int, batched: int) -> dict:
+    return {"status": "ok", "error": "", **summarize(x, frame_dt), "frames": frames, "batched": batched}
+
+
+def _as_worlds(scene: str, runs: list[list[str]], frames: int | None, traj_dir: str | None) -> list | None:
+    """The runs as worlds of one model; None when they cannot be (the caller tries another way)."""
+    from ..scene import SceneError, build_worlds, load_scene
+    from ..sim import DivergenceError, Simulator
+
+    try:
+        built = build_worlds([load_scene(scene, r) for r in runs])
+        n = frames if frames is not None else built.frames
+        sim = Simulator(built.model, built.solver, **built.sim_kwargs)
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="world .* diverged", category=RuntimeWarning)
+            traj = sim.run(n, progress=False)
+    except (DivergenceError, SceneError, ValueError):
+        return None
+    out = []
+    for w, r in enumerate(runs):
+        if w in sim.diverged_worlds:
+            out.append(_run_one(scene, r, frames, traj_dir))  # its own row, message and all
+            continue
+        x = traj.world(w).x
+        _save(traj_dir, r, x, built.frame_dt)
+        out.append(_ok(x, built.frame_dt, n, len(runs)))
+    return out
+
+
+def _as_copies(scene: str, base: Any, runs: list[list[str]], frames: int | None, traj_dir: str | None):
+    """The runs as copies of the objects in one scene; None when that fails (the caller runs them alone)."""
+    from ..scene import SceneError, build_scene, load_scene
+    from ..sim import DivergenceError
+
+    try:
+        cfgs = [load_scene(scene, r) for r in runs]
+        merged = base.model_copy(deep=True)
+        per = len(base.objects)
+        merged.objects = [
+            o.model_copy(update={"name": f"{o.name or 'object'}_w{w}"})
+            for w, c in enumerate(cfgs)
+            for o in c.objects
+        ]
+        built = build_scene(merged)
+        n = frames if frames is not None else built.frames
+        traj = _simulate(built, n)
+    except (DivergenceError, SceneError, ValueError):
+        return None  # one run alone at a time: the failure is then recorded for its run only
+    spans = built.model.objects
+    out = []
+    for w, r in enumerate(runs):
+        lo = spans[w * per]["start"]
+        hi = spans[(w + 1) * per - 1]["start"] + spans[(w + 1) * per - 1]["count"]
+        x = traj[:, lo:hi]
+        _save(traj_dir, r, x, built.frame_dt)
+        out.append(_ok(x, built.frame_dt, n, len(runs)))
+    return out
 
 
 def _simulate(built: Any, frames: int) -> np.ndarray:
