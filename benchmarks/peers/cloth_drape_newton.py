@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 import time
 
 import numpy as np
@@ -91,6 +92,8 @@ def main(argv: list[str] | None = None) -> dict:
         "wall_s": round(wall, 4),
         "compile_s": round(compile_s, 3),
         "fps": round(args.frames / wall, 3),
+        # Peak resident memory of the process [MB] (Linux reports kB), as pliant's rows report it.
+        "peak_mem_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
         "sag_curve": [round(v, 7) for v in curve],
     }
     print(json.dumps(row), flush=True)

@@ -50,7 +50,7 @@ def run_pliant(row: str, core: str) -> dict:
         capture_output=True, text=True, check=True,
     ).stdout  # fmt: skip
     r = _last_json(out)
-    return {"fps": r["fps"], "trajectory_error": r["trajectory_error"]}
+    return {"fps": r["fps"], "trajectory_error": r["trajectory_error"], "peak_mem_mb": r.get("peak_mem_mb")}
 
 
 def run_newton(py: str, network: str, n: int, solver: str, substeps: int, iterations: int, core: str) -> dict:
@@ -64,7 +64,7 @@ def run_newton(py: str, network: str, n: int, solver: str, substeps: int, iterat
         subprocess.run(["taskset", "-c", core, *cmd], capture_output=True, text=True, check=True).stdout
     )
     err = trajectory_error(np.asarray(r["sag_curve"]), reference_curve(n))
-    return {"fps": r["fps"], "trajectory_error": round(err, 5)}
+    return {"fps": r["fps"], "trajectory_error": round(err, 5), "peak_mem_mb": r["peak_mem_mb"]}
 
 
 def main() -> None:
@@ -93,14 +93,17 @@ def main() -> None:
         print(
             f"\ncloth {n}x{n}, 30-frame fall, medians of {args.rounds} interleaved rounds on core {args.core}"
         )
-        print(f"{'config':48s} {'fps':>8s} {'traj err':>9s} {'fps / first (paired)':>21s}")
+        print(f"{'config':48s} {'fps':>8s} {'traj err':>9s} {'first is N x faster':>21s} {'peak MB':>8s}")
         for label in rows:
             fps = statistics.median(x["fps"] for x in rows[label])
             err = statistics.median(x["trajectory_error"] for x in rows[label])
+            # the first row's fps over this row's, within each round (same load), then the median
             paired = statistics.median(
                 a["fps"] / b["fps"] for a, b in zip(rows[first], rows[label], strict=True)
             )
-            print(f"{label:48s} {fps:8.2f} {100 * err:8.2f}% {paired:20.2f}x")
+            mems = [x["peak_mem_mb"] for x in rows[label] if x.get("peak_mem_mb") is not None]
+            mem = f"{statistics.median(mems):8.1f}" if mems else f"{'-':>8s}"
+            print(f"{label:48s} {fps:8.2f} {100 * err:8.2f}% {paired:20.2f}x {mem}")
 
 
 if __name__ == "__main__":

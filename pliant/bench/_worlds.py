@@ -19,9 +19,12 @@ from ._common import print_rows
 
 
 def _cloth(worlds: int) -> tuple[Any, Any, float, int]:
-    import pliant as pl
+    from ..energies import mass_spring
+    from ..integrators import SymplecticEuler
+    from ..model import ModelBuilder
+    from ..solvers import ForceSolver
 
-    b = pl.ModelBuilder()
+    b = ModelBuilder()
     b.add_cloth_grid(
         nx=16, ny=16, size=1.0, mass=0.2, stiffness=300.0, bend_stiffness=6.0, damping=0.005,
         origin=(-0.5, 0.9, -0.5), pin="top-corners",
@@ -31,40 +34,43 @@ def _cloth(worlds: int) -> tuple[Any, Any, float, int]:
     model = b.finalize(device="cpu", dtype="float32")
     for w in range(worlds):
         model.set_world_parameter("spring_stiffness", w, 300.0 + w)
-    solver = pl.solvers.ForceSolver(
+    solver = ForceSolver(
         model,
-        energies=pl.energies.mass_spring(),
-        integrator=pl.integrators.SymplecticEuler(),
+        energies=mass_spring(),
+        integrator=SymplecticEuler(),
         damping_rate=1.0,
     )
     return model, solver, 1.0 / 30.0, 80
 
 
 def _soft_box(worlds: int) -> tuple[Any, Any, float, int]:
-    import pliant as pl
+    from ..energies import Gravity, NeoHookean
+    from ..integrators import BackwardEuler
+    from ..model import ModelBuilder
+    from ..solvers import ForceSolver
 
-    b = pl.ModelBuilder()
+    b = ModelBuilder()
     b.add_soft_box(cells=(4, 4, 4), size=(0.2, 0.2, 0.2), origin=(0.0, 0.15, 0.0), E=5e4, nu=0.3, density=500)
     b.add_ground(0.0, friction=0.5)
     b.replicate(worlds)
     model = b.finalize(device="cpu", dtype="float64")
     for w in range(worlds):
         model.set_world_material(w, 5e4 * (1.0 + 0.001 * w), 0.3)
-    solver = pl.solvers.ForceSolver(
+    solver = ForceSolver(
         model,
-        energies=[pl.energies.NeoHookean(), pl.energies.Gravity()],
-        integrator=pl.integrators.BackwardEuler(method="lbfgs", newton_tol=1e-4),
+        energies=[NeoHookean(), Gravity()],
+        integrator=BackwardEuler(method="lbfgs", newton_tol=1e-4),
     )
     return model, solver, 1.0 / 60.0, 4
 
 
 def _throughput(make: Callable[[int], tuple], counts: tuple[int, ...], frames: int) -> dict:
-    import pliant as pl
+    from ..sim import Simulator
 
     rates, heights = {}, {}
     for w in counts:
         model, solver, frame_dt, substeps = make(w)
-        sim = pl.Simulator(model, solver, frame_dt=frame_dt, substeps=substeps)
+        sim = Simulator(model, solver, frame_dt=frame_dt, substeps=substeps)
         sim.run(1, progress=False)  # compile and record launches outside the timing
         t0 = time.process_time()
         traj = sim.run(frames + 1, progress=False)
