@@ -322,3 +322,20 @@ def test_a_resumed_run_keeps_its_frozen_world_frozen(tmp_path):
     assert list(resumed.diverged_worlds) == [1]
     assert resumed.diverged_worlds[1]["frame"] == whole.meta["worlds"]["diverged"]["1"]["frame"]
     np.testing.assert_array_equal(traj.x, whole.x)
+
+
+def test_sweep_keeps_the_worlds_that_did_not_diverge(tmp_path):
+    from pliant.sweep import run_sweep
+
+    rows = run_sweep("rope", ["objects[0].material.stiffness=100,1e12"], tmp_path, worlds=2, frames=8)
+    assert [r["status"] for r in rows] == ["ok", "diverged"]
+    assert rows[0]["batched"] == 2 and rows[1]["batched"] == 1  # only the diverged run ran again alone
+    assert "diverged at frame" in rows[1]["error"]
+
+
+def test_sweep_where_every_world_diverges_runs_each_alone_once(tmp_path, monkeypatch):
+    import pliant.sweep._sweep as sw
+
+    monkeypatch.setattr(sw, "_as_copies", lambda *a, **k: pytest.fail("the copies would diverge as well"))
+    rows = sw.run_sweep("rope", ["objects[0].material.stiffness=1e12,2e12"], tmp_path, worlds=2, frames=8)
+    assert [(r["status"], r["batched"]) for r in rows] == [("diverged", 1), ("diverged", 1)]

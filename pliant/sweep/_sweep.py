@@ -137,7 +137,9 @@ def _as_worlds(scene: str, runs: list[list[str]], frames: int | None, traj_dir: 
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="world .* diverged", category=RuntimeWarning)
             traj = sim.run(n, progress=False)
-    except (DivergenceError, SceneError, ValueError):
+    except DivergenceError:  # every world diverged: each run alone (copies would diverge just the same)
+        return [_run_one(scene, r, frames, traj_dir) for r in runs]
+    except (SceneError, ValueError):
         return None
     out = []
     for w, r in enumerate(runs):
