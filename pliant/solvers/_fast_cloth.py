@@ -522,15 +522,13 @@ class FastMassSpring(Solver):
         total = len(cg) // 2
         every = self.cg_check_every or total
         tol2 = self.cg_tol**2
-        done = 0
-        while done < total:
+        done, used = 0, None
+        while done < total and used is None:
             end = min(total, done + every)
             for cmd in cg[2 * done : 2 * end]:
                 cmd.launch()
             done = end
-            if done < total and self._converged_at(done, tol2) is not None:
-                break
-        used = self._converged_at(done, tol2)
+            used = self._converged_at(done, tol2)  # one host read per chunk
         self.last_cg_iterations = total if used is None else used
         self.cg_steps += 1
         self.cg_iterations_total += self.last_cg_iterations
