@@ -21,9 +21,8 @@ import numpy as np
 
 PLIANT = (
     "import json, sys; from pliant.bench._fem import soft_box_drop; "
-    "import pliant.bench._fem as f; f.LBFGS_TOL['float64'] = f.NEWTON_TOL['float64'] = float(sys.argv[2]); "
     "print(json.dumps(soft_box_drop(10, 'implicit', dtype='float64', minimizer=sys.argv[3], "
-    "trajectory=sys.argv[1])))"
+    "trajectory=sys.argv[1], newton_tol=float(sys.argv[2]))))"
 )
 
 

@@ -56,34 +56,26 @@ def com_curve(
         substeps: steps per frame of 1/60 s.
         dtype: "float32" or "float64".
         minimizer: the implicit step's minimiser, "lbfgs" or "newton".
-        tol: the minimiser's tolerance [m/s] (None: the benchmark's).
+        tol: the minimiser's tolerance per frame [m/s] (None: the benchmark's).
         frames: frames to run.
         integrator: the implicit integrator's class name in :mod:`pliant.integrators`.
     """
-    from . import _fem
+    from ._fem import soft_box_drop
 
-    saved = dict(_fem.LBFGS_TOL), dict(_fem.NEWTON_TOL)
-    try:
-        if tol is not None:
-            _fem.LBFGS_TOL[dtype] = _fem.NEWTON_TOL[dtype] = tol
-        with tempfile.TemporaryDirectory() as tmp:
-            path = Path(tmp) / "com.npy"
-            _fem.soft_box_drop(
-                n,
-                method,
-                substeps,
-                frames,
-                dtype=dtype,
-                minimizer=minimizer,
-                trajectory=str(path),
-                integrator=integrator,
-            )
-            return np.load(path)
-    finally:
-        _fem.LBFGS_TOL.clear()
-        _fem.LBFGS_TOL.update(saved[0])
-        _fem.NEWTON_TOL.clear()
-        _fem.NEWTON_TOL.update(saved[1])
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "com.npy"
+        soft_box_drop(
+            n,
+            method,
+            substeps,
+            frames,
+            dtype=dtype,
+            minimizer=minimizer,
+            trajectory=str(path),
+            integrator=integrator,
+            newton_tol=tol,
+        )
+        return np.load(path)
 
 
 def reference_curve(n: int) -> np.ndarray:

@@ -76,8 +76,14 @@ def make_solver(
     newton_tol: float | None = None,
     minimizer: str = "lbfgs",
     integrator: str = "BackwardEuler",
+    substeps: int = 1,
 ) -> Any:
     """ForceSolver with NeoHookean + Gravity: "implicit" (BackwardEuler) or "explicit" (SymplecticEuler).
+
+    ``newton_tol`` [m/s] (None: :data:`LBFGS_TOL` / :data:`NEWTON_TOL`) is a velocity error per frame; with
+    ``substeps`` steps per frame each step gets ``newton_tol / substeps``, so a frame's error stays the same.
+    A fixed 1e-2 m/s per step would pass the free-fall step itself (g·Δt = 5e-3 m/s at 32 substeps) as
+    converged at x̃, and the box would never fall.
 
     Ground contact: for the implicit rows ForceSolver adds a :class:`~pliant.energies.GroundPenalty` to the
     potential (so that Newton sees the ground: a projection after the step alone lets an implicit step push
@@ -94,7 +100,7 @@ def make_solver(
     energies = [NeoHookean(), Gravity()]
     if method == "implicit":
         tols = LBFGS_TOL if minimizer == "lbfgs" else NEWTON_TOL
-        tol = tols[model.dtype] if newton_tol is None else newton_tol
+        tol = (tols[model.dtype] if newton_tol is None else newton_tol) / substeps
         # Projected Hessians: with exact ones (project_psd="auto") the stable neo-Hookean Hessian of the
         # elements crushed at impact is indefinite, Newton returns 0.1-0.7 m steps that max_step cuts to
         # α ~ 1e-5, and the step stalls (measured at 20³ cells). L-BFGS lags a projected Hessian.
@@ -125,8 +131,10 @@ def soft_box_drop(
     minimizer: str = "lbfgs",
     trajectory: str | None = None,
     integrator: str = "BackwardEuler",
+    newton_tol: float | None = None,
 ) -> dict:
-    """Drop the n³-cell box for ``frames`` frames of 1/60 s; one dict of speed and height figures."""
+    """Drop the n³-cell box for ``frames`` frames of 1/60 s; one dict of speed and height figures
+    (``newton_tol``: the implicit tolerance per frame [m/s], None: the benchmark's; :func:`make_solver`)."""
     import warp as wp
 
     from .._warp import resolve_device
@@ -136,16 +144,9 @@ def soft_box_drop(
     device = str(resolve_device(device))
     t0 = time.perf_counter()
     model = soft_box_model(n, device=device, dtype=dtype)
-    # The tolerance is a velocity error per step [m/s]: with s substeps per frame it is divided by s, so a
-    # frame's error stays the same. A fixed 1e-2 m/s would pass the free-fall step itself (g·Δt = 5e-3 m/s
-    # at 32 substeps) as converged at x̃ and the box would never fall.
-    if method == "implicit" and substeps > 1:
-        base = (LBFGS_TOL if minimizer == "lbfgs" else NEWTON_TOL)[dtype]
-        solver = make_solver(
-            model, method, minimizer=minimizer, integrator=integrator, newton_tol=base / substeps
-        )
-    else:
-        solver = make_solver(model, method, minimizer=minimizer, integrator=integrator)
+    solver = make_solver(
+        model, method, newton_tol=newton_tol, minimizer=minimizer, integrator=integrator, substeps=substeps
+    )
     elastic = solver.energies[0]
     dt = FRAME_DT / substeps
     s0, s1 = model.state(), model.state()
