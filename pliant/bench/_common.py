@@ -138,3 +138,30 @@ def curve_deviation(curve: Any, reference: Any, scale: float) -> float:
     if not np.all(np.isfinite(curve[:k])):
         return float("inf")
     return float(np.max(np.abs(np.asarray(curve[:k]) - np.asarray(reference[:k]))) / scale)
+
+
+def frame_curve(
+    model: Any,
+    solver: Any,
+    measure: Callable[[Any], float],
+    *,
+    substeps: int,
+    frames: int,
+    frame_dt: float,
+    include_start: bool = True,
+) -> Any:
+    """``measure(positions)`` at every frame of ``solver`` stepping ``model`` from its initial state:
+    ``frames`` frames of ``substeps`` steps of ``frame_dt / substeps`` [s] (frame 0 first when
+    ``include_start``). The sanity curve of the motion benchmarks (sag, centre-of-mass height)."""
+    import numpy as np
+
+    control = model.control()
+    s0, s1 = model.state(), model.state()
+    out = [measure(s0.particle_q.numpy())] if include_start else []
+    dt = frame_dt / substeps
+    for _ in range(frames):
+        for _ in range(substeps):
+            solver.step(s0, s1, control, dt)
+            s0, s1 = s1, s0
+        out.append(measure(s0.particle_q.numpy()))
+    return np.asarray(out)

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from ._common import REFERENCES, curve_deviation, load_reference
+from ._common import REFERENCES, curve_deviation, frame_curve, load_reference
 from ._mass_spring import FRAME_DT, cloth_drape_model, make_solver, sag
 
 #: Substeps per frame of the references (8× or more the stable benchmark setting).
@@ -51,16 +51,9 @@ def sag_curve(
 def solver_curve(model: Any, solver: Any, *, substeps: int, frames: int = REFERENCE_FRAMES) -> np.ndarray:
     """Sag [m] at frames 0 … ``frames`` of ``solver`` stepping ``model`` from its initial state, ``substeps``
     steps of 1/60 s / ``substeps`` per frame (any pliant solver: mass-spring, XPBD, ...)."""
-    control = model.control()
-    s0, s1 = model.state(), model.state()
-    out = [sag(model, s0.particle_q.numpy())]
-    dt = FRAME_DT / substeps
-    for _ in range(frames):
-        for _ in range(substeps):
-            solver.step(s0, s1, control, dt)
-            s0, s1 = s1, s0
-        out.append(sag(model, s0.particle_q.numpy()))
-    return np.asarray(out)
+    return frame_curve(
+        model, solver, lambda x: sag(model, x), substeps=substeps, frames=frames, frame_dt=FRAME_DT
+    )
 
 
 def reference_curve(n: int) -> np.ndarray:

@@ -22,6 +22,7 @@ from ._common import (
     REFERENCES,
     Timing,
     curve_deviation,
+    frame_curve,
     load_reference,
     print_rows,
     run_timed,
@@ -209,15 +210,13 @@ def box_curve(
 ) -> np.ndarray:
     """Centre-of-mass height [m] at frames 1 … ``frames`` (1/60 s) of the XPBD soft box drop."""
     model, solver = _box(cells, schedule, iterations, "cpu", dtype)
-    control = model.control()
-    s0, s1 = model.state(), model.state()
-    out = []
-    for _ in range(frames):
-        for _ in range(substeps):
-            solver.step(s0, s1, control, FRAME_DT / substeps)
-            s0, s1 = s1, s0
-        out.append(float(s0.particle_q.numpy()[:, 1].astype(np.float64).mean()))
-    return np.asarray(out)
+
+    def com_height(x: np.ndarray) -> float:
+        return float(x[:, 1].astype(np.float64).mean())
+
+    return frame_curve(
+        model, solver, com_height, substeps=substeps, frames=frames, frame_dt=FRAME_DT, include_start=False
+    )
 
 
 def box_reference(cells: int = 6) -> np.ndarray:
