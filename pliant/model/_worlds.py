@@ -164,17 +164,17 @@ def set_world_parameter(model: Any, name: str, w: int, value: Any) -> None:
         raise ValueError(
             f"set_world_parameter({name!r}, {w}): values must be {'> 0' if positive else '>= 0'} {unit}"
         )
-    _write_range(getattr(model, name), sl, v, model.dtype)
+    write_range(getattr(model, name), sl, v, model.dtype)
     if name == "particle_mass":
         inv_w = model.particle_inv_mass.numpy()[sl].astype(np.float64)
         free = inv_w > 0  # pinned and kinematic particles keep inverse mass 0
         inv_w[free] = 1.0 / v[free]  # in float64, then rounded, as the builder does
-        _write_range(model.particle_inv_mass, sl, inv_w, model.dtype)
+        write_range(model.particle_inv_mass, sl, inv_w, model.dtype)
         model.particle_mass_np[sl] = v
     wp.synchronize_device(model.device)
 
 
-def _write_range(arr: Any, sl: slice, values: np.ndarray, dtype: str) -> None:
+def write_range(arr: Any, sl: slice, values: np.ndarray, dtype: str) -> None:
     """``arr[sl] = values`` on ``arr``'s device: one small upload and a device copy, so setting every
     world's values costs O(elements), not O(worlds × elements)."""
     import warp as wp
@@ -218,7 +218,7 @@ def set_world_state(model: Any, w: int, x: Any = None, v: Any = None) -> None:
             )
         if name == "particle_qd":
             a = np.where(model.particle_inv_mass.numpy()[sl, None] > 0, a, 0.0)  # fixed particles stay still
-        _write_range(getattr(model, name), sl, a, model.dtype)
+        write_range(getattr(model, name), sl, a, model.dtype)
         if name == "particle_q":
             model.particle_q_np[sl] = a
 

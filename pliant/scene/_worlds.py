@@ -10,18 +10,11 @@ from typing import Any
 
 import numpy as np
 
+from ..model._worlds import PARAMETERS
 from ._errors import scene_error
 
 #: Model arrays a world may have of its own (set with ``Model.set_world_parameter``).
-WORLD_ARRAYS = (
-    "spring_stiffness",
-    "spring_damping",
-    "spring_rest_length",
-    "bending_stiffness",
-    "tet_mu",
-    "tet_lam",
-    "particle_mass",
-)
+WORLD_ARRAYS = tuple(PARAMETERS)
 #: Model arrays every world must share exactly (topology, rest shape, initial state, contact radii).
 _SHARED = (
     "particle_q",
@@ -109,17 +102,21 @@ def build_worlds(cfgs: Sequence[Any], device: str | None = None, dtype: str | No
         raise scene_error(base, "objects", f"cannot build worlds of this scene: {why}")
     models = [_model_of(c, device, dtype) for c in cfgs]
     m0 = models[0]
+    # World 0's arrays once, not once per world.
+    shared0 = {name: getattr(m0, name).numpy() for name in _SHARED}
+    own0 = {name: getattr(m0, name).numpy() for name in WORLD_ARRAYS}
+    pinned0 = m0.particle_inv_mass.numpy() == 0
     params: list[dict[str, np.ndarray]] = []
     for w, m in enumerate(models):
-        for name in _SHARED:
-            a, b = getattr(m0, name).numpy(), getattr(m, name).numpy()
+        for name, a in shared0.items():
+            b = getattr(m, name).numpy()
             if a.shape != b.shape or not np.array_equal(a, b):
                 raise scene_error(base, "objects", f"world {w}: {name} differs from world 0")
-        if not np.array_equal(m0.particle_inv_mass.numpy() == 0, m.particle_inv_mass.numpy() == 0):
+        if not np.array_equal(pinned0, m.particle_inv_mass.numpy() == 0):
             raise scene_error(base, "objects", f"world {w}: the pinned particles differ from world 0's")
         own = {}
-        for name in WORLD_ARRAYS:
-            a, b = getattr(m0, name).numpy(), getattr(m, name).numpy()
+        for name, a in own0.items():
+            b = getattr(m, name).numpy()
             if not np.array_equal(a, b):
                 # Masses as the builder had them (float64), so inverse masses round as they do alone.
                 own[name] = m.particle_mass_np if name == "particle_mass" else b

@@ -13,6 +13,7 @@ import warp as wp
 
 from ..io import CheckpointError, CheckpointSpec, Trajectory, load_checkpoint, save_checkpoint
 from ..model import Control, Model, State
+from ..model._worlds import write_range
 from ..solvers import Solver
 
 #: Model parameters that fitting may change; checkpoints carry them so a resumed run is the same run.
@@ -308,9 +309,8 @@ class Simulator:
         inv = m.particle_inv_mass.numpy()
         last = self._xs[-1]
         for w, quantity, value in failing:
-            sl = m.world_slice("particle", w)
-            self._frozen_inv[w] = inv[sl].copy()
-            x[sl], v[sl], inv[sl] = last[sl], 0.0, 0.0
+            sl = self._freeze(inv, w)
+            x[sl], v[sl] = last[sl], 0.0
             self.diverged_worlds[w] = {"frame": self.frame, "quantity": quantity, "value": float(value)}
             warnings.warn(
                 f"world {w} diverged at frame {self.frame} ({quantity} {value:.3g}); it is frozen at frame "
@@ -325,6 +325,14 @@ class Simulator:
         # The remaining worlds' figures: the largest over the worlds still running.
         alive = [w for w in range(m.world_count) if w not in self.diverged_worlds]
         return float(stats[alive, 0].max()), float(stats[alive, 1].max()), float(stats[alive, 2].sum())
+
+    def _freeze(self, inv: np.ndarray, w: int) -> slice:
+        """Zero world ``w``'s inverse masses in the host copy ``inv``, keeping them for a thaw
+        (:meth:`reset_world`); returns the world's particle range."""
+        sl = self.model.world_slice("particle", w)
+        self._frozen_inv[w] = inv[sl].copy()
+        inv[sl] = 0.0
+        return sl
 
     def _solver_changed(self) -> None:
         """Tell the solver the model's masses or a world's state changed under it."""
@@ -357,8 +365,7 @@ class Simulator:
         m.reset_world(self.state_0, w)
         frozen = self._frozen_inv.pop(int(w), None)
         if frozen is not None:
-            src = wp.array(frozen, dtype=m.scalar, device=m.device)
-            wp.copy(m.particle_inv_mass, src, dest_offset=sl.start, src_offset=0, count=sl.stop - sl.start)
+            write_range(m.particle_inv_mass, sl, frozen, m.dtype)
             self.diverged_worlds.pop(int(w), None)
         self.world_resets.append((self.frame, int(w)))
         self._solver_changed()
@@ -495,9 +502,7 @@ class Simulator:
         if diverged:
             inv = m.particle_inv_mass.numpy()
             for w in diverged:
-                sl = m.world_slice("particle", w)
-                self._frozen_inv[w] = inv[sl].copy()
-                inv[sl] = 0.0
+                self._freeze(inv, w)
             m.particle_inv_mass.assign(inv)
             self._solver_changed()
 
