@@ -69,12 +69,13 @@ def batchable(problem: Problem) -> bool:
     one object) and no self-collision (it would couple the copies). Copies share the ground and colliders,
     which act per particle, so each copy moves as it would alone (explicit steps: the same arithmetic;
     implicit steps: one Newton solve whose block-diagonal Hessian is converged for every copy at once)."""
+    from ..scene._worlds import coupled
+
     cfg = problem.cfg
     return (
         len(cfg.objects) == 1
-        and not cfg.handles
+        and coupled(cfg) is None
         and problem.obs.controls is None
-        and getattr(cfg.solver, "self_collision", None) is None
         and all(b.name in OBJECT_PARAMS for b in problem.globals)
     )
 

@@ -32,13 +32,23 @@ _SHARED = (
 MATERIAL_FIELDS = ("stiffness", "shear_stiffness", "bend_stiffness", "damping", "Et", "E", "nu")
 
 
-def worlds_unsupported(cfg: Any) -> str | None:
-    """Why ``cfg`` cannot be replicated into worlds (None when it can): what would couple the worlds or
-    apply to world 0 only."""
+def coupled(cfg: Any) -> str | None:
+    """Why copies of ``cfg``'s objects in one model would not move as the scene alone does (None when they
+    would): handles drive particles of one copy, and self-collision would couple the copies. What sweeps,
+    CMA-ES generations and worlds all require before running runs together."""
     if cfg.handles:
         return "handles drive particles of one world"
     if getattr(cfg.solver, "self_collision", None) is not None:
         return "self-collision would couple the worlds"
+    return None
+
+
+def worlds_unsupported(cfg: Any) -> str | None:
+    """Why ``cfg`` cannot be replicated into worlds (None when it can): what would couple the worlds or
+    apply to world 0 only."""
+    why = coupled(cfg)
+    if why is not None:
+        return why
     if cfg.constraints or cfg.energies:
         return "[[constraints]] / [[energies]] entries are built for one world"
     for i, o in enumerate(cfg.objects):

@@ -93,11 +93,6 @@ def _object_only(run: Sequence[str]) -> bool:
     return all(o.strip().startswith("objects[") for o in run)
 
 
-def _batchable(cfg: Any) -> bool:
-    # Handles drive particles by object index and self-collision would couple the copies.
-    return not cfg.handles and getattr(cfg.solver, "self_collision", None) is None
-
-
 def run_chunk(scene: str, runs: list[list[str]], frames: int | None, traj_dir: str | None) -> list[dict]:
     """Run ``runs`` (override lists) of ``scene``: as worlds of one model when they change only material
     values (``ModelBuilder.replicate``, each world's parameters its own), else as copies of the objects in
@@ -105,12 +100,12 @@ def run_chunk(scene: str, runs: list[list[str]], frames: int | None, traj_dir: s
     whose world diverges is run again alone, so its row is the one it has alone. Returns one result dict
     per run."""
     from ..scene import load_scene
-    from ..scene._worlds import material_only, worlds_unsupported
+    from ..scene._worlds import coupled, material_only, worlds_unsupported
 
     t0 = time.perf_counter()
     base = load_scene(scene)
     out = None
-    if len(runs) > 1 and _batchable(base):
+    if len(runs) > 1 and coupled(base) is None:
         if all(material_only(r) for r in runs) and worlds_unsupported(base) is None:
             out = _as_worlds(scene, runs, frames, traj_dir)
         if out is None and all(_object_only(r) for r in runs):
