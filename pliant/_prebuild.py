@@ -21,6 +21,7 @@ and a kernel missing from it is compiled on first launch as before.
 from __future__ import annotations
 
 import builtins
+import functools
 import importlib
 import inspect
 import json
@@ -37,6 +38,7 @@ _lock = threading.Lock()
 _pch_ready = threading.Event()
 _pch: dict[str, Any] = {"dir": None}
 _threads: list[threading.Thread] = []
+_queued: set[tuple[str, str]] = set()  # (device, module) handed to a background build already
 
 
 def share_precompiled_header() -> bool:
@@ -184,6 +186,11 @@ def _user_modules() -> dict[str, Any]:
 _compile_ms: dict[str, float] = {}
 
 
+def module_of_object(path: str) -> str:
+    """The Warp module a CPU object file belongs to: Warp names it wp_<module>_<hash>.cpu<arch>.o."""
+    return Path(path).name.removeprefix("wp_").rsplit(".cpu", 1)[0].rsplit("_", 1)[0]
+
+
 def time_compiles() -> None:
     """From now on, note each CPU module build's seconds (for :func:`record`'s ``compile_ms``)."""
     import time
@@ -197,8 +204,7 @@ def time_compiles() -> None:
         try:
             return orig(obj_path, *args, **kwargs)
         finally:
-            # The object file is named after the module: wp_<module>_<hash>.cpu<arch>.o
-            name = Path(obj_path).name.removeprefix("wp_").rsplit(".cpu", 1)[0].rsplit("_", 1)[0]
+            name = module_of_object(obj_path)
             _compile_ms[name] = _compile_ms.get(name, 0.0) + 1e3 * (time.perf_counter() - t)
 
     wb.build_cpu = build_cpu
@@ -220,19 +226,26 @@ def record(prefix: str = "pliant.") -> dict:
     return {"modules": modules, "overloads": overloads, "compile_ms": ms}
 
 
+@functools.cache
+def _manifests() -> dict:
+    """Every stored manifest, read once per process (build_scene asks for one at each build)."""
+    try:
+        return json.loads(MANIFEST.read_text())
+    except (OSError, ValueError):
+        return {}
+
+
 def manifest_for(scene: str) -> dict | None:
     """The stored manifest of built-in ``scene`` (None when there is none)."""
-    try:
-        return json.loads(MANIFEST.read_text()).get(scene)
-    except (OSError, ValueError):
-        return None
+    return _manifests().get(scene)
 
 
 def prebuild(manifest: dict, device: str | None = None, workers: int = 2) -> int:
     """Register ``manifest``'s overloads and compile its modules on ``workers`` background threads.
 
-    Modules not created yet in this process and entries that no longer match a kernel are skipped. Call
-    :func:`wait` before launching. Returns the number of modules queued.
+    Modules not created yet in this process, modules an earlier call queued and this one adds no overload
+    to (a sweep or a fit builds the same scene many times) and entries that no longer match a kernel are
+    skipped. Call :func:`wait` before launching. Returns the number of modules queued.
 
     Args:
         manifest: ``{"modules": [...], "overloads": [...]}`` as :func:`record` writes it.
@@ -251,21 +264,26 @@ def prebuild(manifest: dict, device: str | None = None, workers: int = 2) -> int
             except ImportError:  # a module a factory names: created by the objects that use it
                 pass
     mods = _user_modules()
+    grown: set[str] = set()
     for entry in manifest.get("overloads", []):
         m = mods.get(entry["module"])
         k = None if m is None else m.kernels.get(entry["kernel"])
         if k is None or not k.is_generic:
             continue
+        before = len(k.overloads)
         try:
             wp.overload(k, [_type_from_json(a) for a in entry["args"]])
         except Exception:  # a changed signature: the launch compiles what it needs
             continue
+        if len(k.overloads) > before:
+            grown.add(entry["module"])  # a queued module with a new overload must be built again
     # Longest compiles first, so that the two threads finish together (costs recorded with the manifest).
     cost = manifest.get("compile_ms", {})
     names = sorted(manifest.get("modules", []), key=lambda n: -cost.get(n, 0.0))
-    todo = [mods[n] for n in names if n in mods]
+    todo = [mods[n] for n in names if n in mods and (n in grown or (str(dev), n) not in _queued)]
     if not todo:
         return 0
+    _queued.update((str(dev), m.name) for m in todo)
     earlier = list(_threads)
 
     def work() -> None:
