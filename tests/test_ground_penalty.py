@@ -50,3 +50,35 @@ def test_implicit_fem_box_lands_without_crushed_elements():
     ratio = vol(x) / vol(x[:1])
     assert ratio.min() > 0.3, f"an element was crushed to det F = {ratio.min():.3g}"
     assert x[-1, :, 1].min() >= 0.0, "the box went through the ground"
+
+
+def test_explicit_step_with_a_ground_penalty_bounces_elastically_with_coulomb_friction():
+    """A GroundPenalty an explicit integrator is given is its contact: no projection after the step (the
+    penalty is conservative, so a ball dropped 4 cm bounces back to 4 cm, where the projection with zero
+    restitution stops it dead), and friction for the penalty's impulse, which takes μ times the normal
+    impulse 2 m v_n off the tangential speed (closed form: Δv_t = 2 μ √(2 g h))."""
+    g, h, mu, v0 = 9.81, 0.04, 0.2, 1.0
+
+    def drop(penalty: bool) -> tuple[float, float]:
+        b = pl.ModelBuilder(gravity=(0.0, -g, 0.0))
+        b.add_particles([[0.0, h + 0.01, 0.0]], [0.5], velocities=[[v0, 0.0, 0.0]], radius=0.01)
+        b.add_ground(0.0, friction=mu, restitution=0.0)
+        m = b.finalize(device="cpu", dtype="float64")
+        energies = [pl.energies.Gravity()] + ([pl.energies.GroundPenalty(1e6)] if penalty else [])
+        solver = pl.solvers.ForceSolver(m, energies, pl.integrators.SymplecticEuler())
+        s0, s1 = m.state(), m.state()
+        top_after_bounce, bounced = 0.0, False
+        for _ in range(2000):  # 0.2 s: the fall takes 0.09 s, the rise as long again
+            solver.step(s0, s1, None, 1e-4)
+            s0, s1 = s1, s0
+            y, vy = s0.particle_q.numpy()[0, 1], s0.particle_qd.numpy()[0, 1]
+            bounced = bounced or vy > 0
+            if bounced:
+                top_after_bounce = max(top_after_bounce, y - 0.01)
+        return top_after_bounce, float(s0.particle_qd.numpy()[0, 0])
+
+    top, vt = drop(penalty=True)
+    assert abs(top - h) < 0.02 * h, top  # elastic: back to its height (no projection, no restitution)
+    np.testing.assert_allclose(vt, v0 - 2 * mu * np.sqrt(2 * g * h), rtol=0.02)
+    top_projected, _ = drop(penalty=False)
+    assert top_projected < 0.1 * h  # restitution 0 with the projection: it stays down

@@ -99,11 +99,18 @@ def main(argv: list[str] | None = None) -> dict:
     body_mass = np.asarray(model.body_mass[vbody])
     com = []
     t0 = time.perf_counter()
-    for _ in range(steps):
+    per_frame = steps / args.frames
+    frame_com = []
+    for i in range(steps):
         mujoco.mj_step(model, data)
         iters += int(data.solver_niter[0])
-        if args.trajectory:
-            com.append(float(body_mass @ np.asarray(data.flexvert_xpos[vert])[:, 2] / body_mass.sum()))
+        end_of_frame = (i + 1) % per_frame == 0  # the motion check, every frame as pliant's rows do
+        if args.trajectory or end_of_frame:
+            c = float(body_mass @ np.asarray(data.flexvert_xpos[vert])[:, 2] / body_mass.sum())
+            if args.trajectory:
+                com.append(c)
+            if end_of_frame:
+                frame_com.append(c)
     wall = time.perf_counter() - t0
     if args.trajectory:
         np.save(args.trajectory, np.array(com))
@@ -139,6 +146,7 @@ def main(argv: list[str] | None = None) -> dict:
         "particle_substeps_per_s": float(f"{model.flex_vertnum[0] * steps / wall:.4g}"),
         "peak_mem_mb": peak_mem_mb(),
         **heights(x, v, body_mass),
+        "com_curve": frame_com,
     }
     print(json.dumps(row), flush=True)
     return row

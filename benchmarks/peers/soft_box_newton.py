@@ -119,13 +119,17 @@ def main(argv: list[str] | None = None) -> dict:
 
     s0, s1 = model.state(), model.state()
     steps = args.frames * substeps
+    mass = model.particle_mass.numpy().astype(np.float64)
+    com = []
     wp.synchronize_device("cpu")
     t0 = time.perf_counter()
-    s0, s1 = advance(s0, s1, steps)
+    for _ in range(args.frames):
+        s0, s1 = advance(s0, s1, substeps)
+        # The motion check, every frame as pliant's rows do (a copy of N positions: microseconds).
+        com.append(float(mass @ s0.particle_q.numpy()[:, 1].astype(np.float64) / mass.sum()))
     wp.synchronize_device("cpu")
     wall = time.perf_counter() - t0
 
-    mass = model.particle_mass.numpy().astype(np.float64)
     sim_s = args.frames * FRAME_DT
     row = {
         "benchmark": f"newton_soft_box_drop_{args.n}_{args.solver}",
@@ -155,6 +159,7 @@ def main(argv: list[str] | None = None) -> dict:
         "particle_substeps_per_s": float(f"{model.particle_count * steps / wall:.4g}"),
         "peak_mem_mb": peak_mem_mb(),
         **heights(s0.particle_q.numpy(), s0.particle_qd.numpy(), mass),
+        "com_curve": com,
     }
     print(json.dumps(row), flush=True)
     return row

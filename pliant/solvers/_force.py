@@ -345,9 +345,12 @@ class ForceSolver(Solver):
             self.integrator.reset()
 
     def _ground_penalty(self) -> float | None:
-        """κ of the GroundPenalty an implicit step minimised (the post-step then only adds friction)."""
-        if self.integrator.explicit:
-            return None
+        """κ of the GroundPenalty among the energies (the post-step then only adds friction).
+
+        Implicit steps always have one (added in ``__init__``); an explicit step has one only when the
+        caller added it, and then integrates the same contact physics as the implicit steps: the penalty
+        force inside the step, Coulomb friction for its impulse after it, no projection.
+        """
         from ..energies import GroundPenalty
 
         for e in self.energies:
