@@ -173,14 +173,15 @@ def _fill(value: Any, out: wp.array(dtype=Any)):
 
 # ----------------------------------------------------------------------------------- per-material kernels
 
-_KERNELS: dict[str, tuple[Any, Any, Any]] = {}
+_KERNELS: dict[str, tuple[Any, Any, Any, Any]] = {}
 _OVERLOADED: set[tuple[str, str]] = set()
 
 
-def _material_kernels(name: str, dtype: str) -> tuple[Any, Any, Any]:
-    """(value, gradient [with the value on request], hessian) kernels for material ``name``, built once.
+def _material_kernels(name: str, dtype: str) -> tuple[Any, Any, Any, Any]:
+    """(value, gradient [with the value on request], projected Hessian, exact Hessian) kernels for material
+    ``name``, built once.
 
-    Value and gradient share one Warp module (with adjoints, for fitting); the Hessian, the costly one to
+    Value and gradient share one Warp module (with adjoints, for fitting); each Hessian, the costly ones to
     compile, gets its own module without adjoints. The overloads for ``dtype`` are declared for all three
     before the first launch, so each module compiles once per dtype set instead of once per kernel.
     """
@@ -200,12 +201,13 @@ def _material_kernels(name: str, dtype: str) -> tuple[Any, Any, Any]:
         }
         wp.overload(kernels[0], {**common, "out": wp.array(dtype=s)})
         wp.overload(kernels[1], {**common, "out": wp.array(dtype=s), "grad_out": wp.array(dtype=v3)})
-        wp.overload(kernels[2], {**common, "scale": s, "values_out": wp.array(dtype=m33)})
+        for hessian in kernels[2:]:  # projected, exact
+            wp.overload(hessian, {**common, "scale": s, "values_out": wp.array(dtype=m33)})
         _OVERLOADED.add((name, dtype))
     return kernels
 
 
-def _build_material_kernels(name: str) -> tuple[Any, Any, Any]:
+def _build_material_kernels(name: str) -> tuple[Any, Any, Any, Any]:
     mat = get_material_model(name)
     psi_fn, pk1_fn, dpdf_fn, dpdf_psd_fn = mat.psi, mat.pk1, mat.dpk1_df, mat.dpk1_df_psd
     module = wp.get_module(f"pliant.energies._fem.{name}")
@@ -257,40 +259,43 @@ def _build_material_kernels(name: str) -> tuple[Any, Any, Any]:
         g0, g1, g2, g3 = fm.tet_forces(pk1_fn(F, tet_mu[t], tet_lam[t]), Dm_inv, V)
         _add_tet_gradient(grad_out, i, j, k, l, g0, g1, g2, g3)
 
-    @wp.kernel(module=hessian_module, enable_backward=False)
-    def tet_hessian(
-        tet_indices: wp.array2d(dtype=wp.int32),
-        tet_rest_inv: wp.array(dtype=Any),
-        tet_rest_volume: wp.array(dtype=Any),
-        tet_mu: wp.array(dtype=Any),
-        tet_lam: wp.array(dtype=Any),
-        x_in: wp.array(dtype=Any),
-        scale: Any,
-        project: int,
-        slots: wp.array(dtype=wp.int32),
-        values_out: wp.array(dtype=Any),
-    ):
-        t = wp.tid()
-        Dm_inv = tet_rest_inv[t]
-        F = fm.deformation_gradient(
-            x_in[tet_indices[t, 0]],
-            x_in[tet_indices[t, 1]],
-            x_in[tet_indices[t, 2]],
-            x_in[tet_indices[t, 3]],
-            Dm_inv,
-        )
-        mu = tet_mu[t]
-        lam = tet_lam[t]
-        if project != 0:
-            A = dpdf_psd_fn(F, mu, lam)
-        else:
-            A = dpdf_fn(F, mu, lam)
-        V = scale * tet_rest_volume[t]
-        for a in range(4):
-            for b in range(4):
-                wp.atomic_add(values_out, slots[16 * t + 4 * a + b], fm.tet_hessian_block(A, Dm_inv, V, a, b))
+    def make_hessian(dpdf: Any, mod: Any) -> Any:
+        @wp.kernel(module=mod, enable_backward=False)
+        def tet_hessian(
+            tet_indices: wp.array2d(dtype=wp.int32),
+            tet_rest_inv: wp.array(dtype=Any),
+            tet_rest_volume: wp.array(dtype=Any),
+            tet_mu: wp.array(dtype=Any),
+            tet_lam: wp.array(dtype=Any),
+            x_in: wp.array(dtype=Any),
+            scale: Any,
+            slots: wp.array(dtype=wp.int32),
+            values_out: wp.array(dtype=Any),
+        ):
+            t = wp.tid()
+            Dm_inv = tet_rest_inv[t]
+            F = fm.deformation_gradient(
+                x_in[tet_indices[t, 0]],
+                x_in[tet_indices[t, 1]],
+                x_in[tet_indices[t, 2]],
+                x_in[tet_indices[t, 3]],
+                Dm_inv,
+            )
+            A = dpdf(F, tet_mu[t], tet_lam[t])
+            V = scale * tet_rest_volume[t]
+            for a in range(4):
+                for b in range(4):
+                    block = fm.tet_hessian_block(A, Dm_inv, V, a, b)
+                    wp.atomic_add(values_out, slots[16 * t + 4 * a + b], block)
 
-    return tet_value, tet_gradient, tet_hessian
+        return tet_hessian
+
+    # The projected and the exact Hessian in modules of their own: a run uses one of them (projected by
+    # default), and each is the costliest module of an FEM scene's first build.
+    tet_hessian = make_hessian(dpdf_psd_fn, hessian_module)
+    tet_hessian_exact = make_hessian(dpdf_fn, wp.get_module(f"pliant.energies._fem.{name}_hessian_exact"))
+
+    return tet_value, tet_gradient, tet_hessian, tet_hessian_exact
 
 
 # ----------------------------------------------------------------------------------------------- classes
@@ -411,11 +416,11 @@ class TetElasticity(Energy):
     def hessian(self, model, x, slots, values, *, project_psd: bool = True, scale: float = 1.0) -> None:
         """Add scale·∂²E/∂x² [N/m] (PSD-projected per element when ``project_psd``) into ``values[slots]``."""
         if model.tet_count:
-            k = _material_kernels(self.material.name, model.dtype)[2]
+            k = _material_kernels(self.material.name, model.dtype)[2 if project_psd else 3]
             launch(
                 k,
                 model.tet_count,
-                [*self._inputs(model), x, model.s(scale), int(project_psd), slots, values],
+                [*self._inputs(model), x, model.s(scale), slots, values],
                 device=model.device,
             )
 
