@@ -146,6 +146,44 @@ def test_residual_falls_as_iterations_grow(schedule):
     assert residuals[-1] < 0.5 * residuals[0], residuals
 
 
+@pytest.mark.parametrize("schedule", ["coloring", "jacobi"])
+def test_tolerance_stops_the_sweeps_once_the_residual_is_below_it(schedule):
+    """With a tolerance a step stops sweeping once the RMS residual |C + α̃λ| reaches it: the residual is
+    then within the tolerance, a tighter tolerance takes more sweeps, and the positions equal those of a
+    fixed count of the sweeps it ran (the check only reads)."""
+    model = cloth_model(12)
+    s = run(model, XPBD(model, iterations=5, schedule="coloring"), 20, 1e-2)
+    fixed = XPBD(model, iterations=1, schedule=schedule)
+    fixed.step(s, model.state(), None, 1e-2)
+    # One sweep leaves this much; Jacobi converges far slower than Gauss–Seidel colouring.
+    loose_tol = (0.3 if schedule == "coloring" else 0.7) * fixed.residual()
+    counts = []
+    for tol in (loose_tol, (0.1 if schedule == "coloring" else 0.6) * loose_tol):
+        solver = XPBD(model, iterations=400, schedule=schedule, tolerance=tol, check_every=2)
+        out = model.state()
+        solver.step(s, out, None, 1e-2)
+        assert solver.last_iterations < 400, "the cap was reached: the test would not test the stop"
+        assert solver.residual() <= tol
+        counts.append(solver.last_iterations)
+        same = XPBD(model, iterations=solver.last_iterations, schedule=schedule)
+        ref = model.state()
+        same.step(s, ref, None, 1e-2)
+        np.testing.assert_array_equal(out.particle_q.numpy(), ref.particle_q.numpy())
+    assert counts[1] > counts[0] >= 2, counts
+
+
+def test_tolerance_is_refused_where_a_fixed_count_is_needed():
+    model = cloth_model(4)
+    with pytest.raises(ValueError, match="PBD"):
+        PBD(model, tolerance=1e-3)
+    with pytest.raises(ValueError, match="> 0"):
+        XPBD(model, tolerance=0.0)
+    b = ModelBuilder()
+    b.add_cloth_grid(nx=3, ny=3, size=0.1, mass=0.1, stiffness=10.0)
+    with pytest.raises(ValueError, match="requires_grad"):
+        XPBD(b.finalize(device="cpu", requires_grad=True), tolerance=1e-3)
+
+
 def test_pinned_particles_never_move_and_pbd_runs():
     """Pinned corners stay exactly in place under XPBD (both schedules) and PBD; the cloth stays finite."""
     model = cloth_model(8)

@@ -70,6 +70,13 @@ class XPBD(Solver):
             model has a ground and none is given).
         contact: add the model's ground plane as a ``Ground`` constraint.
         contact_iterations: extra sweeps of the contact constraints alone at the end of each step.
+        tolerance: stop a step's sweeps once the RMS of C + α̃λ over the bilateral constraints [constraint
+            units: m for distances] is at most this; ``iterations`` is then the cap. None (the default):
+            always ``iterations`` sweeps. The check reads the residual on the host every ``check_every``
+            sweeps, so a tolerance turns the launch replay off; the positions equal those of a run with
+            ``iterations`` = :attr:`last_iterations`. XPBD only (PBD's per-sweep stiffness depends on the
+            sweep count), and not with gradients (they need a fixed count).
+        check_every: sweeps between two residual checks (each costs one residual pass and a host read).
         collisions: contact handlers run after each step, each with ``apply(model, state_in, state_out,
             dt)`` (``pl.collision.Colliders``, ``SelfCollision``), as for every solver (:class:`Solver`).
 
@@ -98,10 +105,31 @@ class XPBD(Solver):
         contact: bool = True,
         contact_iterations: int = 4,
         collisions: Sequence[Any] = (),
+        tolerance: float | None = None,
+        check_every: int = 2,
     ) -> None:
         super().__init__(model, collisions)
         if int(iterations) < 1:
             raise ValueError(f"iterations must be >= 1, got {iterations}")
+        if tolerance is not None:
+            if not tolerance > 0:
+                raise ValueError(f"tolerance must be > 0 (RMS constraint residual), got {tolerance}")
+            if self.pbd:
+                raise ValueError(
+                    "tolerance: PBD's per-sweep stiffness is set by the iteration count, so PBD runs a fixed "
+                    "count; use XPBD for a tolerance, or drop it"
+                )
+            if model.requires_grad:
+                raise ValueError(
+                    "tolerance: a differentiable XPBD step runs a fixed number of sweeps; drop the tolerance "
+                    "or finalize the model with requires_grad=False"
+                )
+        if int(check_every) < 1:
+            raise ValueError(f"check_every must be >= 1, got {check_every}")
+        self.tolerance = None if tolerance is None else float(tolerance)
+        self.check_every = int(check_every)
+        #: Sweeps the last step ran (``iterations`` unless a ``tolerance`` stopped it earlier).
+        self.last_iterations = int(iterations)
         if schedule not in _SCHEDULES:
             raise ValueError(f"schedule must be one of {_SCHEDULES}, got {schedule!r}")
         if not 0.0 < relaxation < 2.0:
@@ -138,7 +166,8 @@ class XPBD(Solver):
         self._last_dt: float | None = None
         self._last_p: wp.array | None = None
         #: Replay recorded launches for repeated identical steps (set False to launch afresh every step).
-        self.replay = not self.requires_grad
+        #: Off with a tolerance: a recorded plan has a fixed sweep count.
+        self.replay = not self.requires_grad and self.tolerance is None
         self._plans: dict[tuple, list] = {}
         self._recording: list | None = None
 
@@ -324,9 +353,15 @@ class XPBD(Solver):
             )
         for c in self.constraints:
             c.begin_step(ctx, x, p, dt)
-        for _ in range(self.iterations):
+        done = 0
+        while done < self.iterations:
             for c in self.constraints:
                 p = self._project(ctx, c, p, dt)
+            done += 1
+            if self.tolerance is not None and done % self.check_every == 0 and done < self.iterations:
+                if self._rms_residual(ctx, p, dt) <= self.tolerance:
+                    break
+        self.last_iterations = done
         # Contacts last: extra sweeps of the unilateral constraints alone, so that averaging with the
         # bilateral corrections does not leave particles inside what they touch at the end of the step.
         contacts = [c for c in self.constraints if c.is_contact]
@@ -346,10 +381,12 @@ class XPBD(Solver):
         """RMS of C + α̃λ over the bilateral constraints after the last step (host sync) [constraint units]."""
         if self._last_dt is None:
             raise RuntimeError("residual() needs a step first")
+        return self._rms_residual(self.context(), self._last_p, self._last_dt)
+
+    def _rms_residual(self, ctx: ProjectionContext, p: wp.array, dt: float) -> float:
         self._residual.zero_()
-        ctx = self.context()
         for c in self.constraints:
-            c.residual(ctx, self._last_p, self._last_dt, self._residual)
+            c.residual(ctx, p, dt, self._residual)
         s, n = self._residual.numpy()
         return float(math.sqrt(s / n)) if n > 0 else 0.0
 
