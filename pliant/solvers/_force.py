@@ -218,13 +218,15 @@ class ForceSolver(Solver):
 
     def minimize(self, t, h, x_tilde, x_ref, v_ref, x_out, options=None):
         """Minimise the incremental potential (Newton or L-BFGS, the integrator's ``method``)."""
+        from .._blas import single_threaded
         from ._newton import _option, minimize_incremental_potential
 
-        if _option(options, "method") == "lbfgs":
-            from ._quasi_newton import minimize_quasi_newton
+        with single_threaded():  # many small host BLAS calls: a thread pool's wake-up costs more
+            if _option(options, "method") == "lbfgs":
+                from ._quasi_newton import minimize_quasi_newton
 
-            return minimize_quasi_newton(self, t, h, x_tilde, x_ref, v_ref, x_out, options)
-        return minimize_incremental_potential(self, t, h, x_tilde, x_ref, v_ref, x_out, options)
+                return minimize_quasi_newton(self, t, h, x_tilde, x_ref, v_ref, x_out, options)
+            return minimize_incremental_potential(self, t, h, x_tilde, x_ref, v_ref, x_out, options)
 
     # ------------------------------------------------------------------ Solver interface
     def step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:

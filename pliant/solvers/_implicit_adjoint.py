@@ -193,8 +193,11 @@ class _StepAdjoint:
 
             vals = ws.values.numpy()[: ws.nnz].astype(np.float64)
             H = sp.bsr_matrix((vals, ws.indices, ws.indptr), shape=(3 * n, 3 * n)).tocsc()
+            from .._blas import single_threaded
+
             try:
-                return splu(H).solve(rhs.reshape(-1)).reshape(n, 3)
+                with single_threaded():
+                    return splu(H).solve(rhs.reshape(-1)).reshape(n, 3)
             except RuntimeError as exc:
                 raise GradientError(
                     f"implicit step adjoint: the Hessian at the step's solution is singular ({exc}); the "

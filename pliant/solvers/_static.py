@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from .._blas import single_threaded
 from ..energies import Energy
 from ..model import Model
 from . import _newton as nw
@@ -211,6 +212,11 @@ def _regularized_direct_solve(ws: Any, model: Model, free_np: np.ndarray, stats:
     """Δx = −H⁻¹∇ by SciPy's sparse LU; on a singular H, the smallest Levenberg–Marquardt shift
     H + μI (μ = 1e-8 · 100^k · max diag H, on free components) that factors. Returns False when none does.
     """
+    with single_threaded():  # small host BLAS calls inside SuperLU (pliant._blas)
+        return _direct_solve(ws, model, free_np, stats)
+
+
+def _direct_solve(ws: Any, model: Model, free_np: np.ndarray, stats: StaticStats) -> bool:
     import scipy.sparse as sp
     from scipy.sparse.linalg import splu
 
