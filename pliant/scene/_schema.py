@@ -261,7 +261,9 @@ class GroundSection(Section):
     height: Coord = 0.0  # [m]
     friction: NonNegFloat = 0.5
     restitution: Fraction = 0.0
-    stiffness: PosFloat | None = None  # κ [1/s²] of the implicit integrators' ground penalty (default 1e6)
+    # κ [1/s²] of the ground penalty: implicit integrators always use one (default 1e6); set, it is the
+    # explicit integrators' contact too (instead of the projection after each step).
+    stiffness: PosFloat | None = None
 
 
 class SolverSection(Section):

@@ -230,7 +230,9 @@ def make_force(ctx: Any) -> Any:
     terms += ctx.terms
     integrator = make_integrator(s.integrator, s.integrator_options, source=cfg.source, text=cfg.text)
     g = cfg.ground
-    if g is not None and g.enabled and g.stiffness is not None and not integrator.explicit:
+    # A stated stiffness sets the implicit steps' penalty (ForceSolver adds the default 1e6 otherwise) and
+    # makes it the explicit steps' contact too: the same physics for both (docs/design.md).
+    if g is not None and g.enabled and g.stiffness is not None:
         terms.append(energies.GroundPenalty(g.stiffness))
     return _construct(
         ctx,
