@@ -53,9 +53,11 @@ def _simulate(model, energies, integ, steps, *, v0=None, dt=DT, check_converged=
 # ------------------------------------------------------------------------------- L-BFGS against Newton
 
 
-def test_lbfgs_and_newton_agree_on_a_box_landing_on_the_ground():
+@pytest.mark.parametrize("h0", ["lu", "amg"])
+def test_lbfgs_and_newton_agree_on_a_box_landing_on_the_ground(h0):
     """A neo-Hookean box thrown onto the ground: 8 backward-Euler steps by L-BFGS and by Newton (both to
-    1e-7 m/s) give the same positions to 1e-6 m (measured 1e-9 m), with the ground penalty active.
+    1e-7 m/s) give the same positions to 1e-6 m (measured 1e-9 m), with the ground penalty active, whether
+    L-BFGS applies H₀⁻¹ by its sparse LU or by a multigrid V-cycle (``lbfgs_h0``).
 
     The bound: both solvers stop with max_i |∇Φ_i|/(m_i h) ≤ 1e-7 m/s, and H ⪰ M puts each within
     √(3 M/m_min)·1e-7 m/s·h ≈ 1e-7 m of the exact minimiser per step."""
@@ -64,7 +66,8 @@ def test_lbfgs_and_newton_agree_on_a_box_landing_on_the_ground():
     radius = float(model.particle_radius.numpy()[0])
     res = {}
     for method in ("newton", "lbfgs"):
-        integ = I.BackwardEuler(method=method, newton_tol=1e-7)
+        extra = {"lbfgs_h0": h0} if method == "lbfgs" else {}
+        integ = I.BackwardEuler(method=method, newton_tol=1e-7, **extra)
         res[method], stats = _simulate(model, [NeoHookean(), pl.energies.Gravity()], integ, 8, v0=v0)
         assert all(s.linear_solver == ("lbfgs" if method == "lbfgs" else "direct") for s in stats)
     assert res["lbfgs"][:, :, 1].min() < radius - 1e-4, "the box never pressed into the ground penalty"
@@ -201,6 +204,8 @@ def test_method_and_lbfgs_options_are_validated():
     with pytest.raises(ValueError, match="lbfgs_refresh"):
         I.BDF2(method="lbfgs", lbfgs_refresh=0)
     assert I.BackwardEuler(method="lbfgs", lbfgs_history=0).lbfgs_history == 0
+    with pytest.raises(ValueError, match="lbfgs_h0"):
+        I.BackwardEuler(method="lbfgs", lbfgs_h0="cholesky")
 
 
 def test_lbfgs_without_history_still_converges():

@@ -59,6 +59,13 @@ def test_bdf2_resumes_bit_for_bit(method, tmp_path):
     assert {"solver_bdf2_x_prev", "solver_bdf2_v_prev", "solver_bdf2_dt"} <= set(info["solver_keys"])
 
 
+def test_lbfgs_with_a_multigrid_h0_resumes_bit_for_bit(tmp_path):
+    """``lbfgs_h0="amg"``: the restored H₀ values are put into a V-cycle hierarchy again, the same one."""
+    integ = lambda: pl.integrators.BackwardEuler(method="lbfgs", lbfgs_h0="amg")  # noqa: E731
+    info = _resume_matches(lambda: _fem_box_sim(integ()), tmp_path, 6, 3)
+    assert "solver_lbfgs_h0_values" in info["solver_keys"]
+
+
 def test_lbfgs_resume_needs_the_stored_history(tmp_path):
     """Control: dropping the L-BFGS state from the checkpoint makes the resumed run differ (so the
     bit-identity tests above can fail)."""

@@ -49,7 +49,10 @@ def configs(py: str) -> dict[str, tuple[list[str], str | None]]:
     mujoco = [py, str(PEERS / "soft_box_mujoco.py")]
     return {
         "pliant symplectic + penalty, 16 substeps, f32": (_pliant_row("soft_box_drop_10_explicit"), None),
-        "pliant ImplicitMidpoint L-BFGS, 8 substeps": (_pliant_row("soft_box_drop_10_implicit"), None),
+        "pliant ImplicitMidpoint L-BFGS (AMG H0), 10 substeps": (
+            _pliant_row("soft_box_drop_10_implicit"),
+            None,
+        ),
         "pliant BackwardEuler L-BFGS, 1 step/frame": (_pliant_row("soft_box_drop_10_backward_euler"), None),
         "pliant BackwardEuler L-BFGS, 128 substeps": (
             _pliant_drop(n=10, method="implicit", substeps=128, dtype="float64"),

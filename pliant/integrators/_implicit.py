@@ -87,6 +87,10 @@ class ImplicitOptions:
         lbfgs_max_iterations: L-BFGS iteration cap per step (≥ 1).
         lbfgs_refresh: re-assemble L-BFGS's lagged Hessian after a step that needed more iterations (≥ 1).
         lbfgs_warm_start: start each L-BFGS step from the extrapolated previous correction.
+        lbfgs_h0: how L-BFGS applies its initial Hessian H₀⁻¹ per axis: "lu" (SciPy's sparse LU, exact;
+            the default) or "amg" (one V-cycle of PyAMG's smoothed aggregation: about as many iterations,
+            its cost linear in the particles, where the LU's triangular solves fill in as n^(4/3); 2× faster
+            on a 20³-cell box, 2.3× at 30³).
     """
 
     newton_tol: float = 1e-5
@@ -101,6 +105,7 @@ class ImplicitOptions:
     lbfgs_max_iterations: int = 200
     lbfgs_refresh: int = 40
     lbfgs_warm_start: bool = True
+    lbfgs_h0: str = "lu"
 
     def __post_init__(self) -> None:
         def positive(name: str, unit: str = "") -> None:
@@ -129,6 +134,8 @@ class ImplicitOptions:
             raise ValueError(f"project_psd must be True, False or 'auto', got {self.project_psd!r}")
         if self.method not in ("newton", "lbfgs"):
             raise ValueError(f"method must be 'newton' or 'lbfgs', got {self.method!r}")
+        if self.lbfgs_h0 not in ("lu", "amg"):
+            raise ValueError(f"lbfgs_h0 must be 'lu' or 'amg', got {self.lbfgs_h0!r}")
         if not isinstance(self.lbfgs_warm_start, bool):
             raise ValueError(f"lbfgs_warm_start must be True or False, got {self.lbfgs_warm_start!r}")
 

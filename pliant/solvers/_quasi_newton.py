@@ -126,6 +126,8 @@ class _LaggedHessian:
         self.h = None
         self.values: list[np.ndarray | None] = [None, None, None]
         self.lu: list[Any] = [None, None, None]
+        #: How H₀⁻¹ is applied: "lu" (SuperLU) or "amg" (a PyAMG V-cycle); ``set_method`` switches.
+        self.method = "lu"
         self.factorizations = 0
         self._ratio: float | None = None
 
@@ -179,8 +181,20 @@ class _LaggedHessian:
         self.factorizations += count
         return count
 
+    def set_method(self, method: str) -> None:
+        """Apply H₀⁻¹ by ``method`` ("lu" or "amg") from now on; the current H₀ values are factored again
+        the new way (so a checkpoint restored with one method resumes bit for bit with the other)."""
+        if method == self.method:
+            return
+        self.method = method
+        for d in range(3):
+            if self.values[d] is not None:
+                self.lu[d] = self.factor(self.values[d], d)
+
     def factor(self, v: np.ndarray, axis: int) -> Any:
-        """SuperLU factor of axis ``axis``'s H₀ with values ``v`` (the pattern's entries, in our order).
+        """The solver of axis ``axis``'s H₀ with values ``v`` (the pattern's entries, in our order): a
+        SuperLU factor, or with :attr:`method` "amg" a smoothed-aggregation hierarchy whose ``solve`` is one
+        V-cycle (a fixed SPD operator, as L-BFGS's H₀⁻¹ must be).
 
         Raises:
             SingularSystemError: H₀ is singular in float64 (the masses are lost next to h²K).
@@ -190,6 +204,8 @@ class _LaggedHessian:
 
         ip = self.inv_perm
         mat = sp.csc_matrix((v, (ip[self.rows], ip[self.cols])), shape=(self.n, self.n))
+        if self.method == "amg":
+            return _VCycle(mat)
         try:
             # Symmetric positive definite: our symmetric ordering, no pivoting (SuperLU's "symmetric mode").
             return splu(mat, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
@@ -220,6 +236,21 @@ class _LaggedHessian:
             ratio = diag[self.free] / self.mass[self.free]
             self._ratio = float(ratio.max()) if ratio.size else 1.0
         return self._ratio
+
+
+class _VCycle:
+    """H₀⁻¹ b ≈ one V-cycle of PyAMG's smoothed aggregation (symmetric Gauss–Seidel smoothing: an SPD
+    operator). Building the hierarchy costs about one sparse LU of the same axis at 10³ cells and less above;
+    a V-cycle costs a few sparse products, linear in the particles."""
+
+    def __init__(self, mat: Any) -> None:
+        import pyamg
+
+        self._m = pyamg.smoothed_aggregation_solver(mat.tocsr(), symmetry="symmetric", max_coarse=500)
+        self._apply = self._m.aspreconditioner(cycle="V")
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        return self._apply.matvec(np.ascontiguousarray(b, dtype=np.float64))
 
 
 class _History:
@@ -304,8 +335,8 @@ def minimize_quasi_newton(
     ``lbfgs_history`` (curvature pairs kept, default 8), ``lbfgs_max_iterations`` (default 200),
     ``lbfgs_refresh`` (re-assemble the lagged Hessian after a step that took more iterations than this,
     default 40) and ``lbfgs_warm_start`` (start from x̃ plus the correction x − x̃ extrapolated from the
-    last two steps when that lowers Φ; default True). ``stats.linear_iterations`` counts the steps that
-    refactorised H₀.
+    last two steps when that lowers Φ; default True) and ``lbfgs_h0`` ("lu" or "amg": how H₀⁻¹ is applied).
+    ``stats.linear_iterations`` counts the steps that refactorised H₀.
 
     Curvature pairs are kept from one step to the next while H₀ is unchanged: y = ∇Φ(x + s) − ∇Φ(x) does
     not depend on x̃, so a pair stays exact for the energy when the step's target moves.
@@ -348,6 +379,7 @@ def minimize_quasi_newton(
     stats.residuals.append(float(g[0]))
     if g[0] <= tol_opt:
         return _finish(solver, stats, memo, x, x_tilde, g, h)
+    h0.set_method(opts.lbfgs_h0)
     if h0.base is None or h0.h != h or memo.get("refresh", False):
         h0.refresh(solver, ws, x, h)
         memo["refresh"] = False
