@@ -29,18 +29,18 @@ PEERS = Path(__file__).resolve().parent
 FRAME = 1.0 / 60.0
 
 
-def _pliant_row(row: str) -> list[str]:
-    """A ``pliant bench`` row of ``pliant.bench._fem`` as a command."""
-    code = f"import json; from pliant.bench._fem import BENCHMARKS; print(json.dumps(BENCHMARKS[{row!r}]()))"
+def _pliant(call: str) -> list[str]:
+    """A command printing ``pliant.bench._fem``'s ``call`` (a row of BENCHMARKS, or soft_box_drop) as JSON."""
+    code = f"import json; from pliant.bench._fem import BENCHMARKS, soft_box_drop; print(json.dumps({call}))"
     return [sys.executable, "-c", code]
+
+
+def _pliant_row(row: str) -> list[str]:
+    return _pliant(f"BENCHMARKS[{row!r}]()")
 
 
 def _pliant_drop(**kwargs: object) -> list[str]:
-    """``pliant.bench._fem.soft_box_drop(**kwargs)`` as a command."""
-    call = ", ".join(f"{k}={v!r}" for k, v in kwargs.items())
-    code = "import json; from pliant.bench._fem import soft_box_drop; "
-    code += f"print(json.dumps(soft_box_drop({call})))"
-    return [sys.executable, "-c", code]
+    return _pliant("soft_box_drop({})".format(", ".join(f"{k}={v!r}" for k, v in kwargs.items())))
 
 
 def configs(py: str) -> dict[str, tuple[list[str], str | None]]:

@@ -99,7 +99,7 @@ def main(argv: list[str] | None = None) -> dict:
     body_mass = np.asarray(model.body_mass[vbody])
     com = []
     t0 = time.perf_counter()
-    per_frame = steps / args.frames
+    per_frame = max(1, round(steps / args.frames))  # steps per 1/60 s frame
     frame_com = []
     for i in range(steps):
         mujoco.mj_step(model, data)

@@ -110,7 +110,7 @@ def make_solver(
         # elements crushed at impact is indefinite, Newton returns 0.1-0.7 m steps that max_step cuts to
         # α ~ 1e-5, and the step stalls (measured at 20³ cells). L-BFGS lags a projected Hessian.
         # L-BFGS applies H₀⁻¹ by a multigrid V-cycle: linear in the particles, where the sparse LU's
-        # triangular solves fill in (tets^1.27 from 10³ to 30³ cells with "lu", about 1.0 with "amg").
+        # triangular solves fill in (tets^1.27 from 10³ to 30³ cells with "lu", tets^1.05 with "amg").
         h0 = {"lbfgs_h0": "amg"} if minimizer == "lbfgs" else {}
         stepper = getattr(integrators, integrator)(newton_tol=tol, project_psd=True, method=minimizer, **h0)
     elif method == "explicit":

@@ -191,10 +191,10 @@ class _StepAdjoint:
             import scipy.sparse as sp
             from scipy.sparse.linalg import splu
 
-            vals = ws.values.numpy()[: ws.nnz].astype(np.float64)
-            H = sp.bsr_matrix((vals, ws.indices, ws.indptr), shape=(3 * n, 3 * n)).tocsc()
             from .._blas import single_threaded
 
+            vals = ws.values.numpy()[: ws.nnz].astype(np.float64)
+            H = sp.bsr_matrix((vals, ws.indices, ws.indptr), shape=(3 * n, 3 * n)).tocsc()
             try:
                 with single_threaded():
                     return splu(H).solve(rhs.reshape(-1)).reshape(n, 3)

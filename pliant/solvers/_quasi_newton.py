@@ -246,8 +246,8 @@ class _VCycle:
     def __init__(self, mat: Any) -> None:
         import pyamg
 
-        self._m = pyamg.smoothed_aggregation_solver(mat.tocsr(), symmetry="symmetric", max_coarse=500)
-        self._apply = self._m.aspreconditioner(cycle="V")
+        hierarchy = pyamg.smoothed_aggregation_solver(mat.tocsr(), symmetry="symmetric", max_coarse=500)
+        self._apply = hierarchy.aspreconditioner(cycle="V")
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         return self._apply.matvec(np.ascontiguousarray(b, dtype=np.float64))
