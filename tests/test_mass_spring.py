@@ -156,6 +156,53 @@ def test_dashpots_and_damping_dissipate_monotonically(which):
     assert energies[-1] < 0.8 * energies[0]
 
 
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_fast_symplectic_scatter_equals_gather_and_force_solver(dtype):
+    """The CPU's symplectic step (each spring once, scattered) equals the per-particle gather that CUDA
+    runs and ForceSolver's Springs + Dashpots + Gravity + SymplecticEuler, to round-off: dashpots, pinned
+    corners that move with their velocity (infinite mass), external forces and δ damping included."""
+    b = pl.ModelBuilder(gravity=(0.0, -9.81, 0.0))
+    b.add_cloth_grid(nx=6, ny=5, size=0.5, mass=0.2, youngs_modulus_thickness=400.0, damping=0.02,
+                     origin=(-0.25, 0.0, -0.25), plane="xz", pin="top-corners")  # fmt: skip
+    model = b.finalize(device="cpu", dtype=dtype)
+    rng = np.random.default_rng(3)
+    model.particle_qd.assign(rng.normal(scale=0.3, size=(model.particle_count, 3)))
+    control = model.control()
+    control.particle_f.assign(rng.normal(scale=0.01, size=(model.particle_count, 3)))
+    dt, steps = 1e-3, 200
+
+    def run(solver):
+        s0, s1 = model.state(), model.state()
+        for _ in range(steps):
+            solver.step(s0, s1, control, dt)
+            s0, s1 = s1, s0
+        return s0.particle_q.numpy(), s0.particle_qd.numpy()
+
+    scatter = pl.solvers.FastMassSpring(model, method="symplectic", velocity_damping=0.9995)
+    assert scatter.kernel == "scatter"  # the CPU's default
+    gather = pl.solvers.FastMassSpring(model, method="symplectic", velocity_damping=0.9995, kernel="gather")
+    force = pl.solvers.ForceSolver(
+        model,
+        energies=[pl.energies.Springs(), pl.energies.Dashpots(), pl.energies.Gravity()],
+        integrator=pl.integrators.SymplecticEuler(),
+        velocity_damping=0.9995,
+    )
+    xs, vs = run(scatter)
+    tol = 1e-5 if dtype == "float32" else 1e-12
+    moved = np.abs(xs - model.particle_q.numpy()).max()
+    assert moved > 0.05  # the cloth fell and swung: a comparison of motion, not of rest
+    for other in (gather, force):
+        xo, vo = run(other)
+        np.testing.assert_allclose(xs, xo, rtol=0, atol=tol)
+        np.testing.assert_allclose(vs, vo, rtol=0, atol=50 * tol)
+
+
+def test_fast_mass_spring_rejects_an_unknown_kernel():
+    model = _spinning_rope()
+    with pytest.raises(ValueError, match="kernel must be 'scatter', 'gather'"):
+        pl.solvers.FastMassSpring(model, kernel="simd")
+
+
 def test_block_sliding_on_ground_stops_after_v2_over_2_mu_g():
     """A particle sliding on the ground with friction μ stops after v²/(2μg) (2%)."""
     v0, mu, dt = 2.0, 0.4, 1e-3
@@ -305,3 +352,26 @@ def test_drag_handle_pulls_to_the_cursor_and_pins_hold(solver_kind):
     assert np.array_equal(x[0], model.particle_q_np[0])
     # At rest the handle spring holds the end: k·|target − x_end| balances gravity and the rope's pull.
     assert np.linalg.norm(x[8] - target) < 0.01
+
+
+def test_a_cloth_run_does_not_load_scipy():
+    """Building and stepping a cloth never imports SciPy (27 MB of resident memory, the margin by which
+    pliant's drape stays under Newton's peak memory; docs/design.md): SciPy is imported where a consistent
+    mass matrix, an embedding or a sparse solve needs it."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from pliant.bench._mass_spring import cloth_drape_model, make_solver\n"
+        "m = cloth_drape_model(8)\n"
+        "s = make_solver(m, 'symplectic')\n"
+        "s0, s1 = m.state(), m.state()\n"
+        "s.step(s0, s1, None, 1e-4)\n"
+        "loaded = sorted(k for k in sys.modules if k.split('.')[0] == 'scipy')\n"
+        "assert not loaded, loaded[:5]\n"
+        "print('OK')\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip().endswith("OK")

@@ -8,7 +8,6 @@ f(X) = Σ φ_i f(X_i). Used to embed render meshes, observation points or Gaussi
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 __all__ = ["barycentric_coordinates", "interpolate", "locate_points", "shape_functions"]
 
@@ -148,6 +147,8 @@ def locate_points(
     X = mesh_points[tets]  # [E, 4, 3]
     centroids = X.mean(axis=1)
     lo, hi = mesh_points.min(axis=0), mesh_points.max(axis=0)
+    from scipy.spatial import cKDTree  # here, not at import: models without embedding never need SciPy
+
     tree = cKDTree(centroids)
     k = int(min(max(candidates, 1), len(tets)))
 

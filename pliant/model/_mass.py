@@ -8,8 +8,12 @@ Row sums give the lumped mass ρV/4 per vertex.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import scipy.sparse as sp
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
 
 __all__ = [
     "spring_lumped_mass",
@@ -101,6 +105,8 @@ def tet_consistent_mass(
         cols = (3 * cols[:, None] + np.arange(3)).ravel()
         vals = np.repeat(vals, 3)
         n *= 3
+    import scipy.sparse as sp  # here, not at import: a cloth or rope model never needs SciPy (27 MB)
+
     return sp.coo_matrix((vals, (rows, cols)), shape=(n, n)).tocsr()
 
 

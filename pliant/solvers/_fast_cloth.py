@@ -5,8 +5,13 @@ forces with atomics; on the CPU, where Warp runs a kernel's threads one after an
 the scatter dominate a cloth step. Here each particle *gathers* the forces of its own springs from a CSR
 adjacency (spring ``s`` appears once in the row of each endpoint), so
 
-* the explicit path (symplectic Euler) is one kernel per step: gather spring + dashpot + gravity +
-  external forces, update v then x — no atomics, no scratch force array;
+* the explicit path (symplectic Euler) is one kernel per step on CUDA: gather spring + dashpot + gravity +
+  external forces, update v then x — no atomics, no scratch force array. On the CPU, where a launch runs
+  its threads one after another and an atomic add is a plain add, the gather's cost is its arithmetic,
+  and it evaluates every spring twice (once from each end); there the step is two kernels instead — each
+  spring once, adding its force into a scratch array, then the update, which clears the array again —
+  1.47× (64²) and 1.53× (128²) the gather's frames per second on the drape, at the same trajectory
+  error (``benchmarks/bench_cloth_kernels.py``, one core);
 * the implicit path is Baraff & Witkin's linearised backward Euler,
   (M + hD + h²K) Δv = h(f(xⁿ, vⁿ) − hK vⁿ), solved matrix-free by block-Jacobi preconditioned CG with
   two kernels per CG iteration (the search-direction update is fused into the product A·p by double
@@ -33,6 +38,7 @@ from ..energies._spring import dashpot_force_axis, spring_gradient_axis, spring_
 from ..model import Control, Model, State
 from ._base import Solver
 from ._fast_cloth_cg import _bw_apply, _bw_update
+from ._fast_cloth_explicit import _springs_scatter, _symplectic_gather, _symplectic_update
 from ._post import add_drag_force, check_collisions, finish_step
 
 
@@ -48,51 +54,6 @@ def spring_adjacency(model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     np.add.at(offsets, rows + 1, 1)
     offsets = np.cumsum(offsets)
     return offsets.astype(np.int32), cols[order].astype(np.int32), spr[order].astype(np.int32)
-
-
-# ---------------------------------------------------------------------------------------------- explicit
-@wp.kernel
-def _symplectic_gather(
-    # Model (packed):
-    adj_offsets: wp.array(dtype=wp.int32),
-    adj_neighbor: wp.array(dtype=wp.int32),
-    adj_param: wp.array(dtype=Any),
-    particle_inv_mass: wp.array(dtype=Any),
-    gravity: Any,
-    damped: int,
-    # Control:
-    f_ext: wp.array(dtype=Any),
-    # State in:
-    x_in: wp.array(dtype=Any),
-    v_in: wp.array(dtype=Any),
-    dt: Any,
-    delta: Any,
-    # Out:
-    x_out: wp.array(dtype=Any),
-    v_out: wp.array(dtype=Any),
-):
-    i = wp.tid()
-    xi = x_in[i]
-    vi = v_in[i]
-    w = particle_inv_mass[i]
-    zero = dt * type(dt)(0.0)
-    if w == zero:
-        x_out[i] = xi
-        v_out[i] = vi
-        return
-    f = f_ext[i]
-    for e in range(adj_offsets[i], adj_offsets[i + 1]):
-        j = adj_neighbor[e]
-        prm = adj_param[e]  # (rest length, stiffness, dashpot γ)
-        # The energies' own spring force and dashpot (issue 10: one definition of each), |d| taken once.
-        d = xi - x_in[j]
-        l = wp.length(d)
-        f -= spring_gradient_axis(d, l, prm[1], prm[0])
-        if damped != 0:
-            f += dashpot_force_axis(d, l, vi, v_in[j], prm[2])
-    v = delta * (vi + dt * (gravity + w * f))
-    v_out[i] = v
-    x_out[i] = xi + dt * v
 
 
 # ---------------------------------------------------------------------------------------------- implicit
@@ -186,7 +147,8 @@ def _bw_finish(
 ):
     i = wp.tid()
     if particle_inv_mass[i] == h * type(h)(0.0):
-        x_out[i] = x_in[i]
+        # Infinite mass: no force changes v, and x moves with it (as in ForceSolver's integrators).
+        x_out[i] = x_in[i] + h * v_in[i]
         v_out[i] = v_in[i]
         return
     v = delta * (v_in[i] + dv[i])
@@ -210,6 +172,11 @@ class FastMassSpring(Solver):
             is reached (``last_cg_iterations`` says after how many). None: 4 on the CPU, where a read is a
             copy of a few numbers, 16 on CUDA, where it synchronises; 0: never read (all ``cg_iterations``
             launched, the update frozen on the device after convergence).
+        kernel: the symplectic step's spring kernel: ``"scatter"`` (each spring once, its force added to
+            both ends: the CPU's choice, where atomic adds are plain adds and the sum order is fixed) or
+            ``"gather"`` (each particle sums its own springs, every spring evaluated from both ends, one
+            fused kernel, no atomics: CUDA's choice, deterministic there). None: by device. Both give the
+            same step to round-off.
         theta: the implicit step's θ: (M + θhD + θ²h²K)Δv = h(f − θhKv), x¹ = x + h(v + θΔv). 1 is
             Baraff–Witkin's linearised backward Euler (dissipative: it damps fast motion); 0.5 the
             linearised implicit midpoint rule (second order, no numerical damping; the drape benchmark
@@ -234,6 +201,7 @@ class FastMassSpring(Solver):
         cg_iterations: int = 50,
         cg_tol: float = 1.0e-6,
         cg_check_every: int | None = None,
+        kernel: str | None = None,
         theta: float = 1.0,
         velocity_damping: float = 1.0,
         damping_rate: float | None = None,
@@ -288,6 +256,17 @@ class FastMassSpring(Solver):
         self.adj_neighbor = wp.array(nb, dtype=wp.int32, device=d)
         self.adj_spring = wp.array(spr, dtype=wp.int32, device=d)
         self._adj_param = wp.zeros(max(nb.shape[0], 1), dtype=model.vec3, device=d)
+        if kernel is None:
+            kernel = "scatter" if wp.get_device(d).is_cpu else "gather"
+        if kernel not in ("scatter", "gather"):
+            raise ValueError(f"kernel must be 'scatter', 'gather' or None (by device), got {kernel!r}")
+        #: The symplectic step's spring kernel (the implicit step always gathers).
+        self.kernel = kernel
+        self._scatter = method == "symplectic" and kernel == "scatter"
+        if self._scatter:
+            pairs = model.spring_indices.numpy().reshape(-1, 2) if model.spring_count else np.zeros((0, 2))
+            self._spring_pairs = wp.array(pairs.astype(np.int32), dtype=wp.vec2i, device=d)
+            self._f_springs = wp.zeros(model.particle_count, dtype=model.vec3, device=d)
         self.update_parameters()
         n = model.particle_count
         self._f_zero = wp.zeros(n, dtype=model.vec3, device=d)
@@ -358,16 +337,11 @@ class FastMassSpring(Solver):
         m = self.model
         spr = self.adj_spring.numpy()
         if spr.shape[0]:
-            packed = np.stack(
-                [
-                    m.spring_rest_length.numpy()[spr],
-                    m.spring_stiffness.numpy()[spr],
-                    m.spring_damping.numpy()[spr],
-                ],
-                axis=1,
+            per_spring = np.stack(
+                [m.spring_rest_length.numpy(), m.spring_stiffness.numpy(), m.spring_damping.numpy()], axis=1
             )
-            self._adj_param.assign(packed)
-            self._damped = int(np.any(packed[:, 2] > 0))
+            self._adj_param.assign(per_spring[spr])
+            self._damped = int(np.any(per_spring[:, 2] > 0))
         else:
             self._damped = 0
         self._cmds = {}
@@ -424,7 +398,27 @@ class FastMassSpring(Solver):
             state_out.particle_qd,
         )
         delta = s(self.velocity_damping(dt))
-        if self.method == "symplectic":
+        if self._scatter:
+            cmds = [
+                wp.launch(
+                    _springs_scatter,
+                    m.spring_count,
+                    [self._spring_pairs, m.spring_rest_length, m.spring_stiffness, m.spring_damping]
+                    + [self._damped, xi, vi, self._f_springs],
+                    device=dev,
+                    record_cmd=True,
+                ),
+                wp.launch(
+                    _symplectic_update,
+                    n,
+                    [m.particle_inv_mass, m.gravity_vec, f_ext, self._f_springs]
+                    + [xi, vi, s(dt), delta, xo, vo],
+                    device=dev,
+                    record_cmd=True,
+                ),
+            ]
+            cmds = [c for c in cmds if c is not None]  # a launch over no springs records nothing
+        elif self.method == "symplectic":
             cmds = [
                 wp.launch(
                     _symplectic_gather,
@@ -571,6 +565,7 @@ class FastMassSpring(Solver):
             if self.method == "symplectic"
             else ("BaraffWitkin" if self.theta == 1.0 else f"BaraffWitkin(theta={self.theta:g})"),
             "cg_iterations": self.cg_iterations if self.method == "implicit" else 0,
+            "kernel": self.kernel if self.method == "symplectic" else "gather",
             "velocity_damping": self.velocity_damping_factor,
             "damping_rate": self.damping_rate,
         }
