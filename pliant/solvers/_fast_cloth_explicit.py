@@ -11,6 +11,16 @@ import warp as wp
 from ..energies._spring import dashpot_force_axis, spring_gradient_axis
 
 
+@wp.func
+def _symplectic_particle(w: Any, x: Any, v: Any, f: Any, gravity: Any, dt: Any, delta: Any):
+    """One particle's symplectic Euler update from its force f [N] (w = 1/m): v¹ = δ(v + Δt(g + w f)),
+    x¹ = x + Δt v¹; an infinite-mass particle (w = 0) keeps v and moves with it, as in ForceSolver."""
+    v1 = v
+    if w != dt * type(dt)(0.0):
+        v1 = delta * (v + dt * (gravity + w * f))
+    return x + dt * v1, v1
+
+
 @wp.kernel
 def _symplectic_gather(
     # Model (packed):
@@ -34,12 +44,6 @@ def _symplectic_gather(
     i = wp.tid()
     xi = x_in[i]
     vi = v_in[i]
-    w = particle_inv_mass[i]
-    zero = dt * type(dt)(0.0)
-    if w == zero:
-        x_out[i] = xi + dt * vi  # infinite mass: moves with its velocity, as in ForceSolver
-        v_out[i] = vi
-        return
     f = f_ext[i]
     for e in range(adj_offsets[i], adj_offsets[i + 1]):
         j = adj_neighbor[e]
@@ -50,9 +54,9 @@ def _symplectic_gather(
         f -= spring_gradient_axis(d, l, prm[1], prm[0])
         if damped != 0:
             f += dashpot_force_axis(d, l, vi, v_in[j], prm[2])
-    v = delta * (vi + dt * (gravity + w * f))
+    x, v = _symplectic_particle(particle_inv_mass[i], xi, vi, f, gravity, dt, delta)
+    x_out[i] = x
     v_out[i] = v
-    x_out[i] = xi + dt * v
 
 
 @wp.kernel
@@ -100,13 +104,6 @@ def _symplectic_update(
     i = wp.tid()
     f = f_springs[i] + f_ext[i]
     f_springs[i] = f * type(dt)(0.0)
-    xi = x_in[i]
-    vi = v_in[i]
-    w = particle_inv_mass[i]
-    if w == dt * type(dt)(0.0):
-        x_out[i] = xi + dt * vi  # infinite mass: moves with its velocity, as in ForceSolver
-        v_out[i] = vi
-        return
-    v = delta * (vi + dt * (gravity + w * f))
+    x, v = _symplectic_particle(particle_inv_mass[i], x_in[i], v_in[i], f, gravity, dt, delta)
+    x_out[i] = x
     v_out[i] = v
-    x_out[i] = xi + dt * v
