@@ -40,6 +40,11 @@ def _verify_access(capfd):
         yield
     wp.config.verify_autograd_array_access = old
     text = capfd.readouterr().err + "".join(str(w.message) for w in caught)
+    # Warp checks every kernel of a module when the module is built, taped or not. XPBD's in-place Jacobi
+    # kernel (apply_deltas: read, then reset its delta buffer) never runs on a tape (recorded steps use
+    # apply_deltas_to), but it is flagged whenever its module happens to be built inside this fixture —
+    # which depends on test order (a pytest-xdist worker). Its lines are dropped; every other kernel's stay.
+    text = "\n".join(ln for ln in text.splitlines() if "in kernel apply_deltas at" not in ln)
     # Both of Warp's messages: across launches ("already been read") and within one ("has been read").
     assert "been read" not in text, text[:2000]
 
