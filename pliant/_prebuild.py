@@ -240,23 +240,13 @@ def manifest_for(scene: str) -> dict | None:
     return _manifests().get(scene)
 
 
-def prebuild(manifest: dict, device: str | None = None, workers: int = 2) -> int:
-    """Register ``manifest``'s overloads and compile its modules on ``workers`` background threads.
+def register_overloads(manifest: dict) -> set[str]:
+    """Import ``manifest``'s modules and register its generic kernels' overloads (no compilation).
 
-    Modules not created yet in this process, modules an earlier call queued and this one adds no overload
-    to (a sweep or a fit builds the same scene many times) and entries that no longer match a kernel are
-    skipped. Call :func:`wait` before launching. Returns the number of modules queued.
-
-    Args:
-        manifest: ``{"modules": [...], "overloads": [...]}`` as :func:`record` writes it.
-        device: the device to compile for (None: Warp's default).
-        workers: threads compiling at once.
+    Entries that no longer match a kernel are skipped. Returns the names of the modules that gained an
+    overload (a module queued before must then be built again). Also used by tests/cuda_compile.py, which
+    compiles every registered overload for CUDA without a GPU.
     """
-    from ._warp import init
-
-    init()
-    dev = wp.get_device(device)
-    share_precompiled_header()
     for name in manifest.get("modules", []):
         if name not in _user_modules():
             try:  # a Python module whose kernels are not imported yet (e.g. the simulator's)
@@ -276,7 +266,29 @@ def prebuild(manifest: dict, device: str | None = None, workers: int = 2) -> int
         except Exception:  # a changed signature: the launch compiles what it needs
             continue
         if len(k.overloads) > before:
-            grown.add(entry["module"])  # a queued module with a new overload must be built again
+            grown.add(entry["module"])
+    return grown
+
+
+def prebuild(manifest: dict, device: str | None = None, workers: int = 2) -> int:
+    """Register ``manifest``'s overloads and compile its modules on ``workers`` background threads.
+
+    Modules not created yet in this process, modules an earlier call queued and this one adds no overload
+    to (a sweep or a fit builds the same scene many times) and entries that no longer match a kernel are
+    skipped. Call :func:`wait` before launching. Returns the number of modules queued.
+
+    Args:
+        manifest: ``{"modules": [...], "overloads": [...]}`` as :func:`record` writes it.
+        device: the device to compile for (None: Warp's default).
+        workers: threads compiling at once.
+    """
+    from ._warp import init
+
+    init()
+    dev = wp.get_device(device)
+    share_precompiled_header()
+    grown = register_overloads(manifest)
+    mods = _user_modules()
     # Longest compiles first, so that the two threads finish together (costs recorded with the manifest).
     cost = manifest.get("compile_ms", {})
     names = sorted(manifest.get("modules", []), key=lambda n: -cost.get(n, 0.0))
