@@ -9,16 +9,7 @@ from typing import Any
 import warp as wp
 
 from ..energies._spring import dashpot_force_axis, spring_gradient_axis
-
-
-@wp.func
-def _symplectic_particle(w: Any, x: Any, v: Any, f: Any, gravity: Any, dt: Any, delta: Any):
-    """One particle's symplectic Euler update from its force f [N] (w = 1/m): v¹ = δ(v + Δt(g + w f)),
-    x¹ = x + Δt v¹; an infinite-mass particle (w = 0) keeps v and moves with it, as in ForceSolver."""
-    v1 = v
-    if w != dt * type(dt)(0.0):
-        v1 = delta * (v + dt * (gravity + w * f))
-    return x + dt * v1, v1
+from ..integrators._symplectic import symplectic_particle
 
 
 @wp.kernel
@@ -54,7 +45,8 @@ def _symplectic_gather(
         f -= spring_gradient_axis(d, l, prm[1], prm[0])
         if damped != 0:
             f += dashpot_force_axis(d, l, vi, v_in[j], prm[2])
-    x, v = _symplectic_particle(particle_inv_mass[i], xi, vi, f, gravity, dt, delta)
+    w = particle_inv_mass[i]
+    x, v = symplectic_particle(w, xi, vi, gravity + w * f, dt, delta)
     x_out[i] = x
     v_out[i] = v
 
@@ -104,6 +96,7 @@ def _symplectic_update(
     i = wp.tid()
     f = f_springs[i] + f_ext[i]
     f_springs[i] = f * type(dt)(0.0)
-    x, v = _symplectic_particle(particle_inv_mass[i], x_in[i], v_in[i], f, gravity, dt, delta)
+    w = particle_inv_mass[i]
+    x, v = symplectic_particle(w, x_in[i], v_in[i], gravity + w * f, dt, delta)
     x_out[i] = x
     v_out[i] = v
