@@ -406,6 +406,10 @@ class Colliders:
         a = self.arrays(model)
         return [a["kind"], a["pos"], a["aux"], a["rot"], a["radius"], a["mesh"]]
 
+    def graph_blocker(self) -> str | None:
+        """None: the response is one launch over cached arrays (a frame of it can be replayed)."""
+        return None
+
     def apply(self, model: Any, state_in: Any, state_out: Any, dt: float) -> None:
         """Velocity-level contact response on ``state_out`` (push out, restitution, Coulomb friction)."""
         a = self.arrays(model)

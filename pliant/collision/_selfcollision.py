@@ -243,6 +243,10 @@ class SelfCollision:
         dim = int(np.clip(round(2.0 * n ** (1.0 / 3.0)), 8, 128))
         self._grid = wp.HashGrid(dim, dim, dim, device=d) if self.use_particles else None
 
+    def graph_blocker(self) -> str | None:
+        """Why self-collision is not replayed: its hash grid and BVH are rebuilt outside kernel launches."""
+        return "it rebuilds a hash grid or refits a BVH each step"
+
     def apply(self, model: Any, state_in: Any, state_out: Any, dt: float) -> None:
         """Resolve contacts in ``state_out`` (positions and velocities), using ``state_in`` for the sides."""
         s = model.s

@@ -15,6 +15,7 @@ from ..io import CheckpointError, CheckpointSpec, Trajectory, load_checkpoint, s
 from ..model import Control, Model, State
 from ..model._worlds import write_range
 from ..solvers import Solver
+from ._graph import FrameGraphs
 
 #: Model parameters that fitting may change; checkpoints carry them so a resumed run is the same run.
 _PARAMS = (
@@ -25,6 +26,9 @@ _PARAMS = (
     "tet_lam",
     "bending_stiffness",
 )
+
+#: Reasons already reported for running without a CUDA graph (each is reported once per process).
+_REPORTED: set[str] = set()
 
 
 class DivergenceError(RuntimeError):
@@ -105,6 +109,9 @@ class Simulator:
             raise. False: any divergence raises, as with one world. Worlds stay independent under
             explicit solvers and XPBD; an implicit solve shares one linear system, so a non-finite world
             can spoil the others within that step.
+        graph: replay each frame as a captured graph (CUDA graphs; Warp's CPU graphs on the CPU) when the
+            solver allows it. None (default): whenever it does (``graph_reason`` says why not otherwise);
+            True: require it (ValueError with the reason if the solver cannot); False: launch by launch.
 
     Example::
 
@@ -124,6 +131,7 @@ class Simulator:
         control_fn: Callable[[float, Control], None] | None = None,
         dt: float | None = None,
         per_world_divergence: bool = True,
+        graph: bool | None = None,
     ) -> None:
         if dt is not None:
             if frame_dt is not None:
@@ -171,6 +179,29 @@ class Simulator:
         if self._per_world:
             self._particle_world = wp.array(model.particle_world(), dtype=wp.int32, device=model.device)
             self._world_stats = wp.zeros((model.world_count, 3), dtype=model.scalar, device=model.device)
+        self._graphs: FrameGraphs | None = None
+        #: Why frames run launch by launch instead of as a replayed graph (None while graphs are used).
+        self.graph_reason: str | None = None
+        self.set_graph(graph)
+
+    def set_graph(self, graph: bool | None) -> None:
+        """Choose how frames run: replayed graphs when the solver allows (None), required (True; ValueError
+        with the reason when the solver cannot), or launch by launch (False). See ``graph`` in the class."""
+        if graph is not None and not isinstance(graph, bool):
+            raise TypeError(f"graph must be True, False or None (automatic), got {graph!r}")
+        why = "graph=False" if graph is False else self.solver.graph_blocker()
+        if why is not None and graph:
+            raise ValueError(f"graph=True: a frame cannot be replayed as a graph: {why}; pass graph=None")
+        self.graph_reason = why
+        self._graphs = FrameGraphs(self.model.device) if why is None else None
+        if (
+            why is not None
+            and graph is None
+            and wp.get_device(self.model.device).is_cuda
+            and why not in _REPORTED
+        ):
+            _REPORTED.add(why)  # once per reason and process: on CUDA a graph is the expected path
+            warnings.warn(f"pliant: frames run launch by launch (no CUDA graph): {why}", RuntimeWarning, 2)
 
     @property
     def dt(self) -> float:
@@ -179,16 +210,34 @@ class Simulator:
 
     # ------------------------------------------------------------------ stepping
     def step_frame(self) -> None:
-        """Advance one frame (``substeps`` solver steps); no host synchronisation."""
-        h = self.frame_dt / self.substeps
+        """Advance one frame (``substeps`` solver steps); no host synchronisation.
+
+        When the solver allows it (``Solver.graph_blocker``), the frame's launches are captured once as a
+        graph and replayed (:mod:`pliant.sim._graph`): the same launches, bit for bit, without their Python
+        cost. ``graph_reason`` says why a simulator runs launch by launch.
+        """
         wp.copy(self._x_start, self.state_0.particle_q)
         if self.control_fn is not None:
             self.control_fn(self.time, self.control)
-        for _ in range(self.substeps):
-            self.solver.step(self.state_0, self.state_1, self.control, h)
-            self.state_0, self.state_1 = self.state_1, self.state_0
+        states = (self.state_0, self.state_1)
+        if self._graphs is not None:
+            states = self._graphs.run(self._substeps, states, (self.solver, self.control))
+            if self._graphs.failed is not None:
+                self.graph_reason, self._graphs = self._graphs.failed, None
+        else:
+            states = self._substeps(states)
+        self.state_0, self.state_1 = states
         self.frame += 1
         self.time = self.frame * self.frame_dt
+
+    def _substeps(self, states: tuple[State, State]) -> tuple[State, State]:
+        """Launch one frame's solver steps from ``states[0]``; returns the pair as the frame leaves it."""
+        h = self.frame_dt / self.substeps
+        s0, s1 = states
+        for _ in range(self.substeps):
+            self.solver.step(s0, s1, self.control, h)
+            s0, s1 = s1, s0
+        return s0, s1
 
     def check_initial_state(self) -> None:
         """Frame 0 is checked like every other: raise :class:`DivergenceError` (frame 0) if the current
@@ -340,6 +389,8 @@ class Simulator:
             fn = getattr(self.solver, hook, None)
             if callable(fn):
                 fn()
+        if self._graphs is not None:
+            self._graphs.clear()  # the hooks may have rebuilt what a graph baked in
 
     def reset_world(self, w: int) -> None:
         """Put world ``w`` back to the model's initial positions and velocities (``Model.set_world_state``

@@ -46,6 +46,23 @@ class Solver(abc.ABC):
         for c in self.collisions:
             c.apply(self.model, state_in, state_out, dt)
 
+    def graph_blocker(self) -> str | None:
+        """Why a frame of this solver cannot be captured as a graph and replayed, or None when it can.
+
+        A step can be replayed when it is kernel launches and device copies only: no host read of a
+        residual, no host solve, no grid or BVH rebuilt on the host, no arrays allocated per step. Solvers
+        that know they qualify override this; the default keeps every other solver on direct launches.
+        """
+        return f"{type(self).__name__} does not declare its step replayable"
+
+    def _collisions_blocker(self) -> str | None:
+        """The first contact handler's reason not to replay (handlers without ``graph_blocker`` block)."""
+        for c in self.collisions:
+            why = c.graph_blocker() if callable(getattr(c, "graph_blocker", None)) else "an unknown handler"
+            if why is not None:
+                return f"contact handler {type(c).__name__}: {why}"
+        return None
+
     def describe(self) -> dict:
         """Name and options, recorded in trajectory metadata and benchmark lines."""
         return {"solver": type(self).__name__}

@@ -557,6 +557,14 @@ class FastMassSpring(Solver):
                 cmd.launch()
         finish_step(m, control, state_in, state_out, dt, contact=self.contact, collisions=self.collisions)
 
+    def graph_blocker(self) -> str | None:
+        """None for the explicit kernels; the implicit step reads CG's residual on the host per chunk."""
+        if self._recorded is not None:
+            return "a differentiable model's steps write fresh arrays each step"
+        if self.method == "implicit":
+            return "the implicit step reads CG's residual on the host to stop"
+        return self._collisions_blocker()
+
     def describe(self) -> dict:
         """Solver, method and options."""
         return {

@@ -375,6 +375,15 @@ class ForceSolver(Solver):
         out["kinetic"] = float(0.5 * np.sum(m.particle_mass_np * np.sum(v * v, axis=1)))
         return out
 
+    def graph_blocker(self) -> str | None:
+        """None for explicit integrators without a tape: their steps are kernel launches only (see
+        :meth:`Solver.graph_blocker`); implicit steps solve on the host, recorded steps allocate."""
+        if grad_enabled(self.model):
+            return "a differentiable model's steps write fresh arrays each step"
+        if not self.integrator.explicit:
+            return f"{self.integrator.name} minimises on the host (line search, sparse solves)"
+        return self._collisions_blocker()
+
     def describe(self) -> dict:
         """Solver, integrator and damping options."""
         return {

@@ -395,6 +395,14 @@ class XPBD(Solver):
         """Number of bilateral constraints (shape-matching clusters count one each) projected per sweep."""
         return sum(c.count for c in self.constraints if not c.is_contact)
 
+    def graph_blocker(self) -> str | None:
+        """None for a fixed sweep count without a tape; a tolerance reads the residual on the host."""
+        if self.requires_grad:
+            return "a differentiable model's steps write fresh arrays each step"
+        if self.tolerance is not None:
+            return "a tolerance reads the constraint residual on the host"
+        return self._collisions_blocker()
+
     def describe(self) -> dict:
         """Solver options and constraint sets."""
         return {

@@ -1,0 +1,163 @@
+"""Frames replayed as captured graphs (pliant.sim._graph) are the direct launches, bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import warp as wp
+
+import pliant as pl
+import pliant.scene
+from pliant.scene import builtin_scenes
+from pliant.sim._graph import FrameGraphs, fingerprint
+
+
+def _cloth(substeps: int = 10, **solver_kw):
+    b = pl.ModelBuilder()
+    b.add_cloth_grid(
+        nx=6, ny=6, size=0.5, mass=0.1, stiffness=200.0, damping=0.01, origin=(-0.25, 0.5, -0.25)
+    )
+    b.add_ground(friction=0.5)
+    model = b.finalize(device="cpu")
+    solver = pl.solvers.ForceSolver(
+        model, pl.energies.mass_spring(), pl.integrators.SymplecticEuler(), **solver_kw
+    )
+    return pl.Simulator(model, solver, frame_dt=1 / 30, substeps=substeps)
+
+
+def _run(sim: pl.Simulator, frames: int) -> np.ndarray:
+    for _ in range(frames):
+        sim.step_frame()
+    return sim.state_0.particle_q.numpy()
+
+
+@pytest.mark.parametrize("name", builtin_scenes())
+def test_builtin_scenes_replay_bit_for_bit(name):
+    """Every built-in scene: graph replay (the default) equals launch-by-launch stepping exactly, and a
+    replayable scene captures at most once per starting state (its fingerprint does not flap)."""
+    cfg = pl.scene.load_scene(name)
+    graphed = pl.scene.build_scene(cfg).simulator()
+    if graphed.graph_reason is not None:
+        # Blocked solvers say why, and step directly (nothing to compare).
+        assert isinstance(graphed.graph_reason, str) and graphed.graph_reason
+        return
+    direct = pl.scene.build_scene(cfg).simulator()
+    direct.set_graph(False)
+    frames = 6
+    np.testing.assert_array_equal(_run(graphed, frames), _run(direct, frames))
+    np.testing.assert_array_equal(graphed.state_0.particle_qd.numpy(), direct.state_0.particle_qd.numpy())
+    assert graphed._graphs.captures <= 2
+    assert graphed._graphs.replays >= frames - 2
+
+
+@pytest.mark.parametrize("substeps", [7, 8])
+def test_odd_and_even_substeps(substeps):
+    """An odd substep count leaves a frame in the other buffer: a graph per starting state keeps the
+    references where the direct loop leaves them."""
+    a, b = _cloth(substeps), _cloth(substeps)
+    b.set_graph(False)
+    a0, b0 = a.state_0, b.state_0
+    np.testing.assert_array_equal(_run(a, 9), _run(b, 9))
+    assert a.graph_reason is None and a._graphs.replays >= 6
+    # the frame ends in the same buffer as the direct loop's
+    assert (a.state_0 is a0) == (b.state_0 is b0) == (substeps % 2 == 0)
+
+
+def test_changed_scalar_takes_effect():
+    """A Python scalar baked into the graph (the damping rate) changed between frames is captured again."""
+    a, b = _cloth(damping_rate=0.5), _cloth(damping_rate=0.5)
+    b.set_graph(False)
+    _run(a, 4), _run(b, 4)
+    captures = a._graphs.captures
+    a.solver.damping_rate = b.solver.damping_rate = 5.0
+    np.testing.assert_array_equal(_run(a, 4), _run(b, 4))
+    assert a._graphs.captures == captures + 1
+
+
+def test_in_place_write_is_read_by_replays():
+    """assign() keeps the address: the replayed graph reads the new stiffness without a new capture."""
+    a, b = _cloth(), _cloth()
+    b.set_graph(False)
+    _run(a, 4), _run(b, 4)
+    captures = a._graphs.captures
+    for sim in (a, b):
+        k = sim.model.spring_stiffness.numpy()
+        sim.model.spring_stiffness.assign(k * 3.0)
+    np.testing.assert_array_equal(_run(a, 4), _run(b, 4))
+    assert a._graphs.captures == captures
+
+
+def test_fingerprint_sees_replaced_arrays_and_scalars():
+    sim = _cloth()
+    f0 = fingerprint(sim.solver, sim.control)
+    assert fingerprint(sim.solver, sim.control) == f0
+    sim.solver.velocity_damping_factor = 0.5
+    f1 = fingerprint(sim.solver, sim.control)
+    assert f1 != f0
+    sim.model.spring_stiffness = wp.clone(sim.model.spring_stiffness)
+    assert fingerprint(sim.solver, sim.control) != f1
+
+
+def test_blocked_solver_reasons():
+    b = pl.ModelBuilder()
+    b.add_soft_box(
+        cells=(2, 2, 2), size=(0.2, 0.2, 0.2), origin=(0.0, 0.3, 0.0), density=500.0, E=1e4, nu=0.3
+    )
+    model = b.finalize(device="cpu", dtype="float64")
+    solver = pl.solvers.ForceSolver(
+        model, [pl.energies.NeoHookean(), pl.energies.Gravity()], pl.integrators.BackwardEuler()
+    )
+    sim = pl.Simulator(model, solver, frame_dt=1 / 30, substeps=2)
+    assert "BackwardEuler" in sim.graph_reason
+    with pytest.raises(ValueError, match="graph=True.*BackwardEuler"):
+        pl.Simulator(model, solver, frame_dt=1 / 30, substeps=2, graph=True)
+    with pytest.raises(TypeError, match="graph must be"):
+        pl.Simulator(model, solver, frame_dt=1 / 30, substeps=2, graph="yes")
+    xpbd_model = pl.ModelBuilder()
+    xpbd_model.add_cloth_grid(nx=3, ny=3, size=0.2, mass=0.05, stiffness=100.0, origin=(0, 0.5, 0))
+    m = xpbd_model.finalize(device="cpu")
+    sim = pl.Simulator(m, pl.solvers.XPBD(m, tolerance=1e-6), frame_dt=1 / 30, substeps=2)
+    assert "tolerance" in sim.graph_reason
+    assert pl.Simulator(m, pl.solvers.XPBD(m), frame_dt=1 / 30, substeps=2).graph_reason is None
+
+
+def test_failed_capture_falls_back_once(monkeypatch):
+    """A capture that raises (an older Warp without CPU graphs) warns once and the run goes on directly,
+    with the same result."""
+    a, b = _cloth(), _cloth()
+    b.set_graph(False)
+
+    class Broken:
+        def __init__(self, *args, **kwargs):
+            pass
+
+        def __enter__(self):
+            raise RuntimeError("no graphs here")
+
+        def __exit__(self, *exc):
+            return False
+
+    monkeypatch.setattr(wp, "ScopedCapture", Broken)
+    with pytest.warns(RuntimeWarning, match="graph capture failed.*no graphs here"):
+        xa = _run(a, 5)
+    assert a._graphs is None and "no graphs here" in a.graph_reason
+    np.testing.assert_array_equal(xa, _run(b, 5))
+
+
+def test_frame_graphs_warm_then_capture():
+    """The first frame under a key runs directly, the second is captured, later ones replay."""
+    calls = []
+    arr = wp.zeros(1, dtype=float, device="cpu")
+    graphs = FrameGraphs("cpu")
+    states = (object(), object())
+
+    def frame(st):
+        calls.append(1)
+        arr.fill_(float(len(calls)))
+        return st
+
+    for _ in range(4):
+        graphs.run(frame, states, ())
+    # direct, captured (the Python body ran once more while recording), then replays only
+    assert len(calls) == 2 and graphs.captures == 1 and graphs.replays == 3
+    assert arr.numpy()[0] == 2.0  # the replays repeat the captured fill
