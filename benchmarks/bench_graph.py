@@ -1,0 +1,84 @@
+"""Frames replayed as captured graphs against launch-by-launch frames, side by side (Simulator(graph=...)).
+
+For each built-in scene whose solver allows replay, two simulators of the same scene run in one process,
+interleaved round by round on the same core: ``graph=False`` (every kernel launched from Python) and the
+default (the frame captured once, then replayed). Each row prints the median wall milliseconds per frame of
+both, their ratio per round (median, min, max), and the accuracy figure of the whole motion: the largest
+difference between the two runs' positions over every frame (0.0: the same trajectory bit for bit, so the
+ratio is at equal accuracy by construction).
+
+Usage (one core):
+    taskset -c 1 .venv/bin/python benchmarks/bench_graph.py --rounds 5 --frames 10
+    taskset -c 1 .venv/bin/python benchmarks/bench_graph.py --scenes rope cloth --device cuda:0
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+
+DEFAULT_SCENES = ["rope", "rope_swing", "fit_rope", "soft_box", "cloth", "cloth_xpbd", "xpbd_soft_body"]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", nargs="+", default=DEFAULT_SCENES, help="built-in scene names")
+    ap.add_argument("--rounds", type=int, default=5, help="interleaved rounds")
+    ap.add_argument("--frames", type=int, default=10, help="frames per round and simulator")
+    ap.add_argument("--device", default="cpu", help="Warp device (cpu, cuda:0)")
+    args = ap.parse_args()
+
+    import numpy as np
+    import warp as wp
+
+    wp.config.quiet = True
+    import pliant.scene as ps
+
+    for name in args.scenes:
+        cfg = ps.load_scene(name, overrides=[f"scene.device={args.device}"])
+        sims = {}
+        for mode in ("direct", "graph"):
+            sim = ps.build_scene(cfg).simulator()
+            if mode == "direct":
+                sim.set_graph(False)
+            for _ in range(3):  # compile, warm up and capture outside the timing
+                sim.step_frame()
+            sims[mode] = sim
+        if sims["graph"].graph_reason is not None:
+            print(json.dumps({"scene": name, "skipped": sims["graph"].graph_reason}))
+            continue
+        times: dict[str, list[float]] = {"direct": [], "graph": []}
+        max_dx = 0.0
+        for _ in range(args.rounds):
+            for mode, sim in sims.items():
+                wp.synchronize_device(sim.model.device)
+                t0 = time.perf_counter()
+                for _ in range(args.frames):
+                    sim.step_frame()
+                wp.synchronize_device(sim.model.device)
+                times[mode].append((time.perf_counter() - t0) / args.frames)
+            dx = np.abs(sims["graph"].state_0.particle_q.numpy() - sims["direct"].state_0.particle_q.numpy())
+            max_dx = max(max_dx, float(dx.max()))
+        ratios = [d / g for d, g in zip(times["direct"], times["graph"], strict=True)]
+        print(
+            json.dumps(
+                {
+                    "scene": name,
+                    "device": str(sims["graph"].model.device),
+                    "particles": sims["graph"].model.particle_count,
+                    "substeps": sims["graph"].substeps,
+                    "direct_ms_per_frame": round(1e3 * statistics.median(times["direct"]), 3),
+                    "graph_ms_per_frame": round(1e3 * statistics.median(times["graph"]), 3),
+                    "ratio_median": round(statistics.median(ratios), 2),
+                    "ratio_min": round(min(ratios), 2),
+                    "ratio_max": round(max(ratios), 2),
+                    "max_position_difference_m": max_dx,
+                }
+            )
+        )
+
+
+if __name__ == "__main__":
+    main()
