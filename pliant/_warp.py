@@ -93,6 +93,15 @@ def active_tape() -> Any:
     return getattr(_runtime(), "tape", None)
 
 
+def capturing(device: Any) -> bool:
+    """Whether launches on ``device`` are being captured into a graph (so a host read would see stale
+    data): a CUDA stream capture, or Warp's CPU capture (Warp 1.19+)."""
+    d = wp.get_device(device)
+    if d.is_cuda:
+        return bool(d.is_capturing)
+    return getattr(_runtime(), "_apic_capture", None) is not None
+
+
 def _tape_active() -> bool:
     try:
         return active_tape() is not None

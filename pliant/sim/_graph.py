@@ -30,7 +30,16 @@ import warp as wp
 _SCALARS = (bool, int, float, str, bytes, type(None), np.generic)
 #: Attributes that change from step to step without changing what a step launches (statistics, the last
 #: step's outputs, caches of recorded plans): not part of the fingerprint.
-_SKIP = ("last", "stats", "_plans", "_recording", "minimizer_cache", "_cache")
+_SKIP = (
+    "last",
+    "stats",
+    "_plans",
+    "_recording",
+    "minimizer_cache",
+    "_cache",
+    "cg_steps",
+    "cg_iterations_total",
+)
 _MAX_GRAPHS = 4
 
 

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .._warp import grad_enabled
+from .._warp import capturing, grad_enabled
 from ..energies._spring import dashpot_force_axis, spring_gradient_axis, spring_hessian
 from ..model import Control, Model, State
 from ._base import Solver
@@ -494,7 +494,7 @@ class FastMassSpring(Solver):
                     _bw_apply,
                     n,
                     [self.adj_offsets, self.adj_neighbor, m.particle_mass, m.particle_inv_mass, self._block]
-                    + [self._z, p_old, self._scalars, k, p_new, self._q],
+                    + [self._z, p_old, self._scalars, k, tol2, p_new, self._q],
                     device=dev,
                     record_cmd=record,
                 )
@@ -514,6 +514,12 @@ class FastMassSpring(Solver):
         """Launch the recorded CG iterations (two launches each) in chunks of ``cg_check_every``, stopping
         after the chunk in which the residual reached ``cg_tol``; record how many iterations that took."""
         total = len(cg) // 2
+        if capturing(self.model.device):
+            # In a graph: every iteration, no host read (converged ones skip their work on the device);
+            # the iteration statistics count directly launched steps only.
+            for cmd in cg:
+                cmd.launch()
+            return
         every = self.cg_check_every or total
         tol2 = self.cg_tol**2
         done, used = 0, None
@@ -558,11 +564,10 @@ class FastMassSpring(Solver):
         finish_step(m, control, state_in, state_out, dt, contact=self.contact, collisions=self.collisions)
 
     def graph_blocker(self) -> str | None:
-        """None for the explicit kernels; the implicit step reads CG's residual on the host per chunk."""
+        """None without a tape: explicit kernels, and implicit steps whose CG stops on the device when
+        captured (a converged iteration is a no-op; ``_launch_cg``)."""
         if self._recorded is not None:
             return "a differentiable model's steps write fresh arrays each step"
-        if self.method == "implicit":
-            return "the implicit step reads CG's residual on the host to stop"
         return self._collisions_blocker()
 
     def describe(self) -> dict:

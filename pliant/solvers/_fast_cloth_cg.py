@@ -22,6 +22,7 @@ def _bw_apply(
     p_in: wp.array(dtype=Any),
     scalars: wp.array(dtype=Any),
     k: int,
+    tol2: Any,
     p_out: wp.array(dtype=Any),
     q_out: wp.array(dtype=Any),
 ):
@@ -29,6 +30,10 @@ def _bw_apply(
     # Neighbours' p_new are recomputed from z and p_old, so nobody reads a value written in this launch.
     i = wp.tid()
     zero = scalars[0] * type(scalars[0])(0.0)
+    if k > 0 and not scalars[2 * k] > tol2 * scalars[0]:
+        # Converged: _bw_update freezes this iteration (α = 0), so skip the product. This device-side
+        # flag is what lets a graph launch every iteration without a host read of the residual.
+        return
     beta = zero
     if k > 0:
         den = scalars[2 * k - 2]
