@@ -1,0 +1,130 @@
+"""Shared helpers of the cross-engine fixture generators (``observe_mujoco.py``, ``observe_newton.py``):
+noisy, occluded tracks, OpenCV cameras, and writing a fixture (observation NPZ, truth NPZ, JSON sidecar,
+pliant scene TOML) without pliant.
+
+Kept free of pliant imports: the generators run in the peers' venv (README.md). The files follow pliant's
+observation contract (``pliant/io/_observations.py``): ``t`` [T], ``points`` [T, K, 3] (NaN where unseen),
+``visible`` [T, K]; image fixtures add ``images`` [C, T, H, W, 3] uint8, ``K`` [C, 3, 3], ``world_to_camera``
+[C, 4, 4] (OpenCV axes) and ``masks`` [C, T, H, W]. Everything is in pliant's axes: metres, y up.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+FPS = 30.0
+NOISE = 0.0015  # standard deviation of the track noise per axis [m]
+OCCLUDED = 0.3  # fraction of the tracks that go unseen for one stretch
+OCCLUSION_FRAMES = (6, 20)  # shortest and longest unseen stretch [frames]
+#: Where the fixtures go (relative to this file): the repository's tests/data/foreign/.
+FIXTURES = Path(__file__).resolve().parents[2] / "tests" / "data" / "foreign"
+
+
+def noisy_tracks(
+    x: np.ndarray,
+    candidates: np.ndarray,
+    tracks: int,
+    rng: np.random.Generator,
+    noise: float = NOISE,
+    occluded: float = OCCLUDED,
+    stretch: tuple[int, int] = OCCLUSION_FRAMES,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict]]:
+    """Tracks of a random subset of the vertices, with Gaussian noise and one unseen stretch on some.
+
+    Args:
+        x: true vertex positions [T, N, 3] [m].
+        candidates: vertex indices that may be tracked (e.g. the free ones).
+        tracks: number of tracks K (at most ``candidates.size``).
+        rng: random generator (its seed is recorded in the sidecar).
+        noise: standard deviation of the isotropic Gaussian noise [m].
+        occluded: fraction of the tracks that get one unseen stretch.
+        stretch: (shortest, longest) unseen stretch [frames]; it never covers frame 0, so every track is
+            bound to its particle at frame 0.
+
+    Returns:
+        (points [T, K, 3] with NaN where unseen, visible [T, K] bool, vertex index of each track [K],
+        the unseen stretches as ``{"track", "first", "last"}`` dicts).
+    """
+    T = x.shape[0]
+    pick = np.sort(rng.choice(candidates, size=min(tracks, candidates.size), replace=False))
+    pts = x[:, pick] + rng.normal(0.0, noise, size=(T, pick.size, 3))
+    visible = np.ones((T, pick.size), bool)
+    gaps = []
+    for k in np.sort(rng.choice(pick.size, size=int(round(occluded * pick.size)), replace=False)):
+        n = int(rng.integers(stretch[0], stretch[1] + 1))
+        first = int(rng.integers(1, T - n + 1))
+        visible[first : first + n, k] = False
+        gaps.append({"track": int(k), "first": first, "last": first + n - 1})
+    pts[~visible] = np.nan
+    return pts, visible, pick, gaps
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: tuple = (0.0, 1.0, 0.0)) -> np.ndarray:
+    """OpenCV world → camera transform [4, 4] (x right, y down, z forward) of a camera at ``eye`` looking at
+    ``target`` (pliant axes, metres); the same construction as ``pliant.gaussians.Camera.look_at``."""
+    eye = np.asarray(eye, np.float64)
+    f = np.asarray(target, np.float64) - eye
+    f /= np.linalg.norm(f)
+    x = np.cross(f, np.asarray(up, np.float64))
+    x /= np.linalg.norm(x)
+    y = np.cross(f, x)
+    T = np.eye(4)
+    T[:3, :3] = np.stack([x, y, f])
+    T[:3, 3] = -T[:3, :3] @ eye
+    return T
+
+
+def intrinsics(fovy_deg: float, width: int, height: int) -> np.ndarray:
+    """OpenCV K [3, 3] of a symmetric OpenGL frustum of vertical field of view ``fovy_deg``: pixel centres at
+    integers (pliant's convention), so the principal point is ((W − 1)/2, (H − 1)/2)."""
+    f = 0.5 * height / np.tan(0.5 * np.radians(fovy_deg))
+    return np.array([[f, 0.0, 0.5 * (width - 1)], [0.0, f, 0.5 * (height - 1)], [0.0, 0.0, 1.0]])
+
+
+def write_fixture(
+    name: str,
+    arrays: dict[str, np.ndarray],
+    meta: dict,
+    *,
+    truth: np.ndarray | None = None,
+    scene: str | None = None,
+    out: Path = FIXTURES,
+) -> list[Path]:
+    """Write ``NAME.npz`` (compressed), ``NAME.json`` (the sidecar), and optionally ``NAME_truth.npz`` (every
+    vertex, noise-free, all visible: an observation file for held-out evaluation) and ``NAME.toml``.
+
+    Args:
+        name: fixture name.
+        arrays: the observation arrays (pliant's names only: the loader refuses unknown arrays).
+        meta: the sidecar's content (JSON-serialisable).
+        truth: true vertex positions [T, N, 3] [m], stored as float32.
+        scene: pliant scene TOML text.
+        out: output folder.
+
+    Returns:
+        The paths written.
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [out / f"{name}.npz", out / f"{name}.json"]
+    np.savez_compressed(paths[0], **arrays)
+    if truth is not None:
+        paths.append(out / f"{name}_truth.npz")
+        t = arrays["t"][: truth.shape[0]]
+        np.savez_compressed(
+            paths[-1], t=t, points=truth.astype(np.float32), visible=np.ones(truth.shape[:2], bool)
+        )
+        meta = {**meta, "truth": paths[-1].name}
+    if scene is not None:
+        paths.append(out / f"{name}.toml")
+        paths[-1].write_text(scene)
+        meta = {**meta, "scene": paths[-1].name}
+    paths[1].write_text(json.dumps(meta, indent=1) + "\n")
+    return paths
+
+
+def floats(a: np.ndarray) -> str:
+    """Numbers as a space-separated MJCF attribute."""
+    return " ".join(f"{v:.9g}" for v in np.asarray(a, np.float64).ravel())
