@@ -125,6 +125,53 @@ def write_fixture(
     return paths
 
 
+#: pliant.geometry.box_tets' Kuhn split of a cell (corner id = dx + 2 dy + 4 dz).
+_KUHN = np.array([[0, 1, 3, 7], [0, 2, 6, 7], [0, 4, 5, 7], [0, 1, 7, 5], [0, 2, 7, 3], [0, 4, 7, 6]])
+
+
+def box_tets(cells, size, origin):
+    """pliant.geometry.box_tets without pliant: points [(nx+1)(ny+1)(nz+1), 3], tets [6 nx ny nz, 4]."""
+    nx, ny, nz = cells
+    axes = [np.linspace(0.0, size[d], cells[d] + 1) for d in range(3)]
+    z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
+    points = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1) + np.asarray(origin)
+    k, j, i = np.meshgrid(np.arange(nz), np.arange(ny), np.arange(nx), indexing="ij")
+    base = (i + (nx + 1) * (j + (ny + 1) * k)).reshape(-1, 1)
+    corner = np.array(
+        [dx + (nx + 1) * (dy + (ny + 1) * dz) for dz in (0, 1) for dy in (0, 1) for dx in (0, 1)]
+    )
+    return points, (base + corner[None, :])[:, _KUHN].reshape(-1, 4).astype(np.int32)
+
+
+def cloth_mesh(c: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """pliant's cloth grid: points [(n+1)², 3] (vertex (i, j) at j (n+1) + i, i along x, j along z),
+    triangles (diagonals alternating as pliant's), texture coordinates [(n+1)², 2] and the two pinned
+    vertices (pliant's ``top-corners``: largest z)."""
+    n = c["n"]
+    j, i = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+    i, j = i.ravel(), j.ravel()
+    h = c["size"] / n
+    pts = np.asarray(c["origin"], np.float64) + np.stack([i * h, np.zeros_like(i, float), j * h], axis=1)
+    tris = []
+    for jj in range(n):
+        for ii in range(n):
+            a = jj * (n + 1) + ii
+            b, d, e = a + 1, a + n + 1, a + n + 2
+            # pliant's diagonals: (i, j)-(i+1, j+1) where i + j is even; normals along +y as pliant's "xz".
+            tris += [[a, d, e], [a, e, b]] if (ii + jj) % 2 == 0 else [[a, d, b], [b, d, e]]
+    uv = np.stack([i, j], axis=1) / n
+    return pts, np.asarray(tris, np.int64), uv, np.array([n * (n + 1), n * (n + 1) + n])
+
+
+def lumped_by_area(pts: np.ndarray, tris: np.ndarray, total: float) -> np.ndarray:
+    """Masses [kg] lumped by triangle area (a third on each corner), summing to ``total``, as pliant's."""
+    p = pts[tris]
+    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    m = np.zeros(len(pts))
+    np.add.at(m, tris.ravel(), np.repeat(area / 3.0, 3))
+    return m * total / m.sum()
+
+
 def floats(a: np.ndarray) -> str:
     """Numbers as a space-separated MJCF attribute."""
     return " ".join(f"{v:.9g}" for v in np.asarray(a, np.float64).ravel())

@@ -34,14 +34,16 @@ from _foreign import (  # noqa: E402
     NOISE,
     OCCLUDED,
     OCCLUSION_FRAMES,
+    box_tets,
+    cloth_mesh,
     floats,
     intrinsics,
     look_at,
+    lumped_by_area,
     noisy_tracks,
     write_fixture,
 )
 from _scene import lumped_mass  # noqa: E402
-from observe_newton import box_tets  # noqa: E402
 
 GRAVITY = 9.81
 FRAMES = 60  # track fixtures: frames after frame 0 (61 frames, 2 s at 30 fps)
@@ -99,35 +101,6 @@ def _mujoco():
 
 def _ints(a: np.ndarray) -> str:
     return " ".join(str(int(v)) for v in np.asarray(a).ravel())
-
-
-def cloth_mesh(c: dict = CLOTH) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """pliant's cloth grid: points [(n+1)², 3] (vertex (i, j) at j (n+1) + i, i along x, j along z),
-    triangles (diagonals alternating as pliant's), texture coordinates [(n+1)², 2] and the two pinned
-    vertices (pliant's ``top-corners``: largest z)."""
-    n = c["n"]
-    j, i = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
-    i, j = i.ravel(), j.ravel()
-    h = c["size"] / n
-    pts = np.asarray(c["origin"], np.float64) + np.stack([i * h, np.zeros_like(i, float), j * h], axis=1)
-    tris = []
-    for jj in range(n):
-        for ii in range(n):
-            a = jj * (n + 1) + ii
-            b, d, e = a + 1, a + n + 1, a + n + 2
-            # pliant's diagonals: (i, j)-(i+1, j+1) where i + j is even; normals along +y as pliant's "xz".
-            tris += [[a, d, e], [a, e, b]] if (ii + jj) % 2 == 0 else [[a, d, b], [b, d, e]]
-    uv = np.stack([i, j], axis=1) / n
-    return pts, np.asarray(tris, np.int64), uv, np.array([n * (n + 1), n * (n + 1) + n])
-
-
-def lumped_by_area(pts: np.ndarray, tris: np.ndarray, total: float) -> np.ndarray:
-    """Masses [kg] lumped by triangle area (a third on each corner), summing to ``total``, as pliant's."""
-    p = pts[tris]
-    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
-    m = np.zeros(len(pts))
-    np.add.at(m, tris.ravel(), np.repeat(area / 3.0, 3))
-    return m * total / m.sum()
 
 
 def _option() -> str:
@@ -424,7 +397,7 @@ def cloth(args: argparse.Namespace) -> list[dict]:
     mujoco = _mujoco()
     t0 = time.perf_counter()
     c = CLOTH
-    pts, tris, uv, pin = cloth_mesh()
+    pts, tris, uv, pin = cloth_mesh(CLOTH)
     model = mujoco.MjModel.from_xml_string(_cloth_xml(pts, tris, uv, pin))
     _set_flex_masses(model, lumped_by_area(pts, tris, c["mass"]))
     data = mujoco.MjData(model)
@@ -580,7 +553,7 @@ damping_rate = 0.0
             "poisson": k["poisson"],
             "rayleigh_damping_s": k["damping"],
             "friction": k["friction"],
-            "vertex_radius_m": k["radius"],
+            "contact_radius_m": k["radius"],
             "contact_solref": list(k["solref"]),
         },
         converted={"E": E, "nu": k["poisson"], "law": "stvk", "ground_friction": k["friction"]},
