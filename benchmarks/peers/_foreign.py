@@ -19,6 +19,11 @@ FPS = 30.0
 NOISE = 0.0015  # standard deviation of the track noise per axis [m]
 OCCLUDED = 0.3  # fraction of the tracks that go unseen for one stretch
 OCCLUSION_FRAMES = (6, 20)  # shortest and longest unseen stretch [frames]
+#: The soft box both engines throw onto the ground (pliant's soft_box: Kuhn tets, centre, [m], [m/s],
+#: [kg/m³]); its bottom starts 0.35 m above the ground.
+THROWN_BOX = dict(
+    cells=(4, 4, 4), size=(0.2, 0.2, 0.2), centre=(0.0, 0.45, 0.0), velocity=(1.2, -1.0, 0.0), density=500.0
+)
 #: Where the fixtures go (relative to this file): the repository's tests/data/foreign/.
 FIXTURES = Path(__file__).resolve().parents[2] / "tests" / "data" / "foreign"
 
@@ -170,6 +175,104 @@ def lumped_by_area(pts: np.ndarray, tris: np.ndarray, total: float) -> np.ndarra
     m = np.zeros(len(pts))
     np.add.at(m, tris.ravel(), np.repeat(area / 3.0, 3))
     return m * total / m.sum()
+
+
+def fixture_meta(
+    name: str, engine: str, t: np.ndarray, pick: np.ndarray, gaps: list[dict], seed: int, command: str
+) -> dict:
+    """The sidecar fields every track fixture has (the generators add the model and materials).
+
+    Args:
+        name: fixture name.
+        engine: engine and version, e.g. ``"mujoco 4.0.0"``.
+        t: observation times [s].
+        pick: the vertex each track follows [K].
+        gaps: the unseen stretches of :func:`noisy_tracks`.
+        seed: the random seed of the tracks.
+        command: how to regenerate the fixture.
+    """
+    return {
+        "fixture": name,
+        "data": "SYNTHETIC: another engine's simulation standing in for real measurements",
+        "engine": engine,
+        "frames": int(t.size),
+        "fps": FPS,
+        "tracks": int(pick.size),
+        "track_vertex": pick.tolist(),
+        "noise_std_m": NOISE,
+        "occlusion": {
+            "fraction_of_tracks": OCCLUDED,
+            "stretch_frames": list(OCCLUSION_FRAMES),
+            "frame0_always_visible": True,
+            "stretches": gaps,
+        },
+        "seed": seed,
+        "command": command,
+    }
+
+
+def scene_toml(comments: list[str], name: str, substeps: int, frames: int, body: str) -> str:
+    """A fixture's pliant scene: ``comments`` (where it comes from, the conversion), a float64 scene at the
+    fixtures' frame rate, the objects (and ground) of ``body``, and undamped symplectic Euler."""
+    head = "".join(f"# {line}\n" for line in comments)
+    return f"""{head}[scene]
+name = "{name}"
+frame_dt = {1.0 / FPS!r}
+substeps = {substeps}
+frames = {frames}
+dtype = "float64"
+
+{body}
+[solver]
+integrator = "SymplecticEuler"
+damping_rate = 0.0
+"""
+
+
+def _vec(v) -> str:
+    return "[" + ", ".join(f"{a:g}" for a in v) + "]"
+
+
+def cloth_toml(c: dict, Et: float, nu: float, Et_converted: float, pinned: str) -> str:
+    """The ``[[objects]]`` table of the cloth ``c`` (n, size, origin, mass) with membrane ``Et`` [N/m]."""
+    return f"""[[objects]]
+kind = "cloth"
+nx = {c["n"]}
+ny = {c["n"]}
+size = {c["size"]}
+origin = {_vec(c["origin"])}
+plane = "xz"
+mass = {c["mass"]}          # [kg], lumped by area in both engines
+pin = "top-corners"  # the two corners of largest z, {pinned}
+
+[objects.material]
+Et = {Et:g}   # [N/m]; converted: {Et_converted:.4g}
+nu = {nu:g}
+"""
+
+
+def soft_box_toml(c: dict, E: float, E_converted: float, nu: float, law: str | None) -> str:
+    """The ``[[objects]]`` table of the soft box ``c`` (cells, size, centre, density, velocity, radius,
+    friction) with Young's modulus ``E`` [Pa], and its ground (height 0)."""
+    law_line = "" if law is None else f'law = "{law}"\n'
+    return f"""[[objects]]
+kind = "soft_box"
+model = "fem"
+cells = {_vec(c["cells"])}
+size = {_vec(c["size"])}
+origin = {_vec(c["centre"])}      # centre [m]
+density = {c["density"]:g}               # [kg/m³], lumped rho V / 4 in both engines
+velocity = {_vec(c["velocity"])}  # [m/s]
+particle_radius = {c["radius"]}
+
+[objects.material]
+E = {E:g}        # [Pa]; converted: {E_converted:g}
+nu = {nu}
+{law_line}
+[ground]
+height = 0.0
+friction = {c["friction"]}
+"""
 
 
 def floats(a: np.ndarray) -> str:

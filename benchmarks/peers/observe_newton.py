@@ -33,17 +33,19 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import numpy as np  # noqa: E402
 from _foreign import (  # noqa: E402
-    NOISE,
-    OCCLUDED,
-    OCCLUSION_FRAMES,
+    FPS,
+    THROWN_BOX,
     box_tets,
     cloth_mesh,
+    cloth_toml,
+    fixture_meta,
     lumped_by_area,
     noisy_tracks,
+    scene_toml,
+    soft_box_toml,
     write_fixture,
 )
 
-FPS = 30.0
 FRAMES = 60  # frames after frame 0 (2 s)
 GRAVITY = 9.81
 
@@ -78,11 +80,7 @@ BEAM = dict(
 # (1.2, -1, 0) m/s, ρ = 500 kg/m³, E = 4e4 Pa, ν = 0.3) with Smith 2018 tets, a tet viscosity of 20 Pa s and
 # Newton's soft (penalty) ground contact: ke = 1e4 N/m, kd = 10 N s/m, friction 0.5, particle radius 5 mm.
 BOX = dict(
-    cells=(4, 4, 4),
-    size=(0.2, 0.2, 0.2),
-    centre=(0.0, 0.45, 0.0),
-    velocity=(1.2, -1.0, 0.0),
-    density=500.0,
+    **THROWN_BOX,
     E=4.0e4,
     nu=0.3,
     k_damp=20.0,
@@ -241,26 +239,15 @@ def _fixture(args, newton, model, substeps, pick, gaps, x) -> tuple[dict, str]:
     if args.object not in ("cloth", "box"):
         raise SystemExit(f"--fixture: no fixture is defined for {args.object}; use cloth or box")
     free = model.particle_inv_mass.numpy() > 0
+    t = np.arange(x.shape[0]) / FPS
+    command = f"observe_newton.py {args.object} --fixture --tracks {args.tracks} --seed {args.seed}"
     meta = {
-        "fixture": f"newton_{args.object}",
-        "data": "SYNTHETIC: another engine's simulation standing in for real measurements",
-        "engine": f"newton {newton.__version__}",
+        **fixture_meta(
+            f"newton_{args.object}", f"newton {newton.__version__}", t, pick, gaps, args.seed, command
+        ),
         "integrator": f"SolverSemiImplicit (explicit), {substeps} substeps per frame, float32",
         "up_axis": "y up in Newton and in the files (pliant's axes): no conversion",
         "free_mass_kg": float(model.particle_mass.numpy()[free].astype(np.float64).sum()),
-        "frames": int(x.shape[0]),
-        "fps": FPS,
-        "tracks": int(pick.size),
-        "track_vertex": pick.tolist(),
-        "noise_std_m": NOISE,
-        "occlusion": {
-            "fraction_of_tracks": OCCLUDED,
-            "stretch_frames": list(OCCLUSION_FRAMES),
-            "frame0_always_visible": True,
-            "stretches": gaps,
-        },
-        "seed": args.seed,
-        "command": f"observe_newton.py {args.object} --fixture --tracks {args.tracks} --seed {args.seed}",
     }
     head = [
         f"Newton {newton.__version__} {{what}},",
@@ -298,20 +285,7 @@ def _fixture(args, newton, model, substeps, pick, gaps, x) -> tuple[dict, str]:
             f"edge_ke = {c['edge_ke']:g}.",
             f"NOMINAL material below: Et = {Et_nom:g} N/m, deliberately 5x too soft (where a fit starts).",
         ]
-        body = f"""[[objects]]
-kind = "cloth"
-nx = {c["n"]}
-ny = {c["n"]}
-size = {c["size"]}
-origin = [{", ".join(f"{v:g}" for v in c["origin"])}]
-plane = "xz"
-mass = {c["mass"]}          # [kg], lumped by area in both engines
-pin = "top-corners"  # the two corners of largest z, mass 0 in Newton
-
-[objects.material]
-Et = {Et_nom:g}   # [N/m]; converted: {Et:.4g}
-nu = {nu_r:g}
-"""
+        body = cloth_toml(c, Et_nom, nu_r, Et, "mass 0 in Newton")
         what, sub = "cloth (triangle FEM membrane + dihedral bending)", 40
     else:
         c = BOX
@@ -346,39 +320,10 @@ nu = {nu_r:g}
             f"ground (ke = {c['contact_ke']:g} N/m, kd = {c['contact_kd']:g} N s/m).",
             f"NOMINAL material below: E = {c['E'] / 5:g} Pa, deliberately 5x too soft (where a fit starts).",
         ]
-        body = f"""[[objects]]
-kind = "soft_box"
-model = "fem"
-cells = [{", ".join(map(str, c["cells"]))}]
-size = [{", ".join(f"{v:g}" for v in c["size"])}]
-origin = [{", ".join(f"{v:g}" for v in c["centre"])}]      # centre [m]
-density = {c["density"]:g}               # [kg/m³], lumped rho V / 4 in both engines
-velocity = [{", ".join(f"{v:g}" for v in c["velocity"])}]  # [m/s]
-particle_radius = {c["radius"]}
-
-[objects.material]
-E = {c["E"] / 5:g}        # [Pa]; converted: {c["E"]:g}
-nu = {c["nu"]}
-
-[ground]
-height = 0.0
-friction = {c["friction"]}
-"""
+        body = soft_box_toml(c, c["E"] / 5, c["E"], c["nu"], None)
         what, sub = "soft box (Smith 2018 tets) thrown onto the ground", 40
     head[0] = head[0].format(what=what)
-    scene = "".join(f"# {line}\n" for line in head + lines)
-    scene += f"""[scene]
-name = "newton_{args.object}"
-frame_dt = {1.0 / FPS!r}
-substeps = {sub}
-frames = {FRAMES}
-dtype = "float64"
-
-{body}
-[solver]
-integrator = "SymplecticEuler"
-damping_rate = 0.0
-"""
+    scene = scene_toml(head + lines, f"newton_{args.object}", sub, FRAMES, body)
     return meta, scene
 
 
