@@ -173,6 +173,31 @@ def test_footage_loads_and_its_cameras_see_the_true_vertices(name):
     assert np.mean(flipped) < 0.6, flipped
 
 
+def test_footage_checker_is_laid_out_as_its_sidecar_says():
+    # The cell at the cloth's origin corner has the sidecar's colour and the cells alternate from there:
+    # at frame 0 (the cloth still flat) rgb1 (blue) cells are bluer than red, rgb2 (yellow) ones redder.
+    meta = _meta("mujoco_cloth_video")
+    look = meta["appearance"]
+    obs = pliant.io.Observations.load(DATA / "mujoco_cloth_video.npz")
+    cfg = pliant.scene.load_scene(DATA / meta["scene"])
+    cloth = cfg.objects[0]
+    n = look["cells_along_each_side"]
+    assert n * look["checker_cell_m"] == pytest.approx(cloth.size[0])
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    centres = np.asarray(cloth.origin) + look["checker_cell_m"] * np.stack(
+        [i.ravel() + 0.5, np.zeros(i.size), j.ravel() + 0.5], axis=1
+    )
+    first_is_rgb1 = look["cell_at_origin_corner"] == "rgb1"
+    expect_blue = ((i + j).ravel() % 2 == 0) == first_is_rgb1
+    C, _, H, W, _ = obs.images.shape
+    for c in range(C):
+        cam = Camera(obs.K[c], obs.world_to_camera[c], W, H)
+        px = np.round(_project(cam, centres)).astype(int)
+        rgb = obs.image(c, 0)[px[:, 1], px[:, 0]]
+        blue = rgb[:, 2] > rgb[:, 0]
+        assert np.mean(blue == expect_blue) > 0.9, c
+
+
 @pytest.mark.parametrize("name", ["mujoco_cube", "newton_box"])
 def test_soft_solid_meets_the_scenes_ground(name):
     meta = _meta(name)

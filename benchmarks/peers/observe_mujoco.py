@@ -306,7 +306,7 @@ def _cloth_video(mujoco, model, x: np.ndarray, args: argparse.Namespace) -> dict
             "cells_along_each_side": round(CLOTH["size"] / k["cell"]),
             "background_rgb": k["background"],
             "lighting": "one directional light (diffuse 0.65, direction (-0.3, -1, -0.5) in pliant axes) + "
-            "ambient 0.35, no specular (Lambertian), no shadows; both faces lit",
+            "ambient 0.35 (MuJoCo's headlight), no specular (Lambertian), no shadows",
         },
         "masks": "MuJoCo's segmentation rendering: pixels whose object is the flex",
         "pixel_noise": 0.0,
