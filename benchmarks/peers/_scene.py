@@ -41,12 +41,12 @@ def box_tets(n: int) -> tuple[np.ndarray, np.ndarray]:
     return points, cells[:, _KUHN].reshape(-1, 4).astype(np.int32)
 
 
-def lumped_mass(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    """ρV/4 per tet vertex, as pliant and Newton lump it."""
+def lumped_mass(points: np.ndarray, tets: np.ndarray, density: float = DENSITY) -> np.ndarray:
+    """ρV/4 per tet vertex [kg], as pliant and Newton lump it (``density`` ρ in kg/m³)."""
     p = points[tets]
     vol = np.abs(np.einsum("ij,ij->i", p[:, 1] - p[:, 0], np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]))) / 6
     m = np.zeros(len(points))
-    np.add.at(m, tets.ravel(), np.repeat(vol * DENSITY / 4.0, 4))
+    np.add.at(m, tets.ravel(), np.repeat(vol * density / 4.0, 4))
     return m
 
 
