@@ -12,20 +12,13 @@ import warnings
 import numpy as np
 import pytest
 import warp as wp
-from helpers import integrator_id
+from helpers import SYSTEM_INTEGRATORS, integrator_id
 
 import pliant as pl
 
 I = pl.integrators
-EXPLICIT = [
-    I.ForwardEuler(),
-    I.Heun(),
-    I.Midpoint(),
-    I.RK2(alpha=0.25, beta=0.75, a=0.0, b=2.0 / 3.0),
-    I.RK4(),
-    I.SymplecticEuler(),
-    I.VelocityVerlet(),
-]
+#: Every registered explicit integrator that steps physical models (a new one is checked too).
+EXPLICIT = [i for i in SYSTEM_INTEGRATORS if i.explicit]
 STEPS = 20
 DT = 1e-3
 

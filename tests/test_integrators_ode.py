@@ -6,35 +6,15 @@ import numpy as np
 import pytest
 
 import pliant as pl
-from tests.helpers import ALL_INTEGRATORS, fresh, integrator_id
+from tests.helpers import ALL_INTEGRATORS, check_ode_order, fresh, integrator_id
 
 I = pl.integrators
-
-
-def _oscillator_errors(integ, t_end=8.0, ks=range(2, 10), floor=1e-11):
-    """(dt, error) on x'' = −x, x(0)=1, v(0)=0, refining until the error reaches ``floor`` (round-off)."""
-    osc = I.harmonic_oscillator()
-    out = []
-    for k in ks:
-        dt = 2.0**-k
-        sol = integ.solve(osc, (1.0, 0.0), t_end, dt)
-        err = max(abs(sol.x[-1, 0] - np.cos(t_end)), abs(sol.v[-1, 0] + np.sin(t_end)))
-        if err < floor:
-            break
-        out.append((dt, err))
-    return np.array(out)
 
 
 @pytest.mark.parametrize("integ", ALL_INTEGRATORS, ids=integrator_id)
 def test_order_ode(integ):
     """The global error at T = 8 on the oscillator shrinks like dt**order (±0.15, last 4 refinements)."""
-    d = _oscillator_errors(fresh(integ))
-    assert d.shape[0] >= 3, f"{integ.name}: too few points above round-off: {d}"
-    d = d[-4:]
-    slope = np.polyfit(np.log(d[:, 0]), np.log(d[:, 1]), 1)[0]
-    assert abs(slope - integ.order) <= 0.15, (
-        f"{integ.name}: measured order {slope:.3f}, declared {integ.order}"
-    )
+    check_ode_order(fresh(integ))
 
 
 def _energy_ratios(integ, m=2.0, k=3.0, dt=0.1, steps=50):

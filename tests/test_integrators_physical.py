@@ -48,16 +48,7 @@ def test_implicit_midpoint_conserves_energy_physical():
     assert abs(oscillator_energy(s, k=k, m=m, rest=rest) / e0 - 1.0) < 1e-12
 
 
-PHYSICAL_ORDER = [
-    I.ForwardEuler(),
-    I.Heun(),
-    I.RK4(),
-    I.SymplecticEuler(),
-    I.VelocityVerlet(),
-    I.BackwardEuler(newton_tol=1e-12),
-    I.ImplicitMidpoint(newton_tol=1e-12),
-    I.BDF2(newton_tol=1e-12),
-]
+PHYSICAL_ORDER = SYSTEM_INTEGRATORS
 
 
 @pytest.mark.parametrize("integ", PHYSICAL_ORDER, ids=integrator_id)
@@ -116,7 +107,7 @@ def test_momentum_conserved(integ):
     assert np.isfinite(s.particle_q.numpy()).all()
 
 
-STIFF_EXPLICIT = [I.ForwardEuler(), I.Heun(), I.RK4(), I.SymplecticEuler(), I.VelocityVerlet()]
+STIFF_EXPLICIT = [i for i in SYSTEM_INTEGRATORS if i.explicit]
 
 
 def _stiff_sim(integ):

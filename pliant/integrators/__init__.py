@@ -8,7 +8,40 @@ from ._problems import ODEProblem, SecondOrderODE, harmonic_oscillator, lecture_
 from ._symplectic import SymplecticEuler
 from ._verlet import Leapfrog, VelocityVerlet
 
+
+def registered_integrators() -> tuple[type[Integrator], ...]:
+    """Every integrator class that exists now and can be made without arguments, sorted by name.
+
+    Found by walking :class:`Integrator`'s subclasses, so an integrator defined anywhere (a user's, a
+    test's) is found once its class is created; classes whose constructor needs arguments (the generic
+    :class:`ExplicitRK`, which needs a tableau) and private ones (a leading ``_``) are left out.
+    ``tests/test_integrator_contracts.py`` checks each one's declared order, its momentum conservation and
+    its flags.
+    """
+    import inspect
+
+    found: set[type[Integrator]] = set()
+    todo = list(Integrator.__subclasses__())
+    while todo:
+        cls = todo.pop()
+        todo.extend(cls.__subclasses__())
+        if cls.__name__.startswith("_") or inspect.isabstract(cls):
+            continue
+        required = [
+            p
+            for p in list(inspect.signature(cls.__init__).parameters.values())[1:]
+            if p.default is p.empty and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
+        ]
+        if not required:
+            found.add(cls)
+    return tuple(sorted(found, key=lambda c: c.__name__))
+
+
+#: pliant's own integrators (:func:`registered_integrators` at import), one class each.
+ALL_INTEGRATORS: tuple[type[Integrator], ...] = registered_integrators()
+
 __all__ = [
+    "ALL_INTEGRATORS",
     "BDF2",
     "RK2",
     "RK4",
@@ -30,4 +63,5 @@ __all__ = [
     "VelocityVerlet",
     "harmonic_oscillator",
     "lecture_oscillator",
+    "registered_integrators",
 ]
