@@ -193,3 +193,11 @@ def test_implicit_fast_mass_spring_replays_with_device_side_cg_stop(device):
     assert graphed._graphs.replays >= 4
     # the direct run stopped CG early, so the comparison is against the early stop
     assert 0 < direct.solver.last_cg_iterations < 200
+
+
+def test_environment_switch_turns_graphs_off(monkeypatch):
+    monkeypatch.setenv("PLIANT_GRAPH", "0")
+    sim = _cloth()
+    assert sim.graph_reason == "graph=False" and sim._graphs is None
+    monkeypatch.setenv("PLIANT_GRAPH", "1")
+    assert _cloth().graph_reason is None

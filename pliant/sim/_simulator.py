@@ -112,6 +112,7 @@ class Simulator:
         graph: replay each frame as a captured graph (CUDA graphs; Warp's CPU graphs on the CPU) when the
             solver allows it. None (default): whenever it does (``graph_reason`` says why not otherwise);
             True: require it (ValueError with the reason if the solver cannot); False: launch by launch.
+            ``PLIANT_GRAPH=0`` in the environment turns the automatic choice off for a whole command.
 
     Example::
 
@@ -189,6 +190,8 @@ class Simulator:
         with the reason when the solver cannot), or launch by launch (False). See ``graph`` in the class."""
         if graph is not None and not isinstance(graph, bool):
             raise TypeError(f"graph must be True, False or None (automatic), got {graph!r}")
+        if graph is None and os.environ.get("PLIANT_GRAPH", "1") == "0":
+            graph = False  # the environment switch for a whole command (comparing, troubleshooting)
         why = "graph=False" if graph is False else self.solver.graph_blocker()
         if why is not None and graph:
             raise ValueError(f"graph=True: a frame cannot be replayed as a graph: {why}; pass graph=None")
