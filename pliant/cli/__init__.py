@@ -34,10 +34,49 @@ class _Parser(argparse.ArgumentParser):
     """argparse with pliant's exit code for usage mistakes: 1 (argparse's 2 means "diverged" here)."""
 
     def error(self, message: str) -> NoReturn:
+        import difflib
+        import re
+
         self.print_usage(sys.stderr)
         command = self.prog.removeprefix("pliant").strip()  # "run" for `pliant run`'s parser
+        m = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)", message)
+        if m:  # a misspelled command or choice
+            # Python < 3.12.8 quotes the choices, later versions do not.
+            choices = re.findall(r"'([^']*)'", m.group(2)) or [c.strip() for c in m.group(2).split(",")]
+            close = difflib.get_close_matches(m.group(1), choices, n=1)
+            message += f"; did you mean {close[0]!r}?" if close else ""
         _error(f"{command}: {message}" if command else message)
         raise SystemExit(EXIT_USER)
+
+    def parse_args(self, args: Sequence[str] | None = None, namespace: Any = None) -> argparse.Namespace:
+        """As argparse, but an unknown option is reported by its command's parser with the closest known
+        option (argparse's ``suggest_on_error`` exists only from Python 3.14, and not for options)."""
+        ns, extra = self.parse_known_args(args, namespace)
+        if extra:
+            parser = self._command_parser(getattr(ns, "command", None))
+            parser.error(unrecognized(extra, parser))
+        return ns
+
+    def _command_parser(self, command: str | None) -> argparse.ArgumentParser:
+        for action in self._actions:
+            if isinstance(action, argparse._SubParsersAction) and command in action.choices:
+                return action.choices[command]
+        return self
+
+
+def unrecognized(extra: Sequence[str], parser: argparse.ArgumentParser) -> str:
+    """argparse's "unrecognized arguments" message, with "did you mean" for each misspelled option."""
+    import difflib
+
+    known = [o for a in parser._actions for o in a.option_strings if o.startswith("--")]
+    hints = []
+    for arg in extra:
+        name = arg.split("=", 1)[0]
+        if name.startswith("-"):
+            close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+            if close:
+                hints.append(f"{name}: did you mean {close[0]}?")
+    return "unrecognized arguments: " + " ".join(extra) + "".join(f"; {h}" for h in hints)
 
 
 def _examples(*lines: str) -> str:
@@ -189,7 +228,7 @@ def build_parser() -> argparse.ArgumentParser:
         "export",
         "export a trajectory NPZ to USD (one prim per object), VTU/XDMF (ParaView), PLY / OBJ",
         "pliant export out/cloth.npz --out cloth.usd          # Blender, Omniverse",
-        "pliant export out/fem_drop.npz --format vtu --out vtu/   # ParaView: open vtu/fem_drop.pvd",
+        "pliant export out/fem_drop.npz --format vtu --out vtu/   # ParaView: open vtu/frame_series.pvd",
         "pliant export out/fem_drop.npz --out fem_drop.xdmf",
         "pliant export out/rope.npz --format obj --out frames/",
         "pliant export out/rope.npz --out last.ply --frame -1",

@@ -75,12 +75,17 @@ def _apply_overrides(cfg: Any, args: argparse.Namespace) -> None:
     if getattr(args, "integrator", None):
         from ..scene import integrator_names
 
-        names = integrator_names()
+        # Only those a scene can step with: the list an error prints is the list that is accepted.
+        names = integrator_names(system_only=True)
         key = args.integrator.lower().replace("-", "").replace("_", "")
         if not any(n.lower() == key for n in names):
-            raise CliError(
-                f"--integrator: unknown integrator {args.integrator!r}; available: {', '.join(names)}"
+            ode = next((n for n in integrator_names() if n.lower() == key), None)
+            why = (
+                f"{ode} integrates ODEs only, not a scene"
+                if ode
+                else f"unknown integrator {args.integrator!r}"
             )
+            raise CliError(f"--integrator: {why}; available: {', '.join(names)}")
         cfg.solver.integrator = args.integrator
         cfg.solver.integrator_options = {}
     if getattr(args, "checkpoint_every", None) is not None:
@@ -108,7 +113,7 @@ def simulate(
     """
     import numpy as np
 
-    from ..io._paths import OutputPathError, check_file_stem, confined
+    from ..io._paths import OutputPathError, check_file_stem, check_writable_dir, confined
     from ..scene import build_scene
     from ..sim import DivergenceError
 
@@ -117,6 +122,7 @@ def simulate(
         traj_path, video_path, ckpt, render_path = (
             confined(out, f"{name}{suffix}") for suffix in (".npz", ".mp4", ".ckpt.npz", ".render.npz")
         )
+        check_writable_dir(out)  # a forbidden --out fails now, not after the simulation
     except OutputPathError as exc:
         raise CliError(str(exc)) from None
     want_video = video and cfg.output.video

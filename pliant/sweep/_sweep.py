@@ -322,7 +322,9 @@ def _ray_map(scene: str, chunks: list, frames: int | None, traj_dir: str | None,
     try:
         import ray
     except ImportError:
-        raise SweepError("--ray needs Ray, an optional extra: pip install 'pliant[ray]'") from None
+        from .._extras import pip_install
+
+        raise SweepError(f"--ray needs Ray, an optional extra: {pip_install('ray')}") from None
     started = not ray.is_initialized()
     if started:
         ray.init(address=address, include_dashboard=False, log_to_driver=False, ignore_reinit_error=True)
