@@ -61,10 +61,7 @@ def _without_line_on_stderr(needle: bytes) -> Iterator[None]:
     import sys
     import tempfile
 
-    try:
-        fd = sys.stderr.fileno()
-    except (AttributeError, OSError, ValueError):  # a replaced sys.stderr (pytest capture, notebooks)
-        fd = 2
+    fd = 2  # C's stderr, whatever sys.stderr has been replaced with (pytest capture, notebooks)
     try:
         sys.stderr.flush()
         saved = os.dup(fd)

@@ -125,7 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
             "pliant demo                      # the cloth demo: out/demo.mp4",
             "pliant scenes                    # the built-in scenes",
             "pliant run rope --frames 60      # a built-in scene",
-            "pliant run my_scene.toml --set objects[0].material.stiffness=200",
+            "pliant run my_scene.toml --set 'objects[0].material.stiffness=200'",
             "pliant export out/rope.npz --out rope.usd",
             "pliant COMMAND --help            # each command's options",
         )
@@ -155,7 +155,7 @@ def build_parser() -> argparse.ArgumentParser:
         "run a scene file or a built-in scene (`pliant scenes` lists them)",
         "pliant run cloth",
         "pliant run my_scene.toml --frames 100 --device cuda:0 --out results",
-        "pliant run rope --set objects[0].material.stiffness=200 --set scene.frames=10",
+        "pliant run rope --set 'objects[0].material.stiffness=200' --set scene.frames=10",
         "pliant run rope --integrator RK4 --no-video",
         "pliant run my_scene.toml --resume            # continue after Ctrl-C",
     )
@@ -245,9 +245,10 @@ def build_parser() -> argparse.ArgumentParser:
         sub,
         "sweep",
         "run a scene over a grid of --set values (batched copies, or Ray tasks) into DIR/results.csv",
-        "pliant sweep cloth --set objects[0].material.stiffness=100,200,400 --out sweep/",
-        "pliant sweep rope --set objects[0].material.stiffness=50,100 --set solver.damping_rate=0,1 --out s/",
-        "pliant sweep cloth --set objects[0].material.stiffness=100,200 --ray --out sweep/   # pliant[ray]",
+        "pliant sweep cloth --set 'objects[0].material.stiffness=100,200,400' --out sweep/",
+        "pliant sweep rope --set 'objects[0].material.stiffness=50,100' --set solver.damping_rate=0,1 "
+        "--out s/",
+        "pliant sweep cloth --set 'objects[0].material.stiffness=100,200' --ray --out sweep/   # pliant[ray]",
     )
     sw.add_argument("scene", metavar="SCENE")
     sw.add_argument(

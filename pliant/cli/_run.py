@@ -100,8 +100,8 @@ def mesh_instead_of_scene(scene: str) -> str | None:
     if v is not None:
         lines += [
             "[scene]",
-            f"substeps = {v['substeps']}   # explicit steps per frame: ω·Δt ≤ {MESH_OMEGA_DT:g} (< 2) for the "
-            "stiffest particle",
+            f"substeps = {v['substeps']}   # explicit steps per frame: ω·Δt ≤ {MESH_OMEGA_DT:g} (< 2) for "
+            "the stiffest particle",
         ]
     lines += ["[[objects]]", 'kind = "mesh"', f'path = "{p.name}"']
     if v is not None:

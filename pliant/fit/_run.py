@@ -262,7 +262,9 @@ def write_outputs(
         "error": {k: _finite(v) for k, v in problem.split_errors(x).items()},
         "error_nominal": {k: _finite(v) for k, v in problem.split_errors(x_nom).items()},
         "error_per_frame": [_finite(v) for v in err],
-        "error_unit": "m (mean distance between visible tracks and their particles)",
+        "error_unit": "m (mean distance between visible tracks and their particles)"
+        if problem.obs.tracks
+        else "none: the observation has no tracks (the image error is under photometric)",
     }
     ylabel, scale = "track error [mm]", 1e3
     if hasattr(problem, "image_report"):  # photometric fits: per-frame image loss and PSNR
