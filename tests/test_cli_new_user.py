@@ -242,3 +242,42 @@ def test_quoted_override_runs(tmp_path):
     assert main([*args[1:], "--out", str(tmp_path), "--device", "cpu"]) == 0
     meta = pl.Trajectory.load(tmp_path / "rope.npz").meta
     assert meta["objects"][0]["kind"] == "rope"
+
+
+# ------------------------------------------------------------------------------------------- fit videos
+def test_tracking_fit_video_draws_a_rope_as_one_line():
+    """fit.mp4 of a rope: beads along the links make the rope one connected shape in the picture (it was
+    loose dots: one blob per particle)."""
+    from types import SimpleNamespace
+
+    from scipy import ndimage
+
+    from pliant.fit._run import _with_rope_beads
+    from pliant.render import Camera, Renderer
+
+    n = 9
+    x = np.zeros((1, n, 3))
+    x[0, :, 0] = np.linspace(-0.4, 0.4, n)  # 10 cm links
+    x[0, :, 1] = 0.5
+    scene = SimpleNamespace(model=SimpleNamespace(objects=[{"kind": "rope", "start": 0, "count": n}]))
+    colors = np.tile([0.91, 0.42, 0.16], (1, n, 1))
+    r = 0.01
+    pts, cols, rad = _with_rope_beads(scene, x, x, colors, np.full(n, r), r)
+    assert pts.shape[1] == n + (n - 1) * 10 and cols.shape[:2] == pts.shape[:2] and len(rad) == pts.shape[1]
+    cam = Camera.fit(x[0], width=320, height=120)
+    blobs = []
+    for p, c, rr in ((x[0], colors[0], np.full(n, r)), (pts[0], cols[0], rad)):
+        img = Renderer(cam, ground=False).render(p, colors=c, point_radius=rr).astype(int)
+        mask = (img.max(axis=2) - img.min(axis=2)) > 60  # the orange particles
+        blobs.append(ndimage.label(mask)[1])
+    assert blobs == [n, 1], blobs
+
+
+def test_splat_fit_video_is_labelled():
+    from pliant.fit._photometric import _label
+
+    frame = np.full((72, 200, 3), 90, np.uint8)
+    out = _label(frame, [(0, "observed, camera 0"), (102, "fitted (splats)")])
+    white = np.all(out > 240, axis=2)
+    assert white[:16, :100].sum() > 30 and white[:16, 102:].sum() > 30  # text on both halves
+    assert not white[20:].any()  # and nothing below the label strip

@@ -76,8 +76,9 @@ def grid(sets: Sequence[str]) -> list[list[str]]:
 
 
 def summarize(x: np.ndarray, frame_dt: float) -> dict[str, float]:
-    """Summary figures of positions ``x`` [T, N, 3] [m]: the final centroid [m], the sag (drop of the
-    centroid's height from frame 0 to the last) [m] and the largest particle speed between frames [m/s]."""
+    """Summary figures of positions ``x`` (metres, shape [T, N, 3]): the final centroid [m], the sag (drop
+    of the centroid's height from frame 0 to the last) [m] and the largest particle speed between frames
+    [m/s]."""
     c0, c1 = x[0].mean(axis=0), x[-1].mean(axis=0)
     speed = np.linalg.norm(np.diff(x, axis=0), axis=2).max() / frame_dt if len(x) > 1 else 0.0
     return {
