@@ -145,9 +145,10 @@ def code_blocks(page: Path) -> list[tuple[str, str]]:
     return re.findall(r"^```(python|bash)\n(.*?)^```", page.read_text(encoding="utf-8"), re.S | re.M)
 
 
-def _run_command(line: str, cwd: Path) -> None:
-    # `pliant ...` lines run this checkout's CLI as written (the console script is `python -m pliant.cli`).
-    args = shlex.split(line)
+def _run_command(line: str, cwd: Path) -> str:
+    # `pliant ...` lines run this checkout's CLI as written (the console script is `python -m pliant.cli`);
+    # returns what it printed.
+    args = shlex.split(line, comments=True)
     assert args[0] == "pliant", f"only pliant commands are run from pages: {line!r}"
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     r = subprocess.run(
@@ -159,6 +160,7 @@ def _run_command(line: str, cwd: Path) -> None:
         timeout=300,
     )
     assert r.returncode == 0, f"{line!r} exited {r.returncode}:\n{r.stdout[-2000:]}{r.stderr[-2000:]}"
+    return r.stdout
 
 
 @pytest.mark.parametrize("page", EXECUTED_PAGES, ids=lambda p: p.stem)
@@ -219,6 +221,23 @@ def test_readme_python_runs_as_written(tmp_path, monkeypatch):
     script.write_text("".join(f"# README.md python block {i + 1}\n{code}" for i, code in enumerate(blocks)))
     runpy.run_path(str(script), run_name="docs_readme")
     assert (tmp_path / "cloth.mp4").stat().st_size > 0
+
+
+@pytest.mark.slow
+def test_readme_fit_figures_are_what_the_commands_print(tmp_path):
+    """The README's fitting commands, run as written, print the figures the README quotes."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    block = next(
+        c for lang, c in code_blocks(ROOT / "README.md") if lang == "bash" and "pliant fit fit_rope" in c
+    )
+    printed = ""
+    for line in block.splitlines():
+        if line.startswith(("pliant observe", "pliant fit")):
+            printed += _run_command(line, tmp_path)
+    flat = " ".join(readme.split())  # the README wraps long quotes over lines
+    for prefix in ("stiffness:", "damping_rate:", "track error:"):
+        quoted = next(ln for ln in printed.splitlines() if ln.startswith(prefix))
+        assert f"`{quoted}`" in flat, f"README does not quote {quoted!r}"
 
 
 def test_every_page_is_in_the_nav():

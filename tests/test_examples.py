@@ -29,26 +29,22 @@ SLOW_AT_DEFAULTS = {"fit_rope"}
 def test_example_passes_its_checks_at_its_documented_settings(name, tmp_path):
     """The example exits 0 with --test at its default (documented) frame count: its test_final() checks
     hold for the run a user starts, not only for a short CI run (rope_worlds' did not)."""
-    proc = subprocess.run(
-        [sys.executable, "-m", "pliant.examples", name, "--test", "--device", "cpu"],
-        capture_output=True,
-        text=True,
-        timeout=600,
-        cwd=tmp_path,
-        env=ENV,
-    )
-    assert proc.returncode == 0, f"{name} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}"
+    _passes(name, tmp_path)
 
 
 @pytest.mark.parametrize("name", sorted(SLOW_AT_DEFAULTS))
 def test_example_passes_its_checks(name, tmp_path):
     """The slow examples exit 0 with --test --frames 20 (their test_final() assertions hold)."""
+    _passes(name, tmp_path, "--frames", "20")
+
+
+def _passes(name: str, cwd: Path, *extra: str) -> None:
     proc = subprocess.run(
-        [sys.executable, "-m", "pliant.examples", name, "--test", "--frames", "20", "--device", "cpu"],
+        [sys.executable, "-m", "pliant.examples", name, "--test", "--device", "cpu", *extra],
         capture_output=True,
         text=True,
-        timeout=300,
-        cwd=tmp_path,
+        timeout=600,
+        cwd=cwd,
         env=ENV,
     )
     assert proc.returncode == 0, f"{name} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}"

@@ -167,8 +167,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=[],
         metavar="PATH=VALUE",
         dest="overrides",
-        help="override any scene field, e.g. objects[0].material.stiffness=200 or solver.integrator=RK4 "
-        "(VALUE is a TOML value, else a string; repeatable)",
+        help="override any scene field, e.g. 'objects[0].material.stiffness=200' (quoted: [ ] are shell "
+        "patterns) or solver.integrator=RK4 (VALUE is a TOML value, else a string; repeatable)",
     )
     r.add_argument("--frame-dt", type=_positive_float, help="override [scene] frame_dt: frame duration [s]")
     r.add_argument("--dt", type=_positive_float, help="deprecated name of --frame-dt")
