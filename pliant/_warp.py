@@ -24,8 +24,61 @@ def init() -> None:
             wp.config.log_level = wp.LOG_WARNING
         else:  # older Warp
             wp.config.quiet = True
-    wp.init()
+    if os.environ.get("PLIANT_VERBOSE") or _cuda_driver_present():
+        wp.init()
+    else:
+        with _without_line_on_stderr(_NO_DRIVER):
+            wp.init()
     _initialised = True
+
+
+#: Warp's native library prints this on every start of a machine without the NVIDIA driver: noise on a
+#: CPU-only machine, where ``pliant info`` already says "cuda: not available (CPU only)".
+_NO_DRIVER = b"Could not find or load the NVIDIA CUDA driver"
+
+
+def _cuda_driver_present() -> bool:
+    """Whether the CUDA driver library that Warp looks for (libcuda / nvcuda.dll) loads."""
+    import ctypes
+    import sys
+
+    if sys.platform == "darwin":  # Warp has no CUDA there and prints nothing about it
+        return True
+    names = ("nvcuda.dll",) if sys.platform == "win32" else ("libcuda.so", "libcuda.so.1")
+    for name in names:
+        try:
+            ctypes.CDLL(name)
+            return True
+        except OSError:
+            continue
+    return False
+
+
+@contextlib.contextmanager
+def _without_line_on_stderr(needle: bytes) -> Iterator[None]:
+    """Run the body with file descriptor 2 captured (native code writes there, not to ``sys.stderr``) and
+    write back every captured line except those containing ``needle``."""
+    import sys
+    import tempfile
+
+    fd = 2  # C's stderr, whatever sys.stderr has been replaced with (pytest capture, notebooks)
+    try:
+        sys.stderr.flush()
+        saved = os.dup(fd)
+    except OSError:
+        yield
+        return
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), fd)
+        try:
+            yield
+        finally:
+            os.dup2(saved, fd)
+            os.close(saved)
+            tmp.seek(0)
+            kept = [line for line in tmp.read().splitlines(keepends=True) if needle not in line]
+            if kept:
+                os.write(fd, b"".join(kept))
 
 
 DTYPES = ("float32", "float64")

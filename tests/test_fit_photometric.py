@@ -271,7 +271,16 @@ def test_cli_observe_cameras_then_fit(tmp_path, capsys):
     rep = json.loads((out / "fit.json").read_text())
     # 8-bit images: quantisation noise of 1/510 rms per channel still leaves the stiffness within 5 %
     assert rep["params"]["stiffness"]["value"] == pytest.approx(50.0, rel=0.05)
-    assert "image loss: train" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "image loss: train" in printed
+    # No tracks: fit.json's error is null and says so; the PSNR in fit.json is what the command prints.
+    assert rep["error"]["train"] is None and rep["error_unit"].startswith(
+        "none: the observation has no tracks"
+    )
+    ph = rep["photometric"]
+    psnr = ph["fitted"]["psnr_test_db"]
+    assert psnr == pytest.approx(-10 * np.log10(ph["fitted"]["loss_test"]))
+    assert f"PSNR: train {ph['fitted']['psnr_train_db']:.1f} dB, test {psnr:.1f} dB" in printed
     assert (out / "fit.png").stat().st_size > 0 and len(rep["photometric"]["fitted"]["loss_per_frame"]) == 7
     assert main(["observe", str(truth), "--out", str(obs), "--cameras", "2", "--image-size", "24by18"]) == 1
     assert "--image-size: expected WxH" in capsys.readouterr().err

@@ -77,7 +77,7 @@ def test_bad_trajectory_and_missing_viser_are_clear_errors(tmp_path, monkeypatch
     import pliant.render._viewer as viewer
 
     monkeypatch.setitem(sys.modules, "viser", None)
-    with pytest.raises(viewer.ViewerError, match=r"pliant\[viewer\]"):
+    with pytest.raises(viewer.ViewerError, match=r"pip install -e '\.\[viewer\]'"):  # a checkout's advice
         viewer.serve_viewer(_trajectory())
 
 

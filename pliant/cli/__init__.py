@@ -34,10 +34,49 @@ class _Parser(argparse.ArgumentParser):
     """argparse with pliant's exit code for usage mistakes: 1 (argparse's 2 means "diverged" here)."""
 
     def error(self, message: str) -> NoReturn:
+        import difflib
+        import re
+
         self.print_usage(sys.stderr)
         command = self.prog.removeprefix("pliant").strip()  # "run" for `pliant run`'s parser
+        m = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)", message)
+        if m:  # a misspelled command or choice
+            # Python < 3.12.8 quotes the choices, later versions do not.
+            choices = re.findall(r"'([^']*)'", m.group(2)) or [c.strip() for c in m.group(2).split(",")]
+            close = difflib.get_close_matches(m.group(1), choices, n=1)
+            message += f"; did you mean {close[0]!r}?" if close else ""
         _error(f"{command}: {message}" if command else message)
         raise SystemExit(EXIT_USER)
+
+    def parse_args(self, args: Sequence[str] | None = None, namespace: Any = None) -> argparse.Namespace:
+        """As argparse, but an unknown option is reported by its command's parser with the closest known
+        option (argparse's ``suggest_on_error`` exists only from Python 3.14, and not for options)."""
+        ns, extra = self.parse_known_args(args, namespace)
+        if extra:
+            parser = self._command_parser(getattr(ns, "command", None))
+            parser.error(unrecognized(extra, parser))
+        return ns
+
+    def _command_parser(self, command: str | None) -> argparse.ArgumentParser:
+        for action in self._actions:
+            if isinstance(action, argparse._SubParsersAction) and command in action.choices:
+                return action.choices[command]
+        return self
+
+
+def unrecognized(extra: Sequence[str], parser: argparse.ArgumentParser) -> str:
+    """argparse's "unrecognized arguments" message, with "did you mean" for each misspelled option."""
+    import difflib
+
+    known = [o for a in parser._actions for o in a.option_strings if o.startswith("--")]
+    hints = []
+    for arg in extra:
+        name = arg.split("=", 1)[0]
+        if name.startswith("-"):
+            close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+            if close:
+                hints.append(f"{name}: did you mean {close[0]}?")
+    return "unrecognized arguments: " + " ".join(extra) + "".join(f"; {h}" for h in hints)
 
 
 def _examples(*lines: str) -> str:
@@ -86,7 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
             "pliant demo                      # the cloth demo: out/demo.mp4",
             "pliant scenes                    # the built-in scenes",
             "pliant run rope --frames 60      # a built-in scene",
-            "pliant run my_scene.toml --set objects[0].material.stiffness=200",
+            "pliant run my_scene.toml --set 'objects[0].material.stiffness=200'",
             "pliant export out/rope.npz --out rope.usd",
             "pliant COMMAND --help            # each command's options",
         )
@@ -116,7 +155,7 @@ def build_parser() -> argparse.ArgumentParser:
         "run a scene file or a built-in scene (`pliant scenes` lists them)",
         "pliant run cloth",
         "pliant run my_scene.toml --frames 100 --device cuda:0 --out results",
-        "pliant run rope --set objects[0].material.stiffness=200 --set scene.frames=10",
+        "pliant run rope --set 'objects[0].material.stiffness=200' --set scene.frames=10",
         "pliant run rope --integrator RK4 --no-video",
         "pliant run my_scene.toml --resume            # continue after Ctrl-C",
     )
@@ -128,8 +167,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=[],
         metavar="PATH=VALUE",
         dest="overrides",
-        help="override any scene field, e.g. objects[0].material.stiffness=200 or solver.integrator=RK4 "
-        "(VALUE is a TOML value, else a string; repeatable)",
+        help="override any scene field, e.g. 'objects[0].material.stiffness=200' (quoted: [ ] are shell "
+        "patterns) or solver.integrator=RK4 (VALUE is a TOML value, else a string; repeatable)",
     )
     r.add_argument("--frame-dt", type=_positive_float, help="override [scene] frame_dt: frame duration [s]")
     r.add_argument("--dt", type=_positive_float, help="deprecated name of --frame-dt")
@@ -189,7 +228,7 @@ def build_parser() -> argparse.ArgumentParser:
         "export",
         "export a trajectory NPZ to USD (one prim per object), VTU/XDMF (ParaView), PLY / OBJ",
         "pliant export out/cloth.npz --out cloth.usd          # Blender, Omniverse",
-        "pliant export out/fem_drop.npz --format vtu --out vtu/   # ParaView: open vtu/fem_drop.pvd",
+        "pliant export out/fem_drop.npz --format vtu --out vtu/   # ParaView: open vtu/frame_series.pvd",
         "pliant export out/fem_drop.npz --out fem_drop.xdmf",
         "pliant export out/rope.npz --format obj --out frames/",
         "pliant export out/rope.npz --out last.ply --frame -1",
@@ -206,9 +245,10 @@ def build_parser() -> argparse.ArgumentParser:
         sub,
         "sweep",
         "run a scene over a grid of --set values (batched copies, or Ray tasks) into DIR/results.csv",
-        "pliant sweep cloth --set objects[0].material.stiffness=100,200,400 --out sweep/",
-        "pliant sweep rope --set objects[0].material.stiffness=50,100 --set solver.damping_rate=0,1 --out s/",
-        "pliant sweep cloth --set objects[0].material.stiffness=100,200 --ray --out sweep/   # pliant[ray]",
+        "pliant sweep cloth --set 'objects[0].material.stiffness=100,200,400' --out sweep/",
+        "pliant sweep rope --set 'objects[0].material.stiffness=50,100' --set solver.damping_rate=0,1 "
+        "--out s/",
+        "pliant sweep cloth --set 'objects[0].material.stiffness=100,200' --ray --out sweep/   # pliant[ray]",
     )
     sw.add_argument("scene", metavar="SCENE")
     sw.add_argument(

@@ -16,7 +16,7 @@ def add_parsers(sub: Any) -> None:
         sub,
         "fit",
         "fit a scene's parameters to observed motion (observation NPZ)",
-        "pliant observe fit_rope --out obs.npz --set objects[0].material.stiffness=480   # the 'real' rope",
+        "pliant observe fit_rope --out obs.npz --set 'objects[0].material.stiffness=480'   # the 'real' rope",
         "pliant fit fit_rope obs.npz --out fit/                        # the material, both stages",
         "pliant fit cloth obs.npz --out fit/ --params stiffness --per-element stiffness",
         "pliant run fit/fitted.toml                                    # the fitted scene",
@@ -227,6 +227,16 @@ def cmd_fit(args: argparse.Namespace) -> int:
         ph = report["photometric"]["fitted"]
         test = "n/a" if ph["loss_test"] is None else f"{ph['loss_test']:.4g}"
         print(f"image loss: train {ph['loss_train']:.4g}, test {test} (mean squared error per pixel)")
+        if "psnr_test_db" in ph:  # without masks the loss is the colour MSE: the PSNR the README quotes
+            psnr = report["photometric"]
+
+            def db(v: float | None) -> str:
+                return "n/a" if v is None else f"{v:.1f} dB"
+
+            print(
+                f"PSNR: train {db(ph.get('psnr_train_db'))}, test {db(ph.get('psnr_test_db'))} (nominal: "
+                f"{db(psnr['nominal'].get('psnr_train_db'))}, {db(psnr['nominal'].get('psnr_test_db'))})"
+            )
     e, e0 = report["error"], report["error_nominal"]
 
     def mm(v: float | None) -> str:

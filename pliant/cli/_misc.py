@@ -146,15 +146,19 @@ def cmd_export(args: argparse.Namespace) -> int:
             paths = render.export_vtu_series(out, traj)
             print(f"wrote {len(paths)} VTU files and {out / 'frame_series.pvd'} (open the .pvd in ParaView)")
         return EXIT_OK
+    from ..render._export_objects import curve_segments
+
+    # OBJ has polylines (`l`): a rope is written as its links; PLY keeps its vertices only.
+    extra = {"lines": curve_segments(traj)} if fmt == "obj" else {}
     single = {"ply": render.export_ply, "obj": render.export_obj}[fmt]
     if args.frame is not None:
         k = args.frame
         if not -traj.frame_count <= k < traj.frame_count:
             raise CliError(f"--frame {k} out of range: the trajectory has {traj.frame_count} frames")
-        path = single(out, traj.x[k], traj.faces)
+        path = single(out, traj.x[k], traj.faces, **extra)
         print(f"wrote {path}")
         return EXIT_OK
     seq = {"ply": render.export_ply_sequence, "obj": render.export_obj_sequence}[fmt]
-    paths = seq(out, traj.x, traj.faces)
+    paths = seq(out, traj.x, traj.faces, **extra)
     print(f"wrote {len(paths)} {fmt.upper()} files to {out}/ ({paths[0].name} ... {paths[-1].name})")
     return EXIT_OK

@@ -15,34 +15,116 @@ from . import EXIT_DIVERGED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USER, CliError
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".msh", ".vtk", ".vtu", ".off", ".mesh")
 
 
+#: Strain under the body's own weight that the suggested spring stiffness gives (1 %: it keeps its shape).
+MESH_SAG = 0.01
+#: ω·Δt of the stiffest particle in the suggested scene: half the explicit limit 2 (a margin over the
+#: Gershgorin bound of the spring network's highest frequency).
+MESH_OMEGA_DT = 1.0
+
+
+def mesh_scene_values(path: str | Path, density: float = 1000.0, frame_dt: float = 1.0 / 60.0) -> dict:
+    """Spring stiffness and substeps that run ``path`` (a mesh file) as a stable mass-spring scene.
+
+    The mesh is filled with tets as ``kind = "mesh"`` does (TetGen for a closed surface) and the scene's
+    masses are lumped the same way (ρ·V/4 per tet corner). Stiffness: a spring network of edge length h
+    behaves like a material of modulus E ≈ k/h, and a column of height H sags by the strain ρ g H / E under
+    its own weight, so k = ρ g H h / ``MESH_SAG``. Substeps: the network's highest angular frequency is
+    bounded by Gershgorin, ω² ≤ max_i 2 k n_i / m_i (n_i springs at particle i of mass m_i), and symplectic
+    Euler is stable for ω Δt < 2; the substeps make ω Δt = ``MESH_OMEGA_DT``.
+
+    Args:
+        path: a surface (.obj, .ply, .stl, ...) or tet mesh (.msh, .vtk, .vtu) file.
+        density: ρ [kg/m³] (the scene's default for a mesh object).
+        frame_dt: the frame duration [s] (the scene's default).
+
+    Returns:
+        ``stiffness`` [N/m], ``substeps``, ``particles``, ``mass`` [kg], ``height`` [m] (the mesh's extent)
+        and ``lift`` [m], the upward shift that puts its lowest point 10 % of that extent above y = 0.
+    """
+    import math
+
+    import numpy as np
+
+    from ..geometry import TetMesh, edges_from_tets, load_mesh, signed_tet_volumes, tetrahedralize
+
+    mesh = load_mesh(path)
+    pts = np.asarray(mesh.points, np.float64)
+    if isinstance(mesh, TetMesh):
+        tets = np.asarray(mesh.tets)
+    else:
+        tm = tetrahedralize(pts, mesh.triangles, name=str(path))
+        pts, tets = np.asarray(tm.points, np.float64), np.asarray(tm.tets)
+    m = np.zeros(len(pts))
+    np.add.at(m, tets.ravel(), np.repeat(np.abs(signed_tet_volumes(pts, tets)) * density / 4.0, 4))
+    edges = edges_from_tets(tets)
+    h = float(np.median(np.linalg.norm(pts[edges[:, 0]] - pts[edges[:, 1]], axis=1)))
+    height = float(np.ptp(pts, axis=0).max())
+    k = density * 9.81 * height * h / MESH_SAG
+    k = float(f"{k:.2g}")  # two significant digits (rounding changes ω by < 5 %, within the margin)
+    n = np.bincount(edges.ravel(), minlength=len(pts))
+    used = m > 0
+    omega = math.sqrt(float(np.max(2.0 * k * n[used] / m[used])))
+    substeps = max(1, math.ceil(frame_dt * omega / MESH_OMEGA_DT))
+    lift = 0.1 * height - float(pts[:, 1].min())  # the lowest point 10 % of the size above the ground
+    return {
+        "stiffness": k,
+        "substeps": substeps,
+        "particles": len(pts),
+        "mass": float(m.sum()),
+        "height": height,
+        "lift": lift,
+    }
+
+
 def mesh_instead_of_scene(scene: str) -> str | None:
-    """The message for a mesh file given where a scene is expected (None for anything else): the
-    three-line scene that would run it."""
+    """For a mesh file given where a scene is expected, the lines of a scene that runs it stably (stiffness
+    and substeps from :func:`mesh_scene_values` when the file can be read), else None. The first line is
+    the error; the rest is a TOML file to copy (``pliant run`` prints it on stdout, without a prefix)."""
     from pathlib import PurePath
 
     p = PurePath(scene)
     if p.suffix.lower() not in MESH_SUFFIXES:
         return None
     stem = "".join(c if c.isalnum() or c in "_-" else "_" for c in p.stem) or "my_mesh"
-    return (
-        f"{scene} is a mesh, not a scene file; a scene says what to do with it. Save these lines as "
-        f"{stem}.toml next to it and run `pliant run {stem}.toml`:\n"
-        f"    [[objects]]\n"
-        f'    kind = "mesh"\n'
-        f'    path = "{p.name}"\n'
-        "    material = { stiffness = 500 }\n"
-        "(a closed surface is filled with tets, a tet mesh used as is; it falls onto the ground. Add scale, "
-        'origin, rotation = [x, y, z] degrees or up = "z" as needed; `pliant scenes show soft_box` shows '
-        "a complete scene)"
-    )
+    try:
+        v = mesh_scene_values(scene)
+    except Exception:  # an unreadable mesh: the scene's own error will name the problem when it runs
+        v = None
+    lines = [
+        f"{scene} is a mesh, not a scene file; a scene says what to do with it. Save the lines below as "
+        f"{stem}.toml next to it (`pliant run {scene} > {stem}.toml` does) and run `pliant run {stem}.toml`:",
+        "# a closed surface is filled with tets, a tet mesh used as is; it falls onto the ground.",
+        '# Add scale, origin, rotation = [x, y, z] degrees or up = "z" to [[objects]] as needed;',
+        "# `pliant scenes show soft_box` shows a complete scene.",
+    ]
+    if v is not None:
+        lines += [
+            "[scene]",
+            f"substeps = {v['substeps']}   # explicit steps per frame: ω·Δt ≤ {MESH_OMEGA_DT:g} (< 2) for "
+            "the stiffest particle",
+        ]
+    lines += ["[[objects]]", 'kind = "mesh"', f'path = "{p.name}"']
+    if v is not None:
+        lines.append(f"origin = [0.0, {v['lift']:.3g}, 0.0]   # [m]: its lowest point just above the ground")
+        lines.append(
+            f"material = {{ stiffness = {v['stiffness']:g} }}   # [N/m]: sags ~{MESH_SAG:.0%} under its own "
+            f"weight ({v['particles']} particles, {v['mass']:.3g} kg, {v['height']:.3g} m)"
+        )
+    else:
+        lines.append("material = { stiffness = 500 }   # [N/m]; raise [scene] substeps if it diverges")
+    lines += ["[ground]", "friction = 0.5"]
+    return "\n".join(lines)
 
 
 def _load(scene: str, overrides: list[str] | None = None) -> Any:
     import warnings
 
-    msg = mesh_instead_of_scene(scene)
-    if msg is not None and Path(scene).is_file():  # a missing file gets the loader's "no such scene file"
-        raise CliError(msg)
+    if Path(scene).suffix.lower() in MESH_SUFFIXES and Path(scene).is_file():
+        # A missing file gets the loader's "no such scene file". The scene to copy goes to stdout as plain
+        # lines (no "pliant: error:" prefix), the error line to stderr.
+        first, _, toml = mesh_instead_of_scene(scene).partition("\n")
+        print(toml, flush=True)
+        raise CliError(first)
     from ..scene import load_scene
 
     with warnings.catch_warnings(record=True) as caught:
@@ -75,12 +157,17 @@ def _apply_overrides(cfg: Any, args: argparse.Namespace) -> None:
     if getattr(args, "integrator", None):
         from ..scene import integrator_names
 
-        names = integrator_names()
+        # Only those a scene can step with: the list an error prints is the list that is accepted.
+        names = integrator_names(system_only=True)
         key = args.integrator.lower().replace("-", "").replace("_", "")
         if not any(n.lower() == key for n in names):
-            raise CliError(
-                f"--integrator: unknown integrator {args.integrator!r}; available: {', '.join(names)}"
+            ode = next((n for n in integrator_names() if n.lower() == key), None)
+            why = (
+                f"{ode} integrates ODEs only, not a scene"
+                if ode
+                else f"unknown integrator {args.integrator!r}"
             )
+            raise CliError(f"--integrator: {why}; available: {', '.join(names)}")
         cfg.solver.integrator = args.integrator
         cfg.solver.integrator_options = {}
     if getattr(args, "checkpoint_every", None) is not None:
@@ -108,7 +195,7 @@ def simulate(
     """
     import numpy as np
 
-    from ..io._paths import OutputPathError, check_file_stem, confined
+    from ..io._paths import OutputPathError, check_file_stem, check_writable_dir, confined
     from ..scene import build_scene
     from ..sim import DivergenceError
 
@@ -117,6 +204,7 @@ def simulate(
         traj_path, video_path, ckpt, render_path = (
             confined(out, f"{name}{suffix}") for suffix in (".npz", ".mp4", ".ckpt.npz", ".render.npz")
         )
+        check_writable_dir(out)  # a forbidden --out fails now, not after the simulation
     except OutputPathError as exc:
         raise CliError(str(exc)) from None
     want_video = video and cfg.output.video

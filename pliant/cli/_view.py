@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from . import EXIT_OK, CliError
+from . import EXIT_INTERRUPTED, CliError
 
 
 def cmd_view(args: argparse.Namespace) -> int:
@@ -27,6 +27,7 @@ def cmd_view(args: argparse.Namespace) -> int:
     try:
         while True:
             time.sleep(1.0)
+    except KeyboardInterrupt:  # the way to stop serving: exit 130 without an error line
+        return EXIT_INTERRUPTED
     finally:
         viewer.stop()
-    return EXIT_OK

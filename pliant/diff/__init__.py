@@ -8,11 +8,12 @@ for ForceSolver with explicit integrators (and ``XPBD``'s ``solver.gravity``). D
 ``ForceSolver`` with any explicit integrator or BackwardEuler / ImplicitMidpoint / BDF2 (Newton or L-BFGS,
 implicit-function-theorem adjoint), with ground contact and kinematic targets;
 ``FastMassSpring(method="symplectic")``; ``XPBD`` / ``PBD`` with ``schedule="jacobi"``. What cannot give a
-correct gradient raises :class:`GradientError` when asked.
+correct gradient raises :class:`GradientError` when asked. A rollout that blew up (non-finite, or faster than
+``max_speed``) raises :class:`pliant.sim.DivergenceError` naming the frame (:func:`check_rollout`).
 """
 
 from .._warp import GradientError
-from ._rollout import PARAMETERS, RolloutResult, rollout
+from ._rollout import PARAMETERS, RolloutResult, check_rollout, rollout
 from ._torch import torch_rollout
 
-__all__ = ["PARAMETERS", "GradientError", "RolloutResult", "rollout", "torch_rollout"]
+__all__ = ["PARAMETERS", "GradientError", "RolloutResult", "check_rollout", "rollout", "torch_rollout"]

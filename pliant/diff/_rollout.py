@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -137,6 +137,84 @@ def _resolve(names: Sequence[str], model: Model, solver: Any, state0: State, con
     return out
 
 
+def _state_health(state: State, max_speed: float) -> tuple[str, float] | None:
+    """(quantity, value) if ``state`` is non-finite or a particle is faster than ``max_speed``, else None."""
+    q, v = state.particle_q.numpy(), state.particle_qd.numpy()
+    bad = int(np.count_nonzero(~np.all(np.isfinite(q), axis=-1) | ~np.all(np.isfinite(v), axis=-1)))
+    if bad:
+        return "non-finite positions/velocities in particles:", bad
+    speed = float(np.sqrt(np.max(np.sum(np.asarray(v, np.float64) ** 2, axis=-1), initial=0.0)))
+    return ("max speed (m/s)", speed) if speed > max_speed else None
+
+
+def check_rollout(
+    loss: float,
+    grads: dict[str, np.ndarray],
+    final: State,
+    *,
+    solver: Any,
+    dt: float,
+    substeps: int,
+    frames: int,
+    states: Callable[[], Iterable[tuple[int, State]]] | None = None,
+    max_speed: float = 1.0e3,
+) -> None:
+    """Refuse a rollout that blew up instead of returning its loss and gradients (an explicit step above its
+    stability limit gives a finite but meaningless loss such as 6e47 long before it overflows).
+
+    Checks, in this order: the final state is finite and no particle is faster than ``max_speed``; the
+    loss is finite; every gradient is finite. One host read of the final state; the frames are searched only
+    when something failed.
+
+    Args:
+        loss: the rollout's loss value.
+        grads: the gradients by parameter name.
+        final: the last State of the rollout.
+        solver: the solver that stepped (for the advice: an implicit integrator for an explicit one).
+        dt: the solver step [s].
+        substeps: solver steps per frame.
+        frames: frames in the rollout.
+        states: yields (frame, State) in frame order, to name the first frame that blew up (default: the
+            last frame is named).
+        max_speed: a particle faster than this [m/s] counts as diverged (as ``Simulator(max_speed=)``).
+
+    Raises:
+        pliant.sim.DivergenceError: naming the first diverged frame (or the backward pass's non-finite
+            gradient), the quantity and the stability advice.
+        ValueError: a non-finite loss from finite states (``loss_fn`` reads a NaN or divides by zero).
+    """
+    from ..sim import DivergenceError
+    from ..sim._simulator import stability_advice
+
+    advice = stability_advice(solver, dt, substeps)
+    health = _state_health(final, max_speed)
+    if health is not None:
+        frame = frames
+        for k, st in states() if states is not None else ():
+            found = _state_health(st, max_speed)
+            if found is not None:
+                frame, health = k, found
+                break
+        raise DivergenceError(
+            frame, health[0], health[1], f"the loss and gradients are meaningless; {advice}"
+        )
+    if not np.isfinite(loss):
+        raise ValueError(
+            f"pl.diff.rollout: loss_fn returned {loss} from a finite final state; check it for a division by "
+            "zero or NaN inputs (unseen points)"
+        )
+    for name, g in grads.items():
+        bad = int(np.count_nonzero(~np.isfinite(g)))
+        if bad:
+            raise DivergenceError(
+                frames,
+                f"non-finite gradient of {name!r} (entries):",
+                bad,
+                "the backward pass blew up although the forward run is finite (an unstable adjoint, or a "
+                f"switch such as a contact exactly at a particle); {advice}",
+            )
+
+
 def _copy_state(state: State) -> State:
     return State(
         wp.clone(state.particle_q, requires_grad=True), wp.clone(state.particle_qd, requires_grad=True)
@@ -155,6 +233,7 @@ def rollout(
     state0: State | None = None,
     control: Control | None = None,
     checkpoint_every: int = 1,
+    max_speed: float = 1.0e3,
 ) -> RolloutResult:
     """Run ``frames`` × ``substeps`` steps of ``solver`` and return the loss and its gradients.
 
@@ -181,10 +260,16 @@ def rollout(
         control: optional Control, constant over the rollout (its ``particle_f`` / ``kinematic_targets``
             can be differentiated).
         checkpoint_every: frames per checkpoint segment (1: recompute one frame at a time).
+        max_speed: a particle faster than this [m/s] at the end means the rollout diverged (see
+            :func:`check_rollout`, which refuses it).
 
     Returns:
         :class:`RolloutResult` with ``loss``, ``grads`` (name → array shaped like the parameter) and the
         final ``state``.
+
+    Raises:
+        pliant.sim.DivergenceError: the rollout blew up (see :func:`check_rollout`): the message names the
+            first diverged frame and what to change.
 
     Example::
 
@@ -288,4 +373,28 @@ def rollout(
             inv = model.particle_inv_mass.numpy().astype(np.float64)
             g = g - np.where(inv > 0, totals[id(model.particle_inv_mass)] * inv * inv, 0.0)
         grads[name] = np.array(g[comp]) if comp is not None else g
+
+    def frame_states() -> Iterable[tuple[int, State]]:
+        # Only when the end blew up: the checkpoints, then frame by frame from the last good one.
+        good = 0
+        for seg in range(1, len(bounds) - 1):
+            if _state_health(checkpoints[seg], max_speed) is not None:
+                break
+            good = seg
+        state = _copy_state(checkpoints[good])
+        for k in range(bounds[good] + 1, frames + 1):
+            state = run(state, 1)
+            yield k, state
+
+    check_rollout(
+        loss_value,
+        grads,
+        final,
+        solver=solver,
+        dt=dt,
+        substeps=substeps,
+        frames=frames,
+        states=frame_states,
+        max_speed=max_speed,
+    )
     return RolloutResult(loss_value, grads, final)

@@ -16,8 +16,10 @@ def _import_torch() -> Any:
     try:
         import torch
     except ImportError as e:  # optional dependency
+        from .._extras import pip_install
+
         raise ImportError(
-            "pliant.diff.torch_rollout needs PyTorch: pip install 'pliant[torch]' (or pip install torch)"
+            f"pliant.diff.torch_rollout needs PyTorch: {pip_install('torch')} (or pip install torch)"
         ) from e
     return torch
 

@@ -226,11 +226,19 @@ def gradient_stage(
         tape.backward(loss)
         value = float(loss.numpy()[0])
         g = r.grad_theta()
-        if not np.all(np.isfinite(g)) or not np.isfinite(value):
-            raise FitError(
-                f"the gradient stage got a non-finite loss or gradient at frame {f0}; lower --lr or add "
-                "substeps"
+        try:  # pl.diff's check: non-finite, or a particle faster than 1000 m/s (a finite blow-up)
+            from ..diff import check_rollout
+            from ..sim import DivergenceError
+
+            sc = r.scene
+            h = sc.frame_dt / sc.substeps
+            check_rollout(
+                value, {"theta": g}, s, solver=sc.solver, dt=h, substeps=sc.substeps, frames=f0 + frames
             )
+        except (DivergenceError, ValueError) as exc:
+            raise FitError(
+                f"the gradient stage's rollout over frames {f0}-{f0 + frames} blew up ({exc}); lower --lr too"
+            ) from None
         if value > 0 and not checked[0]:
             if not np.any(g != 0.0):
                 raise FitError(

@@ -217,9 +217,10 @@ class PhotometricProblem(Problem):
                 them at least this tall [px], so that small observation videos stay visible.
 
         Yields:
-            uint8 RGB frames [s·H, 2·s·W + 2·s, 3] (a grey bar between the two halves).
+            uint8 RGB frames [s·H, 2·s·W + 2·s, 3] (a grey bar between the two halves), each half labelled
+            in its top-left corner.
         """
-        H = self.cameras[camera].height
+        H, W = self.cameras[camera].height, self.cameras[camera].width
         s = max(1, -(-int(min_height) // H))
         bar = np.full((H, 2, 3), 0.5)
         for f in range(min(x.shape[0], self.obs.frames)):
@@ -228,7 +229,8 @@ class PhotometricProblem(Problem):
             fitted = self.render(q, camera).colour.numpy().astype(np.float64)
             row = np.concatenate([observed, bar, fitted], axis=1)
             row = np.repeat(np.repeat(row, s, axis=0), s, axis=1)
-            yield np.round(np.clip(row, 0.0, 1.0) * 255.0).astype(np.uint8)
+            frame = np.round(np.clip(row, 0.0, 1.0) * 255.0).astype(np.uint8)
+            yield _label(frame, [(0, f"observed, camera {camera}"), (s * (W + 2), "fitted (splats)")])
 
     # ------------------------------------------------------------------ differentiable rollout
     def rollout_loss(self, scene: Any, *, tape: wp.Tape | None = None) -> wp.array:
@@ -436,3 +438,16 @@ __all__ = [
     "refinable",
     "refine_globals",
 ]
+
+
+def _label(frame: np.ndarray, labels: list[tuple[int, str]]) -> np.ndarray:
+    """``frame`` with each text drawn at (x, 2) in white on a dark box (Pillow's built-in bitmap font)."""
+    from PIL import Image, ImageDraw
+
+    img = Image.fromarray(frame)
+    draw = ImageDraw.Draw(img)
+    for x, text in labels:
+        left, top, right, bottom = draw.textbbox((x + 4, 3), text)
+        draw.rectangle((left - 2, top - 2, right + 2, bottom + 2), fill=(30, 30, 30))
+        draw.text((x + 4, 3), text, fill=(255, 255, 255))
+    return np.asarray(img)

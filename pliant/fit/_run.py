@@ -262,7 +262,9 @@ def write_outputs(
         "error": {k: _finite(v) for k, v in problem.split_errors(x).items()},
         "error_nominal": {k: _finite(v) for k, v in problem.split_errors(x_nom).items()},
         "error_per_frame": [_finite(v) for v in err],
-        "error_unit": "m (mean distance between visible tracks and their particles)",
+        "error_unit": "m (mean distance between visible tracks and their particles)"
+        if problem.obs.tracks
+        else "none: the observation has no tracks (the image error is under photometric)",
     }
     ylabel, scale = "track error [mm]", 1e3
     if hasattr(problem, "image_report"):  # photometric fits: per-frame image loss and PSNR
@@ -344,6 +346,7 @@ def _video(path: Path, scene: Any, x: np.ndarray, problem: Problem, progress: bo
     extent = float(np.ptp(x.reshape(-1, 3), axis=0).max()) or 1.0
     r = max(min(0.3 * spacing, 0.02 * extent), 1e-3 * extent)
     radius = np.concatenate([np.full(n, 0.7 * r), np.full(k, r)])  # observed points drawn over the particles
+    pts, colors, radius = _with_rope_beads(scene, x, pts, colors, radius, 0.7 * r)
     render_video(
         pts,
         path,
@@ -354,6 +357,36 @@ def _video(path: Path, scene: Any, x: np.ndarray, problem: Problem, progress: bo
         progress=progress,
         ground=scene.model.ground.height if scene.model.ground is not None else False,
     )
+
+
+def _with_rope_beads(scene: Any, x: np.ndarray, pts, colors, radius, r: float):
+    """Ropes drawn as lines: beads of the particles' colour and radius ``r`` along every link, spaced at
+    most ``r`` apart, put before the observed points (drawn over them)."""
+    from ..render._video import link_beads
+
+    n = x.shape[1]
+    segs = [
+        np.stack(
+            [
+                np.arange(o["start"], o["start"] + o["count"] - 1),
+                np.arange(o["start"] + 1, o["start"] + o["count"]),
+            ],
+            1,
+        )
+        for o in scene.model.objects
+        if o.get("kind") == "rope" and o["count"] >= 2
+    ]
+    if not segs:
+        return pts, colors, radius
+    seg = np.concatenate(segs)
+    link = float(np.median(np.linalg.norm(x[0, seg[:, 0]] - x[0, seg[:, 1]], axis=1)))
+    beads = link_beads(x, seg, min(32, max(1, int(np.ceil(link / max(r, 1e-9))))))
+    pts = np.concatenate([pts[:, :n], beads, pts[:, n:]], axis=1)
+    colors = np.concatenate(
+        [colors[:, :n], np.broadcast_to(colors[:, :1], beads.shape), colors[:, n:]], axis=1
+    )
+    radius = np.concatenate([radius[:n], np.full(beads.shape[1], r), radius[n:]])
+    return pts, colors, radius
 
 
 __all__ = ["PARAMS_FILE", "fit", "fitted_scene", "write_outputs"]

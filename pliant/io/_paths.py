@@ -57,6 +57,34 @@ def check_out_dir(out: str | os.PathLike) -> Path:
         raise OutputPathError(f"--out {path}: {exc}") from None
 
 
+def check_writable_dir(out: str | os.PathLike) -> Path:
+    """Create the output folder (and its parents) if needed and check that a file can be written in it, so
+    that a read-only or forbidden ``--out`` is an error before a simulation runs, not after it.
+
+    Args:
+        out: the output folder.
+
+    Returns:
+        The resolved folder.
+
+    Raises:
+        OutputPathError: the folder cannot be created or written to (the message names it and the fix).
+    """
+    import tempfile
+
+    root = check_out_dir(out)
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=root):
+            pass
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        raise OutputPathError(
+            f"--out {os.fspath(out)}: cannot write there ({reason}); choose a folder you can write to"
+        ) from None
+    return root
+
+
 def confined(out: str | os.PathLike, filename: str) -> Path:
     """``out / filename``, refused unless it resolves (symbolic links followed) to a file directly in
     ``out``. Checks ``filename``'s stem with :func:`check_file_stem` first."""
@@ -76,4 +104,11 @@ def confined(out: str | os.PathLike, filename: str) -> Path:
     return path
 
 
-__all__ = ["MAX_STEM_BYTES", "OutputPathError", "check_file_stem", "check_out_dir", "confined"]
+__all__ = [
+    "MAX_STEM_BYTES",
+    "OutputPathError",
+    "check_file_stem",
+    "check_out_dir",
+    "check_writable_dir",
+    "confined",
+]

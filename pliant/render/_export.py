@@ -79,13 +79,17 @@ def export_ply(
     return path
 
 
-def export_obj(path: str | os.PathLike, points: object, faces: object | None = None) -> Path:
-    """Writes one frame as a Wavefront OBJ (vertices with 9 significant digits, 1-based faces).
+def export_obj(
+    path: str | os.PathLike, points: object, faces: object | None = None, lines: object | None = None
+) -> Path:
+    """Writes one frame as a Wavefront OBJ (vertices with 9 significant digits, 1-based faces and lines).
 
     Args:
         path: Output file.
         points: Vertex positions [N, 3] in metres.
         faces: Triangles [F, 3] (0-based), or None for vertices only.
+        lines: Line segments [S, 2] (0-based vertex pairs, e.g. a rope's links) written as ``l`` records,
+            or None.
 
     Returns:
         The output path.
@@ -98,6 +102,11 @@ def export_obj(path: str | os.PathLike, points: object, faces: object | None = N
     parts = ["# written by pliant\n", ("v %.9g %.9g %.9g\n" * len(pts)) % tuple(pts.ravel().tolist())]
     if f is not None and len(f):
         parts.append(("f %d %d %d\n" * len(f)) % tuple((f.ravel() + 1).tolist()))
+    if lines is not None:
+        seg = np.asarray(lines, dtype=np.int64).reshape(-1, 2)
+        if len(seg) and (seg.min() < 0 or seg.max() >= len(pts)):
+            raise ValueError(f"lines index vertices outside 0..{len(pts) - 1}")
+        parts.append(("l %d %d\n" * len(seg)) % tuple((seg.ravel() + 1).tolist()))
     path.write_text("".join(parts))
     return path
 
@@ -114,7 +123,12 @@ def _sequence_paths(folder: str | os.PathLike, prefix: str, n: int, ext: str) ->
 
 
 def export_obj_sequence(
-    folder: str | os.PathLike, x: object, faces: object | None = None, *, prefix: str = "frame_"
+    folder: str | os.PathLike,
+    x: object,
+    faces: object | None = None,
+    *,
+    prefix: str = "frame_",
+    lines: object | None = None,
 ) -> list[Path]:
     """Writes one OBJ per frame: ``folder/frame_0000.obj``, ``frame_0001.obj``, ...
 
@@ -123,6 +137,7 @@ def export_obj_sequence(
         x: Positions [T, N, 3] in metres.
         faces: Triangles [F, 3] shared by all frames, or None.
         prefix: File-name prefix.
+        lines: Line segments [S, 2] shared by all frames (``l`` records), or None.
 
     Returns:
         The written paths, in frame order.
@@ -130,7 +145,7 @@ def export_obj_sequence(
     xs = _trajectory(x)
     paths = _sequence_paths(folder, prefix, len(xs), ".obj")
     for p, xk in zip(paths, xs, strict=True):
-        export_obj(p, xk, faces)
+        export_obj(p, xk, faces, lines)
     return paths
 
 
@@ -195,8 +210,10 @@ def export_usd(
     try:
         from pxr import Gf, Usd, UsdGeom, Vt
     except ImportError as err:
+        from .._extras import pip_install
+
         raise ImportError(
-            'export_usd needs the USD Python bindings (usd-core): pip install "pliant[usd]"'
+            f"export_usd needs the USD Python bindings (usd-core): {pip_install('usd')}"
         ) from err
 
     xs = _trajectory(x)

@@ -17,7 +17,14 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ObjectPart", "trajectory_objects", "export_usd_objects", "export_vtu_series", "export_xdmf"]
+__all__ = [
+    "ObjectPart",
+    "curve_segments",
+    "trajectory_objects",
+    "export_usd_objects",
+    "export_vtu_series",
+    "export_xdmf",
+]
 
 
 @dataclass
@@ -139,8 +146,10 @@ def export_usd_objects(
     try:
         from pxr import Gf, Usd, UsdGeom, Vt
     except ImportError as err:
+        from .._extras import pip_install
+
         raise ImportError(
-            'USD export needs the USD Python bindings (usd-core): pip install "pliant[usd]"'
+            f"USD export needs the USD Python bindings (usd-core): {pip_install('usd')}"
         ) from err
     xs = np.asarray(traj.x, np.float64)
     if xs.ndim != 3 or xs.shape[2] != 3 or not len(xs):
@@ -255,6 +264,12 @@ def _cells(traj: Any, lines: bool = True) -> list[tuple[str, np.ndarray]]:
         else:
             blocks["vertex"].append(np.arange(p.start, p.start + p.count)[:, None])
     return [(k, np.concatenate(v).astype(np.int64)) for k, v in blocks.items() if v]
+
+
+def curve_segments(traj: Any) -> np.ndarray:
+    """The links of the trajectory's ropes as particle-index pairs [S, 2] (empty without a rope): what an
+    OBJ export writes as ``l`` lines so that a rope is a curve, not loose vertices."""
+    return dict(_cells(traj)).get("line", np.zeros((0, 2), np.int64))
 
 
 def export_vtu_series(folder: str | os.PathLike, traj: Any, *, prefix: str = "frame_") -> list[Path]:

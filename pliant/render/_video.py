@@ -306,6 +306,25 @@ def render_video(
     return vw.path
 
 
+def link_beads(x: np.ndarray, segments: np.ndarray, per_link: int) -> np.ndarray:
+    """Points spaced evenly inside each link (``per_link`` per segment, ends excluded), so that particles
+    drawn as spheres together with these beads show a rope as a continuous line rather than loose dots.
+
+    Args:
+        x: Positions [T, N, 3] (or [N, 3]) in metres.
+        segments: Particle-index pairs [S, 2] (a rope's links).
+        per_link: Beads per link (>= 0).
+
+    Returns:
+        Bead positions [T, S·per_link, 3] (or [S·per_link, 3]).
+    """
+    seg = np.asarray(segments, dtype=np.int64).reshape(-1, 2)
+    s = (np.arange(1, per_link + 1) / (per_link + 1))[None, :, None]  # fractions along each link
+    a, b = x[..., seg[:, 0], None, :], x[..., seg[:, 1], None, :]
+    beads = a + s * (b - a)  # [..., S, per_link, 3]
+    return beads.reshape(*x.shape[:-2], len(seg) * per_link, 3)
+
+
 def realtime_indices(t: np.ndarray, fps: float, speed: float = 1.0) -> np.ndarray:
     """Frame indices that play a trajectory sampled at times ``t`` at ``speed`` x real time.
 

@@ -29,8 +29,10 @@ def _viser() -> Any:
     try:
         import viser
     except ImportError:
+        from .._extras import pip_install
+
         raise ViewerError(
-            "pliant view needs viser, an optional extra: pip install 'pliant[viewer]' (or pip install viser)"
+            f"pliant view needs viser, an optional extra: {pip_install('viewer')} (or pip install viser)"
         ) from None
     return viser
 

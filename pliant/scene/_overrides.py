@@ -67,7 +67,9 @@ def apply_overrides(data: dict[str, Any], overrides: Sequence[str]) -> list[tupl
                     problems.append((where, "is not a list; drop the [index]"))
                     break
                 if key >= len(node):
-                    problems.append((where, f"index {key} out of range; the scene has {len(node)} entries"))
+                    n = len(node)
+                    has = f"{n} entr{'y' if n == 1 else 'ies'} (0..{n - 1})" if n else "no entries"
+                    problems.append((where, f"index {key} out of range; the scene has {has}"))
                     break
                 where += f"[{key}]"
             else:

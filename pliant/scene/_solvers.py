@@ -15,14 +15,20 @@ FEM_LAWS = {"neohookean": "NeoHookean", "stvk": "StVK", "corotated": "Corotated"
 
 
 # ---------------------------------------------------------------------------------------------- integrators
-def integrator_names() -> list[str]:
-    """Integrators of ``pliant.integrators`` constructible without arguments."""
+def integrator_names(*, system_only: bool = False) -> list[str]:
+    """Integrators of ``pliant.integrators`` constructible without arguments.
+
+    Args:
+        system_only: only those that step a physical model (not ODE-only ones such as DormandPrince).
+    """
     from .. import integrators
 
     names = []
     for n in integrators.__all__:
         obj = getattr(integrators, n, None)
         if isinstance(obj, type) and issubclass(obj, integrators.Integrator) and not inspect.isabstract(obj):
+            if system_only and not getattr(obj, "supports_system", True):
+                continue
             try:
                 inspect.signature(obj).bind()
             except TypeError:

@@ -39,6 +39,27 @@ class DivergenceError(RuntimeError):
         super().__init__(f"diverged at frame {frame}: {quantity} {value:.3g}; {advice}")
 
 
+def stability_advice(solver: Any, substep: float, substeps: int) -> str:
+    """What to change when a run blows up: a smaller step, an implicit integrator (for an explicit one), a
+    softer material. Shared by :class:`Simulator` and :func:`pliant.diff.rollout`.
+
+    Args:
+        solver: the solver that stepped (its ``integrator`` decides whether an implicit one is suggested).
+        substep: the solver step Δt [s].
+        substeps: solver steps per frame.
+    """
+    integrator = getattr(solver, "integrator", None)
+    return (
+        f"lower dt (substep {substep:.3g} s: raise substeps above {substeps})"
+        + (
+            ", or use an implicit integrator (BackwardEuler)"
+            if getattr(integrator, "explicit", False)
+            else ""
+        )
+        + ", or soften the stiffest material"
+    )
+
+
 @wp.kernel
 def _health(
     v: wp.array(dtype=Any),
@@ -267,17 +288,7 @@ class Simulator:
         speed2, disp2, bad, kin_speed2, kin_disp2 = (float(a) for a in self._stats.numpy())
         if self._per_world and self.frame > 0:
             speed2, disp2, bad = self._check_worlds(speed2, disp2, bad)
-        integrator = getattr(self.solver, "integrator", None)
-        h = self.frame_dt / self.substeps
-        advice = (
-            f"lower dt (substep {h:.3g} s: raise substeps above {self.substeps})"
-            + (
-                ", or use an implicit integrator (BackwardEuler)"
-                if getattr(integrator, "explicit", False)
-                else ""
-            )
-            + ", or soften the stiffest material"
-        )
+        advice = stability_advice(self.solver, self.frame_dt / self.substeps, self.substeps)
         if bad:
             if self.frame == 0:
                 raise DivergenceError(

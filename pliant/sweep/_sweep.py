@@ -76,8 +76,9 @@ def grid(sets: Sequence[str]) -> list[list[str]]:
 
 
 def summarize(x: np.ndarray, frame_dt: float) -> dict[str, float]:
-    """Summary figures of positions ``x`` [T, N, 3] [m]: the final centroid [m], the sag (drop of the
-    centroid's height from frame 0 to the last) [m] and the largest particle speed between frames [m/s]."""
+    """Summary figures of positions ``x`` (metres, shape [T, N, 3]): the final centroid [m], the sag (drop
+    of the centroid's height from frame 0 to the last) [m] and the largest particle speed between frames
+    [m/s]."""
     c0, c1 = x[0].mean(axis=0), x[-1].mean(axis=0)
     speed = np.linalg.norm(np.diff(x, axis=0), axis=2).max() / frame_dt if len(x) > 1 else 0.0
     return {
@@ -322,7 +323,9 @@ def _ray_map(scene: str, chunks: list, frames: int | None, traj_dir: str | None,
     try:
         import ray
     except ImportError:
-        raise SweepError("--ray needs Ray, an optional extra: pip install 'pliant[ray]'") from None
+        from .._extras import pip_install
+
+        raise SweepError(f"--ray needs Ray, an optional extra: {pip_install('ray')}") from None
     started = not ray.is_initialized()
     if started:
         ray.init(address=address, include_dashboard=False, log_to_driver=False, ignore_reinit_error=True)
