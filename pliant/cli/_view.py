@@ -1,4 +1,4 @@
-"""``pliant view``: serve a trajectory in the browser until Ctrl-C."""
+"""``pliant view``: serve a trajectory in the browser until Ctrl-C (a scene instead runs live: ``_live``)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,10 @@ from . import EXIT_OK, CliError
 
 def cmd_view(args: argparse.Namespace) -> int:
     """Load the trajectory, start the viewer and keep serving it (Ctrl-C stops: exit 130)."""
+    if not str(args.trajectory).lower().endswith(".npz"):  # a scene: run it live
+        from ._live import cmd_live
+
+        return cmd_live(args)
     from ..io import Trajectory
     from ..render._viewer import serve_viewer
 
