@@ -6,7 +6,6 @@ record button writes a trajectory and a video; a headless Chromium sees the obje
 from __future__ import annotations
 
 import asyncio
-import shutil
 import socket
 import subprocess
 import sys
@@ -23,7 +22,7 @@ import pliant as pl
 viser = pytest.importorskip("viser", reason="the viewer extra: pip install 'pliant[viewer]'")
 
 from pliant.live import LiveSession, serve_live, splat_arrays, write_parameter  # noqa: E402
-from pliant.render._viewer import PALETTE  # noqa: E402
+from pliant.render._viewer import PALETTE, chromium, screenshot_page  # noqa: E402
 
 
 def _free_port() -> int:
@@ -318,7 +317,7 @@ def test_missing_viser_gives_the_install_advice(monkeypatch, capsys):
     assert len(err) == 1 and "pip install 'pliant[viewer]'" in err[0]
 
 
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+CHROMIUM = chromium()
 
 
 @pytest.mark.skipif(
@@ -337,29 +336,7 @@ def test_headless_chromium_screenshot_shows_the_cloth_mid_drag(tmp_path):
             v.run_frame()
         assert session.grabbed == corner
         for attempt, budget in enumerate((8000, 30000)):
-            shot = tmp_path / f"shot{attempt}.png"
-            subprocess.run(
-                [
-                    CHROMIUM,
-                    "--headless",
-                    "--no-sandbox",
-                    "--disable-gpu",
-                    "--disable-quic",
-                    "--no-first-run",
-                    "--disable-background-networking",
-                    "--disable-component-update",
-                    "--disable-sync",
-                    f"--user-data-dir={tmp_path / f'profile{attempt}'}",
-                    "--use-angle=swiftshader",
-                    "--enable-unsafe-swiftshader",
-                    "--window-size=800,600",
-                    f"--virtual-time-budget={budget}",
-                    f"--screenshot={shot}",
-                    v.url,
-                ],
-                capture_output=True,
-                timeout=120,
-            )
+            shot = screenshot_page(v.url, tmp_path / f"shot{attempt}.png", budget_ms=budget)
             assert shot.exists()
             img = np.asarray(iio.imread(Path(shot)))[..., :3].astype(int)
             blue = (img[..., 2] > img[..., 0] + 40) & (img[..., 2] > 150)

@@ -3,14 +3,15 @@
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
+from typing import Any
 
-from . import EXIT_OK, CliError
+from . import CliError
 
 
-def cmd_live(args: argparse.Namespace) -> int:
-    """Build the scene, serve it live and keep stepping it until Ctrl-C (exit 130)."""
+def start_live(args: argparse.Namespace) -> tuple[Any, str]:
+    """Build the scene ``args.trajectory`` names and serve it live, stepping; returns the running
+    :class:`pliant.live.LiveViewer` and what ``pliant view`` prints about it."""
     import numpy as np
 
     from ..live import LiveSession, serve_live
@@ -35,15 +36,8 @@ def cmd_live(args: argparse.Namespace) -> int:
     viewer.paused = bool(getattr(args, "paused", False))
     viewer.start()
     m = scene.model
-    print(
-        f"pliant view: {cfg.scene.name} live ({m.particle_count} particles, {scene.substeps} substeps of "
-        f"{scene.frame_dt / scene.substeps:.3g} s per frame, {m.device}) at {viewer.url}; drag the object, "
-        "Ctrl-C to stop",
-        flush=True,
+    what = (
+        f"{cfg.scene.name} live ({m.particle_count} particles, {scene.substeps} substeps of "
+        f"{scene.frame_dt / scene.substeps:.3g} s per frame, {m.device}; drag the object)"
     )
-    try:
-        while True:
-            time.sleep(1.0)
-    finally:
-        viewer.stop()
-    return EXIT_OK
+    return viewer, what

@@ -8,9 +8,11 @@ and a timeline (frame slider, play, speed). Frames are sent on demand, so memory
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -218,3 +220,60 @@ def serve_viewer(traj: Any, *, host: str = "127.0.0.1", port: int = 8080, verbos
     dt = float(traj.meta.get("dt") or (traj.t[1] - traj.t[0] if t > 1 else 1 / 30))
     v.play(min(1.0 / max(dt, 1e-6), 60.0))
     return v
+
+
+def chromium() -> str | None:
+    """The headless browser that screenshots a viewer page (``chromium`` or ``chromium-browser``), or None."""
+    import shutil
+
+    return shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+def screenshot_page(
+    url: str, path: str | os.PathLike, *, width: int = 800, height: int = 600, budget_ms: int = 8000
+) -> Path:
+    """Screenshot the viewer page at ``url`` into ``path`` (PNG) with headless Chromium, WebGL in software
+    (SwiftShader: no GPU needed).
+
+    Args:
+        url: the page (``Viewer.url`` or ``LiveViewer.url``).
+        path: the PNG to write.
+        width: window width [px].
+        height: window height [px].
+        budget_ms: Chromium's virtual time budget [ms]: how long the page may load and draw the scene it
+            receives over the viewer's websocket.
+
+    Raises:
+        FileNotFoundError: no chromium on this machine (``apt-get install chromium``).
+    """
+    import subprocess
+    import tempfile
+
+    exe = chromium()
+    if exe is None:
+        raise FileNotFoundError("no chromium to screenshot the viewer: apt-get install chromium")
+    path = Path(path)
+    with tempfile.TemporaryDirectory() as profile:
+        subprocess.run(
+            [
+                exe,
+                "--headless",
+                "--no-sandbox",
+                "--disable-gpu",
+                "--disable-quic",
+                "--no-first-run",
+                "--disable-background-networking",
+                "--disable-component-update",
+                "--disable-sync",
+                f"--user-data-dir={profile}",
+                "--use-angle=swiftshader",
+                "--enable-unsafe-swiftshader",  # WebGL in software: no GPU here
+                f"--window-size={width},{height}",
+                f"--virtual-time-budget={budget_ms}",
+                f"--screenshot={path}",
+                url,
+            ],
+            capture_output=True,
+            timeout=120 + budget_ms / 1000,
+        )
+    return path
