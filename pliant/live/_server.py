@@ -31,6 +31,7 @@ class LiveViewer:
         fps: frames per wall-clock second achieved over the last second.
         status: the line the panel shows (rate, or the divergence message).
         record_dir: where the record button writes ``live_<n>.npz`` / ``.mp4``.
+        recorded: the files the record button has written.
     """
 
     server: Any
@@ -148,7 +149,12 @@ class LiveViewer:
 def splat_arrays(splats: Any, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """viser's Gaussian splat arrays of the bound splats at model positions ``x``: centres [G, 3],
     covariances Σ = A R S Sᵀ Rᵀ Aᵀ [G, 3, 3], RGB [G, 3] in [0, 1] (the view-independent SH term, as
-    pliant's rasteriser computes it) and opacities [G, 1]."""
+    pliant's rasteriser computes it) and opacities [G, 1].
+
+    Args:
+        splats: the scene's bound splats (:func:`pliant.gaussians._scene.scene_splats`).
+        x: model positions [m], [N, 3].
+    """
     from ..gaussians._gaussians import _quat_matrices
 
     g = splats.place(np.asarray(x)).numpy()

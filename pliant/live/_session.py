@@ -52,7 +52,14 @@ class LiveParameter:
 def live_parameters(scene: Any) -> dict[str, LiveParameter]:
     """The material parameters of a built scene that :func:`write_parameter` can change: per-element ones
     (``pliant.fit``'s arrays: stiffness, E, compliance) and spring damping as factors in [0.1, 10], and the
-    solver's ``damping_rate`` [1/s] when it has one."""
+    solver's velocity damping rate [1/s] when it has one.
+
+    Args:
+        scene: a built scene (:func:`pliant.scene.build_scene`).
+
+    Returns:
+        name → :class:`LiveParameter`, with the arrays' current values as the base the factors scale.
+    """
     from ..fit._params import PER_ELEMENT, FitError
 
     out: dict[str, LiveParameter] = {}
@@ -235,6 +242,9 @@ class LiveSession:
         """Advance ``frames`` frames (each ``substeps`` solver steps), check them, record them when
         recording; returns the new positions [N, 3] (float32).
 
+        Args:
+            frames: how many frames to step.
+
         Raises:
             pliant.sim.DivergenceError: the simulation blew up (the live view pauses and says so).
         """
@@ -316,7 +326,7 @@ class LiveSession:
         return lo + int(cand[np.argmin(s[cand])])
 
     def object_of(self, particle: int) -> tuple[int, int]:
-        """The (start, stop) particle range of the object holding ``particle``."""
+        """The (start, stop) particle range of the object holding ``particle`` (a model index)."""
         for lo, hi in self._ranges:
             if lo <= particle < hi:
                 return lo, hi
@@ -334,6 +344,9 @@ class LiveSession:
         moves the particle at most ``EXPLICIT_STEP`` of its spacing s (the distance to its nearest
         neighbour) per substep: one node of a heavy solid pulled with its whole weight would invert its
         elements within a step.
+
+        Args:
+            particle: the particle's index in the model.
         """
         lo, hi = self.object_of(particle)
         g = float(np.linalg.norm(self.model.gravity)) or 9.81
@@ -357,7 +370,12 @@ class LiveSession:
 
     def grab(self, particle: int, target: Any = None) -> None:
         """Take hold of ``particle`` (a pinned or kinematic one cannot move: ValueError) and pull it toward
-        ``target`` [m] (default: where it is) with the capped spring of :meth:`grab_spring`."""
+        ``target`` [m] (default: where it is) with the capped spring of :meth:`grab_spring`.
+
+        Args:
+            particle: the particle's index in the model.
+            target: where the cursor is [m], (3,), or None for the particle's position.
+        """
         p = int(particle)
         if not 0 <= p < self.model.particle_count:
             raise ValueError(f"particle {p} out of range [0, {self.model.particle_count})")
@@ -372,7 +390,11 @@ class LiveSession:
 
     def move(self, target: Any) -> None:
         """Move the grab's target to ``target`` [m] (the solver reads it at its next substep); no-op when
-        nothing is grabbed."""
+        nothing is grabbed.
+
+        Args:
+            target: the cursor's new position [m], (3,).
+        """
         if self.grabbed is None:
             return
         t = np.asarray(target, float).reshape(3)
@@ -411,6 +433,10 @@ class LiveSession:
         """Stop recording and write ``path`` (a ``.npz`` trajectory that ``pliant view`` and ``pliant export``
         read, with the objects, colliders and ground) and, with ``video``, the ``.mp4`` beside it drawn by
         pliant's renderer with the scene's camera.
+
+        Args:
+            path: the trajectory file (``.npz`` is added when missing); its folder is created.
+            video: also render the ``.mp4``.
 
         Returns:
             The files written.
@@ -452,7 +478,11 @@ class LiveSession:
 def scene_trajectory_meta(scene: Any) -> dict[str, Any]:
     """What a saved trajectory carries beside the simulator's meta so that ``pliant view`` and
     ``pliant export`` draw the whole scene: its name, the ground height (None without one) and the drawn
-    colliders (points and faces)."""
+    colliders (points and faces).
+
+    Args:
+        scene: a built scene (:func:`pliant.scene.build_scene`).
+    """
     m = scene.model
     return {
         "scene": scene.config.scene.name,
