@@ -42,6 +42,7 @@ _SUBMODULES = (
     "fit",
     "gaussians",
     "sweep",
+    "live",
 )
 
 

@@ -4,7 +4,7 @@ Walks every module's imports with ``ast``, function-level ones included, and fai
 layer. Layers, bottom to top:
 
     _warp → geometry → model → integrators / energies / constraints / collision → solvers → io → sim
-    → render → scene → diff / fit / gaussians / sweep → studies / bench / cli → pliant/__init__.py
+    → render → scene → diff / fit / gaussians / sweep → studies / bench / cli / live → pliant/__init__.py
     → examples (user code on the public surface)
 
 Modules of one layer may import each other.
@@ -31,7 +31,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("render",),
     ("scene",),
     ("diff", "fit", "gaussians", "sweep"),
-    ("studies", "bench", "cli"),
+    ("studies", "bench", "cli", "live"),  # live: the live viewer (uses fit's parameter arrays, splats)
     ("",),  # pliant/__init__.py: the public surface, on top of the library
     ("examples",),  # user code shipped with the package: it uses the public surface (`import pliant as pl`)
 ]

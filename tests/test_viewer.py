@@ -3,7 +3,6 @@ colliders and ground), moves them along the timeline, and a headless Chromium sc
 
 from __future__ import annotations
 
-import shutil
 import socket
 import subprocess
 import sys
@@ -17,7 +16,7 @@ pytest.importorskip("viser", reason="the viewer extra: pip install 'pliant[viewe
 
 from pliant.geometry import cloth_grid  # noqa: E402
 from pliant.io import Trajectory  # noqa: E402
-from pliant.render._viewer import PALETTE, serve_viewer  # noqa: E402
+from pliant.render._viewer import PALETTE, chromium, screenshot_page, serve_viewer  # noqa: E402
 
 
 def _free_port() -> int:
@@ -81,7 +80,7 @@ def test_bad_trajectory_and_missing_viser_are_clear_errors(tmp_path, monkeypatch
         viewer.serve_viewer(_trajectory())
 
 
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+CHROMIUM = chromium()
 
 
 @pytest.mark.skipif(
@@ -97,29 +96,7 @@ def test_headless_chromium_screenshot_shows_the_object(tmp_path):
         # Chromium's virtual time runs ahead while the page waits on the viewer's websocket; on a loaded
         # machine (the suite's two workers) the scene can arrive after an 8 s budget: one retry, longer.
         for attempt, budget in enumerate((8000, 30000)):
-            shot = tmp_path / f"shot{attempt}.png"
-            subprocess.run(
-                [
-                    CHROMIUM,
-                    "--headless",
-                    "--no-sandbox",
-                    "--disable-gpu",
-                    "--disable-quic",
-                    "--no-first-run",
-                    "--disable-background-networking",
-                    "--disable-component-update",
-                    "--disable-sync",
-                    f"--user-data-dir={tmp_path / f'profile{attempt}'}",
-                    "--use-angle=swiftshader",
-                    "--enable-unsafe-swiftshader",  # WebGL in software: no GPU here
-                    "--window-size=800,600",
-                    f"--virtual-time-budget={budget}",
-                    f"--screenshot={shot}",
-                    v.url,
-                ],
-                capture_output=True,
-                timeout=120,
-            )
+            shot = screenshot_page(v.url, tmp_path / f"shot{attempt}.png", budget_ms=budget)
             assert shot.exists()
             img = np.asarray(iio.imread(Path(shot)))[..., :3].astype(int)
             # The cloth's colour (lit: brightness varies, hue stays blue) covers part of the middle.

@@ -271,13 +271,20 @@ def build_parser() -> argparse.ArgumentParser:
     vw = _sub(
         sub,
         "view",
-        "look at a trajectory in the browser: objects, colliders, ground, a timeline (needs pliant[viewer])",
-        "pliant view out/cloth.npz                 # then open http://127.0.0.1:8080",
+        "look at a trajectory in the browser, or run a scene live and drag it with the mouse "
+        "(needs pliant[viewer])",
+        "pliant view out/cloth.npz                 # play back; then open http://127.0.0.1:8080",
+        "pliant view cloth                         # live: drag the cloth, change its stiffness, record",
+        "pliant view out/fit/fitted.toml --device cuda:0",
         "pliant view out/fem_drop.npz --host 0.0.0.0 --port 8090",
     )
-    vw.add_argument("trajectory", metavar="TRAJ.npz")
+    vw.add_argument("trajectory", metavar="TRAJ.npz|SCENE")
     vw.add_argument("--host", default="127.0.0.1", help="interface (0.0.0.0: reachable from other machines)")
     vw.add_argument("--port", type=int, default=8080, help="TCP port (default 8080)")
+    vw.add_argument("--device", help="live: Warp device, e.g. cpu or cuda:0 (default: the scene's)")
+    vw.add_argument("--dtype", choices=("float32", "float64"), help="live: precision (default: the scene's)")
+    vw.add_argument("--paused", action="store_true", help="live: start paused")
+    vw.add_argument("--out", default=".", help="live: folder of the record button's live_<n>.npz/.mp4")
     from ._fit import add_parsers as _fit_parsers
 
     _fit_parsers(sub)  # fit, observe

@@ -273,13 +273,10 @@ def simulate(
     steps = max(traj.frame_count - 1, 0) * scene.substeps
     written = []
     if cfg.output.trajectory:
-        traj.meta["scene"] = cfg.scene.name
+        from ..live import scene_trajectory_meta
+
         # What `pliant export` draws beside the objects: the drawn colliders (static meshes) and the ground.
-        traj.meta["ground"] = m.ground.height if m.ground is not None else None
-        traj.meta["colliders"] = [
-            {"points": np.asarray(p, float).round(6).tolist(), "faces": np.asarray(f).tolist()}
-            for p, f in scene.static_meshes
-        ]
+        traj.meta.update(scene_trajectory_meta(scene))
         written.append(str(traj.save(traj_path)))
         if scene.embeddings and traj.frame_count > 0:
             # What the video draws (particles, the fine embedded surface, colliders) as <name>.render.npz.

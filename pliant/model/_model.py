@@ -62,6 +62,9 @@ class Control:
         drag_index: Particle pulled by the drag handle, or -1 when no handle is active.
         drag_target: Where the handle pulls [m].
         drag_stiffness: Stiffness of the handle's zero-length spring [N/m].
+        drag_max_force: Cap on the handle's force [N] (inf: none). Beyond ``drag_max_force / drag_stiffness``
+            from the target the handle pulls with this force, so a cursor dragged far away cannot make the
+            force, and with it the particle's speed, grow without bound.
     """
 
     def __init__(self, model: Model) -> None:
@@ -76,6 +79,7 @@ class Control:
         self.drag_index = -1
         self.drag_target = np.zeros(3)
         self.drag_stiffness = 0.0
+        self.drag_max_force = float("inf")
 
     def set_kinematic_targets(self, targets: np.ndarray) -> None:
         """Set the target positions [m], shape [K, 3], of the kinematic particles."""
@@ -86,15 +90,21 @@ class Control:
             )
         self.kinematic_targets.assign(targets)
 
-    def set_drag(self, index: int, target: np.ndarray, stiffness: float) -> None:
-        """Pull particle ``index`` toward ``target`` [m] with a spring of ``stiffness`` [N/m]."""
+    def set_drag(
+        self, index: int, target: np.ndarray, stiffness: float, max_force: float = float("inf")
+    ) -> None:
+        """Pull particle ``index`` toward ``target`` [m] with a spring of ``stiffness`` [N/m] whose force is
+        capped at ``max_force`` [N] (default: no cap)."""
         if not 0 <= index < self._model.particle_count:
             raise ValueError(f"drag index {index} out of range [0, {self._model.particle_count})")
         if stiffness < 0:
             raise ValueError(f"drag stiffness must be >= 0 N/m, got {stiffness}")
+        if not max_force > 0:
+            raise ValueError(f"drag max_force must be > 0 N (inf: no cap), got {max_force}")
         self.drag_index = int(index)
         self.drag_target = np.asarray(target, dtype=float).reshape(3)
         self.drag_stiffness = float(stiffness)
+        self.drag_max_force = float(max_force)
 
     def release_drag(self) -> None:
         """Deactivate the drag handle."""

@@ -8,9 +8,11 @@ and a timeline (frame slider, play, speed). Frames are sent on demand, so memory
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -65,15 +67,7 @@ class Viewer:
         """Move every object to ``frame`` (negative counts from the end)."""
         t = self.traj.frame_count
         k = int(frame) % t
-        x = np.asarray(self.traj.x[k], np.float32)
-        for handle, part in self._handles:
-            xs = x[part.start : part.start + part.count]
-            if part.kind in ("surface", "solid"):
-                handle.vertices = xs
-            elif part.kind == "curve":
-                handle.points = np.stack([xs[:-1], xs[1:]], axis=1)
-            else:
-                handle.points = xs
+        move_nodes(self._handles, np.asarray(self.traj.x[k], np.float32))
         self.frame = k
         if self._slider is not None and int(self._slider.value) != k:
             self._slider.value = k
@@ -95,6 +89,106 @@ class Viewer:
         self.server.stop()
 
 
+def move_nodes(handles: list[tuple[Any, ObjectPart]], x: np.ndarray) -> None:
+    """Put every object's scene node(s) at positions ``x`` [N, 3] (float32) of the whole model."""
+    for handle, part in handles:
+        xs = x[part.start : part.start + part.count]
+        if part.kind in ("surface", "solid"):
+            handle.vertices = xs
+        elif part.kind == "curve":
+            handle.points = np.stack([xs[:-1], xs[1:]], axis=1)
+        elif part.kind == "spheres":  # the pickable particles of a live view (one sphere instance each)
+            handle.batched_positions = xs
+        else:
+            handle.points = xs
+
+
+def add_object_nodes(
+    server: Any, traj: Any, x0: np.ndarray, *, spheres: float = 0.0
+) -> tuple[list[tuple[Any, ObjectPart]], dict[str, str]]:
+    """One scene node per object of ``traj`` at positions ``x0`` [N, 3], plus its colliders and ground.
+
+    Cloth and shells are triangle meshes, solids their boundary surface, ropes polylines, loose particles
+    points. ``spheres`` > 0 [m] also draws each rope and point particle as a sphere of that radius (a
+    batched mesh: the browser can click and drag those, not lines or points; the node's part has kind
+    ``"spheres"``).
+
+    Returns:
+        (scene node handle, part) pairs in the order :func:`move_nodes` moves them, and node name → what it
+        shows (``"mesh"``, ``"curve"``, ``"points"``, ``"spheres"``, ``"collider"``, ``"ground"``).
+    """
+    from dataclasses import replace
+
+    parts = trajectory_objects(traj)
+    handles: list[tuple[Any, ObjectPart]] = []
+    nodes: dict[str, str] = {}
+    x0 = np.asarray(x0, np.float32)
+    for i, (part, name) in enumerate(zip(parts, _prim_names(parts), strict=True)):
+        colour = PALETTE[i % len(PALETTE)]
+        node = f"/pliant/{name}"
+        xs = x0[part.start : part.start + part.count]
+        if part.kind in ("surface", "solid"):
+            from ..geometry import surface_from_tets
+
+            faces = part.faces if part.kind == "surface" else surface_from_tets(part.tets)
+            h = server.scene.add_mesh_simple(
+                node, xs, np.asarray(faces, np.int32), color=colour, side="double"
+            )
+            nodes[node] = "mesh"
+        elif part.kind == "curve":
+            h = server.scene.add_line_segments(
+                node, np.stack([xs[:-1], xs[1:]], axis=1), colour, thickness=0.008
+            )
+            nodes[node] = "curve"
+        else:
+            h = server.scene.add_point_cloud(node, xs, colour, point_size=0.01, point_shape="circle")
+            nodes[node] = "points"
+        handles.append((h, part))
+        if spheres > 0 and part.kind in ("curve", "points"):
+            import trimesh
+
+            ball = trimesh.creation.icosphere(subdivisions=1, radius=spheres)
+            n = part.count
+            hs = server.scene.add_batched_meshes_simple(
+                f"{node}_particles",
+                np.asarray(ball.vertices, np.float32),
+                np.asarray(ball.faces, np.int32),
+                batched_wxyzs=np.tile(np.array([1.0, 0.0, 0.0, 0.0], np.float32), (n, 1)),
+                batched_positions=xs,
+                batched_colors=colour,
+            )
+            nodes[f"{node}_particles"] = "spheres"
+            handles.append((hs, replace(part, kind="spheres")))
+    for i, mesh in enumerate(traj.meta.get("colliders") or []):
+        node = f"/pliant/colliders/collider{i}"
+        pts = np.asarray(mesh["points"], np.float32).reshape(-1, 3)
+        tris = np.asarray(mesh["faces"], np.int32).reshape(-1, 3)
+        server.scene.add_mesh_simple(node, pts, tris, color=(160, 160, 160), side="double")
+        nodes[node] = "collider"
+    finite = np.asarray(traj.x).reshape(-1, 3)
+    lo, hi = finite.min(axis=0), finite.max(axis=0)
+    centre, size = 0.5 * (lo + hi), float(max(np.max(hi - lo), 0.5))
+    ground = traj.meta.get("ground")
+    if ground is not None:
+        server.scene.add_grid(
+            "/pliant/ground",
+            width=4 * size,
+            height=4 * size,
+            plane="xz",
+            cell_size=size / 8,
+            section_size=size / 2,
+            plane_color=(235, 235, 235),
+            plane_opacity=1.0,
+            position=(float(centre[0]), float(ground), float(centre[2])),
+        )
+        nodes["/pliant/ground"] = "ground"
+    # pliant is y-up; start the camera in front of and above the objects, looking at them.
+    server.scene.set_up_direction("+y")
+    server.initial_camera.position = tuple(float(c) for c in centre + np.array([0.0, 0.8, 1.8]) * size)
+    server.initial_camera.look_at = tuple(float(c) for c in centre)
+    return handles, nodes
+
+
 def serve_viewer(traj: Any, *, host: str = "127.0.0.1", port: int = 8080, verbose: bool = False) -> Viewer:
     """Serve ``traj`` (a :class:`pliant.io.Trajectory`) in the browser at ``http://host:port``.
 
@@ -111,57 +205,15 @@ def serve_viewer(traj: Any, *, host: str = "127.0.0.1", port: int = 8080, verbos
     if traj.frame_count < 1 or not np.all(np.isfinite(traj.x)):
         raise ValueError("the trajectory has no frames or non-finite positions; nothing to show")
     server = viser.ViserServer(host=host, port=port, verbose=verbose)
-    parts = trajectory_objects(traj)
-    v = Viewer(server=server, url=f"http://{host}:{server.get_port()}", traj=traj, parts=parts)
-    x0 = np.asarray(traj.x[0], np.float32)
-    for i, (part, name) in enumerate(zip(parts, _prim_names(parts), strict=True)):
-        colour = PALETTE[i % len(PALETTE)]
-        node = f"/pliant/{name}"
-        xs = x0[part.start : part.start + part.count]
-        if part.kind in ("surface", "solid"):
-            from ..geometry import surface_from_tets
-
-            faces = part.faces if part.kind == "surface" else surface_from_tets(part.tets)
-            h = server.scene.add_mesh_simple(
-                node, xs, np.asarray(faces, np.int32), color=colour, side="double"
-            )
-            v.nodes[node] = "mesh"
-        elif part.kind == "curve":
-            h = server.scene.add_line_segments(
-                node, np.stack([xs[:-1], xs[1:]], axis=1), colour, thickness=0.008
-            )
-            v.nodes[node] = "curve"
-        else:
-            h = server.scene.add_point_cloud(node, xs, colour, point_size=0.01, point_shape="circle")
-            v.nodes[node] = "points"
-        v._handles.append((h, part))
-    for i, mesh in enumerate(traj.meta.get("colliders") or []):
-        node = f"/pliant/colliders/collider{i}"
-        pts = np.asarray(mesh["points"], np.float32).reshape(-1, 3)
-        tris = np.asarray(mesh["faces"], np.int32).reshape(-1, 3)
-        server.scene.add_mesh_simple(node, pts, tris, color=(160, 160, 160), side="double")
-        v.nodes[node] = "collider"
-    finite = traj.x.reshape(-1, 3)
-    lo, hi = finite.min(axis=0), finite.max(axis=0)
-    centre, size = 0.5 * (lo + hi), float(max(np.max(hi - lo), 0.5))
-    ground = traj.meta.get("ground")
-    if ground is not None:
-        server.scene.add_grid(
-            "/pliant/ground",
-            width=4 * size,
-            height=4 * size,
-            plane="xz",
-            cell_size=size / 8,
-            section_size=size / 2,
-            plane_color=(235, 235, 235),
-            plane_opacity=1.0,
-            position=(float(centre[0]), float(ground), float(centre[2])),
-        )
-        v.nodes["/pliant/ground"] = "ground"
-    # pliant is y-up; start the camera in front of and above the objects, looking at them.
-    server.scene.set_up_direction("+y")
-    server.initial_camera.position = tuple(float(c) for c in centre + np.array([0.0, 0.8, 1.8]) * size)
-    server.initial_camera.look_at = tuple(float(c) for c in centre)
+    handles, nodes = add_object_nodes(server, traj, traj.x[0])
+    v = Viewer(
+        server=server,
+        url=f"http://{host}:{server.get_port()}",
+        traj=traj,
+        parts=[p for _, p in handles],
+        nodes=nodes,
+        _handles=handles,
+    )
     t = traj.frame_count
     v._slider = server.gui.add_slider("frame", min=0, max=max(t - 1, 1), step=1, initial_value=0)
     v._slider.on_update(lambda _: v.show(int(v._slider.value)))
@@ -170,3 +222,60 @@ def serve_viewer(traj: Any, *, host: str = "127.0.0.1", port: int = 8080, verbos
     dt = float(traj.meta.get("dt") or (traj.t[1] - traj.t[0] if t > 1 else 1 / 30))
     v.play(min(1.0 / max(dt, 1e-6), 60.0))
     return v
+
+
+def chromium() -> str | None:
+    """The headless browser that screenshots a viewer page (``chromium`` or ``chromium-browser``), or None."""
+    import shutil
+
+    return shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+def screenshot_page(
+    url: str, path: str | os.PathLike, *, width: int = 800, height: int = 600, budget_ms: int = 8000
+) -> Path:
+    """Screenshot the viewer page at ``url`` into ``path`` (PNG) with headless Chromium, WebGL in software
+    (SwiftShader: no GPU needed).
+
+    Args:
+        url: the page (``Viewer.url`` or ``LiveViewer.url``).
+        path: the PNG to write.
+        width: window width [px].
+        height: window height [px].
+        budget_ms: Chromium's virtual time budget [ms]: how long the page may load and draw the scene it
+            receives over the viewer's websocket.
+
+    Raises:
+        FileNotFoundError: no chromium on this machine (``apt-get install chromium``).
+    """
+    import subprocess
+    import tempfile
+
+    exe = chromium()
+    if exe is None:
+        raise FileNotFoundError("no chromium to screenshot the viewer: apt-get install chromium")
+    path = Path(path)
+    with tempfile.TemporaryDirectory() as profile:
+        subprocess.run(
+            [
+                exe,
+                "--headless",
+                "--no-sandbox",
+                "--disable-gpu",
+                "--disable-quic",
+                "--no-first-run",
+                "--disable-background-networking",
+                "--disable-component-update",
+                "--disable-sync",
+                f"--user-data-dir={profile}",
+                "--use-angle=swiftshader",
+                "--enable-unsafe-swiftshader",  # WebGL in software: no GPU here
+                f"--window-size={width},{height}",
+                f"--virtual-time-budget={budget_ms}",
+                f"--screenshot={path}",
+                url,
+            ],
+            capture_output=True,
+            timeout=120 + budget_ms / 1000,
+        )
+    return path

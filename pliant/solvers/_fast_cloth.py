@@ -376,7 +376,14 @@ class FastMassSpring(Solver):
         wp.launch(
             add_drag_force,
             1,
-            [control.drag_index, m.vec3(*control.drag_target), m.s(control.drag_stiffness), x, self._f_work],
+            [
+                control.drag_index,
+                m.vec3(*control.drag_target),
+                m.s(control.drag_stiffness),
+                m.s(control.drag_max_force),
+                x,
+                self._f_work,
+            ],
             device=m.device,
         )
         return self._f_work

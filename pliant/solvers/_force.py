@@ -184,7 +184,7 @@ class ForceSolver(Solver):
             launch(
                 add_drag_force,
                 1,
-                [c.drag_index, m.vec3(*c.drag_target), m.s(c.drag_stiffness), x, out],
+                [c.drag_index, m.vec3(*c.drag_target), m.s(c.drag_stiffness), m.s(c.drag_max_force), x, out],
                 device=m.device,
             )
 

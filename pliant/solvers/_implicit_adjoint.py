@@ -37,6 +37,7 @@ import numpy as np
 import warp as wp
 
 from .._warp import GradientError, _tape_active, active_tape, launch, tape_paused
+from ._post import drag_force
 
 
 def _recording(model: Any) -> Any:
@@ -58,13 +59,14 @@ def _step_residual(
     drag_index: int,
     drag_target: Any,
     drag_stiffness: Any,
+    drag_max_force: Any,
     out: wp.array(dtype=Any),
 ):
     # G = ∇Φ = M (x − x̃) + h² (∇E − f + drag), zero on fixed rows (same terms as the minimisers' ∇Φ).
     i = wp.tid()
     e = egrad[i] - f_ext[i]
     if i == drag_index:
-        e = e + drag_stiffness * (x[i] - drag_target)
+        e = e - drag_force(drag_target, drag_stiffness, drag_max_force, x[i])
     g = mass[i] * (x[i] - x_tilde[i]) + h2 * e
     if inv_mass[i] == h2 * type(h2)(0.0):
         g = g * type(h2)(0.0)
@@ -116,7 +118,12 @@ class _StepAdjoint:
         self.f_ext = None if c is None else c.particle_f
         self.drag = None
         if c is not None and c.drag_index >= 0:
-            self.drag = (int(c.drag_index), tuple(c.drag_target), float(c.drag_stiffness))
+            self.drag = (
+                int(c.drag_index),
+                tuple(c.drag_target),
+                float(c.drag_stiffness),
+                float(c.drag_max_force),
+            )
 
     def arrays(self) -> list[wp.array]:
         """Arrays whose gradients the adjoint writes (for ``Tape.zero``)."""
@@ -165,12 +172,12 @@ class _StepAdjoint:
                 start = len(local.launches)
                 e.gradient(m, x_c, egrad)
                 spans.append((e, start, len(local.launches)))
-            di, dtarget, dk = self.drag if self.drag is not None else (-1, (0.0, 0.0, 0.0), 0.0)
+            di, dtarget, dk, dcap = self.drag if self.drag is not None else (-1, (0.0, 0.0, 0.0), 0.0, 0.0)
             launch(
                 _step_residual,
                 n,
                 [m.particle_mass, m.particle_inv_mass, m.s(self.h * self.h), x_c, self.x_tilde, egrad, f_ext]
-                + [di, m.vec3(*dtarget), m.s(dk), residual],
+                + [di, m.vec3(*dtarget), m.s(dk), m.s(dcap), residual],
                 device=m.device,
             )
         _check_adjoints(local, spans)

@@ -47,6 +47,7 @@ from ._newton_workspace import (  # noqa: F401  (re-exported: _static and tests 
     _workspace,
     cache_of,
 )
+from ._post import drag_force, drag_hessian
 
 #: Defaults when ``options`` does not name a setting (read-only view of ImplicitOptions' defaults).
 DEFAULTS: dict[str, Any] = {f.name: getattr(ImplicitOptions(), f.name) for f in fields(ImplicitOptions)}
@@ -215,6 +216,7 @@ def _drag_terms(
     index: int,
     target: Any,
     stiffness: Any,
+    max_force: Any,
     scale: Any,
     diag_slots: wp.array(dtype=wp.int32),
     x_in: wp.array(dtype=Any),
@@ -223,14 +225,22 @@ def _drag_terms(
     value_out: wp.array(dtype=Any),
     values_out: wp.array(dtype=Any),
 ):
-    # The drag handle's zero-length spring ½k|x − target|²: value and gradient (mode 0) or Hessian (mode 1).
-    d = x_in[index] - target
+    # The drag handle's zero-length spring ½k|x − target|², its force capped at max_force (then the energy
+    # grows linearly, max_force (|d| − r/2) with r = max_force / k): value and gradient (mode 0) or Hessian
+    # (mode 1).
+    x = x_in[index]
     if mode == 0:
-        grad_out[index] = grad_out[index] + stiffness * d
-        value_out[0] = value_out[0] + type(stiffness)(0.5) * stiffness * wp.dot(d, d)
+        d = x - target
+        dist = wp.length(d)
+        r = max_force / stiffness
+        e = type(stiffness)(0.5) * stiffness * wp.dot(d, d)
+        if dist > r:
+            e = max_force * (dist - type(stiffness)(0.5) * r)
+        grad_out[index] = grad_out[index] - drag_force(target, stiffness, max_force, x)
+        value_out[0] = value_out[0] + e
     else:
         s = diag_slots[index]
-        values_out[s] = values_out[s] + (scale * stiffness) * wp.identity(n=3, dtype=type(stiffness))
+        values_out[s] = values_out[s] + scale * drag_hessian(target, stiffness, max_force, x)
 
 
 @wp.kernel(enable_backward=False)
@@ -319,6 +329,7 @@ def _control_terms(solver: Any, ws: _Workspace, x: wp.array, grad: wp.array, val
                 c.drag_index,
                 m.vec3(*c.drag_target),
                 m.s(c.drag_stiffness),
+                m.s(c.drag_max_force),
                 m.s(1.0),
                 ws.diag_slots,
                 x,
@@ -361,6 +372,7 @@ def _assemble(
                 c.drag_index,
                 m.vec3(*c.drag_target),
                 m.s(c.drag_stiffness),
+                m.s(c.drag_max_force),
                 m.s(h * h),
                 ws.diag_slots,
                 x,

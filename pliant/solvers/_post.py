@@ -29,17 +29,42 @@ def apply_kinematic(
 
 
 @wp.func
-def drag_force(target: Any, stiffness: Any, x: Any):
-    """The drag handle's force [N]: a zero-length spring k (target − x) from the particle to the cursor."""
-    return stiffness * (target - x)
+def drag_force(target: Any, stiffness: Any, max_force: Any, x: Any):
+    """The drag handle's force [N]: a zero-length spring k (target − x) from the particle to the cursor,
+    its magnitude capped at ``max_force`` [N] (beyond |target − x| = max_force / k it pulls with max_force:
+    the force of the energy k r²/2 inside that radius r, max_force (|d| − r/2) outside)."""
+    f = stiffness * (target - x)
+    n = wp.length(f)
+    if n > max_force:
+        f = f * (max_force / n)
+    return f
+
+
+@wp.func
+def drag_hessian(target: Any, stiffness: Any, max_force: Any, x: Any):
+    """The Hessian [N/m] of the capped drag energy (``drag_force``'s): k I inside the radius, and outside
+    (max_force / |d|)(I − n nᵀ), the capped spring's transverse stiffness (positive semi-definite)."""
+    d = x - target
+    dist = wp.length(d)
+    eye = wp.identity(n=3, dtype=type(stiffness))
+    if stiffness * dist <= max_force:
+        return stiffness * eye
+    u = d / dist
+    return (max_force / dist) * (eye - wp.outer(u, u))
 
 
 @wp.kernel
 def add_drag_force(
-    index: int, target: Any, stiffness: Any, x_in: wp.array(dtype=Any), f_io: wp.array(dtype=Any)
+    index: int,
+    target: Any,
+    stiffness: Any,
+    max_force: Any,
+    x_in: wp.array(dtype=Any),
+    f_io: wp.array(dtype=Any),
 ):
-    """The drag handle (pulls without a jump), added to the force of the particle it holds."""
-    f_io[index] = f_io[index] + drag_force(target, stiffness, x_in[index])
+    """The drag handle (pulls without a jump, with a bounded force), added to the force of the particle it
+    holds."""
+    f_io[index] = f_io[index] + drag_force(target, stiffness, max_force, x_in[index])
 
 
 def finish_step(

@@ -302,6 +302,7 @@ class XPBD(Solver):
             control.drag_index,
             tuple(np.asarray(control.drag_target, float).tolist()),
             float(control.drag_stiffness),
+            float(control.drag_max_force),
         )
 
     def _step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
@@ -320,9 +321,10 @@ class XPBD(Solver):
             f_ext = control.particle_f
             drag = control.drag_index
             drag_target, drag_k = m.vec3(*control.drag_target), m.s(control.drag_stiffness)
+            drag_cap = m.s(control.drag_max_force)
         else:
             f_ext = self.delta  # zeros between steps
-            drag, drag_target, drag_k = -1, m.vec3(0.0, 0.0, 0.0), m.s(0.0)
+            drag, drag_target, drag_k, drag_cap = -1, m.vec3(0.0, 0.0, 0.0), m.s(0.0), m.s(0.0)
         self.launch(
             K.predict,
             n,
@@ -333,6 +335,7 @@ class XPBD(Solver):
                 drag,
                 drag_target,
                 drag_k,
+                drag_cap,
                 m.s(dt),
                 x,
                 state_in.particle_qd,

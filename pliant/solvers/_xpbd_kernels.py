@@ -19,6 +19,7 @@ def predict(
     drag_index: int,
     drag_target: Any,
     drag_stiffness: Any,
+    drag_max_force: Any,
     # Parameters:
     dt: Any,
     # State in:
@@ -39,7 +40,7 @@ def predict(
     f = f_ext[i]
     if i == drag_index:
         # The drag handle: the same zero-length spring as the force solvers add (_post.drag_force).
-        f = f + drag_force(drag_target, drag_stiffness, x)
+        f = f + drag_force(drag_target, drag_stiffness, drag_max_force, x)
     v = v_in[i] + dt * (gravity[0] + w * f)
     p_out[i] = x + dt * v
     v_pred_out[i] = v
