@@ -4,8 +4,9 @@ Each command only parses arguments and calls the public API. User mistakes (a ba
 device, a missing file) print one ``error:`` line per problem on stderr and exit non-zero, never a
 traceback; set ``PLIANT_DEBUG=1`` to see the traceback anyway.
 
-Exit codes: 0 success, 1 user error (a usage mistake included), 2 the simulation diverged, 130
-interrupted (Ctrl-C).
+Exit codes: 0 success, 1 user error (a usage mistake included), 2 the simulation diverged (anywhere: the
+run, the correction twin of a ``[gaussians.correction]`` scene, ``observe``, ``fit``; one
+``pliant: error: diverged at frame ...`` line), 130 interrupted (Ctrl-C).
 
 Nothing here imports Warp (nor ``pliant``'s layers) until a command runs: ``pliant --help`` answers at once
 and prints no device warning.
@@ -298,6 +299,20 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         _error(str(exc) or type(exc).__name__)
         return EXIT_USER
+    except RuntimeError as exc:
+        if debug or not _is_divergence(exc):
+            raise
+        # A divergence outside `pliant run`'s own loop (the correction twin, observe, fit): the same one line
+        # and exit code; `simulate` has already saved what the main loop computed.
+        _error(str(exc).splitlines()[0])
+        return EXIT_DIVERGED
+
+
+def _is_divergence(exc: BaseException) -> bool:
+    """Whether ``exc`` is a :class:`pliant.DivergenceError` (checked without importing Warp: the class can
+    only have been raised if its module is loaded)."""
+    sim = sys.modules.get("pliant.sim._simulator")
+    return sim is not None and isinstance(exc, sim.DivergenceError)
 
 
 def _error(message: str) -> None:
