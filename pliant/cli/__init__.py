@@ -76,6 +76,17 @@ def _positive_float(text: str) -> float:
     return v
 
 
+def add_force(parser: argparse.ArgumentParser) -> None:
+    """``--force``: build a scene that needs more memory than is available (or more particles than the
+    budget) anyway."""
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="build the scene even when its estimated memory exceeds the machine's available memory "
+        "(see `pliant info SCENE`) or its particles exceed PLIANT_MAX_PARTICLES",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``pliant`` (one sub-command per action)."""
     from .. import __version__
@@ -110,6 +121,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--device", help="cpu or cuda:N (default: CUDA when present)")
     d.add_argument("--no-video", action="store_true", help="skip rendering the video")
     d.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    add_force(d)
 
     r = _sub(
         sub,
@@ -149,6 +161,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="draw the video as meshes or as the [gaussians] splats (auto: splats when the scene has them)",
     )
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    add_force(r)
 
     sc = _sub(
         sub,
@@ -160,7 +173,17 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument("action", nargs="?", choices=("list", "show"), default="list", help="default: list")
     sc.add_argument("name", nargs="?", help="the scene to print (with show)")
 
-    _sub(sub, "info", "versions, devices and the Warp kernel cache", "pliant info")
+    i = _sub(
+        sub,
+        "info",
+        "versions, devices and the Warp kernel cache; with a scene, its size and the memory it needs",
+        "pliant info",
+        "pliant info soft_box --set objects[0].cells=100   # particles, tets, springs, GB before building",
+    )
+    i.add_argument("scene", nargs="?", help="a scene .toml file or a built-in scene name (optional)")
+    i.add_argument(
+        "--set", action="append", default=[], metavar="PATH=VALUE", dest="overrides", help="as in pliant run"
+    )
 
     b = _sub(
         sub,

@@ -47,7 +47,8 @@ class SplatRun:
 
         cfg, spec = self.cfg, self.spec
         try:
-            twin_cfg = parse_scene(cfg.text, cfg.source, cfg.base_dir, overrides=spec.set)
+            # Sized as this run's scene was (parameters only: the particle count is compared below).
+            twin_cfg = parse_scene(cfg.text, cfg.source, cfg.base_dir, overrides=spec.set, force=True)
         except SceneError as exc:
             raise CliError(f"gaussians.correction.set: the twin scene is invalid:\n{exc}") from None
         for key in ("frames", "frame_dt", "substeps"):  # the twin runs in step with this run
