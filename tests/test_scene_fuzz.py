@@ -202,6 +202,25 @@ def _tables(data: dict) -> list[dict]:
     return out
 
 
+def _mutate(draw, table: dict, op: str) -> None:
+    """Set a field of ``table`` to a bad value, scale it (a valid-looking but extreme value: most of these
+    build and run, exercising the solvers) or delete it."""
+    if not table:
+        return
+    key = draw(st.sampled_from(sorted(table)))
+    if op == "set":
+        table[key] = copy.deepcopy(draw(BAD_VALUES))
+    elif op == "delete":
+        del table[key]
+    else:
+        factor = draw(st.sampled_from([0.0, -1.0, 1e-3, 0.1, 10.0, 100.0, 1e3, 1e6]))
+        v = table[key]
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            table[key] = type(v)(v * factor) if abs(v * factor) < 1e18 else v * factor
+        elif isinstance(v, list) and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+            table[key] = [type(x)(x * factor) for x in v]
+
+
 @st.composite
 def mutated_scene(draw) -> tuple[str, dict[str, bytes]]:
     """(TOML text, extra files) of a mutated built-in scene."""
@@ -217,21 +236,8 @@ def mutated_scene(draw) -> tuple[str, dict[str, bytes]]:
         )
         tables = _tables(data)
         table = draw(st.sampled_from(tables)) if tables else data
-        if op == "set" and table:
-            table[draw(st.sampled_from(sorted(table)))] = copy.deepcopy(draw(BAD_VALUES))
-        elif op == "scale" and table:
-            # A valid-looking but extreme value: most of these build and run, exercising the solvers.
-            key = draw(st.sampled_from(sorted(table)))
-            factor = draw(st.sampled_from([0.0, -1.0, 1e-3, 0.1, 10.0, 100.0, 1e3, 1e6]))
-            v = table[key]
-            if isinstance(v, (int, float)) and not isinstance(v, bool):
-                table[key] = type(v)(v * factor) if abs(v * factor) < 1e18 else v * factor
-            elif isinstance(v, list) and all(
-                isinstance(x, (int, float)) and not isinstance(x, bool) for x in v
-            ):
-                table[key] = [type(x)(x * factor) for x in v]
-        elif op == "delete" and table:
-            del table[draw(st.sampled_from(sorted(table)))]
+        if op in ("set", "scale", "delete"):
+            _mutate(draw, table, op)
         elif op == "add":
             table[draw(FIELD_NAMES)] = copy.deepcopy(draw(BAD_VALUES))
         elif op == "kind":
@@ -327,11 +333,8 @@ def run_case(text: str, files: dict[str, bytes]) -> str:
     (scene_dir / "s.toml").write_text(text, encoding="utf-8", errors="surrogatepass")
     for name, content in files.items():
         (scene_dir / name).write_bytes(content)
-    old, old_budget = os.getcwd(), os.environ.get("PLIANT_MAX_PARTICLES")
-    os.environ["PLIANT_MAX_PARTICLES"] = str(MAX_PARTICLES)
-    os.chdir(cwd)
     sink = io.StringIO()
-    try:
+    with _sandbox(root, cwd):
         with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
             try:
                 cfg = load_scene(scene_dir / "s.toml")
@@ -344,26 +347,38 @@ def run_case(text: str, files: dict[str, bytes]) -> str:
             except CliError:
                 return "cli_error"
         assert status in (0, 2), status
-        outside = [
-            p
-            for p in root.rglob("*")
-            if p.is_file() and not p.is_relative_to(scene_dir) and not p.is_relative_to(out)
-        ]
-        assert not outside, f"files written outside --out: {outside}"
-        for f in out.glob("*.npz"):
-            if not f.name.endswith(".ckpt.npz"):
-                x = pl.Trajectory.load(f).x
-                assert np.all(np.isfinite(x)), f"non-finite output in {f.name} (exit {status})"
+        _check_outputs(root, scene_dir, out, status)
         return "ok" if status == 0 else "diverged"
+
+
+@contextlib.contextmanager
+def _sandbox(root: Path, cwd: Path):
+    """A fuzz case's working folder and particle budget, restored (and ``root`` removed) afterwards."""
+    import shutil
+
+    old, old_budget = os.getcwd(), os.environ.get("PLIANT_MAX_PARTICLES")
+    os.environ["PLIANT_MAX_PARTICLES"] = str(MAX_PARTICLES)
+    os.chdir(cwd)
+    try:
+        yield
     finally:
         os.chdir(old)
         if old_budget is None:
             os.environ.pop("PLIANT_MAX_PARTICLES", None)
         else:
             os.environ["PLIANT_MAX_PARTICLES"] = old_budget
-        import shutil
-
         shutil.rmtree(root, ignore_errors=True)
+
+
+def _check_outputs(root: Path, inputs: Path, out: Path, status: int) -> None:
+    """Nothing written outside ``out`` (but the case's ``inputs``), and every trajectory in it finite."""
+    written = [p for p in root.rglob("*") if p.is_file() and not p.is_relative_to(inputs)]
+    outside = [p for p in written if not p.is_relative_to(out)]
+    assert not outside, f"files written outside --out: {outside}"
+    for f in out.rglob("*.npz"):
+        if not f.name.endswith(".ckpt.npz") and not f.name.startswith("obs"):
+            x = pl.Trajectory.load(f).x
+            assert np.all(np.isfinite(x)), f"non-finite output in {f.name} (exit {status})"
 
 
 def _check(case) -> None:
@@ -434,16 +449,8 @@ def mutated_splat_scene(draw) -> tuple[str, str]:
         op = draw(st.sampled_from(["set", "scale", "scale", "delete", "twin", "twin"]))
         tables = _tables(data)
         table = draw(st.sampled_from(tables)) if tables else data
-        if op == "set" and table:
-            table[draw(st.sampled_from(sorted(table)))] = copy.deepcopy(draw(BAD_VALUES))
-        elif op == "scale" and table:
-            key = draw(st.sampled_from(sorted(table)))
-            factor = draw(st.sampled_from([0.0, -1.0, 1e-3, 0.1, 10.0, 100.0, 1e4]))
-            v = table[key]
-            if isinstance(v, (int, float)) and not isinstance(v, bool):
-                table[key] = type(v)(v * factor) if abs(v * factor) < 1e18 else v * factor
-        elif op == "delete" and table:
-            del table[draw(st.sampled_from(sorted(table)))]
+        if op in ("set", "scale", "delete"):
+            _mutate(draw, table, op)
         elif op == "twin" and isinstance(data.get("gaussians"), dict):
             corr = data["gaussians"].setdefault("correction", {"cameras": 1, "width": 16, "height": 12})
             if isinstance(corr, dict):
@@ -461,11 +468,8 @@ def run_cli_case(args: list[str], files: dict[str, bytes]) -> tuple[int, str]:
     inputs.mkdir()
     for name, content in files.items():
         (inputs / name).write_bytes(content)
-    old, old_budget = os.getcwd(), os.environ.get("PLIANT_MAX_PARTICLES")
-    os.environ["PLIANT_MAX_PARTICLES"] = str(MAX_PARTICLES)
-    os.chdir(root)
     err = io.StringIO()
-    try:
+    with _sandbox(root, root):
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
             rc = main([a.replace("{root}", str(root)) for a in args])
         text = err.getvalue()
@@ -476,25 +480,8 @@ def run_cli_case(args: list[str], files: dict[str, bytes]) -> tuple[int, str]:
             assert len(errors) == 1 and "diverged at frame" in errors[0], text
         elif rc == 1:
             assert errors, text
-        outside = [
-            p
-            for p in root.rglob("*")
-            if p.is_file() and not p.is_relative_to(inputs) and not p.is_relative_to(out)
-        ]
-        assert not outside, f"files written outside --out: {outside}"
-        for f in out.rglob("*.npz"):
-            if not f.name.endswith(".ckpt.npz") and not f.name.startswith("obs"):
-                assert np.all(np.isfinite(pl.Trajectory.load(f).x)), f"non-finite output in {f.name}"
+        _check_outputs(root, inputs, out, rc)
         return rc, text
-    finally:
-        os.chdir(old)
-        if old_budget is None:
-            os.environ.pop("PLIANT_MAX_PARTICLES", None)
-        else:
-            os.environ["PLIANT_MAX_PARTICLES"] = old_budget
-        import shutil
-
-        shutil.rmtree(root, ignore_errors=True)
 
 
 def _check_splat(case) -> int:
