@@ -147,7 +147,7 @@ def _object_counts(cfg: Any, o: Any, i: int) -> _Counts:
         return _Counts(p, springs, 0.0, 0.0, 0.0, springs, False)
     est = OBJECT_KINDS[o.kind].particles
     p = float(est(cfg, o)) if est is not None else 0.0
-    return _Counts(p, 0.0, 0.0, 0.0, 0.0, 0.0, o.kind == "cluster")
+    return _Counts(p, 0.0, 0.0, 0.0, 0.0, 0.0, False)
 
 
 def _implicit(cfg: Any) -> bool:
