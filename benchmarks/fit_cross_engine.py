@@ -34,72 +34,24 @@ import pliant.scene
 
 DATA = Path(__file__).resolve().parent / "peers" / "data"
 
-# benchmarks/peers/observe_newton.py CLOTH: 12 × 12 cells, 0.6 m, corners of largest z held, 0.1 kg;
-# Newton tri_ke = μt = 40 N/m, tri_ka = λt = 40 N/m: plane-stress E·t = 4μt(μ+λ)/(2μ+λ) = 106.7 N/m,
-# ν = λ/(2μ+λ) = 1/3.
-CLOTH = """
-[scene]
-name = "newton_cloth"
-frame_dt = 0.03333333333333333
-substeps = 40
-frames = 60
-dtype = "float64"
-[[objects]]
-kind = "cloth"
-nx = 12
-ny = 12
-size = 0.6
-origin = [-0.3, 1.0, -0.3]
-plane = "xz"
-mass = 0.1
-pin = "top-corners"
-[objects.material]
-Et = 106.7
-nu = 0.3333
-[solver]
-integrator = "SymplecticEuler"
-damping_rate = 0.0
-"""
-
-# observe_newton.py BEAM: 6 × 2 × 2 cells, 0.36 × 0.1 × 0.1 m centred at (0, 0.6, 0), the x = −0.18 face
+# The scenes are committed beside the observations (peers/data/newton_{cloth,beam}.toml), so that
+# `pliant fit` runs on them too. Cloth: observe_newton.py's 12 × 12 cells, 0.6 m, corners of largest z held,
+# 0.1 kg; Newton tri_ke = μt = 40 N/m, tri_ka = λt = 40 N/m: plane-stress E·t = 4μt(μ+λ)/(2μ+λ) = 106.7 N/m,
+# ν = λ/(2μ+λ) = 1/3. Beam: 6 × 2 × 2 cells, 0.36 × 0.1 × 0.1 m centred at (0, 0.6, 0), the x = −0.18 face
 # clamped; ρ = 1000 kg/m³, E = 2e5 Pa, ν = 0.3 (Newton: Smith 2018 tets with viscosity k_damp = 100 Pa s).
-BEAM = """
-[scene]
-name = "newton_beam"
-frame_dt = 0.03333333333333333
-substeps = 40
-frames = 60
-dtype = "float64"
-[[objects]]
-kind = "soft_box"
-model = "fem"
-cells = [6, 2, 2]
-size = [0.36, 0.1, 0.1]
-origin = [0.0, 0.6, 0.0]
-density = 1000.0
-[objects.material]
-E = 2e5
-nu = 0.3
-[[handles]]
-kind = "box"
-center = [-0.18, 0.6, 0.0]
-half_extents = [0.005, 0.06, 0.06]
-[solver]
-integrator = "SymplecticEuler"
-damping_rate = 0.0
-"""
+# Both start without velocity damping (Newton's SemiImplicit has none).
 
 CASES = {
-    "cloth": (CLOTH, "newton_cloth.npz", ["Et", "damping_rate"], "stiffness"),
-    "beam": (BEAM, "newton_beam.npz", ["E", "nu", "damping_rate"], "E"),
+    "cloth": ("newton_cloth", ["Et", "damping_rate"], "stiffness"),
+    "beam": ("newton_beam", ["E", "nu", "damping_rate"], "E"),
 }
 
 
 def run(name: str, generations: int = 20, epochs: int = 10, lr: float = 0.01) -> dict:
     """Fit one case; returns its figures (errors in metres)."""
-    text, npz, params, per_element = CASES[name]
-    cfg = pl.scene.parse_scene(text)
-    obs = pl.io.Observations.load(DATA / npz)
+    stem, params, per_element = CASES[name]
+    cfg = pl.scene.load_scene(DATA / f"{stem}.toml")
+    obs = pl.io.Observations.load(DATA / f"{stem}.npz")
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as out:
         rep = pl.fit.fit(

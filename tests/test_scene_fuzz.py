@@ -202,6 +202,25 @@ def _tables(data: dict) -> list[dict]:
     return out
 
 
+def _mutate(draw, table: dict, op: str) -> None:
+    """Set a field of ``table`` to a bad value, scale it (a valid-looking but extreme value: most of these
+    build and run, exercising the solvers) or delete it."""
+    if not table:
+        return
+    key = draw(st.sampled_from(sorted(table)))
+    if op == "set":
+        table[key] = copy.deepcopy(draw(BAD_VALUES))
+    elif op == "delete":
+        del table[key]
+    else:
+        factor = draw(st.sampled_from([0.0, -1.0, 1e-3, 0.1, 10.0, 100.0, 1e3, 1e6]))
+        v = table[key]
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            table[key] = type(v)(v * factor) if abs(v * factor) < 1e18 else v * factor
+        elif isinstance(v, list) and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+            table[key] = [type(x)(x * factor) for x in v]
+
+
 @st.composite
 def mutated_scene(draw) -> tuple[str, dict[str, bytes]]:
     """(TOML text, extra files) of a mutated built-in scene."""
@@ -217,21 +236,8 @@ def mutated_scene(draw) -> tuple[str, dict[str, bytes]]:
         )
         tables = _tables(data)
         table = draw(st.sampled_from(tables)) if tables else data
-        if op == "set" and table:
-            table[draw(st.sampled_from(sorted(table)))] = copy.deepcopy(draw(BAD_VALUES))
-        elif op == "scale" and table:
-            # A valid-looking but extreme value: most of these build and run, exercising the solvers.
-            key = draw(st.sampled_from(sorted(table)))
-            factor = draw(st.sampled_from([0.0, -1.0, 1e-3, 0.1, 10.0, 100.0, 1e3, 1e6]))
-            v = table[key]
-            if isinstance(v, (int, float)) and not isinstance(v, bool):
-                table[key] = type(v)(v * factor) if abs(v * factor) < 1e18 else v * factor
-            elif isinstance(v, list) and all(
-                isinstance(x, (int, float)) and not isinstance(x, bool) for x in v
-            ):
-                table[key] = [type(x)(x * factor) for x in v]
-        elif op == "delete" and table:
-            del table[draw(st.sampled_from(sorted(table)))]
+        if op in ("set", "scale", "delete"):
+            _mutate(draw, table, op)
         elif op == "add":
             table[draw(FIELD_NAMES)] = copy.deepcopy(draw(BAD_VALUES))
         elif op == "kind":
@@ -327,11 +333,8 @@ def run_case(text: str, files: dict[str, bytes]) -> str:
     (scene_dir / "s.toml").write_text(text, encoding="utf-8", errors="surrogatepass")
     for name, content in files.items():
         (scene_dir / name).write_bytes(content)
-    old, old_budget = os.getcwd(), os.environ.get("PLIANT_MAX_PARTICLES")
-    os.environ["PLIANT_MAX_PARTICLES"] = str(MAX_PARTICLES)
-    os.chdir(cwd)
     sink = io.StringIO()
-    try:
+    with _sandbox(root, cwd):
         with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
             try:
                 cfg = load_scene(scene_dir / "s.toml")
@@ -344,26 +347,38 @@ def run_case(text: str, files: dict[str, bytes]) -> str:
             except CliError:
                 return "cli_error"
         assert status in (0, 2), status
-        outside = [
-            p
-            for p in root.rglob("*")
-            if p.is_file() and not p.is_relative_to(scene_dir) and not p.is_relative_to(out)
-        ]
-        assert not outside, f"files written outside --out: {outside}"
-        for f in out.glob("*.npz"):
-            if not f.name.endswith(".ckpt.npz"):
-                x = pl.Trajectory.load(f).x
-                assert np.all(np.isfinite(x)), f"non-finite output in {f.name} (exit {status})"
+        _check_outputs(root, scene_dir, out, status)
         return "ok" if status == 0 else "diverged"
+
+
+@contextlib.contextmanager
+def _sandbox(root: Path, cwd: Path):
+    """A fuzz case's working folder and particle budget, restored (and ``root`` removed) afterwards."""
+    import shutil
+
+    old, old_budget = os.getcwd(), os.environ.get("PLIANT_MAX_PARTICLES")
+    os.environ["PLIANT_MAX_PARTICLES"] = str(MAX_PARTICLES)
+    os.chdir(cwd)
+    try:
+        yield
     finally:
         os.chdir(old)
         if old_budget is None:
             os.environ.pop("PLIANT_MAX_PARTICLES", None)
         else:
             os.environ["PLIANT_MAX_PARTICLES"] = old_budget
-        import shutil
-
         shutil.rmtree(root, ignore_errors=True)
+
+
+def _check_outputs(root: Path, inputs: Path, out: Path, status: int) -> None:
+    """Nothing written outside ``out`` (but the case's ``inputs``), and every trajectory in it finite."""
+    written = [p for p in root.rglob("*") if p.is_file() and not p.is_relative_to(inputs)]
+    outside = [p for p in written if not p.is_relative_to(out)]
+    assert not outside, f"files written outside --out: {outside}"
+    for f in out.rglob("*.npz"):
+        if not f.name.endswith(".ckpt.npz") and not f.name.startswith("obs"):
+            x = pl.Trajectory.load(f).x
+            assert np.all(np.isfinite(x)), f"non-finite output in {f.name} (exit {status})"
 
 
 def _check(case) -> None:
@@ -398,3 +413,217 @@ def test_the_harness_sees_failures():
     text = (Path(pl.__file__).parent / "scenes" / "rope.toml").read_text()
     assert run_case(text, {}) == "ok"
     assert run_case(text.replace('name = "rope"', 'name = "../x"'), {}) == "rejected"
+
+
+# ------------------------------------------- [gaussians] scenes, image observations and fits (issue 31)
+# Through `pliant.cli.main` in-process, as a user runs them: every case ends with exit 0, 1 (one
+# `pliant: error:` line per problem) or 2 (one `pliant: error: diverged at frame ...` line), never a
+# traceback, a file outside --out, or non-finite output. A divergence anywhere (the run, the correction
+# twin, observe, fit) is the same one line and exit 2.
+TWIN_SETS = [
+    "objects[0].material.stiffness=300.0",
+    "objects[0].material.stiffness=1e9",  # the twin diverges before the run starts
+    "objects[0].nx=5",  # another geometry: refused
+    "scene.frame_dt=1.0",  # replaced by the run's own frame_dt (the twin runs in step)
+    "objects[0].material.damping=-1.0",
+    "nope=1",
+    "objects[9].nx=1",
+]
+
+
+def _splat_base() -> dict:
+    """splat_cloth shrunk to a few milliseconds a frame: a 4 x 4 cloth, one 16 x 12 camera."""
+    data = tomllib.loads((Path(pl.__file__).parent / "scenes" / "splat_cloth.toml").read_text())
+    data["scene"].update(frames=1, substeps=4)
+    data["objects"][0].update(nx=4, ny=4, pin=[0, 4])
+    data["camera"].update(width=32, height=24)
+    data["gaussians"]["correction"].update(cameras=1, width=16, height=12, iterations=2)
+    return data
+
+
+@st.composite
+def mutated_splat_scene(draw) -> tuple[str, str]:
+    """(TOML text, --renderer) of a mutated splat scene (its [gaussians] and correction sections included)."""
+    data = _splat_base()
+    for _ in range(draw(st.integers(1, 3))):
+        op = draw(st.sampled_from(["set", "scale", "scale", "delete", "twin", "twin"]))
+        tables = _tables(data)
+        table = draw(st.sampled_from(tables)) if tables else data
+        if op in ("set", "scale", "delete"):
+            _mutate(draw, table, op)
+        elif op == "twin" and isinstance(data.get("gaussians"), dict):
+            corr = data["gaussians"].setdefault("correction", {"cameras": 1, "width": 16, "height": 12})
+            if isinstance(corr, dict):
+                corr["set"] = [draw(st.sampled_from(TWIN_SETS))]
+    return to_toml(data), draw(st.sampled_from(["auto", "mesh", "splats"]))
+
+
+def run_cli_case(args: list[str], files: dict[str, bytes]) -> tuple[int, str]:
+    """``pliant ARGS`` in-process in a fresh folder holding ``files`` (``{root}`` in ARGS is replaced by
+    it); returns (exit code, stderr) after checking the outputs stay in ``{root}/out`` and are finite."""
+    from pliant.cli import main
+
+    root = Path(tempfile.mkdtemp(prefix="pliant_fuzz_cli_"))
+    inputs, out = root / "in", root / "out"
+    inputs.mkdir()
+    for name, content in files.items():
+        (inputs / name).write_bytes(content)
+    err = io.StringIO()
+    with _sandbox(root, root):
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+            rc = main([a.replace("{root}", str(root)) for a in args])
+        text = err.getvalue()
+        assert rc in (0, 1, 2), (rc, text)
+        assert "Traceback" not in text, text
+        errors = [line for line in text.splitlines() if line.startswith("pliant: error:")]
+        if rc == 2:
+            assert len(errors) == 1 and "diverged at frame" in errors[0], text
+        elif rc == 1:
+            assert errors, text
+        _check_outputs(root, inputs, out, rc)
+        return rc, text
+
+
+def _check_splat(case) -> int:
+    text, renderer = case
+    args = ["run", "{root}/in/s.toml", "--out", "{root}/out", "--no-video", "-q", "--device", "cpu"]
+    try:
+        rc, _ = run_cli_case(
+            [*args, "--renderer", renderer], {"s.toml": text.encode("utf-8", "surrogatepass")}
+        )
+    except AssertionError as exc:
+        raise AssertionError(f"{exc}\n--- scene ---\n{text}") from None
+    except Exception as exc:  # main() re-raises what it does not handle: a finding
+        raise AssertionError(f"{type(exc).__name__}: {exc}\n--- scene ---\n{text}") from exc
+    STATS[f"splat_{rc}"] = STATS.get(f"splat_{rc}", 0) + 1
+    return rc
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+@given(mutated_splat_scene())
+def test_mutated_splat_scenes_fail_cleanly(case):
+    """Mutated [gaussians] / [gaussians.correction] scenes through `pliant run` end cleanly (40 cases)."""
+    _check_splat(case)
+
+
+@pytest.mark.slow
+@settings(max_examples=2000, deadline=None, suppress_health_check=list(HealthCheck))
+@given(mutated_splat_scene())
+def test_mutated_splat_scenes_fail_cleanly_long(case):
+    """The same over 2000 random cases (slow)."""
+    _check_splat(case)
+
+
+def test_splat_twin_divergence_is_one_line_exit_2():
+    """The issue-31 reproducer: the correction twin diverges before the run starts; one line, exit 2."""
+    data = _splat_base()
+    data["scene"]["frame_dt"] = 1.0
+    text = to_toml(data)
+    rc, err = run_cli_case(
+        ["run", "{root}/in/s.toml", "--out", "{root}/out", "--no-video", "-q", "--device", "cpu"],
+        {"s.toml": text.encode()},
+    )
+    assert rc == 2 and "the real twin" in err, err
+    assert _check_splat((to_toml(_splat_base()), "auto")) == 0  # control: the unmutated base runs
+
+
+def _observations(kind: str, frames: int = 3) -> bytes:
+    """A fit_rope observation file: tracks, or one 16 x 12 camera video (images)."""
+    from pliant.cli import main
+
+    with tempfile.TemporaryDirectory() as d, contextlib.redirect_stdout(io.StringIO()):
+        path = Path(d) / "obs.npz"
+        extra = ["--tracks", "4"] if kind == "tracks" else ["--cameras", "1", "--image-size", "16x12"]
+        args = ["observe", "fit_rope", "--out", str(path), "--frames", str(frames), "-q", "--device", "cpu"]
+        assert main([*args, *extra]) == 0
+        return path.read_bytes()
+
+
+#: (observation kind, extra `pliant fit` arguments, the exit codes it may end with).
+FIT_CASES = [
+    ("tracks", ["--set", "scene.substeps=1"], (2,)),  # the nominal rollout diverges: one line, exit 2
+    ("images", ["--set", "scene.substeps=1"], (0, 2)),  # a photometric fit over diverging candidates
+    ("tracks", ["--set", "objects[0].material.stiffness=1e12"], (0, 2)),
+    ("tracks", ["--params", "nope"], (1,)),
+    ("images", ["--per-element", "stiffness", "--set", "scene.frame_dt=1.0"], (1,)),  # t ≠ frame times
+]
+
+
+@pytest.mark.parametrize(("kind", "extra", "codes"), FIT_CASES)
+def test_fits_fail_cleanly(kind, extra, codes):
+    """`pliant fit` on track and image observations with diverging or bad settings ends cleanly."""
+    args = ["fit", "fit_rope", "{root}/in/obs.npz", "--out", "{root}/out", "--iterations", "1", "--no-video"]
+    rc, err = run_cli_case([*args, "-q", "--device", "cpu", *extra], {"obs.npz": _observations(kind)})
+    assert rc in codes, (rc, err)
+
+
+def test_observe_divergence_is_one_line_exit_2():
+    """`pliant observe` of a diverging scene (tracks and images): one line, exit 2, no file."""
+    for extra in (["--tracks", "4"], ["--cameras", "1", "--image-size", "16x12"]):
+        args = [
+            "observe",
+            "fit_rope",
+            "--out",
+            "{root}/out/obs.npz",
+            "--frames",
+            "2",
+            "-q",
+            "--device",
+            "cpu",
+        ]
+        rc, err = run_cli_case([*args, "--set", "scene.frame_dt=1.0", *extra], {})
+        assert rc == 2, err
+
+
+@st.composite
+def mutated_fit(draw) -> tuple[str, list[str], dict[str, float]]:
+    """(observation kind, `pliant fit` options, changes to the observation arrays) of a fuzzed fit."""
+    kind = draw(st.sampled_from(["tracks", "images"]))
+    extra: list[str] = []
+    for _ in range(draw(st.integers(0, 2))):
+        extra += draw(
+            st.sampled_from(
+                [
+                    ["--set", "scene.substeps=1"],
+                    ["--set", f"objects[0].material.stiffness={draw(st.sampled_from(['1e-6', '1e9', '0']))}"],
+                    ["--params", draw(st.sampled_from(["stiffness", "damping", "none", "E", ""]))],
+                    ["--per-element", draw(st.sampled_from(["stiffness", "E", "nope"]))],
+                    ["--horizon", str(draw(st.integers(0, 5)))],
+                    ["--train-fraction", str(draw(st.sampled_from([0.1, 0.5, 1.0])))],
+                    ["--lr", str(draw(st.sampled_from([1e-9, 1.0, 100.0])))],
+                    ["--smoothness", str(draw(st.sampled_from([-1.0, 0.0, 1e6])))],
+                ]
+            )
+        )
+    poison = draw(st.sampled_from([{}, {"nan": 0.0}, {"scale": 1e6}, {"scale": 0.0}]))
+    return kind, extra, poison
+
+
+def _poisoned(kind: str, poison: dict[str, float]) -> bytes:
+    data = dict(np.load(io.BytesIO(_OBS_CACHE.setdefault(kind, _observations(kind)))))
+    key = "points" if kind == "tracks" else "images"
+    arr = np.array(data[key], dtype=np.float64)
+    if "nan" in poison:
+        arr.flat[0] = np.nan
+    if "scale" in poison:
+        arr = arr * poison["scale"]
+    data[key] = arr.astype(data[key].dtype)
+    buf = io.BytesIO()
+    np.savez(buf, **data)
+    return buf.getvalue()
+
+
+_OBS_CACHE: dict[str, bytes] = {}
+
+
+@pytest.mark.slow
+@settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck))
+@given(mutated_fit())
+def test_mutated_fits_fail_cleanly_long(case):
+    """Fuzzed `pliant fit` options and observation values end cleanly (slow: ~2-20 s a case)."""
+    kind, extra, poison = case
+    args = ["fit", "fit_rope", "{root}/in/obs.npz", "--out", "{root}/out", "--iterations", "1", "--no-video"]
+    try:
+        run_cli_case([*args, "-q", "--device", "cpu", *extra], {"obs.npz": _poisoned(kind, poison)})
+    except Exception as exc:
+        raise AssertionError(f"{type(exc).__name__}: {exc}\n--- case --- {case}") from exc

@@ -101,19 +101,19 @@ def test_xpbd_solver_options_are_checked_at_load(solver, field, hint):
     [
         (
             HEAD + '[[objects]]\nkind = "cloth"\nny = 1000000000\nmaterial = {stiffness = 1.0}\n',
-            "objects[0]",
-            "1.7e+10 particles, above the budget",
+            "objects",
+            "1.7e+10 particles, 6.5e+10 springs; model",
         ),
         (
             HEAD + '[[objects]]\nkind = "points"\nshape = "box"\nsize = 1000.0\nspacing = 0.03\n'
             "material = {stiffness = 1.0}\n",
-            "objects[0]",
-            "above the budget",
+            "objects",
+            "available; make it coarser, or pass --force to go on",
         ),
         (
             HEAD + '[[objects]]\nkind = "soft_box"\ncells = 2000\nmaterial = {stiffness = 1.0}\n',
-            "objects[0]",
-            "above the budget",
+            "objects",
+            "this scene needs",
         ),
         (
             HEAD.replace("substeps = 2", "substeps = 100000000") + ROPE,
@@ -272,13 +272,13 @@ def test_unreadable_meshes_are_scene_errors(tmp_path, fname):
 
 def test_tetgen_bound_is_budgeted_before_tetgen_runs(tmp_path):
     """Item 4: a 0.2 m box filled with max_volume = 1e-12 m³ would ask TetGen for ~1e9 vertices: a load error
-    naming objects[0] (the same file with max_volume = 1e-4 builds)."""
+    naming the memory it needs (the same file with max_volume = 1e-4 builds)."""
     import trimesh
 
     trimesh.creation.box(extents=(0.2, 0.2, 0.2)).export(tmp_path / "b.obj")
     body = '[[objects]]\nkind = "mesh"\npath = "b.obj"\nmax_volume = {v}\nmaterial = {{stiffness = 1.0}}\n'
     with pytest.raises(
-        SceneError, match=r"s.toml:5: objects\[0\]: this mesh object would create about 1.6e\+09"
+        SceneError, match=r"s.toml:5: objects: this scene needs .* GB \(about 1.6e\+09 particles"
     ):
         parse_scene(HEAD + body.format(v="1e-12"), "s.toml", tmp_path)
     assert build_scene(

@@ -4,8 +4,9 @@ Each command only parses arguments and calls the public API. User mistakes (a ba
 device, a missing file) print one ``error:`` line per problem on stderr and exit non-zero, never a
 traceback; set ``PLIANT_DEBUG=1`` to see the traceback anyway.
 
-Exit codes: 0 success, 1 user error (a usage mistake included), 2 the simulation diverged, 130
-interrupted (Ctrl-C).
+Exit codes: 0 success, 1 user error (a usage mistake included), 2 the simulation diverged (anywhere: the
+run, the correction twin of a ``[gaussians.correction]`` scene, ``observe``, ``fit``; one
+``pliant: error: diverged at frame ...`` line), 130 interrupted (Ctrl-C).
 
 Nothing here imports Warp (nor ``pliant``'s layers) until a command runs: ``pliant --help`` answers at once
 and prints no device warning.
@@ -114,6 +115,17 @@ def _positive_float(text: str) -> float:
     return v
 
 
+def add_force(parser: argparse.ArgumentParser) -> None:
+    """``--force``: build a scene that needs more memory than is available (or more particles than the
+    budget) anyway."""
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="build the scene even when its estimated memory exceeds the machine's available memory "
+        "(see `pliant info SCENE`) or its particles exceed PLIANT_MAX_PARTICLES",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``pliant`` (one sub-command per action)."""
     from .. import __version__
@@ -148,6 +160,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--device", help="cpu or cuda:N (default: CUDA when present)")
     d.add_argument("--no-video", action="store_true", help="skip rendering the video")
     d.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    add_force(d)
 
     r = _sub(
         sub,
@@ -187,6 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="draw the video as meshes or as the [gaussians] splats (auto: splats when the scene has them)",
     )
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    add_force(r)
 
     sc = _sub(
         sub,
@@ -198,7 +212,17 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument("action", nargs="?", choices=("list", "show"), default="list", help="default: list")
     sc.add_argument("name", nargs="?", help="the scene to print (with show)")
 
-    _sub(sub, "info", "versions, devices and the Warp kernel cache", "pliant info")
+    i = _sub(
+        sub,
+        "info",
+        "versions, devices and the Warp kernel cache; with a scene, its size and the memory it needs",
+        "pliant info",
+        "pliant info soft_box --set objects[0].cells=100   # particles, tets, springs, GB before building",
+    )
+    i.add_argument("scene", nargs="?", help="a scene .toml file or a built-in scene name (optional)")
+    i.add_argument(
+        "--set", action="append", default=[], metavar="PATH=VALUE", dest="overrides", help="as in pliant run"
+    )
 
     b = _sub(
         sub,
@@ -345,6 +369,20 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         _error(str(exc) or type(exc).__name__)
         return EXIT_USER
+    except RuntimeError as exc:
+        if debug or not _is_divergence(exc):
+            raise
+        # A divergence outside `pliant run`'s own loop (the correction twin, observe, fit): the same one line
+        # and exit code; `simulate` has already saved what the main loop computed.
+        _error(str(exc).splitlines()[0])
+        return EXIT_DIVERGED
+
+
+def _is_divergence(exc: BaseException) -> bool:
+    """Whether ``exc`` is a :class:`pliant.DivergenceError` (checked without importing Warp: the class can
+    only have been raised if its module is loaded)."""
+    sim = sys.modules.get("pliant.sim._simulator")
+    return sim is not None and isinstance(exc, sim.DivergenceError)
 
 
 def _error(message: str) -> None:

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from . import CliError, _positive_float, _positive_int, _sub
+from . import CliError, _positive_float, _positive_int, _sub, add_force
 from ._run import _load
 
 
@@ -72,6 +72,7 @@ def add_parsers(sub: Any) -> None:
         help="override a scene field first, as in `pliant run` (repeatable)",
     )
     f.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    add_force(f)
 
     o = _sub(
         sub,
@@ -114,6 +115,7 @@ def add_parsers(sub: Any) -> None:
         help="override a scene field first, as in `pliant run` (repeatable)",
     )
     o.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    add_force(o)
 
 
 def cmd_observe(args: argparse.Namespace) -> int:
@@ -123,7 +125,7 @@ def cmd_observe(args: argparse.Namespace) -> int:
     from ..fit import observe
     from ..scene import build_scene
 
-    cfg = _load(args.scene, args.overrides)
+    cfg = _load(args.scene, args.overrides, force=args.force)
     scene = build_scene(cfg, device=args.device)
     frames = None if args.frames is None else args.frames + 1
     obs = None
@@ -185,7 +187,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
     if not 0.0 < args.train_fraction <= 1.0:
         raise CliError(f"--train-fraction: expected a number in (0, 1], got {args.train_fraction}")
-    cfg = _load(args.scene, args.overrides)
+    cfg = _load(args.scene, args.overrides, force=args.force)
     obs = Observations.load(args.obs)
     params = None
     if args.params is not None:

@@ -21,7 +21,9 @@ def _version(dist: str) -> str:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    """Versions, devices and the Warp kernel cache directory."""
+    """Versions, devices and the Warp kernel cache directory; with a scene, its size estimate instead."""
+    if getattr(args, "scene", None):
+        return _scene_info(args)
     import warp as wp
 
     import pliant
@@ -46,6 +48,38 @@ def cmd_info(args: argparse.Namespace) -> int:
     rows.append(("devices", ", ".join(devices)))
     rows.append(("cuda", "available" if wp.is_cuda_available() else "not available (CPU only)"))
     rows.append(("kernel cache", str(wp.config.kernel_cache_dir)))
+    width = max(len(k) for k, _ in rows)
+    for k, v in rows:
+        print(f"{k:<{width}}  {v}")
+    return EXIT_OK
+
+
+def _scene_info(args: argparse.Namespace) -> int:
+    """``pliant info SCENE``: what the scene will allocate, estimated before building, against the memory
+    available (the check ``pliant run`` makes; ``--force`` skips it)."""
+    from ..scene import available_memory, scene_size
+    from ..scene._size import format_bytes
+    from ._run import _load
+
+    cfg = _load(args.scene, args.overrides, force=True)
+    size = scene_size(cfg)
+    have = available_memory()
+    kind = "implicit" if size.implicit else "explicit"
+    rows = [
+        ("scene", f"{cfg.scene.name} ({cfg.source})"),
+        ("particles", f"{size.particles}"),
+        ("springs", f"{size.springs}"),
+        ("tets", f"{size.tets}"),
+        ("triangles", f"{size.triangles}"),
+        ("counts", "exact (closed forms)" if size.exact else "estimates (TetGen fills, neighbour springs)"),
+        ("solver", f"{cfg.solver_kind()} / {cfg.solver.integrator} ({kind}), {cfg.scene.dtype}"),
+        ("model memory", f"{format_bytes(size.model_bytes)} (model and simulator states)"),
+        ("solver memory", f"{format_bytes(size.solver_bytes)} (Hessian and its sparse LU on the CPU)"),
+        ("total", format_bytes(size.total_bytes)),
+        ("available", "unknown" if have is None else format_bytes(have)),
+    ]
+    fits = have is None or size.total_bytes <= have
+    rows.append(("fits", "yes" if fits else "no: `pliant run` refuses it without --force"))
     width = max(len(k) for k, _ in rows)
     for k, v in rows:
         print(f"{k:<{width}}  {v}")

@@ -116,7 +116,8 @@ def mesh_instead_of_scene(scene: str) -> str | None:
     return "\n".join(lines)
 
 
-def _load(scene: str, overrides: list[str] | None = None) -> Any:
+def _load(scene: str, overrides: list[str] | None = None, *, force: bool = False) -> Any:
+    """The validated scene (``force``: without the size checks, as ``--force``)."""
     import warnings
 
     if Path(scene).suffix.lower() in MESH_SUFFIXES and Path(scene).is_file():
@@ -129,7 +130,7 @@ def _load(scene: str, overrides: list[str] | None = None) -> Any:
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DeprecationWarning)
-        cfg = load_scene(scene, overrides or ())
+        cfg = load_scene(scene, overrides or (), force=force)
     for w in caught:  # renamed scene keys: one note each, naming the new key; other warnings as usual
         if issubclass(w.category, DeprecationWarning):
             print(f"pliant: note: {w.message}", file=sys.stderr)
@@ -329,9 +330,9 @@ def simulate(
 
 def cmd_run(args: argparse.Namespace) -> int:
     """``pliant run SCENE``."""
-    cfg = _load(args.scene, args.overrides)
+    cfg = _load(args.scene, args.overrides, force=args.force)
     _apply_overrides(cfg, args)
-    hint = ["pliant", "run", args.scene, "--out", args.out]
+    hint = ["pliant", "run", args.scene, "--out", args.out] + (["--force"] if args.force else [])
     for item in args.overrides:
         hint += ["--set", item]
     for opt in ("frames", "frame_dt", "substeps", "integrator", "device", "dtype"):
@@ -354,7 +355,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """``pliant demo``: the built-in cloth scene, written as ``<out>/demo.mp4`` and ``<out>/demo.npz``."""
-    cfg = _load("cloth")
+    cfg = _load("cloth", force=args.force)
     _apply_overrides(cfg, args)
     out = Path(args.out)
     t0 = time.perf_counter()

@@ -43,10 +43,12 @@ class SplatRun:
         from ..gaussians import VisualCorrector
         from ..gaussians._surface import ring_cameras
         from ..scene import SceneError, build_scene, parse_scene
+        from ..sim import DivergenceError
 
         cfg, spec = self.cfg, self.spec
         try:
-            twin_cfg = parse_scene(cfg.text, cfg.source, cfg.base_dir, overrides=spec.set)
+            # Sized as this run's scene was (parameters only: the particle count is compared below).
+            twin_cfg = parse_scene(cfg.text, cfg.source, cfg.base_dir, overrides=spec.set, force=True)
         except SceneError as exc:
             raise CliError(f"gaussians.correction.set: the twin scene is invalid:\n{exc}") from None
         for key in ("frames", "frame_dt", "substeps"):  # the twin runs in step with this run
@@ -59,7 +61,16 @@ class SplatRun:
                 f"particles, this scene {m.particle_count}; change parameters only, not the geometry"
             )
         t0 = time.perf_counter()
-        self.twin_x = twin.simulator().run(self.scene.frames, progress=False).x
+        try:
+            self.twin_x = twin.simulator().run(self.scene.frames, progress=False).x
+        except DivergenceError as exc:  # `pliant` reports it as any divergence: one line, exit 2
+            raise DivergenceError(
+                exc.frame,
+                f"the real twin ([gaussians.correction] set {', '.join(spec.set)}), simulated before "
+                f"this run (nothing of it written): {exc.quantity}",
+                exc.value,
+                exc.advice,
+            ) from None
         lo, hi = self.splats.lo, self.splats.hi
         self.cameras = ring_cameras(
             self.twin_x[:, lo:hi], spec.cameras, width=spec.width, height=spec.height, elevation=30.0

@@ -25,6 +25,7 @@ from ._registry import (
     register_solver,
 )
 from ._schema import ColliderBase, Material, ObjectBase, SceneConfig
+from ._size import SceneSize, available_memory, scene_size
 from ._solvers import integrator_names, make_integrator
 from ._terms import register_builtin_terms
 from ._worlds import build_worlds
@@ -40,6 +41,8 @@ __all__ = [
     "Scene",
     "SceneConfig",
     "SceneError",
+    "SceneSize",
+    "available_memory",
     "build_scene",
     "build_worlds",
     "builtin_scenes",
@@ -54,4 +57,5 @@ __all__ = [
     "register_object_kind",
     "register_section",
     "register_solver",
+    "scene_size",
 ]

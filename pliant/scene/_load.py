@@ -17,6 +17,7 @@ from ._files import budget_message, max_particles
 from ._overrides import apply_overrides
 from ._registry import HANDLE_KINDS, OBJECT_KINDS, SECTIONS, SOLVER_KINDS
 from ._schema import SceneConfig
+from ._size import size_problem
 from ._solvers import check_solver
 
 if sys.version_info >= (3, 11):
@@ -64,10 +65,14 @@ def parse_scene(
     source: str = "<scene>",
     base_dir: str | os.PathLike = ".",
     overrides: Sequence[str] = (),
+    *,
+    force: bool = False,
 ) -> SceneConfig:
     """Validate the TOML ``text`` of a scene; ``source`` names it in errors (``base_dir``: where the files
     it refers to are looked up; ``overrides``: ``PATH=VALUE`` strings, e.g. ``"scene.frames=10"``, set
-    before validation, so they are checked like the file's own values).
+    before validation, so they are checked like the file's own values; ``force``: skip the size checks —
+    the memory the scene needs (:func:`~pliant.scene.scene_size`) against the machine's available memory,
+    and the particle budget — and build it anyway).
 
     Raises:
         SceneError: naming the file, line, field and the fix.
@@ -92,21 +97,24 @@ def parse_scene(
     except ValidationError as exc:
         raise SceneError(source, problems_from(exc, text)) from None
     cfg.source, cfg.base_dir, cfg.text = source, str(base_dir), text
-    problems = [(line_of(text, p), p, m) for p, m in check(cfg)]
+    problems = [(line_of(text, p), p, m) for p, m in check(cfg, force=force)]
     if problems:
         raise SceneError(source, problems)
     return cfg
 
 
-def load_scene(path_or_name: str | os.PathLike, overrides: Sequence[str] = ()) -> SceneConfig:
+def load_scene(
+    path_or_name: str | os.PathLike, overrides: Sequence[str] = (), *, force: bool = False
+) -> SceneConfig:
     """Read and validate a scene file, or a built-in scene by name (``"cloth"``, ``"rope"`` ...);
-    ``overrides`` are ``PATH=VALUE`` strings (``"objects[0].material.stiffness=200"``) applied first.
+    ``overrides`` are ``PATH=VALUE`` strings (``"objects[0].material.stiffness=200"``) applied first;
+    ``force`` skips the size checks (memory and particle budget; see :func:`parse_scene`).
 
     Raises:
         SceneError: a ``ValueError`` naming the file, line, field and the fix.
     """
     source, text, base = _resolve(path_or_name)
-    return parse_scene(text, source, base, overrides)
+    return parse_scene(text, source, base, overrides, force=force)
 
 
 def _check_models(cfg: SceneConfig, kind: str) -> list[tuple[str, str]]:
@@ -222,7 +230,14 @@ def _check_view(cfg: SceneConfig) -> list[tuple[str, str]]:
 
 
 def _check_budget(cfg: SceneConfig) -> list[tuple[str, str]]:
-    """The particles the objects would create, estimated from the schema, against the budget."""
+    """The memory the scene needs against the machine's, then the particles the objects would create
+    against the budget (both estimated from the schema, before anything is allocated)."""
+    try:
+        problems = size_problem(cfg)
+    except SceneError as exc:  # a referenced file that cannot be sized
+        return [(p, m) for _, p, m in exc.problems]
+    if problems:
+        return problems
     total, limit = 0.0, max_particles()
     for i, o in enumerate(cfg.objects):
         est = OBJECT_KINDS[o.kind].particles
@@ -238,8 +253,9 @@ def _check_budget(cfg: SceneConfig) -> list[tuple[str, str]]:
     return []
 
 
-def check(cfg: SceneConfig) -> list[tuple[str, str]]:
-    """Cross-field rules that pydantic's per-field types cannot express: (path, message) each."""
+def check(cfg: SceneConfig, *, force: bool = False) -> list[tuple[str, str]]:
+    """Cross-field rules that pydantic's per-field types cannot express: (path, message) each (``force``:
+    without the size checks)."""
     kind = cfg.solver_kind()
     out = check_solver(cfg)
     out += _check_models(cfg, kind)
@@ -249,6 +265,6 @@ def check(cfg: SceneConfig) -> list[tuple[str, str]]:
         value = getattr(cfg, sec.name, None)
         if value is not None and sec.check is not None:
             out += sec.check(cfg, value)
-    if not out:
+    if not out and not force:
         out += _check_budget(cfg)
     return out

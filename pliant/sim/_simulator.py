@@ -35,7 +35,7 @@ class DivergenceError(RuntimeError):
     """The simulation blew up; the message names the frame, the quantity and what to change."""
 
     def __init__(self, frame: int, quantity: str, value: float, advice: str) -> None:
-        self.frame, self.quantity, self.value = frame, quantity, value
+        self.frame, self.quantity, self.value, self.advice = frame, quantity, value, advice
         super().__init__(f"diverged at frame {frame}: {quantity} {value:.3g}; {advice}")
 
 

@@ -34,7 +34,9 @@ class StaticStats:
     Attributes:
         iterations: Newton iterations (linear solves), over all load steps.
         converged: whether the last load step's max_i |∇_i(E − f·x)| over the free components fell below
-            ``tol`` times its initial value (or the Newton step below ``tol`` times the model size).
+            ``tol`` times the larger of its initial value and the largest load, or below the round-off floor
+            ``force_floor``; or the Newton step below ``tol`` times the model size; or the decrease the
+            Newton step promises below the round-off of E − f·x (nothing left that float arithmetic sees).
         stop_reason: why it stopped: "converged", "max_iterations", "line search failed" (no decrease along
             the Newton direction: the round-off floor, or a non-descent direction), or "singular" (no
             regularised factorisation either: an unconstrained rigid motion under load).
@@ -48,6 +50,8 @@ class StaticStats:
         fixed_dofs: number of fixed components (3 per fully fixed vertex).
         regularized_steps: Newton steps that needed the Levenberg–Marquardt shift (singular H).
         load_steps: load steps taken (the last one at the full load).
+        force_floor: the round-off floor of the residual [N]: no tolerance asks for less (see
+            ``solve_static``'s ``tol``).
     """
 
     iterations: int = 0
@@ -63,6 +67,7 @@ class StaticStats:
     fixed_dofs: int = 0
     regularized_steps: int = 0
     load_steps: int = 0
+    force_floor: float = 0.0
 
 
 @wp.kernel(enable_backward=False)
@@ -245,6 +250,32 @@ def _direct_solve(ws: Any, model: Model, free_np: np.ndarray, stats: StaticStats
     return False
 
 
+def _roundoff_scales(model: Any, reach: float) -> tuple[float, float]:
+    """(force [N], energy [J]) sizes of the elastic terms whose round-off bounds what a minimiser resolves.
+
+    Positions are known to eps·``reach`` (max |x| [m]) only, so one element's force is uncertain by its
+    stiffness k_e ≈ (2μ + |λ|)·V^(1/3) (a spring's k) times that, on top of the cancellation of its
+    O(k_e·h_e) terms: force scale max_e k_e·(h_e + reach), with h_e = V^(1/3) (a spring's rest length).
+    The energy scale Σ_e (2μ + |λ|)·V_e + Σ_s k_s·L_s² is the size of the terms that cancel in an elastic
+    energy at small strain. Multiply by ~64·eps for floors. What matters is the coordinates against the
+    elements: far from the origin (Cook's membrane: coordinates ~50, elements ~1-3) the floor is ~20x
+    what the elements alone give.
+    """
+    force = energy = 0.0
+    if model.tet_count:
+        vol = np.abs(model.tet_rest_volume.numpy().astype(np.float64))
+        mod = 2.0 * np.abs(model.tet_mu.numpy().astype(np.float64)) + np.abs(model.tet_lam.numpy())
+        h = np.cbrt(vol)
+        force = max(force, float(np.max(mod * h * (h + reach))))
+        energy += float(np.sum(mod * vol))
+    if model.spring_count:
+        k = np.abs(model.spring_stiffness.numpy().astype(np.float64))
+        rest = np.abs(model.spring_rest_length.numpy().astype(np.float64))
+        force = max(force, float(np.max(k * (rest + reach))))
+        energy += float(np.sum(k * rest * rest))
+    return force, energy
+
+
 def solve_static(
     model: Model,
     energies: Sequence[Energy],
@@ -280,9 +311,10 @@ def solve_static(
         loads: constant nodal forces f [N], shape [particle_count, 3] (or one vec3 for every vertex).
         x0: initial positions and prescribed positions of the fixed components [m], shape
             [particle_count, 3]; default the model's rest positions.
-        tol: relative tolerance: stop when max |∇| ≤ tol · max |∇(x0)| over free components (or below the
-            round-off floor of the elastic forces), or when a full Newton step moves no component more than
-            tol · (model size).
+        tol: relative tolerance: stop when max |∇| ≤ tol · max(|∇(x0)|, |f|) over free components (the
+            start's residual or the largest load), or below the round-off floor of the forces (scaled by
+            the elements' stiffness and the coordinates' magnitude), or when a full Newton step moves no
+            component more than tol · (model size).
         max_iterations: Newton iteration cap per load step.
         linear_solver: "direct" (SciPy sparse LU, on the host, regularised when singular), "cg"
             (Jacobi-preconditioned Warp CG, any device) or "auto" (direct on the CPU, CG on a GPU).
@@ -379,21 +411,27 @@ def solve_static(
         wp.launch(_free_gradient_stats, n, [free, ws.grad, gstat], device=dev)
         return float(gstat.numpy()[0])
 
-    # Round-off floor: elastic forces carry ~eps·μ·V^(2/3) of noise per tet, summed over ~20 tets a vertex.
-    force_scale = 0.0
-    if model.tet_count:
-        force_scale = float(
-            np.max(model.tet_mu.numpy() * np.abs(model.tet_rest_volume.numpy()) ** (2.0 / 3.0))
-        )
+    # Round-off: positions are known to eps·max|x| only, so forces carry 64·eps·(element stiffness ×
+    # (element size + max|x|)) of noise, and E − f·x that of the terms that cancel in it (_roundoff_scales;
+    # Cook's membrane, coordinates ~50 and elements ~1-3, has a floor ~20x its elements' alone).
+    force_scale, energy_scale = _roundoff_scales(model, float(np.max(np.abs(x_np))) if n else 0.0)
+    force_floor = 64.0 * eps * force_scale
+    energy_scale += float(np.sum(np.linalg.norm(f_total, axis=1) * np.linalg.norm(x_np, axis=1)))
+    stats.force_floor = force_floor
     g = e0 = float("nan")
     for step in range(1, load_steps + 1):
-        load_arr.assign((f_total * (step / load_steps)).astype(np_dtype))
+        f_step = f_total * (step / load_steps)
+        load_arr.assign(f_step.astype(np_dtype))
         stats.load_steps = step
         stats.converged, stats.stop_reason = False, "max_iterations"
         g = gradient(x)
         e0 = energy(x)
         stats.residuals.append(g)
-        target = max(tol * g, 64.0 * eps * force_scale)
+        # Relative to the larger of the start's residual and the loads on the free components (a start near
+        # equilibrium must not ask for a residual below what the loads' own round-off allows), never below
+        # the round-off floor of the forces.
+        load = float(np.max(np.abs(f_step) * free_np)) if n else 0.0
+        target = max(tol * max(g, load), force_floor)
         for _ in range(max_iterations):
             if g <= target or g == 0.0:
                 stats.converged = True
@@ -427,16 +465,23 @@ def solve_static(
             for e in terms:
                 alpha = min(alpha, float(e.max_step(model, x, ws.dx)))
             accepted = False
+            # Armijo with an allowance for the round-off of E − f·x: of its value, and of the terms that
+            # cancel in it (each element's energy is computed from O(μV) terms even at small strain).
+            noise = 64.0 * eps * (abs(e0) + energy_scale)
             for _ls in range(max_line_search + 1):
                 wp.launch(_static_trial, n, [free, x, ws.dx, model.s(alpha), ws.x_trial], device=dev)
                 e1 = energy(ws.x_trial)
-                slack = 64.0 * eps * (abs(e0) + abs(e1))
-                if e1 <= e0 + 1e-4 * alpha * gdx + slack:
+                if e1 <= e0 + 1e-4 * alpha * gdx + noise + 64.0 * eps * abs(e1):
                     accepted = True
                     break
                 alpha *= 0.5
                 stats.line_search_backtracks += 1
             if not accepted:
+                # The full Newton step promises a decrease of −½∇·Δx. Below the energy's round-off no line
+                # search can see it: the iterate is at the floor of what E − f·x resolves, i.e. converged.
+                if gdx < 0.0 and -0.5 * gdx <= noise:
+                    stats.converged = True
+                    break
                 stats.stop_reason = "line search failed"
                 break  # no decrease for a tiny step: round-off floor or a non-descent direction
             wp.copy(x, ws.x_trial)
