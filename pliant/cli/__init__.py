@@ -217,7 +217,7 @@ def build_parser() -> argparse.ArgumentParser:
         "info",
         "versions, devices and the Warp kernel cache; with a scene, its size and the memory it needs",
         "pliant info",
-        "pliant info soft_box --set objects[0].cells=100   # particles, tets, springs, GB before building",
+        "pliant info soft_box --set 'objects[0].cells=100'  # particles, tets, springs, GB before building",
     )
     i.add_argument("scene", nargs="?", help="a scene .toml file or a built-in scene name (optional)")
     i.add_argument(
