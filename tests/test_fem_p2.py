@@ -312,3 +312,24 @@ def test_elastica_on_a_small_p2_mesh():
     assert p2["converged"] and abs(p2["rel_error"]) < 5e-3, p2
     p1 = elastica((40, 2, 2), order=1, alpha=1.0)
     assert p1["dof"] == p2["dof"] and p1["rel_error"] < -0.3, p1
+
+
+@pytest.mark.slow
+def test_p2_benchmarks_at_equal_dof():
+    """At 6075 DOF (P2 on 40 × 2 × 2 cells, P1 on the same nodes): the elastica within 0.5 % of Mattiasson at
+    α = 1 and 2 and the self-weight cantilever within 1 % of Euler–Bernoulli with P2, while P1 is 10-20 %
+    off; Cook's membrane: P2 on 16² cells within 0.7 % of 32² cells, P1 approaching from below (~70 s)."""
+    from pliant.bench._p2 import cook_membrane, elastica, self_weight_cantilever
+
+    for alpha in (1.0, 2.0):
+        p2 = elastica((40, 2, 2), order=2, alpha=alpha, load_steps=4 if alpha == 1.0 else 8)
+        assert p2["dof"] <= 10_000 and p2["converged"] and abs(p2["rel_error"]) < 5e-3, p2
+    p1 = elastica((80, 4, 4), order=1, alpha=1.0)
+    assert p1["dof"] == p2["dof"] and p1["rel_error"] < -0.1, p1
+    p2 = self_weight_cantilever((40, 2, 2), order=2)
+    assert abs(p2["rel_error"]) < 1e-2, p2
+    assert self_weight_cantilever((80, 4, 4), order=1)["rel_error"] < -0.1
+    c16, c32 = cook_membrane(16, order=2), cook_membrane(32, order=2)
+    assert 0.0 < c32["value"] / c16["value"] - 1.0 < 7e-3, (c16, c32)
+    c1 = cook_membrane(32, order=1)
+    assert c1["dof"] < c16["dof"] and c1["value"] < c16["value"], c1

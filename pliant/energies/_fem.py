@@ -574,6 +574,8 @@ class LinearElastic(TetElasticity):
         nu: Poisson's ratio [-] used with ``E``, in (-1, 0.5).
         inversion_margin: η ∈ [0, 1) [-]: the smallest fraction of its volume an element may keep in one
             step.
+        quadrature: polynomial degree of the rule on quadratic tets, 2 (4 points) or 5 (14 points); None:
+            2 for ``"linear"``, 5 for the others.
     """
 
     default_material: ClassVar[str] = "linear"
@@ -591,6 +593,8 @@ class StVK(TetElasticity):
         nu: Poisson's ratio [-] used with ``E``, in (-1, 0.5).
         inversion_margin: η ∈ [0, 1) [-]: the smallest fraction of its volume an element may keep in one
             step.
+        quadrature: polynomial degree of the rule on quadratic tets, 2 (4 points) or 5 (14 points); None:
+            2 for ``"linear"``, 5 for the others.
     """
 
     default_material: ClassVar[str] = "stvk"
@@ -608,6 +612,8 @@ class Corotated(TetElasticity):
         nu: Poisson's ratio [-] used with ``E``, in (-1, 0.5).
         inversion_margin: η ∈ [0, 1) [-]: the smallest fraction of its volume an element may keep in one
             step.
+        quadrature: polynomial degree of the rule on quadratic tets, 2 (4 points) or 5 (14 points); None:
+            2 for ``"linear"``, 5 for the others.
     """
 
     default_material: ClassVar[str] = "corotated"
@@ -625,6 +631,8 @@ class NeoHookean(TetElasticity):
         nu: Poisson's ratio [-] used with ``E``, in (-1, 0.5).
         inversion_margin: η ∈ [0, 1) [-]: the smallest fraction of its volume an element may keep in one
             step.
+        quadrature: polynomial degree of the rule on quadratic tets, 2 (4 points) or 5 (14 points); None:
+            2 for ``"linear"``, 5 for the others.
     """
 
     default_material: ClassVar[str] = "neohookean"
