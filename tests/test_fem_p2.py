@@ -295,6 +295,9 @@ def test_scene_order_two_builds_p2_and_rejects_bad_orders():
     scene = build_scene(parse_scene(head + box + "order = 2\n", "s.toml", "."), device="cpu")
     assert scene.model.tet10_count == 12 and scene.model.tet_count == 0
     assert scene.model.particle_count == 5 * 3 * 3
+    # export and rendering: the 8 sub-tets per element, the surface subdivided into 4 triangles per face
+    assert scene.model.tet_indices_np.shape == (8 * 12, 4)
+    assert scene.model.render_faces.shape[0] == 4 * 2 * (2 * 1 + 2 * 1 + 1 * 1) * 2
     for bad, hint in [("order = 3", "order"), ("order = 2.0", "order")]:
         with pytest.raises(SceneError, match=hint):
             build_scene(parse_scene(head + box + bad + "\n", "s.toml", "."), device="cpu")
@@ -333,3 +336,25 @@ def test_p2_benchmarks_at_equal_dof():
     assert 0.0 < c32["value"] / c16["value"] - 1.0 < 7e-3, (c16, c32)
     c1 = cook_membrane(32, order=1)
     assert c1["dof"] < c16["dof"] and c1["value"] < c16["value"], c1
+
+
+def test_p2_embedding_follows_a_quadratic_deformation_exactly():
+    """Points embedded in P2 elements (corner-tet search, quadratic interpolation) land exactly on a quadratic
+    deformation of the nodes; the linear sub-tets the renderer uses are exact only for affine ones."""
+    from pliant.geometry import interpolate, interpolate_p2, locate_points, locate_points_p2
+
+    mesh = box_tets(2, 2, 2, size=(1.0, 1.0, 1.0))
+    pts, t10 = promote_tets_p2(mesh.points, mesh.tets)
+    P = RNG.uniform(0.05, 0.95, (30, 3))
+    ids, bary, inside = locate_points_p2(P, pts, t10)
+    assert inside.all()
+
+    def bend(X):
+        return X + 0.1 * np.stack([X[:, 1] ** 2, X[:, 0] * X[:, 2], X[:, 0] ** 2], axis=1)
+
+    np.testing.assert_allclose(interpolate_p2(bend(pts), t10, ids, bary), bend(P), atol=1e-12)
+    sub = p2_subtets(pts, t10)
+    sid, sbary, _ = locate_points(P, pts, sub)
+    assert np.abs(interpolate(bend(pts), sub, sid, sbary) - bend(P)).max() > 1e-4
+    A = np.array([[1.1, 0.2, 0.0], [0.0, 0.9, 0.1], [0.05, 0.0, 1.0]])
+    np.testing.assert_allclose(interpolate(pts @ A.T, sub, sid, sbary), P @ A.T, atol=1e-12)

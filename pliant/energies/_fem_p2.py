@@ -95,23 +95,20 @@ def p2_material_kernels(name: str, dtype: str) -> tuple[Any, Any, Any, Any]:
         _KERNELS[name] = _build(name)
     kernels = _KERNELS[name]
     if (name, dtype) not in _OVERLOADED:
-        s = wp.float32 if dtype == "float32" else wp.float64
-        v3 = wp.types.vector(3, s)
-        v4 = wp.types.vector(4, s)
-        m33 = wp.types.matrix((3, 3), s)
-        common = {
-            "rest_inv": wp.array(dtype=m33),
-            "rest_volume": wp.array(dtype=s),
-            "mu": wp.array(dtype=s),
-            "lam": wp.array(dtype=s),
-            "qp_bary": wp.array(dtype=v4),
-            "qp_weight": wp.array(dtype=s),
-            "x_in": wp.array(dtype=v3),
-        }
-        wp.overload(kernels[0], {**common, "out": wp.array(dtype=s)})
-        wp.overload(kernels[1], {**common, "out": wp.array(dtype=s), "grad_out": wp.array(dtype=v3)})
-        for hessian in kernels[2:]:
-            wp.overload(hessian, {**common, "scale": s, "values_out": wp.array(dtype=m33)})
+        from ._fem import declare_overloads
+
+        declare_overloads(
+            kernels,
+            dtype,
+            lambda s, m33: {
+                "rest_inv": m33,
+                "rest_volume": s,
+                "mu": s,
+                "lam": s,
+                "qp_bary": wp.types.vector(4, s),
+                "qp_weight": s,
+            },
+        )
         _OVERLOADED.add((name, dtype))
     return kernels
 

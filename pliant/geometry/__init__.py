@@ -18,6 +18,8 @@ from ._measures import (
 from ._meshes import TetMesh, TriMesh
 from ._p2 import (
     P2_EDGES,
+    interpolate_p2,
+    locate_points_p2,
     p2_consistent_mass,
     p2_lumped_masses,
     p2_shape_functions,
@@ -33,6 +35,8 @@ from ._topology import bending_pairs, edges_from_tets, edges_from_triangles, sur
 
 __all__ = [
     "P2_EDGES",
+    "interpolate_p2",
+    "locate_points_p2",
     "p2_consistent_mass",
     "p2_lumped_masses",
     "p2_shape_functions",

@@ -153,6 +153,13 @@ def p2_element_mass(volume: float, density: float) -> np.ndarray:
     return density * volume * (n.T * w) @ n
 
 
+def _volumes(points10: np.ndarray, tets10: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(tets [E, 10] int64, points [N, 3], element volumes [E] m³) of a 10-node mesh."""
+    t = np.asarray(tets10, np.int64).reshape(-1, 10)
+    x = np.asarray(points10, np.float64)
+    return t, x, np.abs(np.linalg.det(x[t[:, 1:4]] - x[t[:, :1]])) / 6.0
+
+
 def p2_lumped_masses(points10: np.ndarray, tets10: np.ndarray, density: float) -> np.ndarray:
     """Positive lumped node masses [kg] of a 10-node mesh (HRZ: diagonal of the consistent mass scaled).
 
@@ -161,9 +168,7 @@ def p2_lumped_masses(points10: np.ndarray, tets10: np.ndarray, density: float) -
         tets10: [E, 10] node indices.
         density: ρ [kg/m³].
     """
-    t = np.asarray(tets10, np.int64).reshape(-1, 10)
-    x = np.asarray(points10, np.float64)
-    vol = np.abs(np.linalg.det(x[t[:, 1:4]] - x[t[:, :1]])) / 6.0
+    t, x, vol = _volumes(points10, tets10)
     m = np.zeros(x.shape[0])
     np.add.at(m, t.ravel(), (density * vol[:, None] * P2_LUMPED_SHARES[None, :]).ravel())
     return m
@@ -179,12 +184,55 @@ def p2_consistent_mass(points10: np.ndarray, tets10: np.ndarray, density: float)
     """
     import scipy.sparse as sp
 
-    t = np.asarray(tets10, np.int64).reshape(-1, 10)
-    x = np.asarray(points10, np.float64)
-    vol = np.abs(np.linalg.det(x[t[:, 1:4]] - x[t[:, :1]])) / 6.0
+    t, x, vol = _volumes(points10, tets10)
     me = p2_element_mass(1.0, density)
     vals = vol[:, None, None] * me[None]
     rows = np.repeat(t, 10, axis=1)
     cols = np.tile(t, (1, 10))
     n = x.shape[0]
     return sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(n, n))
+
+
+def locate_points_p2(
+    points: np.ndarray, points10: np.ndarray, tets10: np.ndarray, **kw: object
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Embed points in a 10-node mesh: the element containing each one and its barycentric coordinates.
+
+    The rest elements are straight-sided, so the corner tets locate the points exactly
+    (:func:`pliant.geometry.locate_points`); :func:`interpolate_p2` then follows the elements' quadratic
+    deformation, where interpolating on the 8 linear sub-tets (what ``model.tet_indices_np`` holds for P2
+    bodies) is only piecewise linear.
+
+    Args:
+        points: [P, 3] points to embed [m].
+        points10: [N, 3] rest node positions [m].
+        tets10: [E, 10] node indices.
+        **kw: passed to :func:`pliant.geometry.locate_points` (``candidates``, ``tol``, ``max_distance``).
+
+    Returns:
+        ``(tet_ids [P], bary [P, 4], inside [P])`` as :func:`pliant.geometry.locate_points` returns them.
+    """
+    from ._barycentric import locate_points
+
+    t = np.asarray(tets10, np.int64).reshape(-1, 10)
+    return locate_points(points, points10, t[:, :4], **kw)
+
+
+def interpolate_p2(
+    field: np.ndarray, tets10: np.ndarray, tet_ids: np.ndarray, bary: np.ndarray
+) -> np.ndarray:
+    """f(p) = Σ_a N_a(λ_p) f(node a of element tet_ids[p]) with the quadratic shape functions.
+
+    Args:
+        field: per-node values, shape [N, ...] (deformed positions [m], velocities, colours ...).
+        tets10: [E, 10] node indices.
+        tet_ids: element of each point, shape [P] (from :func:`locate_points_p2`).
+        bary: barycentric coordinates of each point in its element, shape [P, 4].
+
+    Returns:
+        Interpolated values, shape [P, ...].
+    """
+    f = np.asarray(field)
+    nodes = np.asarray(tets10, np.int64).reshape(-1, 10)[np.asarray(tet_ids, np.int64)]  # [P, 10]
+    n = p2_shape_functions(bary)  # [P, 10]
+    return np.einsum("pa,pa...->p...", n, f[nodes])
