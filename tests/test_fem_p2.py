@@ -358,3 +358,12 @@ def test_p2_embedding_follows_a_quadratic_deformation_exactly():
     assert np.abs(interpolate(bend(pts), sub, sid, sbary) - bend(P)).max() > 1e-4
     A = np.array([[1.1, 0.2, 0.0], [0.0, 0.9, 0.1], [0.05, 0.0, 1.0]])
     np.testing.assert_allclose(interpolate(pts @ A.T, sub, sid, sbary), P @ A.T, atol=1e-12)
+
+
+def test_solvers_without_p2_support_say_so():
+    """XPBD and FastMassSpring have no quadratic-tet terms: they refuse such a model, not ignore it."""
+    model = _p2_model()
+    with pytest.raises(ValueError, match="order = 2"):
+        pl.solvers.XPBD(model)
+    with pytest.raises(ValueError, match="FEM tetrahedra"):
+        pl.solvers.FastMassSpring(model)
