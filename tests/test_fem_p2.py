@@ -298,7 +298,7 @@ def test_scene_order_two_builds_p2_and_rejects_bad_orders():
     # export and rendering: the 8 sub-tets per element, the surface subdivided into 4 triangles per face
     assert scene.model.tet_indices_np.shape == (8 * 12, 4)
     assert scene.model.render_faces.shape[0] == 4 * 2 * (2 * 1 + 2 * 1 + 1 * 1) * 2
-    for bad, hint in [("order = 3", "order"), ("order = 2.0", "order")]:
+    for bad, hint in [("order = 3", "order must be 1 .* or 2 .*, got 3"), ("order = 2.0", "got 2.0")]:
         with pytest.raises(SceneError, match=hint):
             build_scene(parse_scene(head + box + bad + "\n", "s.toml", "."), device="cpu")
     springs = '[[objects]]\nkind = "soft_box"\nmaterial = {stiffness = 100.0}\norder = 2\n'

@@ -89,8 +89,8 @@ class TetOrder(Section):
     @field_validator("order", mode="before")
     @classmethod
     def _order_is_a_whole_number(cls, v: Any) -> Any:
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise ValueError(f"order must be the whole number 1 or 2, got {v!r}")
+        if isinstance(v, bool) or not isinstance(v, int) or v not in (1, 2):
+            raise ValueError(f"order must be 1 (linear tets) or 2 (quadratic tets), got {v!r}")
         return v
 
     @model_validator(mode="after")
