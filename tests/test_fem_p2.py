@@ -315,6 +315,12 @@ def test_elastica_on_a_small_p2_mesh():
     assert p2["converged"] and abs(p2["rel_error"]) < 5e-3, p2
     p1 = elastica((40, 2, 2), order=1, alpha=1.0)
     assert p1["dof"] == p2["dof"] and p1["rel_error"] < -0.3, p1
+    from pliant import bench
+
+    row = bench.run("fem_p2_elastica", quick=True)
+    for key in ("scene", "solver", "integrator", "device", "particles", "elements", "substeps", "wall_s"):
+        assert key in row
+    assert row["value"] == pytest.approx(p2["value"], rel=1e-9)
 
 
 @pytest.mark.slow
