@@ -95,6 +95,25 @@ def _solve(model: Any, energy: Any, fixed: np.ndarray, loads: Any = None, gravit
     return x.numpy(), stats, time.perf_counter() - t0
 
 
+def _row(
+    name: str, order: int, cells: Any, model: Any, value: float, ref: float, stats: Any, wall: float
+) -> dict:
+    """One result row: the figure, its reference and relative error, the mesh's size, the solve."""
+    return dict(
+        benchmark=name,
+        order=order,
+        cells=[int(c) for c in cells],
+        dof=3 * model.particle_count,
+        elements=model.tet_count + model.tet10_count,
+        value=float(value),
+        reference=ref,
+        rel_error=float(value / ref - 1.0),
+        converged=bool(stats.converged),
+        newton_iterations=int(stats.iterations),
+        wall_s=wall,
+    )
+
+
 def elastica(cells: tuple[int, int, int], *, order: int, alpha: float = 1.0, load_steps: int = 4) -> dict:
     """Tip deflection v/L of the clamped L/h = 20 beam under α = PL²/EI (see the module notes)."""
     from ..energies import StVK
@@ -114,19 +133,7 @@ def elastica(cells: tuple[int, int, int], *, order: int, alpha: float = 1.0, loa
     end = np.isclose(X[:, 0], L)
     v = -(x[end, 1] - X[end, 1]).mean() / L
     ref = ELASTICA_V[alpha]
-    return dict(
-        benchmark=f"elastica_alpha{alpha:g}",
-        order=order,
-        cells=list(cells),
-        dof=3 * model.particle_count,
-        elements=model.tet_count + model.tet10_count,
-        value=float(v),
-        reference=ref,
-        rel_error=float(v / ref - 1.0),
-        converged=bool(stats.converged),
-        newton_iterations=int(stats.iterations),
-        wall_s=wall,
-    )
+    return _row(f"elastica_alpha{alpha:g}", order, cells, model, v, ref, stats, wall)
 
 
 def self_weight_cantilever(cells: tuple[int, int, int], *, order: int) -> dict:
@@ -141,18 +148,7 @@ def self_weight_cantilever(cells: tuple[int, int, int], *, order: int) -> dict:
     x, stats, wall = _solve(model, LinearElastic(), np.flatnonzero(X[:, 0] < 1e-9), gravity=True, tol=1e-9)
     tip = -(x[:, 1] - X[:, 1])[np.isclose(X[:, 0], L)].mean()
     ref = rho * g * h * h * L**4 / (8.0 * E * h**4 / 12.0)
-    return dict(
-        benchmark="self_weight_cantilever",
-        order=order,
-        cells=list(cells),
-        dof=3 * model.particle_count,
-        elements=model.tet_count + model.tet10_count,
-        value=float(tip),
-        reference=ref,
-        rel_error=float(tip / ref - 1.0),
-        converged=bool(stats.converged),
-        wall_s=wall,
-    )
+    return _row("self_weight_cantilever", order, cells, model, tip, ref, stats, wall)
 
 
 def cook_membrane(n: int, *, order: int) -> dict:
@@ -173,18 +169,7 @@ def cook_membrane(n: int, *, order: int) -> dict:
     x, stats, wall = _solve(model, LinearElastic(), np.flatnonzero(X[:, 0] < 1e-9), f, tol=1e-10)
     corner = np.isclose(X[:, 0], 48.0) & np.isclose(X[:, 1], 60.0)
     v = float((x[corner, 1] - X[corner, 1]).mean()) * E
-    return dict(
-        benchmark="cook_membrane",
-        order=order,
-        cells=[n, n, 1],
-        dof=3 * model.particle_count,
-        elements=model.tet_count + model.tet10_count,
-        value=v,
-        reference=COOK_REFERENCE,
-        rel_error=v / COOK_REFERENCE - 1.0,
-        converged=bool(stats.converged),
-        wall_s=wall,
-    )
+    return _row("cook_membrane", order, (n, n, 1), model, v, COOK_REFERENCE, stats, wall)
 
 
 def fem_p2_elastica(quick: bool = False) -> dict:
