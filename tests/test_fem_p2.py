@@ -327,7 +327,7 @@ def test_elastica_on_a_small_p2_mesh():
 def test_p2_benchmarks_at_equal_dof():
     """At 6075 DOF (P2 on 40 × 2 × 2 cells, P1 on the same nodes): the elastica within 0.5 % of Mattiasson at
     α = 1 and 2 and the self-weight cantilever within 1 % of Euler–Bernoulli with P2, while P1 is 10-20 %
-    off; Cook's membrane: P2 on 16² cells within 0.7 % of 32² cells, P1 approaching from below (~70 s)."""
+    off; Cook's membrane: P2 on 16² cells within 0.7 % of 32² cells, P1 below (~20 s warm)."""
     from pliant.bench._p2 import cook_membrane, elastica, self_weight_cantilever
 
     for alpha in (1.0, 2.0):
