@@ -17,6 +17,7 @@ import warp as wp
 from .._warp import launch
 from ..model import Model
 from . import _fem_math as fm
+from . import _fem_p2 as p2
 from ._base import Energy
 from ._materials import get_material_model, lame_parameters
 
@@ -189,22 +190,31 @@ def _material_kernels(name: str, dtype: str) -> tuple[Any, Any, Any, Any]:
         _KERNELS[name] = _build_material_kernels(name)
     kernels = _KERNELS[name]
     if (name, dtype) not in _OVERLOADED:
-        s = wp.float32 if dtype == "float32" else wp.float64
-        v3 = wp.types.vector(3, s)
-        m33 = wp.types.matrix((3, 3), s)
-        common = {
-            "tet_rest_inv": wp.array(dtype=m33),
-            "tet_rest_volume": wp.array(dtype=s),
-            "tet_mu": wp.array(dtype=s),
-            "tet_lam": wp.array(dtype=s),
-            "x_in": wp.array(dtype=v3),
-        }
-        wp.overload(kernels[0], {**common, "out": wp.array(dtype=s)})
-        wp.overload(kernels[1], {**common, "out": wp.array(dtype=s), "grad_out": wp.array(dtype=v3)})
-        for hessian in kernels[2:]:  # projected, exact
-            wp.overload(hessian, {**common, "scale": s, "values_out": wp.array(dtype=m33)})
+        declare_overloads(
+            kernels,
+            dtype,
+            lambda s, m33: {"tet_rest_inv": m33, "tet_rest_volume": s, "tet_mu": s, "tet_lam": s},
+        )
         _OVERLOADED.add((name, dtype))
     return kernels
+
+
+def declare_overloads(kernels: tuple, dtype: str, inputs: Any) -> None:
+    """Declare the ``dtype`` overloads of (value, gradient, Hessian, exact Hessian) element kernels.
+
+    ``inputs(s, m33)`` maps the kernels' generic per-element inputs to their types given the scalar and
+    3×3 matrix types; ``x_in`` (vec3) and the outputs (``out``, ``grad_out``, ``scale``, ``values_out``)
+    are added here. Shared by the linear and the quadratic tets.
+    """
+    s = wp.float32 if dtype == "float32" else wp.float64
+    v3 = wp.types.vector(3, s)
+    m33 = wp.types.matrix((3, 3), s)
+    common = {k: wp.array(dtype=t) for k, t in inputs(s, m33).items()}
+    common["x_in"] = wp.array(dtype=v3)
+    wp.overload(kernels[0], {**common, "out": wp.array(dtype=s)})
+    wp.overload(kernels[1], {**common, "out": wp.array(dtype=s), "grad_out": wp.array(dtype=v3)})
+    for hessian in kernels[2:]:  # projected, exact
+        wp.overload(hessian, {**common, "scale": s, "values_out": wp.array(dtype=m33)})
 
 
 def _build_material_kernels(name: str) -> tuple[Any, Any, Any, Any]:
@@ -298,6 +308,18 @@ def _build_material_kernels(name: str) -> tuple[Any, Any, Any, Any]:
     return tet_value, tet_gradient, tet_hessian, tet_hessian_exact
 
 
+def _np(model: Model) -> type:
+    return np.float32 if model.dtype == "float32" else np.float64
+
+
+def _guard_tets(model: Model) -> list[wp.array]:
+    """The linear tets the step bounds watch: the model's tets and the sub-tets of its quadratic ones."""
+    out = [model.tet_indices] if model.tet_count else []
+    if model.tet10_count:
+        out.append(model.tet10_subtets)
+    return out
+
+
 # ----------------------------------------------------------------------------------------------- classes
 
 
@@ -316,6 +338,11 @@ class TetElasticity(Energy):
     its current volume within one step (the first root of the cubic det(D_s + α ΔD_s) = η det(D_s)), so a
     Newton solve started from an uninverted mesh never inverts an element.
 
+    Quadratic (10-node) tets of the model (``add_soft_box(..., order=2)``, ``tet10_*`` arrays) are summed
+    too, with F at the points of ``quadrature`` (:mod:`pliant.energies._fem_p2`): they do not lock in
+    bending. Their Hessian is 100 blocks per element after the 16 per linear tet; the step bound and the
+    inversion diagnostics use their 8 linear sub-tets (corner and mid-edge nodes).
+
     Limitations: linear (4-node) tets lock in bending and for ν → 0.5; use a fine mesh (see
     ``tests/test_fem_solid_mechanics.py``). ``linear`` is not rotation invariant: large rotations create
     spurious stress.
@@ -327,6 +354,8 @@ class TetElasticity(Energy):
         nu: Poisson's ratio [-] used with ``E``, in (-1, 0.5).
         inversion_margin: η ∈ [0, 1) [-]: the smallest fraction of its volume an element may keep in one
             step.
+        quadrature: polynomial degree of the quadrature rule on quadratic tets: 2 (4 points, exact for
+            the linear law's stiffness) or 5 (14 points); None: 2 for ``"linear"``, 5 for the others.
 
     Example::
 
@@ -347,8 +376,14 @@ class TetElasticity(Energy):
         E: float | None = None,
         nu: float = 0.3,
         inversion_margin: float = 0.1,
+        quadrature: int | None = None,
     ) -> None:
         self.material = get_material_model(self.default_material if material is None else material)
+        if quadrature is None:
+            quadrature = 2 if self.material.name == "linear" else 5
+        if quadrature not in (2, 5):
+            raise ValueError(f"quadrature must be 2 (4 points) or 5 (14 points), got {quadrature!r}")
+        self.quadrature = int(quadrature)
         if not 0.0 <= inversion_margin < 1.0:
             raise ValueError(f"inversion_margin must be in [0, 1), got {inversion_margin}")
         self.E = None if E is None else float(E)
@@ -379,7 +414,36 @@ class TetElasticity(Energy):
                 c["lam"] = wp.full(model.tet_count, model.s(lam), dtype=model.scalar, device=d)
             else:
                 c["mu"], c["lam"] = model.tet_mu, model.tet_lam
+            if model.tet10_count:
+                from ..geometry._p2 import tet_quadrature
+
+                bary, w = tet_quadrature(self.quadrature)
+                c["qp_bary"] = wp.array(
+                    bary.astype(_np(model)), dtype=wp.types.vector(4, model.scalar), device=d
+                )
+                c["qp_weight"] = wp.array(w.astype(_np(model)), dtype=model.scalar, device=d)
+                if self._lame is not None:
+                    mu, lam = self._lame
+                    c["mu10"] = wp.full(model.tet10_count, model.s(mu), dtype=model.scalar, device=d)
+                    c["lam10"] = wp.full(model.tet10_count, model.s(lam), dtype=model.scalar, device=d)
+                else:
+                    c["mu10"], c["lam10"] = model.tet10_mu, model.tet10_lam
         return c
+
+    def _inputs10(self, model: Model) -> list:
+        c = self._buffers(model)
+        return [
+            model.tet10_indices,
+            model.tet10_rest_inv,
+            model.tet10_rest_volume,
+            c["mu10"],
+            c["lam10"],
+            c["qp_bary"],
+            c["qp_weight"],
+        ]
+
+    def _dim10(self, model: Model) -> int:
+        return model.tet10_count * self._buffers(model)["qp_weight"].shape[0]
 
     def _inputs(self, model: Model) -> list:
         c = self._buffers(model)
@@ -391,6 +455,9 @@ class TetElasticity(Energy):
         if model.tet_count:
             k = _material_kernels(self.material.name, model.dtype)[0]
             launch(k, model.tet_count, [*self._inputs(model), x, out], device=model.device)
+        if model.tet10_count:
+            k = p2.p2_material_kernels(self.material.name, model.dtype)[0]
+            launch(k, self._dim10(model), [*self._inputs10(model), x, out], device=model.device)
 
     def gradient(self, model: Model, x: wp.array, out: wp.array) -> None:
         """Add ∂E/∂x [N] (minus the element forces) per particle into ``out``."""
@@ -399,18 +466,36 @@ class TetElasticity(Energy):
             c = self._buffers(model)
             # with_value = 0: the kernel never touches its value output, so any 1-element array will do.
             launch(k, model.tet_count, [*self._inputs(model), x, 0, c["alpha"], out], device=model.device)
+        if model.tet10_count:
+            k = p2.p2_material_kernels(self.material.name, model.dtype)[1]
+            c = self._buffers(model)
+            launch(
+                k, self._dim10(model), [*self._inputs10(model), x, 0, c["alpha"], out], device=model.device
+            )
 
     def value_and_gradient(self, model: Model, x: wp.array, value_out: wp.array, grad_out: wp.array) -> None:
         """Add E(x) [J] into ``value_out[0]`` and ∂E/∂x [N] into ``grad_out`` in one pass over the tets."""
         if model.tet_count:
             k = _material_kernels(self.material.name, model.dtype)[1]
             launch(k, model.tet_count, [*self._inputs(model), x, 1, value_out, grad_out], device=model.device)
+        if model.tet10_count:
+            k = p2.p2_material_kernels(self.material.name, model.dtype)[1]
+            launch(
+                k,
+                self._dim10(model),
+                [*self._inputs10(model), x, 1, value_out, grad_out],
+                device=model.device,
+            )
 
     def hessian_pattern(self, model: Model) -> tuple[np.ndarray, np.ndarray]:
-        """16 blocks per tet, (a, b) for a, b in 0..3 in row-major order: slot 16 t + 4 a + b."""
+        """16 blocks per tet, (a, b) for a, b in 0..3 in row-major order: slot 16 t + 4 a + b; then 100 per
+        quadratic tet, slot 16 E + 100 t + 10 a + b."""
         idx = model.tet_indices.numpy().astype(np.int32)
         rows = np.repeat(idx, 4, axis=1).ravel()
         cols = np.tile(idx, (1, 4)).ravel()
+        if model.tet10_count:
+            r10, c10 = p2.p2_hessian_pattern(model.tet10_indices.numpy())
+            rows, cols = np.concatenate([rows, r10]), np.concatenate([cols, c10])
         return rows, cols
 
     def hessian(self, model, x, slots, values, *, project_psd: bool = True, scale: float = 1.0) -> None:
@@ -423,19 +508,28 @@ class TetElasticity(Energy):
                 [*self._inputs(model), x, model.s(scale), slots, values],
                 device=model.device,
             )
+        if model.tet10_count:
+            k = p2.p2_material_kernels(self.material.name, model.dtype)[2 if project_psd else 3]
+            launch(
+                k,
+                self._dim10(model),
+                [*self._inputs10(model), x, model.s(scale), slots, 16 * model.tet_count, values],
+                device=model.device,
+            )
 
     def max_step(self, model: Model, x: wp.array, dx: wp.array) -> float:
         """Largest α ≤ 1 keeping every element's volume above η times its current one (one host read)."""
-        if not model.tet_count:
+        if not (model.tet_count or model.tet10_count):
             return 1.0
         a = self._buffers(model)["alpha"]
         launch(_fill, 1, [model.s(1.0), a], device=model.device)
-        launch(
-            _tet_max_step,
-            model.tet_count,
-            [model.tet_indices, x, dx, model.s(self.inversion_margin), a],
-            device=model.device,
-        )
+        for tets in _guard_tets(model):
+            launch(
+                _tet_max_step,
+                tets.shape[0],
+                [tets, x, dx, model.s(self.inversion_margin), a],
+                device=model.device,
+            )
         return float(a.numpy()[0])
 
     def max_step_radius(self, model: Model, x: wp.array) -> float:
@@ -447,27 +541,34 @@ class TetElasticity(Energy):
         bounded below by 2|det D_s|/‖D_s‖_F² (one pass, one host read); 0 when an element is already
         inverted. Solvers skip :meth:`max_step` for steps inside the radius.
         """
-        if not model.tet_count:
+        if not (model.tet_count or model.tet10_count):
             return float("inf")
         a = self._buffers(model)["alpha"]
         launch(_fill, 1, [model.s(np.inf), a], device=model.device)
-        launch(_tet_sigma_min_bound, model.tet_count, [model.tet_indices, x, a], device=model.device)
+        for tets in _guard_tets(model):
+            launch(_tet_sigma_min_bound, tets.shape[0], [tets, x, a], device=model.device)
         sigma = float(a.numpy()[0])
         return (1.0 - self.inversion_margin ** (1.0 / 3.0)) * sigma / (2.0 * np.sqrt(3.0))
 
     # ------------------------------------------------------------------ diagnostics
     def min_det(self, model: Model, x: wp.array) -> float:
-        """min_e det F_e over the model's tets at ``x`` (≤ 0: an element is inverted); one host read."""
-        if not model.tet_count:
+        """min_e det F_e over the model's tets at ``x`` (≤ 0: an element is inverted); one host read.
+
+        Quadratic tets count with det F at each of their quadrature points."""
+        if not (model.tet_count or model.tet10_count):
             return 1.0
         out = wp.full(1, model.s(np.inf), dtype=model.scalar, device=model.device)
-        launch(
-            _tet_min_det,
-            model.tet_count,
-            [model.tet_indices, model.tet_rest_inv, x, out],
-            device=model.device,
-        )
-        return float(out.numpy()[0])
+        if model.tet_count:
+            launch(
+                _tet_min_det,
+                model.tet_count,
+                [model.tet_indices, model.tet_rest_inv, x, out],
+                device=model.device,
+            )
+        value = float(out.numpy()[0])
+        if model.tet10_count:
+            value = min(value, p2.p2_min_det(model, self._buffers(model)["qp_bary"], x))
+        return value
 
 
 class LinearElastic(TetElasticity):
@@ -482,6 +583,8 @@ class LinearElastic(TetElasticity):
         nu: Poisson's ratio [-] used with ``E``, in (-1, 0.5).
         inversion_margin: η ∈ [0, 1) [-]: the smallest fraction of its volume an element may keep in one
             step.
+        quadrature: polynomial degree of the rule on quadratic tets, 2 (4 points) or 5 (14 points); None:
+            2 for ``"linear"``, 5 for the others.
     """
 
     default_material: ClassVar[str] = "linear"
@@ -499,6 +602,8 @@ class StVK(TetElasticity):
         nu: Poisson's ratio [-] used with ``E``, in (-1, 0.5).
         inversion_margin: η ∈ [0, 1) [-]: the smallest fraction of its volume an element may keep in one
             step.
+        quadrature: polynomial degree of the rule on quadratic tets, 2 (4 points) or 5 (14 points); None:
+            2 for ``"linear"``, 5 for the others.
     """
 
     default_material: ClassVar[str] = "stvk"
@@ -516,6 +621,8 @@ class Corotated(TetElasticity):
         nu: Poisson's ratio [-] used with ``E``, in (-1, 0.5).
         inversion_margin: η ∈ [0, 1) [-]: the smallest fraction of its volume an element may keep in one
             step.
+        quadrature: polynomial degree of the rule on quadratic tets, 2 (4 points) or 5 (14 points); None:
+            2 for ``"linear"``, 5 for the others.
     """
 
     default_material: ClassVar[str] = "corotated"
@@ -533,6 +640,8 @@ class NeoHookean(TetElasticity):
         nu: Poisson's ratio [-] used with ``E``, in (-1, 0.5).
         inversion_margin: η ∈ [0, 1) [-]: the smallest fraction of its volume an element may keep in one
             step.
+        quadrature: polynomial degree of the rule on quadratic tets, 2 (4 points) or 5 (14 points); None:
+            2 for ``"linear"``, 5 for the others.
     """
 
     default_material: ClassVar[str] = "neohookean"

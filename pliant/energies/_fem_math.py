@@ -478,10 +478,9 @@ def tet_forces(P: Any, Dm_inv: Any, V: Any):
 
 
 @wp.func
-def tet_hessian_block(dPdF: Any, Dm_inv: Any, V: Any, a: int, b: int):
-    """H_ab = V (∂F/∂x_a)ᵀ (∂P/∂F) (∂F/∂x_b) = V Σ_jq g_a[j] g_b[q] dPdF[3j:3j+3, 3q:3q+3]  (3×3)."""
-    ga = tet_shape_gradient(Dm_inv, a)
-    gb = tet_shape_gradient(Dm_inv, b)
+def gradient_hessian_block(dPdF: Any, ga: Any, gb: Any, V: Any):
+    """V Σ_jq ga[j] gb[q] dPdF[3j:3j+3, 3q:3q+3] (3×3): the block of nodes a, b whose shape gradients are
+    ``ga``, ``gb`` (∂F_ij/∂x_a,l = δ_il ga[j]); linear and quadratic tets share it."""
     B = wp.matrix(shape=(3, 3), dtype=type(V))
     for j in range(3):
         for q in range(3):
@@ -490,3 +489,9 @@ def tet_hessian_block(dPdF: Any, Dm_inv: Any, V: Any, a: int, b: int):
                 for m in range(3):
                     B[l, m] = B[l, m] + c * dPdF[l + 3 * j, m + 3 * q]
     return V * B
+
+
+@wp.func
+def tet_hessian_block(dPdF: Any, Dm_inv: Any, V: Any, a: int, b: int):
+    """H_ab = V (∂F/∂x_a)ᵀ (∂P/∂F) (∂F/∂x_b) = V Σ_jq g_a[j] g_b[q] dPdF[3j:3j+3, 3q:3q+3]  (3×3)."""
+    return gradient_hessian_block(dPdF, tet_shape_gradient(Dm_inv, a), tet_shape_gradient(Dm_inv, b), V)

@@ -16,12 +16,34 @@ from ._measures import (
     triangle_normals,
 )
 from ._meshes import TetMesh, TriMesh
+from ._p2 import (
+    P2_EDGES,
+    interpolate_p2,
+    locate_points_p2,
+    p2_consistent_mass,
+    p2_lumped_masses,
+    p2_shape_functions,
+    p2_shape_gradients,
+    p2_subtets,
+    promote_tets_p2,
+    tet_quadrature,
+)
 from ._shapes import ClothGrid, Rope, cloth_grid, rope
 from ._springs import springs_from_points
 from ._tets import box_tets, cylinder_tets, sphere_tets, tetrahedralize
 from ._topology import bending_pairs, edges_from_tets, edges_from_triangles, surface_from_tets
 
 __all__ = [
+    "P2_EDGES",
+    "interpolate_p2",
+    "locate_points_p2",
+    "p2_consistent_mass",
+    "p2_lumped_masses",
+    "p2_shape_functions",
+    "p2_shape_gradients",
+    "p2_subtets",
+    "promote_tets_p2",
+    "tet_quadrature",
     "barycentric_coordinates",
     "interpolate",
     "locate_points",

@@ -41,6 +41,7 @@ class ModelBuilder(ShapesMixin):
         self._springs: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
         self._tris: list[np.ndarray] = []
         self._tets: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._tets10: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self._bending: list[tuple[np.ndarray, np.ndarray]] = []
         self._render_faces: list[np.ndarray] = []
         self._tet_host: list[np.ndarray] = []  # tets of every volume, FEM or not, for export
@@ -211,6 +212,15 @@ class ModelBuilder(ShapesMixin):
         idx = _as_index_array(indices, 4, "tetrahedron")
         self._check_range(idx, "tetrahedron")
         n = idx.shape[0]
+        idx = self._oriented_tets(idx, fix_orientation, "tetrahedra")
+        E_arr = _per_item(E, n, "Young's modulus E", "Pa")
+        nu_arr = _per_item(nu, n, "Poisson ratio nu", "-")
+        mu, lam = lame_parameters(E_arr, nu_arr)
+        self._tets.append((idx, np.broadcast_to(mu, (n,)).copy(), np.broadcast_to(lam, (n,)).copy()))
+
+    def _oriented_tets(self, idx: np.ndarray, fix_orientation: bool, what: str) -> np.ndarray:
+        """``idx`` with its corners (columns 0–3) checked: degenerate tets raise, inverted ones raise
+        unless ``fix_orientation`` (then corners 2 and 3 are swapped; a copy is returned)."""
         q = self.positions()
         x0 = q[idx[:, 0]]
         dm = np.stack([q[idx[:, 1]] - x0, q[idx[:, 2]] - x0, q[idx[:, 3]] - x0], axis=2)
@@ -220,7 +230,7 @@ class ModelBuilder(ShapesMixin):
         if np.any(degenerate):
             bad = np.flatnonzero(degenerate)
             raise ValueError(
-                f"{bad.size} tetrahedra are degenerate (zero volume; first: {bad[:5].tolist()}, vertices "
+                f"{bad.size} {what} are degenerate (zero volume; first: {bad[:5].tolist()}, vertices "
                 f"{idx[bad[0]].tolist()}); remesh with quality settings (pliant.geometry.tetrahedralize)"
             )
         inverted = det < 0
@@ -228,15 +238,48 @@ class ModelBuilder(ShapesMixin):
             if not fix_orientation:
                 bad = np.flatnonzero(inverted)
                 raise ValueError(
-                    f"{bad.size} tetrahedra are inverted (negative volume; first: {bad[:5].tolist()}); "
+                    f"{bad.size} {what} are inverted (negative volume; first: {bad[:5].tolist()}); "
                     "reorder their vertices or pass fix_orientation=True"
                 )
             idx = idx.copy()
             idx[inverted, 2], idx[inverted, 3] = idx[inverted, 3], idx[inverted, 2].copy()
+        return idx
+
+    def add_quadratic_tetrahedra(self, indices: Any, *, E: Any, nu: Any) -> None:
+        """Add quadratic (10-node, P2) tetrahedra with Young's modulus ``E`` [Pa] and Poisson ratio ``nu``.
+
+        Node order: corners 0–3, then the mid-edge nodes of (0,1), (1,2), (0,2), (0,3), (1,3), (2,3) (VTK
+        and TetGen ``-o2``; :func:`pliant.geometry.promote_tets_p2` makes them from a linear mesh). Elements
+        are straight-sided: each mid-edge node must sit at its edge's midpoint. The node masses are the
+        caller's (``add_tet_mesh(..., order=2)`` lumps ρV with :func:`pliant.geometry.p2_lumped_masses`).
+
+        Args:
+            indices: [E, 10] particle indices per element.
+            E: [E] or scalar Young's modulus [Pa], > 0.
+            nu: [E] or scalar Poisson ratio [-], in (-1, 0.5).
+        """
+        from ..geometry._p2 import P2_EDGES
+        from ._materials import lame_parameters
+
+        idx = _as_index_array(indices, 10, "quadratic tetrahedron")
+        self._check_range(idx, "quadratic tetrahedron")
+        n = idx.shape[0]
+        idx = self._oriented_tets(idx, False, "quadratic tetrahedra")
+        q = self.positions()
+        mid = 0.5 * (q[idx[:, P2_EDGES[:, 0]]] + q[idx[:, P2_EDGES[:, 1]]])  # [E, 6, 3]
+        edge = np.linalg.norm(q[idx[:, P2_EDGES[:, 0]]] - q[idx[:, P2_EDGES[:, 1]]], axis=2)
+        off = np.linalg.norm(q[idx[:, 4:]] - mid, axis=2) > 1e-6 * np.maximum(edge, 1e-300)
+        if np.any(off):
+            bad = np.flatnonzero(off.any(axis=1))
+            raise ValueError(
+                f"{bad.size} quadratic tetrahedra have mid-edge nodes off their edge midpoints (first: "
+                f"{bad[:5].tolist()}); only straight-sided elements are supported: place nodes 4-9 at the "
+                "midpoints of edges (0,1), (1,2), (0,2), (0,3), (1,3), (2,3)"
+            )
         E_arr = _per_item(E, n, "Young's modulus E", "Pa")
         nu_arr = _per_item(nu, n, "Poisson ratio nu", "-")
         mu, lam = lame_parameters(E_arr, nu_arr)
-        self._tets.append((idx, np.broadcast_to(mu, (n,)).copy(), np.broadcast_to(lam, (n,)).copy()))
+        self._tets10.append((idx, np.broadcast_to(mu, (n,)).copy(), np.broadcast_to(lam, (n,)).copy()))
 
     def add_bending(self, indices: Any, *, stiffness: Any) -> None:
         """Add dihedral bending elements: shared edge (0, 1), opposite vertices (2, 3).
@@ -369,6 +412,22 @@ class ModelBuilder(ShapesMixin):
         def ints(a: np.ndarray, width: int) -> wp.array:
             return wp.array(a.reshape(-1, width).astype(np.int32), dtype=wp.int32, device=device)
 
+        p2 = {}
+        if self._tets10:
+            from ..geometry._p2 import p2_subtets
+
+            t10 = np.concatenate([t[0] for t in self._tets10])
+            x0 = q[t10[:, 0]]
+            dm = np.stack([q[t10[:, 1]] - x0, q[t10[:, 2]] - x0, q[t10[:, 3]] - x0], axis=2)
+            p2 = dict(
+                tet10_count=t10.shape[0],
+                tet10_indices=ints(t10, 10),
+                tet10_rest_inv=arr(np.linalg.inv(dm).astype(f), mat33),
+                tet10_rest_volume=arr((np.linalg.det(dm) / 6.0).astype(f), scalar),
+                tet10_mu=arr(np.concatenate([t[1] for t in self._tets10]).astype(f), scalar, requires_grad),
+                tet10_lam=arr(np.concatenate([t[2] for t in self._tets10]).astype(f), scalar, requires_grad),
+                tet10_subtets=ints(p2_subtets(q, t10), 4),
+            )
         faces = np.concatenate(self._render_faces) if self._render_faces else np.zeros((0, 3), np.int32)
         tet_host = np.concatenate(self._tet_host) if self._tet_host else t_idx
         return Model(
@@ -408,6 +467,7 @@ class ModelBuilder(ShapesMixin):
             objects=list(self.objects),
             world_count=1 if world_offsets is None else self._worlds["count"],
             world_offsets=world_offsets,
+            **p2,
         )
 
 

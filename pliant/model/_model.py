@@ -159,6 +159,16 @@ class Model:
     #: [W + 1] of each element kind ("particle", "spring", "tri", "tet", "bending") per world.
     world_count: int = 1
     world_offsets: dict[str, np.ndarray] | None = field(default=None, repr=False)
+    #: Quadratic (10-node) tets (``ModelBuilder.add_quadratic_tetrahedra``; node order in
+    #: :mod:`pliant.geometry._p2`): count, int32 [E2, 10] nodes, corner D_m⁻¹ [1/m], volume [m³], Lamé
+    #: μ, λ [Pa], and the 8 linear sub-tets per element, int32 [8 E2, 4] (inversion guards).
+    tet10_count: int = 0
+    tet10_indices: wp.array | None = field(default=None, repr=False)
+    tet10_rest_inv: wp.array | None = field(default=None, repr=False)
+    tet10_rest_volume: wp.array | None = field(default=None, repr=False)
+    tet10_mu: wp.array | None = field(default=None, repr=False)
+    tet10_lam: wp.array | None = field(default=None, repr=False)
+    tet10_subtets: wp.array | None = field(default=None, repr=False)
 
     @property
     def scalar(self) -> Any:

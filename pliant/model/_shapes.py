@@ -169,8 +169,9 @@ class ShapesMixin:
         velocity: Sequence[float] = (0.0, 0.0, 0.0),
         radius: float = 0.005,
         name: str = "soft_box",
+        order: int = 1,
     ) -> int:
-        """Add a box meshed into 6 tets per cell; mass is lumped (ρV/4 per tet vertex).
+        """Add a box meshed into 6 tets per cell; mass is lumped (ρV/4 per tet vertex, or HRZ for order 2).
 
         ``stiffness`` adds tet-edge springs (a mass-spring volume); ``E`` adds FEM tetrahedra (both may be
         given).
@@ -187,6 +188,7 @@ class ShapesMixin:
             velocity: initial velocity of every particle [m/s].
             radius: contact radius of each particle [m].
             name: object name (errors, ``model.objects``).
+            order: 1 (linear 4-node tets) or 2 (quadratic 10-node tets, see :meth:`add_tet_mesh`).
 
         Returns:
             The global index of the first particle.
@@ -195,7 +197,18 @@ class ShapesMixin:
 
         mesh = box_tets(*cells, size=size, origin=np.asarray(origin) - 0.5 * np.asarray(size))
         return self._add_tet_mesh(
-            mesh.points, mesh.tets, density, stiffness, damping, E, nu, velocity, radius, name, "soft_box"
+            mesh.points,
+            mesh.tets,
+            density,
+            stiffness,
+            damping,
+            E,
+            nu,
+            velocity,
+            radius,
+            name,
+            "soft_box",
+            order,
         )
 
     def add_tet_mesh(
@@ -212,10 +225,16 @@ class ShapesMixin:
         radius: float = 0.005,
         name: str = "tet_mesh",
         kind: str = "mesh",
+        order: int = 1,
     ) -> int:
         """Add a tetrahedral mesh as a mass-spring volume (``stiffness``) and/or FEM body (``E``).
 
-        Mass is lumped (ρV/4 per tet vertex).
+        Mass is lumped (ρV/4 per tet vertex). With ``order=2`` the linear mesh is promoted to 10-node
+        tets (:func:`pliant.geometry.promote_tets_p2`): one particle at the midpoint of every distinct edge,
+        after the mesh's own vertices, so constraints, pins, contact and fitting treat mid-edge nodes like
+        any other particle; ρV is lumped by HRZ (1/36 per corner, 4/27 per mid-edge node: positive, unlike
+        row sums). Contact and rendering see all nodes: the surface is the boundary of the 8 linear
+        sub-tets of each element (4 triangles per face), which is also what export and embedding use.
 
         Args:
             points: [N, 3] vertex positions [m].
@@ -229,16 +248,17 @@ class ShapesMixin:
             radius: contact radius of each particle [m].
             name: object name (errors, ``model.objects``).
             kind: the label it gets in ``model.objects`` (e.g. ``"soft_sphere"``).
+            order: 1 (linear 4-node tets) or 2 (quadratic 10-node tets; FEM only, needs ``E``).
 
         Returns:
             The global index of the first particle.
         """
         return self._add_tet_mesh(
-            points, tets, density, stiffness, damping, E, nu, velocity, radius, name, kind
+            points, tets, density, stiffness, damping, E, nu, velocity, radius, name, kind, order
         )
 
     def _add_tet_mesh(
-        self, points, tets, density, stiffness, damping, E, nu, velocity, radius, name, kind
+        self, points, tets, density, stiffness, damping, E, nu, velocity, radius, name, kind, order=1
     ) -> int:
         from ..geometry import edges_from_tets, signed_tet_volumes, surface_from_tets
 
@@ -248,6 +268,10 @@ class ShapesMixin:
             raise ValueError(f"{name}: tetrahedron indices out of range [0, {pts.shape[0]})")
         if density <= 0:
             raise ValueError(f"{name}: density must be > 0 kg/m³, got {density}")
+        if isinstance(order, bool) or order not in (1, 2):
+            raise ValueError(f"{name}: order must be 1 (linear tets) or 2 (quadratic tets), got {order!r}")
+        if order == 2:
+            return self._add_p2_mesh(pts, tets, density, stiffness, E, nu, velocity, radius, name, kind)
         vol = signed_tet_volumes(pts, tets)
         m = np.zeros(pts.shape[0])
         np.add.at(m, tets.ravel(), np.repeat(np.abs(vol) * density / 4.0, 4))
@@ -260,6 +284,26 @@ class ShapesMixin:
         self._render_faces.append(surface_from_tets(tets) + first)
         self._tet_host.append(tets + first)
         self.register_object(name, kind, first)
+        return first
+
+    def _add_p2_mesh(self, pts, tets, density, stiffness, E, nu, velocity, radius, name, kind) -> int:
+        from ..geometry import surface_from_tets
+        from ..geometry._p2 import p2_lumped_masses, p2_subtets, promote_tets_p2
+
+        if stiffness is not None or E is None:
+            raise ValueError(
+                f"{name}: order = 2 (quadratic tets) is an FEM element: give E (and nu), not springs "
+                "(stiffness); use order = 1 for a mass-spring volume"
+            )
+        pts10, tets10 = promote_tets_p2(pts, tets)
+        vel = np.broadcast_to(np.asarray(velocity, np.float64), pts10.shape)
+        m = p2_lumped_masses(pts10, tets10, density)
+        first = self.add_particles(pts10, m, velocities=vel, radius=radius, name=name)
+        self.add_quadratic_tetrahedra(tets10 + first, E=E, nu=nu)
+        sub = p2_subtets(pts10, tets10)
+        self._render_faces.append(surface_from_tets(sub) + first)
+        self._tet_host.append(sub + first)
+        self.register_object(name, kind, first, order=2)
         return first
 
     def add_point_cloud(

@@ -46,6 +46,10 @@ def replicate(builder: Any, n: int, spacing: Sequence[float] = (0.0, 0.0, 0.0)) 
         )
     if builder._count == 0:
         raise ValueError("replicate: nothing to copy; add the objects of one world first, then replicate(n)")
+    if getattr(builder, "_tets10", None):
+        raise ValueError(
+            "replicate: quadratic (order = 2) tetrahedra cannot be replicated into worlds yet; use order = 1"
+        )
     shift = np.asarray(spacing, dtype=np.float64).reshape(3)
     if not np.all(np.isfinite(shift)):
         raise ValueError(f"replicate: spacing must be 3 finite lengths [m], got {spacing!r}")

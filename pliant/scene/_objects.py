@@ -6,7 +6,7 @@ import math
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import Field, Strict
+from pydantic import Field, Strict, field_validator, model_validator
 
 from ._files import load_mesh_file, load_points_npy, npy_shape, scene_path
 from ._registry import register_object_kind
@@ -80,7 +80,30 @@ class RenderMesh(Section):
     center: Vec3 | None = None  # [m] (default: the object's origin)
 
 
-class SoftBoxObject(ObjectBase):
+class TetOrder(Section):
+    """``order`` of a volume's tetrahedra: 1 (linear, 4 nodes) or 2 (quadratic, 10 nodes: a particle at
+    every edge midpoint; FEM only, ``model = "fem"``; they do not lock in bending)."""
+
+    order: Literal[1, 2] = 1
+
+    @field_validator("order", mode="before")
+    @classmethod
+    def _order_is_a_whole_number(cls, v: Any) -> Any:
+        if isinstance(v, bool) or not isinstance(v, int) or v not in (1, 2):
+            raise ValueError(f"order must be 1 (linear tets) or 2 (quadratic tets), got {v!r}")
+        return v
+
+    @model_validator(mode="after")
+    def _order_needs_fem(self) -> Any:
+        if self.order == 2 and getattr(self, "model", "fem") != "fem":
+            raise ValueError(
+                f'order = 2 (quadratic tets) needs model = "fem", got model = "{self.model}"; '
+                "use order = 1 for mass-spring and pbd volumes"
+            )
+        return self
+
+
+class SoftBoxObject(ObjectBase, TetOrder):
     """A box of cells × 6 tetrahedra (tet-edge springs, or FEM with ``model = "fem"``)."""
 
     kind: Literal["soft_box"]
@@ -125,7 +148,7 @@ def orient(points: np.ndarray, o: Any) -> np.ndarray:
     return points if r is None else points @ r.T
 
 
-class MeshObject(ObjectBase, Oriented):
+class MeshObject(ObjectBase, Oriented, TetOrder):
     """A mesh file (relative to the scene file): a tet mesh, or a closed surface filled by TetGen."""
 
     kind: Literal["mesh"]
@@ -157,7 +180,7 @@ class PointsObject(ObjectBase, Oriented):
     max_neighbors: Annotated[int, Strict(), Field(ge=1, le=256)] = 12
 
 
-class SoftSphereObject(ObjectBase):
+class SoftSphereObject(ObjectBase, TetOrder):
     """A solid ball: an icosphere filled with tetrahedra by TetGen (springs, XPBD volume or FEM)."""
 
     kind: Literal["soft_sphere"]
@@ -238,6 +261,7 @@ def _tet_kw(o: Any, i: int) -> dict[str, Any]:
         "velocity": o.velocity,
         "name": _name(o, i),
         "density": o.density,
+        "order": o.order,
         **_radius_kw(o),
     }
 
@@ -407,7 +431,7 @@ register_object_kind(
     build_soft_box,
     check=check_render_mesh,
     volumetric=True,
-    particles=lambda cfg, o: float(np.prod([c + 1.0 for c in o.cells])),
+    particles=lambda cfg, o: float(np.prod([o.order * c + 1.0 for c in o.cells])),
 )
 register_object_kind(
     "mesh", MeshObject, build_mesh, check=check_render_mesh, volumetric=True, particles=_mesh_estimate

@@ -211,7 +211,7 @@ class FastMassSpring(Solver):
         super().__init__(model)
         if method not in ("symplectic", "implicit"):
             raise ValueError(f"method must be 'symplectic' or 'implicit', got {method!r}")
-        if model.tet_count:
+        if model.tet_count or model.tet10_count:
             raise ValueError(
                 "FastMassSpring handles springs only; this model has FEM tetrahedra: use ForceSolver"
             )

@@ -109,6 +109,11 @@ class XPBD(Solver):
         check_every: int = 2,
     ) -> None:
         super().__init__(model, collisions)
+        if model.tet10_count:
+            raise ValueError(
+                "XPBD has no constraints for quadratic (order = 2) tetrahedra; build the volume with "
+                "order = 1, or simulate it with ForceSolver"
+            )
         if int(iterations) < 1:
             raise ValueError(f"iterations must be >= 1, got {iterations}")
         if tolerance is not None:
