@@ -146,9 +146,25 @@ def _section(problem: Any, out: Path, res: Any) -> Any:
     return GaussiansSection(**fields)
 
 
-def after_physics(problem: Any, values: dict[str, float]) -> list[str]:
-    """Warn about fitted values at a bound of their search box (the data pushed them out of the plausible
-    range: usually a model that cannot explain the data, or images it cannot draw); returns the messages."""
+def after_physics(problem: Any, values: dict[str, float]) -> dict[str, Any]:
+    """Measure the fitted and nominal motions' colour PSNR on the held-out (test) frames (photometric
+    problems), and warn about fitted values at a bound of their search box (the data pushed them out of the
+    plausible range: usually a model that cannot explain the data, or images it cannot draw).
+
+    Args:
+        problem: The fitting problem.
+        values: The fitted global values.
+
+    Returns:
+        ``warnings`` (the messages warned) and, from images, ``psnr_fitted_test_db`` and
+        ``psnr_nominal_test_db`` (None without test frames).
+    """
+    report: dict[str, Any] = {}
+    if getattr(problem, "photometric", False):
+        for key, v in (("fitted", values), ("nominal", problem.nominal)):
+            x = problem.simulate(problem.build(v), problem.frames)
+            per_frame = _colour_losses(problem, x, problem.n_train, problem.frames)
+            report[f"psnr_{key}_test_db"] = _psnr(float(np.mean(per_frame))) if len(per_frame) else None
     msgs = []
     for b in problem.globals:
         v = values[b.name]
@@ -163,7 +179,8 @@ def after_physics(problem: Any, values: dict[str, float]) -> list[str]:
             )
     for m in msgs:
         warnings.warn(m, FitWarning, stacklevel=3)
-    return msgs
+    report["warnings"] = msgs
+    return report
 
 
 __all__ = ["AT_BOUND", "PSNR_LOW_DB", "FitWarning", "after_physics", "before_physics", "scene_value"]

@@ -193,8 +193,8 @@ def fit(
             stages["gradient"].kept = False
             arrays = {}
     report = write_outputs(problem, out, values, arrays, stages, video=video, progress=progress)
-    report.update(explained)
-    report["warnings"] = report.get("warnings", []) + _explain.after_physics(problem, values)
+    after = _explain.after_physics(problem, values)
+    report.update(explained, warnings=explained.get("warnings", []) + after.pop("warnings"), **after)
     report["wall_time"] = time.perf_counter() - t0
     report["interrupted"] = interrupted
     (out / "fit.json").write_text(json.dumps(report, indent=2, default=_json_default) + "\n")
