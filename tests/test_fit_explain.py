@@ -98,3 +98,16 @@ def test_a_value_at_a_bound_warns_and_the_nominal_is_the_scene_value(truth, tmp_
     with pytest.warns(FitWarning, match=r"damping_rate ended at its upper bound \(20;"):
         after = after_physics(problem, {"stiffness": 50.0, "damping_rate": 20.0})
     assert len(after["warnings"]) == 1
+
+
+def test_cli_prints_the_appearance_and_psnr_lines(truth, tmp_path, capsys):
+    from pliant.cli import main
+
+    (tmp_path / "s.toml").write_text(CLOTH.replace("stiffness = 50.0", "stiffness = 80.0"))
+    truth.save(tmp_path / "obs.npz")
+    args = ["fit", str(tmp_path / "s.toml"), str(tmp_path / "obs.npz"), "--out", str(tmp_path / "fit")]
+    assert main([*args, "--params", "stiffness", "--iterations", "1", "--no-video", "-q"]) == 0
+    out = capsys.readouterr().out
+    assert "appearance (frame 0): PSNR " in out and " -> " in out
+    assert "PSNR at the start of the physics fit: " in out
+    assert "PSNR on the held-out frames: " in out and "(nominal motion " in out

@@ -230,6 +230,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
         print(
             f"PSNR at the start of the physics fit: {report['psnr_nominal_train_db']:.1f} dB (nominal motion)"
         )
+    if report.get("psnr_fitted_test_db") is not None:
+        print(
+            f"PSNR on the held-out frames: {report['psnr_fitted_test_db']:.1f} dB "
+            f"(nominal motion {report['psnr_nominal_test_db']:.1f} dB)"
+        )
     if "photometric" in report:
         ph = report["photometric"]["fitted"]
         test = "n/a" if ph["loss_test"] is None else f"{ph['loss_test']:.4g}"

@@ -88,6 +88,8 @@ def before_physics(
             [x0],
             [[obs.image(c, 0) for c in range(len(cams))]],
             masks,
+            # shading needs flat splats with normals: the generated surface ones, not round per-particle ones
+            shading=problem.binding.method == "triangles",
             iterations=iterations,
             mask_weight=problem.mask_weight,
         )
