@@ -17,16 +17,17 @@ from pliant.gaussians._scene import scene_gaussians
 from pliant.io import Observations
 from tests.test_fit_photometric import CLOTH
 
+#: The truth's appearance: another palette on a grey background (a section the fitted scene does not have).
+SECTION = (
+    '\n[gaussians]\ngenerate = "mesh"\nchecker = 0.1\ncolor = [0.1, 0.2, 0.9]\n'
+    "color2 = [0.95, 0.85, 0.1]\nbackground = [0.7, 0.7, 0.7]\n"
+)
+
 
 @pytest.fixture(scope="module")
 def truth():
-    """The tiny cloth's videos from 2 cameras at 24×18 px, drawn with another palette on a grey background
-    (the truth scene carries a [gaussians] section the fitted scene does not have)."""
-    text = CLOTH + (
-        '\n[gaussians]\ngenerate = "mesh"\nchecker = 0.1\ncolor = [0.1, 0.2, 0.9]\n'
-        "color2 = [0.95, 0.85, 0.1]\nbackground = [0.7, 0.7, 0.7]\n"
-    )
-    cfg = pl.scene.parse_scene(text)
+    """The tiny cloth's videos from 2 cameras at 24×18 px, drawn with the SECTION's appearance."""
+    cfg = pl.scene.parse_scene(CLOTH + SECTION)
     return observe_images(pl.scene.build_scene(cfg), cameras=2, image_size=(24, 18))
 
 
@@ -111,3 +112,16 @@ def test_cli_prints_the_appearance_and_psnr_lines(truth, tmp_path, capsys):
     assert "appearance (frame 0): PSNR " in out and " -> " in out
     assert "PSNR at the start of the physics fit: " in out
     assert "PSNR on the held-out frames: " in out and "(nominal motion " in out
+
+
+def test_a_scene_with_its_own_section_is_refitted_only_when_asked(truth, tmp_path):
+    cfg = pl.scene.parse_scene(CLOTH + SECTION.replace("[0.7, 0.7, 0.7]", "[0.2, 0.2, 0.2]"))
+    kw = dict(params=["stiffness"], generations=1, epochs=0, progress=False, video=False)
+    with pytest.warns(FitWarning, match="the scene's \\[gaussians\\] section does not describe the footage"):
+        rep = pl.fit.fit(cfg, truth, tmp_path / "kept", **kw)  # its section is kept: a wrong background
+    assert "appearance" not in rep
+    rep = pl.fit.fit(cfg, truth, tmp_path / "refit", appearance=True, **kw)
+    np.testing.assert_allclose(rep["appearance"]["background"], [0.7, 0.7, 0.7], atol=0.02)
+    g = pl.scene.load_scene(tmp_path / "refit" / "fitted.toml").gaussians
+    assert g.ply.endswith("appearance.ply") and g.generate is None and g.bind == "triangles"
+    assert g.background == pytest.approx(tuple(rep["appearance"]["background"])) and len(g.light) == 5

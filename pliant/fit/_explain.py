@@ -135,16 +135,19 @@ def _section(problem: Any, out: Path, res: Any) -> Any:
     from ..gaussians import save_ply
     from ..scene._gaussians import GaussiansSection
 
-    if len(problem.cfg.objects) != 1:
+    own = getattr(problem.cfg, "gaussians", None)
+    if own is None and len(problem.cfg.objects) != 1:
         return None
     path = Path(out).resolve() / "appearance.ply"
     b = problem.binding
     save_ply(b.gaussians.baked(), path)
     fields: dict[str, Any] = {"ply": str(path), "bind": b.method, "background": res.background}
-    if b.method == "lbs":  # the generated per-particle splats' skinning (pliant/gaussians/_surface.py)
-        fields.update(k=int(b.link_gauss.shape[0] // max(b.gaussians.count, 1)), neighbours=8)
     if res.light is not None:
         fields["light"] = list(res.light)
+    if own is not None:  # the scene's own section, its splats refitted: keep its object and skinning
+        return own.model_copy(update={**fields, "generate": None})
+    if b.method == "lbs":  # the generated per-particle splats' skinning (pliant/gaussians/_surface.py)
+        fields.update(k=int(b.link_gauss.shape[0] // max(b.gaussians.count, 1)), neighbours=8)
     return GaussiansSection(**fields)
 
 
