@@ -50,7 +50,15 @@ def _workloads() -> None:
             ForceSolver(box, [getattr(energies, law)(), energies.Gravity()], integ).step(s0, s1, None, 1e-4)
     rng = np.random.default_rng(0)
     g = Gaussians.from_values(rng.uniform(-0.5, 0.5, (8, 3)), scales=np.full((8, 3), 0.1), sh_degree=1)
-    render(g, Camera.look_at([0.0, 0.0, 3.0], [0.0, 0.0, 0.0], width=16, height=16))
+    cam = Camera.look_at([0.0, 0.0, 3.0], [0.0, 0.0, 0.0], width=16, height=16)
+    render(g, cam)
+    # the backward pass with a differentiable background and a light (the appearance stage's kernels)
+    gg = Gaussians(**g.numpy(), requires_grad=True)
+    bg = wp.zeros(1, dtype=wp.vec3, requires_grad=True)
+    light = wp.array([[1.0, 0.1, 0.2, 0.3], [0.1, 0.0, 0.0, 0.0]], dtype=wp.vec4, requires_grad=True)
+    with wp.Tape() as tape:
+        c, _, _ = render(gg, cam, bg, light=light)
+    tape.backward(grads={c: wp.ones(c.shape, dtype=wp.vec3)})
 
 
 def main() -> None:

@@ -212,7 +212,8 @@ def test_image_loss_gradient_wrt_stiffness_equals_central_differences(truth, mas
 # ---------------------------------------------------------------------------------------------- fitting
 def test_tiny_fit_recovers_stiffness_from_two_videos(truth, tmp_path):
     """From k = 80 N/m (60 % off) back to the truth, 50 N/m, within 5 % from 2 cameras × 6 frames of 24×18
-    pixels: a short CMA-ES stage, then L-BFGS on image gradients."""
+    pixels: a short CMA-ES stage, then L-BFGS on image gradients. The generated splats drew the videos, so
+    the appearance stage is off: the loss can fall to zero (tests/test_fit_explain.py covers the stage)."""
     cfg, obs = truth
     rep = pl.fit.fit(
         apply_globals(cfg, {"stiffness": 80.0}),
@@ -224,6 +225,7 @@ def test_tiny_fit_recovers_stiffness_from_two_videos(truth, tmp_path):
         optimizer="lbfgs",
         progress=False,
         video=False,
+        appearance=False,
     )
     k = rep["params"]["stiffness"]["value"]
     assert k == pytest.approx(50.0, rel=0.05)

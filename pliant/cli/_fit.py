@@ -204,7 +204,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
             params=params,
             per_element=args.per_element,
             train_fraction=args.train_fraction,
-            generations=20 if n is None else n,
+            generations=40 if n is None else n,  # a cap: CMA-ES stops once converged
             epochs=20 if n is None else n,
             # L-BFGS for images: a few whole-rollout gradients of one smooth loss (docs/gaussians.md)
             optimizer=args.optimizer or ("lbfgs" if obs.images is not None else "adam"),
@@ -225,6 +225,18 @@ def cmd_fit(args: argparse.Namespace) -> int:
         raise
     for name, p in report["params"].items():
         print(f"{name}: {p['value']:.6g} (nominal {p['nominal']:.6g})")
+    if "appearance" in report:
+        a = report["appearance"]
+        print(f"appearance (frame 0): PSNR {a['psnr_before_db']:.1f} -> {a['psnr_after_db']:.1f} dB")
+    if report.get("psnr_nominal_train_db") is not None:
+        print(
+            f"PSNR at the start of the physics fit: {report['psnr_nominal_train_db']:.1f} dB (nominal motion)"
+        )
+    if report.get("psnr_fitted_test_db") is not None:
+        print(
+            f"PSNR on the held-out frames: {report['psnr_fitted_test_db']:.1f} dB "
+            f"(nominal motion {report['psnr_nominal_test_db']:.1f} dB)"
+        )
     if "photometric" in report:
         ph = report["photometric"]["fitted"]
         test = "n/a" if ph["loss_test"] is None else f"{ph['loss_test']:.4g}"

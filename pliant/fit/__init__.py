@@ -25,6 +25,7 @@ Example::
 from __future__ import annotations
 
 from ._cmaes import PENALTY, StageResult, cmaes, evaluate
+from ._explain import FitWarning
 from ._gradient import Smoothness, gradient_stage
 from ._losses import acceleration_loss, chamfer_loss, track_errors, track_loss
 from ._observe import observe
@@ -45,6 +46,7 @@ from ._run import PARAMS_FILE, fit, fitted_scene
 from ._toml import scene_toml
 
 __all__ = [
+    "FitWarning",
     "DEFAULTS",
     "GLOBAL",
     "PARAMS_FILE",

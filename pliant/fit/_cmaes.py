@@ -32,6 +32,7 @@ class StageResult:
             not lower the open-loop loss on the validation frames).
         validation: The gradient stage's validation frames [lo, hi) and their open-loop loss before and
             after it (set by :func:`fit`; None when it trained on every training frame).
+        stop: Why the stage stopped (CMA-ES: ``"converged"``, ``"step"``, ``"cap"`` or ``"interrupted"``).
     """
 
     values: dict[str, float]
@@ -43,6 +44,7 @@ class StageResult:
     per_element: dict[str, np.ndarray] = field(default_factory=dict)
     kept: bool = True
     validation: dict | None = None
+    stop: str = ""
 
 
 def evaluate(problem: Problem, values: dict[str, float]) -> float:
@@ -119,6 +121,8 @@ def cmaes(
     start: dict[str, float] | None = None,
     callback: Callable[[int, float], None] | None = None,
     batch: bool = True,
+    rtol: float = 1e-3,
+    patience: int = 5,
 ) -> StageResult:
     """Minimise the training loss over ``problem.globals`` with CMA-ES (the ``cma`` package).
 
@@ -127,9 +131,13 @@ def cmaes(
     at least two dimensions. Ctrl-C stops the search and
     returns the best candidate so far (``interrupted=True``).
 
+    Stopping: by convergence, when the best loss improved by less than ``rtol`` (relative) over the last
+    ``patience`` generations (``stop="converged"``), or when the search's step in the unit box is below
+    1e-4 (``"step"``); ``generations`` is a cap (``"cap"``), not a count to run.
+
     Args:
         problem: The fitting problem.
-        generations: CMA-ES iterations.
+        generations: Most CMA-ES generations.
         sigma: Initial step size in the normalised [0, 1] box (PhysTwin: 1/6).
         popsize: Candidates per generation (None: at least 10, 16 with a topology parameter; cma's own
             default 4 + ⌊3 ln d⌋ when larger).
@@ -137,6 +145,9 @@ def cmaes(
         start: Starting values (default: the scene's own).
         callback: ``callback(generation, best_loss)`` after each generation (progress bars).
         batch: Run a generation as one batched simulation when the problem allows it.
+        rtol: Relative improvement of the best loss over ``patience`` generations below which it stops
+            (0: never on this criterion).
+        patience: Generations over which the improvement is measured.
     """
     import cma
 
@@ -200,10 +211,18 @@ def cmaes(
             best.history.append(best.loss)
             if callback is not None:
                 callback(gen + 1, best.loss)
-            if es.stop() and "maxiter" not in es.stop():
+            h = best.history
+            if len(h) > patience and h[-1 - patience] - h[-1] <= rtol * abs(h[-1 - patience]):
+                best.stop = "converged"
                 break
+            if es.stop() and "maxiter" not in es.stop():
+                best.stop = "step"
+                break
+        else:
+            best.stop = "cap"
     except KeyboardInterrupt:
         best.interrupted = True
+        best.stop = "interrupted"
     best.wall_time = time.perf_counter() - t0
     return best
 

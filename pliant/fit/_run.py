@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..io import Observations, atomic_savez
+from . import _explain
 from ._cmaes import StageResult, cmaes
 from ._gradient import gradient_stage
 from ._params import FitError
@@ -60,7 +61,7 @@ def fit(
     params: list[str] | None = None,
     per_element: str | None = None,
     train_fraction: float = 0.7,
-    generations: int = 20,
+    generations: int = 40,
     epochs: int = 20,
     optimizer: str = "adam",
     horizon: int | None = 1,
@@ -72,6 +73,7 @@ def fit(
     dtype: str | None = None,
     progress: bool = True,
     video: bool = True,
+    appearance: bool | None = None,
 ) -> dict[str, Any]:
     """Fit a scene to observations and write the outputs into ``out``.
 
@@ -88,7 +90,7 @@ def fit(
         params: Global parameter names (``pl.fit.GLOBAL``); None: the material; ``[]``: none.
         per_element: Per-element parameter (``"stiffness"``, ``"E"``, ``"compliance"``) or None.
         train_fraction: Fraction of frames to train on.
-        generations: CMA-ES generations.
+        generations: Most CMA-ES generations (it stops earlier once converged).
         epochs: Gradient-stage iterations (passes over the training frames).
         optimizer: ``"adam"`` or ``"lbfgs"``.
         horizon: Frames per tape (1: PhysTwin's default), None: the whole training rollout.
@@ -104,6 +106,8 @@ def fit(
         dtype: ``"float32"`` / ``"float64"`` (None: the scene's).
         progress: Show progress bars.
         video: Write ``fit.mp4``.
+        appearance: From images: fit the splats' appearance to the first frame before the physics
+            (``pl.fit._explain.before_physics``); None: when the scene has no ``[gaussians]`` section.
 
     Returns:
         The contents of ``fit.json`` (also written to ``out``).
@@ -124,6 +128,8 @@ def fit(
         device=device,
         dtype=dtype,
     )
+    # images: the appearance stage, and whether the splats can explain the images at all (warns if not)
+    explained = _explain.before_physics(problem, out, appearance=appearance)
     stages: dict[str, StageResult] = {}
     values, arrays = problem.nominal, {}
     interrupted = False
@@ -187,6 +193,8 @@ def fit(
             stages["gradient"].kept = False
             arrays = {}
     report = write_outputs(problem, out, values, arrays, stages, video=video, progress=progress)
+    after = _explain.after_physics(problem, values)
+    report.update(explained, warnings=explained.get("warnings", []) + after.pop("warnings"), **after)
     report["wall_time"] = time.perf_counter() - t0
     report["interrupted"] = interrupted
     (out / "fit.json").write_text(json.dumps(report, indent=2, default=_json_default) + "\n")
@@ -225,6 +233,8 @@ def write_outputs(
         cfg.scene.parameters = PARAMS_FILE
     elif cfg.scene.parameters is not None:
         cfg.scene.parameters = str((Path(cfg.base_dir) / cfg.scene.parameters).resolve())
+    if getattr(problem, "appearance_section", None) is not None:  # the appearance stage's splats
+        cfg.gaussians = problem.appearance_section
     scene_toml(cfg, out / "fitted.toml", comment=f"Fitted by `pliant fit` from {problem.cfg.source}")
     x_nom = problem.simulate(problem.build({}), problem.frames)  # the scene as given
     scene = fitted_scene(problem, values, per_element)
@@ -238,7 +248,8 @@ def write_outputs(
         "params": {
             b.name: {
                 "value": values[b.name],
-                "nominal": b.nominal,
+                "nominal": _explain.scene_value(problem, b.name),  # the scene's, not the search's start
+                "start": b.nominal,
                 "bounds": [b.lo, b.hi],
                 "log": b.param.log,
             }
@@ -258,6 +269,7 @@ def write_outputs(
         "gradient_stage_kept": stages["gradient"].kept if "gradient" in stages else None,
         "gradient_validation": stages["gradient"].validation if "gradient" in stages else None,
         "stage_wall_time": {k: s.wall_time for k, s in stages.items()},
+        "stage_stop": {k: s.stop for k, s in stages.items() if s.stop},
         "evaluations": {k: s.evaluations for k, s in stages.items()},
         "error": {k: _finite(v) for k, v in problem.split_errors(x).items()},
         "error_nominal": {k: _finite(v) for k, v in problem.split_errors(x_nom).items()},

@@ -13,6 +13,7 @@ Methods: 3D Gaussian splatting (Kerbl, Kopanas, Leimkühler, Drettakis 2023) and
 2002); the implementation here is pliant's own, written from the papers' equations.
 """
 
+from ._appearance import AppearanceResult, fit_splat_appearance
 from ._bind import Binding, bind
 from ._camera import Camera
 from ._correct import VisualCorrector
@@ -21,19 +22,23 @@ from ._gaussians import SH_C0, Gaussians
 from ._optim import Adam, photometric_loss, psnr
 from ._ply import PlyError, load_ply, save_ply
 from ._render import RenderOutput, render
+from ._scene import SceneSplats
 
 __all__ = [
     "DEFAULT_LRS",
     "SH_C0",
     "Adam",
+    "AppearanceResult",
     "Binding",
     "Camera",
     "Gaussians",
     "PlyError",
     "RenderOutput",
+    "SceneSplats",
     "VisualCorrector",
     "bind",
     "fit_appearance",
+    "fit_splat_appearance",
     "load_ply",
     "photometric_loss",
     "psnr",

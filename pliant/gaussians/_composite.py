@@ -225,3 +225,12 @@ def composite_backward_kernel(
                 wp.atomic_add(
                     adj_conic, g, type(q)(-half * d_pow * dx * dx, -d_pow * dx * dy, -half * d_pow * dy * dy)
                 )
+
+
+@wp.kernel
+def background_adjoint_kernel(
+    adj_colour_out: wp.array2d(dtype=Any), out_T: wp.array2d(dtype=Any), adj_background: wp.array(dtype=Any)
+):
+    # colour = C + background · T_end per pixel, so ∂L/∂background = Σ_pixels ∂L/∂colour · T_end.
+    y, x = wp.tid()
+    wp.atomic_add(adj_background, 0, adj_colour_out[y, x] * out_T[y, x])

@@ -95,6 +95,8 @@ def project_kernel(
     sh_degree: int,
     transforms: wp.array(dtype=Any),
     has_transform: int,
+    light: wp.array(dtype=Any),
+    has_light: int,
     rot: Any,
     trans: Any,
     campos: Any,
@@ -151,7 +153,31 @@ def project_kernel(
     depth[g] = p[2]
     opacity[g] = one / (one + wp.exp(-opacity_logits[g]))
     view = wp.normalize(mu - campos)
-    colour[g] = sh_colour(sh, g, sh_degree, view)
+    rgb = sh_colour(sh, g, sh_degree, view)
+    if has_light != 0:
+        # Lambertian shading on the splat's normal: its thinnest axis (a flat splat's normal; for a
+        # "triangles" binding A R e_z is the deformed triangle's unit normal), turned to face the camera
+        # (both sides of a cloth are lit, as two-sided lighting does). light[0] = (ambient, L) with L the
+        # directional light's direction × intensity; light[1][0] = a headlight's intensity (a light at the
+        # camera, as MuJoCo's default one): shade = ambient + max(0, n·L) + headlight · |n·v|.
+        Mw = Rq
+        if has_transform != 0:
+            Mw = transforms[g] * Rq
+        e = type(mu)(zero, zero, one)
+        if s[0] <= s[1] and s[0] <= s[2]:
+            e = type(mu)(one, zero, zero)
+        elif s[1] <= s[2]:
+            e = type(mu)(zero, one, zero)
+        nrm = wp.normalize(Mw * e)
+        facing = wp.dot(nrm, view)
+        if facing > zero:
+            nrm = -nrm
+        lt = light[0]
+        hl = light[1]
+        direct = lt[1] * nrm[0] + lt[2] * nrm[1] + lt[3] * nrm[2]
+        shade = lt[0] + wp.max(direct, zero) + hl[0] * wp.abs(facing)
+        rgb = rgb * shade
+    colour[g] = rgb
     # screen extent: 3σ of the larger eigenvalue of the dilated covariance, in whole tiles
     mid = type(fx)(0.5) * (a + c)
     lam = mid + wp.sqrt(wp.max(type(fx)(0.1), mid * mid - det))

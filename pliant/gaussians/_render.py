@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import warp as wp
@@ -10,6 +10,7 @@ import warp as wp
 from .._warp import active_tape, mat33_type, scalar_type, vec3_type
 from ._camera import Camera
 from ._composite import (
+    background_adjoint_kernel,
     composite_backward_kernel,
     composite_kernel,
     depth_keys_kernel,
@@ -17,7 +18,7 @@ from ._composite import (
     ranges_kernel,
     ranks_kernel,
 )
-from ._gaussians import Gaussians, vec2_type
+from ._gaussians import Gaussians, vec2_type, vec4_type
 from ._project import TILE, project_kernel
 
 
@@ -43,39 +44,56 @@ class _Frame:
 def render(
     gaussians: Gaussians,
     camera: Camera,
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    background: tuple[float, float, float] | wp.array = (0.0, 0.0, 0.0),
     *,
     near: float = 0.01,
     eps2d: float = 0.3,
+    light: Any = None,
 ) -> RenderOutput:
     """Rasterise ``gaussians`` seen by ``camera`` (3D Gaussian splatting, tiles of 16×16 pixels).
 
     Under an active ``wp.Tape`` the result is differentiable: ``tape.backward(grads={colour: ...})`` (or a
     loss computed from the outputs by Warp kernels) fills the gradients of the Gaussians' means, quats,
-    log_scales, opacity_logits and sh, and of whatever produced them on the tape (a binding, a simulation).
+    log_scales, opacity_logits and sh, and of whatever produced them on the tape (a binding, a simulation),
+    and of ``background`` and ``light`` when they are Warp arrays with ``requires_grad``.
 
     Args:
         gaussians: The Gaussian set (its dtype and device are the render's).
         camera: Intrinsics, pose and image size.
-        background: RGB behind the Gaussians, each in [0, 1].
+        background: RGB behind the Gaussians, each in [0, 1]: three numbers, or a Warp array of one vec3 of
+            the Gaussians' dtype (differentiable: ∂L/∂background = Σ_pixels ∂L/∂colour · T_end).
         near: Gaussians with camera depth ≤ ``near`` [m] are culled.
         eps2d: Low-pass dilation [px²] added to the diagonal of every 2D covariance (as in 3DGS).
+        light: None (unlit: colour = SH colour), or Lambertian shading of each splat's SH colour by
+            shade = ambient + max(0, n·L) + headlight · |n·v| with n the splat's normal (its thinnest axis,
+            turned towards the camera) and v the unit viewing direction: 5 numbers (ambient, Lx, Ly, Lz,
+            headlight) with L the light's direction × intensity (world frame, pointing towards the light),
+            or a Warp array of two vec4 of the Gaussians' dtype ((ambient, Lx, Ly, Lz), (headlight, 0, 0,
+            0)), differentiable under the tape.
 
     Returns:
         :class:`RenderOutput` (colour [H, W, 3], alpha [H, W], depth [H, W]) as Warp arrays.
     """
     if not isinstance(camera, Camera):
         raise TypeError(f"camera must be a pliant.gaussians.Camera, got {type(camera).__name__}")
-    bg = np.asarray(background, dtype=np.float64)
+    dev, dt = gaussians.device, gaussians.dtype
+    s, v2, v3, v4, m33 = scalar_type(dt), vec2_type(dt), vec3_type(dt), vec4_type(dt), mat33_type(dt)
+    bg_array = background if isinstance(background, wp.array) else None
+    if bg_array is not None:
+        if bg_array.shape != (1,) or bg_array.dtype != v3:
+            raise ValueError(f"background as a Warp array must hold one {v3.__name__}, got {bg_array}")
+        bg = bg_array.numpy().reshape(3).astype(np.float64)
+    else:
+        bg = np.asarray(background, dtype=np.float64)
     if bg.shape != (3,) or not np.all(np.isfinite(bg)):
         raise ValueError(f"background must be 3 finite numbers, got {background!r}")
-    dev, dt = gaussians.device, gaussians.dtype
-    s, v2, v3, m33 = scalar_type(dt), vec2_type(dt), vec3_type(dt), mat33_type(dt)
+    light_array = _light_array(light, v4, dev)
     n = gaussians.count
     H, W = camera.height, camera.width
     tiles_x, tiles_y = (W + TILE - 1) // TILE, (H + TILE - 1) // TILE
     tape = active_tape()
-    grad = tape is not None and gaussians.requires_grad
+    extra = [a for a in (bg_array, light_array if light is not None else None) if a is not None]
+    grad = tape is not None and (gaussians.requires_grad or any(a.requires_grad for a in extra))
 
     f = _Frame()
     f.mean2d = wp.zeros(n, dtype=v2, device=dev, requires_grad=grad)
@@ -109,6 +127,8 @@ def render(
                 gaussians.sh_degree,
                 transforms,
                 int(gaussians.transforms is not None),
+                light_array,
+                int(light is not None),
                 m33(*camera.rotation.flatten()),
                 v3(*camera.translation),
                 v3(*camera.position),
@@ -176,12 +196,36 @@ def render(
                 device=dev,
                 record_tape=False,
             )
+            if bg_array is not None and bg_array.requires_grad:
+                wp.launch(
+                    background_adjoint_kernel,
+                    dim=(H, W),
+                    inputs=[out_colour.grad, f.T, bg_array.grad],
+                    device=dev,
+                    record_tape=False,
+                )
 
         tape.record_func(
             backward=backward,
             arrays=[out_colour, out_alpha, out_depth, f.mean2d, f.conic, f.opacity, f.colour, f.depth],
         )
     return RenderOutput(out_colour, out_alpha, out_depth)
+
+
+def _light_array(light: Any, v4: Any, dev: str) -> wp.array:
+    """The shading parameters as a Warp array of two vec4 (see :func:`render`); zeros when unlit."""
+    if light is None:
+        return wp.zeros(2, dtype=v4, device=dev)
+    if isinstance(light, wp.array):
+        if light.shape != (2,) or light.dtype != v4:
+            raise ValueError(f"light as a Warp array must hold two {v4.__name__}, got {light}")
+        if str(light.device) != dev:
+            raise ValueError(f"light is on {light.device} but the Gaussians are on {dev}")
+        return light
+    a = np.asarray(light, dtype=np.float64).reshape(-1)
+    if a.shape != (5,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"light must be 5 finite numbers (ambient, Lx, Ly, Lz, headlight), got {light!r}")
+    return wp.array([a[:4], [a[4], 0.0, 0.0, 0.0]], dtype=v4, device=dev)
 
 
 def _bin(depth, rect, tile_count, tiles_x: int, tile_total: int, n: int, s, dev):

@@ -38,12 +38,14 @@ class SceneSplats:
         lo: The object's first particle in the model.
         hi: One past its last particle.
         background: RGB behind the splats.
+        light: Shading (ambient, Lx, Ly, Lz, headlight) of :func:`pliant.gaussians.render`, or None (unlit).
     """
 
     binding: Binding
     lo: int
     hi: int
     background: tuple[float, float, float]
+    light: tuple[float, ...] | None = None
 
     def place(self, x: Any) -> Gaussians:
         """The splats for model positions ``x`` [m] (NumPy [N, 3] of the whole model, or a Warp array)."""
@@ -65,7 +67,7 @@ class SceneSplats:
     def render(self, x: Any, camera: Camera) -> RenderOutput:
         """Colour, alpha and depth of the splats at model positions ``x`` seen by ``camera`` (differentiable
         w.r.t. a Warp ``x`` under ``wp.Tape``)."""
-        return render(self.place(x), camera, self.background)
+        return render(self.place(x), camera, self.background, light=self.light)
 
     def image(self, x: Any, camera: Camera) -> np.ndarray:
         """RGB image [H, W, 3] in [0, 1] of the object at model positions ``x`` seen by ``camera``."""
@@ -162,7 +164,8 @@ def scene_splats(cfg: Any, scene: Any) -> SceneSplats:
         )
     except ValueError as exc:
         raise _fail(cfg, "gaussians.bind", str(exc)) from None
-    return SceneSplats(b, lo, hi, tuple(float(c) for c in spec.background))
+    light = None if spec.light is None else tuple(float(v) for v in spec.light)
+    return SceneSplats(b, lo, hi, tuple(float(c) for c in spec.background), light)
 
 
 def scene_gaussians(scene: Any, *, per_triangle: int = 1) -> SceneSplats:

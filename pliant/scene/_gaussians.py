@@ -22,7 +22,7 @@ from typing import Annotated, Literal
 from pydantic import Field, Strict
 
 from ._registry import OBJECT_KINDS, register_section
-from ._schema import MAX_NAME, MAX_PIXELS, Fraction, NonNegFloat, PosFloat, Section, Vec3
+from ._schema import MAX_NAME, MAX_PIXELS, Float, Fraction, NonNegFloat, PosFloat, Section, Vec3
 
 _Colour = Vec3
 _Pixels = Annotated[int, Strict(), Field(ge=8, le=MAX_PIXELS)]
@@ -59,6 +59,9 @@ class GaussiansSection(Section):
     color2: _Colour = (0.95, 0.9, 0.75)
     checker: NonNegFloat = 0.0  # checker cell size [m] of generated splats' colours; 0: plain ``color``
     background: _Colour = (1.0, 1.0, 1.0)
+    # Lambertian shading of the splats: (ambient, Lx, Ly, Lz, headlight), L the directional light's
+    # direction × intensity (towards the light); `pliant fit`'s appearance stage writes it. None: unlit.
+    light: Annotated[list[Float], Field(min_length=5, max_length=5)] | None = None
     correction: GaussianCorrectionSection | None = None
 
 
