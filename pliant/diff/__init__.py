@@ -9,10 +9,14 @@ for ForceSolver with explicit integrators (and ``XPBD``'s ``solver.gravity``). D
 implicit-function-theorem adjoint), with ground contact and kinematic targets;
 ``FastMassSpring(method="symplectic")``; ``XPBD`` / ``PBD`` with ``schedule="jacobi"``. What cannot give a
 correct gradient raises :class:`GradientError` when asked.
+
+What can be differentiated is declared by the classes that read it (``parameters()``: energies,
+constraints, colliders, solvers, the Model / State / Control); :func:`parameters` lists the registry with
+units, element kinds and default search ranges, and :data:`PARAMETERS` is its differentiable part.
 """
 
 from .._warp import GradientError
-from ._rollout import PARAMETERS, RolloutResult, rollout
+from ._rollout import PARAMETERS, RolloutResult, parameters, rollout
 from ._torch import torch_rollout
 
-__all__ = ["PARAMETERS", "GradientError", "RolloutResult", "rollout", "torch_rollout"]
+__all__ = ["PARAMETERS", "GradientError", "RolloutResult", "parameters", "rollout", "torch_rollout"]

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -11,104 +11,24 @@ import warp as wp
 
 from .._warp import GradientError
 from ..model import Control, Model, State
+from ..model._parameters import Parameter, RegistryView, registry
 
 
-def _ground(index: int) -> Callable[[Model, Any, State, Control | None], wp.array]:
-    def get(model, solver, state0, control):
-        c = getattr(solver, "ground_coefficients", None)
-        if c is None:
-            raise GradientError(
-                "ground_friction/ground_restitution need a solver with ground contact on a requires_grad "
-                "model (ForceSolver or FastMassSpring with an explicit step and model.ground set)"
-            )
-        return c, index
+#: Parameter name → ``get(model, solver, state0, control)`` returning its array (or (array, component) for a
+#: scalar held in a shared array): every differentiable parameter the registry declares
+#: (:mod:`pliant.model._parameters`; each energy, constraint, collider and solver declares its own). Values
+#: are per element: per spring, per tet, per particle, per constraint, per collider.
+def parameters() -> dict[str, tuple[Parameter, tuple[type, ...]]]:
+    """The whole parameter registry (:mod:`pliant.model._parameters`): name → (declaration, the classes
+    that declare it), after importing every package whose classes declare parameters."""
+    from .. import collision, constraints, energies, solvers  # noqa: F401  (their classes register)
 
-    return get
-
-
-def _control(name: str) -> Callable[[Model, Any, State, Control | None], wp.array]:
-    def get(model, solver, state0, control):
-        if control is None:
-            raise GradientError(f"{name!r} is a Control array: pass control= to rollout")
-        return getattr(control, name)
-
-    return get
+    return registry()
 
 
-def _solver_array(attr: str, what: str) -> Callable[[Model, Any, State, Control | None], wp.array]:
-    def get(model, solver, state0, control):
-        a = getattr(solver, attr, None)
-        if a is None:
-            raise GradientError(f"{attr!r} is differentiable only {what}")
-        return a
-
-    return get
-
-
-def _compliance(kind: str) -> Callable[[Model, Any, State, Control | None], wp.array]:
-    def get(model, solver, state0, control):
-        sets = [c for c in getattr(solver, "constraints", ()) if type(c).__name__ == kind]
-        arrays = [getattr(c, "compliance_array", None) for c in sets]
-        if not sets or arrays[0] is None:
-            raise GradientError(
-                f"'compliance_{kind.lower()}' needs an XPBD solver with a {kind} constraint set "
-                "(PBD sets use a stiffness, not a compliance)"
-            )
-        if len(sets) > 1:
-            raise GradientError(
-                f"'compliance_{kind.lower()}': the solver has {len(sets)} {kind} sets; read "
-                "constraint.compliance_array.grad on the plain tape path to tell them apart"
-            )
-        return arrays[0]
-
-    return get
-
-
-def _collider(key: str) -> Callable[[Model, Any, State, Control | None], wp.array]:
-    def get(model, solver, state0, control):
-        found = [c for c in getattr(solver, "collisions", ()) if callable(getattr(c, "apply_out", None))]
-        if len(found) != 1:
-            raise GradientError(
-                f"'collider_{key}' needs exactly one pl.collision.Colliders in the solver's collisions= "
-                f"(found {len(found)})"
-            )
-        return found[0].arrays(model)[key]
-
-    return get
-
-
-#: Parameter name → where its array lives. Each entry returns the array (or (array, component) for a
-#: scalar held in a shared array). Values are per element: per spring, per tet, per particle, per target.
-PARAMETERS: dict[str, Callable[[Model, Any, State, Control | None], Any]] = {
-    "spring_stiffness": lambda m, s, x, c: m.spring_stiffness,  # [N/m] per spring
-    "spring_rest_length": lambda m, s, x, c: m.spring_rest_length,  # [m] per spring
-    "spring_damping": lambda m, s, x, c: m.spring_damping,  # dashpot γ [N s/m] per spring
-    "tet_mu": lambda m, s, x, c: m.tet_mu,  # Lamé μ [Pa] per tet (E and ν via the chain rule)
-    "tet_lam": lambda m, s, x, c: m.tet_lam,  # Lamé λ [Pa] per tet
-    # Masses [kg] per particle: the step reads both m (gravity) and 1/m (accelerations); rollout combines
-    # ∂L/∂m + ∂L/∂(1/m)·(−1/m²) for free particles (pinned ones keep 1/m = 0, so only the first term).
-    "particle_mass": lambda m, s, x, c: m.particle_mass,
-    # Gravity g [m/s²] (1 vec3): ForceSolver (any integrator), XPBD/PBD (``solver.gravity``).
-    "gravity": _solver_array("gravity", "with ForceSolver or XPBD/PBD on a requires_grad model"),
-    # Global damping rate c [1/s] of v ← v·exp(−cΔt) (1 scalar): ForceSolver(damping_rate=...).
-    "damping_rate": _solver_array(
-        "damping_rate_array", "with ForceSolver(damping_rate=c) on a requires_grad model"
-    ),
-    "x0": lambda m, s, x, c: x.particle_q,  # initial positions [m]
-    "v0": lambda m, s, x, c: x.particle_qd,  # initial velocities [m/s]
-    "ground_friction": _ground(0),  # Coulomb μ (a subgradient at stick/slip and contact switches)
-    "ground_restitution": _ground(1),  # restitution e
-    # XPBD compliance α per constraint [m/N for Distance; 1/(N m) for bending; 1/(N m²)-like for Volume].
-    "compliance_distance": _compliance("Distance"),
-    "compliance_dihedralbending": _compliance("DihedralBending"),
-    "compliance_volume": _compliance("Volume"),
-    # Colliders (ForceSolver collisions=[pl.collision.Colliders]): per collider μ, e and centre [m].
-    "collider_friction": _collider("friction"),
-    "collider_restitution": _collider("restitution"),
-    "collider_pos": _collider("pos"),
-    "particle_f": _control("particle_f"),  # external forces [N], held over the rollout
-    "kinematic_targets": _control("kinematic_targets"),  # targets [m] of the kinematic particles
-}
+PARAMETERS: Mapping[str, Callable[[Model, Any, State, Control | None], Any]] = RegistryView(
+    lambda p: p.differentiable, lambda p: p.getter(), parameters
+)
 
 
 @dataclass
@@ -127,13 +47,14 @@ class RolloutResult:
 
 
 def _resolve(names: Sequence[str], model: Model, solver: Any, state0: State, control: Control | None):
+    table = dict(PARAMETERS)
     out = {}
     for name in names:
-        if name not in PARAMETERS:
+        if name not in table:
             raise GradientError(
-                f"unknown or non-differentiable parameter {name!r}; differentiable: {sorted(PARAMETERS)}"
+                f"unknown or non-differentiable parameter {name!r}; differentiable: {sorted(table)}"
             )
-        out[name] = PARAMETERS[name](model, solver, state0, control)
+        out[name] = table[name](model, solver, state0, control)
     return out
 
 

@@ -1,5 +1,6 @@
 """Fitted parameters: global ones (scene-file values, changed by rebuilding the scene) and per-element ones
-(model arrays changed in place, with gradients from the tape).
+(model arrays changed in place, with gradients from the tape). Both name the registry parameters
+(:mod:`pliant.model._parameters`) they drive; the arrays and the classes that read them come from there.
 
 Global parameters (``GLOBAL``) live in the scene file; the CMA-ES stage searches them in a box normalised to
 [0, 1]ᵈ, log-scaled for positive magnitudes. Topology parameters (spring radius and neighbour count of
@@ -84,6 +85,10 @@ class GlobalParam:
         bounds: ``bounds(nominal) -> (lo, hi)``.
         topology: Changes the springs (derivative-free stage only).
         integer: Rounded to a whole number.
+        drives: The registry parameters (:mod:`pliant.model._parameters`) whose arrays the scene builds
+            proportional to this value (``Et`` → ``spring_stiffness``; ``E`` → ``tet_mu``, ``tet_lam``;
+            ``compliance`` → every XPBD compliance): the gradient stages differentiate through them. Empty:
+            derivative-free only (ν, topology).
     """
 
     name: str
@@ -93,6 +98,7 @@ class GlobalParam:
     bounds: Callable[[float], tuple[float, float]]
     topology: bool = False
     integer: bool = False
+    drives: tuple[str, ...] = ()
 
     def to_unit(self, value: float, lo: float, hi: float) -> float:
         """Value → [0, 1] (log scale for ``log``)."""
@@ -120,6 +126,7 @@ GLOBAL: dict[str, GlobalParam] = {
             _mat_field("stiffness", ("mass_spring",)),
             True,
             _around(10.0, 1e-6),
+            drives=("spring_stiffness",),
         ),
         GlobalParam(
             "Et",
@@ -128,6 +135,7 @@ GLOBAL: dict[str, GlobalParam] = {
             lambda cfg: [(m, f) for m, f in _mat_field("Et", ("mass_spring",))(cfg) if m.stiffness is None],
             True,
             _around(10.0, 1e-6),
+            drives=("spring_stiffness",),
         ),
         GlobalParam(
             "damping",
@@ -135,6 +143,7 @@ GLOBAL: dict[str, GlobalParam] = {
             _mat_field("damping", ("mass_spring",)),
             True,
             _around(10.0, 1e-5),
+            drives=("spring_damping",),
         ),
         GlobalParam(
             "damping_rate",
@@ -142,6 +151,7 @@ GLOBAL: dict[str, GlobalParam] = {
             _section_field("solver", "damping_rate", 0.0),
             True,
             lambda v: (v / 10.0, v * 10.0) if v > 0 else (1e-3, 20.0),
+            drives=("damping_rate",),
         ),
         GlobalParam(
             "ground_friction",
@@ -149,6 +159,7 @@ GLOBAL: dict[str, GlobalParam] = {
             _section_field("ground", "friction"),
             False,
             lambda v: (0.0, 2.0),
+            drives=("ground_friction",),
         ),
         GlobalParam(
             "ground_restitution",
@@ -156,6 +167,7 @@ GLOBAL: dict[str, GlobalParam] = {
             _section_field("ground", "restitution"),
             False,
             lambda v: (0.0, 1.0),
+            drives=("ground_restitution",),
         ),
         GlobalParam(
             "E",
@@ -163,6 +175,7 @@ GLOBAL: dict[str, GlobalParam] = {
             _mat_field("E", ("fem",)),
             True,
             _around(10.0, 1.0),
+            drives=("tet_mu", "tet_lam"),
         ),
         GlobalParam(
             "nu",
@@ -171,7 +184,14 @@ GLOBAL: dict[str, GlobalParam] = {
             False,
             lambda v: (0.0, 0.49),
         ),
-        GlobalParam("compliance", "XPBD compliance α [m/N]", _compliance, True, _around(100.0, 1e-10)),
+        GlobalParam(
+            "compliance",
+            "XPBD compliance α [m/N]",
+            _compliance,
+            True,
+            _around(100.0, 1e-10),
+            drives=("compliance_distance", "compliance_dihedralbending", "compliance_volume"),
+        ),
         GlobalParam(
             "radius",
             "spring radius of point-cloud objects [m] (topology)",
@@ -193,41 +213,62 @@ GLOBAL: dict[str, GlobalParam] = {
 }
 
 
-def _model_arrays(*names: str, what: str) -> Callable[[Any], dict[str, Any]]:
+def _declares(c: Any, name: str) -> bool:
+    return any(p.name == name for p in getattr(type(c), "parameters", lambda: ())())
+
+
+def registry_arrays(scene: Any, names: tuple[str, ...]) -> dict[str, Any]:
+    """The arrays of registry parameters ``names`` in a built scene that hold one value per element:
+    ``model.<array>`` for model arrays (when the model has such elements) and
+    ``constraints.<i>.<array>`` for every constraint set of the solver whose class declares the name."""
+    from ..diff import parameters as registry
+
+    reg = registry()
+    out: dict[str, Any] = {}
+    for n in names:
+        p = reg[n][0]
+        if p.model_array is not None:
+            a = getattr(scene.model, p.model_array)
+            if a.shape[0]:
+                out[f"model.{p.model_array}"] = a
+        elif p.per == "constraint":
+            attr = p.arrays[0].split(".", 1)[1]
+            for i, c in enumerate(getattr(scene.solver, "constraints", [])):
+                a = getattr(c, attr, None)
+                if a is not None and a.shape[0] and _declares(c, n):
+                    out[f"constraints.{i}.{attr}"] = a
+    return out
+
+
+def _per_element(name: str, what: str) -> Callable[[Any], dict[str, Any]]:
     def arrays(scene: Any) -> dict[str, Any]:
-        if getattr(scene.model, names[0]).shape[0] == 0:
+        out = registry_arrays(scene, GLOBAL[name].drives)
+        if not out:
             raise FitError(f"--per-element: this scene's model has no {what}")
-        return {f"model.{n}": getattr(scene.model, n) for n in names}
+        for key, a in out.items():
+            if key.startswith("constraints.") and not np.all(a.numpy() > 0):
+                c = scene.solver.constraints[int(key.split(".")[1])]
+                raise FitError(
+                    f"--per-element {name}: {type(c).__name__} constraints are rigid (α = 0), which a "
+                    "log-scale factor cannot change; give the scene a compliance > 0"
+                )
+        return out
 
     return arrays
 
 
-def _compliance_arrays(scene: Any) -> dict[str, Any]:
-    out = {}
-    for i, c in enumerate(getattr(scene.solver, "constraints", [])):
-        a = getattr(c, "compliance_array", None)
-        if a is not None and a.shape[0] and type(c).__name__ in ("Distance", "DihedralBending", "Volume"):
-            if not np.all(a.numpy() > 0):
-                raise FitError(
-                    f"--per-element compliance: {type(c).__name__} constraints are rigid (α = 0), which a "
-                    "log-scale factor cannot change; give the scene a compliance > 0"
-                )
-            out[f"constraints.{i}.compliance_array"] = a
-    if not out:
-        raise FitError(
-            "--per-element compliance: the scene's solver has no XPBD constraints with a compliance"
-        )
-    return out
-
-
-#: Per-element parameters: name → (the arrays scaled together by exp(θ) per element, what it is).
+#: Per-element parameters: name → (the arrays scaled together by exp(θ) per element, what it is): the
+#: model arrays and constraint arrays of the registry parameters the global parameter of that name drives.
 PER_ELEMENT: dict[str, tuple[Callable[[Any], dict[str, Any]], str]] = {
-    "stiffness": (_model_arrays("spring_stiffness", what="springs"), "log-scale factor of each spring's k"),
+    "stiffness": (_per_element("stiffness", "springs"), "log-scale factor of each spring's k"),
     "E": (
-        _model_arrays("tet_mu", "tet_lam", what="tetrahedra"),
+        _per_element("E", "tetrahedra"),
         "log-scale factor of each tet's E (μ and λ together: ν unchanged)",
     ),
-    "compliance": (_compliance_arrays, "log-scale factor of each XPBD constraint's compliance α"),
+    "compliance": (
+        _per_element("compliance", "XPBD constraints with a compliance"),
+        "log-scale factor of each XPBD constraint's compliance α",
+    ),
 }
 
 #: Default parameters per object model (issue 13: the scene model's material).
@@ -306,15 +347,50 @@ def per_element_incidence(scene: Any, name: str) -> np.ndarray:
         return c.indices.numpy().reshape(c.count, -1)
     if parts[1].startswith("spring_"):
         return scene.model.spring_indices.numpy().reshape(-1, 2)
+    if parts[1].startswith("bending_"):
+        return scene.model.bending_indices.numpy().reshape(-1, 4)
     return scene.model.tet_indices.numpy().reshape(-1, 4)
 
 
 def per_element_arrays(scene: Any, name: str) -> dict[str, Any]:
     """The arrays of per-element parameter ``name`` in a built scene (``model.<array>`` /
     ``constraints.<i>.<array>`` → Warp array); raises FitError when unknown or absent."""
-    if name not in PER_ELEMENT:
-        raise FitError(f"--per-element: unknown parameter {name!r}; choose one of {', '.join(PER_ELEMENT)}")
-    return PER_ELEMENT[name][0](scene)
+    if name in PER_ELEMENT:
+        return PER_ELEMENT[name][0](scene)
+    p = _element_parameter(name)
+    if p is None:
+        raise FitError(
+            f"--per-element: unknown parameter {name!r}; choose one of {', '.join(PER_ELEMENT)} or a "
+            f"per-element parameter of the registry ({', '.join(_element_parameters())})"
+        )
+    out = registry_arrays(scene, (name,))
+    if not out:
+        raise FitError(f"--per-element: this scene has no {p.per} holding {name!r} ({p.doc})")
+    return out
+
+
+def _element_parameters() -> list[str]:
+    from ..diff import parameters as registry
+
+    return [n for n, (p, _) in registry().items() if _element_parameter(n) is not None]
+
+
+def _element_parameter(name: str) -> Any:
+    """The registry declaration of ``name`` when it can be a per-element fit parameter: differentiable, a
+    positive magnitude (log-scale factors) held per spring, tet, bending element or constraint."""
+    from ..diff import parameters as registry
+
+    entry = registry().get(name)
+    if entry is None:
+        return None
+    p = entry[0]
+    ok = (
+        p.differentiable
+        and p.log
+        and p.bounds is not None
+        and p.per in ("spring", "tet", "bending", "constraint")
+    )
+    return p if ok else None
 
 
 __all__ = [
@@ -328,5 +404,6 @@ __all__ = [
     "default_params",
     "per_element_arrays",
     "per_element_incidence",
+    "registry_arrays",
     "resolve_globals",
 ]
