@@ -12,6 +12,7 @@ import warp as wp
 from .._warp import GradientError
 from ..model import Control, Model, State
 from ..model._parameters import Parameter, RegistryView, registry
+from ..solvers import FrameStep
 
 
 #: Parameter name → ``get(model, solver, state0, control)`` returning its array (or (array, component) for a
@@ -67,7 +68,7 @@ def _copy_state(state: State) -> State:
 def rollout(
     model: Model,
     solver: Any,
-    loss_fn: Callable[[State], wp.array],
+    loss_fn: Callable[[State], wp.array] | None,
     *,
     frames: int,
     dt: float,
@@ -76,6 +77,10 @@ def rollout(
     state0: State | None = None,
     control: Control | None = None,
     checkpoint_every: int = 1,
+    frame_loss: Callable[[int, State, wp.array], None] | None = None,
+    control_fn: Callable[[int, Control], None] | None = None,
+    first_frame: int = 0,
+    reset: bool = True,
 ) -> RolloutResult:
     """Run ``frames`` × ``substeps`` steps of ``solver`` and return the loss and its gradients.
 
@@ -93,7 +98,7 @@ def rollout(
             ``FastMassSpring(method="symplectic")``, ``XPBD``/``PBD`` with ``schedule="jacobi"``; others
             raise :class:`pliant.diff.GradientError`. ``solver.reset()`` is called first.
         loss_fn: maps the final State to a 1-element Warp array of the model's scalar type holding the loss,
-            computed with Warp kernels (so the tape records it).
+            computed with Warp kernels (so the tape records it); None: the loss is ``frame_loss``'s alone.
         frames: number of frames (checkpoint granularity).
         dt: substep [s].
         substeps: solver steps per frame.
@@ -102,6 +107,17 @@ def rollout(
         control: optional Control, constant over the rollout (its ``particle_f`` / ``kinematic_targets``
             can be differentiated).
         checkpoint_every: frames per checkpoint segment (1: recompute one frame at a time).
+        frame_loss: ``frame_loss(frame, state, out)`` adds the loss of each frame's end ``state`` into the
+            1-element ``out`` with Warp kernels (a loss over the whole trajectory, as a fit's); ``frame`` is
+            ``first_frame + k`` after the k-th frame. It is called once per frame, under the tape of its
+            segment; segments run last first when ``checkpoint_every < frames``, so a term that reads
+            earlier frames' states needs ``checkpoint_every >= frames``.
+        control_fn: ``control_fn(frame, control)`` before each frame (``frame`` = ``first_frame`` + the
+            frames done): controls that move over time (the frames are re-run in the backward pass, so it
+            must depend on ``frame`` alone). A Control is made when ``control`` is None.
+        first_frame: index of the first frame (passed to ``frame_loss`` and ``control_fn``).
+        reset: call ``solver.reset()`` first (False: keep what the solver carries from the previous
+            rollout, as a rollout continuing another one does).
 
     Returns:
         :class:`RolloutResult` with ``loss``, ``grads`` (name → array shaped like the parameter) and the
@@ -134,7 +150,11 @@ def rollout(
             f"{integrator.name} is a multistep method: its history cannot cross a checkpoint boundary; "
             f"pass checkpoint_every={frames} (one segment, the whole rollout on one tape)"
         )
-    if hasattr(solver, "reset"):
+    if loss_fn is None and frame_loss is None:
+        raise ValueError("rollout: give loss_fn (a loss of the final state) and/or frame_loss")
+    if control_fn is not None and control is None:
+        control = model.control()
+    if reset and hasattr(solver, "reset"):
         solver.reset()  # no L-BFGS pairs or BDF2 history from an earlier run
     start = _copy_state(model.state() if state0 is None else state0)
     entries = {
@@ -156,21 +176,22 @@ def rollout(
             )
         a.grad.zero_()
 
-    def run(state: State, n_frames: int) -> State:
-        for _ in range(n_frames * substeps):
-            nxt = State(
-                wp.empty_like(state.particle_q, requires_grad=True),
-                wp.empty_like(state.particle_qd, requires_grad=True),
-            )
-            solver.step(state, nxt, control, dt)
-            state = nxt
+    frame_step = FrameStep(solver, dt, substeps, fresh=True)  # one frame's substeps, fresh states
+
+    def run(state: State, f0: int, f1: int, acc: wp.array | None = None) -> State:
+        for f in range(f0, f1):
+            if control_fn is not None:
+                control_fn(first_frame + f, control)
+            state, _ = frame_step(state, control)
+            if acc is not None:
+                frame_loss(first_frame + f + 1, state, acc)
         return state
 
     # Forward without a tape, keeping the checkpoints; the last segment is run once, under the tape below.
     bounds = list(range(0, frames, checkpoint_every)) + [frames]
     checkpoints = [start]
     for a, b in zip(bounds[:-2], bounds[1:-1], strict=True):
-        checkpoints.append(run(checkpoints[-1], b - a))
+        checkpoints.append(run(checkpoints[-1], a, b))
     final = start
 
     totals = {k: np.zeros_like(a.grad.numpy(), dtype=np.float64) for k, a in arrays.items()}
@@ -181,16 +202,24 @@ def rollout(
         for a in (first.particle_q, first.particle_qd):
             a.grad.zero_()
         tape = wp.Tape()
+        acc = None
+        if frame_loss is not None:
+            acc = wp.zeros(1, dtype=model.scalar, device=model.device, requires_grad=True)
         with tape:
-            last = run(first, bounds[seg + 1] - bounds[seg])
-            if adj is None:
-                loss = loss_fn(last)
+            last = run(first, bounds[seg], bounds[seg + 1], acc)
+            loss = loss_fn(last) if adj is None and loss_fn is not None else None
+        # Seeds: 1 for this segment's losses, the adjoint of its last state from the segment after it.
+        seeds = {} if acc is None else {acc: wp.ones_like(acc)}
+        if loss is not None:
+            seeds[loss] = wp.ones_like(loss)
+            loss_value += float(loss.numpy()[0])
+        if acc is not None:
+            loss_value += float(acc.numpy()[0])
         if adj is None:
             final = last
-            loss_value = float(loss.numpy()[0])
-            tape.backward(loss=loss)
         else:
-            tape.backward(grads={last.particle_q: adj[0], last.particle_qd: adj[1]})
+            seeds[last.particle_q], seeds[last.particle_qd] = adj
+        tape.backward(grads=seeds)
         adj = (wp.clone(first.particle_q.grad), wp.clone(first.particle_qd.grad))
         for k, a in arrays.items():
             totals[k] += a.grad.numpy()

@@ -14,7 +14,7 @@ import warp as wp
 from ..io import CheckpointError, CheckpointSpec, Trajectory, load_checkpoint, save_checkpoint
 from ..model import Control, Model, State
 from ..model._worlds import write_range
-from ..solvers import Solver
+from ..solvers import FrameStep, Solver
 
 #: Model parameters that fitting may change; checkpoints carry them so a resumed run is the same run.
 _PARAMS = (
@@ -144,6 +144,7 @@ class Simulator:
             raise ValueError(f"max_speed must be a positive speed [m/s], got {max_speed}")
         self.model, self.solver = model, solver
         self.frame_dt, self.substeps = float(frame_dt), int(substeps)
+        self._frame_step: FrameStep | None = None  # one frame's substeps as one callable
         self.control = control if control is not None else model.control()
         self.control_fn = control_fn
         self.max_speed = float(max_speed)
@@ -180,13 +181,14 @@ class Simulator:
     # ------------------------------------------------------------------ stepping
     def step_frame(self) -> None:
         """Advance one frame (``substeps`` solver steps); no host synchronisation."""
-        h = self.frame_dt / self.substeps
         wp.copy(self._x_start, self.state_0.particle_q)
         if self.control_fn is not None:
             self.control_fn(self.time, self.control)
-        for _ in range(self.substeps):
-            self.solver.step(self.state_0, self.state_1, self.control, h)
-            self.state_0, self.state_1 = self.state_1, self.state_0
+        h = self.frame_dt / self.substeps
+        fs = self._frame_step
+        if fs is None or (fs.solver, fs.dt, fs.substeps) != (self.solver, h, self.substeps):
+            fs = self._frame_step = FrameStep(self.solver, h, self.substeps)  # settings changed: rebuild
+        self.state_0, self.state_1 = fs(self.state_0, self.control, self.state_1)
         self.frame += 1
         self.time = self.frame * self.frame_dt
 
