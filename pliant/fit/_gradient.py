@@ -68,6 +68,31 @@ class Smoothness:
         return float(c * np.sum(r - self.eps)), g
 
 
+class Convergence:
+    """Stopping rule of the gradient stages: ``stop(loss)`` after each iteration is True once the best loss
+    has improved by less than ``tol`` (relative) over each of the last ``patience`` iterations (the cap
+    on iterations is the caller's).
+
+    Args:
+        tol: Relative improvement below which an iteration counts as stalled (0: never stop early).
+        patience: Stalled iterations in a row that stop the stage.
+    """
+
+    def __init__(self, tol: float, patience: int = 5) -> None:
+        if not (math.isfinite(tol) and tol >= 0):
+            raise FitError(f"tol: expected a relative improvement >= 0, got {tol}")
+        self.tol, self.patience = float(tol), int(patience)
+        self.best, self.stalled = math.inf, 0
+
+    def __call__(self, loss: float) -> bool:
+        gain = (
+            (self.best - loss) / abs(self.best) if math.isfinite(self.best) and self.best != 0 else math.inf
+        )
+        self.best = min(self.best, loss)
+        self.stalled = self.stalled + 1 if gain < self.tol else 0
+        return self.tol > 0 and self.stalled >= self.patience
+
+
 class _Rollout:
     """A scene built with gradients, its per-element arrays and the observation arrays on the device; its
     rollouts are :func:`pliant.diff.rollout`'s (the one stepping loop), with the fit's per-frame loss."""
@@ -203,6 +228,7 @@ def gradient_stage(
     shared: bool = False,
     smoothness: float = 0.0,
     frames: int | None = None,
+    tol: float = 1e-4,
     callback: Callable[[int, float], None] | None = None,
 ) -> StageResult:
     """Fit ``problem.per_element`` (log-scale factors θ per element) with gradients from the tape.
@@ -221,6 +247,8 @@ def gradient_stage(
             0: none). With Adam it is added once per epoch, spread over the epoch's horizons.
         frames: Train on frames 1 … frames − 1 only (default: all of ``problem``'s training frames); the
             rest can validate the result (:func:`pliant.fit.fit` does).
+        tol: Stop when the epoch loss improves by less than this fraction five epochs in a row (Adam;
+            L-BFGS-B: its ``ftol``); ``iterations`` is the cap. 0: run every iteration.
         callback: ``callback(iteration, loss)`` after each iteration.
 
     Raises:
@@ -309,6 +337,7 @@ def gradient_stage(
             h = n_frames if horizon is None else max(1, int(horizon))
             mom, var = np.zeros(r.size), np.zeros(r.size)
             b1, b2, step = 0.9, 0.99, 0
+            stop = Convergence(tol)
             for it in range(iterations):
                 # Step size decays geometrically from lr to lr / 10 over the run, so that Adam settles.
                 lr_it = lr * 0.1 ** (it / max(iterations - 1, 1))
@@ -334,6 +363,8 @@ def gradient_stage(
                 result.history.append(epoch)
                 if callback is not None:
                     callback(it + 1, epoch)
+                if stop(epoch):
+                    break
     except KeyboardInterrupt:
         result.interrupted = True
     result.wall_time = time.perf_counter() - t0

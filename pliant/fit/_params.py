@@ -287,12 +287,16 @@ def default_params(cfg: Any) -> list[str]:
 
 @dataclass
 class Bound:
-    """A global parameter resolved for one scene: its nominal value and bounds."""
+    """A global parameter resolved for one scene: where the search starts (``nominal``), its bounds, the
+    scene's own value (which may lie outside them: a damping rate of 0 starts the log-scale search at
+    √(lo·hi)) and why it is searched."""
 
     param: GlobalParam
     nominal: float
     lo: float
     hi: float
+    scene_value: float | None = None
+    why: str = "named by --params"
 
     @property
     def name(self) -> str:
@@ -319,11 +323,11 @@ def resolve_globals(cfg: Any, names: list[str]) -> list[Bound]:
                 f"--params: {name!r} ({p.doc}) does not exist in this scene; it has "
                 f"{', '.join(usable) or 'none'}"
             )
-        nominal = float(getattr(*where[0]))
+        nominal = scene_value = float(getattr(*where[0]))
         lo, hi = p.bounds(nominal)
         if p.log and nominal <= 0:
             nominal = math.sqrt(lo * hi)
-        out.append(Bound(p, min(max(nominal, lo), hi), lo, hi))
+        out.append(Bound(p, min(max(nominal, lo), hi), lo, hi, scene_value))
     return out
 
 

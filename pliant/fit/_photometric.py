@@ -36,19 +36,13 @@ import warp as wp
 from ..gaussians._surface import GENERATED_BACKGROUND
 from ..io import Observations
 from ._cmaes import StageResult
+from ._gradient import Convergence
 from ._params import GLOBAL, FitError
 from ._problem import Problem
 
 #: Background colour behind generated Gaussians in observed and rendered images (RGB in [0, 1]); a scene's
 #: ``[gaussians]`` section sets its own.
 BACKGROUND = GENERATED_BACKGROUND
-
-#: Global parameters stage 2 can differentiate: name → model arrays proportional to its value.
-GRADIENT_ARRAYS: dict[str, tuple[str, ...]] = {
-    "stiffness": ("spring_stiffness",),
-    "damping": ("spring_damping",),
-    "E": ("tet_mu", "tet_lam"),
-}
 
 
 @wp.kernel
@@ -339,9 +333,16 @@ class _GlobalGradient:
         return {n: self.v0[n] * math.exp(float(t)) for n, t in zip(self.names, theta, strict=True)}
 
 
+def gradient_capable(param: Any) -> bool:
+    """Whether the image-gradient stage can refine global parameter ``param`` (a ``GlobalParam``): a
+    positive magnitude (log scale) that drives registry parameters (``drives``: stiffness, Et, damping,
+    damping_rate, E, compliance); ν, the ground coefficients and the topology are CMA-ES's alone."""
+    return bool(param.drives) and param.log and not param.topology
+
+
 def refinable(problem: Problem) -> list[str]:
     """The problem's global parameters that :func:`refine_globals` can differentiate."""
-    return [b.name for b in problem.globals if b.name in GRADIENT_ARRAYS]
+    return [b.name for b in problem.globals if gradient_capable(b.param)]
 
 
 def refine_globals(
@@ -351,10 +352,13 @@ def refine_globals(
     iterations: int = 20,
     optimizer: str = "lbfgs",
     lr: float = 0.01,
+    tol: float = 1e-4,
     callback: Callable[[int, float], None] | None = None,
 ) -> StageResult:
     """Stage 2 of a photometric fit: gradient descent on the log of the global parameters that enter the
-    model as proportional arrays (:data:`GRADIENT_ARRAYS`: stiffness, damping, E), from ``values``.
+    model or the solver as proportional arrays (:func:`gradient_capable`: every log-scale parameter that
+    drives registry parameters: stiffness, Et, damping, damping_rate, E, compliance), from ``values``. It
+    stops when an iteration improves the loss by less than ``tol`` (relative), or after ``iterations``.
 
     Args:
         problem: The photometric problem.
@@ -362,6 +366,9 @@ def refine_globals(
         iterations: L-BFGS-B iterations, or Adam steps (each one whole training rollout plus its backward).
         optimizer: ``"lbfgs"`` (SciPy L-BFGS-B within the parameters' bounds) or ``"adam"``.
         lr: Adam's step in log units (decaying to lr / 10).
+        tol: Stop when an iteration lowers the best loss by less than this fraction (L-BFGS-B: its
+            ``ftol`` on the loss relative to the start; Adam: five such iterations in a row); the cap is
+            ``iterations``.
         callback: ``callback(iteration, best_loss)`` after each iteration.
 
     Returns:
@@ -374,8 +381,10 @@ def refine_globals(
     """
     names = refinable(problem)
     if not names:
+        capable = [n for n, p in GLOBAL.items() if gradient_capable(p)]
         raise FitError(
-            f"the image-gradient stage refines {', '.join(GRADIENT_ARRAYS)}; none of them is fitted here"
+            f"the image-gradient stage refines {', '.join(capable)}; none of them is fitted here (the others "
+            "are fitted by CMA-ES alone)"
         )
     if optimizer not in ("adam", "lbfgs"):
         raise FitError(f"optimizer: expected 'adam' or 'lbfgs', got {optimizer!r}")
@@ -424,12 +433,13 @@ def refine_globals(
                 jac=True,
                 method="L-BFGS-B",
                 bounds=box,
-                options={"maxiter": iterations, "ftol": 1e-12, "gtol": 1e-10},
+                options={"maxiter": iterations, "ftol": tol, "gtol": 1e-10},
                 callback=cb,
             )
         else:
             theta, mom, var = theta0.copy(), np.zeros(len(names)), np.zeros(len(names))
             lo, hi = np.array([b[0] for b in box]), np.array([b[1] for b in box])
+            stop = Convergence(tol)
             for it in range(iterations):
                 _, g = fun(theta)
                 mom = 0.9 * mom + 0.1 * g
@@ -440,6 +450,8 @@ def refine_globals(
                 result.history.append(result.loss)
                 if callback is not None:
                     callback(it + 1, result.loss)
+                if stop(result.loss):
+                    break
     except KeyboardInterrupt:
         result.interrupted = True
     result.wall_time = time.perf_counter() - t0
@@ -453,7 +465,7 @@ def problem_for(obs: Observations) -> type[Problem]:
 
 __all__ = [
     "BACKGROUND",
-    "GRADIENT_ARRAYS",
+    "gradient_capable",
     "PhotometricProblem",
     "problem_for",
     "refinable",

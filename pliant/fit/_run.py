@@ -16,7 +16,7 @@ from ..io import Observations, atomic_savez
 from ._cmaes import StageResult, cmaes
 from ._gradient import gradient_stage
 from ._params import FitError
-from ._photometric import problem_for, refinable, refine_globals
+from ._photometric import gradient_capable, problem_for, refinable, refine_globals
 from ._problem import Problem
 from ._toml import scene_toml
 
@@ -67,6 +67,7 @@ def fit(
     lr: float = 0.01,
     smoothness: float = 0.0,
     validation: float = 0.2,
+    tol: float = 1e-4,
     seed: int = 42,
     device: str | None = None,
     dtype: str | None = None,
@@ -99,6 +100,8 @@ def fit(
             its per-element values are kept only if they lower the open-loop loss on these frames (a
             prediction, like the test) without raising it on the whole training window. 0: train on all
             and keep on the training loss alone.
+        tol: The gradient stages stop when an epoch improves the loss by less than this fraction (five in a
+            row; L-BFGS: its ftol); ``epochs`` is the cap.
         seed: CMA-ES seed.
         device: Warp device (None: the scene's).
         dtype: ``"float32"`` / ``"float64"`` (None: the scene's).
@@ -124,6 +127,8 @@ def fit(
         device=device,
         dtype=dtype,
     )
+    if progress:
+        print("fit: searching\n" + "\n".join(search_plan(problem)), flush=True)
     stages: dict[str, StageResult] = {}
     values, arrays = problem.nominal, {}
     interrupted = False
@@ -141,7 +146,7 @@ def fit(
         bar = _bar(progress, epochs, f"fit: {optimizer} (image gradients)")
         try:
             stages["gradient"] = refine_globals(
-                problem, values, iterations=epochs, optimizer=optimizer, lr=lr, callback=_tick(bar)
+                problem, values, iterations=epochs, optimizer=optimizer, lr=lr, tol=tol, callback=_tick(bar)
             )
         finally:
             if bar is not None:
@@ -162,6 +167,7 @@ def fit(
                 optimizer=optimizer,
                 smoothness=smoothness,
                 frames=n_fit,
+                tol=tol,
                 callback=_tick(bar),
             )
         finally:
@@ -193,6 +199,31 @@ def fit(
     if interrupted:
         raise KeyboardInterrupt
     return report
+
+
+def stages_of(problem: Problem, b: Any) -> list[str]:
+    """The stages that fit global parameter ``b`` (a Bound): CMA-ES always; from images also the
+    image-gradient stage when it can differentiate it (:func:`pliant.fit._photometric.gradient_capable`)."""
+    out = ["cmaes"]
+    if getattr(problem, "photometric", False) and gradient_capable(b.param):
+        out.append("image-gradient")
+    return out
+
+
+def search_plan(problem: Problem) -> list[str]:
+    """One line per searched global parameter: its bounds, start, scale, why and which stages fit it (what
+    ``pliant fit`` prints before it starts)."""
+    lines = []
+    for b in problem.globals:
+        unit = b.param.doc.rsplit("[", 1)[-1].rstrip("])") if "[" in b.param.doc else ""
+        scale = "log" if b.param.log else "linear"
+        lines.append(
+            f"  {b.name}: [{b.lo:.4g}, {b.hi:.4g}] {unit} ({scale}), scene {b.scene_value:.4g}, start "
+            f"{b.nominal:.4g}; {b.why}; fitted by {' + '.join(stages_of(problem, b))}"
+        )
+    if problem.per_element is not None:
+        lines.append(f"  {problem.per_element} per element: gradient stage (kept where it lowers validation)")
+    return lines
 
 
 def _json_default(v: Any) -> Any:
@@ -238,9 +269,12 @@ def write_outputs(
         "params": {
             b.name: {
                 "value": values[b.name],
-                "nominal": b.nominal,
+                "nominal": b.scene_value,
+                "start": b.nominal,
                 "bounds": [b.lo, b.hi],
                 "log": b.param.log,
+                "why": b.why,
+                "stages": stages_of(problem, b),
             }
             for b in problem.globals
         },
