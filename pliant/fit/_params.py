@@ -271,18 +271,102 @@ PER_ELEMENT: dict[str, tuple[Callable[[Any], dict[str, Any]], str]] = {
     ),
 }
 
-#: Default parameters per object model (issue 13: the scene model's material).
-DEFAULTS = {"mass_spring": ("stiffness", "Et", "damping"), "fem": ("E", "nu"), "pbd": ("compliance",)}
+_DISSIPATION = (
+    "velocity damping: the dissipation of the observed motion (air, material loss) is unknown to the scene"
+)
+
+#: Default parameters per object model, each with why it is searched (issue 25): the ones that matter for
+#: motion recorded elsewhere — the stiffness, and the two dissipations (velocity damping rate and, for
+#: mass-spring, the dashpot along the springs), which another engine's or a real object's motion always has.
+WHY: dict[str, tuple[tuple[str, str], ...]] = {
+    "mass_spring": (
+        ("stiffness", "default for mass-spring: the spring stiffness"),
+        ("Et", "default for mass-spring cloth: the membrane stiffness"),
+        ("damping_rate", _DISSIPATION),
+        ("damping", "default for mass-spring: the dashpot along each spring (internal dissipation)"),
+    ),
+    "fem": (
+        ("E", "default for FEM: Young's modulus"),
+        ("nu", "default for FEM: Poisson's ratio"),
+        ("damping_rate", _DISSIPATION),
+    ),
+    "pbd": (("compliance", "default for XPBD: the constraints' compliance"), ("damping_rate", _DISSIPATION)),
+}
+#: Default parameter names per object model (the names of :data:`WHY`).
+DEFAULTS = {model: tuple(n for n, _ in rows) for model, rows in WHY.items()}
+#: Ground coefficients, searched by default when the observations reach the ground.
+CONTACT = ("ground_friction", "ground_restitution")
 
 
-def default_params(cfg: Any) -> list[str]:
-    """The material parameters of the scene's models (mass-spring: k, γ; FEM: E, ν; XPBD: compliance)."""
-    out: list[str] = []
+def ground_contact(cfg: Any, obs: Any) -> float | None:
+    """The lowest visible track height above the scene's ground [m] when the observations come within 5 % of
+    their extent of it (they show contact), else None (no ground, no tracks, or motion well above it)."""
+    g = getattr(cfg, "ground", None)
+    if g is None or not g.enabled or obs is None or obs.tracks == 0:
+        return None
+    pts = obs.points[obs.visible]
+    if pts.size == 0:
+        return None
+    gap = float(pts[:, 1].min()) - float(g.height)
+    extent = float(np.ptp(pts, axis=0).max())
+    return gap if gap <= 0.05 * max(extent, 1e-9) else None
+
+
+def default_params(cfg: Any, obs: Any = None) -> list[str]:
+    """The default parameters of the scene's models (:data:`WHY`: mass-spring k or E·t, damping rate,
+    dashpot γ; FEM: E, ν, damping rate; XPBD: compliance, damping rate), plus the ground's friction and
+    restitution when ``obs`` (Observations) reach the ground (:func:`ground_contact`)."""
+    return list(default_reasons(cfg, obs))
+
+
+def default_reasons(cfg: Any, obs: Any = None) -> dict[str, str]:
+    """:func:`default_params` with why each is searched (name → reason)."""
+    out: dict[str, str] = {}
     for o in cfg.objects:
-        for name in DEFAULTS.get(o.model, ()):
-            if name not in out and GLOBAL[name].where(cfg):
-                out.append(name)
+        for name, why in WHY.get(o.model, ()):
+            if name not in out and GLOBAL[name].where(cfg.model_copy(deep=True)):
+                out[name] = why
+    gap = ground_contact(cfg, obs)
+    if gap is not None:
+        for name in CONTACT:
+            out[name] = f"the observations reach the ground (lowest track {gap * 1e3:.3g} mm above it)"
     return out
+
+
+def _critical_damping(scene: Any) -> float | None:
+    """2·√(k·m) [N s/m] of a typical spring (median k, median free particle mass), or None."""
+    m = scene.model
+    if m.spring_count == 0:
+        return None
+    k = float(np.median(m.spring_stiffness.numpy()))
+    mass = m.particle_mass.numpy()[m.particle_inv_mass.numpy() > 0]
+    if mass.size == 0 or k <= 0:
+        return None
+    return 2.0 * math.sqrt(k * float(np.median(mass)))
+
+
+def widen_bounds(bounds: list[Any], scene: Any) -> None:
+    """Physically scaled bounds, set in place: a dashpot γ spans 10⁻⁴ … 1 × the critical damping
+    2√(k m) of a typical spring of ``scene`` (built at the nominal values; a placeholder γ of 0 would
+    otherwise leave a box around 10⁻⁵ N s/m), and a damping rate of 0 the registry's range."""
+    from ..diff import parameters as registry
+
+    for b in bounds:
+        if b.name == "damping":
+            gc = _critical_damping(scene)
+            if gc is None:
+                continue
+            if (b.scene_value or 0.0) > 0:  # a value of the scene's own: widen the box around it
+                b.lo, b.hi = min(b.lo, 1e-4 * gc), max(b.hi, gc)
+            else:  # a placeholder 0: the physical range alone
+                b.lo, b.hi = 1e-4 * gc, gc
+        elif b.name == "damping_rate" and not (b.scene_value or 0.0) > 0:
+            b.lo, b.hi = registry()["damping_rate"][0].bounds
+        else:
+            continue
+        if not (b.scene_value or 0.0) > 0:
+            b.nominal = math.sqrt(b.lo * b.hi)
+        b.nominal = min(max(b.nominal, b.lo), b.hi)
 
 
 @dataclass
@@ -406,6 +490,9 @@ __all__ = [
     "GlobalParam",
     "apply_globals",
     "default_params",
+    "default_reasons",
+    "ground_contact",
+    "widen_bounds",
     "per_element_arrays",
     "per_element_incidence",
     "registry_arrays",

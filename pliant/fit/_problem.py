@@ -9,7 +9,15 @@ import warp as wp
 
 from ..io import ObservationError, Observations
 from ._losses import chamfer_loss, track_errors, track_loss
-from ._params import Bound, FitError, apply_globals, default_params, per_element_arrays, resolve_globals
+from ._params import (
+    Bound,
+    FitError,
+    apply_globals,
+    default_reasons,
+    per_element_arrays,
+    resolve_globals,
+    widen_bounds,
+)
 
 
 class Problem:
@@ -21,7 +29,9 @@ class Problem:
     Args:
         cfg: The scene (``pl.scene.load_scene``); not modified.
         obs: The observations (``pl.io.Observations.load``).
-        params: Global parameter names (``pl.fit.GLOBAL``); None: the scene model's material.
+        params: Global parameter names (``pl.fit.GLOBAL``); None: the defaults of the scene's models
+            (:func:`pliant.fit.default_params`: stiffness, dissipation, and the ground's coefficients when the
+            observations reach it).
         per_element: A per-element parameter name (``pl.fit.PER_ELEMENT``) for the gradient stage, or None.
         train_fraction: Fraction of the frames used for training (PhysTwin: 0.7).
         device: Warp device (None: the scene's).
@@ -53,8 +63,11 @@ class Problem:
         beta: float = 0.01,
     ) -> None:
         self.cfg = cfg.model_copy(deep=True)
-        names = default_params(self.cfg) if params is None else list(params)
+        reasons = default_reasons(self.cfg, obs) if params is None else {}
+        names = list(reasons) if params is None else list(params)
         self.globals: list[Bound] = resolve_globals(self.cfg, names)
+        for b in self.globals:
+            b.why = reasons.get(b.name, b.why)
         self.per_element = per_element
         if not self.globals and per_element is None:
             raise FitError(
@@ -66,6 +79,8 @@ class Problem:
         self.device, self.dtype = device, dtype
         self.weights = {"track": track_weight, "chamfer": chamfer_weight, "acceleration": acceleration_weight}
         self.beta = beta
+        if any(b.name in ("damping", "damping_rate") for b in self.globals):
+            widen_bounds(self.globals, self.build(self.nominal))  # scaled to this scene's springs and masses
         scene = self.build(self.nominal)
         obs.check_times(scene.frame_dt, f"the scene {cfg.source}")
         self.frame_dt, self.frames = scene.frame_dt, obs.frames
