@@ -124,3 +124,42 @@ def test_default_fit_of_newton_cloth_meets_the_issue_ratio(tmp_path):
     ratio = rep["error"]["test"] / rep["error_nominal"]["test"]
     print(f"newton cloth default fit: {ratio:.3f} x nominal in {time.perf_counter() - t0:.0f} s")
     assert ratio <= 0.25, rep["params"]
+
+
+LONG_ROPE = FIT_ROPE.replace("frames = 10", "frames = 50")
+
+
+def test_multiple_shooting_starts_each_window_from_the_observed_state():
+    """shooting=W: a training run is the open-loop run up to frame W, then continues from the observed
+    state (every particle tracked here: the truth's own state), so at the true parameters the forced run
+    follows the observations, and from wrong ones each window's error starts again near zero."""
+    cfg = pl.scene.parse_scene(LONG_ROPE)
+    obs = observe(pl.scene.build_scene(cfg), tracks=7)
+    wrong = pl.fit.apply_globals(cfg, {"stiffness": 20.0})
+    p = Problem(wrong, obs, params=["stiffness"], shooting=5)
+    free_run = p.simulate(p.build(p.nominal), p.n_train, forced=False)
+    forced = p.simulate(p.build(p.nominal), p.n_train)
+    np.testing.assert_array_equal(forced[:6], free_run[:6])  # frames 0 … 5: the first window, open loop
+    err = p.errors(forced)[1 : p.n_train]
+    assert err[5] < 0.75 * err[4]  # frame 5 is simulated, frame 6 starts from the observed state at frame 5
+    assert p.loss(forced) < p.loss(free_run)
+    truth = Problem(cfg, obs, params=["stiffness"], shooting=5)
+    at_truth = truth.loss(truth.simulate(truth.build(truth.nominal), truth.n_train))
+    # Not 0: the forced velocities are central differences of the frames (O(Δt²)), not the true ones.
+    assert at_truth < 0.1 * p.loss(forced)
+
+
+def test_multiple_shooting_is_the_default_for_long_densely_tracked_motion():
+    """Every free particle tracked and ≥ 30 training frames: windows of SHOOTING_WINDOW frames; sparse
+    tracks or a short motion: open loop; a bad window is refused."""
+    from pliant.fit._problem import SHOOTING_WINDOW
+
+    cfg = pl.scene.parse_scene(LONG_ROPE)
+    dense = observe(pl.scene.build_scene(cfg), tracks=7)
+    sparse = observe(pl.scene.build_scene(cfg), tracks=3)
+    assert Problem(cfg, dense, params=["stiffness"]).shooting == SHOOTING_WINDOW
+    assert Problem(cfg, sparse, params=["stiffness"]).shooting == 0
+    short = pl.scene.parse_scene(FIT_ROPE)
+    assert Problem(short, observe(pl.scene.build_scene(short), tracks=7), params=["stiffness"]).shooting == 0
+    with pytest.raises(pl.fit.FitError, match="--shooting"):
+        Problem(cfg, dense, params=["stiffness"], shooting=-1)

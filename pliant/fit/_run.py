@@ -68,6 +68,7 @@ def fit(
     smoothness: float = 0.0,
     validation: float = 0.2,
     tol: float = 1e-4,
+    shooting: int | None = None,
     seed: int = 42,
     device: str | None = None,
     dtype: str | None = None,
@@ -102,6 +103,8 @@ def fit(
             and keep on the training loss alone.
         tol: The gradient stages stop when an epoch improves the loss by less than this fraction (five in a
             row; L-BFGS: its ftol); ``epochs`` is the cap.
+        shooting: Multiple-shooting window of the training runs [frames] (:class:`pliant.fit.Problem`;
+            None: by the tracks' coverage and the motion's length, 0: open loop).
         seed: CMA-ES seed.
         device: Warp device (None: the scene's).
         dtype: ``"float32"`` / ``"float64"`` (None: the scene's).
@@ -126,6 +129,7 @@ def fit(
         train_fraction=train_fraction,
         device=device,
         dtype=dtype,
+        shooting=shooting,
     )
     if progress:
         print("fit: searching\n" + "\n".join(search_plan(problem)), flush=True)
@@ -179,8 +183,8 @@ def fit(
         # the training frames and predict worse (over-fitting): keep them only if the open-loop rollout
         # predicts the held-back validation frames better than the global stage's, and the whole training
         # window no worse.
-        x0 = problem.simulate(problem.build(values), n)
-        x1 = problem.simulate(fitted_scene(problem, values, arrays), n)
+        x0 = problem.simulate(problem.build(values), n, forced=False)
+        x1 = problem.simulate(fitted_scene(problem, values, arrays), n, forced=False)
         before, after = problem.loss(x0), problem.loss(x1)
         stages["gradient"].loss = after
         if n_fit < n:
@@ -193,6 +197,7 @@ def fit(
             stages["gradient"].kept = False
             arrays = {}
     report = write_outputs(problem, out, values, arrays, stages, video=video, progress=progress)
+    report["shooting"] = problem.shooting
     report["wall_time"] = time.perf_counter() - t0
     report["interrupted"] = interrupted
     (out / "fit.json").write_text(json.dumps(report, indent=2, default=_json_default) + "\n")
