@@ -13,30 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 from helpers import FIT_ROPE
+from test_fit_slow import FEM_BOX as FEM
 from test_fit_stages import CLOTH_XPBD
 
 import pliant as pl
 from pliant.fit import Problem, observe
 from pliant.fit._params import default_params, ground_contact
-
-FEM = """
-[scene]
-name = "fem_cube"
-frame_dt = 0.04
-substeps = 20
-frames = 6
-dtype = "float64"
-device = "cpu"
-[[objects]]
-kind = "soft_box"
-model = "fem"
-cells = [1, 1, 1]
-size = [0.1, 0.1, 0.1]
-origin = [0.0, 0.3, 0.0]
-[objects.material]
-E = 1e4
-nu = 0.3
-"""
 
 CLOTH_ET = (
     FIT_ROPE.replace(

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import warp as wp
+from test_gradients import loss_of
 
 import pliant as pl
 from pliant.model import _parameters as reg
@@ -89,26 +90,6 @@ SETUPS = {
 }
 
 
-@wp.kernel
-def _loss_kernel(
-    x: wp.array(dtype=wp.vec3d),
-    v: wp.array(dtype=wp.vec3d),
-    w: wp.array(dtype=wp.vec3d),
-    out: wp.array(dtype=wp.float64),
-):
-    i = wp.tid()
-    wp.atomic_add(out, 0, wp.dot(x[i], w[i]) + wp.float64(0.1) * wp.dot(v[i], v[i]))
-
-
-def _loss(w: wp.array):
-    def loss(state):
-        out = wp.zeros(1, dtype=wp.float64, requires_grad=True)
-        wp.launch(_loss_kernel, state.particle_q.shape[0], [state.particle_q, state.particle_qd, w, out])
-        return out
-
-    return loss
-
-
 def _locate(p: Parameter):
     """The first set-up holding ``p`` (name, (model, solver, control, array-or-(array, component))), or
     None."""
@@ -152,7 +133,7 @@ def _loss_with(setup: str, p: Parameter, delta: np.ndarray | float | None, w: wp
         if p.arrays[0].startswith("model."):
             s = mk_solver(m)
     return pl.diff.rollout(
-        m, s, _loss(w), frames=FRAMES, substeps=STEPS // FRAMES, dt=DT, state0=state0, control=c
+        m, s, loss_of(w), frames=FRAMES, substeps=STEPS // FRAMES, dt=DT, state0=state0, control=c
     ).loss
 
 
@@ -166,7 +147,7 @@ def fd_check(p: Parameter, setup: str, tol: float = 1e-5) -> tuple[float, float]
     rng = np.random.default_rng(7)
     w = wp.array(rng.normal(size=(m.particle_count, 3)), dtype=wp.vec3d)
     res = pl.diff.rollout(
-        m, s, _loss(w), frames=FRAMES, substeps=STEPS // FRAMES, dt=DT, params=[p.name], control=c
+        m, s, loss_of(w), frames=FRAMES, substeps=STEPS // FRAMES, dt=DT, params=[p.name], control=c
     )
     g = np.asarray(res.grads[p.name], dtype=np.float64)
     a = p.getter()(m, s, m.state(), c)
