@@ -27,6 +27,7 @@ from __future__ import annotations
 from ._cmaes import PENALTY, StageResult, cmaes, evaluate
 from ._gradient import Smoothness, gradient_stage
 from ._losses import acceleration_loss, chamfer_loss, track_errors, track_loss
+from ._models import MODELS, compare_models
 from ._observe import observe
 from ._observe_images import observe_images
 from ._params import (
@@ -47,6 +48,7 @@ from ._toml import scene_toml
 __all__ = [
     "DEFAULTS",
     "GLOBAL",
+    "MODELS",
     "PARAMS_FILE",
     "PENALTY",
     "PER_ELEMENT",
@@ -61,6 +63,7 @@ __all__ = [
     "apply_globals",
     "chamfer_loss",
     "cmaes",
+    "compare_models",
     "default_params",
     "evaluate",
     "fit",
