@@ -172,3 +172,20 @@ def test_models_are_compared_side_by_side(tmp_path, capsys):
     assert "fem" in table and "<- best" in table and (tmp_path / "m" / "fem" / "fit.json").exists()
     with pytest.raises(pl.fit.FitError, match="unknown model 'springs'"):
         pl.fit.compare_models(cfg, obs, ["fem", "springs"], tmp_path / "x")
+
+
+def test_auto_per_element_runs_the_models_own_and_validates_it(tmp_path):
+    """per_element="auto": per-spring k for mass-spring (E per tet for FEM, α for XPBD, none from images);
+    the stage runs and fit.json says whether validation kept it."""
+    from pliant.fit._params import auto_per_element
+
+    assert auto_per_element(pl.scene.parse_scene(FIT_ROPE), None) == "stiffness"
+    assert auto_per_element(pl.scene.parse_scene(FEM), None) == "E"
+    assert auto_per_element(pl.scene.parse_scene(CLOTH_XPBD), None) == "compliance"
+    cfg = pl.scene.parse_scene(FIT_ROPE)
+    obs = observe(pl.scene.build_scene(cfg), tracks=7)
+    wrong = pl.fit.apply_globals(cfg, {"stiffness": 80.0})
+    rep = pl.fit.fit(
+        wrong, obs, tmp_path, per_element="auto", generations=2, epochs=2, progress=False, video=False
+    )
+    assert rep["gradient_stage_kept"] in (True, False) and rep["gradient_validation"] is not None

@@ -42,7 +42,13 @@ def add_parsers(sub: Any) -> None:
         help="fit each candidate model (mass_spring, fem, pbd) of the same geometry into OUT/<model>/ and "
         "print their held-out errors side by side (OUT/models.json)",
     )
-    f.add_argument("--per-element", metavar="NAME", help="gradient stage on stiffness, E or compliance")
+    f.add_argument(
+        "--per-element",
+        metavar="NAME",
+        default="auto",
+        help="gradient stage on stiffness, E or compliance (default auto: the model's own, kept only where "
+        "it lowers the validation error, not with --params none; none: no per-element stage)",
+    )
     f.add_argument("--train-fraction", type=_positive_float, default=0.7, help="frames to train on (0.7)")
     f.add_argument(
         "--iterations", type=_positive_int, help="CMA-ES generations (20) and gradient epochs (20)"
@@ -209,7 +215,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
             obs,
             out,
             params=params,
-            per_element=args.per_element,
+            # "auto" follows the global stage: --params none alone still means nothing to fit
+            per_element=None if params == [] and args.per_element == "auto" else args.per_element,
             train_fraction=args.train_fraction,
             generations=20 if n is None else n,
             epochs=20 if n is None else n,

@@ -294,6 +294,9 @@ WHY: dict[str, tuple[tuple[str, str], ...]] = {
 }
 #: Default parameter names per object model (the names of :data:`WHY`).
 DEFAULTS = {model: tuple(n for n, _ in rows) for model, rows in WHY.items()}
+#: The per-element parameter of each model (``per_element="auto"``).
+PER_ELEMENT_OF = {"mass_spring": "stiffness", "fem": "E", "pbd": "compliance"}
+
 #: Ground coefficients, searched by default when the observations reach the ground.
 CONTACT = ("ground_friction", "ground_restitution")
 
@@ -331,6 +334,14 @@ def default_reasons(cfg: Any, obs: Any = None) -> dict[str, str]:
         for name in CONTACT:
             out[name] = f"the observations reach the ground (lowest track {gap * 1e3:.3g} mm above it)"
     return out
+
+
+def auto_per_element(cfg: Any, obs: Any) -> str | None:
+    """``per_element="auto"``: the per-element parameter of the scene's first object's model
+    (:data:`PER_ELEMENT_OF`), or None for image observations (per-element fits need tracks)."""
+    if obs is not None and getattr(obs, "images", None) is not None:
+        return None
+    return PER_ELEMENT_OF.get(cfg.objects[0].model) if cfg.objects else None
 
 
 def _critical_damping(scene: Any) -> float | None:
@@ -490,6 +501,7 @@ __all__ = [
     "GlobalParam",
     "apply_globals",
     "default_params",
+    "auto_per_element",
     "default_reasons",
     "ground_contact",
     "widen_bounds",

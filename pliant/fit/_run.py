@@ -15,7 +15,7 @@ import numpy as np
 from ..io import Observations, atomic_savez
 from ._cmaes import StageResult, cmaes
 from ._gradient import gradient_stage
-from ._params import FitError
+from ._params import FitError, auto_per_element
 from ._photometric import gradient_capable, problem_for, refinable, refine_globals
 from ._problem import Problem
 from ._toml import scene_toml
@@ -88,7 +88,10 @@ def fit(
         obs: The observations (``pl.io.Observations.load``).
         out: Output folder (created).
         params: Global parameter names (``pl.fit.GLOBAL``); None: the material; ``[]``: none.
-        per_element: Per-element parameter (``"stiffness"``, ``"E"``, ``"compliance"``) or None.
+        per_element: Per-element parameter (``"stiffness"``, ``"E"``, ``"compliance"``, a per-element
+            registry name) or None; ``"auto"``: the model's own (k per spring, E per tet, α per
+            constraint; none from images or where the scene has none), kept only where it lowers the
+            validation error (``pliant fit``'s default); ``"none"``: None.
         train_fraction: Fraction of frames to train on.
         generations: CMA-ES generations.
         epochs: Gradient-stage iterations (passes over the training frames).
@@ -121,16 +124,17 @@ def fit(
         raise FitError(f"--smoothness: expected a weight >= 0, got {smoothness}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    problem = problem_for(obs)(  # images in the file: the photometric loss (_photometric.py)
-        cfg,
-        obs,
-        params=params,
-        per_element=per_element,
-        train_fraction=train_fraction,
-        device=device,
-        dtype=dtype,
-        shooting=shooting,
-    )
+    auto = per_element == "auto"
+    per_element = auto_per_element(cfg, obs) if auto else (None if per_element == "none" else per_element)
+    kw = {"params": params, "train_fraction": train_fraction, "device": device, "dtype": dtype}
+    make = problem_for(obs)  # images in the file: the photometric loss (_photometric.py)
+    try:
+        problem = make(cfg, obs, per_element=per_element, shooting=shooting, **kw)
+    except FitError:
+        if not auto or per_element is None:
+            raise
+        per_element = None  # "auto" on a scene without such elements (rigid XPBD sets): no per-element stage
+        problem = make(cfg, obs, per_element=None, shooting=shooting, **kw)
     if progress:
         print("fit: searching\n" + "\n".join(search_plan(problem)), flush=True)
     stages: dict[str, StageResult] = {}
