@@ -75,7 +75,7 @@ def run(name: str, generations: int = 20, epochs: int = 10, lr: float = 0.01) ->
     return {
         "data": "synthetic, cross-engine (Newton 1.8 SolverSemiImplicit -> pliant)",
         "values": values,
-        "start": {k: v["nominal"] for k, v in rep["params"].items()},  # a damping rate of 0 starts at 0.14
+        "start": {k: v["start"] for k, v in rep["params"].items()},  # a damping rate of 0 starts at 0.14
         "test_error_m": {"nominal": nominal, "global": glob["test"], "fitted": fitted},
         "train_error_m": {
             "nominal": rep["error_nominal"]["train"],

@@ -64,12 +64,11 @@ def run_timed(
     wp.synchronize_device(device)
     t0 = time.perf_counter()
     c0 = time.process_time()
+    from ..solvers import FrameStep
+
+    frame = FrameStep(solver, dt, substeps, on_step=on_step)
     for _ in range(frames):
-        for _ in range(substeps):
-            solver.step(s0, s1, control, dt)
-            s0, s1 = s1, s0
-            if on_step is not None:
-                on_step()
+        s0, s1 = frame(s0, control, s1)
     wp.synchronize_device(device)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     return s0, Timing(wall, cpu, compile_s, frames, substeps, device)
@@ -158,10 +157,10 @@ def frame_curve(
     control = model.control()
     s0, s1 = model.state(), model.state()
     out = [measure(s0.particle_q.numpy())] if include_start else []
-    dt = frame_dt / substeps
+    from ..solvers import FrameStep
+
+    frame = FrameStep(solver, frame_dt / substeps, substeps)
     for _ in range(frames):
-        for _ in range(substeps):
-            solver.step(s0, s1, control, dt)
-            s0, s1 = s1, s0
+        s0, s1 = frame(s0, control, s1)
         out.append(measure(s0.particle_q.numpy()))
     return np.asarray(out)

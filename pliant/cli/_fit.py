@@ -32,10 +32,23 @@ def add_parsers(sub: Any) -> None:
     f.add_argument(
         "--params",
         metavar="NAME,...",
-        help="global parameters for CMA-ES (default: the material: stiffness,damping / E,nu / compliance; "
-        "'none' for no global stage)",
+        help="global parameters for CMA-ES (default, printed with bounds and why: stiffness or Et, "
+        "damping_rate, damping / E, nu, damping_rate / compliance, damping_rate, plus ground friction and "
+        "restitution when the tracks reach the ground; 'none' for no global stage)",
     )
-    f.add_argument("--per-element", metavar="NAME", help="gradient stage on stiffness, E or compliance")
+    f.add_argument(
+        "--models",
+        metavar="MODEL,...",
+        help="fit each candidate model (mass_spring, fem, pbd) of the same geometry into OUT/<model>/ and "
+        "print their held-out errors side by side (OUT/models.json)",
+    )
+    f.add_argument(
+        "--per-element",
+        metavar="NAME",
+        default="auto",
+        help="gradient stage on stiffness, E or compliance (default auto: the model's own, kept only where "
+        "it lowers the validation error, not with --params none; none: no per-element stage)",
+    )
     f.add_argument("--train-fraction", type=_positive_float, default=0.7, help="frames to train on (0.7)")
     f.add_argument(
         "--iterations", type=_positive_int, help="CMA-ES generations (20) and gradient epochs (20)"
@@ -196,13 +209,16 @@ def cmd_fit(args: argparse.Namespace) -> int:
         )
     n = args.iterations
     out = Path(args.out)
+    if args.models is not None:
+        return _fit_models(args, cfg, obs, params, out)
     try:
         report = fit(
             cfg,
             obs,
             out,
             params=params,
-            per_element=args.per_element,
+            # "auto" follows the global stage: --params none alone still means nothing to fit
+            per_element=None if params == [] and args.per_element == "auto" else args.per_element,
             train_fraction=args.train_fraction,
             generations=40 if n is None else n,  # a cap: CMA-ES stops once converged
             epochs=20 if n is None else n,
@@ -263,6 +279,35 @@ def cmd_fit(args: argparse.Namespace) -> int:
         )
     print(f"wrote {out / 'fitted.toml'}, fit.json, fit.png" + ("" if args.no_video else ", fit.mp4"))
     print(f"fitted in {report['wall_time']:.1f} s")
+    return 0
+
+
+def _fit_models(args: argparse.Namespace, cfg: Any, obs: Any, params: Any, out: Path) -> int:
+    """``pliant fit --models a,b``: each candidate model fitted, held-out errors side by side."""
+    from ..fit import FitError, compare_models
+    from ..fit._models import models_table
+
+    n = args.iterations
+    try:
+        report = compare_models(
+            cfg,
+            obs,
+            [m.strip() for m in args.models.split(",") if m.strip()],
+            out,
+            params=params,
+            generations=20 if n is None else n,
+            epochs=20 if n is None else n,
+            train_fraction=args.train_fraction,
+            seed=args.seed,
+            device=args.device,
+            dtype=args.dtype,
+            progress=not args.quiet,
+            video=not args.no_video,
+        )
+    except FitError as exc:
+        raise CliError(str(exc)) from None
+    print("\n".join(models_table(report)))
+    print(f"wrote {out / 'models.json'} and one folder per model")
     return 0
 
 

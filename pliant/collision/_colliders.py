@@ -23,6 +23,7 @@ import numpy as np
 import warp as wp
 
 from .._warp import launch
+from ..model._parameters import Parameter, declares
 
 SPHERE, BOX, CAPSULE, MESH = 0, 1, 2, 3
 _KIND_NAMES = {SPHERE: "sphere", BOX: "box", CAPSULE: "capsule", MESH: "mesh"}
@@ -238,6 +239,22 @@ def _vec(v: Any, what: str) -> np.ndarray:
     return a
 
 
+def _collider_array(key: str) -> Any:
+    def get(model: Any, solver: Any, state0: Any, control: Any) -> Any:
+        from .._warp import GradientError
+
+        found = [c for c in getattr(solver, "collisions", ()) if callable(getattr(c, "apply_out", None))]
+        if len(found) != 1:
+            raise GradientError(
+                f"'collider_{key}' needs exactly one pl.collision.Colliders in the solver's collisions= "
+                f"(found {len(found)})"
+            )
+        return found[0].arrays(model)[key]
+
+    return get
+
+
+@declares
 class Colliders:
     """A set of static colliders with Coulomb friction μ and restitution e each.
 
@@ -249,6 +266,43 @@ class Colliders:
         solver = pl.solvers.FastMassSpring(model, collisions=[colliders])
         # or, after any solver's step: colliders.apply(model, state_0, state_1, dt)
     """
+
+    @classmethod
+    def parameters(cls) -> tuple[Parameter, ...]:
+        """Per collider: Coulomb μ, restitution e and centre (ForceSolver's recorded contact)."""
+        return (
+            Parameter(
+                "collider_friction",
+                "Coulomb friction coefficient per collider",
+                "1",
+                "collider",
+                ("collider.friction",),
+                (0.0, 2.0),
+                log=False,
+                get=_collider_array("friction"),
+            ),
+            Parameter(
+                "collider_restitution",
+                "restitution coefficient per collider",
+                "1",
+                "collider",
+                ("collider.restitution",),
+                (0.0, 1.0),
+                log=False,
+                get=_collider_array("restitution"),
+            ),
+            Parameter(
+                "collider_pos",
+                "centre of each collider",
+                "m",
+                "collider",
+                ("collider.pos",),
+                None,
+                log=False,
+                sign="any",
+                get=_collider_array("pos"),
+            ),
+        )
 
     def __init__(self) -> None:
         self._rows: list[tuple] = []

@@ -8,6 +8,7 @@ import numpy as np
 import warp as wp
 
 from ..model import Model
+from ..model._parameters import Parameter, constraint_array, declares
 from ._base import Constraint, ProjectionContext, constraint_delta_lambda
 from ._factory import FixedArityConstraint, projection_kernels
 
@@ -34,6 +35,7 @@ def _as_pairs(indices: Any) -> np.ndarray:
     return idx.astype(np.int32)
 
 
+@declares
 class Distance(FixedArityConstraint):
     """Stretching: C(x_i, x_j) = |x_i − x_j| − l = 0, with compliance α = 1/k [m/N].
 
@@ -53,6 +55,21 @@ class Distance(FixedArityConstraint):
     """
 
     kernels = projection_kernels("distance", distance_c, distance_grad, 2, unit_gradient=True)
+
+    @classmethod
+    def parameters(cls) -> tuple[Parameter, ...]:
+        """XPBD compliance α per constraint."""
+        return (
+            Parameter(
+                "compliance_distance",
+                "XPBD compliance of each distance constraint",
+                "m/N",
+                "constraint",
+                ("constraint.compliance_array",),
+                (1e-10, 1e-1),
+                get=constraint_array("compliance_distance"),
+            ),
+        )
 
     def __init__(
         self,

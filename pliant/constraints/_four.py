@@ -8,6 +8,7 @@ import numpy as np
 import warp as wp
 
 from ..model import Model
+from ..model._parameters import BENDING_STIFFNESS, Parameter, constraint_array, declares
 from ._base import Constraint, ProjectionContext, constraint_delta_lambda
 from ._factory import FixedArityConstraint, projection_kernels
 
@@ -150,6 +151,7 @@ def dihedral_angles_np(q: np.ndarray, idx: np.ndarray) -> np.ndarray:
     return np.arctan2(np.sum(np.cross(n1, n2) * e, axis=1) / le, np.sum(n1 * n2, axis=1))
 
 
+@declares
 class DihedralBending(_FourPoint):
     """Bending: C = wrap(θ(x) − θ0), θ the signed dihedral angle of two triangles sharing edge (0, 1).
 
@@ -170,6 +172,22 @@ class DihedralBending(_FourPoint):
     _name = "DihedralBending"
     kernels = projection_kernels("dihedral", dihedral_c, dihedral_grad, 4)
 
+    @classmethod
+    def parameters(cls) -> tuple[Parameter, ...]:
+        """XPBD compliance α per constraint (and the model bending stiffness its default is read from)."""
+        return (
+            Parameter(
+                "compliance_dihedralbending",
+                "XPBD compliance of each dihedral bending constraint",
+                "1/(N m)",
+                "constraint",
+                ("constraint.compliance_array",),
+                (1e-10, 1e-1),
+                get=constraint_array("compliance_dihedralbending"),
+            ),
+            BENDING_STIFFNESS,
+        )
+
     def __init__(
         self, indices: Any = None, *, rest_angle: Any = None, compliance: Any = None, stiffness: float = 1.0
     ) -> None:
@@ -188,6 +206,7 @@ class DihedralBending(_FourPoint):
         return dihedral_angles_np(q, idx)
 
 
+@declares
 class Volume(_FourPoint):
     """Tetrahedral volume: C = V(x) − V0 with V = (1/6)(x1 − x0)×(x2 − x0)·(x3 − x0).
 
@@ -203,6 +222,21 @@ class Volume(_FourPoint):
 
     _name = "Volume"
     kernels = projection_kernels("volume", volume_c, volume_grad, 4)
+
+    @classmethod
+    def parameters(cls) -> tuple[Parameter, ...]:
+        """XPBD compliance α per constraint."""
+        return (
+            Parameter(
+                "compliance_volume",
+                "XPBD compliance of each tet volume constraint",
+                "m^3/Pa",
+                "constraint",
+                ("constraint.compliance_array",),
+                (1e-10, 1e-1),
+                get=constraint_array("compliance_volume"),
+            ),
+        )
 
     def __init__(
         self, indices: Any = None, *, rest_volume: Any = None, compliance: Any = None, stiffness: float = 1.0

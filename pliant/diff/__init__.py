@@ -10,10 +10,22 @@ implicit-function-theorem adjoint), with ground contact and kinematic targets;
 ``FastMassSpring(method="symplectic")``; ``XPBD`` / ``PBD`` with ``schedule="jacobi"``. What cannot give a
 correct gradient raises :class:`GradientError` when asked. A rollout that blew up (non-finite, or faster than
 ``max_speed``) raises :class:`pliant.sim.DivergenceError` naming the frame (:func:`check_rollout`).
+
+What can be differentiated is declared by the classes that read it (``parameters()``: energies,
+constraints, colliders, solvers, the Model / State / Control); :func:`parameters` lists the registry with
+units, element kinds and default search ranges, and :data:`PARAMETERS` is its differentiable part.
 """
 
 from .._warp import GradientError
-from ._rollout import PARAMETERS, RolloutResult, check_rollout, rollout
+from ._rollout import PARAMETERS, RolloutResult, check_rollout, parameters, rollout
 from ._torch import torch_rollout
 
-__all__ = ["PARAMETERS", "GradientError", "RolloutResult", "check_rollout", "rollout", "torch_rollout"]
+__all__ = [
+    "PARAMETERS",
+    "GradientError",
+    "RolloutResult",
+    "check_rollout",
+    "parameters",
+    "rollout",
+    "torch_rollout",
+]

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -11,104 +11,25 @@ import warp as wp
 
 from .._warp import GradientError
 from ..model import Control, Model, State
+from ..model._parameters import Parameter, RegistryView, registry
+from ..solvers import FrameStep
 
 
-def _ground(index: int) -> Callable[[Model, Any, State, Control | None], wp.array]:
-    def get(model, solver, state0, control):
-        c = getattr(solver, "ground_coefficients", None)
-        if c is None:
-            raise GradientError(
-                "ground_friction/ground_restitution need a solver with ground contact on a requires_grad "
-                "model (ForceSolver or FastMassSpring with an explicit step and model.ground set)"
-            )
-        return c, index
+#: Parameter name → ``get(model, solver, state0, control)`` returning its array (or (array, component) for a
+#: scalar held in a shared array): every differentiable parameter the registry declares
+#: (:mod:`pliant.model._parameters`; each energy, constraint, collider and solver declares its own). Values
+#: are per element: per spring, per tet, per particle, per constraint, per collider.
+def parameters() -> dict[str, tuple[Parameter, tuple[type, ...]]]:
+    """The whole parameter registry (:mod:`pliant.model._parameters`): name → (declaration, the classes
+    that declare it), after importing every package whose classes declare parameters."""
+    from .. import collision, constraints, energies, solvers  # noqa: F401  (their classes register)
 
-    return get
-
-
-def _control(name: str) -> Callable[[Model, Any, State, Control | None], wp.array]:
-    def get(model, solver, state0, control):
-        if control is None:
-            raise GradientError(f"{name!r} is a Control array: pass control= to rollout")
-        return getattr(control, name)
-
-    return get
+    return registry()
 
 
-def _solver_array(attr: str, what: str) -> Callable[[Model, Any, State, Control | None], wp.array]:
-    def get(model, solver, state0, control):
-        a = getattr(solver, attr, None)
-        if a is None:
-            raise GradientError(f"{attr!r} is differentiable only {what}")
-        return a
-
-    return get
-
-
-def _compliance(kind: str) -> Callable[[Model, Any, State, Control | None], wp.array]:
-    def get(model, solver, state0, control):
-        sets = [c for c in getattr(solver, "constraints", ()) if type(c).__name__ == kind]
-        arrays = [getattr(c, "compliance_array", None) for c in sets]
-        if not sets or arrays[0] is None:
-            raise GradientError(
-                f"'compliance_{kind.lower()}' needs an XPBD solver with a {kind} constraint set "
-                "(PBD sets use a stiffness, not a compliance)"
-            )
-        if len(sets) > 1:
-            raise GradientError(
-                f"'compliance_{kind.lower()}': the solver has {len(sets)} {kind} sets; read "
-                "constraint.compliance_array.grad on the plain tape path to tell them apart"
-            )
-        return arrays[0]
-
-    return get
-
-
-def _collider(key: str) -> Callable[[Model, Any, State, Control | None], wp.array]:
-    def get(model, solver, state0, control):
-        found = [c for c in getattr(solver, "collisions", ()) if callable(getattr(c, "apply_out", None))]
-        if len(found) != 1:
-            raise GradientError(
-                f"'collider_{key}' needs exactly one pl.collision.Colliders in the solver's collisions= "
-                f"(found {len(found)})"
-            )
-        return found[0].arrays(model)[key]
-
-    return get
-
-
-#: Parameter name → where its array lives. Each entry returns the array (or (array, component) for a
-#: scalar held in a shared array). Values are per element: per spring, per tet, per particle, per target.
-PARAMETERS: dict[str, Callable[[Model, Any, State, Control | None], Any]] = {
-    "spring_stiffness": lambda m, s, x, c: m.spring_stiffness,  # [N/m] per spring
-    "spring_rest_length": lambda m, s, x, c: m.spring_rest_length,  # [m] per spring
-    "spring_damping": lambda m, s, x, c: m.spring_damping,  # dashpot γ [N s/m] per spring
-    "tet_mu": lambda m, s, x, c: m.tet_mu,  # Lamé μ [Pa] per tet (E and ν via the chain rule)
-    "tet_lam": lambda m, s, x, c: m.tet_lam,  # Lamé λ [Pa] per tet
-    # Masses [kg] per particle: the step reads both m (gravity) and 1/m (accelerations); rollout combines
-    # ∂L/∂m + ∂L/∂(1/m)·(−1/m²) for free particles (pinned ones keep 1/m = 0, so only the first term).
-    "particle_mass": lambda m, s, x, c: m.particle_mass,
-    # Gravity g [m/s²] (1 vec3): ForceSolver (any integrator), XPBD/PBD (``solver.gravity``).
-    "gravity": _solver_array("gravity", "with ForceSolver or XPBD/PBD on a requires_grad model"),
-    # Global damping rate c [1/s] of v ← v·exp(−cΔt) (1 scalar): ForceSolver(damping_rate=...).
-    "damping_rate": _solver_array(
-        "damping_rate_array", "with ForceSolver(damping_rate=c) on a requires_grad model"
-    ),
-    "x0": lambda m, s, x, c: x.particle_q,  # initial positions [m]
-    "v0": lambda m, s, x, c: x.particle_qd,  # initial velocities [m/s]
-    "ground_friction": _ground(0),  # Coulomb μ (a subgradient at stick/slip and contact switches)
-    "ground_restitution": _ground(1),  # restitution e
-    # XPBD compliance α per constraint [m/N for Distance; 1/(N m) for bending; 1/(N m²)-like for Volume].
-    "compliance_distance": _compliance("Distance"),
-    "compliance_dihedralbending": _compliance("DihedralBending"),
-    "compliance_volume": _compliance("Volume"),
-    # Colliders (ForceSolver collisions=[pl.collision.Colliders]): per collider μ, e and centre [m].
-    "collider_friction": _collider("friction"),
-    "collider_restitution": _collider("restitution"),
-    "collider_pos": _collider("pos"),
-    "particle_f": _control("particle_f"),  # external forces [N], held over the rollout
-    "kinematic_targets": _control("kinematic_targets"),  # targets [m] of the kinematic particles
-}
+PARAMETERS: Mapping[str, Callable[[Model, Any, State, Control | None], Any]] = RegistryView(
+    lambda p: p.differentiable, lambda p: p.getter(), parameters
+)
 
 
 @dataclass
@@ -127,13 +48,14 @@ class RolloutResult:
 
 
 def _resolve(names: Sequence[str], model: Model, solver: Any, state0: State, control: Control | None):
+    table = dict(PARAMETERS)
     out = {}
     for name in names:
-        if name not in PARAMETERS:
+        if name not in table:
             raise GradientError(
-                f"unknown or non-differentiable parameter {name!r}; differentiable: {sorted(PARAMETERS)}"
+                f"unknown or non-differentiable parameter {name!r}; differentiable: {sorted(table)}"
             )
-        out[name] = PARAMETERS[name](model, solver, state0, control)
+        out[name] = table[name](model, solver, state0, control)
     return out
 
 
@@ -224,7 +146,7 @@ def _copy_state(state: State) -> State:
 def rollout(
     model: Model,
     solver: Any,
-    loss_fn: Callable[[State], wp.array],
+    loss_fn: Callable[[State], wp.array] | None,
     *,
     frames: int,
     dt: float,
@@ -234,6 +156,10 @@ def rollout(
     control: Control | None = None,
     checkpoint_every: int = 1,
     max_speed: float = 1.0e3,
+    frame_loss: Callable[[int, State, wp.array], None] | None = None,
+    control_fn: Callable[[int, Control], None] | None = None,
+    first_frame: int = 0,
+    reset: bool = True,
 ) -> RolloutResult:
     """Run ``frames`` × ``substeps`` steps of ``solver`` and return the loss and its gradients.
 
@@ -251,7 +177,7 @@ def rollout(
             ``FastMassSpring(method="symplectic")``, ``XPBD``/``PBD`` with ``schedule="jacobi"``; others
             raise :class:`pliant.diff.GradientError`. ``solver.reset()`` is called first.
         loss_fn: maps the final State to a 1-element Warp array of the model's scalar type holding the loss,
-            computed with Warp kernels (so the tape records it).
+            computed with Warp kernels (so the tape records it); None: the loss is ``frame_loss``'s alone.
         frames: number of frames (checkpoint granularity).
         dt: substep [s].
         substeps: solver steps per frame.
@@ -262,6 +188,17 @@ def rollout(
         checkpoint_every: frames per checkpoint segment (1: recompute one frame at a time).
         max_speed: a particle faster than this [m/s] at the end means the rollout diverged (see
             :func:`check_rollout`, which refuses it).
+        frame_loss: ``frame_loss(frame, state, out)`` adds the loss of each frame's end ``state`` into the
+            1-element ``out`` with Warp kernels (a loss over the whole trajectory, as a fit's); ``frame`` is
+            ``first_frame + k`` after the k-th frame. It is called once per frame, under the tape of its
+            segment; segments run last first when ``checkpoint_every < frames``, so a term that reads
+            earlier frames' states needs ``checkpoint_every >= frames``.
+        control_fn: ``control_fn(frame, control)`` before each frame (``frame`` = ``first_frame`` + the
+            frames done): controls that move over time (the frames are re-run in the backward pass, so it
+            must depend on ``frame`` alone). A Control is made when ``control`` is None.
+        first_frame: index of the first frame (passed to ``frame_loss`` and ``control_fn``).
+        reset: call ``solver.reset()`` first (False: keep what the solver carries from the previous
+            rollout, as a rollout continuing another one does).
 
     Returns:
         :class:`RolloutResult` with ``loss``, ``grads`` (name → array shaped like the parameter) and the
@@ -298,7 +235,11 @@ def rollout(
             f"{integrator.name} is a multistep method: its history cannot cross a checkpoint boundary; "
             f"pass checkpoint_every={frames} (one segment, the whole rollout on one tape)"
         )
-    if hasattr(solver, "reset"):
+    if loss_fn is None and frame_loss is None:
+        raise ValueError("rollout: give loss_fn (a loss of the final state) and/or frame_loss")
+    if control_fn is not None and control is None:
+        control = model.control()
+    if reset and hasattr(solver, "reset"):
         solver.reset()  # no L-BFGS pairs or BDF2 history from an earlier run
     start = _copy_state(model.state() if state0 is None else state0)
     entries = {
@@ -320,21 +261,22 @@ def rollout(
             )
         a.grad.zero_()
 
-    def run(state: State, n_frames: int) -> State:
-        for _ in range(n_frames * substeps):
-            nxt = State(
-                wp.empty_like(state.particle_q, requires_grad=True),
-                wp.empty_like(state.particle_qd, requires_grad=True),
-            )
-            solver.step(state, nxt, control, dt)
-            state = nxt
+    frame_step = FrameStep(solver, dt, substeps, fresh=True)  # one frame's substeps, fresh states
+
+    def run(state: State, f0: int, f1: int, acc: wp.array | None = None) -> State:
+        for f in range(f0, f1):
+            if control_fn is not None:
+                control_fn(first_frame + f, control)
+            state, _ = frame_step(state, control)
+            if acc is not None:
+                frame_loss(first_frame + f + 1, state, acc)
         return state
 
     # Forward without a tape, keeping the checkpoints; the last segment is run once, under the tape below.
     bounds = list(range(0, frames, checkpoint_every)) + [frames]
     checkpoints = [start]
     for a, b in zip(bounds[:-2], bounds[1:-1], strict=True):
-        checkpoints.append(run(checkpoints[-1], b - a))
+        checkpoints.append(run(checkpoints[-1], a, b))
     final = start
 
     totals = {k: np.zeros_like(a.grad.numpy(), dtype=np.float64) for k, a in arrays.items()}
@@ -345,16 +287,24 @@ def rollout(
         for a in (first.particle_q, first.particle_qd):
             a.grad.zero_()
         tape = wp.Tape()
+        acc = None
+        if frame_loss is not None:
+            acc = wp.zeros(1, dtype=model.scalar, device=model.device, requires_grad=True)
         with tape:
-            last = run(first, bounds[seg + 1] - bounds[seg])
-            if adj is None:
-                loss = loss_fn(last)
+            last = run(first, bounds[seg], bounds[seg + 1], acc)
+            loss = loss_fn(last) if adj is None and loss_fn is not None else None
+        # Seeds: 1 for this segment's losses, the adjoint of its last state from the segment after it.
+        seeds = {} if acc is None else {acc: wp.ones_like(acc)}
+        if loss is not None:
+            seeds[loss] = wp.ones_like(loss)
+            loss_value += float(loss.numpy()[0])
+        if acc is not None:
+            loss_value += float(acc.numpy()[0])
         if adj is None:
             final = last
-            loss_value = float(loss.numpy()[0])
-            tape.backward(loss=loss)
         else:
-            tape.backward(grads={last.particle_q: adj[0], last.particle_qd: adj[1]})
+            seeds[last.particle_q], seeds[last.particle_qd] = adj
+        tape.backward(grads=seeds)
         adj = (wp.clone(first.particle_q.grad), wp.clone(first.particle_qd.grad))
         for k, a in arrays.items():
             totals[k] += a.grad.numpy()
@@ -383,7 +333,7 @@ def rollout(
             good = seg
         state = _copy_state(checkpoints[good])
         for k in range(bounds[good] + 1, frames + 1):
-            state = run(state, 1)
+            state = run(state, k - 1, k)
             yield k, state
 
     check_rollout(

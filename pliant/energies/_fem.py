@@ -16,6 +16,7 @@ import warp as wp
 
 from .._warp import launch
 from ..model import Model
+from ..model._parameters import TET_LAM, TET_MU, Parameter, declares
 from . import _fem_math as fm
 from . import _fem_p2 as p2
 from ._base import Energy
@@ -323,6 +324,7 @@ def _guard_tets(model: Model) -> list[wp.array]:
 # ----------------------------------------------------------------------------------------------- classes
 
 
+@declares
 class TetElasticity(Energy):
     """Hyperelastic linear tetrahedra: E(x) = Σ_e V_e ψ(F_e; μ_e, λ_e) [J], F_e = D_s D_m⁻¹.
 
@@ -368,6 +370,14 @@ class TetElasticity(Energy):
 
     #: Material model of this class; the named subclasses fix it, TetElasticity takes it as an argument.
     default_material: ClassVar[str] = "neohookean"
+
+    @classmethod
+    def parameters(cls) -> tuple[Parameter, ...]:
+        """Lamé μ and λ per tet (E and ν through the chain rule)."""
+        return (
+            TET_MU,
+            TET_LAM,
+        )
 
     def __init__(
         self,

@@ -8,6 +8,7 @@ import warp as wp
 
 from .._warp import launch
 from ..model import Model
+from ..model._parameters import Parameter, declares, solver_array
 from ._base import Energy
 
 
@@ -39,8 +40,26 @@ def _gravity_gradient_array(mass: wp.array(dtype=Any), g: wp.array(dtype=Any), g
     wp.atomic_sub(grad_out, i, mass[i] * g[0])
 
 
+@declares
 class Gravity(Energy):
     """E = −Σ_i m_i g·x_i [J], with g = ``model.gravity`` [m/s²]; its Hessian is zero."""
+
+    @classmethod
+    def parameters(cls) -> tuple[Parameter, ...]:
+        """Gravity g, a vec3 held by the solver (ForceSolver, FastMassSpring's recorded step, XPBD/PBD)."""
+        return (
+            Parameter(
+                "gravity",
+                "gravitational acceleration",
+                "m/s^2",
+                "global",
+                ("solver.gravity",),
+                None,
+                log=False,
+                sign="any",
+                get=solver_array("gravity", "with ForceSolver or XPBD/PBD on a requires_grad model"),
+            ),
+        )
 
     def value(self, model: Model, x: wp.array, out: wp.array) -> None:
         """Add the gravitational potential energy [J] into ``out[0]``."""

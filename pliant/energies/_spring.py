@@ -9,6 +9,7 @@ import warp as wp
 
 from .._warp import launch
 from ..model import Model
+from ..model._parameters import SPRING_DAMPING, SPRING_REST_LENGTH, SPRING_STIFFNESS, Parameter, declares
 from ._base import Energy, ModalEnergy
 
 
@@ -110,6 +111,7 @@ def _spring_pattern(model: Model) -> tuple[np.ndarray, np.ndarray]:
     return rows.astype(np.int32), cols.astype(np.int32)
 
 
+@declares
 class Springs(Energy):
     """Hooke springs of the model: E = Σ ½ k_s (|x_i − x_j| − l_s)².
 
@@ -118,6 +120,14 @@ class Springs(Energy):
     ``model.spring_rest_length``; the Hessian is projected to PSD by clamping the compressive transverse
     term (Choi & Ko 2002), which is what keeps Baraff–Witkin implicit steps stable.
     """
+
+    @classmethod
+    def parameters(cls) -> tuple[Parameter, ...]:
+        """Per-spring stiffness k and rest length l."""
+        return (
+            SPRING_STIFFNESS,
+            SPRING_REST_LENGTH,
+        )
 
     def _inputs(self, model: Model) -> list:
         return [model.spring_indices, model.spring_rest_length, model.spring_stiffness]
@@ -231,6 +241,7 @@ def _dashpot_implicit(
         wp.atomic_sub(hess_out, slots[4 * s + 3], h)
 
 
+@declares
 class Dashpots(ModalEnergy):
     """Dashpots on the model's springs: F_i = −γ((v_i − v_j)·d̂)d̂ (dissipates, conserves momentum).
 
@@ -240,6 +251,11 @@ class Dashpots(ModalEnergy):
     """
 
     dissipative = True
+
+    @classmethod
+    def parameters(cls) -> tuple[Parameter, ...]:
+        """Per-spring dashpot coefficient γ."""
+        return (SPRING_DAMPING,)
 
     def __init__(self) -> None:
         self._axis: wp.array | None = None

@@ -28,6 +28,7 @@ from ._cmaes import PENALTY, StageResult, cmaes, evaluate
 from ._explain import FitWarning
 from ._gradient import Smoothness, gradient_stage
 from ._losses import acceleration_loss, chamfer_loss, track_errors, track_loss
+from ._models import MODELS, compare_models
 from ._observe import observe
 from ._observe_images import observe_images
 from ._params import (
@@ -49,6 +50,7 @@ __all__ = [
     "FitWarning",
     "DEFAULTS",
     "GLOBAL",
+    "MODELS",
     "PARAMS_FILE",
     "PENALTY",
     "PER_ELEMENT",
@@ -63,6 +65,7 @@ __all__ = [
     "apply_globals",
     "chamfer_loss",
     "cmaes",
+    "compare_models",
     "default_params",
     "evaluate",
     "fit",

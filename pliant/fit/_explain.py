@@ -44,13 +44,6 @@ def _colour_losses(problem: Any, x: np.ndarray, lo: int, hi: int) -> np.ndarray:
         problem.mask_weight = w
 
 
-def scene_value(problem: Any, name: str) -> float:
-    """The scene's own value of global parameter ``name`` (the nominal a user reads), which can differ from
-    the search's start (a log-scaled parameter at 0 starts inside its box)."""
-    b = next(b for b in problem.globals if b.name == name)
-    return float(getattr(*b.param.where(problem.cfg)[0]))
-
-
 def before_physics(
     problem: Any, out: Path, *, appearance: bool | None = None, iterations: int = 300
 ) -> dict[str, Any]:
@@ -188,4 +181,4 @@ def after_physics(problem: Any, values: dict[str, float]) -> dict[str, Any]:
     return report
 
 
-__all__ = ["AT_BOUND", "PSNR_LOW_DB", "FitWarning", "after_physics", "before_physics", "scene_value"]
+__all__ = ["AT_BOUND", "PSNR_LOW_DB", "FitWarning", "after_physics", "before_physics"]

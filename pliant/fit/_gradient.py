@@ -1,9 +1,10 @@
 """Stage 2: gradient descent on per-element parameters (Adam by default, or L-BFGS-B from SciPy), with
 gradients from ``wp.Tape`` over short horizons, as PhysTwin's ``trainer_warp.py`` does.
 
-The horizon is one frame by default: the tape records one frame of substeps from the state carried forward,
-the loss compares that frame with the observations, ``tape.backward`` gives the gradient, the optimiser
-steps, and the next frame starts from the simulated end state (without gradient). ``horizon=None`` records
+The horizon is one frame by default: :func:`pliant.diff.rollout` (the one stepping loop) records one frame of
+substeps from the state carried forward, the loss compares that frame with the observations, the rollout's
+backward pass gives the gradient, the optimiser steps, and the next frame starts from the simulated end state
+(without gradient). ``horizon=None`` records
 the whole training rollout on one tape. Each per-element value is ``a = a₀ · exp(θ)``; θ is what is fitted,
 bounded to ``|θ| ≤ log(max_factor)``.
 
@@ -21,6 +22,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from ..model import State
 from ._cmaes import StageResult
 from ._losses import acceleration_loss, chamfer_loss, track_loss
 from ._params import FitError, per_element_arrays, per_element_incidence
@@ -66,14 +68,41 @@ class Smoothness:
         return float(c * np.sum(r - self.eps)), g
 
 
+class Convergence:
+    """Stopping rule of the gradient stages: ``stop(loss)`` after each iteration is True once the best loss
+    has improved by less than ``tol`` (relative) over each of the last ``patience`` iterations (the cap
+    on iterations is the caller's).
+
+    Args:
+        tol: Relative improvement below which an iteration counts as stalled (0: never stop early).
+        patience: Stalled iterations in a row that stop the stage.
+    """
+
+    def __init__(self, tol: float, patience: int = 5) -> None:
+        if not (math.isfinite(tol) and tol >= 0):
+            raise FitError(f"tol: expected a relative improvement >= 0, got {tol}")
+        self.tol, self.patience = float(tol), int(patience)
+        self.best, self.stalled = math.inf, 0
+
+    def __call__(self, loss: float) -> bool:
+        gain = (
+            (self.best - loss) / abs(self.best) if math.isfinite(self.best) and self.best != 0 else math.inf
+        )
+        self.best = min(self.best, loss)
+        self.stalled = self.stalled + 1 if gain < self.tol else 0
+        return self.tol > 0 and self.stalled >= self.patience
+
+
 class _Rollout:
-    """A scene built with gradients, its per-element arrays and the observation arrays on the device."""
+    """A scene built with gradients, its per-element arrays and the observation arrays on the device; its
+    rollouts are :func:`pliant.diff.rollout`'s (the one stepping loop), with the fit's per-frame loss."""
 
     def __init__(self, problem: Problem, values: dict[str, float], shared: bool, n_train: int) -> None:
         self.problem, self.n_train = problem, n_train
         self.scene = problem.build(values, requires_grad=True)
         m = self.scene.model
         self.arrays = per_element_arrays(self.scene, problem.per_element)
+        self.names = {k: _registry_name(self.scene, k) for k in self.arrays}
         self.base = {k: a.numpy().astype(np.float64) for k, a in self.arrays.items()}
         self.shared = shared
         self.size = 1 if shared else next(iter(self.arrays.values())).shape[0]
@@ -89,6 +118,7 @@ class _Rollout:
             self.count = [wp.array([int(c)], dtype=wp.int32, device=d) for c in o.cloud_count]
             self.cloud_norm = max(int(o.cloud_count[1:n_train].sum()), 1)
         self.control_fn = problem.control_fn(self.scene)
+        self.grads: dict[str, np.ndarray] = {}
 
     def set_theta(self, theta: np.ndarray) -> None:
         for k, a in self.arrays.items():
@@ -98,28 +128,18 @@ class _Rollout:
         return {k: self.base[k] * np.exp(theta) for k in self.arrays}
 
     def grad_theta(self) -> np.ndarray:
-        """dL/dθ = Σ_arrays dL/da · a (chain rule through a = a₀ exp θ)."""
+        """dL/dθ = Σ_arrays dL/da · a (chain rule through a = a₀ exp θ), from the last :meth:`run`."""
         g = 0.0
-        for a in self.arrays.values():
-            g = g + a.grad.numpy().astype(np.float64) * a.numpy().astype(np.float64)
+        for k, a in self.arrays.items():
+            g = g + self.grads[self.names[k]] * a.numpy().astype(np.float64)
         return np.atleast_1d(np.sum(g)) if self.shared else g
 
-    def run(self, q: wp.array, qd: wp.array, f0: int, frames: int, hist: list) -> tuple[wp.array, Any]:
-        """Simulate frames f0+1 … f0+frames from (q, qd) on the current tape; returns (loss, end state)."""
-        p, scene, m = self.problem, self.scene, self.scene.model
-        h = scene.frame_dt / scene.substeps
-        control = m.control()
-        loss = wp.zeros(1, dtype=m.scalar, device=m.device, requires_grad=True)
-        s = m.state()
-        s.particle_q, s.particle_qd = q, qd
-        for f in range(f0, f0 + frames):
-            if self.control_fn is not None:
-                self.control_fn(f * scene.frame_dt, control)
-            for _ in range(scene.substeps):
-                s_out = m.state()
-                scene.solver.step(s, s_out, control, h)
-                s = s_out
-            g = f + 1
+    def frame_loss(self, hist: list) -> Callable[[int, State, wp.array], None]:
+        """The fit's loss of observed frame ``g`` (tracks, Chamfer, acceleration over ``hist``, the
+        positions of the frames before), added into ``out``."""
+        p, m = self.problem, self.scene.model
+
+        def add(g: int, s: State, loss: wp.array) -> None:
             if p.weights["track"]:
                 track_loss(
                     s.particle_q,
@@ -149,7 +169,47 @@ class _Rollout:
                     weight=p.weights["acceleration"],
                     normaliser=3.0 * m.particle_count * max(self.n_train - 3, 1),
                 )
-        return loss, s
+
+        return add
+
+    def run(self, q: wp.array, qd: wp.array, f0: int, frames: int, hist: list) -> tuple[float, State]:
+        """Simulate frames f0+1 … f0+frames from (q, qd) through :func:`pliant.diff.rollout` (one tape);
+        returns (loss, end state) and keeps ∂loss/∂(per-element arrays) for :meth:`grad_theta`."""
+        from ..diff import rollout
+
+        scene, m = self.scene, self.scene.model
+        fn = self.control_fn
+        res = rollout(
+            m,
+            scene.solver,
+            None,
+            frames=frames,
+            dt=scene.frame_dt / scene.substeps,
+            substeps=scene.substeps,
+            params=sorted(set(self.names.values())),
+            state0=State(q, qd),
+            control=m.control(),
+            # One segment: the acceleration term reads the frames before, in order.
+            checkpoint_every=frames,
+            frame_loss=self.frame_loss(hist),
+            control_fn=None if fn is None else (lambda f, c: fn(f * scene.frame_dt, c)),
+            first_frame=f0,
+            reset=f0 == 0,  # a horizon continuing the previous one keeps what the solver carries
+        )
+        self.grads = res.grads
+        return res.loss, res.state
+
+
+def _registry_name(scene: Any, key: str) -> str:
+    """The registry parameter (:data:`pliant.diff.PARAMETERS`) of per-element array ``key``
+    (``model.<array>`` or ``constraints.<i>.<array>``)."""
+    parts = key.split(".")
+    if parts[0] == "model":
+        return parts[1]
+    c = scene.solver.constraints[int(parts[1])]
+    return next(
+        p.name for p in type(c).parameters() if p.differentiable and p.arrays[0] == f"constraint.{parts[2]}"
+    )
 
 
 def _detach(a: wp.array) -> wp.array:
@@ -168,6 +228,7 @@ def gradient_stage(
     shared: bool = False,
     smoothness: float = 0.0,
     frames: int | None = None,
+    tol: float = 1e-4,
     callback: Callable[[int, float], None] | None = None,
 ) -> StageResult:
     """Fit ``problem.per_element`` (log-scale factors θ per element) with gradients from the tape.
@@ -186,6 +247,8 @@ def gradient_stage(
             0: none). With Adam it is added once per epoch, spread over the epoch's horizons.
         frames: Train on frames 1 … frames − 1 only (default: all of ``problem``'s training frames); the
             rest can validate the result (:func:`pliant.fit.fit` does).
+        tol: Stop when the epoch loss improves by less than this fraction five epochs in a row (Adam;
+            L-BFGS-B: its ``ftol``); ``iterations`` is the cap. 0: run every iteration.
         callback: ``callback(iteration, loss)`` after each iteration.
 
     Raises:
@@ -220,11 +283,7 @@ def gradient_stage(
 
     def rollout_grad(th: np.ndarray, f0: int, frames: int, q: wp.array, qd: wp.array, hist: list):
         r.set_theta(th)
-        tape = wp.Tape()
-        with tape:
-            loss, s = r.run(q, qd, f0, frames, hist)
-        tape.backward(loss)
-        value = float(loss.numpy()[0])
+        value, s = r.run(q, qd, f0, frames, hist)
         g = r.grad_theta()
         try:  # pl.diff's check: non-finite, or a particle faster than 1000 m/s (a finite blow-up)
             from ..diff import check_rollout
@@ -249,7 +308,6 @@ def gradient_stage(
                 )
             checked[0] = True
         end = (_detach(s.particle_q), _detach(s.particle_qd))
-        tape.zero()
         return value, g, end
 
     def start_state():
@@ -287,6 +345,7 @@ def gradient_stage(
             h = n_frames if horizon is None else max(1, int(horizon))
             mom, var = np.zeros(r.size), np.zeros(r.size)
             b1, b2, step = 0.9, 0.99, 0
+            stop = Convergence(tol)
             for it in range(iterations):
                 # Step size decays geometrically from lr to lr / 10 over the run, so that Adam settles.
                 lr_it = lr * 0.1 ** (it / max(iterations - 1, 1))
@@ -312,6 +371,8 @@ def gradient_stage(
                 result.history.append(epoch)
                 if callback is not None:
                     callback(it + 1, epoch)
+                if stop(epoch):
+                    break
     except KeyboardInterrupt:
         result.interrupted = True
     result.wall_time = time.perf_counter() - t0

@@ -1,5 +1,6 @@
 """Fitted parameters: global ones (scene-file values, changed by rebuilding the scene) and per-element ones
-(model arrays changed in place, with gradients from the tape).
+(model arrays changed in place, with gradients from the tape). Both name the registry parameters
+(:mod:`pliant.model._parameters`) they drive; the arrays and the classes that read them come from there.
 
 Global parameters (``GLOBAL``) live in the scene file; the CMA-ES stage searches them in a box normalised to
 [0, 1]ᵈ, log-scaled for positive magnitudes. Topology parameters (spring radius and neighbour count of
@@ -84,6 +85,10 @@ class GlobalParam:
         bounds: ``bounds(nominal) -> (lo, hi)``.
         topology: Changes the springs (derivative-free stage only).
         integer: Rounded to a whole number.
+        drives: The registry parameters (:mod:`pliant.model._parameters`) whose arrays the scene builds
+            proportional to this value (``Et`` → ``spring_stiffness``; ``E`` → ``tet_mu``, ``tet_lam``;
+            ``compliance`` → every XPBD compliance): the gradient stages differentiate through them. Empty:
+            derivative-free only (ν, topology).
     """
 
     name: str
@@ -93,6 +98,7 @@ class GlobalParam:
     bounds: Callable[[float], tuple[float, float]]
     topology: bool = False
     integer: bool = False
+    drives: tuple[str, ...] = ()
 
     def to_unit(self, value: float, lo: float, hi: float) -> float:
         """Value → [0, 1] (log scale for ``log``)."""
@@ -120,6 +126,7 @@ GLOBAL: dict[str, GlobalParam] = {
             _mat_field("stiffness", ("mass_spring",)),
             True,
             _around(10.0, 1e-6),
+            drives=("spring_stiffness",),
         ),
         GlobalParam(
             "Et",
@@ -128,6 +135,7 @@ GLOBAL: dict[str, GlobalParam] = {
             lambda cfg: [(m, f) for m, f in _mat_field("Et", ("mass_spring",))(cfg) if m.stiffness is None],
             True,
             _around(10.0, 1e-6),
+            drives=("spring_stiffness",),
         ),
         GlobalParam(
             "damping",
@@ -135,6 +143,7 @@ GLOBAL: dict[str, GlobalParam] = {
             _mat_field("damping", ("mass_spring",)),
             True,
             _around(10.0, 1e-5),
+            drives=("spring_damping",),
         ),
         GlobalParam(
             "damping_rate",
@@ -142,6 +151,7 @@ GLOBAL: dict[str, GlobalParam] = {
             _section_field("solver", "damping_rate", 0.0),
             True,
             lambda v: (v / 10.0, v * 10.0) if v > 0 else (1e-3, 20.0),
+            drives=("damping_rate",),
         ),
         GlobalParam(
             "ground_friction",
@@ -149,6 +159,7 @@ GLOBAL: dict[str, GlobalParam] = {
             _section_field("ground", "friction"),
             False,
             lambda v: (0.0, 2.0),
+            drives=("ground_friction",),
         ),
         GlobalParam(
             "ground_restitution",
@@ -156,6 +167,7 @@ GLOBAL: dict[str, GlobalParam] = {
             _section_field("ground", "restitution"),
             False,
             lambda v: (0.0, 1.0),
+            drives=("ground_restitution",),
         ),
         GlobalParam(
             "E",
@@ -163,6 +175,7 @@ GLOBAL: dict[str, GlobalParam] = {
             _mat_field("E", ("fem",)),
             True,
             _around(10.0, 1.0),
+            drives=("tet_mu", "tet_lam"),
         ),
         GlobalParam(
             "nu",
@@ -171,7 +184,14 @@ GLOBAL: dict[str, GlobalParam] = {
             False,
             lambda v: (0.0, 0.49),
         ),
-        GlobalParam("compliance", "XPBD compliance α [m/N]", _compliance, True, _around(100.0, 1e-10)),
+        GlobalParam(
+            "compliance",
+            "XPBD compliance α [m/N]",
+            _compliance,
+            True,
+            _around(100.0, 1e-10),
+            drives=("compliance_distance", "compliance_dihedralbending", "compliance_volume"),
+        ),
         GlobalParam(
             "radius",
             "spring radius of point-cloud objects [m] (topology)",
@@ -193,65 +213,185 @@ GLOBAL: dict[str, GlobalParam] = {
 }
 
 
-def _model_arrays(*names: str, what: str) -> Callable[[Any], dict[str, Any]]:
+def _declares(c: Any, name: str) -> bool:
+    return any(p.name == name for p in getattr(type(c), "parameters", lambda: ())())
+
+
+def registry_arrays(scene: Any, names: tuple[str, ...]) -> dict[str, Any]:
+    """The arrays of registry parameters ``names`` in a built scene that hold one value per element:
+    ``model.<array>`` for model arrays (when the model has such elements) and
+    ``constraints.<i>.<array>`` for every constraint set of the solver whose class declares the name."""
+    from ..diff import parameters as registry
+
+    reg = registry()
+    out: dict[str, Any] = {}
+    for n in names:
+        p = reg[n][0]
+        if p.model_array is not None:
+            a = getattr(scene.model, p.model_array)
+            if a.shape[0]:
+                out[f"model.{p.model_array}"] = a
+        elif p.per == "constraint":
+            attr = p.arrays[0].split(".", 1)[1]
+            for i, c in enumerate(getattr(scene.solver, "constraints", [])):
+                a = getattr(c, attr, None)
+                if a is not None and a.shape[0] and _declares(c, n):
+                    out[f"constraints.{i}.{attr}"] = a
+    return out
+
+
+def _per_element(name: str, what: str) -> Callable[[Any], dict[str, Any]]:
     def arrays(scene: Any) -> dict[str, Any]:
-        if getattr(scene.model, names[0]).shape[0] == 0:
+        out = registry_arrays(scene, GLOBAL[name].drives)
+        if not out:
             raise FitError(f"--per-element: this scene's model has no {what}")
-        return {f"model.{n}": getattr(scene.model, n) for n in names}
+        for key, a in out.items():
+            if key.startswith("constraints.") and not np.all(a.numpy() > 0):
+                c = scene.solver.constraints[int(key.split(".")[1])]
+                raise FitError(
+                    f"--per-element {name}: {type(c).__name__} constraints are rigid (α = 0), which a "
+                    "log-scale factor cannot change; give the scene a compliance > 0"
+                )
+        return out
 
     return arrays
 
 
-def _compliance_arrays(scene: Any) -> dict[str, Any]:
-    out = {}
-    for i, c in enumerate(getattr(scene.solver, "constraints", [])):
-        a = getattr(c, "compliance_array", None)
-        if a is not None and a.shape[0] and type(c).__name__ in ("Distance", "DihedralBending", "Volume"):
-            if not np.all(a.numpy() > 0):
-                raise FitError(
-                    f"--per-element compliance: {type(c).__name__} constraints are rigid (α = 0), which a "
-                    "log-scale factor cannot change; give the scene a compliance > 0"
-                )
-            out[f"constraints.{i}.compliance_array"] = a
-    if not out:
-        raise FitError(
-            "--per-element compliance: the scene's solver has no XPBD constraints with a compliance"
-        )
-    return out
-
-
-#: Per-element parameters: name → (the arrays scaled together by exp(θ) per element, what it is).
+#: Per-element parameters: name → (the arrays scaled together by exp(θ) per element, what it is): the
+#: model arrays and constraint arrays of the registry parameters the global parameter of that name drives.
 PER_ELEMENT: dict[str, tuple[Callable[[Any], dict[str, Any]], str]] = {
-    "stiffness": (_model_arrays("spring_stiffness", what="springs"), "log-scale factor of each spring's k"),
+    "stiffness": (_per_element("stiffness", "springs"), "log-scale factor of each spring's k"),
     "E": (
-        _model_arrays("tet_mu", "tet_lam", what="tetrahedra"),
+        _per_element("E", "tetrahedra"),
         "log-scale factor of each tet's E (μ and λ together: ν unchanged)",
     ),
-    "compliance": (_compliance_arrays, "log-scale factor of each XPBD constraint's compliance α"),
+    "compliance": (
+        _per_element("compliance", "XPBD constraints with a compliance"),
+        "log-scale factor of each XPBD constraint's compliance α",
+    ),
 }
 
-#: Default parameters per object model (issue 13: the scene model's material).
-DEFAULTS = {"mass_spring": ("stiffness", "Et", "damping"), "fem": ("E", "nu"), "pbd": ("compliance",)}
+_DISSIPATION = (
+    "velocity damping: the dissipation of the observed motion (air, material loss) is unknown to the scene"
+)
+
+#: Default parameters per object model, each with why it is searched (issue 25): the ones that matter for
+#: motion recorded elsewhere — the stiffness, and the two dissipations (velocity damping rate and, for
+#: mass-spring, the dashpot along the springs), which another engine's or a real object's motion always has.
+WHY: dict[str, tuple[tuple[str, str], ...]] = {
+    "mass_spring": (
+        ("stiffness", "default for mass-spring: the spring stiffness"),
+        ("Et", "default for mass-spring cloth: the membrane stiffness"),
+        ("damping_rate", _DISSIPATION),
+        ("damping", "default for mass-spring: the dashpot along each spring (internal dissipation)"),
+    ),
+    "fem": (
+        ("E", "default for FEM: Young's modulus"),
+        ("nu", "default for FEM: Poisson's ratio"),
+        ("damping_rate", _DISSIPATION),
+    ),
+    "pbd": (("compliance", "default for XPBD: the constraints' compliance"), ("damping_rate", _DISSIPATION)),
+}
+#: Default parameter names per object model (the names of :data:`WHY`).
+DEFAULTS = {model: tuple(n for n, _ in rows) for model, rows in WHY.items()}
+#: The per-element parameter of each model (``per_element="auto"``).
+PER_ELEMENT_OF = {"mass_spring": "stiffness", "fem": "E", "pbd": "compliance"}
+
+#: Ground coefficients, searched by default when the observations reach the ground.
+CONTACT = ("ground_friction", "ground_restitution")
 
 
-def default_params(cfg: Any) -> list[str]:
-    """The material parameters of the scene's models (mass-spring: k, γ; FEM: E, ν; XPBD: compliance)."""
-    out: list[str] = []
+def ground_contact(cfg: Any, obs: Any) -> float | None:
+    """The lowest visible track height above the scene's ground [m] when the observations come within 5 % of
+    their extent of it (they show contact), else None (no ground, no tracks, or motion well above it)."""
+    g = getattr(cfg, "ground", None)
+    if g is None or not g.enabled or obs is None or obs.tracks == 0:
+        return None
+    pts = obs.points[obs.visible]
+    if pts.size == 0:
+        return None
+    gap = float(pts[:, 1].min()) - float(g.height)
+    extent = float(np.ptp(pts, axis=0).max())
+    return gap if gap <= 0.05 * max(extent, 1e-9) else None
+
+
+def default_params(cfg: Any, obs: Any = None) -> list[str]:
+    """The default parameters of the scene's models (:data:`WHY`: mass-spring k or E·t, damping rate,
+    dashpot γ; FEM: E, ν, damping rate; XPBD: compliance, damping rate), plus the ground's friction and
+    restitution when ``obs`` (Observations) reach the ground (:func:`ground_contact`)."""
+    return list(default_reasons(cfg, obs))
+
+
+def default_reasons(cfg: Any, obs: Any = None) -> dict[str, str]:
+    """:func:`default_params` with why each is searched (name → reason)."""
+    out: dict[str, str] = {}
     for o in cfg.objects:
-        for name in DEFAULTS.get(o.model, ()):
-            if name not in out and GLOBAL[name].where(cfg):
-                out.append(name)
+        for name, why in WHY.get(o.model, ()):
+            if name not in out and GLOBAL[name].where(cfg.model_copy(deep=True)):
+                out[name] = why
+    gap = ground_contact(cfg, obs)
+    if gap is not None:
+        for name in CONTACT:
+            out[name] = f"the observations reach the ground (lowest track {gap * 1e3:.3g} mm above it)"
     return out
+
+
+def auto_per_element(cfg: Any, obs: Any) -> str | None:
+    """``per_element="auto"``: the per-element parameter of the scene's first object's model
+    (:data:`PER_ELEMENT_OF`), or None for image observations (per-element fits need tracks)."""
+    if obs is not None and getattr(obs, "images", None) is not None:
+        return None
+    return PER_ELEMENT_OF.get(cfg.objects[0].model) if cfg.objects else None
+
+
+def _critical_damping(scene: Any) -> float | None:
+    """2·√(k·m) [N s/m] of a typical spring (median k, median free particle mass), or None."""
+    m = scene.model
+    if m.spring_count == 0:
+        return None
+    k = float(np.median(m.spring_stiffness.numpy()))
+    mass = m.particle_mass.numpy()[m.particle_inv_mass.numpy() > 0]
+    if mass.size == 0 or k <= 0:
+        return None
+    return 2.0 * math.sqrt(k * float(np.median(mass)))
+
+
+def widen_bounds(bounds: list[Any], scene: Any) -> None:
+    """Physically scaled bounds, set in place: a dashpot γ spans 10⁻⁴ … 1 × the critical damping
+    2√(k m) of a typical spring of ``scene`` (built at the nominal values; a placeholder γ of 0 would
+    otherwise leave a box around 10⁻⁵ N s/m), and a damping rate of 0 the registry's range."""
+    from ..diff import parameters as registry
+
+    for b in bounds:
+        if b.name == "damping":
+            gc = _critical_damping(scene)
+            if gc is None:
+                continue
+            if (b.scene_value or 0.0) > 0:  # a value of the scene's own: widen the box around it
+                b.lo, b.hi = min(b.lo, 1e-4 * gc), max(b.hi, gc)
+            else:  # a placeholder 0: the physical range alone
+                b.lo, b.hi = 1e-4 * gc, gc
+        elif b.name == "damping_rate" and not (b.scene_value or 0.0) > 0:
+            b.lo, b.hi = registry()["damping_rate"][0].bounds
+        else:
+            continue
+        if not (b.scene_value or 0.0) > 0:
+            b.nominal = math.sqrt(b.lo * b.hi)
+        b.nominal = min(max(b.nominal, b.lo), b.hi)
 
 
 @dataclass
 class Bound:
-    """A global parameter resolved for one scene: its nominal value and bounds."""
+    """A global parameter resolved for one scene: where the search starts (``nominal``), its bounds, the
+    scene's own value (which may lie outside them: a damping rate of 0 starts the log-scale search at
+    √(lo·hi)) and why it is searched."""
 
     param: GlobalParam
     nominal: float
     lo: float
     hi: float
+    scene_value: float | None = None
+    why: str = "named by --params"
 
     @property
     def name(self) -> str:
@@ -278,11 +418,11 @@ def resolve_globals(cfg: Any, names: list[str]) -> list[Bound]:
                 f"--params: {name!r} ({p.doc}) does not exist in this scene; it has "
                 f"{', '.join(usable) or 'none'}"
             )
-        nominal = float(getattr(*where[0]))
+        nominal = scene_value = float(getattr(*where[0]))
         lo, hi = p.bounds(nominal)
         if p.log and nominal <= 0:
             nominal = math.sqrt(lo * hi)
-        out.append(Bound(p, min(max(nominal, lo), hi), lo, hi))
+        out.append(Bound(p, min(max(nominal, lo), hi), lo, hi, scene_value))
     return out
 
 
@@ -306,15 +446,50 @@ def per_element_incidence(scene: Any, name: str) -> np.ndarray:
         return c.indices.numpy().reshape(c.count, -1)
     if parts[1].startswith("spring_"):
         return scene.model.spring_indices.numpy().reshape(-1, 2)
+    if parts[1].startswith("bending_"):
+        return scene.model.bending_indices.numpy().reshape(-1, 4)
     return scene.model.tet_indices.numpy().reshape(-1, 4)
 
 
 def per_element_arrays(scene: Any, name: str) -> dict[str, Any]:
     """The arrays of per-element parameter ``name`` in a built scene (``model.<array>`` /
     ``constraints.<i>.<array>`` → Warp array); raises FitError when unknown or absent."""
-    if name not in PER_ELEMENT:
-        raise FitError(f"--per-element: unknown parameter {name!r}; choose one of {', '.join(PER_ELEMENT)}")
-    return PER_ELEMENT[name][0](scene)
+    if name in PER_ELEMENT:
+        return PER_ELEMENT[name][0](scene)
+    p = _element_parameter(name)
+    if p is None:
+        raise FitError(
+            f"--per-element: unknown parameter {name!r}; choose one of {', '.join(PER_ELEMENT)} or a "
+            f"per-element parameter of the registry ({', '.join(_element_parameters())})"
+        )
+    out = registry_arrays(scene, (name,))
+    if not out:
+        raise FitError(f"--per-element: this scene has no {p.per} holding {name!r} ({p.doc})")
+    return out
+
+
+def _element_parameters() -> list[str]:
+    from ..diff import parameters as registry
+
+    return [n for n, (p, _) in registry().items() if _element_parameter(n) is not None]
+
+
+def _element_parameter(name: str) -> Any:
+    """The registry declaration of ``name`` when it can be a per-element fit parameter: differentiable, a
+    positive magnitude (log-scale factors) held per spring, tet, bending element or constraint."""
+    from ..diff import parameters as registry
+
+    entry = registry().get(name)
+    if entry is None:
+        return None
+    p = entry[0]
+    ok = (
+        p.differentiable
+        and p.log
+        and p.bounds is not None
+        and p.per in ("spring", "tet", "bending", "constraint")
+    )
+    return p if ok else None
 
 
 __all__ = [
@@ -326,7 +501,12 @@ __all__ = [
     "GlobalParam",
     "apply_globals",
     "default_params",
+    "auto_per_element",
+    "default_reasons",
+    "ground_contact",
+    "widen_bounds",
     "per_element_arrays",
     "per_element_incidence",
+    "registry_arrays",
     "resolve_globals",
 ]

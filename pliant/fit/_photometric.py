@@ -25,7 +25,6 @@ footage.
 
 from __future__ import annotations
 
-import contextlib
 import math
 import time
 from collections.abc import Callable, Iterator
@@ -37,19 +36,13 @@ import warp as wp
 from ..gaussians._surface import GENERATED_BACKGROUND
 from ..io import Observations
 from ._cmaes import StageResult
-from ._params import FitError
+from ._gradient import Convergence
+from ._params import GLOBAL, FitError
 from ._problem import Problem
 
 #: Background colour behind generated Gaussians in observed and rendered images (RGB in [0, 1]); a scene's
 #: ``[gaussians]`` section sets its own.
 BACKGROUND = GENERATED_BACKGROUND
-
-#: Global parameters stage 2 can differentiate: name → model arrays proportional to its value.
-GRADIENT_ARRAYS: dict[str, tuple[str, ...]] = {
-    "stiffness": ("spring_stiffness",),
-    "damping": ("spring_damping",),
-    "E": ("tet_mu", "tet_lam"),
-}
 
 
 @wp.kernel
@@ -233,94 +226,125 @@ class PhotometricProblem(Problem):
             yield _label(frame, [(0, f"observed, camera {camera}"), (s * (W + 2), "fitted (splats)")])
 
     # ------------------------------------------------------------------ differentiable rollout
-    def rollout_loss(self, scene: Any, *, tape: wp.Tape | None = None) -> wp.array:
-        """The training loss of ``scene`` (built with ``requires_grad`` for gradients) simulated from its
-        initial state, every substep and render recorded on ``tape`` when one is given; returns the [1]
-        loss array (the same value as :meth:`loss` of :meth:`simulate`'s positions)."""
+    def rollout(self, scene: Any, params: list[str] | tuple[str, ...] = ()) -> Any:
+        """The training loss of ``scene`` (built with ``requires_grad``) simulated from its initial state by
+        :func:`pliant.diff.rollout` (the one stepping loop), every substep and render on its tape; returns
+        its :class:`pliant.diff.RolloutResult` (``loss`` equals :meth:`loss` of :meth:`simulate`'s
+        positions; ``grads`` of the registry parameters ``params``)."""
+        from ..diff import rollout
+
         m = scene.model
-        h = scene.frame_dt / scene.substeps
-        control = m.control()
         fn = self.control_fn(scene)
         if fn is not None:
             fn(0.0, None)
-        if hasattr(scene.solver, "reset"):
-            scene.solver.reset()
         views = len(self.cameras) * (self.n_train - 1)
-        loss = wp.zeros(1, dtype=m.scalar, device=m.device, requires_grad=tape is not None)
-        s = m.state()
-        with tape if tape is not None else contextlib.nullcontext():
-            for f in range(self.n_train - 1):
-                if fn is not None:
-                    fn(f * scene.frame_dt, control)
-                for _ in range(scene.substeps):
-                    nxt = m.state()
-                    scene.solver.step(s, nxt, control, h)
-                    s = nxt
-                self.add_frame_loss(s.particle_q, f + 1, loss, views)
-        return loss
+        frames = self.n_train - 1
+        return rollout(
+            m,
+            scene.solver,
+            None,
+            frames=frames,
+            dt=scene.frame_dt / scene.substeps,
+            substeps=scene.substeps,
+            params=list(params),
+            control=m.control(),
+            checkpoint_every=frames,
+            frame_loss=lambda f, s, out: self.add_frame_loss(s.particle_q, f, out, views),
+            control_fn=None if fn is None else (lambda f, c: fn(f * scene.frame_dt, c)),
+        )
+
+
+def _values_of(scene: Any, name: str) -> tuple[Any, np.ndarray, int | None]:
+    """(array, its values in float64, component or None) of registry parameter ``name`` in a built
+    scene (GradientError when the scene has none)."""
+    from ..diff import PARAMETERS
+
+    m = scene.model
+    a = PARAMETERS[name](m, scene.solver, m.state(), m.control())
+    arr, comp = a if isinstance(a, tuple) else (a, None)
+    return arr, arr.numpy().astype(np.float64), comp
 
 
 class _GlobalGradient:
-    """Loss and ∂loss/∂log p of global parameters ``names`` through one requires_grad scene whose
-    proportional arrays are rescaled in place (no rebuild per evaluation)."""
+    """Loss and ∂loss/∂log p of global parameters ``names`` through one requires_grad scene whose arrays
+    proportional to them are rescaled in place (no rebuild per evaluation). The arrays are those of the
+    registry parameters each global parameter drives (``GLOBAL[name].drives``: model arrays, solver
+    arrays such as the damping rate, constraint compliances), found proportional by building the scene at
+    twice the value."""
 
     def __init__(self, problem: PhotometricProblem, values: dict[str, float], names: list[str]) -> None:
+        from .._warp import GradientError
+
         self.problem, self.names = problem, names
         self.v0 = {n: float(values[n]) for n in names}
         self.scene = problem.build(values, requires_grad=True)
-        plain = problem.build(values)
-        self.arrays: dict[str, wp.array] = {}
+        plain = problem.build(values, requires_grad=True)
+        self.arrays: dict[str, tuple[Any, int | None]] = {}  # registry name → (array in self.scene, comp)
         self.base: dict[str, np.ndarray] = {}
         self.masks: dict[str, dict[str, np.ndarray]] = {}
         for name in names:
-            twice = problem.build({**values, name: 2.0 * values[name]})
+            twice = problem.build({**values, name: 2.0 * values[name]}, requires_grad=True)
             self.masks[name] = {}
-            for arr in GRADIENT_ARRAYS[name]:
-                a0 = getattr(plain.model, arr).numpy().astype(np.float64)
-                a1 = getattr(twice.model, arr).numpy().astype(np.float64)
+            for reg in GLOBAL[name].drives:
+                try:
+                    _, a0, comp = _values_of(plain, reg)
+                    _, a1, _ = _values_of(twice, reg)
+                except GradientError:
+                    continue  # this scene has no such array (no dihedral set, no damping rate array)
+                if comp is not None:  # one component of a shared array
+                    keep = np.zeros(a0.shape, bool)
+                    keep[comp] = True
+                    a1 = np.where(keep, a1, a0)
                 prop = (a0 != 0) & np.isclose(a1, 2.0 * a0, rtol=1e-6, atol=0.0)
                 same = np.isclose(a1, a0, rtol=1e-12, atol=0.0)
                 if not np.all(prop | same):
                     raise FitError(
-                        f"--params {name}: the model's {arr} is not proportional to {name} in this scene, "
+                        f"--params {name}: the model's {reg} is not proportional to {name} in this scene, "
                         "so its image gradient is not defined here; fit it with CMA-ES only (--iterations "
                         "for the generations, and no gradient stage)"
                     )
                 if prop.any():
-                    self.masks[name][arr] = prop
-                    self.arrays[arr] = getattr(self.scene.model, arr)
-                    self.base[arr] = getattr(self.scene.model, arr).numpy().astype(np.float64)
+                    self.masks[name][reg] = prop
+                    arr, base, comp = _values_of(self.scene, reg)
+                    self.arrays[reg] = (arr, comp)
+                    self.base[reg] = base
             if not self.masks[name]:
-                raise FitError(f"--params {name}: no model array of this scene depends on it")
+                raise FitError(f"--params {name}: no array of this scene depends on it")
 
     def evaluate(self, theta: np.ndarray, grad: bool = True) -> tuple[float, np.ndarray]:
         """(loss, ∂loss/∂θ) at log factors θ (p = p₀ · exp θ for each name)."""
-        for arr, a in self.arrays.items():
-            log_f = sum(t * self.masks[n].get(arr, 0.0) for t, n in zip(theta, self.names, strict=True))
-            a.assign(self.base[arr] * np.exp(log_f))
-            if a.grad is not None:
-                a.grad.zero_()
-        tape = wp.Tape() if grad else None
-        loss = self.problem.rollout_loss(self.scene, tape=tape)
-        value = float(loss.numpy()[0])
+        for reg, (a, _) in self.arrays.items():
+            log_f = sum(t * self.masks[n].get(reg, 0.0) for t, n in zip(theta, self.names, strict=True))
+            a.assign(self.base[reg] * np.exp(log_f))
+        res = self.problem.rollout(self.scene, list(self.arrays) if grad else [])
         g = np.zeros(len(self.names))
-        if tape is not None:
-            tape.backward(loss)
+        if grad:
             for i, n in enumerate(self.names):
-                for arr, mask in self.masks[n].items():
-                    a = self.arrays[arr]
-                    g[i] += float(np.sum(mask * a.grad.numpy() * a.numpy()))
-            tape.zero()
-            tape.reset()
-        return value, g
+                for reg, mask in self.masks[n].items():
+                    a = self.arrays[reg][0].numpy().astype(np.float64)
+                    ga = np.zeros_like(a)
+                    comp = self.arrays[reg][1]
+                    if comp is None:
+                        ga = np.asarray(res.grads[reg], dtype=np.float64).reshape(a.shape)
+                    else:
+                        ga[comp] = float(res.grads[reg])
+                    g[i] += float(np.sum(mask * ga * a))
+        return res.loss, g
 
     def values(self, theta: np.ndarray) -> dict[str, float]:
         return {n: self.v0[n] * math.exp(float(t)) for n, t in zip(self.names, theta, strict=True)}
 
 
+def gradient_capable(param: Any) -> bool:
+    """Whether the image-gradient stage can refine global parameter ``param`` (a ``GlobalParam``): a
+    positive magnitude (log scale) that drives registry parameters (``drives``: stiffness, Et, damping,
+    damping_rate, E, compliance); ν, the ground coefficients and the topology are CMA-ES's alone."""
+    return bool(param.drives) and param.log and not param.topology
+
+
 def refinable(problem: Problem) -> list[str]:
     """The problem's global parameters that :func:`refine_globals` can differentiate."""
-    return [b.name for b in problem.globals if b.name in GRADIENT_ARRAYS]
+    return [b.name for b in problem.globals if gradient_capable(b.param)]
 
 
 def refine_globals(
@@ -330,10 +354,13 @@ def refine_globals(
     iterations: int = 20,
     optimizer: str = "lbfgs",
     lr: float = 0.01,
+    tol: float = 1e-4,
     callback: Callable[[int, float], None] | None = None,
 ) -> StageResult:
     """Stage 2 of a photometric fit: gradient descent on the log of the global parameters that enter the
-    model as proportional arrays (:data:`GRADIENT_ARRAYS`: stiffness, damping, E), from ``values``.
+    model or the solver as proportional arrays (:func:`gradient_capable`: every log-scale parameter that
+    drives registry parameters: stiffness, Et, damping, damping_rate, E, compliance), from ``values``. It
+    stops when an iteration improves the loss by less than ``tol`` (relative), or after ``iterations``.
 
     Args:
         problem: The photometric problem.
@@ -341,6 +368,9 @@ def refine_globals(
         iterations: L-BFGS-B iterations, or Adam steps (each one whole training rollout plus its backward).
         optimizer: ``"lbfgs"`` (SciPy L-BFGS-B within the parameters' bounds) or ``"adam"``.
         lr: Adam's step in log units (decaying to lr / 10).
+        tol: Stop when an iteration lowers the best loss by less than this fraction (L-BFGS-B: its
+            ``ftol`` on the loss relative to the start; Adam: five such iterations in a row); the cap is
+            ``iterations``.
         callback: ``callback(iteration, best_loss)`` after each iteration.
 
     Returns:
@@ -353,8 +383,10 @@ def refine_globals(
     """
     names = refinable(problem)
     if not names:
+        capable = [n for n, p in GLOBAL.items() if gradient_capable(p)]
         raise FitError(
-            f"the image-gradient stage refines {', '.join(GRADIENT_ARRAYS)}; none of them is fitted here"
+            f"the image-gradient stage refines {', '.join(capable)}; none of them is fitted here (the others "
+            "are fitted by CMA-ES alone)"
         )
     if optimizer not in ("adam", "lbfgs"):
         raise FitError(f"optimizer: expected 'adam' or 'lbfgs', got {optimizer!r}")
@@ -403,12 +435,13 @@ def refine_globals(
                 jac=True,
                 method="L-BFGS-B",
                 bounds=box,
-                options={"maxiter": iterations, "ftol": 1e-12, "gtol": 1e-10},
+                options={"maxiter": iterations, "ftol": tol, "gtol": 1e-10},
                 callback=cb,
             )
         else:
             theta, mom, var = theta0.copy(), np.zeros(len(names)), np.zeros(len(names))
             lo, hi = np.array([b[0] for b in box]), np.array([b[1] for b in box])
+            stop = Convergence(tol)
             for it in range(iterations):
                 _, g = fun(theta)
                 mom = 0.9 * mom + 0.1 * g
@@ -419,6 +452,8 @@ def refine_globals(
                 result.history.append(result.loss)
                 if callback is not None:
                     callback(it + 1, result.loss)
+                if stop(result.loss):
+                    break
     except KeyboardInterrupt:
         result.interrupted = True
     result.wall_time = time.perf_counter() - t0
@@ -432,7 +467,7 @@ def problem_for(obs: Observations) -> type[Problem]:
 
 __all__ = [
     "BACKGROUND",
-    "GRADIENT_ARRAYS",
+    "gradient_capable",
     "PhotometricProblem",
     "problem_for",
     "refinable",

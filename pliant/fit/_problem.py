@@ -9,7 +9,21 @@ import warp as wp
 
 from ..io import ObservationError, Observations
 from ._losses import chamfer_loss, track_errors, track_loss
-from ._params import Bound, FitError, apply_globals, default_params, per_element_arrays, resolve_globals
+from ._params import (
+    Bound,
+    FitError,
+    apply_globals,
+    default_reasons,
+    per_element_arrays,
+    resolve_globals,
+    widen_bounds,
+)
+
+#: Multiple shooting by default (:class:`Problem` ``shooting=None``): its window [frames], the share of the
+#: free particles the tracks must cover, and the fewest training frames.
+SHOOTING_WINDOW = 10
+SHOOTING_COVERAGE = 0.9
+SHOOTING_MIN_FRAMES = 30
 
 
 class Problem:
@@ -21,7 +35,9 @@ class Problem:
     Args:
         cfg: The scene (``pl.scene.load_scene``); not modified.
         obs: The observations (``pl.io.Observations.load``).
-        params: Global parameter names (``pl.fit.GLOBAL``); None: the scene model's material.
+        params: Global parameter names (``pl.fit.GLOBAL``); None: the defaults of the scene's models
+            (:func:`pliant.fit.default_params`: stiffness, dissipation, and the ground's coefficients when the
+            observations reach it).
         per_element: A per-element parameter name (``pl.fit.PER_ELEMENT``) for the gradient stage, or None.
         train_fraction: Fraction of the frames used for training (PhysTwin: 0.7).
         device: Warp device (None: the scene's).
@@ -31,6 +47,15 @@ class Problem:
         acceleration_weight: Weight of the acceleration regulariser (gradient stage; PhysTwin uses 0.01 on
             real data; it is not zero at the truth, so it biases a fit of clean data: default 0).
         beta: smooth-L1 threshold [m].
+        shooting: Multiple shooting with teacher forcing for the training runs: every ``shooting`` frames the
+            tracked particles are put back on their observed positions (and velocities from the observed
+            displacement), so that each window of the training loss starts from the observed state, as
+            PhysTwin's gradient stage does; a chaotic motion (an undamped cloth folding) then cannot drift
+            away for good, which leaves the loss smooth in the parameters. 0: open loop (every training run
+            from frame 0 alone). None: :data:`SHOOTING_WINDOW` frames where the tracks cover at least
+            :data:`SHOOTING_COVERAGE` of the free particles (the forced state is then the observed one) and
+            the training window has at least :data:`SHOOTING_MIN_FRAMES` frames; otherwise open loop.
+            Reports, the test frames and the gradient stage's validation are always open loop.
 
     Raises:
         FitError: unknown parameters, nothing to fit, too few frames.
@@ -51,10 +76,14 @@ class Problem:
         chamfer_weight: float = 1.0,
         acceleration_weight: float = 0.0,
         beta: float = 0.01,
+        shooting: int | None = None,
     ) -> None:
         self.cfg = cfg.model_copy(deep=True)
-        names = default_params(self.cfg) if params is None else list(params)
+        reasons = default_reasons(self.cfg, obs) if params is None else {}
+        names = list(reasons) if params is None else list(params)
         self.globals: list[Bound] = resolve_globals(self.cfg, names)
+        for b in self.globals:
+            b.why = reasons.get(b.name, b.why)
         self.per_element = per_element
         if not self.globals and per_element is None:
             raise FitError(
@@ -66,15 +95,18 @@ class Problem:
         self.device, self.dtype = device, dtype
         self.weights = {"track": track_weight, "chamfer": chamfer_weight, "acceleration": acceleration_weight}
         self.beta = beta
+        if any(b.name in ("damping", "damping_rate") for b in self.globals):
+            widen_bounds(self.globals, self.build(self.nominal))  # scaled to this scene's springs and masses
         scene = self.build(self.nominal)
         obs.check_times(scene.frame_dt, f"the scene {cfg.source}")
         self.frame_dt, self.frames = scene.frame_dt, obs.frames
         self.n_train = min(max(2, int(round(train_fraction * obs.frames))), obs.frames)
         self._check_controls(scene, obs)
         self.obs = obs
-        x = self.simulate(scene, min(obs.frames, 8))  # bind at each track's first visible frame
+        x = self.simulate(scene, min(obs.frames, 8), forced=False)  # bind at each track's first visible frame
         self.obs = obs.bind(x)
         self.x0 = x[0]
+        self.shooting = self._shooting(scene, shooting)
         if per_element is not None:
             per_element_arrays(scene, per_element)  # fail early on a name the scene does not have
 
@@ -123,8 +155,48 @@ class Problem:
 
         return control_fn
 
-    def simulate(self, scene: Any, frames: int) -> np.ndarray:
-        """Positions [m], shape [frames, N, 3], of frames 0 … frames − 1 (DivergenceError on a blow-up)."""
+    def _shooting(self, scene: Any, shooting: int | None) -> int:
+        if shooting is not None:
+            if isinstance(shooting, bool) or int(shooting) != shooting or shooting < 0:
+                raise FitError(
+                    f"--shooting: expected a window of >= 0 frames (0: open loop), got {shooting!r}"
+                )
+            return int(shooting)
+        free = int(np.count_nonzero(scene.model.particle_inv_mass.numpy() > 0))
+        covered = len(np.unique(self.obs.particle)) if self.obs.tracks else 0
+        dense = free > 0 and covered >= SHOOTING_COVERAGE * free
+        return SHOOTING_WINDOW if dense and self.n_train - 1 >= SHOOTING_MIN_FRAMES else 0
+
+    def _force(self, sim: Any) -> None:
+        """Teacher forcing at a window start: the tracked free particles take their observed positions and
+        velocities (every copy of a batched object)."""
+        f, o = sim.frame, self.obs
+        if self.shooting <= 0 or f % self.shooting or f >= o.frames:
+            return
+        m = sim.model
+        n = self.x0.shape[0]
+        starts = [0] if m.particle_count == n else [ob["start"] for ob in m.objects]
+        # Velocities by central differences of the observations (O(Δt²)), which the training frames
+        # include; at the last observed frame by a backward one.
+        nxt = min(f + 1, o.frames - 1)
+        vis = o.visible[f] & o.visible[f - 1] & o.visible[nxt]
+        vel = (o.points[nxt] - o.points[f - 1]) / ((nxt - f + 1) * self.frame_dt)
+        q, qd = sim.state_0.particle_q.numpy(), sim.state_0.particle_qd.numpy()
+        free = m.particle_inv_mass.numpy() > 0
+        for s in starts:
+            idx = o.particle[vis] + s
+            keep = free[idx]
+            q[idx[keep]] = o.points[f][vis][keep]
+            qd[idx[keep]] = vel[vis][keep]
+        sim.state_0.particle_q.assign(q)
+        sim.state_0.particle_qd.assign(qd)
+
+    def simulate(self, scene: Any, frames: int, forced: bool | None = None) -> np.ndarray:
+        """Positions [m], shape [frames, N, 3], of frames 0 … frames − 1 (DivergenceError on a blow-up).
+
+        ``forced``: teacher forcing every :attr:`shooting` frames (see the class); None: for a training run
+        (``frames == n_train``, what the CMA-ES stage simulates) when :attr:`shooting` is on.
+        """
         from ..sim import Simulator
 
         fn = self.control_fn(scene)
@@ -132,7 +204,9 @@ class Problem:
             fn(0.0, None)
         kw = {**scene.sim_kwargs, "control_fn": fn} if fn is not None else scene.sim_kwargs
         sim = Simulator(scene.model, scene.solver, **kw)
-        return sim.run(frames - 1, progress=False).x
+        if forced is None:
+            forced = getattr(self, "shooting", 0) > 0 and frames == self.n_train
+        return sim.run(frames - 1, progress=False, on_frame=self._force if forced else None).x
 
     # ------------------------------------------------------------------ losses and metrics
     def loss(self, x: np.ndarray, lo: int = 1, hi: int | None = None) -> float:

@@ -16,8 +16,8 @@ from ..io import Observations, atomic_savez
 from . import _explain
 from ._cmaes import StageResult, cmaes
 from ._gradient import gradient_stage
-from ._params import FitError
-from ._photometric import problem_for, refinable, refine_globals
+from ._params import FitError, auto_per_element
+from ._photometric import gradient_capable, problem_for, refinable, refine_globals
 from ._problem import Problem
 from ._toml import scene_toml
 
@@ -68,6 +68,8 @@ def fit(
     lr: float = 0.01,
     smoothness: float = 0.0,
     validation: float = 0.2,
+    tol: float = 1e-4,
+    shooting: int | None = None,
     seed: int = 42,
     device: str | None = None,
     dtype: str | None = None,
@@ -88,7 +90,10 @@ def fit(
         obs: The observations (``pl.io.Observations.load``).
         out: Output folder (created).
         params: Global parameter names (``pl.fit.GLOBAL``); None: the material; ``[]``: none.
-        per_element: Per-element parameter (``"stiffness"``, ``"E"``, ``"compliance"``) or None.
+        per_element: Per-element parameter (``"stiffness"``, ``"E"``, ``"compliance"``, a per-element
+            registry name) or None; ``"auto"``: the model's own (k per spring, E per tet, α per
+            constraint; none from images or where the scene has none), kept only where it lowers the
+            validation error (``pliant fit``'s default); ``"none"``: None.
         train_fraction: Fraction of frames to train on.
         generations: Most CMA-ES generations (it stops earlier once converged).
         epochs: Gradient-stage iterations (passes over the training frames).
@@ -101,6 +106,10 @@ def fit(
             its per-element values are kept only if they lower the open-loop loss on these frames (a
             prediction, like the test) without raising it on the whole training window. 0: train on all
             and keep on the training loss alone.
+        tol: The gradient stages stop when an epoch improves the loss by less than this fraction (five in a
+            row; L-BFGS: its ftol); ``epochs`` is the cap.
+        shooting: Multiple-shooting window of the training runs [frames] (:class:`pliant.fit.Problem`;
+            None: by the tracks' coverage and the motion's length, 0: open loop).
         seed: CMA-ES seed.
         device: Warp device (None: the scene's).
         dtype: ``"float32"`` / ``"float64"`` (None: the scene's).
@@ -119,15 +128,19 @@ def fit(
         raise FitError(f"--smoothness: expected a weight >= 0, got {smoothness}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    problem = problem_for(obs)(  # images in the file: the photometric loss (_photometric.py)
-        cfg,
-        obs,
-        params=params,
-        per_element=per_element,
-        train_fraction=train_fraction,
-        device=device,
-        dtype=dtype,
-    )
+    auto = per_element == "auto"
+    per_element = auto_per_element(cfg, obs) if auto else (None if per_element == "none" else per_element)
+    kw = {"params": params, "train_fraction": train_fraction, "device": device, "dtype": dtype}
+    make = problem_for(obs)  # images in the file: the photometric loss (_photometric.py)
+    try:
+        problem = make(cfg, obs, per_element=per_element, shooting=shooting, **kw)
+    except FitError:
+        if not auto or per_element is None:
+            raise
+        per_element = None  # "auto" on a scene without such elements (rigid XPBD sets): no per-element stage
+        problem = make(cfg, obs, per_element=None, shooting=shooting, **kw)
+    if progress:
+        print("fit: searching\n" + "\n".join(search_plan(problem)), flush=True)
     # images: the appearance stage, and whether the splats can explain the images at all (warns if not)
     explained = _explain.before_physics(problem, out, appearance=appearance)
     stages: dict[str, StageResult] = {}
@@ -147,7 +160,7 @@ def fit(
         bar = _bar(progress, epochs, f"fit: {optimizer} (image gradients)")
         try:
             stages["gradient"] = refine_globals(
-                problem, values, iterations=epochs, optimizer=optimizer, lr=lr, callback=_tick(bar)
+                problem, values, iterations=epochs, optimizer=optimizer, lr=lr, tol=tol, callback=_tick(bar)
             )
         finally:
             if bar is not None:
@@ -168,6 +181,7 @@ def fit(
                 optimizer=optimizer,
                 smoothness=smoothness,
                 frames=n_fit,
+                tol=tol,
                 callback=_tick(bar),
             )
         finally:
@@ -179,8 +193,8 @@ def fit(
         # the training frames and predict worse (over-fitting): keep them only if the open-loop rollout
         # predicts the held-back validation frames better than the global stage's, and the whole training
         # window no worse.
-        x0 = problem.simulate(problem.build(values), n)
-        x1 = problem.simulate(fitted_scene(problem, values, arrays), n)
+        x0 = problem.simulate(problem.build(values), n, forced=False)
+        x1 = problem.simulate(fitted_scene(problem, values, arrays), n, forced=False)
         before, after = problem.loss(x0), problem.loss(x1)
         stages["gradient"].loss = after
         if n_fit < n:
@@ -195,12 +209,38 @@ def fit(
     report = write_outputs(problem, out, values, arrays, stages, video=video, progress=progress)
     after = _explain.after_physics(problem, values)
     report.update(explained, warnings=explained.get("warnings", []) + after.pop("warnings"), **after)
+    report["shooting"] = problem.shooting
     report["wall_time"] = time.perf_counter() - t0
     report["interrupted"] = interrupted
     (out / "fit.json").write_text(json.dumps(report, indent=2, default=_json_default) + "\n")
     if interrupted:
         raise KeyboardInterrupt
     return report
+
+
+def stages_of(problem: Problem, b: Any) -> list[str]:
+    """The stages that fit global parameter ``b`` (a Bound): CMA-ES always; from images also the
+    image-gradient stage when it can differentiate it (:func:`pliant.fit._photometric.gradient_capable`)."""
+    out = ["cmaes"]
+    if getattr(problem, "photometric", False) and gradient_capable(b.param):
+        out.append("image-gradient")
+    return out
+
+
+def search_plan(problem: Problem) -> list[str]:
+    """One line per searched global parameter: its bounds, start, scale, why and which stages fit it (what
+    ``pliant fit`` prints before it starts)."""
+    lines = []
+    for b in problem.globals:
+        unit = b.param.doc.rsplit("[", 1)[-1].rstrip("])") if "[" in b.param.doc else ""
+        scale = "log" if b.param.log else "linear"
+        lines.append(
+            f"  {b.name}: [{b.lo:.4g}, {b.hi:.4g}] {unit} ({scale}), scene {b.scene_value:.4g}, start "
+            f"{b.nominal:.4g}; {b.why}; fitted by {' + '.join(stages_of(problem, b))}"
+        )
+    if problem.per_element is not None:
+        lines.append(f"  {problem.per_element} per element: gradient stage (kept where it lowers validation)")
+    return lines
 
 
 def _json_default(v: Any) -> Any:
@@ -248,10 +288,12 @@ def write_outputs(
         "params": {
             b.name: {
                 "value": values[b.name],
-                "nominal": _explain.scene_value(problem, b.name),  # the scene's, not the search's start
+                "nominal": b.scene_value,  # the scene's, not the search's start
                 "start": b.nominal,
                 "bounds": [b.lo, b.hi],
                 "log": b.param.log,
+                "why": b.why,
+                "stages": stages_of(problem, b),
             }
             for b in problem.globals
         },

@@ -9,8 +9,15 @@ import numpy as np
 import warp as wp
 
 from .._warp import mat33_type, np_dtype, scalar_type, vec3_type
+from ._parameters import MODEL_ARRAYS, Parameter, declares, solver_array
+
+_GROUND_GRAD = (
+    "with ground contact on a requires_grad model (ForceSolver or FastMassSpring with an explicit step and "
+    "model.ground set)"
+)
 
 
+@declares
 @dataclass(frozen=True)
 class Ground:
     """A ground plane n·x = height with n = +y, Coulomb friction and restitution."""
@@ -19,7 +26,35 @@ class Ground:
     friction: float = 0.5
     restitution: float = 0.0
 
+    @classmethod
+    def parameters(cls) -> tuple[Parameter, ...]:
+        """Coulomb μ and restitution e (the solver's ``ground_coefficients``; a subgradient at stick/slip
+        and contact switches)."""
+        return (
+            Parameter(
+                "ground_friction",
+                "Coulomb friction coefficient of the ground",
+                "1",
+                "global",
+                ("solver.ground_coefficients[0]",),
+                (0.0, 2.0),
+                log=False,
+                get=solver_array("ground_coefficients", _GROUND_GRAD, 0),
+            ),
+            Parameter(
+                "ground_restitution",
+                "restitution coefficient of the ground",
+                "1",
+                "global",
+                ("solver.ground_coefficients[1]",),
+                (0.0, 1.0),
+                log=False,
+                get=solver_array("ground_coefficients", _GROUND_GRAD, 1),
+            ),
+        )
 
+
+@declares
 class State:
     """Particle positions and velocities of one instant.
 
@@ -51,7 +86,36 @@ class State:
         """Zero-copy PyTorch views of (positions, velocities)."""
         return wp.to_torch(self.particle_q), wp.to_torch(self.particle_qd)
 
+    @classmethod
+    def parameters(cls) -> tuple[Parameter, ...]:
+        """The initial positions and velocities (of the rollout's first State)."""
+        return (
+            Parameter(
+                "x0",
+                "initial positions",
+                "m",
+                "particle",
+                ("state.particle_q",),
+                None,
+                log=False,
+                sign="any",
+                get=lambda m, s, x, c: x.particle_q,
+            ),
+            Parameter(
+                "v0",
+                "initial velocities",
+                "m/s",
+                "particle",
+                ("state.particle_qd",),
+                None,
+                log=False,
+                sign="any",
+                get=lambda m, s, x, c: x.particle_qd,
+            ),
+        )
 
+
+@declares
 class Control:
     """Inputs that change over time: external forces, kinematic targets and a drag handle.
 
@@ -66,6 +130,36 @@ class Control:
             from the target the handle pulls with this force, so a cursor dragged far away cannot make the
             force, and with it the particle's speed, grow without bound.
     """
+
+    @classmethod
+    def parameters(cls) -> tuple[Parameter, ...]:
+        """External forces and kinematic targets, held over a rollout."""
+        from ._parameters import control_array
+
+        return (
+            Parameter(
+                "particle_f",
+                "external force per particle",
+                "N",
+                "particle",
+                ("control.particle_f",),
+                None,
+                log=False,
+                sign="any",
+                get=control_array("particle_f"),
+            ),
+            Parameter(
+                "kinematic_targets",
+                "target positions of the kinematic particles",
+                "m",
+                "particle",
+                ("control.kinematic_targets",),
+                None,
+                log=False,
+                sign="any",
+                get=control_array("kinematic_targets"),
+            ),
+        )
 
     def __init__(self, model: Model) -> None:
         self._model = model
@@ -111,6 +205,7 @@ class Control:
         self.drag_index = -1
 
 
+@declares
 @dataclass
 class Model:
     """Static simulation data on one device: topology, rest shapes, materials, masses.
@@ -259,3 +354,10 @@ class Model:
     def total_mass(self) -> float:
         """Sum of particle masses [kg]."""
         return float(self.particle_mass_np.sum())
+
+    @classmethod
+    def parameters(cls) -> tuple[Parameter, ...]:
+        """The per-element arrays the Model holds (masses, springs, tets, bending elements): the energies and
+        constraints that read them declare the same parameters; the Model's declaration makes them known
+        (to ``set_world_parameter``) without importing those."""
+        return MODEL_ARRAYS

@@ -15,10 +15,12 @@ unchanged. The price is that solver-level settings (damping rate, time step, gro
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
+
+from ._parameters import RegistryView, parameter
 
 #: Element kinds with a per-world block: name → the builder's list of per-call element tuples.
 KINDS = ("particle", "spring", "tri", "tet", "bending")
@@ -109,16 +111,11 @@ def offsets(builder: Any) -> dict[str, np.ndarray] | None:
     return out
 
 
-#: Per-element parameters a world may set: Model array name → (element kind, unit).
-PARAMETERS: dict[str, tuple[str, str]] = {
-    "spring_stiffness": ("spring", "N/m"),
-    "spring_damping": ("spring", "N s/m"),
-    "spring_rest_length": ("spring", "m"),
-    "bending_stiffness": ("bending", "N m/rad"),
-    "tet_mu": ("tet", "Pa"),
-    "tet_lam": ("tet", "Pa"),
-    "particle_mass": ("particle", "kg"),
-}
+#: Per-element parameters a world may set: Model array name → (element kind, unit): every registry
+#: parameter (:mod:`pliant.model._parameters`) held in a per-element Model array of a world-blocked kind.
+PARAMETERS: Mapping[str, tuple[str, str]] = RegistryView(
+    lambda p: p.model_array == p.name and p.per in KINDS, lambda p: (p.per, p.unit)
+)
 
 
 def world_slice(model: Any, kind: str, w: int) -> slice:
@@ -151,6 +148,7 @@ def set_world_parameter(model: Any, name: str, w: int, value: Any) -> None:
             "set_world_material)"
         )
     kind, unit = PARAMETERS[name]
+    sign = parameter(name).sign
     sl = world_slice(model, kind, w)
     count = sl.stop - sl.start
     v = np.asarray(value, dtype=np.float64)
@@ -162,8 +160,8 @@ def set_world_parameter(model: Any, name: str, w: int, value: Any) -> None:
     v = np.broadcast_to(v, (count,))
     if not np.all(np.isfinite(v)):
         raise ValueError(f"set_world_parameter({name!r}, {w}): values must be finite [{unit}]")
-    positive = name in ("particle_mass", "spring_rest_length", "tet_mu")
-    bad = np.any(v <= 0) if positive else (name != "tet_lam" and np.any(v < 0))  # λ < 0 is valid (ν < 0)
+    positive = sign == "positive"  # the declared sign (λ < 0 is valid: ν < 0)
+    bad = np.any(v <= 0) if positive else (sign == "nonnegative" and np.any(v < 0))
     if bad:
         raise ValueError(
             f"set_world_parameter({name!r}, {w}): values must be {'> 0' if positive else '>= 0'} {unit}"

@@ -14,7 +14,7 @@ import warp as wp
 from ..io import CheckpointError, CheckpointSpec, Trajectory, load_checkpoint, save_checkpoint
 from ..model import Control, Model, State
 from ..model._worlds import write_range
-from ..solvers import Solver
+from ..solvers import FrameStep, Solver
 from ._graph import FrameGraphs
 
 #: Model parameters that fitting may change; checkpoints carry them so a resumed run is the same run.
@@ -174,6 +174,7 @@ class Simulator:
             raise ValueError(f"max_speed must be a positive speed [m/s], got {max_speed}")
         self.model, self.solver = model, solver
         self.frame_dt, self.substeps = float(frame_dt), int(substeps)
+        self._frame_step: FrameStep | None = None  # one frame's substeps as one callable
         self.control = control if control is not None else model.control()
         self.control_fn = control_fn
         self.max_speed = float(max_speed)
@@ -234,7 +235,8 @@ class Simulator:
 
     # ------------------------------------------------------------------ stepping
     def step_frame(self) -> None:
-        """Advance one frame (``substeps`` solver steps); no host synchronisation.
+        """Advance one frame (``substeps`` solver steps, :class:`pliant.solvers.FrameStep`); no host
+        synchronisation.
 
         When the solver allows it (``Solver.graph_blocker``), the frame's launches are captured once as a
         graph and replayed (:mod:`pliant.sim._graph`): the same launches, bit for bit, without their Python
@@ -243,25 +245,25 @@ class Simulator:
         wp.copy(self._x_start, self.state_0.particle_q)
         if self.control_fn is not None:
             self.control_fn(self.time, self.control)
+        h = self.frame_dt / self.substeps
+        fs = self._frame_step
+        if fs is None or (fs.solver, fs.dt, fs.substeps) != (self.solver, h, self.substeps):
+            fs = self._frame_step = FrameStep(self.solver, h, self.substeps)  # settings changed: rebuild
+
+        def frame(states: tuple[State, State]) -> tuple[State, State]:
+            return fs(states[0], self.control, states[1])
+
         states = (self.state_0, self.state_1)
         if self._graphs is not None:
-            states = self._graphs.run(self._substeps, states, (self.solver, self.control))
+            # Δt and the substep count are part of what a graph bakes in: they join the fingerprint.
+            states = self._graphs.run(frame, states, (self.solver, self.control, fs.dt, fs.substeps))
             if self._graphs.failed is not None:
                 self.graph_reason, self._graphs = self._graphs.failed, None
         else:
-            states = self._substeps(states)
+            states = frame(states)
         self.state_0, self.state_1 = states
         self.frame += 1
         self.time = self.frame * self.frame_dt
-
-    def _substeps(self, states: tuple[State, State]) -> tuple[State, State]:
-        """Launch one frame's solver steps from ``states[0]``; returns the pair as the frame leaves it."""
-        h = self.frame_dt / self.substeps
-        s0, s1 = states
-        for _ in range(self.substeps):
-            self.solver.step(s0, s1, self.control, h)
-            s0, s1 = s1, s0
-        return s0, s1
 
     def check_initial_state(self) -> None:
         """Frame 0 is checked like every other: raise :class:`DivergenceError` (frame 0) if the current

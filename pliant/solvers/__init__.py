@@ -4,6 +4,7 @@ from ._base import Solver
 from ._errors import SingularSystemError
 from ._fast_cloth import FastMassSpring
 from ._force import ForceSolver
+from ._frame import FrameStep
 from ._rigid import RigidBodySolver
 from ._static import StaticStats, solve_static
 from ._xpbd import PBD, XPBD
@@ -13,6 +14,7 @@ __all__ = [
     "StaticStats",
     "solve_static",
     "FastMassSpring",
+    "FrameStep",
     "PBD",
     "RigidBodySolver",
     "XPBD",

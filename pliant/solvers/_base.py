@@ -10,7 +10,22 @@ import numpy as np
 
 from .._warp import GradientError, _tape_active, grad_enabled
 from ..model import Control, Model, State
+from ..model._parameters import Parameter, solver_array
 from ._post import check_collisions
+
+#: The velocity damping rate c of v ← v·exp(−cΔt), declared by the solvers that hold it as an array.
+DAMPING_RATE = Parameter(
+    "damping_rate",
+    "velocity damping rate of v <- v exp(-c dt)",
+    "1/s",
+    "global",
+    ("solver.damping_rate_array",),
+    (1e-3, 30.0),
+    get=solver_array(
+        "damping_rate_array",
+        "with ForceSolver(damping_rate=c) or FastMassSpring(damping_rate=c) on a requires_grad model",
+    ),
+)
 
 
 class Solver(abc.ABC):

@@ -36,7 +36,8 @@ import warp as wp
 from .._warp import capturing, grad_enabled
 from ..energies._spring import dashpot_force_axis, spring_gradient_axis, spring_hessian
 from ..model import Control, Model, State
-from ._base import Solver
+from ..model._parameters import Parameter, declares
+from ._base import DAMPING_RATE, Solver
 from ._fast_cloth_cg import _bw_apply, _bw_update
 from ._fast_cloth_explicit import _springs_scatter, _symplectic_gather, _symplectic_update
 from ._post import add_drag_force, check_collisions, finish_step
@@ -159,6 +160,7 @@ def _bw_finish(
         x_out[i] = x_in[i] + h * delta * (v_in[i] + theta * dv[i])  # x¹ = x + h (v + θΔv)
 
 
+@declares
 class FastMassSpring(Solver):
     """Mass-spring dynamics (springs, dashpots, gravity) with fused, atomic-free per-particle kernels.
 
@@ -192,6 +194,11 @@ class FastMassSpring(Solver):
         solver = pl.solvers.FastMassSpring(model, method="implicit", cg_iterations=40, damping_rate=1.0)
         solver.step(state_0, state_1, control, 1 / 60)
     """
+
+    @classmethod
+    def parameters(cls) -> tuple[Parameter, ...]:
+        """The velocity damping rate c [1/s] (its recorded, requires_grad step holds it as an array)."""
+        return (DAMPING_RATE,)
 
     def __init__(
         self,

@@ -15,7 +15,8 @@ from ..energies import Energy, Gravity, GravityFromArray
 from ..energies._base import _axpy
 from ..integrators import Integrator, SymplecticEuler
 from ..model import Control, Model, State
-from ._base import Solver
+from ..model._parameters import Parameter, declares
+from ._base import DAMPING_RATE, Solver
 from ._newton_workspace import MinimizerCache
 from ._post import add_drag_force, check_collisions, finish_step
 
@@ -67,6 +68,7 @@ def _accel_from_force(inv_mass: wp.array(dtype=Any), f_in: wp.array(dtype=Any), 
     a_out[i] = inv_mass[i] * f_in[i]
 
 
+@declares
 class ForceSolver(Solver):
     """Force-based dynamics M x'' = −∇E(x) + F_diss(x, v) + F_ext advanced by any integrator.
 
@@ -86,6 +88,11 @@ class ForceSolver(Solver):
                                         integrator=pl.integrators.SymplecticEuler())
         solver.step(state_0, state_1, control, 1e-3)
     """
+
+    @classmethod
+    def parameters(cls) -> tuple[Parameter, ...]:
+        """The velocity damping rate c [1/s] (``damping_rate=c``; a Δt-independent decay)."""
+        return (DAMPING_RATE,)
 
     def __init__(
         self,
