@@ -282,16 +282,16 @@ def gradient_stage(
         return value + share * rv, g + share * rg
 
     def rollout_grad(th: np.ndarray, f0: int, frames: int, q: wp.array, qd: wp.array, hist: list):
-        r.set_theta(th)
-        value, s = r.run(q, qd, f0, frames, hist)
-        g = r.grad_theta()
-        try:  # pl.diff's check: non-finite, or a particle faster than 1000 m/s (a finite blow-up)
-            from ..diff import check_rollout
-            from ..sim import DivergenceError
+        from ..diff import check_rollout
+        from ..sim import DivergenceError
 
+        r.set_theta(th)
+        try:  # pl.diff's check: non-finite, or a particle faster than 1000 m/s (a finite blow-up)
+            value, s = r.run(q, qd, f0, frames, hist)  # the rollout checks its own states
+            g = r.grad_theta()
             sc = r.scene
             h = sc.frame_dt / sc.substeps
-            check_rollout(
+            check_rollout(  # and the gradient with respect to θ, which it does not see
                 value, {"theta": g}, s, solver=sc.solver, dt=h, substeps=sc.substeps, frames=f0 + frames
             )
         except (DivergenceError, ValueError) as exc:
