@@ -381,7 +381,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _is_divergence(exc: BaseException) -> bool:
     """Whether ``exc`` is a :class:`pliant.DivergenceError` (checked without importing Warp: the class can
     only have been raised if its module is loaded)."""
-    sim = sys.modules.get("pliant.sim._simulator")
+    sim = sys.modules.get("pliant.sim._divergence")
     return sim is not None and isinstance(exc, sim.DivergenceError)
 
 

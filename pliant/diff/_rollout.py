@@ -106,7 +106,7 @@ def check_rollout(
         ValueError: a non-finite loss from finite states (``loss_fn`` reads a NaN or divides by zero).
     """
     from ..sim import DivergenceError
-    from ..sim._simulator import stability_advice
+    from ..sim._divergence import stability_advice
 
     advice = stability_advice(solver, dt, substeps)
     health = _state_health(final, max_speed)

@@ -1,5 +1,6 @@
 """Simulation loop: frames × substeps, recording, divergence detection, checkpoint/resume."""
 
-from ._simulator import DivergenceError, Simulator
+from ._divergence import DivergenceError
+from ._simulator import Simulator
 
 __all__ = ["DivergenceError", "Simulator"]
