@@ -484,7 +484,10 @@ def test_fit_video_shows_observed_images_beside_the_fitted_splats(truth, tmp_pat
     cfg, obs = truth
     p = PhotometricProblem(cfg, obs, params=["stiffness"])
     x = p.simulate(p.build(p.nominal), p.frames)
-    frames = list(p.comparison_frames(x, min_height=36))
+    from pliant.fit._photometric import LABEL_BAR
+
+    # the labels sit in a bar above the images, which stay uncovered below it
+    frames = [f[LABEL_BAR:] for f in p.comparison_frames(x, min_height=36)]
     assert len(frames) == obs.frames and frames[0].shape == (36, 2 * (2 * 24) + 2 * 2, 3)
     for f in (0, obs.frames - 1):
         left, right = frames[f][::2, 0:48:2] / 255.0, frames[f][::2, 52::2] / 255.0
@@ -493,7 +496,7 @@ def test_fit_video_shows_observed_images_beside_the_fitted_splats(truth, tmp_pat
         np.testing.assert_allclose(right, obs.image(0, f), atol=0.5 / 255 + 1e-6)
     # a wrong motion (the rest pose at every frame) differs on the right, not on the left
     still = np.repeat(x[:1], len(x), axis=0)
-    last = list(p.comparison_frames(still, min_height=36))[-1]
+    last = list(p.comparison_frames(still, min_height=36))[-1][LABEL_BAR:]
     np.testing.assert_array_equal(last[:, :48], frames[-1][:, :48])
     assert np.abs(last[:, 52:].astype(int) - frames[-1][:, 52:].astype(int)).mean() > 2.0
     from pliant.fit._run import write_outputs
@@ -502,7 +505,7 @@ def test_fit_video_shows_observed_images_beside_the_fitted_splats(truth, tmp_pat
     import imageio.v3 as iio
 
     video = iio.imread(tmp_path / "fit.mp4", index=None)
-    assert video.shape[0] == obs.frames and video.shape[1:3] == (18 * 14, 2 * 24 * 14 + 2 * 14)
+    assert video.shape[0] == obs.frames and video.shape[1:3] == (LABEL_BAR + 18 * 14, 2 * 24 * 14 + 2 * 14)
 
 
 def test_cli_defaults_to_lbfgs_for_image_observations(tmp_path, monkeypatch):

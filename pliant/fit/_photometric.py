@@ -210,8 +210,8 @@ class PhotometricProblem(Problem):
                 them at least this tall [px], so that small observation videos stay visible.
 
         Yields:
-            uint8 RGB frames [s·H, 2·s·W + 2·s, 3] (a grey bar between the two halves), each half labelled
-            in its top-left corner.
+            uint8 RGB frames [LABEL_BAR + s·H, 2·s·W + 2·s, 3]: a dark bar on top naming the two halves
+            (above the images, so small ones are not covered), then the images with a grey bar between.
         """
         H, W = self.cameras[camera].height, self.cameras[camera].width
         s = max(1, -(-int(min_height) // H))
@@ -223,7 +223,9 @@ class PhotometricProblem(Problem):
             row = np.concatenate([observed, bar, fitted], axis=1)
             row = np.repeat(np.repeat(row, s, axis=0), s, axis=1)
             frame = np.round(np.clip(row, 0.0, 1.0) * 255.0).astype(np.uint8)
-            yield _label(frame, [(0, f"observed, camera {camera}"), (s * (W + 2), "fitted (splats)")])
+            top = np.full((LABEL_BAR, frame.shape[1], 3), 30, dtype=np.uint8)
+            labels = [(0, f"observed, camera {camera}"), (s * (W + 2), "fitted (splats)")]
+            yield np.concatenate([_label(top, labels), frame], axis=0)
 
     # ------------------------------------------------------------------ differentiable rollout
     def rollout(self, scene: Any, params: list[str] | tuple[str, ...] = ()) -> Any:
@@ -473,6 +475,10 @@ __all__ = [
     "refinable",
     "refine_globals",
 ]
+
+
+#: Height [px] of the bar above ``fit.mp4``'s images that names them.
+LABEL_BAR = 14
 
 
 def _label(frame: np.ndarray, labels: list[tuple[int, str]]) -> np.ndarray:
