@@ -9,9 +9,10 @@ A tag is an HTML comment (invisible when rendered) right after the figure::
 tag: the figure names its command), ``extra`` options appended to each when the test runs it (``-q``,
 ``--no-video``: nothing that changes the figure), ``find`` a regular expression on the last command's output
 whose group is the figure (two groups: their ratio), ``value`` ± ``tol`` what the text says. Commands run
-in a fresh folder; paths under ``benchmarks/`` are the repository's. Figures whose commands take seconds
-run in the default suite (the demo's counts: 15 s on a loaded 2-core machine); the others are ``slow`` (the
-splat drift 73 s there, 10-15 s idle; the fit_rope fit 75 s; the cross-engine fits 1-4 minutes).
+in a fresh folder; paths under ``benchmarks/`` and ``tests/data/`` are the repository's. Figures whose
+commands take seconds run in the default suite (the demo's counts: 15 s on a loaded 2-core machine); the
+others are ``slow`` (the splat drift 73 s there, 10-15 s idle; the fit_rope fit 75 s; the cross-engine
+fits 1-4 minutes; the default fit of docs/fit.md's Newton cloth 31 s).
 """
 
 from __future__ import annotations
@@ -60,7 +61,7 @@ def _argv(cmd: str, extra: str) -> list[str]:
         argv = [sys.executable, "-m", "pliant.cli", *argv[1:]]
     elif argv[0] == "python":
         argv[0] = sys.executable
-    return [str(ROOT / a) if a.startswith("benchmarks/") else a for a in argv]
+    return [str(ROOT / a) if a.startswith(("benchmarks/", "tests/data/")) else a for a in argv]
 
 
 @pytest.mark.parametrize(

@@ -57,6 +57,26 @@ def test_force_builds_a_scene_above_the_memory(tmp_path, capsys, monkeypatch):
     assert (tmp_path / "rope.npz").exists()
 
 
+def test_sweep_refuses_a_scene_above_the_memory_unless_forced(tmp_path, capsys, monkeypatch):
+    """`pliant sweep` checks the size like `run`: with PLIANT_MEMORY_GB = 1e-6 (1 kB) a rope sweep (5.6 kB a
+    run) exits 1 with the one-line estimate in well under a few seconds and writes nothing; --force runs
+    both grid points."""
+    monkeypatch.setenv("PLIANT_PREBUILD", "0")
+    monkeypatch.setenv("PLIANT_MEMORY_GB", "1e-6")
+    load_scene("rope", force=True)  # imports and the registry warm
+    out = tmp_path / "sweep"
+    args = ["sweep", "rope", "--set", "objects[0].material.stiffness=50,100", "--frames", "2", "-q"]
+    t0 = time.perf_counter()
+    rc = main([*args, "--out", str(out)])
+    elapsed = time.perf_counter() - t0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and elapsed < 3.0, (rc, elapsed)
+    assert len(err) == 1 and "this scene needs 5.64 kB" in err[0] and "--force" in err[0], err
+    assert not out.exists()
+    assert main([*args, "--out", str(out), "--force"]) == 0
+    assert "2 ok, 0 diverged, 0 failed" in capsys.readouterr().out
+
+
 def test_info_prints_the_estimate(capsys):
     """`pliant info SCENE` prints the counts and memory, and says whether `pliant run` would refuse it."""
     assert main(["info", "soft_box", "--set", HUGE[0]]) == 0

@@ -292,6 +292,7 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--address", help="an existing Ray cluster's address (with --ray)")
     sw.add_argument("--save-trajectories", action="store_true", help="also write each run's positions")
     sw.add_argument("-q", "--quiet", action="store_true", help="no progress line")
+    add_force(sw)
     vw = _sub(
         sub,
         "view",

@@ -34,6 +34,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             ray=args.ray,
             address=args.address,
             save_trajectories=args.save_trajectories,
+            force=args.force,
             progress=progress,
         )
     except SweepError as exc:

@@ -117,7 +117,7 @@ def fit_splat_appearance(
         splats: A :class:`pliant.gaussians._scene.SceneSplats` (its binding's Gaussians are replaced by the
             fitted set; its ``background`` and ``light`` are set).
         cameras: The C cameras.
-        positions: Model particle positions [m] [N, 3] of each training frame (the observed initial state).
+        positions: Model particle positions [m], [N, 3], of each training frame (the observed initial state).
         images: ``images[f][c]``: RGB [H, W, 3] in [0, 1] of frame f seen by camera c.
         masks: ``masks[f][c]``: object masks [H, W] in [0, 1] (compared with the rendered alpha), or None.
         sh_degree: Degree of the fitted colours (None: 1 with several cameras, else 0).

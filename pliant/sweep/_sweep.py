@@ -94,25 +94,27 @@ def _object_only(run: Sequence[str]) -> bool:
     return all(o.strip().startswith("objects[") for o in run)
 
 
-def run_chunk(scene: str, runs: list[list[str]], frames: int | None, traj_dir: str | None) -> list[dict]:
+def run_chunk(
+    scene: str, runs: list[list[str]], frames: int | None, traj_dir: str | None, force: bool = False
+) -> list[dict]:
     """Run ``runs`` (override lists) of ``scene``: as worlds of one model when they change only material
     values (``ModelBuilder.replicate``, each world's parameters its own), else as copies of the objects in
     one simulation when they change only object sections, else (or when that fails) one by one. A run
-    whose world diverges is run again alone, so its row is the one it has alone. Returns one result dict
-    per run."""
+    whose world diverges is run again alone, so its row is the one it has alone. ``force`` skips the scene
+    size checks (``--force``). Returns one result dict per run."""
     from ..scene import load_scene
     from ..scene._worlds import coupled, material_only, worlds_unsupported
 
     t0 = time.perf_counter()
-    base = load_scene(scene)
+    base = load_scene(scene, force=force)
     out = None
     if len(runs) > 1 and coupled(base) is None:
         if all(material_only(r) for r in runs) and worlds_unsupported(base) is None:
-            out = _as_worlds(scene, runs, frames, traj_dir)
+            out = _as_worlds(scene, runs, frames, traj_dir, force)
         if out is None and all(_object_only(r) for r in runs):
-            out = _as_copies(scene, base, runs, frames, traj_dir)
+            out = _as_copies(scene, base, runs, frames, traj_dir, force)
     if out is None:
-        return [_run_one(scene, r, frames, traj_dir) for r in runs]
+        return [_run_one(scene, r, frames, traj_dir, force) for r in runs]
     wall = (time.perf_counter() - t0) / len(runs)
     return [o if "wall_time" in o else {**o, "wall_time": wall} for o in out]
 
@@ -121,26 +123,28 @@ def _ok(x: np.ndarray, frame_dt: float, frames: int, batched: int) -> dict:
     return {"status": "ok", "error": "", **summarize(x, frame_dt), "frames": frames, "batched": batched}
 
 
-def _as_worlds(scene: str, runs: list[list[str]], frames: int | None, traj_dir: str | None) -> list | None:
+def _as_worlds(
+    scene: str, runs: list[list[str]], frames: int | None, traj_dir: str | None, force: bool
+) -> list | None:
     """The runs as worlds of one model; None when they cannot be (the caller tries another way)."""
     from ..scene import SceneError, build_worlds, load_scene
     from ..sim import DivergenceError, Simulator
 
     try:
-        built = build_worlds([load_scene(scene, r) for r in runs])
+        built = build_worlds([load_scene(scene, r, force=force) for r in runs])
         n = frames if frames is not None else built.frames
         sim = Simulator(built.model, built.solver, **built.sim_kwargs)
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="world .* diverged", category=RuntimeWarning)
             traj = sim.run(n, progress=False)
     except DivergenceError:  # every world diverged: each run alone (copies would diverge just the same)
-        return [_run_one(scene, r, frames, traj_dir) for r in runs]
+        return [_run_one(scene, r, frames, traj_dir, force) for r in runs]
     except (SceneError, ValueError):
         return None
     out = []
     for w, r in enumerate(runs):
         if w in sim.diverged_worlds:
-            out.append(_run_one(scene, r, frames, traj_dir))  # its own row, message and all
+            out.append(_run_one(scene, r, frames, traj_dir, force))  # its own row, message and all
             continue
         x = traj.world(w).x
         _save(traj_dir, r, x, built.frame_dt)
@@ -148,13 +152,15 @@ def _as_worlds(scene: str, runs: list[list[str]], frames: int | None, traj_dir: 
     return out
 
 
-def _as_copies(scene: str, base: Any, runs: list[list[str]], frames: int | None, traj_dir: str | None):
+def _as_copies(
+    scene: str, base: Any, runs: list[list[str]], frames: int | None, traj_dir: str | None, force: bool
+):
     """The runs as copies of the objects in one scene; None when that fails (the caller runs them alone)."""
     from ..scene import SceneError, build_scene, load_scene
     from ..sim import DivergenceError
 
     try:
-        cfgs = [load_scene(scene, r) for r in runs]
+        cfgs = [load_scene(scene, r, force=force) for r in runs]
         merged = base.model_copy(deep=True)
         per = len(base.objects)
         merged.objects = [
@@ -185,14 +191,14 @@ def _simulate(built: Any, frames: int) -> np.ndarray:
     return sim.run(frames, progress=False).x
 
 
-def _run_one(scene: str, run: list[str], frames: int | None, traj_dir: str | None) -> dict:
+def _run_one(scene: str, run: list[str], frames: int | None, traj_dir: str | None, force: bool) -> dict:
     from ..scene import SceneError, build_scene, load_scene
     from ..sim import DivergenceError
 
     t0 = time.perf_counter()
     row: dict[str, Any] = {"status": "ok", "error": "", "batched": 1}
     try:
-        built = build_scene(load_scene(scene, run))
+        built = build_scene(load_scene(scene, run, force=force))
         n = frames if frames is not None else built.frames
         x = _simulate(built, n)
         _save(traj_dir, run, x, built.frame_dt)
@@ -265,6 +271,7 @@ def run_sweep(
     ray: bool = False,
     address: str | None = None,
     save_trajectories: bool = False,
+    force: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> list[dict]:
     """Run every combination of ``sets`` on ``scene`` and write ``out/results.csv``.
@@ -278,6 +285,8 @@ def run_sweep(
         ray: Run chunks of ``worlds`` runs as Ray tasks (``pip install 'pliant[ray]'``).
         address: An existing Ray cluster (default with ``ray``: a local one).
         save_trajectories: Also write each run's positions to ``out/trajectories/run_<hash>.npz``.
+        force: Build runs whose estimated memory exceeds the machine's (``--force``); without it such a
+            first run is refused before any work, a later one is recorded as an error row.
         progress: ``progress(done, total)`` after each chunk.
 
     Returns:
@@ -288,7 +297,7 @@ def run_sweep(
     if worlds < 1:
         raise SweepError(f"--worlds: expected at least 1, got {worlds}")
     runs = grid(sets)
-    load_scene(scene, runs[0])  # a bad scene or path fails here, before any work
+    load_scene(scene, runs[0], force=force)  # a bad scene, path or size fails here, before any work
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     traj_dir = str(out / "trajectories") if save_trajectories else None
@@ -309,17 +318,19 @@ def run_sweep(
             progress(sum(_key(r) in results for r in runs), len(runs))
 
     if ray and chunks:
-        for chunk, rows in _ray_map(scene, chunks, frames, traj_dir, address):
+        for chunk, rows in _ray_map(scene, chunks, frames, traj_dir, address, force):
             keep(chunk, rows)
     else:
         for chunk in chunks:
-            keep(chunk, run_chunk(scene, chunk, frames, traj_dir))
+            keep(chunk, run_chunk(scene, chunk, frames, traj_dir, force))
     if not chunks:
         _write(table, paths, [results[_key(r)] for r in runs])
     return [results[_key(r)] for r in runs]
 
 
-def _ray_map(scene: str, chunks: list, frames: int | None, traj_dir: str | None, address: str | None):
+def _ray_map(
+    scene: str, chunks: list, frames: int | None, traj_dir: str | None, address: str | None, force: bool
+):
     try:
         import ray
     except ImportError:
@@ -331,7 +342,7 @@ def _ray_map(scene: str, chunks: list, frames: int | None, traj_dir: str | None,
         ray.init(address=address, include_dashboard=False, log_to_driver=False, ignore_reinit_error=True)
     try:
         task = ray.remote(run_chunk)
-        refs = [task.remote(scene, c, frames, traj_dir) for c in chunks]
+        refs = [task.remote(scene, c, frames, traj_dir, force) for c in chunks]
         for c, ref in zip(chunks, refs, strict=True):
             yield c, ray.get(ref)
     finally:
