@@ -405,7 +405,12 @@ def refine_globals(
     first = [True]
 
     def fun(theta: np.ndarray) -> tuple[float, np.ndarray]:
-        value, g = gg.evaluate(theta)
+        from ..sim import DivergenceError
+
+        try:
+            value, g = gg.evaluate(theta)
+        except DivergenceError:  # pl.diff refuses a rollout that blew up: a failed trial, not an error
+            value, g = math.inf, np.zeros_like(theta)
         result.evaluations += 1
         if not (np.isfinite(value) and np.all(np.isfinite(g))):
             # A step too stiff for the substep diverged: a high loss without slope sends the line search back.
