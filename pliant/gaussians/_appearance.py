@@ -108,7 +108,8 @@ def fit_splat_appearance(
     lrs: dict[str, float] | None = None,
     mask_weight: float = 1.0,
 ) -> AppearanceResult:
-    """Fit the appearance of bound splats to images of known poses; updates ``splats`` in place.
+    """Fit the appearance of bound splats to images of known poses; updates ``splats`` in place, or keeps
+    the starting appearance when that drew the images better (the stage never lowers the PSNR).
 
     The splats' colours start at the observed colour under each splat's centre (:func:`sample_colours`) and
     the background at the median colour of the pixels no splat covers, so Adam only refines them.
@@ -232,11 +233,17 @@ def fit_splat_appearance(
         lv = light.numpy().astype(np.float64)
         lt = (*(float(v) for v in lv[0]), float(lv[1, 0]))
     fitted = Gaussians(**g.numpy(), dtype=dt, device=dev)
+    bg_start, light_start = splats.background, getattr(splats, "light", None)
     b.gaussians = fitted
     splats.background = bg
     splats.light = lt
     placed = [splats.place(x) for x in positions]
     after = psnrs(placed, bg, lt)
+    if _mean_psnr(after) < _mean_psnr(before):
+        # The splats already drew the images better (e.g. the footage was rendered from them): keep them,
+        # so that the stage can only help the physics fit that follows.
+        b.gaussians, splats.background, splats.light = g0, bg_start, light_start
+        bg, lt, after = bg_start, light_start, before
     return AppearanceResult(
         background=bg,
         light=lt,
