@@ -51,7 +51,9 @@ def add_parsers(sub: Any) -> None:
     )
     f.add_argument("--train-fraction", type=_positive_float, default=0.7, help="frames to train on (0.7)")
     f.add_argument(
-        "--iterations", type=_positive_int, help="CMA-ES generations (20) and gradient epochs (20)"
+        "--iterations",
+        type=_positive_int,
+        help="CMA-ES generations (a cap: 40; it stops once converged) and gradient epochs (20)",
     )
     f.add_argument(
         "--optimizer",
