@@ -26,11 +26,12 @@ demo: $(VENV)/.installed
 	$(BIN)/pliant demo --out out
 
 # The docs are part of the suite: tests/test_docs.py builds the site with `mkdocs build --strict` and runs
-# every tutorial's code, so `make test` stays CI's single entry.
+# every tutorial's code, so `make test` stays CI's single entry. One pytest-xdist worker per core: the suite
+# (about 1240 tests) takes about 4 minutes on CI's two cores with a warm Warp kernel cache.
 test: $(VENV)/.installed-test
 	$(BIN)/ruff check pliant tests benchmarks examples
 	$(BIN)/ruff format --check pliant tests benchmarks examples
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto
 
 # The documentation site (mkdocs-material + mkdocstrings) into site/; warnings are errors.
 docs: $(VENV)/.installed-docs
