@@ -41,6 +41,8 @@ _SKIP = (
     "cg_iterations_total",
 )
 _MAX_GRAPHS = 4
+#: Keys seen once and not yet captured that are remembered (each holds a fingerprint).
+_MAX_WARM = 16
 
 
 def _skip(name: str) -> bool:
@@ -69,6 +71,10 @@ def fingerprint(*roots: Any, depth: int = 4) -> tuple:
             out.append((path, obj.ptr, obj.shape))
         elif isinstance(obj, _SCALARS):
             out.append((path, obj))
+        elif isinstance(obj, np.ndarray):
+            # Small host arrays become kernel scalars (a drag target): their values; large ones (the
+            # model's host copies) are never passed to a launch, so their identity is enough.
+            out.append((path, obj.shape, obj.tobytes() if obj.size <= 64 else id(obj)))
         elif isinstance(obj, list | tuple):
             for i, x in enumerate(obj):
                 walk(x, f"{path}[{i}]", d)
@@ -124,6 +130,8 @@ class FrameGraphs:
         hit = self._graphs.get(key)
         if hit is None:
             if key not in self._warm:
+                if len(self._warm) >= _MAX_WARM:
+                    self._warm.clear()  # a key that changes every frame (a live drag) must not pile up
                 self._warm.add(key)
                 return frame_fn(states)
             try:
