@@ -20,7 +20,9 @@ def test_cmaes_recovers_the_rope_from_its_own_observations(noise, dropout, tol):
         pl.scene.build_scene(cfg, device="cpu"), tracks=13, noise=noise, dropout=dropout, seed=3
     )
     wrong = pl.fit.apply_globals(cfg, {"stiffness": 480.0, "damping_rate": 0.25})
-    p = pl.fit.Problem(wrong, obs, params=list(TRUTH), device="cpu")
+    # Open loop (shooting=0): the windows of multiple shooting start from finite-difference velocities,
+    # which bias the damping rate by 8 % here; this measures what CMA-ES identifies on the whole motion.
+    p = pl.fit.Problem(wrong, obs, params=list(TRUTH), device="cpu", shooting=0)
     r = pl.fit.cmaes(p, generations=40)
     assert abs(r.values["stiffness"] - 300.0) / 300.0 <= tol[0], r.values
     assert abs(r.values["damping_rate"] - 0.5) / 0.5 <= tol[1], r.values

@@ -376,7 +376,11 @@ def _check_outputs(root: Path, inputs: Path, out: Path, status: int) -> None:
     outside = [p for p in written if not p.is_relative_to(out)]
     assert not outside, f"files written outside --out: {outside}"
     for f in out.rglob("*.npz"):
-        if not f.name.endswith(".ckpt.npz") and not f.name.startswith("obs"):
+        if f.name == "fitted_params.npz":  # a fit's per-element values (named arrays), not a trajectory
+            with np.load(f) as z:
+                for k in z.files:
+                    assert np.all(np.isfinite(z[k])), f"non-finite {k} in {f.name} (exit {status})"
+        elif not f.name.endswith(".ckpt.npz") and not f.name.startswith("obs"):
             x = pl.Trajectory.load(f).x
             assert np.all(np.isfinite(x)), f"non-finite output in {f.name} (exit {status})"
 
