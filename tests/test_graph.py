@@ -217,3 +217,21 @@ def test_a_key_that_changes_every_frame_runs_directly_and_does_not_pile_up():
     np.testing.assert_array_equal(a.state_0.particle_q.numpy(), b.state_0.particle_q.numpy())
     assert np.isfinite(a.state_0.particle_q.numpy()).all()
     assert len(a._graphs._warm) <= _MAX_WARM and a._graphs.replays == 0
+
+
+def test_a_blocker_set_after_construction_is_honoured():
+    """An XPBD tolerance set after the Simulator was made: that frame reads the residual on the host, so it
+    runs directly (graph_reason says why), and graphs come back once the tolerance is dropped."""
+    b = pl.ModelBuilder()
+    b.add_cloth_grid(nx=4, ny=4, size=0.3, mass=0.05, stiffness=100.0, origin=(0, 0.5, 0), pin="top-corners")
+    m = b.finalize(device="cpu")
+    sim = pl.Simulator(m, pl.solvers.XPBD(m, iterations=8), frame_dt=1 / 30, substeps=2)
+    _run(sim, 3)
+    replays = sim._graphs.replays
+    assert replays >= 1 and sim.graph_reason is None
+    sim.solver.tolerance = 1e-9
+    _run(sim, 3)
+    assert "tolerance" in sim.graph_reason and sim._graphs.replays == replays
+    sim.solver.tolerance = None
+    _run(sim, 3)
+    assert sim.graph_reason is None and sim._graphs.replays > replays

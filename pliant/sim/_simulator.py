@@ -190,7 +190,9 @@ class Simulator:
         if why is not None and graph:
             raise ValueError(f"graph=True: a frame cannot be replayed as a graph: {why}; pass graph=None")
         self.graph_reason = why
-        self._graphs = FrameGraphs(self.model.device) if why is None else None
+        # Kept unless graphs are off: the solver's options can change between frames (an XPBD tolerance
+        # set later), so step_frame asks graph_blocker() again each frame.
+        self._graphs = FrameGraphs(self.model.device) if graph is not False else None
         if (
             why is not None
             and graph is None
@@ -227,6 +229,8 @@ class Simulator:
 
         states = (self.state_0, self.state_1)
         if self._graphs is not None:
+            self.graph_reason = self.solver.graph_blocker()
+        if self._graphs is not None and self.graph_reason is None:
             # Δt and the substep count are part of what a graph bakes in: they join the fingerprint.
             states = self._graphs.run(frame, states, (self.solver, self.control, fs.dt, fs.substeps))
             if self._graphs.failed is not None:
