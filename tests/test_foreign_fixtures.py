@@ -108,6 +108,30 @@ def test_track_fixture_matches_its_scene_at_frame_0(name):
     np.testing.assert_array_equal(obs.particle, nearest[meta["track_vertex"]])
 
 
+#: Newton's thrown box is left out: its corner vertices move up to 1.3 mm off the rigid throw in the first
+#: frame (along the throw; a quarter of gravity's drop), Newton's own tet damping or integration, not a
+#: mass mismatch of the generator (its masses, gravity and inertia are pliant's lumped ones).
+@pytest.mark.parametrize("name", sorted(set(TRACKS) - {"newton_box"}))
+def test_track_fixture_starts_as_a_free_fall(name):
+    # Unstrained at frame 0, every vertex far from the pins falls with g for the first frame: it moves as
+    # one rigid translation. (MuJoCo kept the gravity of its even masses after the generator set lumped
+    # ones until mj_setConst was called: the cloth fell at 0.4 g to 1.6 g in a checkerboard, which no
+    # physical model fits.)
+    meta = _meta(name)
+    truth = pliant.io.Observations.load(DATA / meta["truth"]).points
+    cfg, scene = _scene(name)
+    dt = cfg.scene.frame_dt
+    still = np.abs(truth - truth[:1]).max(axis=(0, 2)) < 1e-6
+    gap = np.linalg.norm(truth[0][:, None] - truth[0][still][None], axis=2).min(axis=1, initial=np.inf)
+    size = float(np.ptp(truth[0], axis=0).max())
+    far = gap > 0.3 * size
+    assert far.sum() >= 10
+    step = truth[1, far] - truth[0, far]
+    drop = 0.5 * 9.81 * dt**2  # [m] gravity's share of the first frame's motion
+    spread = np.abs(step - np.median(step, axis=0)).max()
+    assert spread < 0.05 * drop, f"{name}: the first frame is not a rigid fall ({spread * 1e3:.3g} mm apart)"
+
+
 def _project(cam: Camera, p: np.ndarray) -> np.ndarray:
     """Pixel coordinates [N, 2] (x right, y down, centres at integers) of world points ``p`` [N, 3]."""
     q = p @ cam.rotation.T + cam.translation
