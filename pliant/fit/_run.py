@@ -22,6 +22,11 @@ from ._problem import Problem
 from ._toml import scene_toml
 
 PARAMS_FILE = "fitted_params.npz"
+#: The per-element stage is kept only if it lowers the validation loss by at least this fraction. On
+#: MuJoCo's cloth (tests/data/foreign) 600 per-spring values lowered an 8-frame validation loss by 3.8 %
+#: and raised the held-out error from 30 to 40 mm; where the per-element values are real (two materials,
+#: the beam) they lower it by far more.
+PER_ELEMENT_MARGIN = 0.1
 
 
 def _bar(progress: bool, total: int, desc: str) -> Any:
@@ -191,8 +196,9 @@ def fit(
         interrupted = stages["gradient"].interrupted
         # The one-frame-horizon losses are not the open-loop rollout's, and many per-element values can fit
         # the training frames and predict worse (over-fitting): keep them only if the open-loop rollout
-        # predicts the held-back validation frames better than the global stage's, and the whole training
-        # window no worse.
+        # predicts the held-back validation frames clearly better than the global stage's (by
+        # PER_ELEMENT_MARGIN: hundreds of free values buy a few per cent on a short window by chance), and
+        # the whole training window no worse.
         x0 = problem.simulate(problem.build(values), n, forced=False)
         x1 = problem.simulate(fitted_scene(problem, values, arrays), n, forced=False)
         before, after = problem.loss(x0), problem.loss(x1)
@@ -200,7 +206,7 @@ def fit(
         if n_fit < n:
             v0, v1 = problem.loss(x0, n_fit, n), problem.loss(x1, n_fit, n)
             stages["gradient"].validation = {"frames": [n_fit, n], "before": v0, "after": v1}
-            keep = v1 < v0 and after <= before
+            keep = v1 < (1.0 - PER_ELEMENT_MARGIN) * v0 and after <= before
         else:
             keep = after < before
         if not keep:
