@@ -117,3 +117,14 @@ def test_set_overrides_the_scene_for_observe_and_fit(tmp_path, capsys):
     assert abs(rep["params"]["stiffness"]["value"] - 50.0) < 15.0
     assert main([*args, "--set", "objects[0].material.stifness=80.0"]) == 1
     assert "stifness" in capsys.readouterr().err
+
+
+def test_shooting_flag_reaches_the_fit_and_is_recorded(rope, tmp_path, capsys):
+    scene, obs = rope
+    out = tmp_path / "fit"
+    argv = ["fit", str(scene), str(obs), "--out", str(out), "--params", "stiffness", "--iterations", "2"]
+    assert main([*argv, "--shooting", "4", "--no-video", "-q"]) == 0, capsys.readouterr().err
+    assert json.loads((out / "fit.json").read_text())["shooting"] == 4
+    with pytest.raises(SystemExit):  # argparse: a negative window is refused before any work
+        main([*argv, "--shooting", "-1", "-q"])
+    assert "expected a number >= 0" in capsys.readouterr().err

@@ -61,6 +61,14 @@ def add_parsers(sub: Any) -> None:
         help="gradient stage (default: lbfgs for camera images, adam for tracks)",
     )
     f.add_argument("--horizon", type=_positive_int, default=1, help="frames per tape, 0: whole rollout (1)")
+    f.add_argument(
+        "--shooting",
+        type=_positive_int,
+        metavar="FRAMES",
+        help="multiple shooting: restart the training runs from the observed state every FRAMES frames "
+        "(teacher forcing); 0: open loop (default: 10 where tracks cover >= 90 %% of the free particles "
+        "over >= 30 training frames, else 0; docs/fit.md)",
+    )
     f.add_argument("--lr", type=_positive_float, default=0.01, help="Adam step in log-scale units (0.01)")
     f.add_argument(
         "--smoothness",
@@ -227,6 +235,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
             # L-BFGS for images: a few whole-rollout gradients of one smooth loss (docs/gaussians.md)
             optimizer=args.optimizer or ("lbfgs" if obs.images is not None else "adam"),
             horizon=None if args.horizon == 0 else args.horizon,
+            shooting=args.shooting,
             lr=args.lr,
             smoothness=args.smoothness,
             validation=args.validation,
@@ -300,6 +309,7 @@ def _fit_models(args: argparse.Namespace, cfg: Any, obs: Any, params: Any, out: 
             generations=20 if n is None else n,
             epochs=20 if n is None else n,
             train_fraction=args.train_fraction,
+            shooting=args.shooting,
             seed=args.seed,
             device=args.device,
             dtype=args.dtype,
