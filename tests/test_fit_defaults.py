@@ -188,3 +188,25 @@ def test_auto_per_element_runs_the_models_own_and_validates_it(tmp_path):
         wrong, obs, tmp_path, per_element="auto", generations=2, epochs=2, progress=False, video=False
     )
     assert rep["gradient_stage_kept"] in (True, False) and rep["gradient_validation"] is not None
+
+
+def test_observed_velocity_is_fourth_order_where_five_frames_are_seen():
+    """Teacher forcing's start velocities: the five-point stencil converges as Δt⁴, the central difference
+    (its fallback where a neighbour frame is unseen) as Δt²; both on x = sin(ωt)."""
+    from pliant.fit._problem import observed_velocity
+
+    w, t0 = 7.0, 0.3
+    errs = {}
+    for dt in (0.02, 0.01):
+        t = t0 + dt * np.arange(-3, 4)
+        pts = np.zeros((7, 2, 3))
+        pts[:, :, 0] = np.sin(w * t)[:, None]
+        vis = np.ones((7, 2), bool)
+        vis[1, 1] = False  # track 1 misses frame f - 2: central difference
+        v, ok = observed_velocity(pts, vis, 3, dt)
+        assert ok.all()
+        errs[dt] = np.abs(v[:, 0] - w * np.cos(w * t0))
+    order = np.log2(errs[0.02] / errs[0.01])
+    assert order[0] == pytest.approx(4.0, abs=0.1) and order[1] == pytest.approx(2.0, abs=0.1)
+    v, ok = observed_velocity(pts, np.array([[True, True]] * 3 + [[True, False]] * 4), 3, 0.01)
+    assert ok.tolist() == [True, False]  # no velocity for a track unseen at f

@@ -26,6 +26,36 @@ SHOOTING_COVERAGE = 0.9
 SHOOTING_MIN_FRAMES = 30
 
 
+def observed_velocity(
+    points: np.ndarray, visible: np.ndarray, f: int, frame_dt: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Velocities [m/s] of the tracks at frame ``f`` from their observed positions, and where they exist.
+
+    The five-point stencil (x₋₂ − 8x₋₁ + 8x₊₁ − x₊₂)/(12 Δt), error O(Δt⁴), where frames f − 2 … f + 2 are
+    seen; else the central difference (O(Δt²)); at the last observed frame the backward one. The central
+    difference alone under-reads an oscillation's speed by (ωΔt)²/6, so windows of multiple shooting started
+    with too little energy and the fit lowered the damping to make up for it (8 % on the fit_rope scene).
+
+    Args:
+        points: observed positions [T, K, 3] [m] (NaN where unseen).
+        visible: [T, K] bool.
+        f: the frame, 1 ≤ f < T.
+        frame_dt: the time between frames [s].
+
+    Returns:
+        (velocities [K, 3] [m/s], [K] bool: the tracks that have one).
+    """
+    T = points.shape[0]
+    nxt = min(f + 1, T - 1)
+    vis = visible[f] & visible[f - 1] & visible[nxt]
+    vel = (points[nxt] - points[f - 1]) / ((nxt - f + 1) * frame_dt)
+    if 2 <= f <= T - 3:
+        five = vis & visible[f - 2] & visible[f + 2]
+        v5 = (points[f - 2] - 8.0 * points[f - 1] + 8.0 * points[f + 1] - points[f + 2]) / (12.0 * frame_dt)
+        vel = np.where(five[:, None], v5, vel)
+    return vel, vis
+
+
 class Problem:
     """Observations of a scene, the parameters to fit and the loss.
 
@@ -176,11 +206,7 @@ class Problem:
         m = sim.model
         n = self.x0.shape[0]
         starts = [0] if m.particle_count == n else [ob["start"] for ob in m.objects]
-        # Velocities by central differences of the observations (O(Δt²)), which the training frames
-        # include; at the last observed frame by a backward one.
-        nxt = min(f + 1, o.frames - 1)
-        vis = o.visible[f] & o.visible[f - 1] & o.visible[nxt]
-        vel = (o.points[nxt] - o.points[f - 1]) / ((nxt - f + 1) * self.frame_dt)
+        vel, vis = observed_velocity(o.points, o.visible, f, self.frame_dt)
         q, qd = sim.state_0.particle_q.numpy(), sim.state_0.particle_qd.numpy()
         free = m.particle_inv_mass.numpy() > 0
         for s in starts:
