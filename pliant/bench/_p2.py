@@ -11,8 +11,10 @@
   through the lumped masses (HRZ for P2), as in a simulation.
 * **Cook's membrane** (Cook 1974): the tapered panel (0,0), (48,44), (48,60), (0,44), thickness 1, E = 1,
   ν = 1/3, linear elastic, clamped at x = 0, a shear load of total 1 spread over the edge x = 48; the
-  converged vertical displacement of the top corner (48, 60) is 23.96 (plane stress; the slab is one
-  element thick with free faces).
+  converged vertical displacement of the loaded edge's midpoint (48, 52) is 23.96 (plane stress; the slab
+  is one element thick with free faces). The midpoint, not the top corner: a 2D plane-stress Q9 solve
+  (tests/reference/plane_elasticity.py) gives 23.967 there on 128² elements and 25.18 at (48, 60), which
+  is where this benchmark used to measure (and why it "converged to 25.16").
 
 Every function returns a dict with the figure, its reference, the degrees of freedom (3 × nodes), the
 element count and the solve's wall seconds (compile excluded by a warm-up solve on a small mesh).
@@ -152,12 +154,22 @@ def self_weight_cantilever(cells: tuple[int, int, int], *, order: int) -> dict:
 
 
 def cook_membrane(n: int, *, order: int) -> dict:
-    """Vertical displacement of Cook's membrane's top corner on an n × n × 1 mesh (see the module notes)."""
+    """Vertical displacement of the midpoint (48, 52) of Cook's membrane's loaded edge on an n × n × 1 mesh
+    (the published 23.96 is measured there; see the module notes). ``top_corner`` in the row is the
+    displacement of (48, 60), whose plane-stress limit is about 25.19. P1 needs an even n (a node at
+    the midpoint).
+
+    Raises:
+        ValueError: P1 with an odd n.
+    """
     from ..energies import LinearElastic
     from ..geometry import box_tets
 
+    if order == 1 and n % 2:
+        raise ValueError(f"cook_membrane: P1 needs an even n for a node at (48, 52), got n = {n}")
     mesh = box_tets(n, n, 1, size=(1.0, 1.0, 1.0))
     s, t, z = mesh.points.T
+    # The bilinear map of the unit square onto the panel: bottom edge y = 44 s, top edge y = 44 + 16 s.
     pts = np.stack([48.0 * s, 44.0 * s + t * (44.0 - 28.0 * s), z], axis=1)
     # Linear elasticity: u ∝ F/E. The solve runs at E = 1000 and reports u·E: at E = 1 the corner moves 24
     # (half the panel), some sub-tets near the clamp would invert, and the Newton step's inversion guard
@@ -167,9 +179,14 @@ def cook_membrane(n: int, *, order: int) -> dict:
     X = model.particle_q_np
     f = face_loads(model, lambda p: np.isclose(p[:, 0], 48.0), np.array([0.0, 1.0 / 16.0, 0.0]))
     x, stats, wall = _solve(model, LinearElastic(), np.flatnonzero(X[:, 0] < 1e-9), f, tol=1e-10)
-    corner = np.isclose(X[:, 0], 48.0) & np.isclose(X[:, 1], 60.0)
-    v = float((x[corner, 1] - X[corner, 1]).mean()) * E
-    return _row("cook_membrane", order, (n, n, 1), model, v, COOK_REFERENCE, stats, wall)
+    uy = (x[:, 1] - X[:, 1]) * E
+    # Every node through the thickness (2 for P1, 3 for P2): the slab bends a little out of its plane
+    # stress state near the faces, the mean is the plane-stress value.
+    mid = np.isclose(X[:, 0], 48.0) & np.isclose(X[:, 1], 52.0)
+    top = np.isclose(X[:, 0], 48.0) & np.isclose(X[:, 1], 60.0)
+    row = _row("cook_membrane", order, (n, n, 1), model, float(uy[mid].mean()), COOK_REFERENCE, stats, wall)
+    row["top_corner"] = float(uy[top].mean())
+    return row
 
 
 def fem_p2_elastica(quick: bool = False) -> dict:
