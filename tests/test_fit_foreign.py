@@ -1,7 +1,7 @@
 """Issue 30's figure: the photometric fit of a cloth filmed by another renderer (MuJoCo 4.0's OpenGL
-renderer; the fixture tests/data/foreign/mujoco_cloth*, made by benchmarks/peers/observe_mujoco.py on
-another branch) with no hand-written appearance: the appearance stage, then the physics. Skipped where the
-fixture is absent (``PLIANT_FOREIGN_DATA`` may name another folder holding it)."""
+renderer; the fixture tests/data/foreign/mujoco_cloth*, made by benchmarks/peers/observe_mujoco.py) with the
+default command — no hand-written appearance, no ``--params``: the appearance stage, then the physics.
+Skipped where the fixture is absent (``PLIANT_FOREIGN_DATA`` may name another folder holding it)."""
 
 from __future__ import annotations
 
@@ -23,12 +23,12 @@ TRUE_ET = 100.0
     not (DATA / "mujoco_cloth_video.npz").exists(), reason="the MuJoCo footage fixture is absent"
 )
 def test_cloth_filmed_by_mujoco_stiffness_and_held_out_motion(tmp_path):
-    # Measured (docs/gaussians.md): Et 96.8 N/m, held-out vertex error 0.59× the nominal's; pliant's scene at
-    # the true Et gives 0.52-0.64× (the models differ), so 0.3× is out of reach and 0.7× is the bound here.
+    # The issue's figures: Et within 10 % of the truth, held-out vertex error <= 0.3x the nominal scene's.
+    # Measured (docs/gaussians.md): Et 94.3 N/m, 0.17x, 89 s on one core.
     cfg = pl.scene.load_scene(DATA / "mujoco_cloth.toml")
     obs = pl.io.Observations.load(DATA / "mujoco_cloth_video.npz")
     truth = np.load(DATA / "mujoco_cloth_truth.npz")["points"].astype(np.float64)
-    rep = pl.fit.fit(cfg, obs, tmp_path, params=["Et", "damping_rate"], progress=False, video=False)
+    rep = pl.fit.fit(cfg, obs, tmp_path, progress=False, video=False)  # the defaults, as the CLI
     assert rep["appearance"]["psnr_after_db"] > 30.0 > rep["appearance"]["psnr_before_db"] + 20.0
     assert rep["warnings"] == []
     assert rep["params"]["Et"]["value"] == pytest.approx(TRUE_ET, rel=0.10)
@@ -40,4 +40,4 @@ def test_cloth_filmed_by_mujoco_stiffness_and_held_out_motion(tmp_path):
         return float(np.mean(np.linalg.norm(x[29:41] - truth[29:41], axis=-1)))
 
     fitted, nominal = held_out_error(tmp_path / "fitted.toml"), held_out_error(DATA / "mujoco_cloth.toml")
-    assert fitted < 0.7 * nominal, (fitted, nominal)
+    assert fitted <= 0.3 * nominal, (fitted, nominal)
