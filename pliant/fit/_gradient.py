@@ -4,7 +4,8 @@ gradients from ``wp.Tape`` over short horizons, as PhysTwin's ``trainer_warp.py`
 The horizon is one frame by default: :func:`pliant.diff.rollout` (the one stepping loop) records one frame of
 substeps from the state carried forward, the loss compares that frame with the observations, the rollout's
 backward pass gives the gradient, the optimiser steps, and the next frame starts from the simulated end state
-(without gradient). ``horizon=None`` records
+(without gradient) — or, with multiple shooting (``problem.shooting``), from the observed state at each
+window start (teacher forcing, as the CMA-ES stage's training runs). ``horizon=None`` records
 the whole training rollout on one tape. Each per-element value is ``a = a₀ · exp(θ)``; θ is what is fitted,
 bounded to ``|θ| ≤ log(max_factor)``.
 
@@ -172,9 +173,12 @@ class _Rollout:
 
         return add
 
-    def run(self, q: wp.array, qd: wp.array, f0: int, frames: int, hist: list) -> tuple[float, State]:
+    def run(
+        self, q: wp.array, qd: wp.array, f0: int, frames: int, hist: list, reset: bool = False
+    ) -> tuple[float, State]:
         """Simulate frames f0+1 … f0+frames from (q, qd) through :func:`pliant.diff.rollout` (one tape);
-        returns (loss, end state) and keeps ∂loss/∂(per-element arrays) for :meth:`grad_theta`."""
+        returns (loss, end state) and keeps ∂loss/∂(per-element arrays) for :meth:`grad_theta`. ``reset``:
+        the solver forgets what it carries from the frame before (frame 0, or a teacher-forced start)."""
         from ..diff import rollout
 
         scene, m = self.scene, self.scene.model
@@ -194,7 +198,7 @@ class _Rollout:
             frame_loss=self.frame_loss(hist),
             control_fn=None if fn is None else (lambda f, c: fn(f * scene.frame_dt, c)),
             first_frame=f0,
-            reset=f0 == 0,  # a horizon continuing the previous one keeps what the solver carries
+            reset=reset or f0 == 0,  # a horizon continuing the previous one keeps what the solver carries
         )
         self.grads = res.grads
         return res.loss, res.state
@@ -281,13 +285,15 @@ def gradient_stage(
         rv, rg = prior.value_grad(th)
         return value + share * rv, g + share * rg
 
-    def rollout_grad(th: np.ndarray, f0: int, frames: int, q: wp.array, qd: wp.array, hist: list):
+    def rollout_grad(
+        th: np.ndarray, f0: int, frames: int, q: wp.array, qd: wp.array, hist: list, reset: bool = False
+    ):
         from ..diff import check_rollout
         from ..sim import DivergenceError
 
         r.set_theta(th)
         try:  # pl.diff's check: non-finite, or a particle faster than 1000 m/s (a finite blow-up)
-            value, s = r.run(q, qd, f0, frames, hist)  # the rollout checks its own states
+            value, s = r.run(q, qd, f0, frames, hist, reset)  # the rollout checks its own states
             g = r.grad_theta()
             sc = r.scene
             h = sc.frame_dt / sc.substeps
@@ -313,6 +319,16 @@ def gradient_stage(
     def start_state():
         s = m.state()
         return _detach(s.particle_q), _detach(s.particle_qd)
+
+    def forced(f: int, q: wp.array, qd: wp.array) -> tuple[wp.array, wp.array]:
+        """Teacher forcing at a window start of multiple shooting (``problem.shooting``), as the CMA-ES
+        stage's training runs do: the tracked particles restart from their observed state."""
+        qn, qdn = q.numpy(), qd.numpy()
+        problem.force_state(m, f, qn, qdn)
+        return (
+            wp.array(qn, dtype=q.dtype, device=q.device, requires_grad=True),
+            wp.array(qdn, dtype=qd.dtype, device=qd.device, requires_grad=True),
+        )
 
     try:
         if optimizer == "lbfgs":
@@ -352,9 +368,16 @@ def gradient_stage(
                 q, qd = start_state()
                 hist: list = [q]
                 epoch = 0.0
-                for f0 in range(0, n_frames, h):
+                f0 = 0
+                while f0 < n_frames:
                     frames = min(h, n_frames - f0)
-                    value, g, (q, qd) = rollout_grad(theta, f0, frames, q, qd, hist)
+                    if problem.shooting > 0:  # a tape never spans a window start
+                        frames = min(frames, problem.shooting - f0 % problem.shooting)
+                    restart = problem.forces(f0)
+                    if restart:
+                        q, qd = forced(f0, q, qd)
+                        hist[-1] = q
+                    value, g, (q, qd) = rollout_grad(theta, f0, frames, q, qd, hist, restart)
                     value, g = regularise(theta, value, g, frames / n_frames)
                     hist[-1] = q
                     hist[:] = hist[-3:]
@@ -365,6 +388,7 @@ def gradient_stage(
                     var = b2 * var + (1 - b2) * g * g
                     mhat, vhat = mom / (1 - b1**step), var / (1 - b2**step)
                     theta = np.clip(theta - lr_it * mhat / (np.sqrt(vhat) + 1e-12), -bound, bound)
+                    f0 += frames
                 # θ moved during the epoch (one step per horizon): its loss is the sum over the frames as
                 # they were simulated; the result is the θ after the epoch.
                 result.loss, result.per_element = epoch, r.values(theta)

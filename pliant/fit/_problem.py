@@ -197,23 +197,32 @@ class Problem:
         dense = free > 0 and covered >= SHOOTING_COVERAGE * free
         return SHOOTING_WINDOW if dense and self.n_train - 1 >= SHOOTING_MIN_FRAMES else 0
 
-    def _force(self, sim: Any) -> None:
-        """Teacher forcing at a window start: the tracked free particles take their observed positions and
-        velocities (every copy of a batched object)."""
-        f, o = sim.frame, self.obs
-        if self.shooting <= 0 or f % self.shooting or f >= o.frames:
-            return
-        m = sim.model
+    def forces(self, f: int) -> bool:
+        """Whether teacher forcing restarts frame ``f`` from the observations (a window start of multiple
+        shooting: every :attr:`shooting` frames after frame 0, while there are observations)."""
+        return getattr(self, "shooting", 0) > 0 and 0 < f < self.obs.frames and f % self.shooting == 0
+
+    def force_state(self, model: Any, f: int, q: np.ndarray, qd: np.ndarray) -> None:
+        """Teacher forcing at frame ``f``, in place on positions ``q`` and velocities ``qd`` [N, 3] of
+        ``model``: the tracked free particles take their observed positions and velocities (every copy of a
+        batched object); :func:`observed_velocity` gives the velocities."""
+        o, m = self.obs, model
         n = self.x0.shape[0]
         starts = [0] if m.particle_count == n else [ob["start"] for ob in m.objects]
         vel, vis = observed_velocity(o.points, o.visible, f, self.frame_dt)
-        q, qd = sim.state_0.particle_q.numpy(), sim.state_0.particle_qd.numpy()
         free = m.particle_inv_mass.numpy() > 0
         for s in starts:
             idx = o.particle[vis] + s
             keep = free[idx]
             q[idx[keep]] = o.points[f][vis][keep]
             qd[idx[keep]] = vel[vis][keep]
+
+    def _force(self, sim: Any) -> None:
+        """The Simulator's ``on_frame`` hook of a forced run (:meth:`forces`, :meth:`force_state`)."""
+        if not self.forces(sim.frame):
+            return
+        q, qd = sim.state_0.particle_q.numpy(), sim.state_0.particle_qd.numpy()
+        self.force_state(sim.model, sim.frame, q, qd)
         sim.state_0.particle_q.assign(q)
         sim.state_0.particle_qd.assign(qd)
 
