@@ -33,14 +33,18 @@ CLOTH_ET = (
     ("text", "expected"),
     [
         (FIT_ROPE, ["stiffness", "damping_rate", "damping"]),
+        (
+            FIT_ROPE.replace("stiffness = 50.0", "stiffness = 50.0\nbend_stiffness = 5.0"),
+            ["stiffness", "bend_stiffness", "damping_rate", "damping"],
+        ),
         (CLOTH_ET, ["Et", "damping_rate", "damping"]),
         (FEM, ["E", "nu", "damping_rate"]),
         (CLOTH_XPBD, ["compliance", "damping_rate"]),
     ],
 )
 def test_default_parameters_per_model(text, expected):
-    """Mass-spring: stiffness (or E·t), velocity damping rate, dashpot γ; FEM: E, ν, damping rate; XPBD:
-    compliance and damping rate."""
+    """Mass-spring: stiffness (or E·t), the bend springs' stiffness where it has them, velocity damping rate,
+    dashpot γ; FEM: E, ν, damping rate; XPBD: compliance and damping rate."""
     assert default_params(pl.scene.parse_scene(text)) == expected
 
 
@@ -210,3 +214,30 @@ def test_observed_velocity_is_fourth_order_where_five_frames_are_seen():
     assert order[0] == pytest.approx(4.0, abs=0.1) and order[1] == pytest.approx(2.0, abs=0.1)
     v, ok = observed_velocity(pts, np.array([[True, True]] * 3 + [[True, False]] * 4), 3, 0.01)
     assert ok.tolist() == [True, False]  # no velocity for a track unseen at f
+
+
+def test_multiple_shooting_is_followed_by_an_open_loop_search(tmp_path):
+    """After CMA-ES over forced windows, CMA-ES again open loop from its values (what the held-out frames
+    measure): fit.json has both stages, the result's loss is the open-loop one, and the open-loop stage runs
+    only with multiple shooting."""
+    cfg = pl.scene.parse_scene(FIT_ROPE.replace("frames = 10", "frames = 50"))
+    obs = observe(pl.scene.build_scene(cfg), tracks=6, noise=1e-3, seed=1)
+    wrong = pl.fit.apply_globals(cfg, {"stiffness": 120.0})
+    rep = pl.fit.fit(wrong, obs, tmp_path, params=["stiffness"], generations=8, progress=False, video=False)
+    assert rep["shooting"] == 10 and set(rep["loss_history"]) >= {"cmaes", "cmaes_open_loop"}
+    p = Problem(wrong, obs, params=["stiffness"], shooting=0)
+    fitted = p.loss(p.simulate(p.build({"stiffness": rep["params"]["stiffness"]["value"]}), p.n_train))
+    assert fitted == pytest.approx(rep["loss_history"]["cmaes_open_loop"][-1], rel=1e-9)  # open loop
+    assert fitted < 0.1 * p.loss(p.simulate(p.build(p.nominal), p.n_train))
+    assert rep["params"]["stiffness"]["value"] == pytest.approx(50.0, rel=0.05)
+    rep0 = pl.fit.fit(
+        wrong,
+        obs,
+        tmp_path / "open",
+        params=["stiffness"],
+        shooting=0,
+        generations=4,
+        progress=False,
+        video=False,
+    )
+    assert "cmaes_open_loop" not in rep0["loss_history"]

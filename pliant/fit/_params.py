@@ -138,6 +138,20 @@ GLOBAL: dict[str, GlobalParam] = {
             drives=("spring_stiffness",),
         ),
         GlobalParam(
+            "bend_stiffness",
+            "k of the bend springs (across two segments or cells) of every mass-spring object that has them "
+            "[N/m]",
+            lambda cfg: [
+                (m, f) for m, f in _mat_field("bend_stiffness", ("mass_spring",))(cfg) if m.bend_stiffness > 0
+            ],
+            True,
+            # ×100: a bend spring is a crude stand-in for another engine's rod or shell bending (MuJoCo's rope
+            # fits at a tenth of its converted value), so the data may put it far from the conversion.
+            _around(100.0, 1e-6),
+            # No `drives`: the bend springs share spring_stiffness with the others, so a gradient through
+            # that array is not this parameter's; CMA-ES fits it.
+        ),
+        GlobalParam(
             "damping",
             "dashpot γ along each spring of every mass-spring object [N s/m]",
             _mat_field("damping", ("mass_spring",)),
@@ -282,6 +296,7 @@ WHY: dict[str, tuple[tuple[str, str], ...]] = {
     "mass_spring": (
         ("stiffness", "default for mass-spring: the spring stiffness"),
         ("Et", "default for mass-spring cloth: the membrane stiffness"),
+        ("bend_stiffness", "default for mass-spring with bend springs: the bending stiffness"),
         ("damping_rate", _DISSIPATION),
         ("damping", "default for mass-spring: the dashpot along each spring (internal dissipation)"),
     ),

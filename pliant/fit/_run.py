@@ -27,6 +27,9 @@ PARAMS_FILE = "fitted_params.npz"
 #: and raised the held-out error from 30 to 40 mm; where the per-element values are real (two materials,
 #: the beam) they lower it by far more.
 PER_ELEMENT_MARGIN = 0.1
+#: CMA-ES's initial step in the unit box for the open-loop search that follows multiple shooting (half the
+#: first stage's 1/6: it starts near the answer).
+SIGMA_OPEN_LOOP = 1.0 / 12.0
 
 
 def _bar(progress: bool, total: int, desc: str) -> Any:
@@ -160,6 +163,28 @@ def fit(
                 bar.close()
         values = stages["cmaes"].values
         interrupted = stages["cmaes"].interrupted
+        if problem.shooting > 0 and not interrupted:
+            # Multiple shooting finds the basin of a long motion; what the fit must do is predict it open
+            # loop (the held-out frames are): CMA-ES again, open loop, from there with half the step. Its
+            # first evaluation is that start, so the open-loop training loss cannot get worse. On MuJoCo's
+            # rope the windows' values alone predicted the held-out frames 1.3x worse than the nominal's.
+            bar = _bar(progress, generations, "fit: CMA-ES (open loop)")
+            window, problem.shooting = problem.shooting, 0
+            try:
+                stages["cmaes_open_loop"] = cmaes(
+                    problem,
+                    generations=generations,
+                    seed=seed,
+                    start=values,
+                    sigma=SIGMA_OPEN_LOOP,
+                    callback=_tick(bar),
+                )
+            finally:
+                problem.shooting = window
+                if bar is not None:
+                    bar.close()
+            values = stages["cmaes_open_loop"].values
+            interrupted = stages["cmaes_open_loop"].interrupted
     if getattr(problem, "photometric", False) and epochs > 0 and not interrupted and refinable(problem):
         # From images, stage 2 refines the global values with image gradients through the rollout.
         bar = _bar(progress, epochs, f"fit: {optimizer} (image gradients)")
