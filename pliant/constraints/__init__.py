@@ -42,6 +42,7 @@ from ._four import (
 )
 from ._generic import GenericConstraint
 from ._shape import ShapeMatching, oriented_moment, polar_rotation, shape_matching_goal
+from ._three import TriangleArea, triangle_area, triangle_area_c, triangle_area_grad
 
 __all__ = [
     "Attachment",
@@ -57,6 +58,7 @@ __all__ = [
     "ProjectionContext",
     "ProjectionKernels",
     "ShapeMatching",
+    "TriangleArea",
     "Volume",
     "color_constraints",
     "color_incidence",
@@ -80,6 +82,9 @@ __all__ = [
     "projection_kernels",
     "shape_matching_goal",
     "tet_volume",
+    "triangle_area",
+    "triangle_area_c",
+    "triangle_area_grad",
     "volume_c",
     "volume_grad",
     "xpbd_delta_lambda",
