@@ -14,16 +14,8 @@ from ._base import (
     pbd_iteration_stiffness,
     xpbd_delta_lambda,
 )
-from ._contact import (
-    Ground,
-    ParticleCollision,
-    PointTriangleCollision,
-    ground_c,
-    ground_grad,
-    particle_collision_c,
-    point_triangle_c,
-    point_triangle_grad,
-)
+from ._contact import Ground, ParticleCollision, PointTriangleCollision
+from ._contact_math import ground_c, ground_grad, particle_collision_c, point_triangle_c, point_triangle_grad
 from ._distance import Attachment, Distance, distance_c, distance_grad
 from ._factory import FixedArityConstraint, ProjectionKernels, projection_kernels
 from ._four import (

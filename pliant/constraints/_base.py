@@ -260,6 +260,14 @@ class Constraint:
     ) -> wp.array | None:
         """Velocity pass (friction, restitution) after v = (p − x)/dt; a fresh v, or None (in place)."""
 
+    def evaluate(self, x: wp.array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """C [n], particle indices [n, k] and ∇C [n, k, 3] of every bound constraint at positions ``x``.
+
+        Scalar constraints implement it with the same C and ∇C funcs their projection uses, so that the
+        contract test (tests/test_constraint_contracts.py) checks ∇C against finite differences of C.
+        """
+        raise NotImplementedError(f"{type(self).__name__} has no evaluate(x): it has no scalar C(x)")
+
     def writes_deltas(self, coloring: bool) -> bool:
         """Whether a sweep accumulates into the solver's deltas (which the solver then averages)."""
         return self.uses_deltas and (self.always_jacobi or not coloring)
