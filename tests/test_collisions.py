@@ -7,7 +7,7 @@ import pytest
 import warp as wp
 
 import pliant as pl
-from tests.test_mass_spring import energy_fd_check
+from tests.helpers import energy_fd_check
 
 G = 9.81
 DEVICES = ["cpu"] + (["cuda:0"] if wp.is_cuda_available() else [])

@@ -352,9 +352,10 @@ def test_generic_constraint_autodiff_gradient_and_projection():
     model = _model(x, m)
     gen = pc.GenericConstraint(_user_distance, [[0, 1]], params=0.5, compliance=1e-3)
     XPBD(model, iterations=1, constraints=[gen], contact=False)
-    gen.evaluate(model.particle_q)
-    np.testing.assert_allclose(gen.grad.numpy()[0, :2], ref.distance_grad(x), atol=1e-14)
-    np.testing.assert_allclose(gen.c.numpy()[0], ref.distance_c(x, 0.5), atol=1e-14)
+    c, idx, g = gen.evaluate(model.particle_q)
+    assert idx.tolist() == [[0, 1]]
+    np.testing.assert_allclose(g[0], ref.distance_grad(x), atol=1e-14)
+    np.testing.assert_allclose(c[0], ref.distance_c(x, 0.5), atol=1e-14)
     p_gen = _project_once(model, pc.GenericConstraint(_user_distance, [[0, 1]], params=0.5, compliance=1e-3))
     p_ref = _project_once(model, pc.Distance([[0, 1]], rest_length=0.5, compliance=1e-3))
     np.testing.assert_allclose(p_gen, p_ref, atol=1e-12)

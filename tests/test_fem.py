@@ -67,47 +67,7 @@ def _random_rotation(rng) -> np.ndarray:
     return q
 
 
-@pytest.mark.parametrize("name", NAMES)
-def test_gradient_is_central_difference_of_value(name):
-    """∂E/∂x equals central differences of E (float64, random deformation) to 1e-6 relative."""
-    model = _model()
-    rng = np.random.default_rng(1)
-    x = _deformed(model, rng)
-    e = TetElasticity(name)
-    g = _gradient(e, model, x)
-    h = 1e-6
-    fd = np.zeros_like(x)
-    for i in range(model.particle_count):
-        for d in range(3):
-            xp, xm = x.copy(), x.copy()
-            xp[i, d] += h
-            xm[i, d] -= h
-            fd[i, d] = (_value(e, model, xp) - _value(e, model, xm)) / (2 * h)
-    err = np.abs(g - fd).max() / np.abs(g).max()
-    assert err < 1e-6, f"{name}: relative gradient error {err:.2e}"
-
-
-@pytest.mark.parametrize("name", NAMES)
-def test_hessian_is_central_difference_of_gradient(name):
-    """The unprojected Hessian equals central differences of the gradient (float64) and is symmetric."""
-    model = _model()
-    rng = np.random.default_rng(2)
-    x = _deformed(model, rng)
-    e = TetElasticity(name)
-    H = _hessian(e, model, x, project_psd=False)
-    h = 1e-6
-    n = model.particle_count
-    fd = np.zeros_like(H)
-    for i in range(n):
-        for d in range(3):
-            xp, xm = x.copy(), x.copy()
-            xp[i, d] += h
-            xm[i, d] -= h
-            fd[:, 3 * i + d] = ((_gradient(e, model, xp) - _gradient(e, model, xm)) / (2 * h)).ravel()
-    scale = np.abs(H).max()
-    err = np.abs(H - fd).max() / scale
-    assert err < 1e-6, f"{name}: relative Hessian error {err:.2e}"
-    assert np.abs(H - H.T).max() < 1e-10 * scale, f"{name}: Hessian not symmetric"
+# ∇E and ∇²E of every material against central differences: tests/test_energy_contracts.py (all energies).
 
 
 @pytest.mark.parametrize("name", NAMES)

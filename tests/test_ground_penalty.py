@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 import pliant as pl
-from tests.test_mass_spring import energy_fd_check
+from tests.helpers import energy_fd_check
 
 
 def _model() -> pl.Model:

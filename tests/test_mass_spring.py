@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import warp as wp
 
 import pliant as pl
 from pliant.bench._mass_spring import REFERENCE_SAG, cloth_drape, cloth_drape_model, sag
@@ -23,42 +22,6 @@ def _relax(model, *, frames=400, h=0.01, damping_rate=5.0, iterations=200, contr
         solver.step(s0, s1, c, h)
         s0, s1 = s1, s0
     return s0
-
-
-def energy_fd_check(model, energy, x, *, eps=1e-6, project=False, begin=None):
-    """(grad, fd grad, hess, fd hess) of ``energy`` at x (float64), dense."""
-    n = model.particle_count
-    if begin is not None:
-        energy.begin_step(model, *begin)
-
-    def val(xx):
-        out = wp.zeros(1, dtype=wp.float64, device=model.device)
-        energy.value(model, wp.array(xx, dtype=wp.vec3d, device=model.device), out)
-        return out.numpy()[0]
-
-    def grad(xx):
-        out = wp.zeros(n, dtype=wp.vec3d, device=model.device)
-        energy.gradient(model, wp.array(xx, dtype=wp.vec3d, device=model.device), out)
-        return out.numpy().ravel()
-
-    rows, cols = energy.hessian_pattern(model)
-    vals = wp.zeros(len(rows), dtype=wp.mat33d, device=model.device)
-    slots = wp.array(np.arange(len(rows), dtype=np.int32), dtype=wp.int32, device=model.device)
-    energy.hessian(model, wp.array(x, dtype=wp.vec3d, device=model.device), slots, vals, project_psd=project)
-    H = np.zeros((3 * n, 3 * n))
-    for r, c, b in zip(rows, cols, vals.numpy(), strict=True):
-        H[3 * r : 3 * r + 3, 3 * c : 3 * c + 3] += b
-    g = grad(x)
-    g_fd = np.zeros(3 * n)
-    H_fd = np.zeros((3 * n, 3 * n))
-    flat = x.ravel()
-    for k in range(3 * n):
-        e = np.zeros(3 * n)
-        e[k] = eps
-        xp, xm = (flat + e).reshape(-1, 3), (flat - e).reshape(-1, 3)
-        g_fd[k] = (val(xp) - val(xm)) / (2 * eps)
-        H_fd[:, k] = (grad(xp) - grad(xm)) / (2 * eps)
-    return g, g_fd, H, H_fd
 
 
 def test_hanging_chain_stretch_per_link_is_weight_below_over_k():
@@ -220,18 +183,6 @@ def test_block_sliding_on_ground_stops_after_v2_over_2_mu_g():
     x, v = s0.particle_q.numpy()[0], s0.particle_qd.numpy()[0]
     assert abs(v[0]) < 1e-9
     assert x[0] == pytest.approx(v0**2 / (2 * mu * G), rel=0.02)
-
-
-def test_spring_gradient_and_hessian_match_finite_differences():
-    """Springs: the gradient and (unprojected) Hessian equal central differences of the energy (float64)."""
-    b = pl.ModelBuilder()
-    b.add_cloth_grid(nx=2, ny=2, size=1.0, mass=1.0, stiffness=50.0, shear_stiffness=20.0)
-    model = b.finalize(device="cpu", dtype="float64")
-    rng = np.random.default_rng(1)
-    x = model.particle_q_np + 0.2 * rng.normal(size=(model.particle_count, 3))
-    g, g_fd, H, H_fd = energy_fd_check(model, pl.energies.Springs(), x)
-    np.testing.assert_allclose(g, g_fd, atol=1e-6 * np.abs(g).max())
-    np.testing.assert_allclose(H, H_fd, atol=1e-6 * np.abs(H).max())
 
 
 def test_uniaxial_stretch_strains_by_stress_over_youngs_modulus():

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import abc
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -167,7 +168,7 @@ class ProjectionContext:
         return wp.zeros_like(like, requires_grad=self.requires_grad and like.dtype != wp.int32)
 
 
-class Constraint:
+class Constraint(abc.ABC):
     """A set of constraints of one kind: indices, rest data, compliance α and multipliers λ.
 
     Subclasses implement :meth:`bind` (host set-up against a Model) and :meth:`project` (one
@@ -204,9 +205,9 @@ class Constraint:
         self.color_offsets = np.zeros(1, np.int64)
 
     # ------------------------------------------------------------------ host set-up
+    @abc.abstractmethod
     def bind(self, model: Model, coloring: bool) -> None:
         """Copy indices and rest data to ``model.device``; colour them when ``coloring``."""
-        raise NotImplementedError
 
     def _colors(self, indices: np.ndarray, coloring: bool) -> tuple[np.ndarray, np.ndarray]:
         """(permutation, offsets) grouping ``indices`` [n, k] by colour; identity when not colouring."""
@@ -244,21 +245,29 @@ class Constraint:
             else:
                 ctx.call(self.lam.zero_)
 
+    @abc.abstractmethod
     def project(self, ctx: ProjectionContext, p: wp.array, dt: float) -> wp.array | None:
         """One sweep over the constraints, writing ``p`` (Gauss–Seidel) or ``ctx`` deltas (Jacobi).
 
         Returns None, or (sets that move particles directly in a differentiable step) the fresh array of
         projected positions that replaces ``p``.
         """
-        raise NotImplementedError
 
-    def residual(self, ctx: ProjectionContext, p: wp.array, dt: float, out: wp.array) -> None:
+    def residual(self, ctx: ProjectionContext, p: wp.array, dt: float, out: wp.array) -> None:  # noqa: B027
         """Add Σ (C + α̃λ)² over the constraints into ``out[0]`` and their number into ``out[1]``."""
 
-    def end_step(
+    def end_step(  # noqa: B027
         self, ctx: ProjectionContext, x: wp.array, p: wp.array, v: wp.array, dt: float
     ) -> wp.array | None:
         """Velocity pass (friction, restitution) after v = (p − x)/dt; a fresh v, or None (in place)."""
+
+    def evaluate(self, x: wp.array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """C [n], particle indices [n, k] and ∇C [n, k, 3] of every bound constraint at positions ``x``.
+
+        Scalar constraints implement it with the same C and ∇C funcs their projection uses, so that the
+        contract test (tests/test_constraint_contracts.py) checks ∇C against finite differences of C.
+        """
+        raise NotImplementedError(f"{type(self).__name__} has no evaluate(x): it has no scalar C(x)")
 
     def writes_deltas(self, coloring: bool) -> bool:
         """Whether a sweep accumulates into the solver's deltas (which the solver then averages)."""

@@ -11,21 +11,19 @@ import warp as wp
 from ..collision._hashgrid import ParticleGrid, TriangleBVH
 from ..model import Model
 from ._base import Constraint, ProjectionContext
+from ._contact_math import (
+    evaluate_ground,
+    evaluate_particle_pairs,
+    evaluate_point_triangle,
+    ground_c,
+    ground_grad,
+    plane_barycentric,
+    point_triangle_c,
+    point_triangle_grad,
+)
 
 
 # ---------------------------------------------------------------------- ground
-@wp.func
-def ground_c(x: Any, normal: Any, d: Any, radius: Any):
-    """C(x) = n·x + d − r ≥ 0  [m] (the lecture's ground constraint, plane n·x + d = 0)."""
-    return wp.dot(normal, x) + d - radius
-
-
-@wp.func
-def ground_grad(x: Any, normal: Any):
-    """∇C = n."""
-    return normal
-
-
 @wp.kernel
 def _project_ground(
     inv_mass: wp.array(dtype=Any),
@@ -144,6 +142,10 @@ class Ground(Constraint):
         self.count = model.particle_count
         self.lam = wp.zeros(self.count, dtype=model.scalar, device=model.device)
 
+    def evaluate(self, x: wp.array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """C [N], indices [N, 1] and ∇C [N, 1, 3] of every particle's ground constraint at ``x``."""
+        return evaluate_ground(self.model, self.normal, self.offset, x)
+
     def project(self, ctx: ProjectionContext, p: wp.array, dt: float) -> wp.array | None:
         """Push particles onto the plane (each thread touches only its own particle).
 
@@ -203,12 +205,6 @@ class Ground(Constraint):
 
 
 # ---------------------------------------------------------------------- particle–particle
-@wp.func
-def particle_collision_c(xi: Any, xj: Any, ri: Any, rj: Any):
-    """C(x_i, x_j) = |x_i − x_j| − r_i − r_j ≥ 0  [m]."""
-    return wp.length(xi - xj) - ri - rj
-
-
 @wp.kernel
 def _project_particle_collision(
     grid: wp.uint64,
@@ -278,6 +274,10 @@ class ParticleCollision(Constraint):
         self.grid = ParticleGrid(model.device, model.dtype, self._cell or self.query_radius)
         self.count = model.particle_count
 
+    def evaluate(self, x: wp.array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """C [P], pairs [P, 2] and ∇C [P, 2, 3] of the particle pairs within the query radius at ``x``."""
+        return evaluate_particle_pairs(self.model, self.grid, self.query_radius, x)
+
     def begin_step(self, ctx: ProjectionContext, x: wp.array, p: wp.array, dt: float) -> None:
         """Rebuild the grid over the predicted positions."""
         ctx.call(self.grid.build, p)
@@ -301,57 +301,6 @@ class ParticleCollision(Constraint):
 
 
 # ---------------------------------------------------------------------- point–triangle
-@wp.func
-def point_triangle_c(q: Any, x1: Any, x2: Any, x3: Any, side: Any, h: Any):
-    """C = s (q − x1)·n̂ − h ≥ 0, n̂ = (x2 − x1)×(x3 − x1)/|·|, s = ±1 the side q started on  [m]."""
-    n = wp.cross(x2 - x1, x3 - x1)
-    ln = wp.length(n)
-    if ln == type(h)(0.0):
-        return type(h)(0.0)
-    return side * wp.dot(q - x1, n) / ln - h
-
-
-@wp.func
-def point_triangle_grad(q: Any, x1: Any, x2: Any, x3: Any, side: Any):
-    """∇_q = s n̂, ∇_2 = s b×u, ∇_3 = s u×a, ∇_1 = −Σ; a = x2 − x1, b = x3 − x1, u = (I − n̂n̂ᵀ)r/|a×b|."""
-    a = x2 - x1
-    b = x3 - x1
-    n = wp.cross(a, b)
-    ln = wp.length(n)
-    zero = type(side)(0.0)
-    gq = n * zero
-    g2 = n * zero
-    g3 = n * zero
-    if ln > zero:
-        nh = n / ln
-        r = q - x1
-        u = (r - wp.dot(r, nh) * nh) / ln
-        gq = side * nh
-        g2 = side * wp.cross(b, u)
-        g3 = side * wp.cross(u, a)
-    return gq, -(gq + g2 + g3), g2, g3
-
-
-@wp.func
-def plane_barycentric(q: Any, a: Any, b: Any, c: Any):
-    """Barycentric (u, v, w) of the projection of q onto the plane of triangle abc."""
-    v0 = b - a
-    v1 = c - a
-    v2 = q - a
-    d00 = wp.dot(v0, v0)
-    d01 = wp.dot(v0, v1)
-    d11 = wp.dot(v1, v1)
-    d20 = wp.dot(v2, v0)
-    d21 = wp.dot(v2, v1)
-    den = d00 * d11 - d01 * d01
-    one = type(d00)(1.0)
-    if den == type(d00)(0.0):
-        return type(q)(-one, -one, -one)
-    v = (d11 * d20 - d01 * d21) / den
-    w = (d00 * d21 - d01 * d20) / den
-    return type(q)(one - v - w, v, w)
-
-
 @wp.kernel
 def _detect_point_triangle(
     mesh: wp.uint64,
@@ -585,6 +534,10 @@ class PointTriangleCollision(Constraint):
                 ctx.delta_count,
             ],
         )
+
+    def evaluate(self, x: wp.array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """C [K], indices [K, 4] (point, triangle) and ∇C [K, 4, 3] of this step's contacts at ``x``."""
+        return evaluate_point_triangle(self.model, self, x)
 
     def min_value(self, p: wp.array) -> float:
         """Smallest C over this step's contacts at positions ``p`` [m] (host sync; for tests)."""

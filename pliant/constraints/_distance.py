@@ -143,6 +143,22 @@ def _project_attachment(
     p_io[i] = x + (w * dl) * g
 
 
+@wp.kernel(enable_backward=False)
+def _attachment_values(
+    indices: wp.array(dtype=wp.int32),
+    targets: wp.array(dtype=Any),
+    rest: wp.array(dtype=Any),
+    p_in: wp.array(dtype=Any),
+    c_out: wp.array(dtype=Any),
+    grad_out: wp.array2d(dtype=Any),
+):
+    s = wp.tid()
+    x = p_in[indices[s]]
+    c_out[s] = distance_c(x, targets[s], rest[s])
+    g, _g = distance_grad(x, targets[s])
+    grad_out[s, 0] = g
+
+
 class Attachment(Constraint):
     """Attach particles to world points: C(x_i) = |x_i − t_i| − l (l = 0: a zero-length tether).
 
@@ -190,6 +206,16 @@ class Attachment(Constraint):
         self.rest_length = wp.array(np.broadcast_to(np.asarray(self._rest, float), (n,)), dtype=f, device=d)
         self.compliance_array = wp.array(np.full(n, float(self.compliance)), dtype=f, device=d)
         self.lam = wp.zeros(n, dtype=f, device=d)
+
+    def evaluate(self, x: wp.array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """C [K], indices [K, 1] and ∇C [K, 1, 3] of the attachments at positions ``x``."""
+        m = self.model
+        c = wp.zeros(self.count, dtype=m.scalar, device=m.device)
+        g = wp.zeros((self.count, 1), dtype=m.vec3, device=m.device)
+        if self.count:
+            args = [self.indices, self.targets, self.rest_length, x, c, g]
+            wp.launch(_attachment_values, self.count, args, device=m.device)
+        return c.numpy(), self.indices.numpy()[:, None], g.numpy()
 
     def set_targets(self, targets: Any) -> None:
         """Move the attachment points [m], shape [K, 3] (between steps)."""

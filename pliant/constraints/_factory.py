@@ -1,4 +1,4 @@
-"""One factory for the projection kernels of fixed-arity constraints, generated from C and ∇C ``@wp.func``s.
+"""One factory for the kernels of k-particle constraints (any k ≥ 1), generated from C and ∇C ``@wp.func``s.
 
 Every bilateral XPBD/PBD constraint of k particles is projected the same way — gather the k positions
 and inverse masses, (Jacobi) split the masses, Δλ = −(C + α̃λ)/(Σ w|∇C|² + α̃) (or PBD's −k'C/Σ w|∇C|²),
@@ -8,7 +8,8 @@ then scatter wΔλ∇C — and only C and ∇C differ. :func:`projection_kernels
   and their counts atomically (the solver averages them); ``lam_in`` and ``lam_out`` may be one array
   (in place) or two (a fresh array per sweep, so a ``wp.Tape`` can replay it);
 - ``gauss_seidel``: one colour's constraints update ``p_io`` and ``lam_io`` in place;
-- ``residual``: Σ (C + α̃λ)² and the count of constraints with a movable particle.
+- ``residual``: Σ (C + α̃λ)² and the count of constraints with a movable particle;
+- ``evaluate``: C and ∇C of every constraint (:meth:`FixedArityConstraint.evaluate`, the contract tests).
 
 The kernels are cached per (name, arity) like FEM's material kernels, generic over float32/float64.
 Constraints with ``unit_gradient`` (|∇_i C| = 1, e.g. distance) use Σ w for Σ w|∇C|², which is both
@@ -17,6 +18,7 @@ cheaper and the arithmetic the hand-written distance kernels used.
 
 from __future__ import annotations
 
+import linecache
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -26,11 +28,12 @@ from ._base import Constraint, ProjectionContext, constraint_delta_lambda
 
 
 class ProjectionKernels(NamedTuple):
-    """The three kernels of one constraint family (see the module docstring for their arguments)."""
+    """The kernels of one constraint family (see the module docstring for their arguments)."""
 
     jacobi: Any
     gauss_seidel: Any
     residual: Any
+    evaluate: Any
 
 
 _CACHE: dict[tuple[str, int], ProjectionKernels] = {}
@@ -39,239 +42,173 @@ _CACHE: dict[tuple[str, int], ProjectionKernels] = {}
 def projection_kernels(
     name: str, c_func: Any, grad_func: Any, arity: int, *, unit_gradient: bool = False
 ) -> ProjectionKernels:
-    """The Jacobi, Gauss–Seidel and residual kernels of a constraint family, built once and cached.
+    """The Jacobi, Gauss–Seidel, residual and evaluation kernels of a constraint family, built once, cached.
 
     Args:
         name: a unique family name (the cache key and the kernels' module name).
         c_func: ``@wp.func`` C(x0, …, x_{k−1}, rest) → scalar.
-        grad_func: ``@wp.func`` ∇C(x0, …, x_{k−1}) → (∇_0 C, …, ∇_{k−1} C).
-        arity: k, 2 or 4 particles per constraint.
+        grad_func: ``@wp.func`` ∇C(x0, …, x_{k−1}) → (∇_0 C, …, ∇_{k−1} C); for k = 1 the one vec3 ∇_0 C.
+        arity: k ≥ 1, the particles per constraint.
         unit_gradient: |∇_i C| = 1 for every point (Σ w|∇C|² = Σ w).
 
     Returns:
         The family's :class:`ProjectionKernels`.
     """
+    if not isinstance(arity, int) or arity < 1:
+        raise ValueError(f"projection_kernels({name!r}): arity must be an integer >= 1, got {arity!r}")
     key = (name, arity)
     if key not in _CACHE:
-        if arity == 2:
-            _CACHE[key] = _build2(name, c_func, grad_func, unit_gradient)
-        elif arity == 4:
-            _CACHE[key] = _build4(name, c_func, grad_func, unit_gradient)
-        else:
-            raise ValueError(f"projection_kernels: arity must be 2 or 4, got {arity}")
+        _CACHE[key] = _build(name, c_func, grad_func, arity, unit_gradient)
     return _CACHE[key]
 
 
-def _build2(name: str, c_func: Any, grad_func: Any, unit: bool) -> ProjectionKernels:
+# The kernels are written once, below, as templates over the arity k: a line holding ``{j}`` is repeated for
+# each point j = 0 … k−1, and ``{x}``, ``{g}``, ``{w}``, ``{wgs}``, ``{m}`` stand for the point lists and
+# sums. Warp compiles Python source, so the k-point kernels are this text expanded and compiled; for k = 2
+# and 4 it is, expression for expression, what the hand-written kernels were (tests/test_xpbd_factory.py
+# checks the positions bit for bit).
+_SCALARS = """\
+    indices: wp.array2d(dtype=wp.int32),
+    rest: wp.array(dtype=Any),
+    compliance: wp.array(dtype=Any),
+"""
+
+_JACOBI = """\
+def jacobi(
+{scalars}\
+    split: wp.array(dtype=wp.int32),
+    inv_mass: wp.array(dtype=Any),
+    inv_dt2: Any,
+    pbd_k: Any,
+    offset: int,
+    omega: Any,
+    p_in: wp.array(dtype=Any),
+    lam_in: wp.array(dtype=Any),
+    lam_out: wp.array(dtype=Any),
+    delta_out: wp.array(dtype=Any),
+    count_out: wp.array(dtype=wp.int32),
+):
+    s = offset + wp.tid()
+    i{j} = indices[s, {j}]
+    x{j} = p_in[i{j}]
+    # Mass splitting: each of the n_i constraints at particle i sees the mass m_i/n_i.
+    w{j} = inv_mass[i{j}] * type(omega)(split[i{j}])
+    c = c_func({x}, rest[s])
+    {g} = grad_func({x})
+    wgs = {wgs}
+    lam = lam_in[s]
+    dl = constraint_delta_lambda(c, wgs, compliance[s] * inv_dt2, lam, pbd_k) * omega
+    lam_out[s] = lam + dl
+    # Scatter written out (not a wp.func taking the arrays): ~15% faster on the CPU, measured.
+    wp.atomic_add(delta_out, i{j}, (w{j} * dl) * g{j})
+    wp.atomic_add(count_out, i{j}, 1)
+"""
+
+_GAUSS_SEIDEL = """\
+def gauss_seidel(
+{scalars}\
+    inv_mass: wp.array(dtype=Any),
+    inv_dt2: Any,
+    pbd_k: Any,
+    offset: int,
+    omega: Any,
+    p_io: wp.array(dtype=Any),
+    lam_io: wp.array(dtype=Any),
+):
+    s = offset + wp.tid()
+    i{j} = indices[s, {j}]
+    x{j} = p_io[i{j}]
+    w{j} = inv_mass[i{j}]
+    c = c_func({x}, rest[s])
+    {g} = grad_func({x})
+    wgs = {wgs}
+    lam = lam_io[s]
+    dl = constraint_delta_lambda(c, wgs, compliance[s] * inv_dt2, lam, pbd_k) * omega
+    lam_io[s] = lam + dl
+    p_io[i{j}] = x{j} + (w{j} * dl) * g{j}
+"""
+
+_RESIDUAL = """\
+def residual(
+{scalars}\
+    inv_mass: wp.array(dtype=Any),
+    inv_dt2: Any,
+    p_in: wp.array(dtype=Any),
+    lam_in: wp.array(dtype=Any),
+    out: wp.array(dtype=Any),
+):
+    s = wp.tid()
+    i{j} = indices[s, {j}]
+    if {m} == type(inv_dt2)(0.0):
+        return
+    x{j} = p_in[i{j}]
+    r = c_func({x}, rest[s]) + compliance[s] * inv_dt2 * lam_in[s]
+    wp.atomic_add(out, 0, r * r)
+    wp.atomic_add(out, 1, type(r)(1.0))
+"""
+
+_EVALUATE = """\
+def evaluate(
+    indices: wp.array2d(dtype=wp.int32),
+    rest: wp.array(dtype=Any),
+    p_in: wp.array(dtype=Any),
+    c_out: wp.array(dtype=Any),
+    grad_out: wp.array2d(dtype=Any),
+):
+    s = wp.tid()
+    i{j} = indices[s, {j}]
+    x{j} = p_in[i{j}]
+    c_out[s] = c_func({x}, rest[s])
+    {g} = grad_func({x})
+    grad_out[s, {j}] = g{j}
+"""
+
+
+def _expand(template: str, arity: int, unit: bool) -> str:
+    """The template's source for k = ``arity`` points (see the comment above the templates)."""
+    pts = range(arity)
+    sums = {
+        "scalars": _SCALARS,
+        "x": ", ".join(f"x{j}" for j in pts),
+        "g": ", ".join(f"g{j}" for j in pts),
+        "m": " + ".join(f"inv_mass[i{j}]" for j in pts),
+        "wgs": " + ".join(f"w{j}" if unit else f"w{j} * wp.dot(g{j}, g{j})" for j in pts),
+    }
+    out = []
+    for line in template.splitlines(keepends=True):
+        if "{j}" in line:
+            out += [line.replace("{j}", str(j)) for j in pts]
+        else:
+            out.append(line.format(**sums) if "{" in line else line)
+    return "".join(out)
+
+
+def _build(name: str, c_func: Any, grad_func: Any, arity: int, unit: bool) -> ProjectionKernels:
+    """Compile the four templates for ``arity`` points into module ``pliant.constraints._factory.<name>``."""
     module = wp.get_module(f"pliant.constraints._factory.{name}")
-
-    @wp.kernel(module=module)
-    def jacobi(
-        indices: wp.array2d(dtype=wp.int32),
-        rest: wp.array(dtype=Any),
-        compliance: wp.array(dtype=Any),
-        split: wp.array(dtype=wp.int32),
-        inv_mass: wp.array(dtype=Any),
-        inv_dt2: Any,
-        pbd_k: Any,
-        offset: int,
-        omega: Any,
-        p_in: wp.array(dtype=Any),
-        lam_in: wp.array(dtype=Any),
-        lam_out: wp.array(dtype=Any),
-        delta_out: wp.array(dtype=Any),
-        count_out: wp.array(dtype=wp.int32),
+    scope = {
+        "wp": wp,
+        "Any": Any,
+        "c_func": c_func,
+        "grad_func": grad_func,
+        "constraint_delta_lambda": constraint_delta_lambda,
+    }
+    kernels = []
+    # None: the module's default (backward on), as the hand-written kernels had it.
+    for template, backward in (
+        (_JACOBI, None),
+        (_GAUSS_SEIDEL, None),
+        (_RESIDUAL, False),
+        (_EVALUATE, False),
     ):
-        s = offset + wp.tid()
-        i0 = indices[s, 0]
-        i1 = indices[s, 1]
-        # Mass splitting: each of the n_i constraints at particle i sees the mass m_i/n_i.
-        w0 = inv_mass[i0] * type(omega)(split[i0])
-        w1 = inv_mass[i1] * type(omega)(split[i1])
-        x0 = p_in[i0]
-        x1 = p_in[i1]
-        c = c_func(x0, x1, rest[s])
-        g0, g1 = grad_func(x0, x1)
-        wgs = w0 + w1
-        if wp.static(not unit):
-            wgs = w0 * wp.dot(g0, g0) + w1 * wp.dot(g1, g1)
-        lam = lam_in[s]
-        dl = constraint_delta_lambda(c, wgs, compliance[s] * inv_dt2, lam, pbd_k) * omega
-        lam_out[s] = lam + dl
-        # Scatter written out (not a wp.func taking the arrays): ~15% faster on the CPU, measured.
-        wp.atomic_add(delta_out, i0, (w0 * dl) * g0)
-        wp.atomic_add(delta_out, i1, (w1 * dl) * g1)
-        wp.atomic_add(count_out, i0, 1)
-        wp.atomic_add(count_out, i1, 1)
-
-    @wp.kernel(module=module)
-    def gauss_seidel(
-        indices: wp.array2d(dtype=wp.int32),
-        rest: wp.array(dtype=Any),
-        compliance: wp.array(dtype=Any),
-        inv_mass: wp.array(dtype=Any),
-        inv_dt2: Any,
-        pbd_k: Any,
-        offset: int,
-        omega: Any,
-        p_io: wp.array(dtype=Any),
-        lam_io: wp.array(dtype=Any),
-    ):
-        s = offset + wp.tid()
-        i0 = indices[s, 0]
-        i1 = indices[s, 1]
-        w0 = inv_mass[i0]
-        w1 = inv_mass[i1]
-        x0 = p_io[i0]
-        x1 = p_io[i1]
-        c = c_func(x0, x1, rest[s])
-        g0, g1 = grad_func(x0, x1)
-        wgs = w0 + w1
-        if wp.static(not unit):
-            wgs = w0 * wp.dot(g0, g0) + w1 * wp.dot(g1, g1)
-        lam = lam_io[s]
-        dl = constraint_delta_lambda(c, wgs, compliance[s] * inv_dt2, lam, pbd_k) * omega
-        lam_io[s] = lam + dl
-        p_io[i0] = x0 + (w0 * dl) * g0
-        p_io[i1] = x1 + (w1 * dl) * g1
-
-    @wp.kernel(module=module, enable_backward=False)
-    def residual(
-        indices: wp.array2d(dtype=wp.int32),
-        rest: wp.array(dtype=Any),
-        compliance: wp.array(dtype=Any),
-        inv_mass: wp.array(dtype=Any),
-        inv_dt2: Any,
-        p_in: wp.array(dtype=Any),
-        lam_in: wp.array(dtype=Any),
-        out: wp.array(dtype=Any),
-    ):
-        s = wp.tid()
-        i0 = indices[s, 0]
-        i1 = indices[s, 1]
-        if inv_mass[i0] + inv_mass[i1] == type(inv_dt2)(0.0):
-            return
-        r = c_func(p_in[i0], p_in[i1], rest[s]) + compliance[s] * inv_dt2 * lam_in[s]
-        wp.atomic_add(out, 0, r * r)
-        wp.atomic_add(out, 1, type(r)(1.0))
-
-    return ProjectionKernels(jacobi, gauss_seidel, residual)
-
-
-def _build4(name: str, c_func: Any, grad_func: Any, unit: bool) -> ProjectionKernels:
-    module = wp.get_module(f"pliant.constraints._factory.{name}")
-
-    @wp.kernel(module=module)
-    def jacobi(
-        indices: wp.array2d(dtype=wp.int32),
-        rest: wp.array(dtype=Any),
-        compliance: wp.array(dtype=Any),
-        split: wp.array(dtype=wp.int32),
-        inv_mass: wp.array(dtype=Any),
-        inv_dt2: Any,
-        pbd_k: Any,
-        offset: int,
-        omega: Any,
-        p_in: wp.array(dtype=Any),
-        lam_in: wp.array(dtype=Any),
-        lam_out: wp.array(dtype=Any),
-        delta_out: wp.array(dtype=Any),
-        count_out: wp.array(dtype=wp.int32),
-    ):
-        s = offset + wp.tid()
-        i0 = indices[s, 0]
-        i1 = indices[s, 1]
-        i2 = indices[s, 2]
-        i3 = indices[s, 3]
-        x0 = p_in[i0]
-        x1 = p_in[i1]
-        x2 = p_in[i2]
-        x3 = p_in[i3]
-        # Mass splitting: each of the n_i constraints at particle i sees the mass m_i/n_i.
-        w0 = inv_mass[i0] * type(omega)(split[i0])
-        w1 = inv_mass[i1] * type(omega)(split[i1])
-        w2 = inv_mass[i2] * type(omega)(split[i2])
-        w3 = inv_mass[i3] * type(omega)(split[i3])
-        c = c_func(x0, x1, x2, x3, rest[s])
-        g0, g1, g2, g3 = grad_func(x0, x1, x2, x3)
-        wgs = w0 + w1 + w2 + w3
-        if wp.static(not unit):
-            wgs = w0 * wp.dot(g0, g0) + w1 * wp.dot(g1, g1) + w2 * wp.dot(g2, g2) + w3 * wp.dot(g3, g3)
-        lam = lam_in[s]
-        dl = constraint_delta_lambda(c, wgs, compliance[s] * inv_dt2, lam, pbd_k) * omega
-        lam_out[s] = lam + dl
-        wp.atomic_add(delta_out, i0, (w0 * dl) * g0)
-        wp.atomic_add(delta_out, i1, (w1 * dl) * g1)
-        wp.atomic_add(delta_out, i2, (w2 * dl) * g2)
-        wp.atomic_add(delta_out, i3, (w3 * dl) * g3)
-        wp.atomic_add(count_out, i0, 1)
-        wp.atomic_add(count_out, i1, 1)
-        wp.atomic_add(count_out, i2, 1)
-        wp.atomic_add(count_out, i3, 1)
-
-    @wp.kernel(module=module)
-    def gauss_seidel(
-        indices: wp.array2d(dtype=wp.int32),
-        rest: wp.array(dtype=Any),
-        compliance: wp.array(dtype=Any),
-        inv_mass: wp.array(dtype=Any),
-        inv_dt2: Any,
-        pbd_k: Any,
-        offset: int,
-        omega: Any,
-        p_io: wp.array(dtype=Any),
-        lam_io: wp.array(dtype=Any),
-    ):
-        s = offset + wp.tid()
-        i0 = indices[s, 0]
-        i1 = indices[s, 1]
-        i2 = indices[s, 2]
-        i3 = indices[s, 3]
-        x0 = p_io[i0]
-        x1 = p_io[i1]
-        x2 = p_io[i2]
-        x3 = p_io[i3]
-        w0 = inv_mass[i0]
-        w1 = inv_mass[i1]
-        w2 = inv_mass[i2]
-        w3 = inv_mass[i3]
-        c = c_func(x0, x1, x2, x3, rest[s])
-        g0, g1, g2, g3 = grad_func(x0, x1, x2, x3)
-        wgs = w0 + w1 + w2 + w3
-        if wp.static(not unit):
-            wgs = w0 * wp.dot(g0, g0) + w1 * wp.dot(g1, g1) + w2 * wp.dot(g2, g2) + w3 * wp.dot(g3, g3)
-        lam = lam_io[s]
-        dl = constraint_delta_lambda(c, wgs, compliance[s] * inv_dt2, lam, pbd_k) * omega
-        lam_io[s] = lam + dl
-        p_io[i0] = x0 + (w0 * dl) * g0
-        p_io[i1] = x1 + (w1 * dl) * g1
-        p_io[i2] = x2 + (w2 * dl) * g2
-        p_io[i3] = x3 + (w3 * dl) * g3
-
-    @wp.kernel(module=module, enable_backward=False)
-    def residual(
-        indices: wp.array2d(dtype=wp.int32),
-        rest: wp.array(dtype=Any),
-        compliance: wp.array(dtype=Any),
-        inv_mass: wp.array(dtype=Any),
-        inv_dt2: Any,
-        p_in: wp.array(dtype=Any),
-        lam_in: wp.array(dtype=Any),
-        out: wp.array(dtype=Any),
-    ):
-        s = wp.tid()
-        i0 = indices[s, 0]
-        i1 = indices[s, 1]
-        i2 = indices[s, 2]
-        i3 = indices[s, 3]
-        zero = type(inv_dt2)(0.0)
-        if inv_mass[i0] + inv_mass[i1] + inv_mass[i2] + inv_mass[i3] == zero:
-            return
-        r = c_func(p_in[i0], p_in[i1], p_in[i2], p_in[i3], rest[s]) + compliance[s] * inv_dt2 * lam_in[s]
-        wp.atomic_add(out, 0, r * r)
-        wp.atomic_add(out, 1, type(r)(1.0))
-
-    return ProjectionKernels(jacobi, gauss_seidel, residual)
+        source = _expand(template, arity, unit)
+        fn_name = source[4 : source.index("(")]
+        # Registered with linecache so that Warp (and tracebacks) read the generated text like a file's.
+        filename = f"<pliant.constraints._factory {name} {fn_name} k={arity}>"
+        linecache.cache[filename] = (len(source), None, source.splitlines(keepends=True), filename)
+        exec(compile(source, filename, "exec"), scope)  # noqa: S102 - our own template, no user text
+        kernels.append(wp.kernel(scope[fn_name], module=module, enable_backward=backward))
+    return ProjectionKernels(*kernels)
 
 
 class FixedArityConstraint(Constraint):
@@ -314,6 +251,16 @@ class FixedArityConstraint(Constraint):
                 [*args, m.s(1.0 / (dt * dt)), p, self.lam, out],
                 device=m.device,
             )
+
+    def evaluate(self, x: wp.array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """C [n], indices [n, k] and ∇C [n, k, 3] of the bound set at positions ``x`` (colour order)."""
+        m = self.model
+        c = wp.zeros(self.count, dtype=m.scalar, device=m.device)
+        k = self.indices.shape[1]
+        g = wp.zeros((self.count, k), dtype=m.vec3, device=m.device)
+        if self.count:
+            wp.launch(self.kernels.evaluate, self.count, [self.indices, self.rest, x, c, g], device=m.device)
+        return c.numpy(), self.indices.numpy(), g.numpy()
 
     def _device_arrays(self, idx: np.ndarray, rest: np.ndarray, comp: np.ndarray, coloring: bool) -> None:
         """Colour-sort and copy indices, rest values, compliances, λ and split counts to the device."""

@@ -332,6 +332,28 @@ def _project_isometric(
         p_io[i3] = p_io[i3] + (w3 * g[3]) * dl
 
 
+@wp.kernel(enable_backward=False)
+def _isometric_values(
+    indices: wp.array2d(dtype=wp.int32),
+    weights: wp.array(dtype=Any),
+    p_in: wp.array(dtype=Any),
+    c_out: wp.array(dtype=Any),
+    grad_out: wp.array2d(dtype=Any),
+):
+    # Stencil s holds three scalar constraints, rows 3s + d: C_d and ∇_i C_d = K_i e_d.
+    s = wp.tid()
+    K = weights[s]
+    x0 = p_in[indices[s, 0]]
+    c = isometric_bending_c(x0, p_in[indices[s, 1]], p_in[indices[s, 2]], p_in[indices[s, 3]], K)
+    g = isometric_bending_grad(K)
+    for d in range(3):
+        c_out[3 * s + d] = c[d]
+        e = x0 * type(c[0])(0.0)
+        e[d] = type(c[0])(1.0)
+        for j in range(4):
+            grad_out[3 * s + d, j] = g[j] * e
+
+
 def isometric_bending_weights(q: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """K [B, 4] of each stencil (edge 0-1, opposite 2, 3) at rest positions q, scaled by √(3/(A0 + A1))."""
     x0, x1, x2, x3 = (q[idx[:, k]] for k in range(4))
@@ -395,6 +417,15 @@ class IsometricBending(Constraint):
         self.lam = wp.zeros(n, dtype=model.vec3, device=d)
         self.split = wp.array(self._split_counts(idx), dtype=wp.int32, device=d)
         self.order = order
+
+    def evaluate(self, x: wp.array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """C [3B], indices [3B, 4] and ∇C [3B, 4, 3]: the three components of each stencil's C, in turn."""
+        m = self.model
+        c = wp.zeros(3 * self.count, dtype=m.scalar, device=m.device)
+        g = wp.zeros((3 * self.count, 4), dtype=m.vec3, device=m.device)
+        if self.count:
+            wp.launch(_isometric_values, self.count, [self.indices, self.weights, x, c, g], device=m.device)
+        return c.numpy(), np.repeat(self.indices.numpy(), 3, axis=0), g.numpy()
 
     def project(self, ctx: ProjectionContext, p: wp.array, dt: float) -> None:
         """One sweep: Gauss–Seidel per colour, or Jacobi into ``ctx.delta``."""

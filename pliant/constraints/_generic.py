@@ -144,7 +144,13 @@ class GenericConstraint(Constraint):
         self.c_adj = wp.ones(n, dtype=f, device=d)
         self.params_adj = wp.zeros(n, dtype=f, device=d)
 
-    def evaluate(self, p: wp.array) -> None:
+    def evaluate(self, x: wp.array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """C [n], indices [n, k] and the autodiff ∇C [n, k, 3] at positions ``x``."""
+        self._evaluate_into(x)
+        k = self.arity
+        return self.c.numpy(), self.indices.numpy()[:, :k], self.grad.numpy()[:, :k]
+
+    def _evaluate_into(self, p: wp.array) -> None:
         """C into :attr:`c` and ∇C into :attr:`grad` ([n, 4]) at positions ``p`` (launches only)."""
         m = self.model
         wp.launch(_gather, (self.count, 4), [self.indices, p, self.xg, self.grad], device=m.device)
@@ -161,7 +167,7 @@ class GenericConstraint(Constraint):
 
     def _sweep(self, ctx: ProjectionContext, p: wp.array, dt: float) -> None:
         m = self.model
-        self.evaluate(p)
+        self._evaluate_into(p)
         wp.launch(
             _project_generic,
             self.count,

@@ -1,5 +1,6 @@
 """Potential energies (value, gradient, Hessian) and dissipation terms."""
 
+from .._subclasses import registered_subclasses
 from ._air import AirDrag, air_drag_force
 from ._base import Energy
 from ._cloth import cloth_spring_stiffness
@@ -29,7 +30,21 @@ def mass_spring(*, dashpots: bool = True, gravity: bool = True) -> list[Energy]:
     return terms
 
 
+def registered_energies() -> tuple[type[Energy], ...]:
+    """Every concrete, public :class:`Energy` class that exists now, sorted by name.
+
+    Found by walking :class:`Energy`'s subclasses (so a user's or a test's energy is found once its class is
+    created); abstract and private (leading ``_``) classes are left out. ``tests/test_energy_contracts.py``
+    checks each one's gradient and Hessian against finite differences on its example model.
+    """
+    return registered_subclasses(Energy)
+
+
+#: pliant's own energies (:func:`registered_energies` at import), one class each.
+ALL_ENERGIES: tuple[type[Energy], ...] = registered_energies()
+
 __all__ = [
+    "ALL_ENERGIES",
     "Corotated",
     "LinearElastic",
     "NeoHookean",
@@ -54,6 +69,7 @@ __all__ = [
     "cloth_spring_stiffness",
     "dashpot_force",
     "mass_spring",
+    "registered_energies",
     "spring_energy",
     "spring_gradient",
     "spring_hessian",

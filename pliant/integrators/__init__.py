@@ -1,5 +1,6 @@
 """Time integrators of A dy/dt = f(y): the same objects advance NumPy ODEs and physical models."""
 
+from .._subclasses import registered_subclasses
 from ._base import Integrator, Solution, System
 from ._dopri import DormandPrince
 from ._explicit import RK2, RK4, ExplicitRK, ForwardEuler, Heun, Midpoint
@@ -20,21 +21,11 @@ def registered_integrators() -> tuple[type[Integrator], ...]:
     """
     import inspect
 
-    found: set[type[Integrator]] = set()
-    todo = list(Integrator.__subclasses__())
-    while todo:
-        cls = todo.pop()
-        todo.extend(cls.__subclasses__())
-        if cls.__name__.startswith("_") or inspect.isabstract(cls):
-            continue
-        required = [
-            p
-            for p in list(inspect.signature(cls.__init__).parameters.values())[1:]
-            if p.default is p.empty and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
-        ]
-        if not required:
-            found.add(cls)
-    return tuple(sorted(found, key=lambda c: c.__name__))
+    def no_required_arguments(cls: type) -> bool:
+        params = list(inspect.signature(cls.__init__).parameters.values())[1:]
+        return all(p.default is not p.empty or p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD) for p in params)
+
+    return registered_subclasses(Integrator, no_required_arguments)
 
 
 #: pliant's own integrators (:func:`registered_integrators` at import), one class each.

@@ -26,22 +26,32 @@ import numpy as np
 
 from .. import integrators as I  # noqa: N812
 
-#: Integrators of the oscillator study, in table order.
-OSCILLATOR_INTEGRATORS = (
-    I.ForwardEuler,
-    I.Heun,
-    I.Midpoint,
-    I.RK4,
-    I.SymplecticEuler,
-    I.VelocityVerlet,
-    I.BackwardEuler,
-    I.ImplicitMidpoint,
-    I.BDF2,
-    I.DormandPrince,
+#: Row order of the study's tables (a registered integrator not named here follows, by name).
+_TABLE_ORDER = (
+    "ForwardEuler",
+    "Heun",
+    "Midpoint",
+    "RK4",
+    "SymplecticEuler",
+    "VelocityVerlet",
+    "BackwardEuler",
+    "ImplicitMidpoint",
+    "BDF2",
+    "DormandPrince",
 )
 
-#: Integrators of the cloth study (DormandPrince has no physical path).
-CLOTH_INTEGRATORS = tuple(c for c in OSCILLATOR_INTEGRATORS if c is not I.DormandPrince)
+
+def _table_key(cls: type) -> tuple[int, str]:
+    name = cls.__name__
+    return (_TABLE_ORDER.index(name) if name in _TABLE_ORDER else len(_TABLE_ORDER), name)
+
+
+#: Integrators of the oscillator study: every registered one (pl.integrators.ALL_INTEGRATORS), so a new
+#: integrator joins the study, except RK2, whose default coefficients are Heun's (a duplicate row).
+OSCILLATOR_INTEGRATORS = tuple(sorted((c for c in I.ALL_INTEGRATORS if c is not I.RK2), key=_table_key))
+
+#: Integrators of the cloth study: those that step physical models (DormandPrince is ODE-only).
+CLOTH_INTEGRATORS = tuple(c for c in OSCILLATOR_INTEGRATORS if getattr(c, "supports_system", True))
 
 
 def _make(cls: type) -> I.Integrator:
