@@ -32,6 +32,8 @@ from typing import Any
 
 import numpy as np
 
+from ._box_reference import motion_fields
+
 SIDE = 0.5
 DENSITY = 1000.0
 YOUNG = 1.0e5
@@ -220,15 +222,9 @@ def soft_box_drop(
         "final_max_speed": round(float(np.abs(v).max()), 5) if finite else None,
         "final_min_det_F": round(float(min_det), 5) if finite else None,
         "stable": finite,
-        # The whole drop against the converged centre-of-mass curve (pliant.bench._box_motion).
-        **_motion(n, np.asarray(com)),
+        # The whole drop against the converged centre-of-mass curve (pliant.bench._box_reference).
+        **motion_fields(n, np.asarray(com)),
     }
-
-
-def _motion(n: int, com: np.ndarray) -> dict:
-    from ._box_motion import motion_fields
-
-    return motion_fields(n, com)
 
 
 #: Substeps per 1/60 s frame of the explicit rows: the fewest (of those tried) that keep the whole motion
