@@ -21,6 +21,7 @@ from ._registry import (
     OBJECT_KINDS,
     SOLVER_KINDS,
 )
+from ._replicate import replicate_scene
 from ._schema import OutputSection, SceneConfig
 
 #: Video colours (RGB in [0, 1]) of simulated bodies and of drawn colliders.
@@ -392,8 +393,6 @@ def build_scene(
     x0 = ctx.builder.positions()
     kin, spring_handles = _select_handles(ctx)
     if worlds != 1:
-        from ._worlds import replicate_scene
-
         replicate_scene(ctx, worlds)
     _finalize(ctx, device, dtype, requires_grad)
     for w, params in enumerate(world_parameters or ()):
