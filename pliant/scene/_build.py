@@ -20,6 +20,7 @@ from ._registry import (
     HANDLE_KINDS,
     OBJECT_KINDS,
     SOLVER_KINDS,
+    handle_mode,
 )
 from ._replicate import replicate_scene
 from ._schema import OutputSection, SceneConfig
@@ -163,7 +164,7 @@ def _select_handles(ctx: BuildContext) -> tuple[list, list]:
         if h.object is not None:
             lo, hi = ctx.ranges[h.object if isinstance(h.object, int) else names.index(h.object)]
         idx, pts = HANDLE_KINDS[h.kind].select(ctx, h, lo, hi, i)
-        if h.resolved_mode() == "kinematic":
+        if handle_mode(h) == "kinematic":
             ctx.builder.add_kinematic(idx)
             kin.append((h, slice(n_kin, n_kin + idx.size), pts))
             n_kin += idx.size
