@@ -10,9 +10,9 @@ from typing import Any
 
 import numpy as np
 
+from .._prebuild import maybe_prebuild
 from ._context import BuildContext
 from ._errors import SceneError
-from ._kernels import maybe_prebuild
 from ._registry import (
     COLLIDER_KINDS,
     CONSTRAINT_KINDS,
