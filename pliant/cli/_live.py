@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from . import CliError
+from ._common import CliError
 
 
 def start_live(args: argparse.Namespace) -> tuple[Any, str]:

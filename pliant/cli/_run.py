@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from . import EXIT_DIVERGED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USER, CliError
+from ._common import EXIT_DIVERGED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USER, CliError
 
 #: Mesh files a scene can reference (``kind = "mesh"``) but that are not scenes themselves.
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".msh", ".vtk", ".vtu", ".off", ".mesh")
