@@ -21,7 +21,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent / "pliant"
 
 LAYERS: list[tuple[str, ...]] = [
-    ("_warp", "_prebuild", "_blas", "_extras"),
+    ("_warp", "_prebuild", "_blas", "_extras", "_time"),
     ("geometry",),
     ("model",),
     ("integrators", "energies", "constraints", "collision"),

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from .._time import substep_dt
 from ._box_reference import motion_fields
 
 SIDE = 0.5
@@ -159,7 +160,7 @@ def soft_box_drop(
         model, method, newton_tol=newton_tol, minimizer=minimizer, integrator=integrator, substeps=substeps
     )
     elastic = solver.energies[0]
-    dt = FRAME_DT / substeps
+    dt = substep_dt(FRAME_DT, substeps)
     s0, s1 = model.state(), model.state()
     solver.step(s0, s1, None, dt)  # warm-up: kernel compilation or cache load
     solver.step(s1, s0, None, dt)

@@ -21,6 +21,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from .._time import substep_dt
 from ._common import print_rows, run_timed, speed_fields
 from ._drape_motion import REFERENCES, motion_fields, reference_curve
 
@@ -70,7 +71,7 @@ def cloth_drape(
     started = time.perf_counter()
     model = cloth_drape_model(n, device=device, dtype=dtype)
     solver = make_solver(model, method, cg_iterations=cg_iterations, damping_rate=damping_rate)
-    dt = FRAME_DT / substeps
+    dt = substep_dt(FRAME_DT, substeps)
     state, timing = run_timed(
         model, solver, model.control(), dt, frames=frames, substeps=substeps, device=device, started=started
     )

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from .._prebuild import maybe_prebuild
+from .._time import substep_dt
 from ._context import BuildContext
 from ._errors import SceneError
 from ._registry import (
@@ -75,6 +76,11 @@ class Scene:
             stacklevel=2,
         )
         return self.frame_dt
+
+    @property
+    def substep_dt(self) -> float:
+        """The solver's step ``dt`` [s]: ``frame_dt / substeps`` (:func:`pliant._time.substep_dt`)."""
+        return substep_dt(self.frame_dt, self.substeps)
 
     @property
     def name(self) -> str:

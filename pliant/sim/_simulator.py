@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from .._time import substep_dt
 from ..io import CheckpointError, CheckpointSpec, Trajectory, load_checkpoint, save_checkpoint
 from ..model import Control, Model, State
 from ..model._worlds import write_range
@@ -207,6 +208,11 @@ class Simulator:
         """Deprecated name of :attr:`frame_dt` (the frame duration [s])."""
         return self.frame_dt
 
+    @property
+    def substep_dt(self) -> float:
+        """The solver's step ``dt`` [s]: ``frame_dt / substeps`` (:func:`pliant._time.substep_dt`)."""
+        return substep_dt(self.frame_dt, self.substeps)
+
     # ------------------------------------------------------------------ stepping
     def step_frame(self) -> None:
         """Advance one frame (``substeps`` solver steps, :class:`pliant.solvers.FrameStep`); no host
@@ -219,7 +225,7 @@ class Simulator:
         wp.copy(self._x_start, self.state_0.particle_q)
         if self.control_fn is not None:
             self.control_fn(self.time, self.control)
-        h = self.frame_dt / self.substeps
+        h = self.substep_dt
         fs = self._frame_step
         if fs is None or (fs.solver, fs.dt, fs.substeps) != (self.solver, h, self.substeps):
             fs = self._frame_step = FrameStep(self.solver, h, self.substeps)  # settings changed: rebuild
@@ -266,7 +272,7 @@ class Simulator:
         speed2, disp2, bad, kin_speed2, kin_disp2 = (float(a) for a in self._stats.numpy())
         if self._per_world and self.frame > 0:
             speed2, disp2, bad = self._check_worlds(speed2, disp2, bad)
-        advice = stability_advice(self.solver, self.frame_dt / self.substeps, self.substeps)
+        advice = stability_advice(self.solver, self.substep_dt, self.substeps)
         if bad:
             if self.frame == 0:
                 raise DivergenceError(
