@@ -150,8 +150,8 @@ def wait() -> None:
 def _type_json(t: Any) -> Any:
     """A kernel argument type as JSON, or None when it cannot be written (structs, indexed arrays)."""
     if type(t) is wp.array or type(t).__name__ == "_ArrayAnnotation":  # not indexed or fabric arrays
-        dt = _type_json(t.dtype)
-        return None if dt is None else {"array": int(t.ndim), "dtype": dt}
+        dtype = _type_json(t.dtype)
+        return None if dtype is None else {"array": int(t.ndim), "dtype": dtype}
     if wp.types.type_is_vector(t) or wp.types.type_is_matrix(t):  # also those made by wp.types.vector(...)
         shape = list(getattr(t, "_shape_", (t._length_,)))
         scalar = _type_json(t._wp_scalar_type_)

@@ -216,7 +216,9 @@ def test_simulator_frame_dt_and_its_deprecated_name():
     model = b.finalize(device="cpu", dtype="float64")
     solver = pl.solvers.ForceSolver(model)
     sim = pl.Simulator(model, solver, frame_dt=0.05, substeps=5)
-    assert sim.frame_dt == 0.05 and sim.dt == 0.05
+    assert sim.frame_dt == 0.05 and sim.substep_dt == 0.01
+    with pytest.warns(DeprecationWarning, match="Simulator.frame_dt"):
+        assert sim.dt == 0.05  # the old name of the frame duration, not the step
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         old = pl.Simulator(model, solver, dt=0.05, substeps=5)

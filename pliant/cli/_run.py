@@ -227,7 +227,9 @@ def simulate(
         try:
             check_fps(scene.fps)
         except ValueError as exc:
-            raise CliError(f"video frame rate (output.fps, default 1/dt): {exc}; or use --no-video") from None
+            raise CliError(
+                f"video frame rate (output.fps, default 1/frame_dt): {exc}; or use --no-video"
+            ) from None
     if resume and not ckpt.exists():
         raise CliError(f"--resume: no checkpoint at {ckpt}; run once without --resume first")
     from ._splats import splat_run

@@ -205,7 +205,9 @@ class Simulator:
 
     @property
     def dt(self) -> float:
-        """Deprecated name of :attr:`frame_dt` (the frame duration [s])."""
+        """Deprecated name of :attr:`frame_dt` (the frame duration [s]); the step is :attr:`substep_dt`."""
+        msg = "Simulator.dt is deprecated; use Simulator.frame_dt (the frame [s]) or .substep_dt (the step)"
+        warnings.warn(msg, DeprecationWarning, stacklevel=2)
         return self.frame_dt
 
     @property
@@ -257,9 +259,9 @@ class Simulator:
     def check(self) -> None:
         """Raise :class:`DivergenceError` if any value is non-finite or a speed exceeds ``max_speed``.
 
-        Two speeds are bounded: the velocity array's, and the frame's displacement divided by ``dt`` (what
-        a collider or handle that teleports particles produces without touching the velocities). One host
-        read per call.
+        Two speeds are bounded: the velocity array's, and the frame's displacement divided by ``frame_dt``
+        (what a collider or handle that teleports particles produces without touching the velocities). One
+        host read per call.
         """
         self._stats.zero_()
         s = self.state_0
@@ -314,7 +316,7 @@ class Simulator:
         if jump > self.max_speed:
             raise DivergenceError(
                 self.frame,
-                "max displacement speed (m/s, displacement over the frame / dt)",
+                "max displacement speed (m/s, displacement over the frame / frame_dt)",
                 jump,
                 "a particle moved farther in one frame than max_speed allows: a collider that encloses or "
                 "jumps onto the body, a handle or kinematic target moving faster than max_speed, or an "
