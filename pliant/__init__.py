@@ -65,6 +65,9 @@ def __dir__() -> list[str]:
     return sorted({*globals(), *_LAZY, *_SUBMODULES})
 
 
+# Every name the package exposes: the lazy classes, the version and every public sub-package (but
+# ``examples``, user code on top of this surface: ``python -m pliant.examples``). tests/test_public_api.py
+# checks that this list, _LAZY, _SUBMODULES and the sub-packages on disk agree.
 __all__ = [
     "Control",
     "DivergenceError",
@@ -74,9 +77,23 @@ __all__ = [
     "State",
     "Trajectory",
     "__version__",
+    "bench",
+    "cli",
+    "collision",
+    "constraints",
+    "diff",
     "energies",
+    "fit",
+    "gaussians",
+    "geometry",
     "integrators",
     "io",
+    "live",
     "model",
+    "render",
+    "scene",
+    "sim",
     "solvers",
+    "studies",
+    "sweep",
 ]

@@ -25,6 +25,7 @@ import functools
 import importlib
 import inspect
 import json
+import os
 import threading
 from pathlib import Path
 from typing import Any
@@ -149,8 +150,8 @@ def wait() -> None:
 def _type_json(t: Any) -> Any:
     """A kernel argument type as JSON, or None when it cannot be written (structs, indexed arrays)."""
     if type(t) is wp.array or type(t).__name__ == "_ArrayAnnotation":  # not indexed or fabric arrays
-        dt = _type_json(t.dtype)
-        return None if dt is None else {"array": int(t.ndim), "dtype": dt}
+        dtype = _type_json(t.dtype)
+        return None if dtype is None else {"array": int(t.ndim), "dtype": dtype}
     if wp.types.type_is_vector(t) or wp.types.type_is_matrix(t):  # also those made by wp.types.vector(...)
         shape = list(getattr(t, "_shape_", (t._length_,)))
         scalar = _type_json(t._wp_scalar_type_)
@@ -233,6 +234,35 @@ def _manifests() -> dict:
         return json.loads(MANIFEST.read_text())
     except (OSError, ValueError):
         return {}
+
+
+#: Environment switch: PLIANT_PREBUILD=0 turns the background compilation off.
+ENV = "PLIANT_PREBUILD"
+
+
+def enabled() -> bool:
+    """Whether background compilation is on (``PLIANT_PREBUILD`` is not ``0``)."""
+    return os.environ.get(ENV, "1") != "0"
+
+
+def maybe_prebuild(name: str, model: Any) -> int:
+    """Start compiling built-in scene ``name``'s kernels (``build_scene`` calls this) when ``model`` is
+    float32 on the CPU without gradients (what the manifest was recorded for) and :func:`enabled`.
+
+    Args:
+        name: the scene's name (``[scene] name``); scenes without a stored manifest queue nothing.
+        model: the built :class:`~pliant.model.Model` (its dtype, device and ``requires_grad``).
+
+    Returns the number of modules queued."""
+    if (
+        not enabled()
+        or model.dtype != "float32"
+        or model.requires_grad
+        or not str(model.device).startswith("cpu")
+    ):
+        return 0
+    manifest = manifest_for(name)
+    return 0 if manifest is None else prebuild(manifest, model.device)
 
 
 def manifest_for(scene: str) -> dict | None:

@@ -216,7 +216,9 @@ def test_simulator_frame_dt_and_its_deprecated_name():
     model = b.finalize(device="cpu", dtype="float64")
     solver = pl.solvers.ForceSolver(model)
     sim = pl.Simulator(model, solver, frame_dt=0.05, substeps=5)
-    assert sim.frame_dt == 0.05 and sim.dt == 0.05
+    assert sim.frame_dt == 0.05 and sim.substep_dt == 0.01
+    with pytest.warns(DeprecationWarning, match="Simulator.frame_dt"):
+        assert sim.dt == 0.05  # the old name of the frame duration, not the step
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         old = pl.Simulator(model, solver, dt=0.05, substeps=5)
@@ -226,3 +228,22 @@ def test_simulator_frame_dt_and_its_deprecated_name():
         pl.Simulator(model, solver, frame_dt=0.05, dt=0.05)
     a = pl.Simulator(model, solver, frame_dt=0.05, substeps=5).run(3, progress=False).x
     assert np.array_equal(a, old.run(3, progress=False).x)
+
+
+def test_substep_dt_is_the_one_division_of_a_frame():
+    """Issue 26: ``substep_dt`` is frame_dt / substeps bit for bit (the float every caller used to compute
+    itself), rejects a step count that is not an integer >= 1 and a non-positive frame, and the Simulator
+    and Scene properties are that function."""
+    from pliant._time import substep_dt
+
+    for frame_dt, n in ((1 / 60, 16), (1 / 30, 3), (0.05, 7), (1e-3, 1)):
+        assert substep_dt(frame_dt, n) == frame_dt / n  # exact: the same IEEE division
+    assert substep_dt(1 / 60, 16) * 16 == pytest.approx(1 / 60, rel=1e-15)
+    for bad in (0, -2, 2.5, True):
+        with pytest.raises(ValueError, match="substeps must be an integer >= 1"):
+            substep_dt(1 / 60, bad)
+    with pytest.raises(ValueError, match="frame_dt must be a positive"):
+        substep_dt(0.0, 4)
+    scene = pl.scene.build_scene(pl.scene.load_scene("rope"), device="cpu")
+    assert scene.substep_dt == scene.frame_dt / scene.substeps
+    assert scene.simulator().substep_dt == scene.substep_dt

@@ -21,7 +21,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent / "pliant"
 
 LAYERS: list[tuple[str, ...]] = [
-    ("_warp", "_prebuild", "_blas", "_extras", "_subclasses"),
+    ("_warp", "_prebuild", "_blas", "_extras", "_subclasses", "_time"),
     ("geometry",),
     ("model",),
     ("integrators", "energies", "constraints", "collision"),
@@ -73,9 +73,16 @@ def _imports(path: Path) -> list[tuple[int, str]]:
                 for a in node.names:
                     sub = "pliant." + a.name
                     out.append((node.lineno, sub if _top(sub) in LEVEL else _top_name_home(a.name)))
-            else:
-                out.append((node.lineno, target))
+            else:  # from P import a: the submodule P.a when there is one (the cycle test needs it), else P
+                out += [(node.lineno, _submodule(target, a.name)) for a in node.names]
     return out
+
+
+def _submodule(package: str, name: str) -> str:
+    """``package.name`` when that is a module or subpackage of pliant, else ``package`` (a name in it)."""
+    path = ROOT.parent.joinpath(*package.split("."), name)
+    is_module = path.with_suffix(".py").exists() or (path / "__init__.py").exists()
+    return f"{package}.{name}" if is_module else package
 
 
 def _top_name_home(name: str) -> str:

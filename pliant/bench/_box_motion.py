@@ -33,14 +33,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import REFERENCES, curve_deviation, load_reference
+# The stored curve and the error against it live one module down, where the benchmark rows read them.
+from ._box_reference import DROP_HEIGHT, WINDOW, motion_fields, reference_curve, trajectory_error
+from ._common import REFERENCES
+from ._fem import soft_box_drop
 
 #: Substeps per frame of the references (symplectic Euler, float64; the rows' explicit setting is 20).
 REFERENCE_SUBSTEPS = {4: 1280, 10: 1280, 20: 1280, 30: 1280}
-#: The drop height [m]: the scale of ``trajectory_error``.
-DROP_HEIGHT = 0.1
-#: Frames judged: the fall, the impact (frame 10) and the rebound to its top (frame 20).
-WINDOW = 24
 
 
 def com_curve(
@@ -66,8 +65,6 @@ def com_curve(
         frames: frames to run.
         integrator: the implicit integrator's class name in :mod:`pliant.integrators`.
     """
-    from ._fem import soft_box_drop
-
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "com.npy"
         soft_box_drop(
@@ -84,33 +81,21 @@ def com_curve(
         return np.load(path)
 
 
-def reference_curve(n: int) -> np.ndarray:
-    """The stored converged centre-of-mass curve [m] of the n³ drop (frames 1 … :data:`WINDOW`)."""
-    return load_reference(f"soft_box_{n}", "com", f"python -m pliant.bench._box_motion {n}")
-
-
 def compute_reference(n: int, substeps: int | None = None) -> np.ndarray:
     """The converged curve: float64 symplectic Euler at ``substeps`` (default :data:`REFERENCE_SUBSTEPS`)."""
     return com_curve(n, method="explicit", substeps=substeps or REFERENCE_SUBSTEPS[n], frames=WINDOW)
 
 
-def trajectory_error(curve: np.ndarray, reference: np.ndarray) -> float:
-    """max_k |curve_k − reference_k| / :data:`DROP_HEIGHT` over the frames both have (inf if not finite):
-    the reference's :data:`WINDOW` frames."""
-    return curve_deviation(curve, reference, DROP_HEIGHT)
-
-
-def motion_fields(n: int, curve: np.ndarray) -> dict:
-    """The ``trajectory_error`` column of a soft-box row (None without a stored reference for n), and the
-    lowest centre-of-mass height [m] of the run and of the reference (the impact's depth)."""
-    if not (REFERENCES / f"soft_box_{n}.npz").exists():
-        return {"trajectory_error": None}
-    ref = reference_curve(n)
-    return {
-        "trajectory_error": round(trajectory_error(curve, ref), 5),
-        "min_height_com": round(float(np.min(curve)), 5),
-        "min_height_com_reference": round(float(np.min(ref)), 5),
-    }
+__all__ = [
+    "DROP_HEIGHT",
+    "REFERENCE_SUBSTEPS",
+    "WINDOW",
+    "com_curve",
+    "compute_reference",
+    "motion_fields",
+    "reference_curve",
+    "trajectory_error",
+]
 
 
 if __name__ == "__main__":

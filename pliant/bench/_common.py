@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from .._time import substep_dt
+
 
 @dataclass(frozen=True)
 class Timing:
@@ -159,7 +161,7 @@ def frame_curve(
     out = [measure(s0.particle_q.numpy())] if include_start else []
     from ..solvers import FrameStep
 
-    frame = FrameStep(solver, frame_dt / substeps, substeps)
+    frame = FrameStep(solver, substep_dt(frame_dt, substeps), substeps)
     for _ in range(frames):
         s0, s1 = frame(s0, control, s1)
         out.append(measure(s0.particle_q.numpy()))

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from ._common import REFERENCES, curve_deviation, frame_curve, load_reference
-from ._mass_spring import FRAME_DT, cloth_drape_model, make_solver, sag
+from ._drape_scene import FRAME_DT, cloth_drape_model, make_solver, sag
 
 #: Substeps per frame of the references (8× or more the stable benchmark setting).
 REFERENCE_SUBSTEPS = {16: 640, 64: 640, 128: 1280}
@@ -42,7 +42,7 @@ def sag_curve(
     device: str | None = "cpu",
 ) -> np.ndarray:
     """Sag [m] at frames 0 … ``frames`` of the n × n drape run with a benchmark solver (``method``:
-    "implicit", "symplectic" or "force"; see :func:`pliant.bench._mass_spring.make_solver`)."""
+    "implicit", "symplectic" or "force"; see :func:`pliant.bench._drape_scene.make_solver`)."""
     model = cloth_drape_model(n, device=device, dtype=dtype)
     solver = make_solver(model, method, cg_iterations=cg_iterations, cg_tol=cg_tol, damping_rate=damping_rate)
     return solver_curve(model, solver, substeps=substeps, frames=frames)

@@ -32,6 +32,9 @@ from typing import Any
 
 import numpy as np
 
+from .._time import substep_dt
+from ._box_reference import motion_fields
+
 SIDE = 0.5
 DENSITY = 1000.0
 YOUNG = 1.0e5
@@ -157,7 +160,7 @@ def soft_box_drop(
         model, method, newton_tol=newton_tol, minimizer=minimizer, integrator=integrator, substeps=substeps
     )
     elastic = solver.energies[0]
-    dt = FRAME_DT / substeps
+    dt = substep_dt(FRAME_DT, substeps)
     s0, s1 = model.state(), model.state()
     solver.step(s0, s1, None, dt)  # warm-up: kernel compilation or cache load
     solver.step(s1, s0, None, dt)
@@ -220,15 +223,9 @@ def soft_box_drop(
         "final_max_speed": round(float(np.abs(v).max()), 5) if finite else None,
         "final_min_det_F": round(float(min_det), 5) if finite else None,
         "stable": finite,
-        # The whole drop against the converged centre-of-mass curve (pliant.bench._box_motion).
-        **_motion(n, np.asarray(com)),
+        # The whole drop against the converged centre-of-mass curve (pliant.bench._box_reference).
+        **motion_fields(n, np.asarray(com)),
     }
-
-
-def _motion(n: int, com: np.ndarray) -> dict:
-    from ._box_motion import motion_fields
-
-    return motion_fields(n, com)
 
 
 #: Substeps per 1/60 s frame of the explicit rows: the fewest (of those tried) that keep the whole motion

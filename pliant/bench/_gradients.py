@@ -19,6 +19,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from .._time import substep_dt
 from ._common import print_rows
 
 FRAMES = 60
@@ -54,7 +55,7 @@ def _bench(n: int, substeps: int, implicit: bool = False) -> Callable[..., dict]
             return ForceSolver(model, integrator=SymplecticEuler(), damping_rate=1.0)
 
         cells, frames = (8, 3) if quick else (n, FRAMES)
-        dt = FRAME_DT / substeps
+        dt = substep_dt(FRAME_DT, substeps)
         kernel = _loss_kernel()
 
         def loss(state: Any) -> Any:

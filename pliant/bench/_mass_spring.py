@@ -18,11 +18,16 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 
+from .._time import substep_dt
 from ._common import print_rows, run_timed, speed_fields
+from ._drape_motion import REFERENCES, motion_fields, reference_curve
+
+# The scene and its solvers live one module down, where the motion references (._drape_motion) build them
+# too; they are re-exported here, the drape benchmark's public home.
+from ._drape_scene import FRAME_DT, FRAMES, cloth_drape_model, make_solver, sag, sag_fields
 
 #: Converged sag [m] of the drape at equilibrium, per cells per side, from :func:`reference_sag`: float64,
 #: Baraff–Witkin steps of 1/60 s with 200–300 CG iterations (relative tolerance 1e-9) and damping 3/s, run
@@ -32,85 +37,6 @@ from ._common import print_rows, run_timed, speed_fields
 #: on the integrator: converged symplectic Euler agrees (tests/test_mass_spring.py), and so does the 256
 #: symplectic run at 320 substeps/frame (1.01402, 0.1%).
 REFERENCE_SAG: dict[int, float] = {16: 1.008378, 64: 1.011910, 128: 1.013470, 256: 1.014877}
-
-#: Frames of 1/60 s per run: the fall, which the motion references cover.
-FRAMES = 30
-FRAME_DT = 1.0 / 60.0
-
-
-def cloth_drape_model(
-    n: int, *, device: str | None = "cpu", dtype: str = "float32", damping: float = 0.0
-) -> Any:
-    """The drape scene's Model: n × n cells, 1 m, 0.5 kg, E·t = 1000 N/m, ν = 0.3, two pinned corners."""
-    from ..model import ModelBuilder
-
-    b = ModelBuilder(gravity=(0.0, -9.81, 0.0))
-    b.add_cloth_grid(
-        nx=n,
-        ny=n,
-        size=1.0,
-        mass=0.5,
-        youngs_modulus_thickness=1000.0,
-        poisson=0.3,
-        damping=damping,
-        origin=(-0.5, 0.0, -0.5),
-        plane="xz",
-        pin="top-corners",
-    )
-    return b.finalize(device=device, dtype=dtype)
-
-
-def sag(model: Any, x: np.ndarray) -> float:
-    """Pin height minus the lowest particle's height [m]."""
-    pinned = model.particle_inv_mass.numpy() == 0
-    return float(x[pinned, 1].mean() - x[:, 1].min())
-
-
-def sag_fields(model: Any, state: Any, reference: float) -> dict:
-    """The sanity columns of a drape row: sag [m] of the final ``state``, ``reference``, relative error,
-    and whether every position is finite (the sag is NaN otherwise)."""
-    x = state.particle_q.numpy()
-    finite = bool(np.all(np.isfinite(x)))
-    sg = sag(model, x) if finite else float("nan")
-    comparable = bool(np.isfinite(reference)) and finite
-    return {
-        "sag": round(sg, 5),
-        "sag_reference": reference,
-        "sag_rel_error": round(abs(sg - reference) / reference, 5) if comparable else None,
-        "stable": finite,
-    }
-
-
-def make_solver(
-    model: Any,
-    method: str,
-    *,
-    cg_iterations: int = 100,
-    cg_tol: float = 1.0e-2,
-    damping_rate: float = 0.0,
-) -> Any:
-    """The solver of a benchmark row: "implicit" / "symplectic" (FastMassSpring) or "force" (ForceSolver).
-
-    Args:
-        model: the drape model.
-        method: "implicit", "symplectic" or "force".
-        cg_iterations: the most CG iterations per implicit step.
-        cg_tol: CG's relative residual; the step stops there (FastMassSpring's host check).
-        damping_rate: velocity damping c [1/s]; 0 for the benchmark's physics.
-    """
-    from ..solvers._fast_cloth import FastMassSpring
-
-    if method == "force":
-        from ..energies import Gravity, Springs
-        from ..integrators import SymplecticEuler
-        from ..solvers import ForceSolver
-
-        return ForceSolver(
-            model, energies=[Springs(), Gravity()], integrator=SymplecticEuler(), damping_rate=damping_rate
-        )
-    return FastMassSpring(
-        model, method=method, cg_iterations=cg_iterations, cg_tol=cg_tol, damping_rate=damping_rate
-    )
 
 
 def cloth_drape(
@@ -145,7 +71,7 @@ def cloth_drape(
     started = time.perf_counter()
     model = cloth_drape_model(n, device=device, dtype=dtype)
     solver = make_solver(model, method, cg_iterations=cg_iterations, damping_rate=damping_rate)
-    dt = FRAME_DT / substeps
+    dt = substep_dt(FRAME_DT, substeps)
     state, timing = run_timed(
         model, solver, model.control(), dt, frames=frames, substeps=substeps, device=device, started=started
     )
@@ -169,24 +95,16 @@ def cloth_drape(
         **speed_fields(timing, model.particle_count),
         **sag_fields(model, state, _reference_at(n, frames)),
         # The whole fall against the converged curve (pliant.bench._drape_motion), not only the rest.
-        **_motion(n, method, substeps, cg_iterations, damping_rate, dtype=dtype, device=device),
+        **motion_fields(n, method, substeps, cg_iterations, damping_rate, dtype=dtype, device=device),
     }
 
 
 def _reference_at(n: int, frame: int) -> float:
     """The converged sag [m] at ``frame`` (NaN beyond the stored reference or without one)."""
-    from ._drape_motion import REFERENCES, reference_curve
-
     if not (REFERENCES / f"cloth_drape_{n}.npz").exists():
         return float("nan")
     ref = reference_curve(n)
     return float(ref[frame]) if frame < len(ref) else float("nan")
-
-
-def _motion(n: int, method: str, substeps: int, cg_iterations: int, damping_rate: float, **kw: Any) -> dict:
-    from ._drape_motion import motion_fields
-
-    return motion_fields(n, method, substeps, cg_iterations, damping_rate, **kw)
 
 
 def reference_sag(

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from .._time import substep_dt
 from ._common import (
     REFERENCES,
     Timing,
@@ -62,7 +63,7 @@ def _run_xpbd(model: Any, solver: Any, *, frames: int, substeps: int, device: st
         model,
         solver,
         model.control(),
-        FRAME_DT / substeps,
+        substep_dt(FRAME_DT, substeps),
         frames=frames,
         substeps=substeps,
         device=device,

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from . import CliError, _positive_float, _positive_int, _sub, add_force
+from ._common import CliError, _positive_float, _positive_int, _sub, add_force
 from ._run import _load
 
 

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from . import CliError
+from ._common import CliError
 
 
 def start_live(args: argparse.Namespace) -> tuple[Any, str]:
@@ -38,6 +38,6 @@ def start_live(args: argparse.Namespace) -> tuple[Any, str]:
     m = scene.model
     what = (
         f"{cfg.scene.name} live ({m.particle_count} particles, {scene.substeps} substeps of "
-        f"{scene.frame_dt / scene.substeps:.3g} s per frame, {m.device}; drag the object)"
+        f"{scene.substep_dt:.3g} s per frame, {m.device}; drag the object)"
     )
     return viewer, what

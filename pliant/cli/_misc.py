@@ -10,7 +10,7 @@ import time
 from importlib import metadata
 from pathlib import Path
 
-from . import EXIT_OK, EXIT_USER, CliError
+from ._common import EXIT_OK, EXIT_USER, CliError
 
 
 def _version(dist: str) -> str:

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from . import EXIT_DIVERGED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USER, CliError
+from ._common import EXIT_DIVERGED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USER, CliError
 
 #: Mesh files a scene can reference (``kind = "mesh"``) but that are not scenes themselves.
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".msh", ".vtk", ".vtu", ".off", ".mesh")
@@ -227,7 +227,9 @@ def simulate(
         try:
             check_fps(scene.fps)
         except ValueError as exc:
-            raise CliError(f"video frame rate (output.fps, default 1/dt): {exc}; or use --no-video") from None
+            raise CliError(
+                f"video frame rate (output.fps, default 1/frame_dt): {exc}; or use --no-video"
+            ) from None
     if resume and not ckpt.exists():
         raise CliError(f"--resume: no checkpoint at {ckpt}; run once without --resume first")
     from ._splats import splat_run

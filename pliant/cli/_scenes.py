@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib.resources
 
-from . import EXIT_OK, CliError
+from ._common import EXIT_OK, CliError
 
 
 def _text(name: str) -> str:

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from . import CliError
+from ._common import CliError
 
 RENDERERS = ("auto", "mesh", "splats")
 

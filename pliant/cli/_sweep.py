@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import EXIT_OK, CliError
+from ._common import EXIT_OK, CliError
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:

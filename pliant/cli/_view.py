@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from . import EXIT_INTERRUPTED, CliError
+from ._common import EXIT_INTERRUPTED, CliError
 
 
 def cmd_view(args: argparse.Namespace) -> int:

@@ -1,6 +1,7 @@
 """Contact: ground plane (more colliders and the hash-grid broad phase follow)."""
 
-from ._colliders import Colliders, collider_sdf
+from ._collider_sdf import collider_sdf
+from ._colliders import Colliders
 from ._ground import ground_contact, ground_penalty_friction
 from ._hashgrid import ParticleGrid, TriangleBVH, triangle_closest_point
 from ._selfcollision import SelfCollision, closest_point_triangle

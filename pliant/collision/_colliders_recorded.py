@@ -10,7 +10,7 @@ from typing import Any
 
 import warp as wp
 
-from ._colliders import collider_contact
+from ._collider_sdf import collider_contact
 
 
 @wp.kernel

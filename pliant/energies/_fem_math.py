@@ -67,6 +67,25 @@ def mat99_type(dtype: Any) -> type:
     raise ValueError(f"dtype must be wp.float32 or wp.float64, got {dtype!r}")
 
 
+def declare_overloads(kernels: tuple, dtype: str, inputs: Any) -> None:
+    """Declare the ``dtype`` overloads of (value, gradient, Hessian, exact Hessian) element kernels.
+
+    ``inputs(s, m33)`` maps the kernels' generic per-element inputs to their types given the scalar and
+    3×3 matrix types; ``x_in`` (vec3) and the outputs (``out``, ``grad_out``, ``scale``, ``values_out``)
+    are added here. Shared by the linear (:mod:`._fem`) and the quadratic (:mod:`._fem_p2`) tets, so it
+    lives here, below both.
+    """
+    s = wp.float32 if dtype == "float32" else wp.float64
+    v3 = wp.types.vector(3, s)
+    m33 = wp.types.matrix((3, 3), s)
+    common = {k: wp.array(dtype=t) for k, t in inputs(s, m33).items()}
+    common["x_in"] = wp.array(dtype=v3)
+    wp.overload(kernels[0], {**common, "out": wp.array(dtype=s)})
+    wp.overload(kernels[1], {**common, "out": wp.array(dtype=s), "grad_out": wp.array(dtype=v3)})
+    for hessian in kernels[2:]:  # projected, exact
+        wp.overload(hessian, {**common, "scale": s, "values_out": wp.array(dtype=m33)})
+
+
 # ----------------------------------------------------------------------------------------------------------
 # Kinematics
 # ----------------------------------------------------------------------------------------------------------

@@ -95,9 +95,7 @@ def p2_material_kernels(name: str, dtype: str) -> tuple[Any, Any, Any, Any]:
         _KERNELS[name] = _build(name)
     kernels = _KERNELS[name]
     if (name, dtype) not in _OVERLOADED:
-        from ._fem import declare_overloads
-
-        declare_overloads(
+        fm.declare_overloads(
             kernels,
             dtype,
             lambda s, m33: {

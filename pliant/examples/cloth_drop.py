@@ -65,7 +65,7 @@ class Example:
         length = np.linalg.norm(x[-1, self.springs[:, 0]] - x[-1, self.springs[:, 1]], axis=1)
         strain = np.max(np.abs(length / self.rest - 1))
         assert strain < 0.1, f"max spring strain {strain:.3f} (expected < 0.1)"
-        speed = np.max(np.linalg.norm(x[-1] - x[-2], axis=1)) / self.sim.dt
+        speed = np.max(np.linalg.norm(x[-1] - x[-2], axis=1)) / self.sim.frame_dt
         if self.traj.t[-1] > 1.0:
             assert speed < 0.5, f"cloth still moving at {speed:.3f} m/s after {self.traj.t[-1]:.2f} s"
         print(f"cloth: min y {y_min:.4f} m, max strain {strain:.3f}, max speed {speed:.3f} m/s")

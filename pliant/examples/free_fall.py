@@ -44,7 +44,7 @@ class Example:
         pl.render.render_video(self.traj.x, path, fps=60, progress=False, ground=False)
 
     def test_final(self) -> None:
-        h = self.sim.dt / self.substeps  # the integrator's step Δt
+        h = self.sim.substep_dt  # the integrator's step Δt
         t = self.traj.t[:, None, None]
         exact = self.x0 + self.v0 * t + 0.5 * self.g * t**2 + 0.5 * self.g * h * t
         rel = np.max(np.abs(self.traj.x - exact) / np.maximum(np.abs(exact), 1.0))

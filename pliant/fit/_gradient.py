@@ -188,7 +188,7 @@ class _Rollout:
             scene.solver,
             None,
             frames=frames,
-            dt=scene.frame_dt / scene.substeps,
+            dt=scene.substep_dt,
             substeps=scene.substeps,
             params=sorted(set(self.names.values())),
             state0=State(q, qd),
@@ -296,7 +296,7 @@ def gradient_stage(
             value, s = r.run(q, qd, f0, frames, hist, reset)  # the rollout checks its own states
             g = r.grad_theta()
             sc = r.scene
-            h = sc.frame_dt / sc.substeps
+            h = sc.substep_dt
             check_rollout(  # and the gradient with respect to θ, which it does not see
                 value, {"theta": g}, s, solver=sc.solver, dt=h, substeps=sc.substeps, frames=f0 + frames
             )

@@ -246,7 +246,7 @@ class PhotometricProblem(Problem):
             scene.solver,
             None,
             frames=frames,
-            dt=scene.frame_dt / scene.substeps,
+            dt=scene.substep_dt,
             substeps=scene.substeps,
             params=list(params),
             control=m.control(),

@@ -173,11 +173,11 @@ class Problem:
         scene's."""
         if self.obs.controls is None:
             return scene.control_fn
-        ctrl, dt = self.obs.controls, self.frame_dt
+        ctrl, frame_dt = self.obs.controls, self.frame_dt
 
         def control_fn(t: float, control: Any) -> None:
-            f = min(int(round(t / dt)) + (1 if control is not None else 0), ctrl.shape[0] - 1)
-            vel = (ctrl[f] - ctrl[max(f - 1, 0)]) / dt
+            f = min(int(round(t / frame_dt)) + (1 if control is not None else 0), ctrl.shape[0] - 1)
+            vel = (ctrl[f] - ctrl[max(f - 1, 0)]) / frame_dt
             lo = 0
             for cp in scene.control_points:
                 cp.set_positions(ctrl[f, lo : lo + cp.point_count], vel[lo : lo + cp.point_count])
@@ -250,10 +250,9 @@ class Problem:
         if hi <= lo:
             return 0.0
         o, dev = self.obs, self.device or "cpu"
-        dt = wp.float64
-        vec = wp.vec3d
+        dtype, vec = wp.float64, wp.vec3d
         xs = wp.array(np.ascontiguousarray(x[lo:hi]).reshape(-1, 3), dtype=vec, device=dev)
-        out = wp.zeros(1, dtype=dt, device=dev)
+        out = wp.zeros(1, dtype=dtype, device=dev)
         if self.weights["track"]:
             pts = np.nan_to_num(o.points[lo:hi]).reshape(-1, 3)
             track_loss(

@@ -369,7 +369,7 @@ def _plot(
     err: np.ndarray,
     err_nom: np.ndarray,
     n_train: int,
-    dt: float,
+    frame_dt: float,
     ylabel: str = "track error [mm]",
     scale: float = 1e3,
 ):
@@ -391,11 +391,11 @@ def _plot(
     a.set_title("loss")
     if stages:
         a.legend()
-    t = np.arange(len(err)) * dt
+    t = np.arange(len(err)) * frame_dt
     b.plot(t[:n_train], scale * err[:n_train], color="C0", label="fitted (train)")
     b.plot(t[n_train - 1 :], scale * err[n_train - 1 :], color="C3", label="fitted (test)")
     b.plot(t, scale * err_nom, color="0.6", ls="--", label="nominal")
-    b.axvline((n_train - 1) * dt, color="k", lw=0.8)
+    b.axvline((n_train - 1) * frame_dt, color="k", lw=0.8)
     b.set_xlabel("time [s]")
     b.set_ylabel(ylabel)
     b.set_title("per-frame error (train | test)")

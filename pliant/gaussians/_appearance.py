@@ -142,7 +142,7 @@ def fit_splat_appearance(
         raise ValueError(f"appearance: every frame needs one image per camera ({len(cameras)})")
     b = splats.binding
     g0 = b.gaussians
-    dt, dev = g0.dtype, g0.device
+    dtype, dev = g0.dtype, g0.device
     degree = (1 if len(cameras) > 1 else 0) if sh_degree is None else int(sh_degree)
     rates = dict(APPEARANCE_LRS, **(lrs or {}))
 
@@ -151,9 +151,9 @@ def fit_splat_appearance(
     views = []
     for f, row in enumerate(images):
         for c, cam in enumerate(cameras):
-            img = image_to_warp(row[c], cam, dt, dev, f"frame {f} camera {c} image")
+            img = image_to_warp(row[c], cam, dtype, dev, f"frame {f} camera {c} image")
             mk = None if masks is None or masks[f][c] is None else masks[f][c]
-            mk = None if mk is None else image_to_warp(mk, cam, dt, dev, f"frame {f} camera {c} mask")
+            mk = None if mk is None else image_to_warp(mk, cam, dtype, dev, f"frame {f} camera {c} mask")
             views.append((f, cam, img, mk))
 
     def psnrs(gs: list[Gaussians], bg: Any, light: Any) -> list[float]:
@@ -182,13 +182,13 @@ def fit_splat_appearance(
         p["log_scales"],
         p["opacity_logits"],
         sh,
-        dtype=dt,
+        dtype=dtype,
         device=dev,
         requires_grad=True,
     )
     b.gaussians = g
     placed = [splats.place(x) for x in positions]
-    background = wp.array([bg0], dtype=vec3_type(dt), device=dev, requires_grad=True)
+    background = wp.array([bg0], dtype=vec3_type(dtype), device=dev, requires_grad=True)
     params = [g.sh, g.opacity_logits, g.log_scales, background]
     names = ["sh", "opacity_logits", "log_scales", "background"]
     light = None
@@ -200,7 +200,7 @@ def fit_splat_appearance(
         towards /= max(np.linalg.norm(towards), 1e-12)
         light = wp.array(
             [[0.98, *(0.01 * towards)], [0.01, 0.0, 0.0, 0.0]],
-            dtype=vec4_type(dt),
+            dtype=vec4_type(dtype),
             device=dev,
             requires_grad=True,
         )
@@ -232,7 +232,7 @@ def fit_splat_appearance(
     if light is not None:
         lv = light.numpy().astype(np.float64)
         lt = (*(float(v) for v in lv[0]), float(lv[1, 0]))
-    fitted = Gaussians(**g.numpy(), dtype=dt, device=dev)
+    fitted = Gaussians(**g.numpy(), dtype=dtype, device=dev)
     bg_start, light_start = splats.background, getattr(splats, "light", None)
     b.gaussians = fitted
     splats.background = bg

@@ -326,8 +326,8 @@ def bind(
     if X.ndim != 2 or X.shape[1] != 3 or len(X) == 0:
         raise ValueError(f"rest_positions must have shape [P, 3] with P > 0, got {X.shape}")
     P = len(X)
-    dt, dev = gaussians.dtype, gaussians.device
-    nd, s, v3, m33 = np_dtype(dt), scalar_type(dt), vec3_type(dt), mat33_type(dt)
+    dtype, dev = gaussians.dtype, gaussians.device
+    nd, s, v3, m33 = np_dtype(dtype), scalar_type(dtype), vec3_type(dtype), mat33_type(dtype)
     mu = gaussians.means.numpy().astype(np.float64)
     b = Binding(gaussians, method, P)
     if method == "barycentric":

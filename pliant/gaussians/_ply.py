@@ -117,16 +117,16 @@ def load_ply(
                     raise PlyError(f"{path}: element {name!r} with list properties precedes 'vertex'")
                 break
             endian = ">" if fmt == "binary_big_endian" else "<"
-            dt = np.dtype([(pn, endian + _TYPES[pt]) for pt, pn in props])
+            record = np.dtype([(pn, endian + _TYPES[pt]) for pt, pn in props])  # one vertex
             if fmt == "ascii":
                 rows = [f.readline().split() for _ in range(count)]
-                arr = np.zeros(count, dtype=dt)
+                arr = np.zeros(count, dtype=record)
                 if count:
                     table = np.asarray(rows, dtype=np.float64)
                     for k, (_, pn) in enumerate(props):
                         arr[pn] = table[:, k]
             else:
-                arr = np.frombuffer(f.read(dt.itemsize * count), dtype=dt, count=count)
+                arr = np.frombuffer(f.read(record.itemsize * count), dtype=record, count=count)
             if name == "vertex":
                 data = arr
                 break

@@ -76,8 +76,9 @@ def render(
     """
     if not isinstance(camera, Camera):
         raise TypeError(f"camera must be a pliant.gaussians.Camera, got {type(camera).__name__}")
-    dev, dt = gaussians.device, gaussians.dtype
-    s, v2, v3, v4, m33 = scalar_type(dt), vec2_type(dt), vec3_type(dt), vec4_type(dt), mat33_type(dt)
+    dev, dtype = gaussians.device, gaussians.dtype
+    s, v2, v3, v4 = scalar_type(dtype), vec2_type(dtype), vec3_type(dtype), vec4_type(dtype)
+    m33 = mat33_type(dtype)
     bg_array = background if isinstance(background, wp.array) else None
     if bg_array is not None:
         if bg_array.shape != (1,) or bg_array.dtype != v3:

@@ -56,10 +56,10 @@ class SceneSplats:
         else:
             from .._warp import np_dtype, vec3_type
 
-            dt = b.gaussians.dtype
+            dtype = b.gaussians.dtype
             q = wp.array(
-                np.asarray(x)[self.lo : self.hi].astype(np_dtype(dt)),
-                dtype=vec3_type(dt),
+                np.asarray(x)[self.lo : self.hi].astype(np_dtype(dtype)),
+                dtype=vec3_type(dtype),
                 device=b.gaussians.device,
             )
         return b.deform(q)

@@ -87,7 +87,7 @@ class LiveViewer:
         return True
 
     def _loop(self) -> None:
-        dt = self.session.sim.frame_dt
+        frame_dt = self.session.sim.frame_dt
         due = time.perf_counter()
         shown = 0.0
         while not self._stop.is_set():
@@ -99,7 +99,7 @@ class LiveViewer:
             self.run_frame()
             # Frame pacing: each frame is due frame_dt / time_scale after the last; a machine that cannot
             # keep up runs flat out and the panel shows the rate it reaches (no catching up in bursts).
-            due += dt / max(self.time_scale, 1e-6)
+            due += frame_dt / max(self.time_scale, 1e-6)
             now = time.perf_counter()
             if due > now:
                 time.sleep(due - now)
@@ -111,10 +111,10 @@ class LiveViewer:
 
     def _say(self) -> None:
         if not self.paused:
-            dt = self.session.sim.frame_dt
+            frame_dt = self.session.sim.frame_dt
             lat = self.session.latencies[-20:]
             self.status = (
-                f"{self.fps:.1f} frames/s = {self.fps * dt:.2f}x real time (aim {self.time_scale:g}x)"
+                f"{self.fps:.1f} frames/s = {self.fps * frame_dt:.2f}x real time (aim {self.time_scale:g}x)"
                 + (f"; drag latency {1e3 * float(np.median(lat)):.0f} ms" if lat else "")
             )
         if "status" in self._gui:

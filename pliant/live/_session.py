@@ -121,7 +121,7 @@ def _stable_stiffness_factor(scene: Any) -> float:
     by Gershgorin's bound on M⁻¹K: λ_max ≤ max_i 2 Σ_j k_ij / m_i, and h² λ_max ≤ 4 (a safe bound: the true
     limit is at or above it)."""
     m = scene.model
-    h = scene.frame_dt / scene.substeps
+    h = scene.substep_dt
     idx = m.spring_indices.numpy().reshape(-1, 2)
     k = m.spring_stiffness.numpy().astype(np.float64)
     ksum = np.bincount(idx.ravel(), weights=np.repeat(k, 2), minlength=m.particle_count)
@@ -359,7 +359,7 @@ class LiveSession:
         integrator = getattr(solver, "integrator", None)
         position_based = getattr(solver, "constraints", None) is not None
         if position_based or integrator is None or getattr(integrator, "explicit", True):
-            h = self.sim.frame_dt / self.sim.substeps
+            h = self.sim.substep_dt
             m_i = float(self._mass[particle])
             k = min(k, EXPLICIT_LIMIT * m_i / (h * h))
             if not position_based:

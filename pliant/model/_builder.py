@@ -406,8 +406,8 @@ class ModelBuilder(ShapesMixin):
         else:
             b_idx, b_k, b_rest = np.zeros((0, 4), np.int32), np.zeros(0), np.zeros(0)
 
-        def arr(a: np.ndarray, dt: Any, rg: bool = False) -> wp.array:
-            return wp.array(a, dtype=dt, device=device, requires_grad=rg)
+        def arr(a: np.ndarray, wp_type: Any, rg: bool = False) -> wp.array:
+            return wp.array(a, dtype=wp_type, device=device, requires_grad=rg)
 
         def ints(a: np.ndarray, width: int) -> wp.array:
             return wp.array(a.reshape(-1, width).astype(np.int32), dtype=wp.int32, device=device)

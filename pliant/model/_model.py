@@ -9,7 +9,8 @@ import numpy as np
 import warp as wp
 
 from .._warp import mat33_type, np_dtype, scalar_type, vec3_type
-from ._parameters import MODEL_ARRAYS, Parameter, declares, solver_array
+from ._parameters import MODEL_ARRAYS, Parameter, array_home, control_array, declares, solver_array
+from ._worlds import reset_world, set_world_material, set_world_parameter, set_world_state, world_slice
 
 _GROUND_GRAD = (
     "with ground contact on a requires_grad model (ForceSolver or FastMassSpring with an explicit step and "
@@ -134,8 +135,6 @@ class Control:
     @classmethod
     def parameters(cls) -> tuple[Parameter, ...]:
         """External forces and kinematic targets, held over a rollout."""
-        from ._parameters import control_array
-
         return (
             Parameter(
                 "particle_f",
@@ -206,6 +205,7 @@ class Control:
 
 
 @declares
+@array_home("model")
 @dataclass
 class Model:
     """Static simulation data on one device: topology, rest shapes, materials, masses.
@@ -304,8 +304,6 @@ class Model:
     def world_slice(self, kind: str, w: int) -> slice:
         """Index range of world ``w``'s elements of ``kind`` ("particle", "spring", "tri", "tet",
         "bending") in this model's arrays."""
-        from ._worlds import world_slice
-
         return world_slice(self, kind, w)
 
     def particle_world(self) -> np.ndarray:
@@ -327,28 +325,20 @@ class Model:
         Raises:
             ValueError: an unknown name, a world out of range, a wrong count or a value out of range.
         """
-        from ._worlds import set_world_parameter
-
         set_world_parameter(self, name, w, value)
 
     def set_world_material(self, w: int, E: Any, nu: Any) -> None:
         """Young's modulus ``E`` [Pa] and Poisson ratio ``nu`` [-] of world ``w``'s tets (via Lamé)."""
-        from ._worlds import set_world_material
-
         set_world_material(self, w, E, nu)
 
     def set_world_state(self, w: int, x: Any = None, v: Any = None) -> None:
         """Replace world ``w``'s initial positions ``x`` [m] and/or velocities ``v`` [m/s], [P, 3] each
         (what :meth:`state` and :meth:`reset_world` start from)."""
-        from ._worlds import set_world_state
-
         set_world_state(self, w, x, v)
 
     def reset_world(self, state: State, w: int) -> None:
         """Put world ``w`` of ``state`` back to its initial positions and velocities; the other worlds are
         untouched (two device copies, no host transfer)."""
-        from ._worlds import reset_world
-
         reset_world(self, state, w)
 
     def total_mass(self) -> float:

@@ -34,6 +34,10 @@ SIGNS = ("positive", "nonnegative", "any")
 #: Classes that declare parameters (filled by :func:`declares`), in registration order.
 OWNERS: list[type] = []
 
+#: The dataclass whose fields a ``model.<attribute>`` array must name: :class:`pliant.model.Model`, which
+#: registers itself with :func:`array_home` (this module sits below the Model, which imports it).
+HOME_CLASSES: dict[str, type] = {}
+
 
 class ParameterError(ValueError):
     """A parameter declaration that is inconsistent (unknown array, bad bounds, two owners disagreeing)."""
@@ -218,12 +222,21 @@ def declares(cls: type) -> type:
     return cls
 
 
+def array_home(home: str) -> Callable[[type], type]:
+    """Class decorator: the dataclass ``cls`` holds the ``<home>.<attribute>`` arrays that :func:`check`
+    accepts (only ``"model"`` is checked by attribute; the other homes are objects of many classes)."""
+
+    def register(cls: type) -> type:
+        HOME_CLASSES[home] = cls
+        return cls
+
+    return register
+
+
 def check(owner: type, p: Parameter) -> None:
     """Raise :class:`ParameterError` when declaration ``p`` of ``owner`` is inconsistent: an unknown kind,
     home or sign, a ``model.`` array the Model does not have, bounds that are not an increasing pair (> 0
     for log scale)."""
-    from ._model import Model
-
     where = f"{owner.__name__}.parameters(): {p.name!r}"
     if not p.name.isidentifier() or keyword.iskeyword(p.name):
         raise ParameterError(f"{where}: the name must be an identifier")
@@ -235,7 +248,7 @@ def check(owner: type, p: Parameter) -> None:
         raise ParameterError(f"{where}: sign={p.sign!r}; one of {SIGNS}")
     if not p.arrays:
         raise ParameterError(f"{where}: name the array(s) it lives in")
-    model_fields = {f.name for f in fields(Model)}
+    model_fields = {f.name for f in fields(HOME_CLASSES["model"])}
     for a in p.arrays:
         home, _, attr = a.partition(".")
         if home not in HOMES or not attr:
@@ -322,6 +335,7 @@ __all__ = [
     "PER",
     "Parameter",
     "ParameterError",
+    "array_home",
     "RegistryView",
     "check",
     "constraint_array",

@@ -155,8 +155,8 @@ def export_usd_objects(
     if xs.ndim != 3 or xs.shape[2] != 3 or not len(xs):
         raise ValueError(f"the trajectory needs positions [T, N, 3] with T >= 1, got {xs.shape}")
     if fps is None:
-        dt = traj.meta.get("dt")
-        fps = 1.0 / dt if dt else 30.0
+        frame_dt = traj.meta.get("dt")  # trajectory files name the frame duration "dt"
+        fps = 1.0 / frame_dt if frame_dt else 30.0
     codes = _time_codes(traj, fps)
     vs = None if traj.v is None else np.asarray(traj.v, np.float64)
     finite = xs[np.all(np.isfinite(xs), axis=2)]

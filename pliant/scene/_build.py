@@ -10,9 +10,10 @@ from typing import Any
 
 import numpy as np
 
+from .._prebuild import maybe_prebuild
+from .._time import substep_dt
 from ._context import BuildContext
 from ._errors import SceneError
-from ._kernels import maybe_prebuild
 from ._registry import (
     COLLIDER_KINDS,
     CONSTRAINT_KINDS,
@@ -20,7 +21,9 @@ from ._registry import (
     HANDLE_KINDS,
     OBJECT_KINDS,
     SOLVER_KINDS,
+    handle_mode,
 )
+from ._replicate import replicate_scene
 from ._schema import OutputSection, SceneConfig
 
 #: Video colours (RGB in [0, 1]) of simulated bodies and of drawn colliders.
@@ -73,6 +76,11 @@ class Scene:
             stacklevel=2,
         )
         return self.frame_dt
+
+    @property
+    def substep_dt(self) -> float:
+        """The solver's step ``dt`` [s]: ``frame_dt / substeps`` (:func:`pliant._time.substep_dt`)."""
+        return substep_dt(self.frame_dt, self.substeps)
 
     @property
     def name(self) -> str:
@@ -162,7 +170,7 @@ def _select_handles(ctx: BuildContext) -> tuple[list, list]:
         if h.object is not None:
             lo, hi = ctx.ranges[h.object if isinstance(h.object, int) else names.index(h.object)]
         idx, pts = HANDLE_KINDS[h.kind].select(ctx, h, lo, hi, i)
-        if h.resolved_mode() == "kinematic":
+        if handle_mode(h) == "kinematic":
             ctx.builder.add_kinematic(idx)
             kin.append((h, slice(n_kin, n_kin + idx.size), pts))
             n_kin += idx.size
@@ -392,8 +400,6 @@ def build_scene(
     x0 = ctx.builder.positions()
     kin, spring_handles = _select_handles(ctx)
     if worlds != 1:
-        from ._worlds import replicate_scene
-
         replicate_scene(ctx, worlds)
     _finalize(ctx, device, dtype, requires_grad)
     for w, params in enumerate(world_parameters or ()):

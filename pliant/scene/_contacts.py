@@ -8,7 +8,7 @@ import numpy as np
 from pydantic import BeforeValidator
 
 from ._files import load_mesh_file
-from ._registry import register_collider_kind, register_handle_kind
+from ._registry import handle_mode, register_collider_kind, register_handle_kind
 from ._schema import ColliderBase, Float, Length, NonNegFloat, Scale3, Size3, Vec3, vector
 
 
@@ -132,7 +132,7 @@ def check_points(cfg: Any, h: Any, at: str) -> list[tuple[str, str]]:
         out.append((f"{at}.points", "a points handle needs points = [[x, y, z], ...] [m]"))
     if h.radius is None:
         out.append((f"{at}.radius", "a points handle needs radius [m] (particles linked to each point)"))
-    if h.resolved_mode() == "kinematic":
+    if handle_mode(h) == "kinematic":
         out.append((f"{at}.mode", 'a points handle acts through springs: use mode = "springs"'))
     return out
 

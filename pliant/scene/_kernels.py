@@ -1,6 +1,7 @@
 """Kernel manifests of the built-in scenes: which Warp modules and overloads their first frames launch.
 
-``build_scene`` hands a built-in scene's manifest to :func:`pliant._prebuild.prebuild`, which compiles them
+``build_scene`` hands a built-in scene's manifest to :func:`pliant._prebuild.prebuild` (through
+:func:`pliant._prebuild.maybe_prebuild`), which compiles them
 on two threads before the first step (docs/design.md, "First frame on a fresh kernel cache"). Regenerate the
 file after changing kernels or scenes::
 
@@ -18,39 +19,19 @@ import shutil
 import subprocess
 import sys
 import tempfile
-from typing import Any
 
 from .. import _prebuild
+from ._build import build_scene
+from ._load import builtin_scenes, load_scene
 
-#: Environment switch: PLIANT_PREBUILD=0 turns the background compilation off.
-ENV = "PLIANT_PREBUILD"
+#: The environment switch of background compilation (:func:`pliant._prebuild.maybe_prebuild`).
+ENV = _prebuild.ENV
 #: Frames a manifest covers (those tests/test_golden.py checks).
 FRAMES = 3
 
 
-def enabled() -> bool:
-    """Whether background compilation is on (``PLIANT_PREBUILD`` is not ``0``)."""
-    return os.environ.get(ENV, "1") != "0"
-
-
-def maybe_prebuild(name: str, model: Any) -> int:
-    """Start compiling built-in scene ``name``'s kernels when the model is float32 on the CPU without
-    gradients (what the manifest was recorded for). Returns the number of modules queued."""
-    if (
-        not enabled()
-        or model.dtype != "float32"
-        or model.requires_grad
-        or not str(model.device).startswith("cpu")
-    ):
-        return 0
-    manifest = _prebuild.manifest_for(name)
-    return 0 if manifest is None else _prebuild.prebuild(manifest, model.device)
-
-
 def record_scene(name: str) -> dict:
     """Build and run built-in scene ``name`` for :data:`FRAMES` frames (CPU, float32); its manifest."""
-    from . import build_scene, load_scene
-
     _prebuild.warm_up("cpu")  # the precompiled header first: no module's cost includes it
     _prebuild.wait()
     _prebuild.time_compiles()
@@ -61,8 +42,6 @@ def record_scene(name: str) -> dict:
 
 def main() -> None:
     """Record every built-in scene in its own process and write :data:`pliant._prebuild.MANIFEST`."""
-    from ._load import builtin_scenes
-
     out = {}
     for name in builtin_scenes():
         # A fresh process and an empty kernel cache each: the costs are those of a first build.

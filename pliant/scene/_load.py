@@ -15,7 +15,7 @@ from pydantic import ValidationError
 from ._errors import SceneError, line_of, problems_from
 from ._files import budget_message, max_particles
 from ._overrides import apply_overrides
-from ._registry import HANDLE_KINDS, OBJECT_KINDS, SECTIONS, SOLVER_KINDS
+from ._registry import HANDLE_KINDS, OBJECT_KINDS, SECTIONS, SOLVER_KINDS, handle_mode
 from ._schema import SceneConfig
 from ._size import size_problem
 from ._solvers import check_solver
@@ -169,7 +169,7 @@ def _check_handles(cfg: SceneConfig, kind: str) -> list[tuple[str, str]]:
             continue
         if hk.check is not None:
             out += hk.check(cfg, h, at)
-        if h.resolved_mode() == "springs":
+        if handle_mode(h) == "springs":
             if h.stiffness is None:
                 out.append((f"{at}.stiffness", "mode 'springs' needs stiffness [N/m] per link, e.g. 1e3"))
             if kind != "force":

@@ -192,6 +192,15 @@ def register_handle_kind(
     HANDLE_KINDS[name] = HandleKind(name, select, check, default_mode)
 
 
+def handle_mode(handle: Any) -> str:
+    """A ``[[handles]]`` entry's ``mode``, or its kind's default (``"kinematic"`` for an unknown kind).
+
+    A function of the registry rather than a method of the schema: the schema sits below the registry.
+    """
+    kind = HANDLE_KINDS.get(handle.kind)
+    return handle.mode or (kind.default_mode if kind is not None else "kinematic")
+
+
 def register_solver(
     name: str,
     factory: Callable[..., Any],

@@ -199,13 +199,6 @@ class HandleConfig(Section):
             return float(np.max(np.linalg.norm(np.diff(k[:, 1:], axis=0), axis=1) / np.diff(k[:, 0])))
         return float(np.linalg.norm(self.velocity)) if self.velocity is not None else 0.0
 
-    def resolved_mode(self) -> str:
-        """``mode``, or the default of the kind."""
-        from ._registry import HANDLE_KINDS
-
-        kind = HANDLE_KINDS.get(self.kind)
-        return self.mode or (kind.default_mode if kind is not None else "kinematic")
-
 
 class SelfCollisionConfig(Section):
     thickness: Length  # minimum distance between particles / particle and triangle [m]

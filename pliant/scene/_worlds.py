@@ -10,8 +10,12 @@ from typing import Any
 
 import numpy as np
 
+from ..model import ModelBuilder
 from ..model._worlds import PARAMETERS
+from ._build import _add_objects, _finalize, _select_handles, build_scene
+from ._context import BuildContext
 from ._errors import scene_error
+from ._replicate import worlds_unsupported
 
 #: Model arrays a world may have of its own (set with ``Model.set_world_parameter``).
 WORLD_ARRAYS = tuple(PARAMETERS)
@@ -32,39 +36,6 @@ _SHARED = (
 MATERIAL_FIELDS = ("stiffness", "shear_stiffness", "bend_stiffness", "damping", "Et", "E", "nu")
 
 
-def coupled(cfg: Any) -> str | None:
-    """Why copies of ``cfg``'s objects in one model would not move as the scene alone does (None when they
-    would): handles drive particles of one copy, and self-collision would couple the copies. What sweeps,
-    CMA-ES generations and worlds all require before running runs together."""
-    if cfg.handles:
-        return "handles drive particles of one world"
-    if getattr(cfg.solver, "self_collision", None) is not None:
-        return "self-collision would couple the worlds"
-    return None
-
-
-def worlds_unsupported(cfg: Any) -> str | None:
-    """Why ``cfg`` cannot be replicated into worlds (None when it can): what would couple the worlds or
-    apply to world 0 only."""
-    why = coupled(cfg)
-    if why is not None:
-        return why
-    if cfg.constraints or cfg.energies:
-        return "[[constraints]] / [[energies]] entries are built for one world"
-    for i, o in enumerate(cfg.objects):
-        if o.kind == "cluster" or getattr(o, "render_mesh", None) is not None:
-            return f"objects[{i}] ({o.kind}) keeps per-object data of world 0 only"
-    return None
-
-
-def replicate_scene(ctx: Any, worlds: int) -> None:
-    """Replicate what ``ctx.builder`` holds into ``worlds`` worlds, or raise SceneError saying why not."""
-    why = worlds_unsupported(ctx.cfg)
-    if why is not None:
-        raise ctx.fail("objects", f"cannot build {worlds} worlds of this scene: {why}")
-    ctx.builder.replicate(worlds)
-
-
 def material_only(run: Sequence[str]) -> bool:
     """True when every ``PATH=V`` override of ``run`` sets one of :data:`MATERIAL_FIELDS` of an object."""
     for o in run:
@@ -76,10 +47,6 @@ def material_only(run: Sequence[str]) -> bool:
 
 
 def _model_of(cfg: Any, device: str | None, dtype: str | None) -> Any:
-    from ..model import ModelBuilder
-    from ._build import _add_objects, _finalize, _select_handles
-    from ._context import BuildContext
-
     ctx = BuildContext(cfg, ModelBuilder(gravity=cfg.scene.gravity))
     _add_objects(ctx)
     _select_handles(ctx)
@@ -104,8 +71,6 @@ def build_worlds(cfgs: Sequence[Any], device: str | None = None, dtype: str | No
         SceneError: the configurations differ in more than those arrays, or the scene cannot be
             replicated (handles, self-collision, clusters, render meshes, extra constraints or energies).
     """
-    from ._build import build_scene
-
     base = cfgs[0]
     why = worlds_unsupported(base)
     if why is not None:

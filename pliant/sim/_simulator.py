@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from .._time import substep_dt
 from ..io import CheckpointError, CheckpointSpec, Trajectory, load_checkpoint, save_checkpoint
 from ..model import Control, Model, State
 from ..model._worlds import write_range
@@ -204,8 +205,15 @@ class Simulator:
 
     @property
     def dt(self) -> float:
-        """Deprecated name of :attr:`frame_dt` (the frame duration [s])."""
+        """Deprecated name of :attr:`frame_dt` (the frame duration [s]); the step is :attr:`substep_dt`."""
+        msg = "Simulator.dt is deprecated; use Simulator.frame_dt (the frame [s]) or .substep_dt (the step)"
+        warnings.warn(msg, DeprecationWarning, stacklevel=2)
         return self.frame_dt
+
+    @property
+    def substep_dt(self) -> float:
+        """The solver's step ``dt`` [s]: ``frame_dt / substeps`` (:func:`pliant._time.substep_dt`)."""
+        return substep_dt(self.frame_dt, self.substeps)
 
     # ------------------------------------------------------------------ stepping
     def step_frame(self) -> None:
@@ -219,7 +227,7 @@ class Simulator:
         wp.copy(self._x_start, self.state_0.particle_q)
         if self.control_fn is not None:
             self.control_fn(self.time, self.control)
-        h = self.frame_dt / self.substeps
+        h = self.substep_dt
         fs = self._frame_step
         if fs is None or (fs.solver, fs.dt, fs.substeps) != (self.solver, h, self.substeps):
             fs = self._frame_step = FrameStep(self.solver, h, self.substeps)  # settings changed: rebuild
@@ -251,9 +259,9 @@ class Simulator:
     def check(self) -> None:
         """Raise :class:`DivergenceError` if any value is non-finite or a speed exceeds ``max_speed``.
 
-        Two speeds are bounded: the velocity array's, and the frame's displacement divided by ``dt`` (what
-        a collider or handle that teleports particles produces without touching the velocities). One host
-        read per call.
+        Two speeds are bounded: the velocity array's, and the frame's displacement divided by ``frame_dt``
+        (what a collider or handle that teleports particles produces without touching the velocities). One
+        host read per call.
         """
         self._stats.zero_()
         s = self.state_0
@@ -266,7 +274,7 @@ class Simulator:
         speed2, disp2, bad, kin_speed2, kin_disp2 = (float(a) for a in self._stats.numpy())
         if self._per_world and self.frame > 0:
             speed2, disp2, bad = self._check_worlds(speed2, disp2, bad)
-        advice = stability_advice(self.solver, self.frame_dt / self.substeps, self.substeps)
+        advice = stability_advice(self.solver, self.substep_dt, self.substeps)
         if bad:
             if self.frame == 0:
                 raise DivergenceError(
@@ -308,7 +316,7 @@ class Simulator:
         if jump > self.max_speed:
             raise DivergenceError(
                 self.frame,
-                "max displacement speed (m/s, displacement over the frame / dt)",
+                "max displacement speed (m/s, displacement over the frame / frame_dt)",
                 jump,
                 "a particle moved farther in one frame than max_speed allows: a collider that encloses or "
                 "jumps onto the body, a handle or kinematic target moving faster than max_speed, or an "

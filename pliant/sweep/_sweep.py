@@ -103,7 +103,8 @@ def run_chunk(
     whose world diverges is run again alone, so its row is the one it has alone. ``force`` skips the scene
     size checks (``--force``). Returns one result dict per run."""
     from ..scene import load_scene
-    from ..scene._worlds import coupled, material_only, worlds_unsupported
+    from ..scene._replicate import coupled, worlds_unsupported
+    from ..scene._worlds import material_only
 
     t0 = time.perf_counter()
     base = load_scene(scene, force=force)

@@ -1,0 +1,67 @@
+"""What the CLI's command modules share: exit codes, :class:`CliError` and argument helpers.
+
+Below ``pliant/cli/__init__.py`` (the parser and ``main``, which import the command modules when a command
+runs) and the command modules (``_run``, ``_fit``, ...), so that no command module imports the package that
+imports it. Imports nothing but the standard library: ``pliant --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+EXIT_OK, EXIT_USER, EXIT_DIVERGED, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+
+class CliError(Exception):
+    """A user error the CLI reports as one line (``exit_code`` defaults to 1)."""
+
+    def __init__(self, message: str, exit_code: int = EXIT_USER) -> None:
+        super().__init__(message)
+        self.exit_code = exit_code
+
+
+def _examples(*lines: str) -> str:
+    """An epilog of usage examples (shown verbatim by the raw formatter)."""
+    return "examples:\n" + "\n".join(f"  {line}" for line in lines)
+
+
+def _sub(sub: Any, name: str, help: str, *examples: str) -> argparse.ArgumentParser:
+    return sub.add_parser(
+        name,
+        help=help,
+        description=help[0].upper() + help[1:] + ".",
+        epilog=_examples(*examples),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {v}")
+    return v
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not v > 0 or v == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text}")
+    return v
+
+
+def add_force(parser: argparse.ArgumentParser) -> None:
+    """``--force``: build a scene that needs more memory than is available (or more particles than the
+    budget) anyway."""
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="build the scene even when its estimated memory exceeds the machine's available memory "
+        "(see `pliant info SCENE`) or its particles exceed PLIANT_MAX_PARTICLES",
+    )
