@@ -7,7 +7,10 @@ import pytest
 import warp as wp
 
 import pliant as pl
-from pliant.solvers._newton import _assemble, _gradient, _workspace, minimize_incremental_potential
+from pliant.solvers.implicit import minimize_incremental_potential
+from pliant.solvers.implicit._assembly import _assemble
+from pliant.solvers.implicit._newton import _gradient
+from pliant.solvers.implicit._workspace import _workspace
 from tests.helpers import run_steps
 
 I = pl.integrators
@@ -264,7 +267,7 @@ def test_scipy_cg_matches_direct_on_a_soft_step():
 def test_minimizers_read_only_the_declared_problem(method):
     """Newton and L-BFGS need only PotentialProblem's model, energies and control (no ForceSolver fields):
     a plain object gives bit-for-bit the ForceSolver's minimiser, the Control's force included."""
-    from pliant.solvers._quasi_newton import minimize_quasi_newton
+    from pliant.solvers.implicit import minimize_quasi_newton
 
     fn = minimize_quasi_newton if method == "lbfgs" else minimize_incremental_potential
     model = _cloth(3)

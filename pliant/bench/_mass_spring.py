@@ -98,7 +98,7 @@ def make_solver(
         cg_tol: CG's relative residual; the step stops there (FastMassSpring's host check).
         damping_rate: velocity damping c [1/s]; 0 for the benchmark's physics.
     """
-    from ..solvers._fast_cloth import FastMassSpring
+    from ..solvers import FastMassSpring
 
     if method == "force":
         from ..energies import Gravity, Springs
@@ -196,7 +196,7 @@ def reference_sag(
     import warp as wp
 
     from ..energies import Gravity, Springs
-    from ..solvers._fast_cloth import FastMassSpring
+    from ..solvers import FastMassSpring
 
     model = cloth_drape_model(n, device=device, dtype="float64")
     solver = FastMassSpring(

@@ -173,7 +173,7 @@ class _ImplicitOptions:
     """The implicit integrators' settings: an :class:`ImplicitOptions` handed to ``system.minimize``."""
 
     #: Gradients through the physical path: the adjoint of each step's minimisation
-    #: (``pliant.solvers._implicit_adjoint``), recorded on an active ``wp.Tape``.
+    #: (``pliant.solvers.implicit._adjoint``), recorded on an active ``wp.Tape``.
     differentiable: ClassVar[bool] = True
     #: The keyword options ``__init__(**options)`` accepts: the fields of this dataclass (scene files check
     #: ``integrator_options`` against them).
@@ -240,8 +240,8 @@ class BackwardEuler(_ImplicitOptions, Integrator):
         method: the minimiser of each step: "newton" (the default; exact PSD-projected Hessians, a linear
             solve per iteration) or "lbfgs" (L-BFGS whose initial Hessian is the per-axis, lagged,
             prefactorised one: no assembly or factorisation per iteration; the fast choice for FEM bodies on
-            the CPU, see ``pliant.solvers._quasi_newton`` and the README's FEM speed table; not for spring
-            cloth, whose Hessian changes too much between steps for a lagged one).
+            the CPU, see ``pliant.solvers.implicit._quasi_newton`` and the README's FEM speed table; not
+            for spring cloth, whose Hessian changes too much between steps for a lagged one).
         lbfgs_history: curvature pairs L-BFGS keeps (default 8).
         lbfgs_refresh: re-assemble L-BFGS's lagged Hessian after a step that needed more iterations.
         lbfgs_warm_start: start each L-BFGS step from x̃ plus the previous step's correction when that lowers

@@ -9,16 +9,16 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .._warp import GradientError, fresh, grad_enabled, launch
-from ..collision._ground_recorded import ground_contact_out, ground_penalty_friction_out
-from ..energies import Energy, Gravity, GravityFromArray
-from ..energies._base import _axpy
-from ..integrators import Integrator, SymplecticEuler
-from ..model import Control, Model, State
-from ..model._parameters import Parameter, declares
-from ._base import DAMPING_RATE, Solver
-from ._newton_workspace import MinimizerCache
-from ._post import add_drag_force, check_collisions, finish_step
+from ..._warp import GradientError, fresh, grad_enabled, launch
+from ...collision._ground_recorded import ground_contact_out, ground_penalty_friction_out
+from ...energies import Energy, Gravity, GravityFromArray
+from ...energies._base import _axpy
+from ...integrators import Integrator, SymplecticEuler
+from ...model import Control, Model, State
+from ...model._parameters import Parameter, declares
+from .._base import DAMPING_RATE, Solver
+from .._post import add_drag_force, check_collisions, finish_step
+from ..implicit import MinimizerCache, lbfgs_checkpoint_state, lbfgs_restore_checkpoint_state, minimize
 
 
 @wp.kernel
@@ -106,7 +106,7 @@ class ForceSolver(Solver):
         collisions: Sequence[Any] = (),
     ) -> None:
         super().__init__(model)
-        from ..energies import mass_spring
+        from ...energies import mass_spring
 
         self.energies = list(mass_spring() if energies is None else energies)
         for e in self.energies:
@@ -125,7 +125,7 @@ class ForceSolver(Solver):
         self.damping_rate = damping_rate
         self.contact = contact and model.ground is not None
         if self.contact and not self.integrator.explicit:
-            from ..energies import GroundPenalty
+            from ...energies import GroundPenalty
 
             # Newton must see the ground: projecting after a large implicit step flattens (inverts) elements.
             if not any(isinstance(e, GroundPenalty) for e in self.energies):
@@ -225,15 +225,7 @@ class ForceSolver(Solver):
 
     def minimize(self, t, h, x_tilde, x_ref, v_ref, x_out, options=None):
         """Minimise the incremental potential (Newton or L-BFGS, the integrator's ``method``)."""
-        from .._blas import single_threaded
-        from ._newton import _option, minimize_incremental_potential
-
-        with single_threaded():  # many small host BLAS calls: a thread pool's wake-up costs more
-            if _option(options, "method") == "lbfgs":
-                from ._quasi_newton import minimize_quasi_newton
-
-                return minimize_quasi_newton(self, t, h, x_tilde, x_ref, v_ref, x_out, options)
-            return minimize_incremental_potential(self, t, h, x_tilde, x_ref, v_ref, x_out, options)
+        return minimize(self, t, h, x_tilde, x_ref, v_ref, x_out, options)
 
     # ------------------------------------------------------------------ Solver interface
     def step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
@@ -360,7 +352,7 @@ class ForceSolver(Solver):
         caller added it, and then integrates the same contact physics as the implicit steps: the penalty
         force inside the step, Coulomb friction for its impulse after it, no projection.
         """
-        from ..energies import GroundPenalty
+        from ...energies import GroundPenalty
 
         for e in self.energies:
             if isinstance(e, GroundPenalty):
@@ -404,8 +396,6 @@ class ForceSolver(Solver):
     # ------------------------------------------------------------------ checkpoints
     def checkpoint_state(self) -> dict[str, np.ndarray]:
         """L-BFGS's history and warm start (``lbfgs_*``) and the integrator's (e.g. BDF2's ``bdf2_*``)."""
-        from ._quasi_newton import lbfgs_checkpoint_state
-
         out = lbfgs_checkpoint_state(self.minimizer_cache)
         own = getattr(self.integrator, "checkpoint_state", None)
         if own is not None:
@@ -414,8 +404,6 @@ class ForceSolver(Solver):
 
     def restore_checkpoint_state(self, state: dict[str, np.ndarray]) -> None:
         """Take back :meth:`checkpoint_state`'s arrays (validated by their owners; ValueError if wrong)."""
-        from ._quasi_newton import lbfgs_restore_checkpoint_state
-
         lbfgs = {k: a for k, a in state.items() if k.startswith("lbfgs_")}
         rest = {k: a for k, a in state.items() if not k.startswith("lbfgs_")}
         own = getattr(self.integrator, "restore_checkpoint_state", None)

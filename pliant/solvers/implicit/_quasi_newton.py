@@ -1,6 +1,6 @@
 """L-BFGS on the incremental potential with a prefactored, lagged Hessian (Liu, Bouaziz, Kavan 2017).
 
-Same problem as :mod:`pliant.solvers._newton` — one implicit step minimises
+Same problem as :mod:`pliant.solvers.implicit._newton` — one implicit step minimises
 
     Φ(x) = ½ ‖x − x̃‖²_M + h² Σ_e E_e(x)
 
@@ -37,18 +37,12 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .._warp import launch
-from ..integrators._implicit import ImplicitOptions
-from ._implicit_adjoint import differentiable
-from ._newton import (
-    NewtonStats,
-    _assemble,
-    _control_terms,
-    _gradient,
-    _trial_point,
-    _Workspace,
-)
-from ._newton_workspace import MinimizerCache, cache_of
+from ..._warp import launch
+from ...integrators._implicit import ImplicitOptions
+from ._adjoint import differentiable
+from ._assembly import _assemble, _control_terms
+from ._newton import NewtonStats, _gradient, _trial_point
+from ._workspace import MinimizerCache, _Workspace, cache_of
 
 
 def nested_dissection(points: np.ndarray, rows: np.ndarray, cols: np.ndarray, leaf: int = 32) -> np.ndarray:
@@ -210,7 +204,7 @@ class _LaggedHessian:
             # Symmetric positive definite: our symmetric ordering, no pivoting (SuperLU's "symmetric mode").
             return splu(mat, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
         except RuntimeError as exc:  # SciPy: "Factor is exactly singular"
-            from ._errors import SingularSystemError
+            from .._errors import SingularSystemError
 
             raise SingularSystemError(
                 f"L-BFGS: the initial Hessian M + h^2 K of axis {'xyz'[axis]} is singular ({exc}) at step "
@@ -331,7 +325,7 @@ def minimize_quasi_newton(
 ) -> NewtonStats:
     """x_out = argmin_x ½‖x − x̃‖²_M + h² Σ E(x) by L-BFGS with a lagged, prefactored Hessian.
 
-    Arguments as :func:`pliant.solvers._newton.minimize_incremental_potential`; ``options`` may also name
+    Arguments as :func:`pliant.solvers.implicit.minimize_incremental_potential`; ``options`` may also name
     ``lbfgs_history`` (curvature pairs kept, default 8), ``lbfgs_max_iterations`` (default 200),
     ``lbfgs_refresh`` (re-assemble the lagged Hessian after a step that took more iterations than this,
     default 40) and ``lbfgs_warm_start`` (start from x̃ plus the correction x − x̃ extrapolated from the
