@@ -11,7 +11,7 @@ import warp as wp
 
 from ..._warp import GradientError, fresh, grad_enabled, launch
 from ...collision._ground_recorded import ground_contact_out, ground_penalty_friction_out
-from ...energies import Energy, Gravity, GravityFromArray
+from ...energies import Energy, Gravity, GravityFromArray, GroundPenalty, mass_spring
 from ...energies._base import _axpy
 from ...integrators import Integrator, SymplecticEuler
 from ...model import Control, Model, State
@@ -106,8 +106,6 @@ class ForceSolver(Solver):
         collisions: Sequence[Any] = (),
     ) -> None:
         super().__init__(model)
-        from ...energies import mass_spring
-
         self.energies = list(mass_spring() if energies is None else energies)
         for e in self.energies:
             if not isinstance(e, Energy):
@@ -125,8 +123,6 @@ class ForceSolver(Solver):
         self.damping_rate = damping_rate
         self.contact = contact and model.ground is not None
         if self.contact and not self.integrator.explicit:
-            from ...energies import GroundPenalty
-
             # Newton must see the ground: projecting after a large implicit step flattens (inverts) elements.
             if not any(isinstance(e, GroundPenalty) for e in self.energies):
                 self.energies.append(GroundPenalty())
@@ -352,8 +348,6 @@ class ForceSolver(Solver):
         caller added it, and then integrates the same contact physics as the implicit steps: the penalty
         force inside the step, Coulomb friction for its impulse after it, no projection.
         """
-        from ...energies import GroundPenalty
-
         for e in self.energies:
             if isinstance(e, GroundPenalty):
                 return e.stiffness

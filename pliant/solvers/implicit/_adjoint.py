@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from ..._blas import single_threaded
 from ..._warp import GradientError, _tape_active, active_tape, launch, tape_paused
 from .._post import drag_force
 from ._assembly import _assemble, _inverse_diagonal, control_of
@@ -195,8 +196,6 @@ class _StepAdjoint:
         if wp.get_device(m.device).is_cpu:
             import scipy.sparse as sp
             from scipy.sparse.linalg import splu
-
-            from ..._blas import single_threaded
 
             vals = ws.values.numpy()[: ws.nnz].astype(np.float64)
             H = sp.bsr_matrix((vals, ws.indices, ws.indptr), shape=(3 * n, 3 * n)).tocsc()

@@ -39,6 +39,7 @@ import warp as wp
 
 from ..._warp import launch
 from ...integrators._implicit import ImplicitOptions
+from .._errors import SingularSystemError
 from ._adjoint import differentiable
 from ._assembly import _assemble, _control_terms
 from ._newton import NewtonStats, _gradient, _trial_point
@@ -204,8 +205,6 @@ class _LaggedHessian:
             # Symmetric positive definite: our symmetric ordering, no pivoting (SuperLU's "symmetric mode").
             return splu(mat, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
         except RuntimeError as exc:  # SciPy: "Factor is exactly singular"
-            from .._errors import SingularSystemError
-
             raise SingularSystemError(
                 f"L-BFGS: the initial Hessian M + h^2 K of axis {'xyz'[axis]} is singular ({exc}) at step "
                 f"h = {self.h:.3g} s: the masses vanish next to h^2 times the stiffness (or h^2 K "

@@ -22,8 +22,9 @@ import numpy as np
 import warp as wp
 
 from ..._blas import single_threaded
-from ...energies import Energy
+from ...energies import Energy, Gravity
 from ...model import Model
+from .._errors import SingularSystemError
 from ._assembly import _inverse_diagonal
 from ._newton import _negate
 from ._workspace import _Workspace
@@ -344,8 +345,6 @@ def solve_static(
         x, stats = pl.solvers.solve_static(model, [pl.energies.NeoHookean(), pl.energies.Gravity()],
                                            fixed=np.flatnonzero(X[:, 0] < 1e-9), load_steps=4)
     """
-    from ...energies import Gravity
-
     energies = list(energies)
     for e in energies:
         if not isinstance(e, Energy):
@@ -498,8 +497,6 @@ def solve_static(
         elif step < load_steps:
             break  # an intermediate load step failed: the later ones would start from a wrong state
     if stats.stop_reason == "singular":
-        from .._errors import SingularSystemError
-
         raise SingularSystemError(
             "solve_static: the stiffness matrix is singular even with a Levenberg-Marquardt shift "
             f"(load step {stats.load_steps} of {load_steps}, iteration {stats.iterations}): some free "
