@@ -43,7 +43,10 @@ def test_implicit_step_minimises_with_one_blas_thread(monkeypatch):
     b.add_soft_box(cells=(2, 2, 2), size=(0.2, 0.2, 0.2), origin=(0.0, 0.5, 0.0), density=500.0, E=1e4)
     m = b.finalize(device="cpu", dtype="float64")
     solver = pl.solvers.ForceSolver(
-        m, [pl.energies.NeoHookean(), pl.energies.Gravity()], pl.integrators.BackwardEuler(method="lbfgs")
+        m,
+        [pl.energies.NeoHookean(), pl.energies.Gravity()],
+        pl.integrators.BackwardEuler(),
+        minimizer={"method": "lbfgs"},
     )
     with threadpool_limits(limits=2, user_api="blas"):
         s0, s1 = m.state(), m.state()

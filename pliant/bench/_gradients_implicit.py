@@ -54,8 +54,9 @@ def _rollout(n: int, frames: int, record: bool) -> tuple[float, float, float, in
     solver = ForceSolver(
         model,
         energies=[NeoHookean(), Gravity(), GroundPenalty()],
-        integrator=BackwardEuler(newton_tol=LBFGS_TOL["float64"], method="lbfgs", project_psd=True),
+        integrator=BackwardEuler(newton_tol=LBFGS_TOL["float64"], project_psd=True),
         contact=False,
+        minimizer={"method": "lbfgs"},
     )
     states = [model.state() for _ in range(frames + 1)]
     weight = wp.array(

@@ -11,7 +11,7 @@ from ._frame import FrameStep
 from ._rigid import RigidBodySolver
 from .fast_mass_spring import FastMassSpring
 from .force import ForceSolver
-from .implicit import StaticStats, solve_static
+from .implicit import MinimizerOptions, StaticStats, solve_static
 from .xpbd import PBD, XPBD
 
 __all__ = [
@@ -20,6 +20,7 @@ __all__ = [
     "solve_static",
     "FastMassSpring",
     "FrameStep",
+    "MinimizerOptions",
     "PBD",
     "RigidBodySolver",
     "XPBD",

@@ -13,12 +13,19 @@ from ..._warp import GradientError, fresh, grad_enabled, launch
 from ...collision._ground_recorded import ground_contact_out, ground_penalty_friction_out
 from ...energies import Energy, Gravity, GravityFromArray, GroundPenalty, mass_spring
 from ...energies._base import _axpy
-from ...integrators import Integrator, SymplecticEuler
+from ...integrators import ImplicitOptions, Integrator, SymplecticEuler
 from ...model import Control, Model, State
 from ...model._parameters import Parameter, declares
 from .._base import DAMPING_RATE, Solver
 from .._post import add_drag_force, check_collisions, finish_step
-from ..implicit import MinimizerCache, lbfgs_checkpoint_state, lbfgs_restore_checkpoint_state, minimize
+from ..implicit import (
+    MinimizerCache,
+    MinimizerOptions,
+    lbfgs_checkpoint_state,
+    lbfgs_restore_checkpoint_state,
+    minimize,
+    step_settings,
+)
 
 
 @wp.kernel
@@ -81,6 +88,9 @@ class ForceSolver(Solver):
         contact: resolve ground contact after each step (needs ``model.ground``).
         collisions: contact handlers run after ground contact, each with
             ``apply(model, state_in, state_out, dt)`` (``pl.collision.Colliders``, ``SelfCollision``).
+        minimizer: how an implicit integrator's steps are minimised: a
+            :class:`pliant.solvers.MinimizerOptions` or a dict of its settings (``{"method": "lbfgs"}``);
+            None: the defaults (Newton), or the minimiser keywords the integrator was given (deprecated).
 
     Example::
 
@@ -104,6 +114,7 @@ class ForceSolver(Solver):
         damping_rate: float | None = None,
         contact: bool = True,
         collisions: Sequence[Any] = (),
+        minimizer: MinimizerOptions | dict[str, Any] | None = None,
     ) -> None:
         super().__init__(model)
         self.energies = list(mass_spring() if energies is None else energies)
@@ -156,6 +167,11 @@ class ForceSolver(Solver):
         self.last_stats: Any = None
         #: What the implicit minimisers keep between steps (Hessian pattern, L-BFGS pairs and warm start).
         self.minimizer_cache = MinimizerCache()
+        implicit = getattr(self.integrator, "options", None)
+        implicit = implicit if isinstance(implicit, ImplicitOptions) else None
+        #: How implicit steps are minimised (:class:`MinimizerOptions`): ``minimizer``, merged with the
+        #: minimiser keywords of the integrator (deprecated; validated here, before any step).
+        self.minimizer = step_settings(implicit, minimizer)[1]
 
     # ------------------------------------------------------------------ System interface
     @property
@@ -220,8 +236,8 @@ class ForceSolver(Solver):
         )
 
     def minimize(self, t, h, x_tilde, x_ref, v_ref, x_out, options=None):
-        """Minimise the incremental potential (Newton or L-BFGS, the integrator's ``method``)."""
-        return minimize(self, t, h, x_tilde, x_ref, v_ref, x_out, options)
+        """Minimise the incremental potential (Newton or L-BFGS: ``self.minimizer.method``)."""
+        return minimize(self, t, h, x_tilde, x_ref, v_ref, x_out, options, minimizer=self.minimizer)
 
     # ------------------------------------------------------------------ Solver interface
     def step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:

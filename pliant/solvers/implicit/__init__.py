@@ -1,16 +1,17 @@
 """Implicit steps and static equilibria: minimisers of the incremental potential (Newton, L-BFGS), their
-workspace, the adjoint of a converged step, and the static solve.
+settings, workspace and assembly, the adjoint of a converged step, and the static solve.
 
-Modules, bottom to top: ``_workspace`` (the BSR pattern, linear solvers, the per-problem cache) →
-``_assembly`` (Hessian assembly, the Control's terms) → ``_adjoint`` (gradients through a step) →
-``_newton`` → ``_quasi_newton`` → ``_minimize`` / ``_static``. Other solver families use the names below,
-never these modules.
+Modules, bottom to top: ``_options`` (the minimiser's settings) and ``_workspace`` (the BSR pattern, linear
+solvers, the per-problem cache) → ``_assembly`` (Hessian assembly, the Control's terms) → ``_adjoint``
+(gradients through a step) → ``_newton`` → ``_quasi_newton`` → ``_minimize`` / ``_static``. Other solver
+families use the names below, never these modules.
 """
 
 from ._adjoint import differentiable
 from ._assembly import PotentialProblem, control_of
 from ._minimize import minimize
 from ._newton import NewtonStats, minimize_incremental_potential
+from ._options import MinimizerOptions, step_settings
 from ._quasi_newton import (
     lbfgs_checkpoint_state,
     lbfgs_restore_checkpoint_state,
@@ -22,6 +23,7 @@ from ._workspace import MinimizerCache, cache_of
 
 __all__ = [
     "MinimizerCache",
+    "MinimizerOptions",
     "NewtonStats",
     "PotentialProblem",
     "StaticStats",
@@ -35,4 +37,5 @@ __all__ = [
     "minimize_quasi_newton",
     "nested_dissection",
     "solve_static",
+    "step_settings",
 ]

@@ -36,9 +36,9 @@ import numpy as np
 import warp as wp
 
 from ..._warp import launch
-from ...integrators._implicit import ImplicitOptions
 from ._adjoint import differentiable
 from ._assembly import _assemble, _control_terms, _inverse_diagonal
+from ._options import step_settings
 from ._workspace import (
     _direct_solve,
     _host_cg_solve,
@@ -199,6 +199,7 @@ def minimize_incremental_potential(
     v_ref: wp.array,
     x_out: wp.array,
     options: Any = None,
+    minimizer: Any = None,
 ) -> NewtonStats:
     """x_out = argmin_x ½‖x − x̃‖²_M + h² Σ E(x) by Newton with an Armijo line search.
 
@@ -210,9 +211,11 @@ def minimize_incremental_potential(
         x_ref: positions at the start of the step [m] (dissipation reference).
         v_ref: velocities at the start of the step [m/s].
         x_out: the minimiser [m] (may not alias the inputs).
-        options: :class:`pliant.integrators.ImplicitOptions` (or a dict of some of its settings, or None
-            for the defaults): ``newton_tol`` [m/s], ``max_newton_iterations``, ``linear_solver``,
-            ``cg_tol``, ``cg_max_iterations``, ``project_psd``, ``max_line_search``.
+        options: :class:`pliant.integrators.ImplicitOptions` (an implicit integrator, a dict of some of its
+            settings, or None for the defaults): ``newton_tol`` [m/s], ``max_newton_iterations``,
+            ``project_psd``, ``max_line_search``.
+        minimizer: :class:`~pliant.solvers.MinimizerOptions` (a dict of some of its settings, or None for
+            the defaults): ``linear_solver``, ``cg_tol``, ``cg_max_iterations``.
 
     Returns:
         :class:`NewtonStats`.
@@ -220,12 +223,12 @@ def minimize_incremental_potential(
     m = solver.model
     n = m.particle_count
     ws = _workspace(solver)
-    opts = ImplicitOptions.coerce(options)
+    opts, mz = step_settings(options, minimizer)
     tol_opt = float(opts.newton_tol)
     max_it = int(opts.max_newton_iterations)
-    lin = _resolve_linear_solver(opts.linear_solver, m)
-    cg_tol = max(float(opts.cg_tol), 30.0 * float(np.finfo(ws.np_dtype).eps))
-    cg_max = int(opts.cg_max_iterations)
+    lin = _resolve_linear_solver(mz.linear_solver, m)
+    cg_tol = max(float(mz.cg_tol), 30.0 * float(np.finfo(ws.np_dtype).eps))
+    cg_max = int(mz.cg_max_iterations)
     project_psd = "project" if opts.project_psd is True else opts.project_psd
     max_ls = int(opts.max_line_search)
     eps = float(np.finfo(np.float32 if m.dtype == "float32" else np.float64).eps)

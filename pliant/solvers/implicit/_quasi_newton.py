@@ -38,11 +38,11 @@ import numpy as np
 import warp as wp
 
 from ..._warp import launch
-from ...integrators._implicit import ImplicitOptions
 from .._errors import SingularSystemError
 from ._adjoint import differentiable
 from ._assembly import _assemble, _control_terms
 from ._newton import NewtonStats, _gradient, _trial_point
+from ._options import step_settings
 from ._workspace import MinimizerCache, _Workspace, cache_of
 
 
@@ -321,10 +321,11 @@ def minimize_quasi_newton(
     v_ref: wp.array,
     x_out: wp.array,
     options: Any = None,
+    minimizer: Any = None,
 ) -> NewtonStats:
     """x_out = argmin_x ½‖x − x̃‖²_M + h² Σ E(x) by L-BFGS with a lagged, prefactored Hessian.
 
-    Arguments as :func:`pliant.solvers.implicit.minimize_incremental_potential`; ``options`` may also name
+    Arguments as :func:`pliant.solvers.implicit.minimize_incremental_potential`; ``minimizer`` also names
     ``lbfgs_history`` (curvature pairs kept, default 8), ``lbfgs_max_iterations`` (default 200),
     ``lbfgs_refresh`` (re-assemble the lagged Hessian after a step that took more iterations than this,
     default 40) and ``lbfgs_warm_start`` (start from x̃ plus the correction x − x̃ extrapolated from the
@@ -339,11 +340,11 @@ def minimize_quasi_newton(
     cache = cache_of(solver)
     ws = cache.workspace(m, solver.energies)
     h0, hist, memo = _state(cache, ws, m, solver.energies)
-    opts = ImplicitOptions.coerce(options)
-    hist.size = int(opts.lbfgs_history)
-    max_it = int(opts.lbfgs_max_iterations)
-    refresh_after = int(opts.lbfgs_refresh)
-    warm = bool(opts.lbfgs_warm_start)
+    opts, mz = step_settings(options, minimizer)
+    hist.size = int(mz.lbfgs_history)
+    max_it = int(mz.lbfgs_max_iterations)
+    refresh_after = int(mz.lbfgs_refresh)
+    warm = bool(mz.lbfgs_warm_start)
     tol_opt = float(opts.newton_tol)
     max_ls = int(opts.max_line_search)
     eps = float(np.finfo(ws.np_dtype).eps)
@@ -372,7 +373,7 @@ def minimize_quasi_newton(
     stats.residuals.append(float(g[0]))
     if g[0] <= tol_opt:
         return _finish(solver, stats, memo, x, x_tilde, g, h)
-    h0.set_method(opts.lbfgs_h0)
+    h0.set_method(mz.lbfgs_h0)
     if h0.base is None or h0.h != h or memo.get("refresh", False):
         h0.refresh(solver, ws, x, h)
         memo["refresh"] = False
