@@ -27,23 +27,26 @@ def test_single_threaded_limits_blas_inside_and_restores_it_after():
 
 def test_implicit_step_minimises_with_one_blas_thread(monkeypatch):
     """ForceSolver's implicit step calls its minimiser inside the limit (L-BFGS here)."""
-    import pliant.solvers._quasi_newton as qn
+    import pliant.solvers.implicit._minimize as mz
 
     if not _blas_threads():
         pytest.skip("no BLAS library reports its threads here")
     seen = []
-    original = qn.minimize_quasi_newton
+    original = mz.minimize_quasi_newton
 
     def spy(*args, **kwargs):
         seen.append(_blas_threads())
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(qn, "minimize_quasi_newton", spy)
+    monkeypatch.setattr(mz, "minimize_quasi_newton", spy)
     b = pl.ModelBuilder()
     b.add_soft_box(cells=(2, 2, 2), size=(0.2, 0.2, 0.2), origin=(0.0, 0.5, 0.0), density=500.0, E=1e4)
     m = b.finalize(device="cpu", dtype="float64")
     solver = pl.solvers.ForceSolver(
-        m, [pl.energies.NeoHookean(), pl.energies.Gravity()], pl.integrators.BackwardEuler(method="lbfgs")
+        m,
+        [pl.energies.NeoHookean(), pl.energies.Gravity()],
+        pl.integrators.BackwardEuler(),
+        minimizer={"method": "lbfgs"},
     )
     with threadpool_limits(limits=2, user_api="blas"):
         s0, s1 = m.state(), m.state()

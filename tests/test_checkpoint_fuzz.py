@@ -42,9 +42,11 @@ def _fem() -> pl.Simulator:
     b.add_soft_box(cells=(1, 1, 1), size=(0.2, 0.2, 0.2), origin=(0.0, 0.11, 0.0), E=2e4, nu=0.3)
     b.add_ground(0.0)
     model = b.finalize(device="cpu", dtype="float64")
-    integ = pl.integrators.BDF2(method="lbfgs")
     solver = pl.solvers.ForceSolver(
-        model, energies=[pl.energies.NeoHookean(), pl.energies.Gravity()], integrator=integ
+        model,
+        energies=[pl.energies.NeoHookean(), pl.energies.Gravity()],
+        integrator=pl.integrators.BDF2(),
+        minimizer={"method": "lbfgs"},
     )
     return pl.Simulator(model, solver, frame_dt=1 / 30, substeps=1)
 

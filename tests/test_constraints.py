@@ -204,7 +204,7 @@ def _project_once(model, constraint, dt: float = 1e-2, schedule: str = "coloring
     constraint.begin_step(ctx, model.particle_q, p, dt)
     constraint.project(ctx, p, dt)
     if constraint.writes_deltas(solver.coloring):
-        from pliant.solvers import _xpbd_kernels as K
+        from pliant.solvers.xpbd import _kernels as K
 
         wp.launch(K.apply_deltas, model.particle_count, [model.s(1.0), p, solver.delta, solver.delta_count])
     return p.numpy()

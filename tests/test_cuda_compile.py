@@ -15,12 +15,13 @@ ROOT = Path(__file__).resolve().parent.parent
 
 #: Modules the check must reach (a floor, so that a registration that silently stops working fails here).
 MUST_COMPILE = {
-    "pliant.solvers._fast_cloth",
-    "pliant.solvers._fast_cloth_cg",
-    "pliant.solvers._fast_cloth_explicit",
-    "pliant.solvers._xpbd_kernels",
-    "pliant.solvers._newton",
-    "pliant.solvers._force",
+    "pliant.solvers.fast_mass_spring._system",
+    "pliant.solvers.fast_mass_spring._cg",
+    "pliant.solvers.fast_mass_spring._explicit",
+    "pliant.solvers.xpbd._kernels",
+    "pliant.solvers.implicit._assembly",
+    "pliant.solvers.implicit._newton",
+    "pliant.solvers.force._solver",
     "pliant.integrators._symplectic",
     "pliant.integrators._implicit",
     "pliant.energies._spring",

@@ -116,9 +116,7 @@ def _rollout(kind, ground, integ_factory, *, perturb=None, record=False):
             inv = model.particle_inv_mass.numpy()
             model.particle_inv_mass.assign(np.where(inv > 0, 1.0 / a.numpy(), 0.0))
     # ground=True: contact only through the penalty in Φ (the post-step friction is another module's).
-    solver = pl.solvers.ForceSolver(
-        model, energies=_energies(kind, ground), integrator=integ_factory(), contact=False
-    )
+    solver = pl.solvers.ForceSolver(model, energies=_energies(kind, ground), contact=False, **integ_factory())
     states = [model.state() for _ in range(STEPS + 1)]
     wx = wp.array(np.random.default_rng(3).standard_normal((model.particle_count, 3)), dtype=wp.vec3d)
     wv = wp.array(0.1 * np.random.default_rng(4).standard_normal((model.particle_count, 3)), dtype=wp.vec3d)
@@ -187,12 +185,16 @@ def _check(kind, ground, integ_factory, eps=1e-5):
 
 
 TIGHT = {"newton_tol": 1e-10, "max_newton_iterations": 50}
+#: ForceSolver keywords per case: the integrator, and the minimiser where it is not Newton.
 INTEGRATORS = {
-    "be_newton": lambda: I.BackwardEuler(**TIGHT),
+    "be_newton": lambda: {"integrator": I.BackwardEuler(**TIGHT)},
     # L-BFGS converges linearly: to the round-off floor, so that its finite differences are not noise.
-    "be_lbfgs": lambda: I.BackwardEuler(method="lbfgs", lbfgs_max_iterations=500, newton_tol=1e-12),
-    "midpoint": lambda: I.ImplicitMidpoint(**TIGHT),
-    "bdf2": lambda: I.BDF2(**TIGHT),
+    "be_lbfgs": lambda: {
+        "integrator": I.BackwardEuler(newton_tol=1e-12),
+        "minimizer": {"method": "lbfgs", "lbfgs_max_iterations": 500},
+    },
+    "midpoint": lambda: {"integrator": I.ImplicitMidpoint(**TIGHT)},
+    "bdf2": lambda: {"integrator": I.BDF2(**TIGHT)},
 }
 
 
@@ -236,7 +238,7 @@ def _driven_rope(targets: np.ndarray, record: bool, integ: str):
     b.add_kinematic([0])
     model = b.finalize(device="cpu", dtype="float64", requires_grad=record)
     solver = pl.solvers.ForceSolver(
-        model, energies=pl.energies.mass_spring(), integrator=INTEGRATORS[integ](), contact=False
+        model, energies=pl.energies.mass_spring(), contact=False, **INTEGRATORS[integ]()
     )
     controls = []
     for k in range(STEPS):
@@ -323,7 +325,7 @@ def _falling_rope(requires_grad: bool, integ: str = "be_newton", stiffness: floa
     model = b.finalize(device="cpu", dtype="float64", requires_grad=requires_grad)
     n = model.particle_count
     model.particle_qd.assign(np.tile([1.0, -0.5, 0.2], (n, 1)))
-    return model, pl.solvers.ForceSolver(model, integrator=INTEGRATORS[integ]())
+    return model, pl.solvers.ForceSolver(model, **INTEGRATORS[integ]())
 
 
 def _rope_loss(model):

@@ -16,15 +16,10 @@ from collections.abc import Iterable, Mapping
 
 from tests.test_layers import ROOT, _imports, _module_name
 
-#: Cycles still present, each the set of its modules, with why it is tolerated. Both are closed by
-#: imports inside functions in pliant/solvers/; the solvers' sub-package work (issue 26, item 1) removes
-#: them, and this list is then emptied (test_allowed_cycles_still_exist fails once they are gone).
-ALLOWED: tuple[frozenset[str], ...] = (
-    # FastMassSpring builds its adjoint; the adjoint replays the solver's kernels.
-    frozenset({"pliant.solvers._fast_cloth", "pliant.solvers._fast_cloth_adjoint"}),
-    # The Newton step records its adjoint; the adjoint re-runs Newton's assembly.
-    frozenset({"pliant.solvers._newton", "pliant.solvers._implicit_adjoint"}),
-)
+#: Cycles still present, each the set of its modules, with why it is tolerated. Empty: the last two (the
+#: fast mass-spring solver and the implicit step with their adjoints) went with the solvers' sub-packages
+#: (issue 26, item 1). A stale entry fails test_allowed_cycles_still_exist.
+ALLOWED: tuple[frozenset[str], ...] = ()
 
 
 def import_graph() -> dict[str, set[str]]:

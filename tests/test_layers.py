@@ -7,7 +7,9 @@ layer. Layers, bottom to top:
     → render → scene → diff / fit / gaussians / sweep → studies / bench / cli / live → pliant/__init__.py
     → examples (user code on the public surface)
 
-Modules of one layer may import each other.
+Modules of one layer may import each other. Inside ``pliant/solvers`` the sub-packages are layered too
+(:data:`SOLVER_LAYERS`), and none imports another's private ``_name`` modules (only what its ``__init__``
+exports).
 """
 
 from __future__ import annotations
@@ -163,3 +165,101 @@ def test_no_source_file_over_the_size_limit():
         if (n := p.read_text(encoding="utf-8").count("\n")) > 620
     }
     assert not long, f"split these files: {long}"
+
+
+#: Layers inside pliant/solvers (docs/design.md, "solvers/"), bottom to top. "" is the shared modules at the
+#: package's top level (_base, _errors, _post, _frame, _rigid); the package's __init__ sits above them all.
+SOLVER_LAYERS: list[tuple[str, ...]] = [("",), ("implicit", "xpbd"), ("force",), ("fast_mass_spring",)]
+SOLVER_LEVEL = {name: i for i, names in enumerate(SOLVER_LAYERS) for name in names}
+SOLVERS = ROOT / "solvers"
+
+
+def _solver_part(module: str) -> str | None:
+    """The solvers layer key of a ``pliant.solvers...`` module: its sub-package, "" for a shared top-level
+    module, "__init__" for the package itself; None outside pliant.solvers."""
+    parts = module.split(".")
+    if parts[:2] != ["pliant", "solvers"]:
+        return None
+    if len(parts) == 2:
+        return "__init__"
+    return "" if parts[2].startswith("_") else parts[2]
+
+
+def _import_candidates(path: Path) -> list[tuple[int, str]]:
+    """(line, module) of every pliant import in ``path``, with ``from P import name`` also as ``P.name``
+    (so that ``from .implicit import _newton`` names the module it loads)."""
+    out = []
+    for line, target in _imports(path):
+        out.append((line, target))
+    module = _module_name(path)
+    package = module if path.name == "__init__.py" else module.rsplit(".", 1)[0]
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            if target.split(".")[0] == "pliant":
+                out += [(node.lineno, f"{target}.{a.name}") for a in node.names if a.name.startswith("_")]
+    return out
+
+
+def solver_layer_violations() -> list[str]:
+    """Imports inside pliant/solvers that point up its sub-package layers, and imports (from anywhere in
+    pliant) of a private ``_name`` module of a solvers sub-package other than the importer's own."""
+    bad = []
+    for path in sorted(ROOT.rglob("*.py")):
+        me = _module_name(path)
+        mine = _solver_part(me)
+        if mine not in (None, "__init__") and mine not in SOLVER_LEVEL:
+            bad.append(f"{path}: solvers sub-package {mine!r} has no layer; add it to SOLVER_LAYERS")
+            continue
+        for line, target in _import_candidates(path):
+            theirs = _solver_part(target)
+            if theirs is None:
+                continue
+            parts = target.split(".")
+            private_of = parts[2] if len(parts) > 3 and parts[3].startswith("_") else None
+            if private_of is not None and not private_of.startswith("_") and private_of != mine:
+                bad.append(f"{path}:{line}: {me} imports {target}, private to solvers.{private_of}")
+            if mine in (None, "__init__") or theirs == "__init__" and target != "pliant.solvers":
+                continue
+            if theirs == "__init__" or SOLVER_LEVEL.get(theirs, -1) > SOLVER_LEVEL[mine]:
+                bad.append(f"{path}:{line}: {me} (solvers.{mine or '_*'}) imports {target} (a higher layer)")
+    return bad
+
+
+def test_solver_subpackages_are_layered_and_keep_their_modules_private():
+    """pliant/solvers: each sub-package imports only lower ones (and the shared top-level modules), and no
+    module imports another sub-package's private modules."""
+    bad = solver_layer_violations()
+    assert not bad, "solvers imports:\n" + "\n".join(bad)
+
+
+def test_every_solver_subpackage_has_a_layer():
+    """Every sub-package of pliant/solvers is placed in SOLVER_LAYERS (and the layers name no missing one)."""
+    subs = {p.name for p in SOLVERS.iterdir() if (p / "__init__.py").exists()}
+    assert subs == set(SOLVER_LEVEL) - {""}, subs ^ (set(SOLVER_LEVEL) - {""})
+
+
+def test_the_solver_check_sees_private_and_upward_imports(tmp_path, monkeypatch):
+    """The solvers check is not vacuous: a private import across sub-packages (relative, ``from . import``
+    form too) and an import of a higher sub-package are each reported."""
+    fake = tmp_path / "pliant"
+    for sub in ("solvers", "solvers/implicit", "solvers/force", "solvers/xpbd", "solvers/fast_mass_spring"):
+        (fake / sub).mkdir(parents=True)
+        (fake / sub / "__init__.py").write_text("")
+    (fake / "__init__.py").write_text("")
+    ok = "from ..implicit import minimize\nfrom .._post import f\n"
+    (fake / "solvers" / "force" / "_ok.py").write_text(ok)
+    (fake / "solvers" / "force" / "_a.py").write_text("from ..implicit._newton import minimize\n")
+    (fake / "solvers" / "xpbd" / "_b.py").write_text("from ..implicit import _newton\n")
+    (fake / "solvers" / "implicit" / "_c.py").write_text("def f():\n    from ..force import ForceSolver\n")
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", fake)
+    bad = solver_layer_violations()
+    text = "\n".join(bad)
+    assert len(bad) == 3, text
+    assert "_a.py:1: pliant.solvers.force._a imports pliant.solvers.implicit._newton, private" in text
+    assert "_b.py:1: pliant.solvers.xpbd._b imports pliant.solvers.implicit._newton, private" in text
+    assert "_c.py:2: pliant.solvers.implicit._c (solvers.implicit) imports pliant.solvers.force" in text

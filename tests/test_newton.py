@@ -7,7 +7,10 @@ import pytest
 import warp as wp
 
 import pliant as pl
-from pliant.solvers._newton import _assemble, _gradient, _workspace, minimize_incremental_potential
+from pliant.solvers.implicit import minimize_incremental_potential
+from pliant.solvers.implicit._assembly import _assemble
+from pliant.solvers.implicit._newton import _gradient
+from pliant.solvers.implicit._workspace import _workspace
 from tests.helpers import run_steps
 
 I = pl.integrators
@@ -32,9 +35,12 @@ def _moving_state(model, seed=1):
     return s
 
 
-def _one_step(model, state, integ, energies=None, control=None):
+def _one_step(model, state, integ, energies=None, control=None, minimizer=None):
     solver = pl.solvers.ForceSolver(
-        model, energies=pl.energies.mass_spring() if energies is None else energies, integrator=integ
+        model,
+        energies=pl.energies.mass_spring() if energies is None else energies,
+        integrator=integ,
+        minimizer=minimizer,
     )
     out = model.state()
     solver.step(state, out, control, 1.0 / 60.0)
@@ -48,10 +54,8 @@ def test_cg_and_direct_agree():
     res = {}
     for lin in ("cg", "direct"):
         for iters in (1, 20):
-            integ = I.BackwardEuler(
-                linear_solver=lin, cg_tol=1e-12, newton_tol=1e-10, max_newton_iterations=iters
-            )
-            out, solver = _one_step(model, state, integ)
+            integ = I.BackwardEuler(newton_tol=1e-10, max_newton_iterations=iters)
+            out, solver = _one_step(model, state, integ, minimizer={"linear_solver": lin, "cg_tol": 1e-12})
             res[lin, iters] = out.particle_q.numpy()
             assert solver.last_stats.linear_solver == lin
     x0 = state.particle_q.numpy()
@@ -188,20 +192,17 @@ def test_implicit_step_balances_forces_with_dashpots():
 def test_options_validated():
     """Unknown linear solvers and non-positive tolerances are rejected with the accepted values named."""
     with pytest.raises(ValueError, match="'cg', 'scipy-cg', 'direct' or 'auto'"):
-        I.BackwardEuler(linear_solver="lu")
+        pl.solvers.MinimizerOptions(linear_solver="lu")
     with pytest.raises(ValueError, match="newton_tol"):
         I.BDF2(newton_tol=0.0)
     with pytest.raises(ValueError, match="project_psd"):
         I.ImplicitMidpoint(project_psd="always")
-    # Defined once (ImplicitOptions): every integrator and the minimisers reject the same mistakes.
+    # Defined once (ImplicitOptions): every integrator and the minimisers reject the same mistakes (the
+    # minimiser's own settings: tests/test_minimizer_options.py).
     bad = {
         "newton_tol": [float("nan"), -1e-5, 0],
         "max_newton_iterations": [0, 2.5],
-        "cg_max_iterations": [0],
-        "lbfgs_history": [-1, 1.5],
-        "lbfgs_max_iterations": [0],
         "max_line_search": [-1],
-        "cg_tol": [1.0, float("nan")],
     }
     for name, values in bad.items():
         for value in values:
@@ -215,8 +216,8 @@ def test_options_validated():
             ValueError, match=r"unknown option\(s\) \['newton_tolerance'\] for .*known options"
         ):
             cls(newton_tolerance=1e-6)
-    integ = I.BDF2(newton_tol=1e-7, method="lbfgs")
-    assert integ.newton_tol == integ.options.newton_tol == 1e-7 and integ.lbfgs_history == 8
+    integ = I.BDF2(newton_tol=1e-7)
+    assert integ.newton_tol == integ.options.newton_tol == 1e-7 and integ.lbfgs_history is None
     model = _cloth(3)
     solver = pl.solvers.ForceSolver(model, integrator=I.BackwardEuler())
     x = model.particle_q
@@ -253,7 +254,8 @@ def test_scipy_cg_matches_direct_on_a_soft_step():
     model = _cloth()
     outs = {}
     for lin in ("direct", "scipy-cg"):
-        out, solver = _one_step(model, model.state(), I.BackwardEuler(newton_tol=1e-8, linear_solver=lin))
+        integ = I.BackwardEuler(newton_tol=1e-8)
+        out, solver = _one_step(model, model.state(), integ, minimizer={"linear_solver": lin})
         outs[lin] = out.particle_q.numpy()
         assert solver.last_stats.converged, solver.last_stats
     err = np.abs(outs["direct"] - outs["scipy-cg"]).max()
@@ -264,7 +266,7 @@ def test_scipy_cg_matches_direct_on_a_soft_step():
 def test_minimizers_read_only_the_declared_problem(method):
     """Newton and L-BFGS need only PotentialProblem's model, energies and control (no ForceSolver fields):
     a plain object gives bit-for-bit the ForceSolver's minimiser, the Control's force included."""
-    from pliant.solvers._quasi_newton import minimize_quasi_newton
+    from pliant.solvers.implicit import minimize_quasi_newton
 
     fn = minimize_quasi_newton if method == "lbfgs" else minimize_incremental_potential
     model = _cloth(3)

@@ -169,8 +169,9 @@ def _lbfgs_box(dtype: str):
     b.add_soft_box(cells=(2, 2, 2), size=(0.2, 0.2, 0.2), origin=(0.0, 0.12, 0.0), E=2e4, nu=0.3)
     b.add_ground(0.0)
     model = b.finalize(device="cpu", dtype=dtype)
-    integ = pl.integrators.BackwardEuler(method="lbfgs")
-    return model, pl.solvers.ForceSolver(model, energies=[pl.energies.NeoHookean()], integrator=integ)
+    integ = pl.integrators.BackwardEuler()
+    solver = pl.solvers.ForceSolver(model, [pl.energies.NeoHookean()], integ, minimizer={"method": "lbfgs"})
+    return model, solver
 
 
 def test_item4_lbfgs_singular_factor_is_a_clear_error():

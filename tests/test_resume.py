@@ -41,13 +41,16 @@ def test_builtin_scene_resumes_bit_for_bit(name, tmp_path):
         assert "solver_lbfgs_s" in info["solver_keys"] and "solver_lbfgs_h0_values" in info["solver_keys"]
 
 
-def _fem_box_sim(integrator) -> pl.Simulator:
+def _fem_box_sim(integrator, minimizer=None) -> pl.Simulator:
     b = pl.ModelBuilder()
     b.add_soft_box(cells=(2, 2, 2), size=(0.2, 0.2, 0.2), origin=(0.0, 0.12, 0.0), E=2e4, nu=0.3)
     b.add_ground(0.0)
     model = b.finalize(device="cpu", dtype="float64")
     solver = pl.solvers.ForceSolver(
-        model, energies=[pl.energies.NeoHookean(), pl.energies.Gravity()], integrator=integrator
+        model,
+        energies=[pl.energies.NeoHookean(), pl.energies.Gravity()],
+        integrator=integrator,
+        minimizer=minimizer,
     )
     return pl.Simulator(model, solver, frame_dt=1 / 30, substeps=2)
 
@@ -55,21 +58,22 @@ def _fem_box_sim(integrator) -> pl.Simulator:
 @pytest.mark.parametrize("method", ["newton", "lbfgs"])
 def test_bdf2_resumes_bit_for_bit(method, tmp_path):
     """BDF2's history (x₋₁, v₋₁) is in the checkpoint; without it the first resumed step is backward Euler."""
-    info = _resume_matches(lambda: _fem_box_sim(pl.integrators.BDF2(method=method)), tmp_path, 6, 3)
+    make = lambda: _fem_box_sim(pl.integrators.BDF2(), {"method": method})  # noqa: E731
+    info = _resume_matches(make, tmp_path, 6, 3)
     assert {"solver_bdf2_x_prev", "solver_bdf2_v_prev", "solver_bdf2_dt"} <= set(info["solver_keys"])
 
 
 def test_lbfgs_with_a_multigrid_h0_resumes_bit_for_bit(tmp_path):
     """``lbfgs_h0="amg"``: the restored H₀ values are put into a V-cycle hierarchy again, the same one."""
-    integ = lambda: pl.integrators.BackwardEuler(method="lbfgs", lbfgs_h0="amg")  # noqa: E731
-    info = _resume_matches(lambda: _fem_box_sim(integ()), tmp_path, 6, 3)
+    mz = {"method": "lbfgs", "lbfgs_h0": "amg"}
+    info = _resume_matches(lambda: _fem_box_sim(pl.integrators.BackwardEuler(), mz), tmp_path, 6, 3)
     assert "solver_lbfgs_h0_values" in info["solver_keys"]
 
 
 def test_lbfgs_resume_needs_the_stored_history(tmp_path):
     """Control: dropping the L-BFGS state from the checkpoint makes the resumed run differ (so the
     bit-identity tests above can fail)."""
-    make = lambda: _fem_box_sim(pl.integrators.BackwardEuler(method="lbfgs"))  # noqa: E731
+    make = lambda: _fem_box_sim(pl.integrators.BackwardEuler(), {"method": "lbfgs"})  # noqa: E731
     reference = make().run(6, progress=False)
     ckpt = tmp_path / "run.ckpt.npz"
     make().run(3, progress=False, checkpoint=ckpt)

@@ -77,7 +77,7 @@ def make_solver(
         cg_tol: CG's relative residual; the step stops there (FastMassSpring's host check).
         damping_rate: velocity damping c [1/s]; 0 for the benchmark's physics.
     """
-    from ..solvers._fast_cloth import FastMassSpring
+    from ..solvers import FastMassSpring
 
     if method == "force":
         from ..energies import Gravity, Springs

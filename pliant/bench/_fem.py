@@ -115,13 +115,14 @@ def make_solver(
         # L-BFGS applies H₀⁻¹ by a multigrid V-cycle: linear in the particles, where the sparse LU's
         # triangular solves fill in (tets^1.27 from 10³ to 30³ cells with "lu", tets^1.05 with "amg").
         h0 = {"lbfgs_h0": "amg"} if minimizer == "lbfgs" else {}
-        stepper = getattr(integrators, integrator)(newton_tol=tol, project_psd=True, method=minimizer, **h0)
+        stepper = getattr(integrators, integrator)(newton_tol=tol, project_psd=True)
+        how = {"method": minimizer, **h0}
     elif method == "explicit":
-        stepper = SymplecticEuler()
+        stepper, how = SymplecticEuler(), None
         energies.append(GroundPenalty())
     else:
         raise ValueError(f"method must be 'implicit' or 'explicit', got {method!r}")
-    return ForceSolver(model, energies=energies, integrator=stepper)
+    return ForceSolver(model, energies=energies, integrator=stepper, minimizer=how)
 
 
 def _peak_mem_mb(device: str) -> float:

@@ -5,7 +5,7 @@ Scene: the soft box of :mod:`pliant.bench._fem` (0.5 m cube, ρ = 1000 kg/m³, n
 rows' tolerance), ground as the penalty inside the potential (no post-step friction), ``frames`` steps of
 1/60 s recorded on a ``wp.Tape`` with one State per frame. The loss is the final centre-of-mass height;
 ``tape.backward`` gives its gradient w.r.t. the per-tet μ, λ and the initial state through one adjoint
-solve per step (:mod:`pliant.solvers._implicit_adjoint`).
+solve per step (:mod:`pliant.solvers.implicit._adjoint`).
 
 Figures: ``forward_s`` (recorded forward, the minimisations with the tape paused), ``plain_forward_s``
 (the same rollout without a tape, ``requires_grad=False``), ``backward_s``, ``ratio`` = backward / forward,
@@ -54,8 +54,9 @@ def _rollout(n: int, frames: int, record: bool) -> tuple[float, float, float, in
     solver = ForceSolver(
         model,
         energies=[NeoHookean(), Gravity(), GroundPenalty()],
-        integrator=BackwardEuler(newton_tol=LBFGS_TOL["float64"], method="lbfgs", project_psd=True),
+        integrator=BackwardEuler(newton_tol=LBFGS_TOL["float64"], project_psd=True),
         contact=False,
+        minimizer={"method": "lbfgs"},
     )
     states = [model.state() for _ in range(frames + 1)]
     weight = wp.array(

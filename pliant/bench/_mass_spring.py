@@ -114,7 +114,7 @@ def reference_sag(
     import warp as wp
 
     from ..energies import Gravity, Springs
-    from ..solvers._fast_cloth import FastMassSpring
+    from ..solvers import FastMassSpring
 
     model = cloth_drape_model(n, device=device, dtype="float64")
     solver = FastMassSpring(

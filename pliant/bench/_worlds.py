@@ -59,7 +59,8 @@ def _soft_box(worlds: int) -> tuple[Any, Any, float, int]:
     solver = ForceSolver(
         model,
         energies=[NeoHookean(), Gravity()],
-        integrator=BackwardEuler(method="lbfgs", newton_tol=1e-4),
+        integrator=BackwardEuler(newton_tol=1e-4),
+        minimizer={"method": "lbfgs"},
     )
     return model, solver, 1.0 / 60.0, 4
 

@@ -38,8 +38,9 @@ class Example:
         self.solver = pl.solvers.ForceSolver(
             self.model,
             [pl.energies.NeoHookean(), pl.energies.Gravity()],
-            pl.integrators.BackwardEuler(method="lbfgs"),
+            pl.integrators.BackwardEuler(),
             damping_rate=1.0,
+            minimizer={"method": "lbfgs"},
         )
         self.sim = pl.Simulator(self.model, self.solver, frame_dt=1 / 30, substeps=1)
         self.frames = args.frames

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import warnings
 from dataclasses import dataclass, fields
 from typing import Any, ClassVar
 
@@ -68,44 +69,54 @@ def _theta_stage(problem: ODEProblem, t: float, c: float, y_base: np.ndarray) ->
     )
 
 
+#: The implicit solver's own settings (``pl.solvers.MinimizerOptions``, ``ForceSolver(minimizer=...)``), which
+#: the implicit integrators still accept as keywords, deprecated: they choose how a step is minimised, not
+#: what the step is.
+MINIMIZER_SETTINGS = (
+    "linear_solver",
+    "cg_tol",
+    "cg_max_iterations",
+    "method",
+    "lbfgs_history",
+    "lbfgs_max_iterations",
+    "lbfgs_refresh",
+    "lbfgs_warm_start",
+    "lbfgs_h0",
+)
+
+
 @dataclass(frozen=True)
 class ImplicitOptions:
-    """Settings of the implicit steps' minimiser, defined and validated once (integrators and minimisers).
+    """What an implicit step solves to and how accurately, defined and validated once (integrators and
+    minimisers). How it is minimised is the solver's (``pl.solvers.MinimizerOptions``).
+
+    The minimiser's settings (``linear_solver``, ``cg_tol``, ``cg_max_iterations``, ``method`` and the
+    ``lbfgs_*`` ones) are fields here too, deprecated, None when not given: pass them to the solver
+    (``ForceSolver(minimizer=...)``; in a scene file ``[solver] options = { minimizer = { ... } }``). Given
+    here they still apply, with a DeprecationWarning, and the solver validates them.
 
     Attributes:
         newton_tol: tolerance [m/s] on ‖Δx‖∞/h and on max_i |∇Φ_i|/(m_i h) (> 0): a velocity error per
             step. Keep it well below g·h: a looser one accepts the inertial prediction x̃ of a free-fall
             step as converged, and a body at rest under gravity never starts to fall.
         max_newton_iterations: Newton iteration cap per step (≥ 1).
-        linear_solver: "cg", "scipy-cg", "direct" or "auto" (direct on the CPU, cg on a GPU).
-        cg_tol: relative residual of CG, in (0, 1) (raised to 30 eps of the model's dtype).
-        cg_max_iterations: CG iteration cap per linear solve (≥ 1).
         project_psd: True, False or "auto" (see :class:`BackwardEuler`).
         max_line_search: step halvings allowed per iteration (≥ 0).
-        method: "newton" or "lbfgs".
-        lbfgs_history: curvature pairs L-BFGS keeps (≥ 0; 0 is descent preconditioned by the lagged H₀).
-        lbfgs_max_iterations: L-BFGS iteration cap per step (≥ 1).
-        lbfgs_refresh: re-assemble L-BFGS's lagged Hessian after a step that needed more iterations (≥ 1).
-        lbfgs_warm_start: start each L-BFGS step from the extrapolated previous correction.
-        lbfgs_h0: how L-BFGS applies its initial Hessian H₀⁻¹ per axis: "lu" (SciPy's sparse LU, exact;
-            the default) or "amg" (one V-cycle of PyAMG's smoothed aggregation: about as many iterations,
-            its cost linear in the particles, where the LU's triangular solves fill in as n^(4/3); 2× faster
-            on a 20³-cell box, 2.3× at 30³).
     """
 
     newton_tol: float = 1e-5
     max_newton_iterations: int = 20
-    linear_solver: str = "auto"
-    cg_tol: float = 1e-6
-    cg_max_iterations: int = 2000
+    linear_solver: str | None = None
+    cg_tol: float | None = None
+    cg_max_iterations: int | None = None
     project_psd: bool | str = True
     max_line_search: int = 20
-    method: str = "newton"
-    lbfgs_history: int = 8
-    lbfgs_max_iterations: int = 200
-    lbfgs_refresh: int = 40
-    lbfgs_warm_start: bool = True
-    lbfgs_h0: str = "lu"
+    method: str | None = None
+    lbfgs_history: int | None = None
+    lbfgs_max_iterations: int | None = None
+    lbfgs_refresh: int | None = None
+    lbfgs_warm_start: bool | None = None
+    lbfgs_h0: str | None = None
 
     def __post_init__(self) -> None:
         def positive(name: str, unit: str = "") -> None:
@@ -119,25 +130,24 @@ class ImplicitOptions:
                 raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
 
         positive("newton_tol", " m/s (e.g. 1e-5)")  # NaN fails "> 0" too
-        if not (isinstance(self.cg_tol, (int, float)) and 0.0 < self.cg_tol < 1.0):
-            raise ValueError(f"cg_tol must be in (0, 1), got {self.cg_tol!r}")
-        for name in ("max_newton_iterations", "cg_max_iterations", "lbfgs_max_iterations"):
-            count(name, 1)
-        count("lbfgs_history", 0)  # 0: gradient descent preconditioned by the lagged H₀ (tested, kept)
-        count("lbfgs_refresh", 1)
+        count("max_newton_iterations", 1)
         count("max_line_search", 0)
-        if self.linear_solver not in LINEAR_SOLVERS:
-            raise ValueError(
-                f"linear_solver must be 'cg', 'scipy-cg', 'direct' or 'auto', got {self.linear_solver!r}"
-            )
         if not (self.project_psd is True or self.project_psd is False or self.project_psd == "auto"):
             raise ValueError(f"project_psd must be True, False or 'auto', got {self.project_psd!r}")
-        if self.method not in ("newton", "lbfgs"):
-            raise ValueError(f"method must be 'newton' or 'lbfgs', got {self.method!r}")
-        if self.lbfgs_h0 not in ("lu", "amg"):
-            raise ValueError(f"lbfgs_h0 must be 'lu' or 'amg', got {self.lbfgs_h0!r}")
-        if not isinstance(self.lbfgs_warm_start, bool):
-            raise ValueError(f"lbfgs_warm_start must be True or False, got {self.lbfgs_warm_start!r}")
+        given = self.minimizer_settings()
+        if given:
+            spelled = ", ".join(f"{k}={v!r}" for k, v in given.items())
+            warnings.warn(
+                f"{', '.join(given)} are the implicit solver's settings now, not the integrator's: pass "
+                f"ForceSolver(..., minimizer=pl.solvers.MinimizerOptions({spelled})) (in a scene file, "
+                f"[solver] options = {{ minimizer = {{ ... }} }} instead of integrator_options)",
+                DeprecationWarning,
+                stacklevel=5,
+            )
+
+    def minimizer_settings(self) -> dict[str, Any]:
+        """The (deprecated) minimiser settings given here: name → value, those left None omitted."""
+        return {k: getattr(self, k) for k in MINIMIZER_SETTINGS if getattr(self, k) is not None}
 
     @classmethod
     def create(cls, owner: str = "the implicit step", **options: Any) -> ImplicitOptions:
@@ -164,7 +174,6 @@ class ImplicitOptions:
         raise TypeError(f"options must be ImplicitOptions, a dict or None, got {type(options).__name__}")
 
 
-LINEAR_SOLVERS = ("cg", "scipy-cg", "direct", "auto")
 _DEFAULT_OPTIONS = ImplicitOptions()
 _OPTION_NAMES = frozenset(f.name for f in fields(ImplicitOptions))
 
@@ -173,7 +182,7 @@ class _ImplicitOptions:
     """The implicit integrators' settings: an :class:`ImplicitOptions` handed to ``system.minimize``."""
 
     #: Gradients through the physical path: the adjoint of each step's minimisation
-    #: (``pliant.solvers._implicit_adjoint``), recorded on an active ``wp.Tape``.
+    #: (``pliant.solvers.implicit._adjoint``), recorded on an active ``wp.Tape``.
     differentiable: ClassVar[bool] = True
     #: The keyword options ``__init__(**options)`` accepts: the fields of this dataclass (scene files check
     #: ``integrator_options`` against them).
@@ -229,24 +238,14 @@ class BackwardEuler(_ImplicitOptions, Integrator):
     Keyword Args:
         newton_tol: Newton tolerance [m/s] on ‖Δx‖∞/Δt and on the mass-scaled gradient.
         max_newton_iterations: Newton iteration cap per step.
-        linear_solver: "cg" (warp.optim.linear.cg, any device), "scipy-cg" (SciPy CG, block-Jacobi, host),
-            "direct" (SciPy sparse LU, host) or "auto" (direct on the CPU, cg on a GPU). "scipy-cg" is about
-            3x faster per step on soft FEM bodies and falls back to the direct solve when a step stalls.
-        cg_tol: relative residual of CG (raised to 30 eps of the model's dtype).
         project_psd: PSD-project element Hessians: True (the default: robust; Newton converges only linearly
             where springs are compressed), False (exact; the direct solver copes with indefinite H, CG may
             not) or "auto" (exact until a Newton direction fails to descend, then projected for the step;
             about half the iterations on a falling cloth, but it can stall unconverged on FEM contact).
-        method: the minimiser of each step: "newton" (the default; exact PSD-projected Hessians, a linear
-            solve per iteration) or "lbfgs" (L-BFGS whose initial Hessian is the per-axis, lagged,
-            prefactorised one: no assembly or factorisation per iteration; the fast choice for FEM bodies on
-            the CPU, see ``pliant.solvers._quasi_newton`` and the README's FEM speed table; not for spring
-            cloth, whose Hessian changes too much between steps for a lagged one).
-        lbfgs_history: curvature pairs L-BFGS keeps (default 8).
-        lbfgs_refresh: re-assemble L-BFGS's lagged Hessian after a step that needed more iterations.
-        lbfgs_warm_start: start each L-BFGS step from x̃ plus the previous step's correction when that lowers
-            the potential (default True).
-        lbfgs_max_iterations: L-BFGS iteration cap per step (default 200).
+        max_line_search: step halvings allowed per iteration.
+
+    The minimiser's settings (``method``, ``linear_solver``, ``lbfgs_*``, ...) are still accepted here,
+    deprecated; they are the solver's: ``ForceSolver(..., minimizer=pl.solvers.MinimizerOptions(...))``.
 
     Example::
 

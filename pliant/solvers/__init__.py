@@ -1,13 +1,18 @@
-"""Solvers advance a Model one step: ``step(state_in, state_out, control, dt)``."""
+"""Solvers advance a Model one step: ``step(state_in, state_out, control, dt)``.
+
+One sub-package per family (``implicit``, ``force``, ``fast_mass_spring``, ``xpbd``) on top of the shared
+pieces here (``_base``: the Solver interface; ``_post``: the post-step stages; ``_errors``; ``_frame``;
+``_rigid``). docs/design.md, "solvers/", draws the layers.
+"""
 
 from ._base import Solver
 from ._errors import SingularSystemError
-from ._fast_cloth import FastMassSpring
-from ._force import ForceSolver
 from ._frame import FrameStep
 from ._rigid import RigidBodySolver
-from ._static import StaticStats, solve_static
-from ._xpbd import PBD, XPBD
+from .fast_mass_spring import FastMassSpring
+from .force import ForceSolver
+from .implicit import MinimizerOptions, StaticStats, solve_static
+from .xpbd import PBD, XPBD
 
 __all__ = [
     "SingularSystemError",
@@ -15,6 +20,7 @@ __all__ = [
     "solve_static",
     "FastMassSpring",
     "FrameStep",
+    "MinimizerOptions",
     "PBD",
     "RigidBodySolver",
     "XPBD",

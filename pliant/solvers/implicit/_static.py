@@ -1,6 +1,6 @@
 """Static equilibrium: Newton with line search on E(x) − f·x, with Dirichlet (fixed) vertices.
 
-Reuses the implicit solver's machinery (:mod:`pliant.solvers._newton`): the fixed BSR(3×3) pattern built
+Reuses the implicit solver's machinery (:mod:`pliant.solvers.implicit`): the fixed BSR(3×3) pattern built
 from the energies' ``hessian_pattern``, the atomic block assembly, the projection of fixed rows and columns,
 and the linear solvers (SciPy sparse LU on the host, or Jacobi-preconditioned ``warp.optim.linear.cg``).
 Only the objective differs: there is no inertia term, so the Hessian is Σ H_e alone, which is singular
@@ -21,10 +21,13 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .._blas import single_threaded
-from ..energies import Energy
-from ..model import Model
-from . import _newton as nw
+from ..._blas import single_threaded
+from ...energies import Energy, Gravity
+from ...model import Model
+from .._errors import SingularSystemError
+from ._assembly import _inverse_diagonal
+from ._newton import _negate
+from ._workspace import _Workspace
 
 
 @dataclass
@@ -342,8 +345,6 @@ def solve_static(
         x, stats = pl.solvers.solve_static(model, [pl.energies.NeoHookean(), pl.energies.Gravity()],
                                            fixed=np.flatnonzero(X[:, 0] < 1e-9), load_steps=4)
     """
-    from ..energies import Gravity
-
     energies = list(energies)
     for e in energies:
         if not isinstance(e, Energy):
@@ -389,7 +390,7 @@ def solve_static(
     size = float(np.max(np.ptp(x_np, axis=0))) if n > 1 else 1.0
     eps = float(np.finfo(np_dtype).eps)
 
-    ws = nw._Workspace(model, terms)
+    ws = _Workspace(model, terms)
     stats = StaticStats(
         linear_solver=lin, fixed_count=int(mask.any(axis=1).sum()), fixed_dofs=int(mask.sum())
     )
@@ -449,8 +450,8 @@ def solve_static(
                     stats.stop_reason = "singular"
                     break
             else:
-                wp.launch(nw._inverse_diagonal, n, [ws.diag_slots, ws.values, ws.inv_diag], device=dev)
-                wp.launch(nw._negate, n, [ws.grad, ws.rhs], device=dev)
+                wp.launch(_inverse_diagonal, n, [ws.diag_slots, ws.values, ws.inv_diag], device=dev)
+                wp.launch(_negate, n, [ws.grad, ws.rhs], device=dev)
                 ws.dx.zero_()
                 it, _, _ = ws.cg(cg_tol, cg_max_iterations)()
                 stats.linear_iterations += int(it)
@@ -496,8 +497,6 @@ def solve_static(
         elif step < load_steps:
             break  # an intermediate load step failed: the later ones would start from a wrong state
     if stats.stop_reason == "singular":
-        from ._errors import SingularSystemError
-
         raise SingularSystemError(
             "solve_static: the stiffness matrix is singular even with a Levenberg-Marquardt shift "
             f"(load step {stats.load_steps} of {load_steps}, iteration {stats.iterations}): some free "

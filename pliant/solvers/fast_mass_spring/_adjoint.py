@@ -1,11 +1,12 @@
 """Gradients through FastMassSpring's implicit step (Baraff–Witkin), by the adjoint of its linear solve.
 
 The step solves A(p) Δv = b(p) with A = M + hD + h²K and b = h(f(xⁿ, vⁿ) − hK vⁿ), then
-v₁ = δ(vⁿ + Δv), x₁ = xⁿ + h v₁ (``_fast_cloth``). With the residual R(p, Δv) = b(p) − A(p) Δv = 0,
+v₁ = δ(vⁿ + Δv), x₁ = xⁿ + h v₁ (``_solver``). With the residual R(p, Δv) = b(p) − A(p) Δv = 0,
 dΔv/dp = A⁻¹ ∂R/∂p, so for an upstream cotangent Δv̄ the inputs get p̄ = λᵀ ∂R/∂p with A λ = Δv̄ (A is
-symmetric): one extra linear solve per step, as for the implicit integrators (:mod:`._implicit_adjoint`),
-not a differentiation of the CG iterations. λᵀ ∂R/∂p is Warp's autodiff of the residual kernels below,
-launched under a local tape at the step's Δv and back-propagated with the seed λ. The parameters p are the
+symmetric): one extra linear solve per step, as for the implicit integrators
+(:mod:`pliant.solvers.implicit._adjoint`), not a differentiation of the CG iterations. λᵀ ∂R/∂p is Warp's
+autodiff of the residual kernels below, launched under a local tape at the step's Δv and back-propagated
+with the seed λ. The parameters p are the
 step's input state, the springs' rest length, stiffness and dashpot γ, the masses, gravity and
 ``Control.particle_f``.
 
@@ -21,12 +22,12 @@ from typing import Any, ClassVar
 import numpy as np
 import warp as wp
 
-from .._warp import GradientError, active_tape, fresh, launch, untaped_in_place
-from ..energies._spring import dashpot_force_axis, spring_gradient_axis
-from ..integrators import Integrator
-from ..integrators._explicit import scale_velocity
-from ..integrators._ops import lincomb
-from ._fast_cloth import _bw_assemble, _spring_blocks
+from ..._warp import GradientError, active_tape, fresh, launch, untaped_in_place
+from ...energies._spring import dashpot_force_axis, spring_gradient_axis
+from ...integrators import Integrator
+from ...integrators._explicit import scale_velocity
+from ...integrators._ops import lincomb
+from ._system import BaraffWitkinSystem, _bw_assemble, _spring_blocks
 
 
 @wp.kernel
@@ -119,10 +120,10 @@ class BaraffWitkinStep(Integrator):
     differentiable: ClassVar[bool] = True
     order: ClassVar[int] = 1
 
-    def __init__(self, fast: Any) -> None:
-        self.fast = fast  # the FastMassSpring (adjacency, CG settings, work buffers)
-        row = np.repeat(np.arange(fast.model.particle_count), np.diff(fast.adj_offsets.numpy()))
-        self.adj_row = wp.array(row.astype(np.int32), dtype=wp.int32, device=fast.model.device)
+    def __init__(self, system: BaraffWitkinSystem) -> None:
+        self.system = system  # FastMassSpring's (adjacency, CG settings, work buffers)
+        row = np.repeat(np.arange(system.model.particle_count), np.diff(system.adj_offsets.numpy()))
+        self.adj_row = wp.array(row.astype(np.int32), dtype=wp.int32, device=system.model.device)
 
     def step_ode(self, problem: Any, t: float, dt: float, y: np.ndarray) -> np.ndarray:
         """Not an ODE method: only FastMassSpring's physical path uses it."""
@@ -149,19 +150,19 @@ class BaraffWitkinStep(Integrator):
     def _solve(self, m, gravity, f_ext, x_in, v_in, h: float, dv_out) -> None:
         """The forward step's Δv (FastMassSpring's own kernels), copied into ``dv_out``."""
         self.assemble(m, gravity, f_ext, x_in, v_in, h)
-        self.fast.run_cg(h)
-        wp.copy(dv_out, self.fast._dv)
+        self.system.run_cg()
+        wp.copy(dv_out, self.system.dv)
 
     def assemble(self, m, gravity, f_ext, x_in, v_in, h: float) -> None:
         """FastMassSpring's assembly at (xⁿ, vⁿ): blocks H_e, preconditioner, b (g from ``gravity``)."""
-        fast = self.fast
-        fast._scalars.zero_()
-        inputs = [*fast._model_inputs()[:-1], m.vec3(*gravity.numpy()[0])]
+        bw = self.system
+        bw.scalars.zero_()
+        inputs = [*bw.model_inputs()[:-1], m.vec3(*gravity.numpy()[0])]
         launch(
             _bw_assemble,
             m.particle_count,
-            [*inputs, f_ext, x_in, v_in, m.s(h), m.s(1.0), fast._block, fast._precond]
-            + [fast._r, fast._z, fast._p[0], fast._dv, fast._scalars],
+            [*inputs, f_ext, x_in, v_in, m.s(h), m.s(1.0), bw.block, bw.precond]
+            + [bw.r, bw.z, bw.p[0], bw.dv, bw.scalars],
             device=m.device,
         )
 
@@ -179,7 +180,7 @@ class _Adjoint:
 
     def backward(self) -> None:
         """λ = A⁻¹ Δv̄, then λᵀ ∂R/∂p into the inputs' ``.grad``."""
-        m, fast, h = self.m, self.step.fast, self.h
+        m, bw, h = self.m, self.step.system, self.h
         n = m.particle_count
         with untaped_in_place():  # this step's blocks H_e (a later step overwrote them)
             self.step.assemble(m, self.gravity, self.f_ext, self.x_in, self.v_in, h)
@@ -197,38 +198,29 @@ class _Adjoint:
             launch(
                 _bw_residual_springs,
                 self.step.adj_row.shape[0],
-                [self.step.adj_row, fast.adj_neighbor, fast.adj_spring, m.spring_rest_length]
+                [self.step.adj_row, bw.adj_neighbor, bw.adj_spring, m.spring_rest_length]
                 + [m.spring_stiffness, m.spring_damping, m.particle_inv_mass, self.x_in, self.v_in, dv]
                 + [m.s(h), r],
                 device=m.device,
             )
-        seed = wp.array(lam.astype(fast._np_dtype), dtype=m.vec3, device=m.device)
+        seed = wp.array(lam.astype(bw.np_dtype), dtype=m.vec3, device=m.device)
         local.backward(grads={r: seed})
 
     def _solve_transpose(self, rhs: np.ndarray) -> np.ndarray:
         """λ with A λ = rhs (A is symmetric): FastMassSpring's own block-Jacobi CG on the blocks and
         preconditioner the assembly left in its work buffers, started from λ = 0 (pinned rows stay 0)."""
-        m, fast = self.m, self.step.fast
+        m, bw = self.m, self.step.system
         with untaped_in_place():
-            rhs_w = wp.array(rhs.astype(fast._np_dtype), dtype=m.vec3, device=m.device)
-            fast._scalars.zero_()
+            rhs_w = wp.array(rhs.astype(bw.np_dtype), dtype=m.vec3, device=m.device)
+            bw.scalars.zero_()
             launch(
                 _cg_start,
                 m.particle_count,
-                [
-                    fast._precond,
-                    m.particle_inv_mass,
-                    rhs_w,
-                    fast._r,
-                    fast._z,
-                    fast._p[0],
-                    fast._dv,
-                    fast._scalars,
-                ],
+                [bw.precond, m.particle_inv_mass, rhs_w, bw.r, bw.z, bw.p[0], bw.dv, bw.scalars],
                 device=m.device,
             )
-            fast.run_cg(self.h)
-        lam = fast._dv.numpy().astype(np.float64)
+            bw.run_cg()
+        lam = bw.dv.numpy().astype(np.float64)
         if not np.all(np.isfinite(lam)):
             raise GradientError(
                 "FastMassSpring implicit adjoint: the step matrix's solve gave non-finite values"

@@ -6,7 +6,7 @@ from typing import Any
 
 import warp as wp
 
-from ._post import drag_force
+from .._post import drag_force
 
 
 @wp.kernel

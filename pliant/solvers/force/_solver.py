@@ -9,16 +9,23 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .._warp import GradientError, fresh, grad_enabled, launch
-from ..collision._ground_recorded import ground_contact_out, ground_penalty_friction_out
-from ..energies import Energy, Gravity, GravityFromArray
-from ..energies._base import _axpy
-from ..integrators import Integrator, SymplecticEuler
-from ..model import Control, Model, State
-from ..model._parameters import Parameter, declares
-from ._base import DAMPING_RATE, Solver
-from ._newton_workspace import MinimizerCache
-from ._post import add_drag_force, check_collisions, finish_step
+from ..._warp import GradientError, fresh, grad_enabled, launch
+from ...collision._ground_recorded import ground_contact_out, ground_penalty_friction_out
+from ...energies import Energy, Gravity, GravityFromArray, GroundPenalty, mass_spring
+from ...energies._base import _axpy
+from ...integrators import ImplicitOptions, Integrator, SymplecticEuler
+from ...model import Control, Model, State
+from ...model._parameters import Parameter, declares
+from .._base import DAMPING_RATE, Solver
+from .._post import add_drag_force, check_collisions, finish_step
+from ..implicit import (
+    MinimizerCache,
+    MinimizerOptions,
+    lbfgs_checkpoint_state,
+    lbfgs_restore_checkpoint_state,
+    minimize,
+    step_settings,
+)
 
 
 @wp.kernel
@@ -81,6 +88,9 @@ class ForceSolver(Solver):
         contact: resolve ground contact after each step (needs ``model.ground``).
         collisions: contact handlers run after ground contact, each with
             ``apply(model, state_in, state_out, dt)`` (``pl.collision.Colliders``, ``SelfCollision``).
+        minimizer: how an implicit integrator's steps are minimised: a
+            :class:`pliant.solvers.MinimizerOptions` or a dict of its settings (``{"method": "lbfgs"}``);
+            None: the defaults (Newton), or the minimiser keywords the integrator was given (deprecated).
 
     Example::
 
@@ -104,10 +114,9 @@ class ForceSolver(Solver):
         damping_rate: float | None = None,
         contact: bool = True,
         collisions: Sequence[Any] = (),
+        minimizer: MinimizerOptions | dict[str, Any] | None = None,
     ) -> None:
         super().__init__(model)
-        from ..energies import mass_spring
-
         self.energies = list(mass_spring() if energies is None else energies)
         for e in self.energies:
             if not isinstance(e, Energy):
@@ -125,8 +134,6 @@ class ForceSolver(Solver):
         self.damping_rate = damping_rate
         self.contact = contact and model.ground is not None
         if self.contact and not self.integrator.explicit:
-            from ..energies import GroundPenalty
-
             # Newton must see the ground: projecting after a large implicit step flattens (inverts) elements.
             if not any(isinstance(e, GroundPenalty) for e in self.energies):
                 self.energies.append(GroundPenalty())
@@ -160,6 +167,11 @@ class ForceSolver(Solver):
         self.last_stats: Any = None
         #: What the implicit minimisers keep between steps (Hessian pattern, L-BFGS pairs and warm start).
         self.minimizer_cache = MinimizerCache()
+        implicit = getattr(self.integrator, "options", None)
+        implicit = implicit if isinstance(implicit, ImplicitOptions) else None
+        #: How implicit steps are minimised (:class:`MinimizerOptions`): ``minimizer``, merged with the
+        #: minimiser keywords of the integrator (deprecated; validated here, before any step).
+        self.minimizer = step_settings(implicit, minimizer)[1]
 
     # ------------------------------------------------------------------ System interface
     @property
@@ -224,16 +236,8 @@ class ForceSolver(Solver):
         )
 
     def minimize(self, t, h, x_tilde, x_ref, v_ref, x_out, options=None):
-        """Minimise the incremental potential (Newton or L-BFGS, the integrator's ``method``)."""
-        from .._blas import single_threaded
-        from ._newton import _option, minimize_incremental_potential
-
-        with single_threaded():  # many small host BLAS calls: a thread pool's wake-up costs more
-            if _option(options, "method") == "lbfgs":
-                from ._quasi_newton import minimize_quasi_newton
-
-                return minimize_quasi_newton(self, t, h, x_tilde, x_ref, v_ref, x_out, options)
-            return minimize_incremental_potential(self, t, h, x_tilde, x_ref, v_ref, x_out, options)
+        """Minimise the incremental potential (Newton or L-BFGS: ``self.minimizer.method``)."""
+        return minimize(self, t, h, x_tilde, x_ref, v_ref, x_out, options, minimizer=self.minimizer)
 
     # ------------------------------------------------------------------ Solver interface
     def step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
@@ -360,8 +364,6 @@ class ForceSolver(Solver):
         caller added it, and then integrates the same contact physics as the implicit steps: the penalty
         force inside the step, Coulomb friction for its impulse after it, no projection.
         """
-        from ..energies import GroundPenalty
-
         for e in self.energies:
             if isinstance(e, GroundPenalty):
                 return e.stiffness
@@ -404,8 +406,6 @@ class ForceSolver(Solver):
     # ------------------------------------------------------------------ checkpoints
     def checkpoint_state(self) -> dict[str, np.ndarray]:
         """L-BFGS's history and warm start (``lbfgs_*``) and the integrator's (e.g. BDF2's ``bdf2_*``)."""
-        from ._quasi_newton import lbfgs_checkpoint_state
-
         out = lbfgs_checkpoint_state(self.minimizer_cache)
         own = getattr(self.integrator, "checkpoint_state", None)
         if own is not None:
@@ -414,8 +414,6 @@ class ForceSolver(Solver):
 
     def restore_checkpoint_state(self, state: dict[str, np.ndarray]) -> None:
         """Take back :meth:`checkpoint_state`'s arrays (validated by their owners; ValueError if wrong)."""
-        from ._quasi_newton import lbfgs_restore_checkpoint_state
-
         lbfgs = {k: a for k, a in state.items() if k.startswith("lbfgs_")}
         rest = {k: a for k, a in state.items() if not k.startswith("lbfgs_")}
         own = getattr(self.integrator, "restore_checkpoint_state", None)

@@ -1,6 +1,6 @@
 """FastMassSpring's explicit step (symplectic Euler): the per-particle gather kernel (one fused launch, CUDA's
 choice) and the per-spring scatter with its update kernel (two launches, the CPU's choice); see
-:mod:`pliant.solvers._fast_cloth` for why each device gets which."""
+:mod:`pliant.solvers.fast_mass_spring._solver` for why each device gets which."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from typing import Any
 
 import warp as wp
 
-from ..energies._spring import dashpot_force_axis, spring_gradient_axis
-from ..integrators._symplectic import symplectic_particle
+from ...energies._spring import dashpot_force_axis, spring_gradient_axis
+from ...integrators._symplectic import symplectic_particle
 
 
 @wp.kernel

@@ -2,7 +2,7 @@
 the linear solves on it, and :class:`MinimizerCache`, the declared object that keeps them (and L-BFGS's
 state) from one step to the next.
 
-Who owns what: a problem (``ForceSolver``, see :class:`pliant.solvers._newton.PotentialProblem`) declares a
+Who owns what: a problem (``ForceSolver``, see :class:`pliant.solvers.implicit.PotentialProblem`) declares a
 ``minimizer_cache`` attribute; Newton, L-BFGS and the step adjoint read and fill it through
 :func:`cache_of`, and nothing else is stored on the problem. ``ForceSolver.reset`` and its checkpoints call
 the cache's :meth:`MinimizerCache.reset` and L-BFGS's checkpoint functions on it.
@@ -159,7 +159,7 @@ class MinimizerCache:
         newton: the :class:`_Workspace` (BSR pattern, slots, Newton and CG vectors) of the last
             (model, energies) it was built for, or None before the first implicit step.
         lbfgs: L-BFGS's state for that workspace, ``(workspace, lagged H₀, curvature history, warm-start
-            memo)`` (see :mod:`pliant.solvers._quasi_newton`), or None before its first step.
+            memo)`` (see :mod:`pliant.solvers.implicit._quasi_newton`), or None before its first step.
     """
 
     def __init__(self) -> None:

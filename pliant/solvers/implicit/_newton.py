@@ -29,28 +29,23 @@ Reference: D. Baraff, A. Witkin, "Large steps in cloth simulation", SIGGRAPH 199
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
-from typing import Any, Protocol
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import warp as wp
 
-from .._warp import launch
-from ..integrators._implicit import ImplicitOptions
-from ._implicit_adjoint import differentiable
-from ._newton_workspace import (  # noqa: F401  (re-exported: _static and tests build workspaces here)
-    MinimizerCache,
+from ..._warp import launch
+from ._adjoint import differentiable
+from ._assembly import _assemble, _control_terms, _inverse_diagonal
+from ._options import step_settings
+from ._workspace import (
     _direct_solve,
     _host_cg_solve,
     _resolve_linear_solver,
     _Workspace,
     _workspace,
-    cache_of,
 )
-from ._post import drag_force, drag_hessian
-
-#: Defaults when ``options`` does not name a setting (read-only view of ImplicitOptions' defaults).
-DEFAULTS: dict[str, Any] = {f.name: getattr(ImplicitOptions(), f.name) for f in fields(ImplicitOptions)}
 
 
 @dataclass
@@ -154,96 +149,6 @@ def _trial_point(
 
 
 @wp.kernel(enable_backward=False)
-def _add_mass_diagonal(
-    mass: wp.array(dtype=Any),
-    diag_slots: wp.array(dtype=wp.int32),
-    values: wp.array(dtype=Any),
-):
-    i = wp.tid()
-    m = mass[i]
-    values[diag_slots[i]] = values[diag_slots[i]] + m * wp.identity(n=3, dtype=type(m))
-
-
-@wp.kernel(enable_backward=False)
-def _project_fixed(
-    inv_mass: wp.array(dtype=Any),
-    mass: wp.array(dtype=Any),
-    block_rows: wp.array(dtype=wp.int32),
-    block_cols: wp.array(dtype=wp.int32),
-    values: wp.array(dtype=Any),
-):
-    # Fixed particles: their rows and columns become m_i·I on the diagonal and 0 elsewhere.
-    k = wp.tid()
-    r = block_rows[k]
-    c = block_cols[k]
-    m = mass[r]
-    zero = type(m)(0.0)
-    if inv_mass[r] == zero or inv_mass[c] == zero:
-        v = values[k] * zero
-        if r == c:
-            v = m * wp.identity(n=3, dtype=type(m))
-        values[k] = v
-
-
-@wp.kernel(enable_backward=False)
-def _inverse_diagonal(
-    diag_slots: wp.array(dtype=wp.int32),
-    values: wp.array(dtype=Any),
-    inv_diag_out: wp.array(dtype=Any),
-):
-    i = wp.tid()
-    b = values[diag_slots[i]]
-    d = wp.get_diag(b)
-    one = type(b[0, 0])(1.0)
-    inv_diag_out[i] = wp.cw_div(d * type(one)(0.0) + type(d)(one, one, one), d)
-
-
-@wp.kernel(enable_backward=False)
-def _external_force_terms(
-    f_ext: wp.array(dtype=Any),
-    x_in: wp.array(dtype=Any),
-    grad_out: wp.array(dtype=Any),
-    value_out: wp.array(dtype=Any),
-):
-    # Control forces as the potential −f·x (constant over the step): gradient −f.
-    i = wp.tid()
-    grad_out[i] = grad_out[i] - f_ext[i]
-    wp.atomic_add(value_out, 0, -wp.dot(f_ext[i], x_in[i]))
-
-
-@wp.kernel(enable_backward=False)
-def _drag_terms(
-    index: int,
-    target: Any,
-    stiffness: Any,
-    max_force: Any,
-    scale: Any,
-    diag_slots: wp.array(dtype=wp.int32),
-    x_in: wp.array(dtype=Any),
-    mode: int,
-    grad_out: wp.array(dtype=Any),
-    value_out: wp.array(dtype=Any),
-    values_out: wp.array(dtype=Any),
-):
-    # The drag handle's zero-length spring ½k|x − target|², its force capped at max_force (then the energy
-    # grows linearly, max_force (|d| − r/2) with r = max_force / k): value and gradient (mode 0) or Hessian
-    # (mode 1).
-    x = x_in[index]
-    if mode == 0:
-        d = x - target
-        dist = wp.length(d)
-        r = max_force / stiffness
-        e = type(stiffness)(0.5) * stiffness * wp.dot(d, d)
-        if dist > r:
-            e = max_force * (dist - type(stiffness)(0.5) * r)
-        grad_out[index] = grad_out[index] - drag_force(target, stiffness, max_force, x)
-        value_out[0] = value_out[0] + e
-    else:
-        s = diag_slots[index]
-        values_out[s] = values_out[s] + scale * drag_hessian(target, stiffness, max_force, x)
-
-
-@wp.kernel(enable_backward=False)
 def _stiffness_ratio(
     inv_mass: wp.array(dtype=Any),
     diag_slots: wp.array(dtype=wp.int32),
@@ -262,12 +167,6 @@ def _stiffness_ratio(
 def _negate(src: wp.array(dtype=Any), out: wp.array(dtype=Any)):
     i = wp.tid()
     out[i] = -src[i]
-
-
-def _option(options: Any, name: str) -> Any:
-    """One setting of ``options`` (None, a dict of some settings, ImplicitOptions, an implicit integrator),
-    validated by :class:`pliant.integrators.ImplicitOptions`."""
-    return getattr(ImplicitOptions.coerce(options), name)
 
 
 # ----------------------------------------------------------------------------------------------- Newton
@@ -290,107 +189,6 @@ def _gradient(solver: Any, ws: _Workspace, x: wp.array, x_tilde: wp.array, h: fl
     return ws.gstats.numpy().astype(np.float64)
 
 
-class PotentialProblem(Protocol):
-    """What the minimisers (Newton, L-BFGS) and the step adjoint read from the solver that owns the step.
-
-    ``model`` (masses, device, dtype), ``energies`` (the terms of Φ; their ``dissipative`` ones get
-    ``begin_step``) and ``control`` (the step's Control: external forces as −f·x, the drag handle as
-    ½k|x − target|², or None). Results go to ``last_stats``.
-    """
-
-    model: Any
-    energies: list
-    last_stats: Any
-    #: Optional: where the minimisers keep their workspace and L-BFGS's state between steps
-    #: (:class:`~pliant.solvers._newton_workspace.MinimizerCache`); without it nothing is reused.
-    minimizer_cache: MinimizerCache
-
-    @property
-    def control(self) -> Any: ...
-
-
-def control_of(problem: PotentialProblem) -> Any:
-    """The Control (external forces, drag handle) of the step ``problem`` is taking, or None."""
-    return problem.control
-
-
-def _control_terms(solver: Any, ws: _Workspace, x: wp.array, grad: wp.array, value: wp.array) -> None:
-    """Add the Control's external forces and drag handle (as potentials) into ``grad`` and ``value``."""
-    c = control_of(solver)
-    if c is None:
-        return
-    m = solver.model
-    launch(_external_force_terms, m.particle_count, [c.particle_f, x, grad, value], device=m.device)
-    if c.drag_index >= 0:
-        launch(
-            _drag_terms,
-            1,
-            [
-                c.drag_index,
-                m.vec3(*c.drag_target),
-                m.s(c.drag_stiffness),
-                m.s(c.drag_max_force),
-                m.s(1.0),
-                ws.diag_slots,
-                x,
-                0,
-                grad,
-                value,
-                ws.values,
-            ],
-            device=m.device,
-        )
-
-
-def _assemble(
-    solver: Any,
-    ws: _Workspace,
-    x: wp.array,
-    h: float,
-    project_psd: bool,
-    *,
-    skip: frozenset[int] = frozenset(),
-    control: bool = True,
-) -> None:
-    """H = M + h² Σ H_e on the fixed pattern, fixed particles projected out.
-
-    ``skip``: indices of energies left out; ``control``: include the drag handle's spring.
-    """
-    m = solver.model
-    ws.values.zero_()
-    launch(_add_mass_diagonal, m.particle_count, [m.particle_mass, ws.diag_slots, ws.values], device=m.device)
-    for k, (e, slots) in enumerate(zip(solver.energies, ws.slots, strict=True)):
-        if k in skip or slots.shape[0] == 0:
-            continue  # left out, or no Hessian (e.g. gravity)
-        e.hessian(m, x, slots, ws.values, project_psd=project_psd, scale=h * h)
-    c = control_of(solver)
-    if control and c is not None and c.drag_index >= 0:
-        launch(
-            _drag_terms,
-            1,
-            [
-                c.drag_index,
-                m.vec3(*c.drag_target),
-                m.s(c.drag_stiffness),
-                m.s(c.drag_max_force),
-                m.s(h * h),
-                ws.diag_slots,
-                x,
-                1,
-                ws.egrad,
-                ws.gstats_e,
-                ws.values,
-            ],
-            device=m.device,
-        )
-    launch(
-        _project_fixed,
-        ws.nnz,
-        [m.particle_inv_mass, m.particle_mass, ws.block_rows, ws.block_cols, ws.values],
-        device=m.device,
-    )
-
-
 @differentiable
 def minimize_incremental_potential(
     solver: Any,
@@ -401,6 +199,7 @@ def minimize_incremental_potential(
     v_ref: wp.array,
     x_out: wp.array,
     options: Any = None,
+    minimizer: Any = None,
 ) -> NewtonStats:
     """x_out = argmin_x ½‖x − x̃‖²_M + h² Σ E(x) by Newton with an Armijo line search.
 
@@ -412,9 +211,11 @@ def minimize_incremental_potential(
         x_ref: positions at the start of the step [m] (dissipation reference).
         v_ref: velocities at the start of the step [m/s].
         x_out: the minimiser [m] (may not alias the inputs).
-        options: :class:`pliant.integrators.ImplicitOptions` (or a dict of some of its settings, or None
-            for the defaults): ``newton_tol`` [m/s], ``max_newton_iterations``, ``linear_solver``,
-            ``cg_tol``, ``cg_max_iterations``, ``project_psd``, ``max_line_search``.
+        options: :class:`pliant.integrators.ImplicitOptions` (an implicit integrator, a dict of some of its
+            settings, or None for the defaults): ``newton_tol`` [m/s], ``max_newton_iterations``,
+            ``project_psd``, ``max_line_search``.
+        minimizer: :class:`~pliant.solvers.MinimizerOptions` (a dict of some of its settings, or None for
+            the defaults): ``linear_solver``, ``cg_tol``, ``cg_max_iterations``.
 
     Returns:
         :class:`NewtonStats`.
@@ -422,12 +223,12 @@ def minimize_incremental_potential(
     m = solver.model
     n = m.particle_count
     ws = _workspace(solver)
-    opts = ImplicitOptions.coerce(options)
+    opts, mz = step_settings(options, minimizer)
     tol_opt = float(opts.newton_tol)
     max_it = int(opts.max_newton_iterations)
-    lin = _resolve_linear_solver(opts.linear_solver, m)
-    cg_tol = max(float(opts.cg_tol), 30.0 * float(np.finfo(ws.np_dtype).eps))
-    cg_max = int(opts.cg_max_iterations)
+    lin = _resolve_linear_solver(mz.linear_solver, m)
+    cg_tol = max(float(mz.cg_tol), 30.0 * float(np.finfo(ws.np_dtype).eps))
+    cg_max = int(mz.cg_max_iterations)
     project_psd = "project" if opts.project_psd is True else opts.project_psd
     max_ls = int(opts.max_line_search)
     eps = float(np.finfo(np.float32 if m.dtype == "float32" else np.float64).eps)

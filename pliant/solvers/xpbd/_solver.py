@@ -9,11 +9,11 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .._warp import GradientError
-from ..constraints import Constraint, DihedralBending, Distance, Ground, ProjectionContext, Volume
-from ..model import Control, Model, State
-from . import _xpbd_kernels as K
-from ._base import Solver
+from ..._warp import GradientError
+from ...constraints import Constraint, DihedralBending, Distance, Ground, ProjectionContext, Volume
+from ...model import Control, Model, State
+from .._base import Solver
+from . import _kernels as K
 
 _SCHEDULES = ("jacobi", "coloring")
 

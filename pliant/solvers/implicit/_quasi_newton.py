@@ -1,6 +1,6 @@
 """L-BFGS on the incremental potential with a prefactored, lagged Hessian (Liu, Bouaziz, Kavan 2017).
 
-Same problem as :mod:`pliant.solvers._newton` — one implicit step minimises
+Same problem as :mod:`pliant.solvers.implicit._newton` — one implicit step minimises
 
     Φ(x) = ½ ‖x − x̃‖²_M + h² Σ_e E_e(x)
 
@@ -37,18 +37,13 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .._warp import launch
-from ..integrators._implicit import ImplicitOptions
-from ._implicit_adjoint import differentiable
-from ._newton import (
-    NewtonStats,
-    _assemble,
-    _control_terms,
-    _gradient,
-    _trial_point,
-    _Workspace,
-)
-from ._newton_workspace import MinimizerCache, cache_of
+from ..._warp import launch
+from .._errors import SingularSystemError
+from ._adjoint import differentiable
+from ._assembly import _assemble, _control_terms
+from ._newton import NewtonStats, _gradient, _trial_point
+from ._options import step_settings
+from ._workspace import MinimizerCache, _Workspace, cache_of
 
 
 def nested_dissection(points: np.ndarray, rows: np.ndarray, cols: np.ndarray, leaf: int = 32) -> np.ndarray:
@@ -210,8 +205,6 @@ class _LaggedHessian:
             # Symmetric positive definite: our symmetric ordering, no pivoting (SuperLU's "symmetric mode").
             return splu(mat, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
         except RuntimeError as exc:  # SciPy: "Factor is exactly singular"
-            from ._errors import SingularSystemError
-
             raise SingularSystemError(
                 f"L-BFGS: the initial Hessian M + h^2 K of axis {'xyz'[axis]} is singular ({exc}) at step "
                 f"h = {self.h:.3g} s: the masses vanish next to h^2 times the stiffness (or h^2 K "
@@ -328,10 +321,11 @@ def minimize_quasi_newton(
     v_ref: wp.array,
     x_out: wp.array,
     options: Any = None,
+    minimizer: Any = None,
 ) -> NewtonStats:
     """x_out = argmin_x ½‖x − x̃‖²_M + h² Σ E(x) by L-BFGS with a lagged, prefactored Hessian.
 
-    Arguments as :func:`pliant.solvers._newton.minimize_incremental_potential`; ``options`` may also name
+    Arguments as :func:`pliant.solvers.implicit.minimize_incremental_potential`; ``minimizer`` also names
     ``lbfgs_history`` (curvature pairs kept, default 8), ``lbfgs_max_iterations`` (default 200),
     ``lbfgs_refresh`` (re-assemble the lagged Hessian after a step that took more iterations than this,
     default 40) and ``lbfgs_warm_start`` (start from x̃ plus the correction x − x̃ extrapolated from the
@@ -346,11 +340,11 @@ def minimize_quasi_newton(
     cache = cache_of(solver)
     ws = cache.workspace(m, solver.energies)
     h0, hist, memo = _state(cache, ws, m, solver.energies)
-    opts = ImplicitOptions.coerce(options)
-    hist.size = int(opts.lbfgs_history)
-    max_it = int(opts.lbfgs_max_iterations)
-    refresh_after = int(opts.lbfgs_refresh)
-    warm = bool(opts.lbfgs_warm_start)
+    opts, mz = step_settings(options, minimizer)
+    hist.size = int(mz.lbfgs_history)
+    max_it = int(mz.lbfgs_max_iterations)
+    refresh_after = int(mz.lbfgs_refresh)
+    warm = bool(mz.lbfgs_warm_start)
     tol_opt = float(opts.newton_tol)
     max_ls = int(opts.max_line_search)
     eps = float(np.finfo(ws.np_dtype).eps)
@@ -379,7 +373,7 @@ def minimize_quasi_newton(
     stats.residuals.append(float(g[0]))
     if g[0] <= tol_opt:
         return _finish(solver, stats, memo, x, x_tilde, g, h)
-    h0.set_method(opts.lbfgs_h0)
+    h0.set_method(mz.lbfgs_h0)
     if h0.base is None or h0.h != h or memo.get("refresh", False):
         h0.refresh(solver, ws, x, h)
         memo["refresh"] = False

@@ -33,14 +33,17 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .._warp import capturing, grad_enabled
-from ..energies._spring import dashpot_force_axis, spring_gradient_axis, spring_hessian
-from ..model import Control, Model, State
-from ..model._parameters import Parameter, declares
-from ._base import DAMPING_RATE, Solver
-from ._fast_cloth_cg import _bw_apply, _bw_update
-from ._fast_cloth_explicit import _springs_scatter, _symplectic_gather, _symplectic_update
-from ._post import add_drag_force, check_collisions, finish_step
+from ..._warp import capturing, grad_enabled
+from ...energies import Dashpots, Gravity, Springs
+from ...integrators import SymplecticEuler
+from ...model import Control, Model, State
+from ...model._parameters import Parameter, declares
+from .._base import DAMPING_RATE, Solver
+from .._post import add_drag_force, check_collisions, finish_step
+from ..force import ForceSolver
+from ._adjoint import BaraffWitkinStep
+from ._explicit import _springs_scatter, _symplectic_gather, _symplectic_update
+from ._system import BaraffWitkinSystem, _bw_assemble, _bw_finish
 
 
 def spring_adjacency(model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -55,109 +58,6 @@ def spring_adjacency(model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     np.add.at(offsets, rows + 1, 1)
     offsets = np.cumsum(offsets)
     return offsets.astype(np.int32), cols[order].astype(np.int32), spr[order].astype(np.int32)
-
-
-# ---------------------------------------------------------------------------------------------- implicit
-@wp.func
-def _spring_blocks(xi: Any, xj: Any, rest: Any, k: Any, gamma: Any, h: Any):
-    """(K_s, h²K_s + hD_s) for the spring (i, j): K_s the spring energy's PSD-projected Hessian block
-    (:func:`pliant.energies.spring_hessian`, Choi & Ko), D_s = γ n̂n̂ᵀ the dashpot Jacobian."""
-    d = xj - xi
-    n = d / wp.max(wp.length(d), type(h)(1.0e-30))
-    K = spring_hessian(xi, xj, k, rest, 1)
-    return K, (h * h) * K + (h * gamma) * wp.outer(n, n)
-
-
-@wp.kernel
-def _bw_assemble(
-    # Model:
-    adj_offsets: wp.array(dtype=wp.int32),
-    adj_neighbor: wp.array(dtype=wp.int32),
-    adj_spring: wp.array(dtype=wp.int32),
-    spring_rest_length: wp.array(dtype=Any),
-    spring_stiffness: wp.array(dtype=Any),
-    spring_damping: wp.array(dtype=Any),
-    particle_mass: wp.array(dtype=Any),
-    particle_inv_mass: wp.array(dtype=Any),
-    gravity: Any,
-    f_ext: wp.array(dtype=Any),
-    # State in:
-    x_in: wp.array(dtype=Any),
-    v_in: wp.array(dtype=Any),
-    h: Any,
-    theta: Any,
-    # Out (scratch):
-    block_out: wp.array(dtype=Any),
-    precond_out: wp.array(dtype=Any),
-    r_out: wp.array(dtype=Any),
-    z_out: wp.array(dtype=Any),
-    p_out: wp.array(dtype=Any),
-    dv_out: wp.array(dtype=Any),
-    rz_out: wp.array(dtype=Any),
-):
-    i = wp.tid()
-    xi = x_in[i]
-    vi = v_in[i]
-    zero3 = vi * (h * type(h)(0.0))
-    dv_out[i] = zero3
-    eye = wp.identity(n=3, dtype=type(h))
-    if particle_inv_mass[i] == h * type(h)(0.0):
-        r_out[i] = zero3
-        z_out[i] = zero3
-        p_out[i] = zero3
-        precond_out[i] = eye * (h * type(h)(0.0))
-        return
-    m = particle_mass[i]
-    f = m * gravity + f_ext[i]
-    ht = h * theta  # θ = 1: backward Euler; θ = ½: the implicit midpoint rule (both linearised)
-    kv = zero3
-    diag = m * eye
-    for e in range(adj_offsets[i], adj_offsets[i + 1]):
-        j = adj_neighbor[e]
-        s = adj_spring[e]
-        dvel = v_in[j] - vi
-        d = xi - x_in[j]
-        l = wp.length(d)
-        f += dashpot_force_axis(d, l, vi, v_in[j], spring_damping[s])
-        f -= spring_gradient_axis(d, l, spring_stiffness[s], spring_rest_length[s])
-        K, H = _spring_blocks(xi, x_in[j], spring_rest_length[s], spring_stiffness[s], spring_damping[s], ht)
-        block_out[e] = H
-        diag += H
-        kv -= K * dvel  # (K v)_i = Σ_s K_s (v_i − v_j)
-    r = h * (f - ht * kv)
-    P = wp.inverse(diag)
-    z = P * r
-    precond_out[i] = P
-    r_out[i] = r
-    z_out[i] = z
-    p_out[i] = z
-    wp.atomic_add(rz_out, 0, wp.dot(r, z))
-
-
-@wp.kernel
-def _bw_finish(
-    particle_inv_mass: wp.array(dtype=Any),
-    x_in: wp.array(dtype=Any),
-    v_in: wp.array(dtype=Any),
-    dv: wp.array(dtype=Any),
-    h: Any,
-    theta: Any,
-    delta: Any,
-    x_out: wp.array(dtype=Any),
-    v_out: wp.array(dtype=Any),
-):
-    i = wp.tid()
-    if particle_inv_mass[i] == h * type(h)(0.0):
-        # Infinite mass: no force changes v, and x moves with it (as in ForceSolver's integrators).
-        x_out[i] = x_in[i] + h * v_in[i]
-        v_out[i] = v_in[i]
-        return
-    v = delta * (v_in[i] + dv[i])
-    v_out[i] = v
-    if theta == type(h)(1.0):
-        x_out[i] = x_in[i] + h * v  # backward Euler: x¹ = x + h v¹
-    else:
-        x_out[i] = x_in[i] + h * delta * (v_in[i] + theta * dv[i])  # x¹ = x + h (v + θΔv)
 
 
 @declares
@@ -278,13 +178,12 @@ class FastMassSpring(Solver):
         n = model.particle_count
         self._f_zero = wp.zeros(n, dtype=model.vec3, device=d)
         self._f_work = wp.zeros(n, dtype=model.vec3, device=d)
+        #: The implicit step's linear system (adjacency, blocks, CG buffers); None for the symplectic method.
+        self._system: BaraffWitkinSystem | None = None
         if method == "implicit":
-            self._block = wp.zeros(max(nb.shape[0], 1), dtype=model.mat33, device=d)
-            self._precond = wp.zeros(n, dtype=model.mat33, device=d)
-            self._r, self._z, self._q, self._dv = (wp.zeros(n, dtype=model.vec3, device=d) for _ in range(4))
-            self._p = [wp.zeros(n, dtype=model.vec3, device=d) for _ in range(2)]
-            self._scalars = wp.zeros(2 * self.cg_iterations + 2, dtype=model.scalar, device=d)
-        self._np_dtype = np.float64 if model.dtype == "float64" else np.float32
+            self._system = BaraffWitkinSystem(
+                model, self.adj_offsets, self.adj_neighbor, self.adj_spring, self.cg_iterations, self.cg_tol
+            )
         #: Under requires_grad: the same step by ForceSolver's tape-correct path (see :meth:`step`).
         self._recorded: Any = None
         if grad_enabled(model):
@@ -297,18 +196,12 @@ class FastMassSpring(Solver):
         update (equal to round-off, not bit for bit: the gather kernel sums in another order), written into
         fresh arrays so that ``wp.Tape`` can differentiate it, and reading the model's parameter arrays
         directly (no host-side packing)."""
-        from ..energies import Dashpots, Gravity, Springs
-        from ..integrators import SymplecticEuler
-        from ._force import ForceSolver
-
         if method == "implicit":
-            from ._fast_cloth_adjoint import BaraffWitkinStep
-
-            # The same Δv by the same kernels, with the adjoint of the linear solve on the tape.
+            # The same Δv by the same kernels and buffers, with the adjoint of the linear solve on the tape.
             return ForceSolver(
                 self.model,
                 energies=[Springs(), Dashpots(), Gravity()],
-                integrator=BaraffWitkinStep(self),
+                integrator=BaraffWitkinStep(self._system),
                 velocity_damping=velocity_damping,
                 damping_rate=damping_rate,
                 contact=contact,
@@ -358,20 +251,6 @@ class FastMassSpring(Solver):
         if self.damping_rate is not None:
             return math.exp(-self.damping_rate * dt)
         return self.velocity_damping_factor
-
-    def _model_inputs(self) -> list:
-        m = self.model
-        return [
-            self.adj_offsets,
-            self.adj_neighbor,
-            self.adj_spring,
-            m.spring_rest_length,
-            m.spring_stiffness,
-            m.spring_damping,
-            m.particle_mass,
-            m.particle_inv_mass,
-            m.gravity_vec,
-        ]
 
     def _external(self, control: Control | None, x: wp.array) -> wp.array:
         if control is None:
@@ -458,70 +337,41 @@ class FastMassSpring(Solver):
             ]
         else:
             h = s(dt)
+            bw = self._system
             cmds = [
                 wp.launch(
                     _bw_assemble,
                     n,
                     [
-                        *self._model_inputs(),
+                        *bw.model_inputs(),
                         f_ext,
                         xi,
                         vi,
                         h,
                         s(self.theta),
-                        self._block,
-                        self._precond,
-                        self._r,
-                        self._z,
-                        self._p[0],
-                        self._dv,
-                        self._scalars,
+                        bw.block,
+                        bw.precond,
+                        bw.r,
+                        bw.z,
+                        bw.p[0],
+                        bw.dv,
+                        bw.scalars,
                     ],
                     device=dev,
                     record_cmd=True,
                 )
             ]
-            cmds += self._cg(record=True)
+            cmds += bw.cg(record=True)
             cmds.append(
                 wp.launch(
                     _bw_finish,
                     n,
-                    [m.particle_inv_mass, xi, vi, self._dv, h, s(self.theta), delta, xo, vo],
+                    [m.particle_inv_mass, xi, vi, bw.dv, h, s(self.theta), delta, xo, vo],
                     device=dev,
                     record_cmd=True,
                 )
             )
         self._cmds[key] = cmds
-        return cmds
-
-    def _cg(self, record: bool) -> list:
-        """The CG iterations on the assembled system (``_bw_apply``, ``_bw_update`` per iteration), as
-        recorded commands (``record``) or launched now."""
-        m, s, dev = self.model, self.model.s, self.model.device
-        n = m.particle_count
-        tol2 = s(self.cg_tol**2)
-        cmds = []
-        for k in range(self.cg_iterations):
-            p_old, p_new = self._p[(k + 1) % 2], self._p[k % 2]
-            cmds.append(
-                wp.launch(
-                    _bw_apply,
-                    n,
-                    [self.adj_offsets, self.adj_neighbor, m.particle_mass, m.particle_inv_mass, self._block]
-                    + [self._z, p_old, self._scalars, k, tol2, p_new, self._q],
-                    device=dev,
-                    record_cmd=record,
-                )
-            )
-            cmds.append(
-                wp.launch(
-                    _bw_update,
-                    n,
-                    [self._precond, p_new, self._q, self._scalars, k, tol2, self._dv, self._r, self._z],
-                    device=dev,
-                    record_cmd=record,
-                )
-            )
         return cmds
 
     def _launch_cg(self, cg: list) -> None:
@@ -549,15 +399,10 @@ class FastMassSpring(Solver):
 
     def _converged_at(self, k_max: int, tol2: float) -> int | None:
         """The first iteration k ≤ ``k_max`` whose residual rz_k ≤ tol²·rz_0 (one host read), else None."""
-        sc = self._scalars.numpy()
+        sc = self._system.scalars.numpy()
         rz = sc[0 : 2 * k_max + 1 : 2]
         hit = np.flatnonzero(rz <= tol2 * sc[0])
         return int(hit[0]) if hit.size else None
-
-    def run_cg(self, h: float) -> None:
-        """Run CG now on what ``_bw_assemble`` left in the work buffers (the recorded step's forward solve;
-        ``h`` [s] is the step, unused by the iterations themselves)."""
-        self._cg(record=False)
 
     def step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
         """Advance by ``dt`` [s]: fused step, then kinematic targets, ground contact, contact handlers."""
@@ -568,7 +413,7 @@ class FastMassSpring(Solver):
         f_ext = self._external(control, state_in.particle_q)
         cmds = self._commands(state_in, state_out, f_ext, float(dt))
         if self.method == "implicit":
-            self._scalars.zero_()
+            self._system.scalars.zero_()
             cmds[0].launch()
             self._launch_cg(cmds[1:-1])
             cmds[-1].launch()

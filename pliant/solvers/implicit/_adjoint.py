@@ -36,8 +36,11 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .._warp import GradientError, _tape_active, active_tape, launch, tape_paused
-from ._post import drag_force
+from ..._blas import single_threaded
+from ..._warp import GradientError, _tape_active, active_tape, launch, tape_paused
+from .._post import drag_force
+from ._assembly import _assemble, _inverse_diagonal, control_of
+from ._workspace import _workspace
 
 
 def _recording(model: Any) -> Any:
@@ -95,8 +98,6 @@ class _StepAdjoint:
     """What one implicit step's adjoint needs, captured when the step runs; :meth:`backward` applies it."""
 
     def __init__(self, problem: Any, h: float, x_tilde, x_ref, v_ref, x_out) -> None:
-        from ._newton import control_of
-
         for name, a in (("x_tilde", x_tilde), ("x_out", x_out)):
             if not a.requires_grad:
                 raise GradientError(
@@ -143,8 +144,6 @@ class _StepAdjoint:
                 e.set_step_inputs(inputs)
 
     def _backward(self) -> None:
-        from ._newton import _assemble, _workspace
-
         m = self.model
         n = m.particle_count
         xbar = self.x_out.grad.numpy().astype(np.float64)
@@ -198,8 +197,6 @@ class _StepAdjoint:
             import scipy.sparse as sp
             from scipy.sparse.linalg import splu
 
-            from .._blas import single_threaded
-
             vals = ws.values.numpy()[: ws.nnz].astype(np.float64)
             H = sp.bsr_matrix((vals, ws.indices, ws.indptr), shape=(3 * n, 3 * n)).tocsc()
             try:
@@ -211,8 +208,6 @@ class _StepAdjoint:
                     "step did not end at a strict minimum (raise max_newton_iterations, lower newton_tol "
                     "or dt)"
                 ) from None
-        from ._newton import _inverse_diagonal
-
         ws.rhs.assign(rhs.astype(ws.np_dtype))
         ws.dx.zero_()
         launch(_inverse_diagonal, n, [ws.diag_slots, ws.values, ws.inv_diag], device=m.device)

@@ -1,0 +1,6 @@
+"""The generic force-based solver: every energy term and any integrator, explicit or implicit (an implicit
+step's minimisation is :mod:`pliant.solvers.implicit`'s)."""
+
+from ._solver import ForceSolver
+
+__all__ = ["ForceSolver"]

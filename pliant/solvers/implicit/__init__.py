@@ -1,0 +1,41 @@
+"""Implicit steps and static equilibria: minimisers of the incremental potential (Newton, L-BFGS), their
+settings, workspace and assembly, the adjoint of a converged step, and the static solve.
+
+Modules, bottom to top: ``_options`` (the minimiser's settings) and ``_workspace`` (the BSR pattern, linear
+solvers, the per-problem cache) → ``_assembly`` (Hessian assembly, the Control's terms) → ``_adjoint``
+(gradients through a step) → ``_newton`` → ``_quasi_newton`` → ``_minimize`` / ``_static``. Other solver
+families use the names below, never these modules.
+"""
+
+from ._adjoint import differentiable
+from ._assembly import PotentialProblem, control_of
+from ._minimize import minimize
+from ._newton import NewtonStats, minimize_incremental_potential
+from ._options import MinimizerOptions, step_settings
+from ._quasi_newton import (
+    lbfgs_checkpoint_state,
+    lbfgs_restore_checkpoint_state,
+    minimize_quasi_newton,
+    nested_dissection,
+)
+from ._static import StaticStats, solve_static
+from ._workspace import MinimizerCache, cache_of
+
+__all__ = [
+    "MinimizerCache",
+    "MinimizerOptions",
+    "NewtonStats",
+    "PotentialProblem",
+    "StaticStats",
+    "cache_of",
+    "control_of",
+    "differentiable",
+    "lbfgs_checkpoint_state",
+    "lbfgs_restore_checkpoint_state",
+    "minimize",
+    "minimize_incremental_potential",
+    "minimize_quasi_newton",
+    "nested_dissection",
+    "solve_static",
+    "step_settings",
+]

@@ -1,0 +1,35 @@
+"""One implicit step's minimiser, chosen by the options' ``method``: Newton or L-BFGS."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import warp as wp
+
+from ..._blas import single_threaded
+from ._newton import NewtonStats, minimize_incremental_potential
+from ._options import step_settings
+from ._quasi_newton import minimize_quasi_newton
+
+
+def minimize(
+    problem: Any,
+    t: float,
+    h: float,
+    x_tilde: wp.array,
+    x_ref: wp.array,
+    v_ref: wp.array,
+    x_out: wp.array,
+    options: Any = None,
+    minimizer: Any = None,
+) -> NewtonStats:
+    """x_out = argmin Φ by :func:`minimize_quasi_newton` when the minimiser's ``method`` is "lbfgs", else by
+    :func:`minimize_incremental_potential` (arguments as there), with host BLAS on one thread: many small
+    calls, for which a thread pool's wake-up costs more than it saves."""
+    _, mz = step_settings(options, minimizer)
+    with single_threaded():
+        if mz.method == "lbfgs":
+            return minimize_quasi_newton(problem, t, h, x_tilde, x_ref, v_ref, x_out, options, minimizer=mz)
+        return minimize_incremental_potential(
+            problem, t, h, x_tilde, x_ref, v_ref, x_out, options, minimizer=mz
+        )
