@@ -158,6 +158,26 @@ class Binding:
     onto particles (:meth:`particle_weights`).
     """
 
+    # Filled by bind() for the method chosen: "barycentric" (tets) ...
+    tets: wp.array
+    gauss_tet: wp.array
+    bary: wp.array
+    rest_inv: wp.array
+    # ... "triangles" (rest_inv too) ...
+    tris: wp.array
+    gauss_tri: wp.array
+    local: wp.array
+    # ... or "skinning": particle groups and (Gaussian, group, weight) links.
+    group_count: int
+    member: wp.array
+    group: wp.array
+    member_weight: wp.array
+    rest_offset: wp.array
+    link_gauss: wp.array
+    link_group: wp.array
+    link_weight: wp.array
+    link_offset: wp.array
+
     def __init__(self, gaussians: Gaussians, method: str, particle_count: int) -> None:
         self.gaussians = gaussians
         self.method = method

@@ -185,7 +185,9 @@ def write_range(arr: Any, sl: slice, values: np.ndarray, dtype: str) -> None:
         return
     from .._warp import np_dtype
 
-    src = wp.array(np.ascontiguousarray(values, dtype=np_dtype(dtype)), dtype=arr.dtype, device=arr.device)
+    src: wp.array = wp.array(
+        np.ascontiguousarray(values, dtype=np_dtype(dtype)), dtype=arr.dtype, device=arr.device
+    )
     wp.copy(arr, src, dest_offset=sl.start, src_offset=0, count=sl.stop - sl.start)
 
 
