@@ -230,7 +230,7 @@ def rollout(
                 "the ground plane (model.ground), or finalize with requires_grad=False"
             )
     integrator = getattr(solver, "integrator", None)
-    if getattr(integrator, "multistep", False) and checkpoint_every < frames:
+    if integrator is not None and getattr(integrator, "multistep", False) and checkpoint_every < frames:
         raise GradientError(
             f"{integrator.name} is a multistep method: its history cannot cross a checkpoint boundary; "
             f"pass checkpoint_every={frames} (one segment, the whole rollout on one tape)"
@@ -265,10 +265,10 @@ def rollout(
 
     def run(state: State, f0: int, f1: int, acc: wp.array | None = None) -> State:
         for f in range(f0, f1):
-            if control_fn is not None:
+            if control_fn is not None and control is not None:  # control is made above for a control_fn
                 control_fn(first_frame + f, control)
             state, _ = frame_step(state, control)
-            if acc is not None:
+            if acc is not None and frame_loss is not None:  # acc is only passed with a frame_loss
                 frame_loss(first_frame + f + 1, state, acc)
         return state
 

@@ -61,7 +61,9 @@ def torch_rollout(
     control: Control | None = rollout_kwargs.get("control")
     state0: State = rollout_kwargs.pop("state0", None) or model.state()
 
-    class _Rollout(torch.autograd.Function):
+    function: Any = torch.autograd.Function  # a base class from the optional import
+
+    class _Rollout(function):
         @staticmethod
         def forward(ctx: Any, *tensors: Any) -> Any:
             for name, t in zip(names, tensors, strict=False):

@@ -157,7 +157,7 @@ class VisualCorrector:
         self.background = background
         gi, pi, w = binding.particle_weights()
         dev = g.device
-        self._links = (
+        self._links: tuple[wp.array, wp.array, wp.array] = (
             wp.array(gi.astype(np.int32), dtype=wp.int32, device=dev),
             wp.array(pi.astype(np.int32), dtype=wp.int32, device=dev),
             wp.array(w, dtype=g.opacity_logits.dtype, device=dev),
@@ -173,7 +173,7 @@ class VisualCorrector:
     def _loss_and_gradient(self, x: np.ndarray, views) -> tuple[float, np.ndarray]:
         """Mean photometric loss over the views for particle positions x [P, 3] and its gradient w.r.t. x."""
         g = self.binding.gaussians
-        q = wp.array(
+        q: wp.array = wp.array(
             x.astype(np_dtype(g.dtype)), dtype=vec3_type(g.dtype), device=g.device, requires_grad=True
         )
         tape = wp.Tape()

@@ -56,7 +56,7 @@ def photometric_loss(
         (loss, ∂loss/∂colour, ∂loss/∂alpha), the gradients as Warp arrays for ``tape.backward(grads=...)``.
     """
     H, W = colour.shape
-    s = colour.dtype._wp_scalar_type_
+    s = _scalar(colour.dtype)
     loss = wp.zeros(1, dtype=s, device=colour.device)
     adj_c = wp.zeros_like(colour, requires_grad=False)
     adj_a = wp.zeros_like(alpha, requires_grad=False)
@@ -119,8 +119,12 @@ def _adam_kernel(
 
 def _flat(a: wp.array) -> wp.array:
     """A 1-d scalar view of a Warp array of scalars, vectors or matrices (no copy)."""
-    s = a.dtype._wp_scalar_type_ if hasattr(a.dtype, "_wp_scalar_type_") else a.dtype
-    return a.flatten().view(s).flatten()
+    return a.flatten().view(_scalar(a.dtype)).flatten()
+
+
+def _scalar(dtype: type) -> type:
+    """The scalar type of a Warp vector or matrix dtype; a scalar dtype is its own."""
+    return dtype._wp_scalar_type_ if hasattr(dtype, "_wp_scalar_type_") else dtype
 
 
 class Adam:

@@ -121,6 +121,8 @@ def scene_splats(cfg: Any, scene: Any) -> SceneSplats:
     spec = cfg.gaussians
     model = scene.model
     index = object_index(cfg, spec)
+    if index is None:  # the scene's own checks reject this first; a hand-made config may skip them
+        raise _fail(cfg, "gaussians.object", f"no object {spec.object!r} in this scene")
     lo, hi = _object_range(cfg, model, index)
     X = model.particle_q_np[lo:hi].astype(np.float64)
     surface = object_surface(model)
@@ -165,7 +167,8 @@ def scene_splats(cfg: Any, scene: Any) -> SceneSplats:
     except ValueError as exc:
         raise _fail(cfg, "gaussians.bind", str(exc)) from None
     light = None if spec.light is None else tuple(float(v) for v in spec.light)
-    return SceneSplats(b, lo, hi, tuple(float(c) for c in spec.background), light)
+    bg = spec.background
+    return SceneSplats(b, lo, hi, (float(bg[0]), float(bg[1]), float(bg[2])), light)
 
 
 def scene_gaussians(scene: Any, *, per_triangle: int = 1) -> SceneSplats:

@@ -70,7 +70,7 @@ def live_parameters(scene: Any) -> dict[str, LiveParameter]:
         if name == "compliance":  # the compliant sets only: a factor cannot soften a rigid one (α = 0)
             arrays = [
                 c.compliance_array
-                for c in constraints
+                for c in constraints or ()
                 if type(c).__name__ in ("Distance", "DihedralBending", "Volume")
                 and getattr(c, "compliance_array", None) is not None
                 and np.any(c.compliance_array.numpy() > 0)
@@ -168,7 +168,9 @@ def write_parameter(session: LiveSession, name: str, value: float) -> None:
         for a, b in zip(p.arrays, p.base, strict=True):
             a.assign((b * value).astype(b.dtype))
         if name == "damping_rate":
-            setattr(session.sim.solver, _damping_attribute(session.sim.solver), value)
+            attr = _damping_attribute(session.sim.solver)
+            assert attr is not None  # "damping_rate" is offered only for a solver that has one
+            setattr(session.sim.solver, attr, value)
             arr = getattr(session.sim.solver, "damping_rate_array", None)
             if arr is not None:
                 arr.fill_(value)

@@ -73,7 +73,7 @@ def trajectory_objects(traj: Any) -> list[ObjectPart]:
         at = s + c
     if at < n:
         listed.append((at, n - at, {"name": "body" if not spans else f"particles_{at}", "kind": "particles"}))
-    parts = []
+    parts: list[ObjectPart] = []
     for start, count, o in listed:
         if count == 0:
             continue
@@ -217,7 +217,7 @@ def export_usd_objects(
             code = Usd.TimeCode(float(codes[f]))
             xk = np.ascontiguousarray(xs[f, sl], np.float32)
             points_attr.Set(Vt.Vec3fArray.FromNumpy(xk), code)
-            if vel_attr is not None:
+            if vel_attr is not None and vs is not None:
                 vel_attr.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(vs[f, sl], np.float32)), code)
             box = _extent(xk, pad)
             if box is not None:

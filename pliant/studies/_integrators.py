@@ -240,7 +240,7 @@ def _cloth_run(model: Any, integ: I.Integrator, substeps: int, frames: int, *, m
             e = _total_energy(solver, sim.state_0)
             if e - e0 > ENERGY_SCALE_J:
                 raise DivergenceError(sim.frame, "energy gain (J)", e - e0, "lower dt")
-    out = {"wall_s": wall, "simulated_s": frames / 60.0}
+    out: dict[str, float | None] = {"wall_s": wall, "simulated_s": frames / 60.0}
     if measure:
         e1 = _total_energy(solver, sim.state_0)
         out.update(
