@@ -96,7 +96,7 @@ def compare_models(
             "wall_time": time.perf_counter() - t0,
         }
     scored = {m: r["test"] for m, r in rows.items() if r.get("test") is not None and math.isfinite(r["test"])}
-    report = {"models": rows, "best": min(scored, key=scored.get) if scored else None}
+    report = {"models": rows, "best": min(scored, key=scored.__getitem__) if scored else None}
     (out / "models.json").write_text(json.dumps(report, indent=2) + "\n")
     return report
 

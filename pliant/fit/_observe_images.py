@@ -72,7 +72,7 @@ def observe_images(
     images = np.empty((cameras, frames, height, width, 3), dtype=np.float32)
     alpha = np.empty((cameras, frames, height, width), dtype=np.float32)
     for f in range(frames):
-        q = wp.array(np.ascontiguousarray(x[f]), dtype=m.vec3, device=m.device)
+        q: wp.array = wp.array(np.ascontiguousarray(x[f]), dtype=m.vec3, device=m.device)
         for c, cam in enumerate(cams):
             colour, a, _ = splats.render(q, cam)
             images[c, f] = colour.numpy()

@@ -372,7 +372,9 @@ def widen_bounds(bounds: list[Any], scene: Any) -> None:
             else:  # a placeholder 0: the physical range alone
                 b.lo, b.hi = 1e-4 * gc, gc
         elif b.name == "damping_rate" and not (b.scene_value or 0.0) > 0:
-            b.lo, b.hi = registry()["damping_rate"][0].bounds
+            physical = registry()["damping_rate"][0].bounds
+            assert physical is not None  # damping_rate declares its range (pliant/model/_parameters.py)
+            b.lo, b.hi = physical
         else:
             continue
         if not (b.scene_value or 0.0) > 0:
