@@ -15,7 +15,7 @@ from . import CliError
 if TYPE_CHECKING:
     from ..gaussians import VisualCorrector
     from ..scene import Scene, SceneConfig
-    from ..scene._gaussians import GaussianCorrectionSection, GaussiansSection
+    from ..scene._gaussians import GaussianCorrectionSection
     from ..sim import Simulator
 
 RENDERERS = ("auto", "mesh", "splats")
@@ -29,7 +29,7 @@ class SplatRun:
     """
 
     def __init__(self, cfg: SceneConfig, scene: Scene, *, correct: bool = True, quiet: bool = False) -> None:
-        from ..gaussians._scene import SplatSceneError, scene_splats
+        from ..gaussians._scene import SplatSceneError, gaussians_section, scene_splats
 
         self.cfg, self.scene, self.quiet = cfg, scene, quiet
         try:
@@ -37,8 +37,8 @@ class SplatRun:
         except SplatSceneError as exc:
             raise CliError(str(exc)) from None
         self.draw = True  # render the video as splats (False: the mesh renderer draws it)
-        section: GaussiansSection = cfg.gaussians  # type: ignore[attr-defined]  # a registered section
-        self.spec = section.correction if correct else None
+        section = gaussians_section(cfg)
+        self.spec = section.correction if correct and section is not None else None
         self.twin_x: np.ndarray | None = None
         self.images: list[list[np.ndarray]] = []
         self.corrector: VisualCorrector | None = None

@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
 
 from ..model import Control, Model, State
 from ._rollout import PARAMETERS, rollout
+
+if TYPE_CHECKING:
+    from ..solvers import Solver
 
 
 def _import_torch() -> Any:
@@ -26,7 +29,7 @@ def _import_torch() -> Any:
 
 def torch_rollout(
     model: Model,
-    solver: Any,
+    solver: Solver,
     loss_fn: Callable[[State], wp.array],
     params: Sequence[str],
     **rollout_kwargs: Any,

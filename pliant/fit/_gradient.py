@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
@@ -27,6 +27,9 @@ from ._cmaes import StageResult
 from ._losses import acceleration_loss, chamfer_loss, track_loss
 from ._params import FitError, per_element_arrays, per_element_incidence
 from ._problem import Problem
+
+if TYPE_CHECKING:
+    from ..scene import Scene
 
 
 class Smoothness:
@@ -209,7 +212,7 @@ class _Rollout:
         return res.loss, res.state
 
 
-def _registry_name(scene: Any, key: str) -> str:
+def _registry_name(scene: Scene, key: str) -> str:
     """The registry parameter (:data:`pliant.diff.PARAMETERS`) of per-element array ``key``
     (``model.<array>`` or ``constraints.<i>.<array>``)."""
     parts = key.split(".")

@@ -6,16 +6,19 @@ footage."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
 
 from ..io import Observations
 
+if TYPE_CHECKING:
+    from ..scene import Scene
+
 
 def observe_images(
-    scene: Any,
+    scene: Scene,
     *,
     frames: int | None = None,
     cameras: int = 3,

@@ -41,6 +41,7 @@ from ._params import GLOBAL, FitError
 from ._problem import Problem
 
 if TYPE_CHECKING:
+    from ..scene import Scene, SceneConfig
     from ..scene._gaussians import GaussiansSection
 
 #: Background colour behind generated Gaussians in observed and rendered images (RGB in [0, 1]); a scene's
@@ -94,7 +95,13 @@ class PhotometricProblem(Problem):
     appearance_section: GaussiansSection | None = None
 
     def __init__(
-        self, cfg: Any, obs: Observations, *, mask_weight: float = 1.0, per_triangle: int = 1, **kwargs: Any
+        self,
+        cfg: SceneConfig,
+        obs: Observations,
+        *,
+        mask_weight: float = 1.0,
+        per_triangle: int = 1,
+        **kwargs: Any,
     ) -> None:
         from ..gaussians import Camera
         from ..gaussians._scene import SplatSceneError, scene_gaussians
@@ -237,7 +244,7 @@ class PhotometricProblem(Problem):
             yield np.concatenate([_label(top, labels), frame], axis=0)
 
     # ------------------------------------------------------------------ differentiable rollout
-    def rollout(self, scene: Any, params: list[str] | tuple[str, ...] = ()) -> Any:
+    def rollout(self, scene: Scene, params: list[str] | tuple[str, ...] = ()) -> Any:
         """The training loss of ``scene`` (built with ``requires_grad``) simulated from its initial state by
         :func:`pliant.diff.rollout` (the one stepping loop), every substep and render on its tape; returns
         its :class:`pliant.diff.RolloutResult` (``loss`` equals :meth:`loss` of :meth:`simulate`'s
@@ -265,7 +272,7 @@ class PhotometricProblem(Problem):
         )
 
 
-def _values_of(scene: Any, name: str) -> tuple[Any, np.ndarray, int | None]:
+def _values_of(scene: Scene, name: str) -> tuple[Any, np.ndarray, int | None]:
     """(array, its values in float64, component or None) of registry parameter ``name`` in a built
     scene (GradientError when the scene has none)."""
     from ..diff import PARAMETERS

@@ -8,7 +8,7 @@ import json
 import math
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -20,6 +20,9 @@ from ._params import FitError, auto_per_element
 from ._photometric import PhotometricProblem, gradient_capable, problem_for, refinable, refine_globals
 from ._problem import Problem
 from ._toml import scene_toml
+
+if TYPE_CHECKING:
+    from ..scene import Scene, SceneConfig
 
 PARAMS_FILE = "fitted_params.npz"
 #: The per-element stage is kept only if it lowers the validation loss by at least this fraction. On
@@ -61,7 +64,7 @@ def fitted_scene(problem: Problem, values: dict[str, float], per_element: dict[s
 
 
 def fit(
-    cfg: Any,
+    cfg: SceneConfig,
     obs: Observations,
     out: str | Path,
     *,
@@ -387,7 +390,7 @@ def _plot(
     plt.close(fig)
 
 
-def _video(path: Path, scene: Any, x: np.ndarray, problem: Problem, progress: bool) -> None:
+def _video(path: Path, scene: Scene, x: np.ndarray, problem: Problem, progress: bool) -> None:
     """The fitted motion (orange particles) with observed tracks drawn over it: visible ones green, hidden
     ones red at the position of the particle they are bound to. From camera videos: the first camera's
     observed images beside the fitted motion drawn as splats from that camera."""
@@ -426,7 +429,7 @@ def _video(path: Path, scene: Any, x: np.ndarray, problem: Problem, progress: bo
     )
 
 
-def _with_rope_beads(scene: Any, x: np.ndarray, pts, colors, radius, r: float):
+def _with_rope_beads(scene: Scene, x: np.ndarray, pts, colors, radius, r: float):
     """Ropes drawn as lines: beads of the particles' colour and radius ``r`` along every link, spaced at
     most ``r`` apart, put before the observed points (drawn over them)."""
     from ..render._video import link_beads

@@ -20,11 +20,15 @@ import os
 import platform
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .. import integrators as I  # noqa: N812
+
+if TYPE_CHECKING:
+    from ..model import Model, State
+    from ..solvers import ForceSolver
 
 #: Integrators of the oscillator study, in table order.
 OSCILLATOR_INTEGRATORS = (
@@ -211,11 +215,13 @@ def _cloth_model(n: int, stiffness: float, dtype: str) -> Any:
     return b.finalize(device="cpu", dtype=dtype)
 
 
-def _total_energy(solver: Any, state: Any) -> float:
+def _total_energy(solver: ForceSolver, state: State) -> float:
     return float(sum(solver.energy(state).values()))
 
 
-def _cloth_run(model: Any, integ: I.Integrator, substeps: int, frames: int, *, measure: bool = False) -> dict:
+def _cloth_run(
+    model: Model, integ: I.Integrator, substeps: int, frames: int, *, measure: bool = False
+) -> dict:
     """Run ``frames`` frames of 1/60 s with ``substeps`` substeps; raises DivergenceError if it blows up."""
     from ..energies import Gravity, Springs
     from ..sim import DivergenceError, Simulator
@@ -304,7 +310,7 @@ def cloth_stability(
     }
 
 
-def _warmup(model: Any, integrator_cls: type) -> None:
+def _warmup(model: Model, integrator_cls: type) -> None:
     """Compile the kernels once (one frame, one substep), ignoring a blow-up."""
     from ..sim import DivergenceError
 
