@@ -237,17 +237,8 @@ class Gaussians:
         self, *, dtype: str | None = None, device: str | None = None, requires_grad: bool = False
     ) -> Gaussians:
         """A deep copy, optionally in another dtype or on another device."""
-        p = self.numpy()
-        return Gaussians(
-            p["means"],
-            p["quats"],
-            p["log_scales"],
-            p["opacity_logits"],
-            p["sh"],
-            transforms=p.get("transforms"),
-            dtype=dtype or self.dtype,
-            device=device or self.device,
-            requires_grad=requires_grad,
+        return _from_numpy(
+            self.numpy(), dtype=dtype or self.dtype, device=device or self.device, requires_grad=requires_grad
         )
 
     def with_means(
@@ -278,15 +269,7 @@ class Gaussians:
         evecs[np.linalg.det(evecs) < 0, :, 0] *= -1.0  # a proper rotation
         p["quats"] = _matrix_quats(evecs)
         p["log_scales"] = 0.5 * np.log(np.maximum(evals, 1e-300))
-        return Gaussians(
-            p["means"],
-            p["quats"],
-            p["log_scales"],
-            p["opacity_logits"],
-            p["sh"],
-            dtype=self.dtype,
-            device=self.device,
-        )
+        return _from_numpy(p, dtype=self.dtype, device=self.device)
 
     def __repr__(self) -> str:
         return (
@@ -332,3 +315,20 @@ def _matrix_quats(R: np.ndarray) -> np.ndarray:
         axis=1,
     )
     return branches[np.arange(len(m)), k]
+
+
+def _from_numpy(
+    p: dict[str, np.ndarray], *, dtype: str, device: str | None, requires_grad: bool = False
+) -> Gaussians:
+    """Gaussians from the float64 arrays of :meth:`Gaussians.numpy` (with ``transforms`` when present)."""
+    return Gaussians(
+        p["means"],
+        p["quats"],
+        p["log_scales"],
+        p["opacity_logits"],
+        p["sh"],
+        transforms=p.get("transforms"),
+        dtype=dtype,
+        device=device,
+        requires_grad=requires_grad,
+    )
