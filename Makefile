@@ -31,6 +31,7 @@ demo: $(VENV)/.installed
 test: $(VENV)/.installed-test
 	$(BIN)/ruff check pliant tests benchmarks examples
 	$(BIN)/ruff format --check pliant tests benchmarks examples
+	$(BIN)/python tests/typecheck.py
 	$(BIN)/python -m pytest -q -n auto
 
 # The documentation site (mkdocs-material + mkdocstrings) into site/; warnings are errors.
@@ -48,4 +49,4 @@ study: $(VENV)/.installed
 	$(BIN)/pliant study integrators --out docs/figures
 
 clean:
-	rm -rf $(VENV) out site .pytest_cache .ruff_cache *.egg-info
+	rm -rf $(VENV) out site .pytest_cache .ruff_cache .mypy_cache *.egg-info

@@ -95,7 +95,7 @@ def _hold_main_thread() -> None:
         return orig(self, *args, **kwargs)
 
     load._pliant_wait = True  # type: ignore[attr-defined]
-    context.Module.load = load
+    context.Module.load = load  # type: ignore[method-assign]  # wrapped on purpose (see above)
 
 
 def _start(target: Any) -> None:

@@ -23,7 +23,7 @@ def registered_subclasses(base: type, keep: Callable[[type], bool] | None = None
         The classes, sorted by ``__name__`` then module, each once.
     """
     found: set[type] = set()
-    todo = list(base.__subclasses__())
+    todo: list[type] = list(base.__subclasses__())
     while todo:
         cls = todo.pop()
         todo.extend(cls.__subclasses__())

@@ -23,7 +23,7 @@ def init() -> None:
         if hasattr(wp.config, "log_level") and hasattr(wp, "LOG_WARNING"):
             wp.config.log_level = wp.LOG_WARNING
         else:  # older Warp
-            wp.config.quiet = True
+            wp.config.quiet = True  # type: ignore[attr-defined]
     if os.environ.get("PLIANT_VERBOSE") or _cuda_driver_present():
         wp.init()
     else:
@@ -137,7 +137,7 @@ def _runtime() -> Any:
     try:
         from warp._src.context import runtime
     except ImportError:  # an older Warp layout
-        from warp.context import runtime  # type: ignore[no-redef]
+        from warp.context import runtime  # type: ignore[no-redef, import-not-found]
     return runtime
 
 
@@ -212,7 +212,7 @@ def launch(kernel: Any, dim: Any, inputs: list, device: Any = None) -> None:
             if a.requires_grad:
                 wp.launch(kernel, dim, inputs, device=device)
                 return
-            parts.append((a.ptr, a.shape, a.strides, a.dtype, a.device.alias))
+            parts.append((a.ptr, a.shape, a.strides, a.dtype, a.device.alias))  # type: ignore[union-attr]
         elif isinstance(a, (int, float, bool)) or type(a).__module__.startswith("warp"):
             parts.append(type(a))
             scalars.append(k)

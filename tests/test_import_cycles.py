@@ -27,7 +27,7 @@ def import_graph() -> dict[str, set[str]]:
     graph: dict[str, set[str]] = {}
     for path in sorted(ROOT.rglob("*.py")):
         me = _module_name(path)
-        graph.setdefault(me, set()).update(t for _, t in _imports(path) if t != me)
+        graph.setdefault(me, set()).update(t for _, t in _imports(path, type_checking=False) if t != me)
     return graph
 
 
@@ -106,7 +106,7 @@ def _where(graph_lines: Mapping[str, list[tuple[int, str]]], a: str, b: str) -> 
 
 def test_no_import_cycles():
     """No cycle of imports among pliant's modules, function-level imports included (beyond ALLOWED)."""
-    lines = {_module_name(p): _imports(p) for p in ROOT.rglob("*.py")}
+    lines = {_module_name(p): _imports(p, type_checking=False) for p in ROOT.rglob("*.py")}
     found = [c for c in cycles(import_graph()) if frozenset(c) not in ALLOWED]
     msg = [
         " -> ".join(c) + ":\n" + "\n".join(f"    {_where(lines, a, b)}" for a, b in zip(c, c[1:]))
@@ -160,3 +160,15 @@ def test_the_walk_sees_a_function_level_sibling_cycle(tmp_path, monkeypatch):
         ["pliant.scene", "pliant.scene._c", "pliant.scene"],
         ["pliant.scene._a", "pliant.scene._b", "pliant.scene._a"],
     ]
+
+
+def test_annotation_only_imports_close_no_cycle():
+    """Imports under ``if TYPE_CHECKING:`` never run, so they are not edges of the import graph (the layer
+    test still checks their direction): model/_worlds names the Model in annotations only."""
+    import ast
+
+    from tests.test_layers import _type_checking_lines
+
+    src = "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from ._model import Model\nimport os\n"
+    assert _type_checking_lines(ast.parse(src)) == {3}
+    assert "pliant.model._model" not in import_graph()["pliant.model._worlds"]

@@ -53,14 +53,33 @@ def _top(module: str) -> str:
     return parts[1] if len(parts) > 1 else ""
 
 
-def _imports(path: Path) -> list[tuple[int, str]]:
-    """(line, imported pliant module) of every import in ``path``, at any depth."""
+def _type_checking_lines(tree: ast.AST) -> set[int]:
+    """Lines inside ``if TYPE_CHECKING:`` blocks (imports for annotations only, never run)."""
+    lines: set[int] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If):
+            t = node.test
+            name = t.id if isinstance(t, ast.Name) else t.attr if isinstance(t, ast.Attribute) else ""
+            if name == "TYPE_CHECKING":
+                for stmt in node.body:
+                    lines.update(range(stmt.lineno, (stmt.end_lineno or stmt.lineno) + 1))
+    return lines
+
+
+def _imports(path: Path, type_checking: bool = True) -> list[tuple[int, str]]:
+    """(line, imported pliant module) of every import in ``path``, at any depth; ``type_checking=False``
+    leaves out those under ``if TYPE_CHECKING:`` (annotation-only: not run, so they close no import cycle,
+    though they must still point down a layer)."""
     rel = path.relative_to(ROOT.parent).with_suffix("")
     module = ".".join(rel.parts)
     package = module if path.name == "__init__.py" else module.rsplit(".", 1)[0]
     package = package.removesuffix(".__init__")
     out = []
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    skip = set() if type_checking else _type_checking_lines(tree)
+    for node in ast.walk(tree):
+        if getattr(node, "lineno", None) in skip:
+            continue
         if isinstance(node, ast.Import):
             out += [(node.lineno, a.name) for a in node.names if a.name.split(".")[0] == "pliant"]
         elif isinstance(node, ast.ImportFrom):

@@ -53,7 +53,9 @@ class _Parser(argparse.ArgumentParser):
         _error(f"{command}: {message}" if command else message)
         raise SystemExit(EXIT_USER)
 
-    def parse_args(self, args: Sequence[str] | None = None, namespace: Any = None) -> argparse.Namespace:
+    def parse_args(  # type: ignore[override]  # only ever called as parse_args(argv)
+        self, args: Sequence[str] | None = None, namespace: None = None
+    ) -> argparse.Namespace:
         """As argparse, but an unknown option is reported by its command's parser with the closest known
         option (argparse's ``suggest_on_error`` exists only from Python 3.14, and not for options)."""
         ns, extra = self.parse_known_args(args, namespace)

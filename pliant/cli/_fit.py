@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ._common import CliError, _positive_float, _positive_int, _sub, add_force
 from ._run import _load
+
+if TYPE_CHECKING:
+    from ..io import Observations
+    from ..scene import Scene, SceneConfig
 
 
 def add_parsers(sub: Any) -> None:
@@ -151,7 +155,7 @@ def cmd_observe(args: argparse.Namespace) -> int:
     cfg = _load(args.scene, args.overrides, force=args.force)
     scene = build_scene(cfg, device=args.device)
     frames = None if args.frames is None else args.frames + 1
-    obs = None
+    obs: Observations | None = None
     if args.cameras is None or args.tracks is not None:
         obs = observe(
             scene,
@@ -167,16 +171,19 @@ def cmd_observe(args: argparse.Namespace) -> int:
             obs = replace(obs, particle=None)
     if args.cameras is not None:
         obs = _observe_images(scene, frames, obs, args)
+    assert obs is not None  # tracks, camera videos or both were observed above
     path = obs.save(args.out)
     what = f"{obs.tracks} tracks ({100 * obs.visible.mean():.0f}% visible)" if obs.tracks else "no tracks"
-    if obs.cameras:
+    if obs.cameras and obs.images is not None:
         h, w = obs.images.shape[2:4]
         what += f", {obs.cameras} camera videos of {w}x{h} px"
     print(f"wrote {path}: {obs.frames} frames, {what}")
     return 0
 
 
-def _observe_images(scene: Any, frames: int | None, tracks: Any, args: argparse.Namespace) -> Any:
+def _observe_images(
+    scene: Scene, frames: int | None, tracks: Observations | None, args: argparse.Namespace
+) -> Observations:
     """``pliant observe --cameras``: render camera videos (with the tracks, if any, kept in the file)."""
     from ..fit import observe_images
 
@@ -293,7 +300,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
-def _fit_models(args: argparse.Namespace, cfg: Any, obs: Any, params: Any, out: Path) -> int:
+def _fit_models(args: argparse.Namespace, cfg: SceneConfig, obs: Observations, params: Any, out: Path) -> int:
     """``pliant fit --models a,b``: each candidate model fitted, held-out errors side by side."""
     from ..fit import FitError, compare_models
     from ..fit._models import models_table

@@ -183,16 +183,20 @@ def cmd_export(args: argparse.Namespace) -> int:
     from ..render._export_objects import curve_segments
 
     # OBJ has polylines (`l`): a rope is written as its links; PLY keeps its vertices only.
-    extra = {"lines": curve_segments(traj)} if fmt == "obj" else {}
-    single = {"ply": render.export_ply, "obj": render.export_obj}[fmt]
+    lines = curve_segments(traj) if fmt == "obj" else None
     if args.frame is not None:
         k = args.frame
         if not -traj.frame_count <= k < traj.frame_count:
             raise CliError(f"--frame {k} out of range: the trajectory has {traj.frame_count} frames")
-        path = single(out, traj.x[k], traj.faces, **extra)
+        if lines is not None:
+            path = render.export_obj(out, traj.x[k], traj.faces, lines=lines)
+        else:
+            path = render.export_ply(out, traj.x[k], traj.faces)
         print(f"wrote {path}")
         return EXIT_OK
-    seq = {"ply": render.export_ply_sequence, "obj": render.export_obj_sequence}[fmt]
-    paths = seq(out, traj.x, traj.faces, **extra)
+    if lines is not None:
+        paths = render.export_obj_sequence(out, traj.x, traj.faces, lines=lines)
+    else:
+        paths = render.export_ply_sequence(out, traj.x, traj.faces)
     print(f"wrote {len(paths)} {fmt.upper()} files to {out}/ ({paths[0].name} ... {paths[-1].name})")
     return EXIT_OK

@@ -7,9 +7,12 @@ import shlex
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from ._common import EXIT_DIVERGED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USER, CliError
+
+if TYPE_CHECKING:
+    from ..scene import SceneConfig
 
 #: Mesh files a scene can reference (``kind = "mesh"``) but that are not scenes themselves.
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".msh", ".vtk", ".vtu", ".off", ".mesh")
@@ -116,14 +119,14 @@ def mesh_instead_of_scene(scene: str) -> str | None:
     return "\n".join(lines)
 
 
-def _load(scene: str, overrides: list[str] | None = None, *, force: bool = False) -> Any:
+def _load(scene: str, overrides: list[str] | None = None, *, force: bool = False) -> SceneConfig:
     """The validated scene (``force``: without the size checks, as ``--force``)."""
     import warnings
 
     if Path(scene).suffix.lower() in MESH_SUFFIXES and Path(scene).is_file():
         # A missing file gets the loader's "no such scene file". The scene to copy goes to stdout as plain
         # lines (no "pliant: error:" prefix), the error line to stderr.
-        first, _, toml = mesh_instead_of_scene(scene).partition("\n")
+        first, _, toml = (mesh_instead_of_scene(scene) or "").partition("\n")  # a mesh suffix: a str
         print(toml, flush=True)
         raise CliError(first)
     from ..scene import load_scene
@@ -139,7 +142,7 @@ def _load(scene: str, overrides: list[str] | None = None, *, force: bool = False
     return cfg
 
 
-def _apply_overrides(cfg: Any, args: argparse.Namespace) -> None:
+def _apply_overrides(cfg: SceneConfig, args: argparse.Namespace) -> None:
     """Command-line options replace the scene file's values (already validated by argparse)."""
     if getattr(args, "frames", None) is not None:
         cfg.scene.frames = args.frames
@@ -176,7 +179,7 @@ def _apply_overrides(cfg: Any, args: argparse.Namespace) -> None:
 
 
 def simulate(
-    cfg: Any,
+    cfg: SceneConfig,
     out: Path,
     name: str,
     *,

@@ -6,11 +6,17 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ._common import CliError
+
+if TYPE_CHECKING:
+    from ..gaussians import VisualCorrector
+    from ..scene import Scene, SceneConfig
+    from ..scene._gaussians import GaussianCorrectionSection
+    from ..sim import Simulator
 
 RENDERERS = ("auto", "mesh", "splats")
 
@@ -22,8 +28,8 @@ class SplatRun:
     anything is simulated.
     """
 
-    def __init__(self, cfg: Any, scene: Any, *, correct: bool = True, quiet: bool = False) -> None:
-        from ..gaussians._scene import SplatSceneError, scene_splats
+    def __init__(self, cfg: SceneConfig, scene: Scene, *, correct: bool = True, quiet: bool = False) -> None:
+        from ..gaussians._scene import SplatSceneError, gaussians_section, scene_splats
 
         self.cfg, self.scene, self.quiet = cfg, scene, quiet
         try:
@@ -31,21 +37,22 @@ class SplatRun:
         except SplatSceneError as exc:
             raise CliError(str(exc)) from None
         self.draw = True  # render the video as splats (False: the mesh renderer draws it)
-        self.spec = cfg.gaussians.correction if correct else None
+        section = gaussians_section(cfg)
+        self.spec = section.correction if correct and section is not None else None
         self.twin_x: np.ndarray | None = None
         self.images: list[list[np.ndarray]] = []
-        self.corrector = None
+        self.corrector: VisualCorrector | None = None
         if self.spec is not None:
-            self._twin()
+            self._twin(self.spec)
 
-    def _twin(self) -> None:
+    def _twin(self, spec: GaussianCorrectionSection) -> None:
         """Simulate the twin (the scene file with ``correction.set``), render it, make the corrector."""
         from ..gaussians import VisualCorrector
         from ..gaussians._surface import ring_cameras
         from ..scene import SceneError, build_scene, parse_scene
         from ..sim import DivergenceError
 
-        cfg, spec = self.cfg, self.spec
+        cfg = self.cfg
         try:
             # Sized as this run's scene was (parameters only: the particle count is compared below).
             twin_cfg = parse_scene(cfg.text, cfg.source, cfg.base_dir, overrides=spec.set, force=True)
@@ -94,7 +101,7 @@ class SplatRun:
             background=self.splats.background,
         )
 
-    def on_frame(self, sim: Any) -> None:
+    def on_frame(self, sim: Simulator) -> None:
         """After frame ``sim.frame``: correct the simulation toward the twin's images of that time."""
         if self.corrector is not None and sim.frame < len(self.images):
             self.corrector.correct(sim, self.images[sim.frame])
@@ -106,7 +113,7 @@ class SplatRun:
         n = min(len(x), len(self.twin_x))
         corrected = float(np.linalg.norm(x[:n] - self.twin_x[:n], axis=2).mean())
         line = f"visual correction: mean drift from the real twin {corrected:.4g} m"
-        if self.spec.report_uncorrected:
+        if self.spec is not None and self.spec.report_uncorrected:
             plain = self.scene.simulator().run(n - 1, progress=False).x
             d = float(np.linalg.norm(plain - self.twin_x[:n], axis=2).mean())
             line += f", uncorrected {d:.4g} m ({100 * (1 - corrected / max(d, 1e-300)):.0f}% less)"
@@ -133,7 +140,7 @@ class SplatRun:
         write_video(frames, path, fps=fps)
 
 
-def splat_run(cfg: Any, scene: Any, renderer: str, *, quiet: bool) -> SplatRun | None:
+def splat_run(cfg: SceneConfig, scene: Scene, renderer: str, *, quiet: bool) -> SplatRun | None:
     """The :class:`SplatRun` of ``pliant run`` (None when the scene has no ``[gaussians]`` section or the
     renderer is ``"mesh"``; with ``"mesh"`` no correction runs either)."""
     if renderer not in RENDERERS:

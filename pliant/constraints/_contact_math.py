@@ -106,7 +106,7 @@ def _particle_pair_values(
     query_radius: Any,
     p_in: wp.array(dtype=Any),
     capacity: int,
-    count: wp.array(dtype=wp.int32),
+    count_io: wp.array(dtype=wp.int32),
     pair_out: wp.array2d(dtype=wp.int32),
     c_out: wp.array(dtype=Any),
     grad_out: wp.array2d(dtype=Any),
@@ -115,7 +115,7 @@ def _particle_pair_values(
     xi = p_in[i]
     for j in wp.hash_grid_query(grid, xi, query_radius):
         if j > i and wp.length(xi - p_in[j]) < query_radius:
-            k = wp.atomic_add(count, 0, 1)
+            k = wp.atomic_add(count_io, 0, 1)
             if k < capacity:
                 xj = p_in[j]
                 pair_out[k, 0] = i

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
@@ -13,6 +13,9 @@ from .._warp import GradientError
 from ..model import Control, Model, State
 from ..model._parameters import Parameter, RegistryView, registry
 from ..solvers import FrameStep
+
+if TYPE_CHECKING:
+    from ..solvers import Solver
 
 
 #: Parameter name → ``get(model, solver, state0, control)`` returning its array (or (array, component) for a
@@ -47,7 +50,7 @@ class RolloutResult:
     state: State | None = None
 
 
-def _resolve(names: Sequence[str], model: Model, solver: Any, state0: State, control: Control | None):
+def _resolve(names: Sequence[str], model: Model, solver: Solver, state0: State, control: Control | None):
     table = dict(PARAMETERS)
     out = {}
     for name in names:
@@ -74,7 +77,7 @@ def check_rollout(
     grads: dict[str, np.ndarray],
     final: State,
     *,
-    solver: Any,
+    solver: Solver,
     dt: float,
     substeps: int,
     frames: int,
@@ -145,7 +148,7 @@ def _copy_state(state: State) -> State:
 
 def rollout(
     model: Model,
-    solver: Any,
+    solver: Solver,
     loss_fn: Callable[[State], wp.array] | None,
     *,
     frames: int,
@@ -230,7 +233,7 @@ def rollout(
                 "the ground plane (model.ground), or finalize with requires_grad=False"
             )
     integrator = getattr(solver, "integrator", None)
-    if getattr(integrator, "multistep", False) and checkpoint_every < frames:
+    if integrator is not None and getattr(integrator, "multistep", False) and checkpoint_every < frames:
         raise GradientError(
             f"{integrator.name} is a multistep method: its history cannot cross a checkpoint boundary; "
             f"pass checkpoint_every={frames} (one segment, the whole rollout on one tape)"
@@ -265,10 +268,10 @@ def rollout(
 
     def run(state: State, f0: int, f1: int, acc: wp.array | None = None) -> State:
         for f in range(f0, f1):
-            if control_fn is not None:
+            if control_fn is not None and control is not None:  # control is made above for a control_fn
                 control_fn(first_frame + f, control)
             state, _ = frame_step(state, control)
-            if acc is not None:
+            if acc is not None and frame_loss is not None:  # acc is only passed with a frame_loss
                 frame_loss(first_frame + f + 1, state, acc)
         return state
 

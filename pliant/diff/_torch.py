@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
 
 from ..model import Control, Model, State
 from ._rollout import PARAMETERS, rollout
+
+if TYPE_CHECKING:
+    from ..solvers import Solver
 
 
 def _import_torch() -> Any:
@@ -26,7 +29,7 @@ def _import_torch() -> Any:
 
 def torch_rollout(
     model: Model,
-    solver: Any,
+    solver: Solver,
     loss_fn: Callable[[State], wp.array],
     params: Sequence[str],
     **rollout_kwargs: Any,
@@ -61,7 +64,9 @@ def torch_rollout(
     control: Control | None = rollout_kwargs.get("control")
     state0: State = rollout_kwargs.pop("state0", None) or model.state()
 
-    class _Rollout(torch.autograd.Function):
+    function: Any = torch.autograd.Function  # a base class from the optional import
+
+    class _Rollout(function):
         @staticmethod
         def forward(ctx: Any, *tensors: Any) -> Any:
             for name, t in zip(names, tensors, strict=False):

@@ -35,7 +35,6 @@ class Example:
         self.substeps = 4
         self.sim = pl.Simulator(self.model, solver, frame_dt=1 / 60, substeps=self.substeps)
         self.frames = args.frames
-        self.traj = None
 
     def run(self, progress: bool) -> None:
         self.traj = self.sim.run(self.frames, progress=progress)

@@ -11,9 +11,13 @@ from __future__ import annotations
 import math
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ._photometric import PhotometricProblem
+    from ._problem import Problem
 
 #: PSNR [dB] under which the splats are said not to explain the images. Measured: pliant's own footage
 #: gives 26-30 dB at a wrong motion and > 40 dB at the true one; MuJoCo footage drawn with pliant's
@@ -34,7 +38,7 @@ def _psnr(mse: float) -> float:
     return float("inf") if mse <= 0 else -10.0 * math.log10(mse)
 
 
-def _colour_losses(problem: Any, x: np.ndarray, lo: int, hi: int) -> np.ndarray:
+def _colour_losses(problem: PhotometricProblem, x: np.ndarray, lo: int, hi: int) -> np.ndarray:
     """Per-frame colour MSE (the mask term left out) of positions ``x`` over frames ``lo … hi − 1``."""
     w = problem.mask_weight
     problem.mask_weight = 0.0
@@ -45,7 +49,7 @@ def _colour_losses(problem: Any, x: np.ndarray, lo: int, hi: int) -> np.ndarray:
 
 
 def before_physics(
-    problem: Any, out: Path, *, appearance: bool | None = None, iterations: int = 300
+    problem: Problem, out: Path, *, appearance: bool | None = None, iterations: int = 300
 ) -> dict[str, Any]:
     """For a photometric problem: fit the splats' appearance to the first frame when ``appearance`` (None:
     when the scene has no ``[gaussians]`` section), write it as ``out/appearance.ply`` (the section that
@@ -64,7 +68,9 @@ def before_physics(
         ``psnr_nominal_train_db`` (the nominal motion over the training frames: the physics fit's start),
         and ``warnings`` (the messages warned) when there are any.
     """
-    if not getattr(problem, "photometric", False):
+    from ._photometric import PhotometricProblem
+
+    if not isinstance(problem, PhotometricProblem):
         return {}
     from ..gaussians._appearance import fit_splat_appearance
 
@@ -122,7 +128,7 @@ def before_physics(
     return report
 
 
-def _section(problem: Any, out: Path, res: Any) -> Any:
+def _section(problem: PhotometricProblem, out: Path, res: Any) -> Any:
     """The ``[gaussians]`` section that draws the fitted appearance (a PLY in ``out``), or None where a
     section cannot describe the splats (several objects: generated splats span the whole model)."""
     from ..gaussians import save_ply
@@ -144,7 +150,7 @@ def _section(problem: Any, out: Path, res: Any) -> Any:
     return GaussiansSection(**fields)
 
 
-def after_physics(problem: Any, values: dict[str, float]) -> dict[str, Any]:
+def after_physics(problem: Problem, values: dict[str, float]) -> dict[str, Any]:
     """Measure the fitted and nominal motions' colour PSNR on the held-out (test) frames (photometric
     problems), and warn about fitted values at a bound of their search box (the data pushed them out of the
     plausible range: usually a model that cannot explain the data, or images it cannot draw).
@@ -158,9 +164,11 @@ def after_physics(problem: Any, values: dict[str, float]) -> dict[str, Any]:
         ``psnr_nominal_test_db`` (None without test frames).
     """
     report: dict[str, Any] = {}
-    if getattr(problem, "photometric", False):
-        for key, v in (("fitted", values), ("nominal", problem.nominal)):
-            x = problem.simulate(problem.build(v), problem.frames)
+    from ._photometric import PhotometricProblem
+
+    if isinstance(problem, PhotometricProblem):
+        for key, vals in (("fitted", values), ("nominal", problem.nominal)):
+            x = problem.simulate(problem.build(vals), problem.frames)
             per_frame = _colour_losses(problem, x, problem.n_train, problem.frames)
             report[f"psnr_{key}_test_db"] = _psnr(float(np.mean(per_frame))) if len(per_frame) else None
     msgs = []

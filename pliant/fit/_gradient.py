@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
@@ -28,6 +28,9 @@ from ._cmaes import StageResult
 from ._losses import acceleration_loss, chamfer_loss, track_loss
 from ._params import FitError, per_element_arrays, per_element_incidence
 from ._problem import Problem
+
+if TYPE_CHECKING:
+    from ..scene import Scene
 
 
 class Smoothness:
@@ -102,21 +105,25 @@ class _Rollout:
         self.problem, self.n_train = problem, n_train
         self.scene = problem.build(values, requires_grad=True)
         m = self.scene.model
+        assert problem.per_element is not None  # the gradient stage fits per-element arrays
         self.arrays = per_element_arrays(self.scene, problem.per_element)
         self.names = {k: _registry_name(self.scene, k) for k in self.arrays}
         self.base = {k: a.numpy().astype(np.float64) for k, a in self.arrays.items()}
         self.shared = shared
         self.size = 1 if shared else next(iter(self.arrays.values())).shape[0]
         o, d = problem.obs, m.device
-        self.particle = wp.array(o.particle.astype(np.int32), dtype=wp.int32, device=d)
-        self.points = [wp.array(np.nan_to_num(p), dtype=m.vec3, device=d) for p in o.points]
-        self.visible = [wp.array(v.astype(np.int32), dtype=wp.int32, device=d) for v in o.visible]
+        assert o.particle is not None  # Problem binds the tracks to particles (Observations.bind)
+        self.particle: wp.array = wp.array(o.particle.astype(np.int32), dtype=wp.int32, device=d)
+        self.points: list[wp.array] = [wp.array(np.nan_to_num(p), dtype=m.vec3, device=d) for p in o.points]
+        self.visible: list[wp.array] = [
+            wp.array(v.astype(np.int32), dtype=wp.int32, device=d) for v in o.visible
+        ]
         n_vis = o.visible[1:n_train].sum()
         self.track_norm = 3.0 * max(int(n_vis), 1)
-        self.cloud = None
-        if o.cloud is not None:
+        self.cloud: list[wp.array] | None = None
+        if o.cloud is not None and o.cloud_count is not None:  # the file checks they come together
             self.cloud = [wp.array(c, dtype=m.vec3, device=d) for c in o.cloud]
-            self.count = [wp.array([int(c)], dtype=wp.int32, device=d) for c in o.cloud_count]
+            self.count: list[wp.array] = [wp.array([int(c)], dtype=wp.int32, device=d) for c in o.cloud_count]
             self.cloud_norm = max(int(o.cloud_count[1:n_train].sum()), 1)
         self.control_fn = problem.control_fn(self.scene)
         self.grads: dict[str, np.ndarray] = {}
@@ -130,10 +137,10 @@ class _Rollout:
 
     def grad_theta(self) -> np.ndarray:
         """dL/dθ = Σ_arrays dL/da · a (chain rule through a = a₀ exp θ), from the last :meth:`run`."""
-        g = 0.0
+        g: np.ndarray | float = 0.0
         for k, a in self.arrays.items():
             g = g + self.grads[self.names[k]] * a.numpy().astype(np.float64)
-        return np.atleast_1d(np.sum(g)) if self.shared else g
+        return np.atleast_1d(np.sum(g)) if self.shared else np.asarray(g)
 
     def frame_loss(self, hist: list) -> Callable[[int, State, wp.array], None]:
         """The fit's loss of observed frame ``g`` (tracks, Chamfer, acceleration over ``hist``, the
@@ -163,8 +170,12 @@ class _Rollout:
                 )
             hist.append(s.particle_q)
             if p.weights["acceleration"] and len(hist) >= 4:
+                x0, x1, x2, x3 = hist[-4:]
                 acceleration_loss(
-                    *hist[-4:],
+                    x0,
+                    x1,
+                    x2,
+                    x3,
                     loss,
                     beta=p.beta,
                     weight=p.weights["acceleration"],
@@ -201,10 +212,11 @@ class _Rollout:
             reset=reset or f0 == 0,  # a horizon continuing the previous one keeps what the solver carries
         )
         self.grads = res.grads
+        assert res.state is not None  # rollout always returns its end state
         return res.loss, res.state
 
 
-def _registry_name(scene: Any, key: str) -> str:
+def _registry_name(scene: Scene, key: str) -> str:
     """The registry parameter (:data:`pliant.diff.PARAMETERS`) of per-element array ``key``
     (``model.<array>`` or ``constraints.<i>.<array>``)."""
     parts = key.split(".")

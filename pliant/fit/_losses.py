@@ -64,7 +64,7 @@ def _nearest_kernel(
     p_count: int,
     x: wp.array(dtype=Any),
     n: int,
-    nearest: wp.array(dtype=wp.int32),
+    nearest_out: wp.array(dtype=wp.int32),
 ):
     # Brute force over the particles (one thread per observed point): the index is not differentiated.
     t, p = wp.tid()
@@ -78,7 +78,7 @@ def _nearest_kernel(
         if dj < best_d:
             best_d = dj
             best = j
-    nearest[t * p_count + p] = t * n + best
+    nearest_out[t * p_count + p] = t * n + best
 
 
 @wp.kernel

@@ -7,10 +7,13 @@ import json
 import math
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..io import Observations
 from ._params import FitError
+
+if TYPE_CHECKING:
+    from ..scene import SceneConfig
 
 #: The object models a scene object may take (``[[objects]] model``).
 MODELS = ("mass_spring", "fem", "pbd")
@@ -29,7 +32,7 @@ def _spacing(o: Any) -> float:
     return 0.05
 
 
-def candidate(cfg: Any, model: str) -> Any:
+def candidate(cfg: SceneConfig, model: str) -> Any:
     """A deep copy of scene ``cfg`` with every object given ``model``, its material converted where the
     candidate needs a value the scene does not give: a spring k = E·h from a Young's modulus, E = k / h from
     a spring constant (h the object's element size: a spring of a cubic lattice of spacing h carries about
@@ -57,7 +60,7 @@ def candidate(cfg: Any, model: str) -> Any:
 
 
 def compare_models(
-    cfg: Any, obs: Observations, models: list[str], out: str | Path, **fit_kwargs: Any
+    cfg: SceneConfig, obs: Observations, models: list[str], out: str | Path, **fit_kwargs: Any
 ) -> dict[str, Any]:
     """Fit each of ``models`` (as :func:`candidate` makes them) with :func:`pliant.fit.fit` into
     ``out/<model>/`` and write ``out/models.json``: per model its held-out and training track errors [m],
@@ -96,7 +99,7 @@ def compare_models(
             "wall_time": time.perf_counter() - t0,
         }
     scored = {m: r["test"] for m, r in rows.items() if r.get("test") is not None and math.isfinite(r["test"])}
-    report = {"models": rows, "best": min(scored, key=scored.get) if scored else None}
+    report = {"models": rows, "best": min(scored, key=scored.__getitem__) if scored else None}
     (out / "models.json").write_text(json.dumps(report, indent=2) + "\n")
     return report
 

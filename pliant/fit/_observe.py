@@ -4,15 +4,18 @@ substitute for real measurements."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..io import Observations
 
+if TYPE_CHECKING:
+    from ..scene import Scene
+
 
 def observe(
-    scene: Any,
+    scene: Scene,
     *,
     frames: int | None = None,
     tracks: int = 60,
@@ -77,7 +80,7 @@ def observe(
     )
 
 
-def _controls(scene: Any, frames: int) -> np.ndarray:
+def _controls(scene: Scene, frames: int) -> np.ndarray:
     """[frames, C, 3] positions [m] of the spring handles' control points at each frame time."""
     control = scene.model.control()
     out = []

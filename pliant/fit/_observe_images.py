@@ -6,16 +6,19 @@ footage."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
 
 from ..io import Observations
 
+if TYPE_CHECKING:
+    from ..scene import Scene
+
 
 def observe_images(
-    scene: Any,
+    scene: Scene,
     *,
     frames: int | None = None,
     cameras: int = 3,
@@ -72,7 +75,7 @@ def observe_images(
     images = np.empty((cameras, frames, height, width, 3), dtype=np.float32)
     alpha = np.empty((cameras, frames, height, width), dtype=np.float32)
     for f in range(frames):
-        q = wp.array(np.ascontiguousarray(x[f]), dtype=m.vec3, device=m.device)
+        q: wp.array = wp.array(np.ascontiguousarray(x[f]), dtype=m.vec3, device=m.device)
         for c, cam in enumerate(cams):
             colour, a, _ = splats.render(q, cam)
             images[c, f] = colour.numpy()

@@ -14,9 +14,12 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..scene import Scene, SceneConfig
 
 
 class FitError(ValueError):
@@ -24,19 +27,19 @@ class FitError(ValueError):
     fix."""
 
 
-def _materials(cfg: Any, models: tuple[str, ...]) -> list[Any]:
+def _materials(cfg: SceneConfig, models: tuple[str, ...]) -> list[Any]:
     return [o.material for o in cfg.objects if o.model in models]
 
 
 def _mat_field(field: str, models: tuple[str, ...]) -> Callable[[Any], list[tuple[Any, str]]]:
-    def where(cfg: Any) -> list[tuple[Any, str]]:
+    def where(cfg: SceneConfig) -> list[tuple[Any, str]]:
         return [(m, field) for m in _materials(cfg, models) if getattr(m, field) is not None]
 
     return where
 
 
 def _section_field(section: str, field: str, default: float | None = None) -> Callable[[Any], list]:
-    def where(cfg: Any) -> list[tuple[Any, str]]:
+    def where(cfg: SceneConfig) -> list[tuple[Any, str]]:
         sec = getattr(cfg, section)
         if sec is None or (getattr(sec, "enabled", True) is False):
             return []
@@ -49,7 +52,7 @@ def _section_field(section: str, field: str, default: float | None = None) -> Ca
     return where
 
 
-def _compliance(cfg: Any) -> list[tuple[Any, str]]:
+def _compliance(cfg: SceneConfig) -> list[tuple[Any, str]]:
     if cfg.solver_kind() != "xpbd":
         return []
     if cfg.solver.compliance is None:
@@ -60,7 +63,7 @@ def _compliance(cfg: Any) -> list[tuple[Any, str]]:
 
 
 def _points_field(field: str, default: Callable[[Any], float]) -> Callable[[Any], list]:
-    def where(cfg: Any) -> list[tuple[Any, str]]:
+    def where(cfg: SceneConfig) -> list[tuple[Any, str]]:
         out = []
         for o in cfg.objects:
             if o.kind == "points":
@@ -231,7 +234,7 @@ def _declares(c: Any, name: str) -> bool:
     return any(p.name == name for p in getattr(type(c), "parameters", lambda: ())())
 
 
-def registry_arrays(scene: Any, names: tuple[str, ...]) -> dict[str, Any]:
+def registry_arrays(scene: Scene, names: tuple[str, ...]) -> dict[str, Any]:
     """The arrays of registry parameters ``names`` in a built scene that hold one value per element:
     ``model.<array>`` for model arrays (when the model has such elements) and
     ``constraints.<i>.<array>`` for every constraint set of the solver whose class declares the name."""
@@ -255,7 +258,7 @@ def registry_arrays(scene: Any, names: tuple[str, ...]) -> dict[str, Any]:
 
 
 def _per_element(name: str, what: str) -> Callable[[Any], dict[str, Any]]:
-    def arrays(scene: Any) -> dict[str, Any]:
+    def arrays(scene: Scene) -> dict[str, Any]:
         out = registry_arrays(scene, GLOBAL[name].drives)
         if not out:
             raise FitError(f"--per-element: this scene's model has no {what}")
@@ -316,7 +319,7 @@ PER_ELEMENT_OF = {"mass_spring": "stiffness", "fem": "E", "pbd": "compliance"}
 CONTACT = ("ground_friction", "ground_restitution")
 
 
-def ground_contact(cfg: Any, obs: Any) -> float | None:
+def ground_contact(cfg: SceneConfig, obs: Any) -> float | None:
     """The lowest visible track height above the scene's ground [m] when the observations come within 5 % of
     their extent of it (they show contact), else None (no ground, no tracks, or motion well above it)."""
     g = getattr(cfg, "ground", None)
@@ -330,14 +333,14 @@ def ground_contact(cfg: Any, obs: Any) -> float | None:
     return gap if gap <= 0.05 * max(extent, 1e-9) else None
 
 
-def default_params(cfg: Any, obs: Any = None) -> list[str]:
+def default_params(cfg: SceneConfig, obs: Any = None) -> list[str]:
     """The default parameters of the scene's models (:data:`WHY`: mass-spring k or E·t, damping rate,
     dashpot γ; FEM: E, ν, damping rate; XPBD: compliance, damping rate), plus the ground's friction and
     restitution when ``obs`` (Observations) reach the ground (:func:`ground_contact`)."""
     return list(default_reasons(cfg, obs))
 
 
-def default_reasons(cfg: Any, obs: Any = None) -> dict[str, str]:
+def default_reasons(cfg: SceneConfig, obs: Any = None) -> dict[str, str]:
     """:func:`default_params` with why each is searched (name → reason)."""
     out: dict[str, str] = {}
     for o in cfg.objects:
@@ -351,7 +354,7 @@ def default_reasons(cfg: Any, obs: Any = None) -> dict[str, str]:
     return out
 
 
-def auto_per_element(cfg: Any, obs: Any) -> str | None:
+def auto_per_element(cfg: SceneConfig, obs: Any) -> str | None:
     """``per_element="auto"``: the per-element parameter of the scene's first object's model
     (:data:`PER_ELEMENT_OF`), or None for image observations (per-element fits need tracks)."""
     if obs is not None and getattr(obs, "images", None) is not None:
@@ -359,7 +362,7 @@ def auto_per_element(cfg: Any, obs: Any) -> str | None:
     return PER_ELEMENT_OF.get(cfg.objects[0].model) if cfg.objects else None
 
 
-def _critical_damping(scene: Any) -> float | None:
+def _critical_damping(scene: Scene) -> float | None:
     """2·√(k·m) [N s/m] of a typical spring (median k, median free particle mass), or None."""
     m = scene.model
     if m.spring_count == 0:
@@ -371,7 +374,7 @@ def _critical_damping(scene: Any) -> float | None:
     return 2.0 * math.sqrt(k * float(np.median(mass)))
 
 
-def widen_bounds(bounds: list[Any], scene: Any) -> None:
+def widen_bounds(bounds: list[Any], scene: Scene) -> None:
     """Physically scaled bounds, set in place: a dashpot γ spans 10⁻⁴ … 1 × the critical damping
     2√(k m) of a typical spring of ``scene`` (built at the nominal values; a placeholder γ of 0 would
     otherwise leave a box around 10⁻⁵ N s/m), and a damping rate of 0 the registry's range."""
@@ -387,7 +390,9 @@ def widen_bounds(bounds: list[Any], scene: Any) -> None:
             else:  # a placeholder 0: the physical range alone
                 b.lo, b.hi = 1e-4 * gc, gc
         elif b.name == "damping_rate" and not (b.scene_value or 0.0) > 0:
-            b.lo, b.hi = registry()["damping_rate"][0].bounds
+            physical = registry()["damping_rate"][0].bounds
+            assert physical is not None  # damping_rate declares its range (pliant/model/_parameters.py)
+            b.lo, b.hi = physical
         else:
             continue
         if not (b.scene_value or 0.0) > 0:
@@ -413,7 +418,7 @@ class Bound:
         return self.param.name
 
 
-def resolve_globals(cfg: Any, names: list[str]) -> list[Bound]:
+def resolve_globals(cfg: SceneConfig, names: list[str]) -> list[Bound]:
     """Check ``names`` against the scene and return their nominal values and bounds.
 
     Raises:
@@ -441,7 +446,7 @@ def resolve_globals(cfg: Any, names: list[str]) -> list[Bound]:
     return out
 
 
-def apply_globals(cfg: Any, values: dict[str, float]) -> Any:
+def apply_globals(cfg: SceneConfig, values: dict[str, float]) -> Any:
     """A deep copy of the scene config with the global parameters set (``values``: name → value)."""
     cfg = cfg.model_copy(deep=True)
     for name, v in values.items():
@@ -451,7 +456,7 @@ def apply_globals(cfg: Any, values: dict[str, float]) -> Any:
     return cfg
 
 
-def per_element_incidence(scene: Any, name: str) -> np.ndarray:
+def per_element_incidence(scene: Scene, name: str) -> np.ndarray:
     """The particles of each element of per-element parameter ``name``, int [n_elements, k] (springs: 2,
     tets: 4, constraints: their arity): which elements are neighbours for the smoothness term."""
     key = next(iter(per_element_arrays(scene, name)))
@@ -466,7 +471,7 @@ def per_element_incidence(scene: Any, name: str) -> np.ndarray:
     return scene.model.tet_indices.numpy().reshape(-1, 4)
 
 
-def per_element_arrays(scene: Any, name: str) -> dict[str, Any]:
+def per_element_arrays(scene: Scene, name: str) -> dict[str, Any]:
     """The arrays of per-element parameter ``name`` in a built scene (``model.<array>`` /
     ``constraints.<i>.<array>`` → Warp array); raises FitError when unknown or absent."""
     if name in PER_ELEMENT:

@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
@@ -39,6 +39,10 @@ from ._cmaes import StageResult
 from ._gradient import Convergence
 from ._params import GLOBAL, FitError
 from ._problem import Problem
+
+if TYPE_CHECKING:
+    from ..scene import Scene, SceneConfig
+    from ..scene._gaussians import GaussiansSection
 
 #: Background colour behind generated Gaussians in observed and rendered images (RGB in [0, 1]); a scene's
 #: ``[gaussians]`` section sets its own.
@@ -87,9 +91,17 @@ class PhotometricProblem(Problem):
     """
 
     photometric = True
+    #: The ``[gaussians]`` section of the appearance stage's splats, once it ran (pliant/fit/_explain.py).
+    appearance_section: GaussiansSection | None = None
 
     def __init__(
-        self, cfg: Any, obs: Observations, *, mask_weight: float = 1.0, per_triangle: int = 1, **kwargs: Any
+        self,
+        cfg: SceneConfig,
+        obs: Observations,
+        *,
+        mask_weight: float = 1.0,
+        per_triangle: int = 1,
+        **kwargs: Any,
     ) -> None:
         from ..gaussians import Camera
         from ..gaussians._scene import SplatSceneError, scene_gaussians
@@ -106,8 +118,10 @@ class PhotometricProblem(Problem):
         m = scene.model
         self.scalar, self.vec3, self.model_device = m.scalar, m.vec3, str(m.device)
         self.dtype_name = "float64" if m.scalar == wp.float64 else "float32"
-        H, W = obs.images.shape[2:4]
-        self.cameras = [Camera(obs.K[c], obs.world_to_camera[c], W, H) for c in range(obs.cameras)]
+        H, W = obs.images.shape[2:4]  # checked above: not None
+        K, w2c = obs.K, obs.world_to_camera
+        assert K is not None and w2c is not None  # Observations requires them beside images
+        self.cameras = [Camera(K[c], w2c[c], W, H) for c in range(obs.cameras)]
         try:
             self.splats = scene_gaussians(scene, per_triangle=per_triangle)
         except SplatSceneError as exc:
@@ -122,9 +136,11 @@ class PhotometricProblem(Problem):
         """Observed image (vec3 [H, W]) and mask ([H, W] or None) of ``camera`` at ``frame`` (device)."""
         key = (camera, frame)
         if key not in self._targets:
-            img = wp.array(self.obs.image(camera, frame), dtype=self.vec3, device=self.model_device)
-            mk = self.obs.mask(camera, frame)
-            mk = None if mk is None else wp.array(mk, dtype=self.scalar, device=self.model_device)
+            img: wp.array = wp.array(self.obs.image(camera, frame), dtype=self.vec3, device=self.model_device)
+            raw = self.obs.mask(camera, frame)
+            mk: wp.array | None = (
+                None if raw is None else wp.array(raw, dtype=self.scalar, device=self.model_device)
+            )
             self._targets[key] = (img, mk)
         return self._targets[key]
 
@@ -164,7 +180,7 @@ class PhotometricProblem(Problem):
         out = np.full(max(hi - lo, 0), np.nan)
         for i, f in enumerate(range(lo, hi)):
             acc = wp.zeros(1, dtype=self.scalar, device=self.model_device)
-            q = wp.array(np.ascontiguousarray(x[f]), dtype=self.vec3, device=self.model_device)
+            q: wp.array = wp.array(np.ascontiguousarray(x[f]), dtype=self.vec3, device=self.model_device)
             self.add_frame_loss(q, f, acc, len(self.cameras))
             out[i] = float(acc.numpy()[0])
         return out
@@ -217,7 +233,7 @@ class PhotometricProblem(Problem):
         s = max(1, -(-int(min_height) // H))
         bar = np.full((H, 2, 3), 0.5)
         for f in range(min(x.shape[0], self.obs.frames)):
-            q = wp.array(np.ascontiguousarray(x[f]), dtype=self.vec3, device=self.model_device)
+            q: wp.array = wp.array(np.ascontiguousarray(x[f]), dtype=self.vec3, device=self.model_device)
             observed = np.asarray(self.obs.image(camera, f), dtype=np.float64)
             fitted = self.render(q, camera).colour.numpy().astype(np.float64)
             row = np.concatenate([observed, bar, fitted], axis=1)
@@ -228,7 +244,7 @@ class PhotometricProblem(Problem):
             yield np.concatenate([_label(top, labels), frame], axis=0)
 
     # ------------------------------------------------------------------ differentiable rollout
-    def rollout(self, scene: Any, params: list[str] | tuple[str, ...] = ()) -> Any:
+    def rollout(self, scene: Scene, params: list[str] | tuple[str, ...] = ()) -> Any:
         """The training loss of ``scene`` (built with ``requires_grad``) simulated from its initial state by
         :func:`pliant.diff.rollout` (the one stepping loop), every substep and render on its tape; returns
         its :class:`pliant.diff.RolloutResult` (``loss`` equals :meth:`loss` of :meth:`simulate`'s
@@ -256,7 +272,7 @@ class PhotometricProblem(Problem):
         )
 
 
-def _values_of(scene: Any, name: str) -> tuple[Any, np.ndarray, int | None]:
+def _values_of(scene: Scene, name: str) -> tuple[Any, np.ndarray, int | None]:
     """(array, its values in float64, component or None) of registry parameter ``name`` in a built
     scene (GradientError when the scene has none)."""
     from ..diff import PARAMETERS

@@ -8,7 +8,7 @@ import json
 import math
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -17,9 +17,12 @@ from . import _explain
 from ._cmaes import StageResult, cmaes
 from ._gradient import gradient_stage
 from ._params import FitError, auto_per_element
-from ._photometric import gradient_capable, problem_for, refinable, refine_globals
+from ._photometric import PhotometricProblem, gradient_capable, problem_for, refinable, refine_globals
 from ._problem import Problem
 from ._toml import scene_toml
+
+if TYPE_CHECKING:
+    from ..scene import Scene, SceneConfig
 
 PARAMS_FILE = "fitted_params.npz"
 #: The per-element stage is kept only if it lowers the validation loss by at least this fraction. On
@@ -57,12 +60,14 @@ def fitted_scene(problem: Problem, values: dict[str, float], per_element: dict[s
         target = getattr(scene.model, parts[1]) if parts[0] == "model" else None
         if parts[0] == "constraints":
             target = getattr(scene.solver.constraints[int(parts[1])], parts[2])
+        if target is None:
+            raise FitError(f"per-element array {key!r}: expected model.<array> or constraints.<i>.<array>")
         target.assign(a)
     return scene
 
 
 def fit(
-    cfg: Any,
+    cfg: SceneConfig,
     obs: Observations,
     out: str | Path,
     *,
@@ -138,7 +143,12 @@ def fit(
     out.mkdir(parents=True, exist_ok=True)
     auto = per_element == "auto"
     per_element = auto_per_element(cfg, obs) if auto else (None if per_element == "none" else per_element)
-    kw = {"params": params, "train_fraction": train_fraction, "device": device, "dtype": dtype}
+    kw: dict[str, Any] = {
+        "params": params,
+        "train_fraction": train_fraction,
+        "device": device,
+        "dtype": dtype,
+    }
     make = problem_for(obs)  # images in the file: the photometric loss (_photometric.py)
     try:
         problem = make(cfg, obs, per_element=per_element, shooting=shooting, **kw)
@@ -185,7 +195,7 @@ def fit(
                     bar.close()
             values = stages["cmaes_open_loop"].values
             interrupted = stages["cmaes_open_loop"].interrupted
-    if getattr(problem, "photometric", False) and epochs > 0 and not interrupted and refinable(problem):
+    if isinstance(problem, PhotometricProblem) and epochs > 0 and not interrupted and refinable(problem):
         # From images, stage 2 refines the global values with image gradients through the rollout.
         bar = _bar(progress, epochs, f"fit: {optimizer} (image gradients)")
         try:
@@ -238,8 +248,8 @@ def fit(
             stages["gradient"].kept = False
             arrays = {}
     report = write_outputs(problem, out, values, arrays, stages, video=video, progress=progress)
-    after = _explain.after_physics(problem, values)
-    report.update(explained, warnings=explained.get("warnings", []) + after.pop("warnings"), **after)
+    checks = _explain.after_physics(problem, values)
+    report.update(explained, warnings=explained.get("warnings", []) + checks.pop("warnings"), **checks)
     report["shooting"] = problem.shooting
     report["wall_time"] = time.perf_counter() - t0
     report["interrupted"] = interrupted
@@ -253,7 +263,7 @@ def stages_of(problem: Problem, b: Any) -> list[str]:
     """The stages that fit global parameter ``b`` (a Bound): CMA-ES always; from images also the
     image-gradient stage when it can differentiate it (:func:`pliant.fit._photometric.gradient_capable`)."""
     out = ["cmaes"]
-    if getattr(problem, "photometric", False) and gradient_capable(b.param):
+    if isinstance(problem, PhotometricProblem) and gradient_capable(b.param):
         out.append("image-gradient")
     return out
 
@@ -304,7 +314,7 @@ def write_outputs(
         cfg.scene.parameters = PARAMS_FILE
     elif cfg.scene.parameters is not None:
         cfg.scene.parameters = str((Path(cfg.base_dir) / cfg.scene.parameters).resolve())
-    if getattr(problem, "appearance_section", None) is not None:  # the appearance stage's splats
+    if isinstance(problem, PhotometricProblem) and problem.appearance_section is not None:  # its splats
         cfg.gaussians = problem.appearance_section
     scene_toml(cfg, out / "fitted.toml", comment=f"Fitted by `pliant fit` from {problem.cfg.source}")
     x_nom = problem.simulate(problem.build({}), problem.frames)  # the scene as given
@@ -405,13 +415,13 @@ def _plot(
     plt.close(fig)
 
 
-def _video(path: Path, scene: Any, x: np.ndarray, problem: Problem, progress: bool) -> None:
+def _video(path: Path, scene: Scene, x: np.ndarray, problem: Problem, progress: bool) -> None:
     """The fitted motion (orange particles) with observed tracks drawn over it: visible ones green, hidden
     ones red at the position of the particle they are bound to. From camera videos: the first camera's
     observed images beside the fitted motion drawn as splats from that camera."""
     from ..render import render_video, write_video
 
-    if getattr(problem, "photometric", False):
+    if isinstance(problem, PhotometricProblem):
         write_video(problem.comparison_frames(x), path, fps=scene.fps)
         return
 
@@ -444,7 +454,7 @@ def _video(path: Path, scene: Any, x: np.ndarray, problem: Problem, progress: bo
     )
 
 
-def _with_rope_beads(scene: Any, x: np.ndarray, pts, colors, radius, r: float):
+def _with_rope_beads(scene: Scene, x: np.ndarray, pts, colors, radius, r: float):
     """Ropes drawn as lines: beads of the particles' colour and radius ``r`` along every link, spaced at
     most ``r`` apart, put before the observed points (drawn over them)."""
     from ..render._video import link_beads

@@ -5,7 +5,10 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from ..scene import SceneConfig
 
 
 def _value(v: Any) -> str:
@@ -61,7 +64,7 @@ def dumps(data: dict[str, Any], comment: str = "") -> str:
     return "\n".join(lines).lstrip("\n") + "\n"
 
 
-def scene_toml(cfg: Any, path: str | Path, comment: str = "") -> Path:
+def scene_toml(cfg: SceneConfig, path: str | Path, comment: str = "") -> Path:
     """Write a scene config as a TOML file runnable by ``pliant run``.
 
     Fields left at their defaults are omitted; relative file paths of the scene (meshes, point files, a

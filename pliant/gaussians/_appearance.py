@@ -152,8 +152,8 @@ def fit_splat_appearance(
     for f, row in enumerate(images):
         for c, cam in enumerate(cameras):
             img = image_to_warp(row[c], cam, dtype, dev, f"frame {f} camera {c} image")
-            mk = None if masks is None or masks[f][c] is None else masks[f][c]
-            mk = None if mk is None else image_to_warp(mk, cam, dtype, dev, f"frame {f} camera {c} mask")
+            raw = None if masks is None else masks[f][c]
+            mk = None if raw is None else image_to_warp(raw, cam, dtype, dev, f"frame {f} camera {c} mask")
             views.append((f, cam, img, mk))
 
     def psnrs(gs: list[Gaussians], bg: Any, light: Any) -> list[float]:
@@ -188,10 +188,10 @@ def fit_splat_appearance(
     )
     b.gaussians = g
     placed = [splats.place(x) for x in positions]
-    background = wp.array([bg0], dtype=vec3_type(dtype), device=dev, requires_grad=True)
+    background: wp.array = wp.array([bg0], dtype=vec3_type(dtype), device=dev, requires_grad=True)
     params = [g.sh, g.opacity_logits, g.log_scales, background]
     names = ["sh", "opacity_logits", "log_scales", "background"]
-    light = None
+    light: wp.array | None = None
     if shading:
         # Unlit at the start (shade ≈ 1, the sampled colours already carry the light), with a small light
         # towards the cameras so that max(0, n·L) has a slope.
@@ -215,9 +215,9 @@ def fit_splat_appearance(
         for f, cam, img, mk in views:
             tape = wp.Tape()
             with tape:
-                c, a, _ = render(placed[f], cam, background, light=light)
-            loss, gc, ga = photometric_loss(c, a, img, mk, mask_weight=mask_weight)
-            tape.backward(grads={c: gc, a: ga})
+                colour, alpha, _ = render(placed[f], cam, background, light=light)
+            loss, gc, ga = photometric_loss(colour, alpha, img, mk, mask_weight=mask_weight)
+            tape.backward(grads={colour: gc, alpha: ga})
             total += loss / len(views)
         for a in params:
             ga = a.grad.numpy()
@@ -227,12 +227,13 @@ def fit_splat_appearance(
         opt.step()
         if len(history) > patience and history[-1 - patience] - history[-1] < rtol * history[-1 - patience]:
             break
-    bg = tuple(float(v) for v in background.numpy().reshape(3))
+    bg_r, bg_g, bg_b = (float(v) for v in background.numpy().reshape(3))
+    bg = (bg_r, bg_g, bg_b)
     lt = None
     if light is not None:
         lv = light.numpy().astype(np.float64)
         lt = (*(float(v) for v in lv[0]), float(lv[1, 0]))
-    fitted = Gaussians(**g.numpy(), dtype=dtype, device=dev)
+    fitted = g.copy()  # off the optimiser's arrays (g has dtype `dtype`, on dev)
     bg_start, light_start = splats.background, getattr(splats, "light", None)
     b.gaussians = fitted
     splats.background = bg

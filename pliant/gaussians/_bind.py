@@ -32,8 +32,8 @@ def _barycentric_kernel(
     gauss_tet: wp.array(dtype=wp.int32),
     bary: wp.array2d(dtype=Any),
     rest_inv: wp.array(dtype=Any),
-    means: wp.array(dtype=Any),
-    transforms: wp.array(dtype=Any),
+    means_out: wp.array(dtype=Any),
+    transforms_out: wp.array(dtype=Any),
 ):
     g = wp.tid()
     e = gauss_tet[g]
@@ -41,9 +41,9 @@ def _barycentric_kernel(
     x1 = x[tets[e, 1]]
     x2 = x[tets[e, 2]]
     x3 = x[tets[e, 3]]
-    means[g] = bary[g, 0] * x0 + bary[g, 1] * x1 + bary[g, 2] * x2 + bary[g, 3] * x3
+    means_out[g] = bary[g, 0] * x0 + bary[g, 1] * x1 + bary[g, 2] * x2 + bary[g, 3] * x3
     Ds = wp.matrix_from_cols(x1 - x0, x2 - x0, x3 - x0)
-    transforms[g] = Ds * rest_inv[e]
+    transforms_out[g] = Ds * rest_inv[e]
 
 
 @wp.kernel
@@ -53,8 +53,8 @@ def _triangle_kernel(
     gauss_tri: wp.array(dtype=wp.int32),
     local: wp.array(dtype=Any),
     rest_inv: wp.array(dtype=Any),
-    means: wp.array(dtype=Any),
-    transforms: wp.array(dtype=Any),
+    means_out: wp.array(dtype=Any),
+    transforms_out: wp.array(dtype=Any),
 ):
     g = wp.tid()
     e = gauss_tri[g]
@@ -62,8 +62,8 @@ def _triangle_kernel(
     e1 = x[tris[e, 1]] - x0
     e2 = x[tris[e, 2]] - x0
     F = wp.matrix_from_cols(e1, e2, wp.normalize(wp.cross(e1, e2))) * rest_inv[e]
-    means[g] = x0 + F * local[g]
-    transforms[g] = F
+    means_out[g] = x0 + F * local[g]
+    transforms_out[g] = F
 
 
 @wp.kernel
@@ -72,10 +72,10 @@ def _group_centre_kernel(
     member: wp.array(dtype=wp.int32),
     group: wp.array(dtype=wp.int32),
     weight: wp.array(dtype=Any),
-    centre: wp.array(dtype=Any),
+    centre_out: wp.array(dtype=Any),
 ):
     k = wp.tid()
-    wp.atomic_add(centre, group[k], weight[k] * x[member[k]])
+    wp.atomic_add(centre_out, group[k], weight[k] * x[member[k]])
 
 
 @wp.kernel
@@ -86,21 +86,21 @@ def _group_moment_kernel(
     weight: wp.array(dtype=Any),
     rest_offset: wp.array(dtype=Any),
     centre: wp.array(dtype=Any),
-    moment: wp.array(dtype=Any),
+    moment_out: wp.array(dtype=Any),
 ):
     k = wp.tid()
-    wp.atomic_add(moment, group[k], weight[k] * wp.outer(x[member[k]] - centre[group[k]], rest_offset[k]))
+    wp.atomic_add(moment_out, group[k], weight[k] * wp.outer(x[member[k]] - centre[group[k]], rest_offset[k]))
 
 
 @wp.kernel
-def _group_rotation_kernel(moment: wp.array(dtype=Any), rotation: wp.array(dtype=Any)):
+def _group_rotation_kernel(moment: wp.array(dtype=Any), rotation_out: wp.array(dtype=Any)):
     b = wp.tid()
-    rotation[b] = polar_rotation(moment[b])
+    rotation_out[b] = polar_rotation(moment[b])
 
 
 @wp.kernel
 def _group_rotation_adjoint_kernel(
-    moment: wp.array(dtype=Any), adj_rotation: wp.array(dtype=Any), adj_moment: wp.array(dtype=Any)
+    moment: wp.array(dtype=Any), adj_rotation: wp.array(dtype=Any), adj_moment_out: wp.array(dtype=Any)
 ):
     # Hand-written adjoint of R = polar(A) (autodiff through wp.svd3 disagrees with finite differences).
     # With A = U Σ Vᵀ (last column of U and σ₃ negated when U Vᵀ is a reflection, so R = U Vᵀ):
@@ -127,7 +127,7 @@ def _group_rotation_adjoint_kernel(
     p02 = (G[0, 2] - G[2, 0]) / wp.max(s0 + s2, tiny)
     p12 = (G[1, 2] - G[2, 1]) / wp.max(s1 + s2, tiny)
     Psi = wp.matrix(zero, p01, p02, -p01, zero, p12, -p02, -p12, zero, shape=(3, 3))
-    adj_moment[b] = adj_moment[b] + U * Psi * wp.transpose(V)
+    adj_moment_out[b] = adj_moment_out[b] + U * Psi * wp.transpose(V)
 
 
 @wp.kernel
@@ -138,16 +138,16 @@ def _skin_kernel(
     link_offset: wp.array(dtype=Any),
     rotation: wp.array(dtype=Any),
     centre: wp.array(dtype=Any),
-    means: wp.array(dtype=Any),
-    transforms: wp.array(dtype=Any),
+    means_out: wp.array(dtype=Any),
+    transforms_out: wp.array(dtype=Any),
 ):
     k = wp.tid()
     g = link_gauss[k]
     b = link_group[k]
     w = link_weight[k]
     R = rotation[b]
-    wp.atomic_add(means, g, w * (R * link_offset[k] + centre[b]))
-    wp.atomic_add(transforms, g, w * R)
+    wp.atomic_add(means_out, g, w * (R * link_offset[k] + centre[b]))
+    wp.atomic_add(transforms_out, g, w * R)
 
 
 class Binding:
@@ -157,6 +157,26 @@ class Binding:
     for skinning ``link_*`` (Gaussian, group, weight) triples usable to spread per-Gaussian quantities back
     onto particles (:meth:`particle_weights`).
     """
+
+    # Filled by bind() for the method chosen: "barycentric" (tets) ...
+    tets: wp.array
+    gauss_tet: wp.array
+    bary: wp.array
+    rest_inv: wp.array
+    # ... "triangles" (rest_inv too) ...
+    tris: wp.array
+    gauss_tri: wp.array
+    local: wp.array
+    # ... or "skinning": particle groups and (Gaussian, group, weight) links.
+    group_count: int
+    member: wp.array
+    group: wp.array
+    member_weight: wp.array
+    rest_offset: wp.array
+    link_gauss: wp.array
+    link_group: wp.array
+    link_weight: wp.array
+    link_offset: wp.array
 
     def __init__(self, gaussians: Gaussians, method: str, particle_count: int) -> None:
         self.gaussians = gaussians

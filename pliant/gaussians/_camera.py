@@ -96,7 +96,7 @@ class Camera:
         eye: np.ndarray,
         target: np.ndarray,
         *,
-        up: np.ndarray = (0.0, 1.0, 0.0),
+        up: tuple[float, float, float] | np.ndarray = (0.0, 1.0, 0.0),
         fov_y: float = 50.0,
         width: int = 64,
         height: int = 48,

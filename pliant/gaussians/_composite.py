@@ -29,21 +29,21 @@ _KEY_SHIFT = 4294967296  # 2**32: key = tile · 2³² + depth rank
 def depth_keys_kernel(
     depth: wp.array(dtype=Any),
     tile_count: wp.array(dtype=wp.int32),
-    keys: wp.array(dtype=Any),
-    vals: wp.array(dtype=wp.int32),
+    keys_out: wp.array(dtype=Any),
+    vals_out: wp.array(dtype=wp.int32),
 ):
     g = wp.tid()
     d = depth[g]
     if tile_count[g] == 0:
         d = type(d)(1.0e30)
-    keys[g] = d
-    vals[g] = g
+    keys_out[g] = d
+    vals_out[g] = g
 
 
 @wp.kernel
-def ranks_kernel(sorted_vals: wp.array(dtype=wp.int32), rank: wp.array(dtype=wp.int32)):
+def ranks_kernel(sorted_vals: wp.array(dtype=wp.int32), rank_out: wp.array(dtype=wp.int32)):
     i = wp.tid()
-    rank[sorted_vals[i]] = i
+    rank_out[sorted_vals[i]] = i
 
 
 @wp.kernel
@@ -53,8 +53,8 @@ def duplicate_kernel(
     offsets: wp.array(dtype=wp.int32),
     rank: wp.array(dtype=wp.int32),
     tiles_x: int,
-    keys: wp.array(dtype=wp.int64),
-    vals: wp.array(dtype=wp.int32),
+    keys_out: wp.array(dtype=wp.int64),
+    vals_out: wp.array(dtype=wp.int32),
 ):
     g = wp.tid()
     if tile_count[g] == 0:
@@ -63,27 +63,27 @@ def duplicate_kernel(
     k = offsets[g]
     for ty in range(r[1], r[3]):
         for tx in range(r[0], r[2]):
-            keys[k] = wp.int64(ty * tiles_x + tx) * wp.int64(_KEY_SHIFT) + wp.int64(rank[g])
-            vals[k] = g
+            keys_out[k] = wp.int64(ty * tiles_x + tx) * wp.int64(_KEY_SHIFT) + wp.int64(rank[g])
+            vals_out[k] = g
             k += 1
 
 
 @wp.kernel
-def ranges_kernel(keys: wp.array(dtype=wp.int64), count: int, ranges: wp.array(dtype=wp.vec2i)):
+def ranges_kernel(keys: wp.array(dtype=wp.int64), count: int, ranges_out: wp.array(dtype=wp.vec2i)):
     i = wp.tid()
     tile = int(keys[i] // wp.int64(_KEY_SHIFT))
     if i == 0:
-        ranges[tile] = wp.vec2i(i, ranges[tile][1])
+        ranges_out[tile] = wp.vec2i(i, ranges_out[tile][1])
     else:
         prev = int(keys[i - 1] // wp.int64(_KEY_SHIFT))
         if prev != tile:
-            ranges[tile] = wp.vec2i(i, ranges[tile][1])
+            ranges_out[tile] = wp.vec2i(i, ranges_out[tile][1])
     if i == count - 1:
-        ranges[tile] = wp.vec2i(ranges[tile][0], i + 1)
+        ranges_out[tile] = wp.vec2i(ranges_out[tile][0], i + 1)
     else:
         nxt = int(keys[i + 1] // wp.int64(_KEY_SHIFT))
         if nxt != tile:
-            ranges[tile] = wp.vec2i(ranges[tile][0], i + 1)
+            ranges_out[tile] = wp.vec2i(ranges_out[tile][0], i + 1)
 
 
 @wp.func

@@ -45,21 +45,21 @@ def _spread_kernel(
     means0: wp.array(dtype=Any),
     opacity_logits: wp.array(dtype=Any),
     gain: Any,
-    forces: wp.array(dtype=Any),
+    forces_out: wp.array(dtype=Any),
 ):
     k = wp.tid()
     g = link_gauss[k]
     one = type(gain)(1.0)
     o = one / (one + wp.exp(-opacity_logits[g]))
-    wp.atomic_add(forces, link_particle[k], (link_weight[k] * gain * o) * (means[g] - means0[g]))
+    wp.atomic_add(forces_out, link_particle[k], (link_weight[k] * gain * o) * (means[g] - means0[g]))
 
 
 @wp.kernel
-def _add_kernel(a: wp.array(dtype=Any), b: wp.array(dtype=Any), old: wp.array(dtype=Any)):
+def _add_kernel(b: wp.array(dtype=Any), a_io: wp.array(dtype=Any), old_io: wp.array(dtype=Any)):
     # a += b − old; old = b: replace this corrector's previous contribution to the external forces
     i = wp.tid()
-    a[i] = a[i] + (b[i] - old[i])
-    old[i] = b[i]
+    a_io[i] = a_io[i] + (b[i] - old_io[i])
+    old_io[i] = b[i]
 
 
 @wp.kernel
@@ -70,23 +70,23 @@ def _state_kernel(
     alpha: Any,
     beta_over_t: Any,
     kappa_over_t2: Any,
-    q: wp.array(dtype=Any),
-    qd: wp.array(dtype=Any),
-    residual: wp.array(dtype=Any),
-    force: wp.array(dtype=Any),
-    innovation: wp.array(dtype=Any),
+    q_io: wp.array(dtype=Any),
+    qd_io: wp.array(dtype=Any),
+    residual_io: wp.array(dtype=Any),
+    force_io: wp.array(dtype=Any),
+    innovation_out: wp.array(dtype=Any),
 ):
     i = wp.tid()
     if inv_mass[i] == type(alpha)(0.0):  # pinned and kinematic particles keep their prescribed motion
-        innovation[i] = q[i] - q[i]
+        innovation_out[i] = q_io[i] - q_io[i]
         return
-    d = estimate[i] - q[i]
-    innovation[i] = d
-    q[i] = q[i] + alpha * d
-    qd[i] = qd[i] + beta_over_t * d
-    f = residual[i] + (kappa_over_t2 * mass[i]) * d
-    force[i] = force[i] + (f - residual[i])
-    residual[i] = f
+    d = estimate[i] - q_io[i]
+    innovation_out[i] = d
+    q_io[i] = q_io[i] + alpha * d
+    qd_io[i] = qd_io[i] + beta_over_t * d
+    f = residual_io[i] + (kappa_over_t2 * mass[i]) * d
+    force_io[i] = force_io[i] + (f - residual_io[i])
+    residual_io[i] = f
 
 
 class VisualCorrector:
@@ -157,7 +157,7 @@ class VisualCorrector:
         self.background = background
         gi, pi, w = binding.particle_weights()
         dev = g.device
-        self._links = (
+        self._links: tuple[wp.array, wp.array, wp.array] = (
             wp.array(gi.astype(np.int32), dtype=wp.int32, device=dev),
             wp.array(pi.astype(np.int32), dtype=wp.int32, device=dev),
             wp.array(w, dtype=g.opacity_logits.dtype, device=dev),
@@ -173,7 +173,7 @@ class VisualCorrector:
     def _loss_and_gradient(self, x: np.ndarray, views) -> tuple[float, np.ndarray]:
         """Mean photometric loss over the views for particle positions x [P, 3] and its gradient w.r.t. x."""
         g = self.binding.gaussians
-        q = wp.array(
+        q: wp.array = wp.array(
             x.astype(np_dtype(g.dtype)), dtype=vec3_type(g.dtype), device=g.device, requires_grad=True
         )
         tape = wp.Tape()
@@ -243,7 +243,7 @@ class VisualCorrector:
             )
         if self.method == "forces":
             out = self.forces(state.particle_q, images)
-            wp.launch(_add_kernel, dim=f.shape[0], inputs=[f, out, self._applied], device=f.device)
+            wp.launch(_add_kernel, dim=f.shape[0], inputs=[out, f, self._applied], device=f.device)
             return out
         inv_mass = model.particle_inv_mass
         est = self.estimate(state.particle_q, images, fixed=inv_mass.numpy() == 0)
@@ -305,5 +305,5 @@ class VisualCorrector:
         if cur.shape != f.shape or cur.dtype != f.dtype:
             raise ValueError(f"control.particle_f is {cur.shape} {cur.dtype.__name__}, forces are {f.shape}")
         zero = wp.zeros_like(f)
-        wp.launch(_add_kernel, dim=f.shape[0], inputs=[cur, f, zero], device=f.device, record_tape=False)
+        wp.launch(_add_kernel, dim=f.shape[0], inputs=[f, cur, zero], device=f.device, record_tape=False)
         return f

@@ -121,7 +121,7 @@ class Gaussians:
                 raise ValueError(f"{name} is on {a.device} but the Gaussians are on {self.device}")
             out = a
         else:
-            arr = np.asarray(a, dtype=np_dtype(self.dtype))
+            arr: np.ndarray = np.asarray(a, dtype=np_dtype(self.dtype))
             shape = (arr.shape[0],) if arr.ndim >= 1 else ()
             want = shape + ((width,) if width else ())
             if arr.ndim != (2 if width else 1) or arr.shape != want:
@@ -233,13 +233,12 @@ class Gaussians:
         """Opacities in (0, 1), shape [N] (NumPy)."""
         return 1.0 / (1.0 + np.exp(-self.opacity_logits.numpy().astype(np.float64)))
 
-    def copy(self, *, dtype: str | None = None, device: str | None = None, requires_grad: bool = False):
+    def copy(
+        self, *, dtype: str | None = None, device: str | None = None, requires_grad: bool = False
+    ) -> Gaussians:
         """A deep copy, optionally in another dtype or on another device."""
-        return Gaussians(
-            **self.numpy(),
-            dtype=dtype or self.dtype,
-            device=device or self.device,
-            requires_grad=requires_grad,
+        return _from_numpy(
+            self.numpy(), dtype=dtype or self.dtype, device=device or self.device, requires_grad=requires_grad
         )
 
     def with_means(
@@ -270,7 +269,7 @@ class Gaussians:
         evecs[np.linalg.det(evecs) < 0, :, 0] *= -1.0  # a proper rotation
         p["quats"] = _matrix_quats(evecs)
         p["log_scales"] = 0.5 * np.log(np.maximum(evals, 1e-300))
-        return Gaussians(**p, dtype=self.dtype, device=self.device)
+        return _from_numpy(p, dtype=self.dtype, device=self.device)
 
     def __repr__(self) -> str:
         return (
@@ -316,3 +315,20 @@ def _matrix_quats(R: np.ndarray) -> np.ndarray:
         axis=1,
     )
     return branches[np.arange(len(m)), k]
+
+
+def _from_numpy(
+    p: dict[str, np.ndarray], *, dtype: str, device: str | None, requires_grad: bool = False
+) -> Gaussians:
+    """Gaussians from the float64 arrays of :meth:`Gaussians.numpy` (with ``transforms`` when present)."""
+    return Gaussians(
+        p["means"],
+        p["quats"],
+        p["log_scales"],
+        p["opacity_logits"],
+        p["sh"],
+        transforms=p.get("transforms"),
+        dtype=dtype,
+        device=device,
+        requires_grad=requires_grad,
+    )

@@ -20,19 +20,19 @@ def _mse_kernel(
     has_mask: int,
     colour_weight: Any,
     mask_weight: Any,
-    loss: wp.array(dtype=Any),
-    adj_colour: wp.array2d(dtype=Any),
-    adj_alpha: wp.array2d(dtype=Any),
+    loss_out: wp.array(dtype=Any),
+    adj_colour_out: wp.array2d(dtype=Any),
+    adj_alpha_out: wp.array2d(dtype=Any),
 ):
     y, x = wp.tid()
     d = colour[y, x] - target[y, x]
     l = colour_weight * wp.dot(d, d)
-    adj_colour[y, x] = (colour_weight + colour_weight) * d
+    adj_colour_out[y, x] = (colour_weight + colour_weight) * d
     if has_mask != 0:
         e = alpha[y, x] - mask[y, x]
         l = l + mask_weight * e * e
-        adj_alpha[y, x] = (mask_weight + mask_weight) * e
-    wp.atomic_add(loss, 0, l)
+        adj_alpha_out[y, x] = (mask_weight + mask_weight) * e
+    wp.atomic_add(loss_out, 0, l)
 
 
 def photometric_loss(
@@ -56,7 +56,7 @@ def photometric_loss(
         (loss, ∂loss/∂colour, ∂loss/∂alpha), the gradients as Warp arrays for ``tape.backward(grads=...)``.
     """
     H, W = colour.shape
-    s = colour.dtype._wp_scalar_type_
+    s = _scalar(colour.dtype)
     loss = wp.zeros(1, dtype=s, device=colour.device)
     adj_c = wp.zeros_like(colour, requires_grad=False)
     adj_a = wp.zeros_like(alpha, requires_grad=False)
@@ -98,10 +98,10 @@ def psnr(rendered: Any, target: Any) -> float:
 
 @wp.kernel
 def _adam_kernel(
-    p: wp.array(dtype=Any),
     g: wp.array(dtype=Any),
-    m: wp.array(dtype=Any),
-    v: wp.array(dtype=Any),
+    p_io: wp.array(dtype=Any),
+    m_io: wp.array(dtype=Any),
+    v_io: wp.array(dtype=Any),
     lr: Any,
     b1: Any,
     b2: Any,
@@ -112,15 +112,19 @@ def _adam_kernel(
     i = wp.tid()
     one = type(lr)(1.0)
     gi = g[i]
-    m[i] = b1 * m[i] + (one - b1) * gi
-    v[i] = b2 * v[i] + (one - b2) * gi * gi
-    p[i] = p[i] - lr * (m[i] / c1) / (wp.sqrt(v[i] / c2) + eps)
+    m_io[i] = b1 * m_io[i] + (one - b1) * gi
+    v_io[i] = b2 * v_io[i] + (one - b2) * gi * gi
+    p_io[i] = p_io[i] - lr * (m_io[i] / c1) / (wp.sqrt(v_io[i] / c2) + eps)
 
 
 def _flat(a: wp.array) -> wp.array:
     """A 1-d scalar view of a Warp array of scalars, vectors or matrices (no copy)."""
-    s = a.dtype._wp_scalar_type_ if hasattr(a.dtype, "_wp_scalar_type_") else a.dtype
-    return a.flatten().view(s).flatten()
+    return a.flatten().view(_scalar(a.dtype)).flatten()
+
+
+def _scalar(dtype: type) -> type:
+    """The scalar type of a Warp vector or matrix dtype; a scalar dtype is its own."""
+    return dtype._wp_scalar_type_ if hasattr(dtype, "_wp_scalar_type_") else dtype
 
 
 class Adam:
@@ -154,7 +158,7 @@ class Adam:
             wp.launch(
                 _adam_kernel,
                 dim=fp.shape[0],
-                inputs=[fp, fg, m, v, s(lr), s(self.b1), s(self.b2), s(c1), s(c2), s(self.eps)],
+                inputs=[fg, fp, m, v, s(lr), s(self.b1), s(self.b2), s(c1), s(c2), s(self.eps)],
                 device=p.device,
                 record_tape=False,
             )

@@ -130,6 +130,7 @@ def load_ply(
             if name == "vertex":
                 data = arr
                 break
+    assert data is not None  # "vertex" is an element (checked above), read before any break
     present = set(data.dtype.names or ())
     missing = [p for p in REQUIRED if p not in present]
     if missing:

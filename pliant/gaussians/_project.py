@@ -112,13 +112,13 @@ def project_kernel(
     eps2d: Any,
     tiles_x: int,
     tiles_y: int,
-    mean2d: wp.array(dtype=Any),
-    conic: wp.array(dtype=Any),
-    depth: wp.array(dtype=Any),
-    opacity: wp.array(dtype=Any),
-    colour: wp.array(dtype=Any),
-    rect: wp.array(dtype=wp.vec4i),
-    tile_count: wp.array(dtype=wp.int32),
+    mean2d_out: wp.array(dtype=Any),
+    conic_out: wp.array(dtype=Any),
+    depth_out: wp.array(dtype=Any),
+    opacity_out: wp.array(dtype=Any),
+    colour_out: wp.array(dtype=Any),
+    rect_out: wp.array(dtype=wp.vec4i),
+    tile_count_out: wp.array(dtype=wp.int32),
 ):
     g = wp.tid()
     mu = means[g]
@@ -147,11 +147,11 @@ def project_kernel(
     c = cov[1, 1] + eps2d
     det = a * c - b * b
     inv_det = one / wp.max(det, type(fx)(1.0e-30))
-    conic[g] = type(mu)(c * inv_det, -b * inv_det, a * inv_det)
+    conic_out[g] = type(mu)(c * inv_det, -b * inv_det, a * inv_det)
     m2 = wp.vector(fx * p[0] * iz + cx, fy * p[1] * iz + cy)
-    mean2d[g] = m2
-    depth[g] = p[2]
-    opacity[g] = one / (one + wp.exp(-opacity_logits[g]))
+    mean2d_out[g] = m2
+    depth_out[g] = p[2]
+    opacity_out[g] = one / (one + wp.exp(-opacity_logits[g]))
     view = wp.normalize(mu - campos)
     rgb = sh_colour(sh, g, sh_degree, view)
     if has_light != 0:
@@ -177,7 +177,7 @@ def project_kernel(
         direct = lt[1] * nrm[0] + lt[2] * nrm[1] + lt[3] * nrm[2]
         shade = lt[0] + wp.max(direct, zero) + hl[0] * wp.abs(facing)
         rgb = rgb * shade
-    colour[g] = rgb
+    colour_out[g] = rgb
     # screen extent: 3σ of the larger eigenvalue of the dilated covariance, in whole tiles
     mid = type(fx)(0.5) * (a + c)
     lam = mid + wp.sqrt(wp.max(type(fx)(0.1), mid * mid - det))
@@ -190,5 +190,5 @@ def project_kernel(
     n = (x1 - x0) * (y1 - y0)
     if p[2] <= near or det <= zero:
         n = 0
-    rect[g] = wp.vec4i(x0, y0, x1, y1)
-    tile_count[g] = n
+    rect_out[g] = wp.vec4i(x0, y0, x1, y1)
+    tile_count_out[g] = n

@@ -40,6 +40,20 @@ class RenderOutput(NamedTuple):
 class _Frame:
     """What one render keeps for its backward pass (projected Gaussians, sorted lists, per-pixel sums)."""
 
+    mean2d: wp.array  # per Gaussian, filled by project_kernel
+    conic: wp.array
+    depth: wp.array
+    opacity: wp.array
+    colour: wp.array
+    ranges: wp.array  # per tile, then the depth-sorted Gaussian ids of every tile
+    vals: wp.array
+    T: wp.array  # per pixel: transmittance, colour and depth sums, last Gaussian composited
+    C: wp.array
+    D: wp.array
+    last: wp.array
+    background: Any  # a vec3 of the render's dtype
+    tiles_x: int
+
 
 def render(
     gaussians: Gaussians,

@@ -6,7 +6,7 @@ fit all call it or :func:`scene_splats`)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
@@ -23,6 +23,11 @@ from ._surface import (
     surface_gaussians,
     triangle_splats,
 )
+
+if TYPE_CHECKING:
+    from ..model import Model
+    from ..scene import Scene, SceneConfig
+    from ..scene._gaussians import GaussiansSection
 
 
 class SplatSceneError(ValueError):
@@ -74,11 +79,11 @@ class SceneSplats:
         return self.render(x, camera).colour.numpy()
 
 
-def _fail(cfg: Any, field: str, msg: str) -> SplatSceneError:
+def _fail(cfg: SceneConfig, field: str, msg: str) -> SplatSceneError:
     return SplatSceneError(f"{cfg.source}: {field}: {msg}")
 
 
-def _object_range(cfg: Any, model: Any, index: int) -> tuple[int, int]:
+def _object_range(cfg: SceneConfig, model: Model, index: int) -> tuple[int, int]:
     name = cfg.object_names()[index]
     rec = next((o for o in model.objects if o["name"] == name), None)
     if rec is None:  # objects registered in file order
@@ -109,7 +114,13 @@ def _generate(spec: Any, X: np.ndarray, faces: np.ndarray, dtype: str, device: s
     )
 
 
-def scene_splats(cfg: Any, scene: Any) -> SceneSplats:
+def gaussians_section(cfg: SceneConfig) -> GaussiansSection | None:
+    """The scene's ``[gaussians]`` section, or None: a section that pliant/scene/_gaussians.py registers, so
+    not a field that SceneConfig declares (a type checker cannot see it as an attribute)."""
+    return getattr(cfg, "gaussians", None)
+
+
+def scene_splats(cfg: SceneConfig, scene: Scene) -> SceneSplats:
     """Build the ``[gaussians]`` splats of a built ``scene`` (its config ``cfg``) and bind them.
 
     Raises:
@@ -118,9 +129,13 @@ def scene_splats(cfg: Any, scene: Any) -> SceneSplats:
     """
     from ..scene._gaussians import object_index
 
-    spec = cfg.gaussians
+    spec = gaussians_section(cfg)
+    if spec is None:
+        raise _fail(cfg, "gaussians", "the scene has no [gaussians] section")
     model = scene.model
     index = object_index(cfg, spec)
+    if index is None:  # the scene's own checks reject this first; a hand-made config may skip them
+        raise _fail(cfg, "gaussians.object", f"no object {spec.object!r} in this scene")
     lo, hi = _object_range(cfg, model, index)
     X = model.particle_q_np[lo:hi].astype(np.float64)
     surface = object_surface(model)
@@ -165,10 +180,11 @@ def scene_splats(cfg: Any, scene: Any) -> SceneSplats:
     except ValueError as exc:
         raise _fail(cfg, "gaussians.bind", str(exc)) from None
     light = None if spec.light is None else tuple(float(v) for v in spec.light)
-    return SceneSplats(b, lo, hi, tuple(float(c) for c in spec.background), light)
+    bg = spec.background
+    return SceneSplats(b, lo, hi, (float(bg[0]), float(bg[1]), float(bg[2])), light)
 
 
-def scene_gaussians(scene: Any, *, per_triangle: int = 1) -> SceneSplats:
+def scene_gaussians(scene: Scene, *, per_triangle: int = 1) -> SceneSplats:
     """The Gaussians that draw a built ``scene`` (the one place that decides which): its ``[gaussians]``
     section's (:func:`scene_splats`) when it has one, else Gaussians generated deterministically from the
     whole model's surface on a black background (:func:`pliant.gaussians._surface.surface_gaussians`).
@@ -184,7 +200,7 @@ def scene_gaussians(scene: Any, *, per_triangle: int = 1) -> SceneSplats:
             with a section (its splats are the section's).
     """
     cfg = scene.config
-    if getattr(cfg, "gaussians", None) is not None:
+    if gaussians_section(cfg) is not None:
         if per_triangle != 1:
             raise SplatSceneError(
                 f"{cfg.source}: gaussians: per_triangle = {per_triangle} applies to generated surface "

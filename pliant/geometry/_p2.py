@@ -16,6 +16,8 @@ Everything here is NumPy (float64); the Warp kernels are in :mod:`pliant.energie
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 #: Corner pairs of the mid-edge nodes 4..9.
@@ -194,7 +196,7 @@ def p2_consistent_mass(points10: np.ndarray, tets10: np.ndarray, density: float)
 
 
 def locate_points_p2(
-    points: np.ndarray, points10: np.ndarray, tets10: np.ndarray, **kw: object
+    points: np.ndarray, points10: np.ndarray, tets10: np.ndarray, **kw: Any
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Embed points in a 10-node mesh: the element containing each one and its barycentric coordinates.
 

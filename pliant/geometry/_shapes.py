@@ -124,7 +124,7 @@ class ClothGrid:
         # g[j, i]: j along v (bottom -> top), i along u (left -> right).
         g = np.arange((self.nx + 1) * (self.ny + 1)).reshape(self.ny + 1, self.nx + 1)
         c = self.corner_indices
-        sets: dict[str, Sequence[int] | NDArray[np.int32]] = {
+        sets: dict[str, Sequence[int] | NDArray[np.integer]] = {
             **{k: [v] for k, v in c.items()},
             "top-corners": [c["top-left"], c["top-right"]],
             "bottom-corners": [c["bottom-left"], c["bottom-right"]],
@@ -150,7 +150,7 @@ def _pairs(a: NDArray[np.int32], b: NDArray[np.int32]) -> NDArray[np.int32]:
 def cloth_grid(
     nx: int,
     ny: int,
-    size: float | tuple[float, float] = (1.0, 1.0),
+    size: float | Sequence[float] = (1.0, 1.0),
     origin: ArrayLike = (0.0, 0.0, 0.0),
     plane: str = "xz",
 ) -> ClothGrid:
@@ -172,7 +172,8 @@ def cloth_grid(
     nx, ny = int(nx), int(ny)
     if plane not in _PLANES:
         raise ValueError(f"cloth_grid: plane must be one of {_PLANES}, got {plane!r}")
-    su, sv = (float(size), float(size)) if np.isscalar(size) else (float(size[0]), float(size[1]))
+    sizes = np.atleast_1d(np.asarray(size, dtype=float))  # one number: a square
+    su, sv = float(sizes[0]), float(sizes[1] if sizes.size > 1 else sizes[0])
     if not (np.isfinite(su) and np.isfinite(sv) and su > 0 and sv > 0):
         raise ValueError(f"cloth_grid: size must be positive (m), got {size!r}")
     ax_u, ax_v = _AXES[plane[0]], _AXES[plane[1]]

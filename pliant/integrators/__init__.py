@@ -22,7 +22,7 @@ def registered_integrators() -> tuple[type[Integrator], ...]:
     import inspect
 
     def no_required_arguments(cls: type) -> bool:
-        params = list(inspect.signature(cls.__init__).parameters.values())[1:]
+        params = list(inspect.signature(cls).parameters.values())
         return all(p.default is not p.empty or p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD) for p in params)
 
     return registered_subclasses(Integrator, no_required_arguments)

@@ -8,6 +8,7 @@ from typing import Any, ClassVar, Protocol
 
 import numpy as np
 import warp as wp
+from numpy.typing import ArrayLike
 
 from .._warp import fresh, grad_enabled
 from ._problems import ODEProblem, SecondOrderODE
@@ -90,7 +91,7 @@ class Integrator(abc.ABC):
     def solve(
         self,
         problem: ODEProblem | SecondOrderODE,
-        y0: np.ndarray | tuple[np.ndarray, np.ndarray],
+        y0: ArrayLike | tuple[ArrayLike, ArrayLike],
         t_end: float,
         dt: float,
         t0: float = 0.0,
@@ -159,11 +160,11 @@ def damping_rate_array(system: System) -> wp.array | None:
 
 
 def initial_state(
-    problem: ODEProblem | SecondOrderODE, y0: np.ndarray | tuple[np.ndarray, np.ndarray]
+    problem: ODEProblem | SecondOrderODE, y0: ArrayLike | tuple[ArrayLike, ArrayLike]
 ) -> np.ndarray:
     """``y0`` as a float64 vector: concat(v0, x0) for a SecondOrderODE (``y0`` = (x0, v0)), else a copy."""
     if isinstance(problem, SecondOrderODE):
-        x0, v0 = (np.atleast_1d(np.asarray(a, dtype=np.float64)) for a in y0)  # type: ignore[misc]
+        x0, v0 = (np.atleast_1d(np.asarray(a, dtype=np.float64)) for a in y0)  # type: ignore[union-attr]
         return np.concatenate([v0, x0])
     return np.atleast_1d(np.asarray(y0, dtype=np.float64)).copy()
 

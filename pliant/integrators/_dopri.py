@@ -5,13 +5,14 @@ from __future__ import annotations
 from typing import ClassVar
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ._base import Solution, System, first_order, initial_state
 from ._explicit import ExplicitRK
 from ._problems import ODEProblem, SecondOrderODE
 
 _C = [0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0, 1.0]
-_A = [
+_A: list[list[float]] = [
     [0, 0, 0, 0, 0, 0, 0],
     [1 / 5, 0, 0, 0, 0, 0, 0],
     [3 / 40, 9 / 40, 0, 0, 0, 0, 0],
@@ -61,7 +62,7 @@ class DormandPrince(ExplicitRK):
     def solve_adaptive(
         self,
         problem: ODEProblem | SecondOrderODE,
-        y0: np.ndarray | tuple[np.ndarray, np.ndarray],
+        y0: ArrayLike | tuple[ArrayLike, ArrayLike],
         t_end: float,
         rtol: float = 1e-6,
         atol: float = 1e-9,
@@ -86,7 +87,7 @@ class DormandPrince(ExplicitRK):
         k0 = p.rhs(t, y)
         nfev = 1
 
-        def norm(e: np.ndarray, ya: np.ndarray, yb: np.ndarray) -> float:
+        def norm(e: np.ndarray | float, ya: np.ndarray, yb: np.ndarray) -> float:
             sc = atol + rtol * np.maximum(np.abs(ya), np.abs(yb))
             return float(np.sqrt(np.mean((e / sc) ** 2)))
 

@@ -71,21 +71,21 @@ class SecondOrderODE:
             v, x = y[:n], y[n:]
             return np.concatenate([self.acceleration(t, x, v), v])
 
-        jac = None
-        if self.acceleration_jacobian is not None:
+        jac: Callable[[float, np.ndarray], np.ndarray] | None = None
+        if (acceleration_jacobian := self.acceleration_jacobian) is not None:
 
             def jac(t: float, y: np.ndarray) -> np.ndarray:
                 n = y.size // 2
                 v, x = y[:n], y[n:]
-                dadx, dadv = self.acceleration_jacobian(t, x, v)
+                dadx, dadv = acceleration_jacobian(t, x, v)
                 return np.block([[dadv, dadx], [np.eye(n), np.zeros((n, n))]])
 
-        energy = None
-        if self.energy is not None:
+        energy: Callable[[np.ndarray], float] | None = None
+        if (energy_xv := self.energy) is not None:
 
             def energy(y: np.ndarray) -> float:
                 n = y.size // 2
-                return self.energy(y[n:], y[:n])
+                return energy_xv(y[n:], y[:n])
 
         return ODEProblem(f=f, jac=jac, energy=energy)
 

@@ -303,7 +303,7 @@ class Observations:
                     "particles; bind the tracks to this scene's particles or drop the array"
                 )
             return self
-        seen = self.visible.any(axis=0)
+        seen = np.asarray(self.visible.any(axis=0))
         first = np.argmax(self.visible, axis=0)  # first visible frame of each track
         p = self.points[first, np.arange(self.tracks)]
         p = np.where(seen[:, None], p, xs[0].mean(axis=0))  # never-seen tracks: bound anywhere, never used

@@ -9,9 +9,14 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..model import Model
+    from ..scene import Scene
+    from ..solvers import Solver
 
 #: The grab's force cap, in weights of the grabbed object (M |g|): enough to lift and swing it.
 GRAB_WEIGHTS = 2.0
@@ -49,7 +54,7 @@ class LiveParameter:
     hi: float
 
 
-def live_parameters(scene: Any) -> dict[str, LiveParameter]:
+def live_parameters(scene: Scene) -> dict[str, LiveParameter]:
     """The material parameters of a built scene that :func:`write_parameter` can change: per-element ones
     (``pliant.fit``'s arrays: stiffness, E, compliance) and spring damping as factors in [0.1, 10], and the
     solver's velocity damping rate [1/s] when it has one.
@@ -70,7 +75,7 @@ def live_parameters(scene: Any) -> dict[str, LiveParameter]:
         if name == "compliance":  # the compliant sets only: a factor cannot soften a rigid one (α = 0)
             arrays = [
                 c.compliance_array
-                for c in constraints
+                for c in constraints or ()
                 if type(c).__name__ in ("Distance", "DihedralBending", "Volume")
                 and getattr(c, "compliance_array", None) is not None
                 and np.any(c.compliance_array.numpy() > 0)
@@ -107,7 +112,7 @@ def live_parameters(scene: Any) -> dict[str, LiveParameter]:
     return out
 
 
-def _explicit_springs(solver: Any) -> bool:
+def _explicit_springs(solver: Solver) -> bool:
     """Whether ``solver`` applies spring forces explicitly (an explicit integrator, or FastMassSpring's
     symplectic method): then a stiffer spring can cross the step's stability limit."""
     integrator = getattr(solver, "integrator", None)
@@ -116,7 +121,7 @@ def _explicit_springs(solver: Any) -> bool:
     return getattr(solver, "method", None) == "symplectic"
 
 
-def _stable_stiffness_factor(scene: Any) -> float:
+def _stable_stiffness_factor(scene: Scene) -> float:
     """The largest factor on every spring's k that keeps an explicit step of h = frame_dt / substeps stable,
     by Gershgorin's bound on M⁻¹K: λ_max ≤ max_i 2 Σ_j k_ij / m_i, and h² λ_max ≤ 4 (a safe bound: the true
     limit is at or above it)."""
@@ -132,7 +137,7 @@ def _stable_stiffness_factor(scene: Any) -> float:
     return float(np.min(2.0 * mass[free] / (h * h * ksum[free])))
 
 
-def _damping_attribute(solver: Any) -> str | None:
+def _damping_attribute(solver: Solver) -> str | None:
     """The solver attribute holding its velocity damping rate [1/s]: force solvers' and FastMassSpring's
     ``damping_rate``, XPBD / PBD's ``damping``; None when it has none (or a fixed factor instead)."""
     for attr in ("damping_rate", "damping"):
@@ -168,7 +173,9 @@ def write_parameter(session: LiveSession, name: str, value: float) -> None:
         for a, b in zip(p.arrays, p.base, strict=True):
             a.assign((b * value).astype(b.dtype))
         if name == "damping_rate":
-            setattr(session.sim.solver, _damping_attribute(session.sim.solver), value)
+            attr = _damping_attribute(session.sim.solver)
+            assert attr is not None  # "damping_rate" is offered only for a solver that has one
+            setattr(session.sim.solver, attr, value)
             arr = getattr(session.sim.solver, "damping_rate_array", None)
             if arr is not None:
                 arr.fill_(value)
@@ -176,7 +183,7 @@ def write_parameter(session: LiveSession, name: str, value: float) -> None:
         session.sim._solver_changed()
 
 
-def _object_ranges(model: Any) -> list[tuple[int, int]]:
+def _object_ranges(model: Model) -> list[tuple[int, int]]:
     """(start, stop) particle range of each object (the whole model when it lists none)."""
     spans = [(int(o["start"]), int(o["start"]) + int(o["count"])) for o in model.objects or []]
     return spans or [(0, model.particle_count)]
@@ -205,7 +212,7 @@ class LiveSession:
     """
 
     def __init__(
-        self, scene: Any, *, grab_weights: float = GRAB_WEIGHTS, grab_reach: float = GRAB_REACH
+        self, scene: Scene, *, grab_weights: float = GRAB_WEIGHTS, grab_reach: float = GRAB_REACH
     ) -> None:
         if not (grab_weights > 0 and grab_reach > 0):
             raise ValueError(f"grab_weights and grab_reach must be > 0, got {grab_weights}, {grab_reach}")
@@ -475,7 +482,7 @@ class LiveSession:
         return [Path(w) for w in written]
 
 
-def scene_trajectory_meta(scene: Any) -> dict[str, Any]:
+def scene_trajectory_meta(scene: Scene) -> dict[str, Any]:
     """What a saved trajectory carries beside the simulator's meta so that ``pliant view`` and
     ``pliant export`` draw the whole scene: its name, the ground height (None without one) and the drawn
     colliders (points and faces).

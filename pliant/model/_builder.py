@@ -30,7 +30,10 @@ class ModelBuilder(ShapesMixin):
     """
 
     def __init__(self, *, gravity: Sequence[float] = (0.0, -9.81, 0.0)) -> None:
-        self.gravity = tuple(float(g) for g in gravity)
+        g = tuple(float(v) for v in gravity)
+        if len(g) != 3:
+            raise ValueError(f"ModelBuilder: gravity must be 3 numbers (x, y, z) [m/s²], got {gravity!r}")
+        self.gravity: tuple[float, float, float] = (g[0], g[1], g[2])
         self._q: list[np.ndarray] = []
         self._qd: list[np.ndarray] = []
         self._mass: list[np.ndarray] = []
@@ -465,7 +468,7 @@ class ModelBuilder(ShapesMixin):
             render_faces=faces.astype(np.int32),
             tet_indices_np=tet_host.astype(np.int32),
             objects=list(self.objects),
-            world_count=1 if world_offsets is None else self._worlds["count"],
+            world_count=1 if self._worlds is None else self._worlds["count"],
             world_offsets=world_offsets,
             **p2,
         )

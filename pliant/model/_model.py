@@ -165,8 +165,8 @@ class Control:
         d = model.device
         rg = model.requires_grad  # forces and targets are differentiable inputs of a recorded rollout
         self.particle_f = wp.zeros(model.particle_count, dtype=model.vec3, device=d, requires_grad=rg)
-        self.kinematic_indices = wp.array(model.kinematic_indices_np, dtype=wp.int32, device=d)
-        self.kinematic_targets = wp.array(
+        self.kinematic_indices: wp.array = wp.array(model.kinematic_indices_np, dtype=wp.int32, device=d)
+        self.kinematic_targets: wp.array = wp.array(
             model.particle_q_np[model.kinematic_indices_np], dtype=model.vec3, device=d, requires_grad=rg
         )
         self.drag_index = -1

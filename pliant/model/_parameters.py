@@ -266,6 +266,11 @@ def check(owner: type, p: Parameter) -> None:
 _CACHE: list = []  # [owners, table]: rebuilt when a class registers
 
 
+def _declared(owner: type) -> tuple[Parameter, ...]:
+    """``owner.parameters()``, a class method that :func:`declares` checked the class has."""
+    return tuple(owner.parameters())  # type: ignore[attr-defined]  # any class may declare parameters
+
+
 def registry() -> dict[str, tuple[Parameter, tuple[type, ...]]]:
     """Every declared parameter of the classes imported so far: name → (its declaration, the classes that
     declare it). :func:`pliant.diff.parameters` imports every package that declares some first.
@@ -277,7 +282,7 @@ def registry() -> dict[str, tuple[Parameter, tuple[type, ...]]]:
         return dict(_CACHE[1])
     out: dict[str, tuple[Parameter, tuple[type, ...]]] = {}
     for owner in OWNERS:
-        for p in owner.parameters():
+        for p in _declared(owner):
             check(owner, p)
             if p.name in out:
                 first, owners = out[p.name]

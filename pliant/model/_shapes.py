@@ -7,8 +7,8 @@ makes geometry with :mod:`pliant.geometry` and adds it through the builder's ele
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -19,6 +19,18 @@ _PIN_NAMES = ("top-corners", "top-edge", "corners", "top-left", "top-right", "no
 
 class ShapesMixin:
     """Composite shapes of :class:`pliant.model.ModelBuilder` (see there)."""
+
+    if TYPE_CHECKING:  # what the shapes use of ModelBuilder, the one class this mixes into
+        _render_faces: list[np.ndarray]
+        _tet_host: list[np.ndarray]
+        add_particles: Callable[..., int]
+        add_springs: Callable[..., None]
+        add_triangles: Callable[..., None]
+        add_bending: Callable[..., None]
+        add_tetrahedra: Callable[..., None]
+        add_quadratic_tetrahedra: Callable[..., None]
+        pin: Callable[[Any], None]
+        register_object: Callable[..., None]
 
     def add_rope(
         self,
@@ -148,7 +160,7 @@ class ShapesMixin:
         if isinstance(pin, str):
             if pin not in _PIN_NAMES:
                 raise ValueError(f"cloth pin must be one of {_PIN_NAMES} or indices, got {pin!r}")
-            local = [] if pin == "none" else g.pin_indices(pin)
+            local: Sequence[int] | np.ndarray = [] if pin == "none" else g.pin_indices(pin)
         else:
             local = list(pin)
         self.pin(np.asarray(local, dtype=np.int64) + first)
@@ -195,7 +207,8 @@ class ShapesMixin:
         """
         from ..geometry import box_tets
 
-        mesh = box_tets(*cells, size=size, origin=np.asarray(origin) - 0.5 * np.asarray(size))
+        nx, ny, nz = cells
+        mesh = box_tets(nx, ny, nz, size=size, origin=np.asarray(origin) - 0.5 * np.asarray(size))
         return self._add_tet_mesh(
             mesh.points,
             mesh.tets,

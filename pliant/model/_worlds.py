@@ -16,11 +16,14 @@ unchanged. The price is that solver-level settings (damping rate, time step, gro
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ._parameters import RegistryView, parameter
+
+if TYPE_CHECKING:
+    from ._model import Model
 
 #: Element kinds with a per-world block: name → the builder's list of per-call element tuples.
 KINDS = ("particle", "spring", "tri", "tet", "bending")
@@ -118,7 +121,7 @@ PARAMETERS: Mapping[str, tuple[str, str]] = RegistryView(
 )
 
 
-def world_slice(model: Any, kind: str, w: int) -> slice:
+def world_slice(model: Model, kind: str, w: int) -> slice:
     """Element range of world ``w`` for ``kind`` ("particle", "spring", "tri", "tet", "bending")."""
     if kind not in KINDS:
         raise ValueError(f"world_slice: kind must be one of {KINDS}, got {kind!r}")
@@ -138,7 +141,7 @@ def world_slice(model: Any, kind: str, w: int) -> slice:
     return slice(int(off[w]), int(off[w + 1]))
 
 
-def set_world_parameter(model: Any, name: str, w: int, value: Any) -> None:
+def set_world_parameter(model: Model, name: str, w: int, value: Any) -> None:
     """Set parameter ``name`` of world ``w`` (see :meth:`pliant.model.Model.set_world_parameter`)."""
     import warp as wp
 
@@ -185,11 +188,13 @@ def write_range(arr: Any, sl: slice, values: np.ndarray, dtype: str) -> None:
         return
     from .._warp import np_dtype
 
-    src = wp.array(np.ascontiguousarray(values, dtype=np_dtype(dtype)), dtype=arr.dtype, device=arr.device)
+    src: wp.array = wp.array(
+        np.ascontiguousarray(values, dtype=np_dtype(dtype)), dtype=arr.dtype, device=arr.device
+    )
     wp.copy(arr, src, dest_offset=sl.start, src_offset=0, count=sl.stop - sl.start)
 
 
-def set_world_material(model: Any, w: int, E: Any, nu: Any) -> None:
+def set_world_material(model: Model, w: int, E: Any, nu: Any) -> None:
     """Young's modulus ``E`` [Pa] and Poisson ratio ``nu`` of world ``w``'s tets (scalars or per tet)."""
     from ._materials import lame_parameters
 
@@ -206,7 +211,7 @@ def set_world_material(model: Any, w: int, E: Any, nu: Any) -> None:
     set_world_parameter(model, "tet_lam", w, np.broadcast_to(lam, (count,)))
 
 
-def set_world_state(model: Any, w: int, x: Any = None, v: Any = None) -> None:
+def set_world_state(model: Model, w: int, x: Any = None, v: Any = None) -> None:
     """Replace world ``w``'s initial positions ``x`` [m] and/or velocities ``v`` [m/s] ([P, 3] each)."""
     sl = world_slice(model, "particle", w)
     count = sl.stop - sl.start
@@ -225,7 +230,7 @@ def set_world_state(model: Any, w: int, x: Any = None, v: Any = None) -> None:
             model.particle_q_np[sl] = a
 
 
-def reset_world(model: Any, state: Any, w: int) -> None:
+def reset_world(model: Model, state: Any, w: int) -> None:
     """Copy world ``w``'s initial positions and velocities into ``state`` (the others are untouched)."""
     import warp as wp
 

@@ -199,7 +199,14 @@ class Camera:
         # A provisional camera for the basis (which depends only on d); its distance must be resolvable
         # next to the coordinates' size.
         reach = max(1.0, float(np.max(np.abs(center))), float(np.max(hi - lo)))
-        cam = cls(eye=center + reach * d, target=center, up=up, fov_y=fov_y, width=width, height=height)
+        cam = cls(
+            eye=center + reach * d,
+            target=center,
+            up=np.asarray(up, float),
+            fov_y=fov_y,
+            width=width,
+            height=height,
+        )
         right, upv, _ = cam.basis()
         corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
         if np.max(hi - lo) <= 1e-9 * max(1.0, float(np.max(np.abs(center)))):
@@ -213,4 +220,11 @@ class Camera:
         tan_x = tan_y * width / height
         dist = np.max(np.maximum(s + np.abs(rel @ right) / tan_x, s + np.abs(rel @ upv) / tan_y))
         dist = max(float(dist), 1.05 * float(np.max(s)), 1e-9)  # every point in front of the eye
-        return cls(eye=center + dist * d, target=center, up=up, fov_y=fov_y, width=width, height=height)
+        return cls(
+            eye=center + dist * d,
+            target=center,
+            up=np.asarray(up, float),
+            fov_y=fov_y,
+            width=width,
+            height=height,
+        )

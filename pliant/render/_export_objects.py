@@ -13,9 +13,12 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..io import Trajectory
 
 __all__ = [
     "ObjectPart",
@@ -52,7 +55,7 @@ def _local(cells: np.ndarray | None, start: int, count: int, width: int) -> np.n
     return (c[inside] - start).astype(np.int32)
 
 
-def trajectory_objects(traj: Any) -> list[ObjectPart]:
+def trajectory_objects(traj: Trajectory) -> list[ObjectPart]:
     """The objects of ``traj`` (a :class:`pliant.io.Trajectory`), from ``meta["objects"]`` when present.
 
     Particles no object claims (added by hand without ``register_object``) become ``particles_<first>``
@@ -73,7 +76,7 @@ def trajectory_objects(traj: Any) -> list[ObjectPart]:
         at = s + c
     if at < n:
         listed.append((at, n - at, {"name": "body" if not spans else f"particles_{at}", "kind": "particles"}))
-    parts = []
+    parts: list[ObjectPart] = []
     for start, count, o in listed:
         if count == 0:
             continue
@@ -105,7 +108,7 @@ def _prim_names(parts: list[ObjectPart]) -> list[str]:
     return out
 
 
-def _time_codes(traj: Any, fps: float) -> np.ndarray:
+def _time_codes(traj: Trajectory, fps: float) -> np.ndarray:
     t = np.asarray(traj.t, np.float64)
     return (t - t[0]) * fps
 
@@ -119,7 +122,7 @@ def _extent(xk: np.ndarray, pad: float = 0.0) -> tuple[np.ndarray, np.ndarray] |
 
 def export_usd_objects(
     path: str | os.PathLike,
-    traj: Any,
+    traj: Trajectory,
     fps: float | None = None,
     *,
     point_radius: float | None = None,
@@ -217,7 +220,7 @@ def export_usd_objects(
             code = Usd.TimeCode(float(codes[f]))
             xk = np.ascontiguousarray(xs[f, sl], np.float32)
             points_attr.Set(Vt.Vec3fArray.FromNumpy(xk), code)
-            if vel_attr is not None:
+            if vel_attr is not None and vs is not None:
                 vel_attr.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(vs[f, sl], np.float32)), code)
             box = _extent(xk, pad)
             if box is not None:
@@ -249,7 +252,7 @@ def export_usd_objects(
     return path
 
 
-def _cells(traj: Any, lines: bool = True) -> list[tuple[str, np.ndarray]]:
+def _cells(traj: Trajectory, lines: bool = True) -> list[tuple[str, np.ndarray]]:
     """meshio cell blocks with global particle indices: tets, triangles of objects without tets, rope
     segments (``lines``; else their particles as vertices), and single vertices of point objects."""
     blocks: dict[str, list[np.ndarray]] = {"tetra": [], "triangle": [], "line": [], "vertex": []}
@@ -266,13 +269,13 @@ def _cells(traj: Any, lines: bool = True) -> list[tuple[str, np.ndarray]]:
     return [(k, np.concatenate(v).astype(np.int64)) for k, v in blocks.items() if v]
 
 
-def curve_segments(traj: Any) -> np.ndarray:
+def curve_segments(traj: Trajectory) -> np.ndarray:
     """The links of the trajectory's ropes as particle-index pairs [S, 2] (empty without a rope): what an
     OBJ export writes as ``l`` lines so that a rope is a curve, not loose vertices."""
     return dict(_cells(traj)).get("line", np.zeros((0, 2), np.int64))
 
 
-def export_vtu_series(folder: str | os.PathLike, traj: Any, *, prefix: str = "frame_") -> list[Path]:
+def export_vtu_series(folder: str | os.PathLike, traj: Trajectory, *, prefix: str = "frame_") -> list[Path]:
     """Writes one VTU per frame (``folder/frame_0000.vtu`` ...) and ``folder/<prefix>series.pvd``, the
     ParaView collection with each frame's time [s]. Point data: ``velocity`` [m/s] when recorded.
 
@@ -306,7 +309,7 @@ def export_vtu_series(folder: str | os.PathLike, traj: Any, *, prefix: str = "fr
     return paths
 
 
-def export_xdmf(path: str | os.PathLike, traj: Any) -> Path:
+def export_xdmf(path: str | os.PathLike, traj: Trajectory) -> Path:
     """Writes an XDMF time series (``path`` and its ``.h5``) through meshio. XDMF series share one
     geometry, so the frame-0 positions are the mesh and each step carries ``displacement`` (x - x0) [m]
     (ParaView: the "Warp By Vector" filter moves the mesh by it) and ``velocity`` [m/s] when recorded.

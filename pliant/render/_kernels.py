@@ -46,16 +46,16 @@ def _lambert(n: wp.vec3, light: wp.vec3, ambient: float) -> float:
 def vertex_normals_kernel(
     x: wp.array(dtype=wp.vec3),
     faces: wp.array(dtype=wp.vec3i),
-    normals: wp.array(dtype=wp.vec3),
+    normals_out: wp.array(dtype=wp.vec3),
 ):
-    """Accumulates area-weighted face normals onto vertices (normals must be zeroed)."""
+    """Accumulates area-weighted face normals_out onto vertices (normals_out must be zeroed)."""
     f = wp.tid()
     t = faces[f]
     p0 = x[t[0]]
     n = wp.cross(x[t[1]] - p0, x[t[2]] - p0)
-    wp.atomic_add(normals, t[0], n)
-    wp.atomic_add(normals, t[1], n)
-    wp.atomic_add(normals, t[2], n)
+    wp.atomic_add(normals_out, t[0], n)
+    wp.atomic_add(normals_out, t[1], n)
+    wp.atomic_add(normals_out, t[2], n)
 
 
 @wp.kernel
@@ -72,8 +72,8 @@ def raster_triangles_kernel(
     light: wp.vec3,
     ambient: float,
     near: float,
-    depth: wp.array2d(dtype=float),
-    image: wp.array2d(dtype=wp.vec3),
+    depth_io: wp.array2d(dtype=float),
+    image_out: wp.array2d(dtype=wp.vec3),
 ):
     """One thread per triangle: z-buffered, two-sided Lambert shading of its covered pixels."""
     f = wp.tid()
@@ -88,8 +88,8 @@ def raster_triangles_kernel(
     area = _edge(a[0], a[1], b[0], b[1], c[0], c[1])
     if wp.abs(area) < 1.0e-12:
         return
-    height = depth.shape[0]
-    width = depth.shape[1]
+    height = depth_io.shape[0]
+    width = depth_io.shape[1]
     x0 = _pixel_lo(wp.min(wp.min(a[0], b[0]), c[0]), width)
     x1 = _pixel_hi(wp.max(wp.max(a[0], b[0]), c[0]), width)
     y0 = _pixel_lo(wp.min(wp.min(a[1], b[1]), c[1]), height)
@@ -138,8 +138,8 @@ def raster_triangles_kernel(
             w2 = _edge(a[0], a[1], b[0], b[1], fx, fy) * inv_area
             if w0 >= _COVER_EPS and w1 >= _COVER_EPS and w2 >= _COVER_EPS:
                 iz = w0 * iz0 + w1 * iz1 + w2 * iz2
-                if iz > depth[py, px]:
-                    depth[py, px] = iz
+                if iz > depth_io[py, px]:
+                    depth_io[py, px] = iz
                     # Perspective-correct barycentrics.
                     q0 = w0 * iz0 / iz
                     q1 = w1 * iz1 / iz
@@ -153,7 +153,7 @@ def raster_triangles_kernel(
                     if edge_px > 0.0:
                         if wp.min(wp.min(w0 * e0, w1 * e1), w2 * e2) < edge_px:
                             shade = shade * 0.45
-                    image[py, px] = (q0 * c0 + q1 * c1 + q2 * c2) * shade
+                    image_out[py, px] = (q0 * c0 + q1 * c1 + q2 * c2) * shade
 
 
 @wp.kernel
@@ -166,8 +166,8 @@ def raster_points_kernel(
     light_view: wp.vec3,
     ambient: float,
     near: float,
-    depth: wp.array2d(dtype=float),
-    image: wp.array2d(dtype=wp.vec3),
+    depth_io: wp.array2d(dtype=float),
+    image_out: wp.array2d(dtype=wp.vec3),
 ):
     """One thread per particle: a z-buffered, Lambert-shaded sphere impostor."""
     i = wp.tid()
@@ -176,8 +176,8 @@ def raster_points_kernel(
         return
     rp = radius_px[i]
     rm = radius_m[i]
-    height = depth.shape[0]
-    width = depth.shape[1]
+    height = depth_io.shape[0]
+    width = depth_io.shape[1]
     x0 = _pixel_lo(s[0] - rp, width)
     x1 = _pixel_hi(s[0] + rp, width)
     y0 = _pixel_lo(s[1] - rp, height)
@@ -196,18 +196,18 @@ def raster_points_kernel(
                 z = s[2] - rm * nz
                 if z > near:
                     iz = 1.0 / z
-                    if iz > depth[py, px]:
-                        depth[py, px] = iz
+                    if iz > depth_io[py, px]:
+                        depth_io[py, px] = iz
                         # Camera frame: x right, y up, z forward; the visible cap faces -z.
                         n = wp.vec3(dx, -dy, -nz)
-                        image[py, px] = col * _lambert(n, light_view, ambient)
+                        image_out[py, px] = col * _lambert(n, light_view, ambient)
 
 
 @wp.kernel
 def shadow_triangles_kernel(
     ls: wp.array(dtype=wp.vec3),
     faces: wp.array(dtype=wp.vec3i),
-    smap: wp.array2d(dtype=float),
+    smap_io: wp.array2d(dtype=float),
 ):
     """Orthographic light-space rasterization keeping the largest height towards the light."""
     f = wp.tid()
@@ -221,7 +221,7 @@ def shadow_triangles_kernel(
     area = _edge(a[0], a[1], b[0], b[1], c[0], c[1])
     if wp.abs(area) < 1.0e-12:
         return
-    n = smap.shape[0]
+    n = smap_io.shape[0]
     x0 = _pixel_lo(wp.min(wp.min(a[0], b[0]), c[0]), n)
     x1 = _pixel_hi(wp.max(wp.max(a[0], b[0]), c[0]), n)
     y0 = _pixel_lo(wp.min(wp.min(a[1], b[1]), c[1]), n)
@@ -236,8 +236,8 @@ def shadow_triangles_kernel(
             w2 = 1.0 - w0 - w1
             if w0 >= _COVER_EPS and w1 >= _COVER_EPS and w2 >= _COVER_EPS:
                 h = w0 * a[2] + w1 * b[2] + w2 * c[2]
-                if h > smap[py, px]:
-                    smap[py, px] = h
+                if h > smap_io[py, px]:
+                    smap_io[py, px] = h
 
 
 @wp.kernel
@@ -245,7 +245,7 @@ def shadow_points_kernel(
     ls: wp.array(dtype=wp.vec3),
     radius_px: wp.array(dtype=float),
     radius_m: wp.array(dtype=float),
-    smap: wp.array2d(dtype=float),
+    smap_io: wp.array2d(dtype=float),
 ):
     """Light-space discs for particle shadows."""
     i = wp.tid()
@@ -253,7 +253,7 @@ def shadow_points_kernel(
     if s[2] < -1.0e29:
         return
     rp = wp.max(radius_px[i], 0.5)
-    n = smap.shape[0]
+    n = smap_io.shape[0]
     x0 = _pixel_lo(s[0] - rp, n)
     x1 = _pixel_hi(s[0] + rp, n)
     y0 = _pixel_lo(s[1] - rp, n)
@@ -265,8 +265,8 @@ def shadow_points_kernel(
             d2 = dx * dx + dy * dy
             if d2 <= 1.0:
                 h = s[2] + radius_m[i] * wp.sqrt(1.0 - d2)
-                if h > smap[py, px]:
-                    smap[py, px] = h
+                if h > smap_io[py, px]:
+                    smap_io[py, px] = h
 
 
 @wp.func
@@ -341,8 +341,8 @@ def ground_kernel(
     color_b: wp.vec3,
     background: wp.vec3,
     lit: float,
-    depth: wp.array2d(dtype=float),
-    image: wp.array2d(dtype=wp.vec3),
+    depth_out: wp.array2d(dtype=float),
+    image_out: wp.array2d(dtype=wp.vec3),
 ):
     """One thread per pixel: clears to the background or ray-casts the ground plane y = ground_y.
 
@@ -367,8 +367,8 @@ def ground_kernel(
                 )
                 color = base * lit * (1.0 - fade) + background * fade
             inv_depth = 1.0 / (t * focal)
-    depth[i, j] = inv_depth
-    image[i, j] = color
+    depth_out[i, j] = inv_depth
+    image_out[i, j] = color
 
 
 @wp.kernel
@@ -400,11 +400,11 @@ def ground_shadow_kernel(
     s_v0: float,
     s_scale: float,
     s_bias: float,
-    image: wp.array2d(dtype=wp.vec3),
+    image_out: wp.array2d(dtype=wp.vec3),
 ):
     """Re-shades shadowed ground pixels of the sub-rectangle starting at pixel (i0, j0).
 
-    Expects ``image`` to hold the unshadowed ground from ``ground_kernel``; a 3x3 PCF lookup in
+    Expects ``image_out`` to hold the unshadowed ground from ``ground_kernel``; a 3x3 PCF lookup in
     the light-space height map gives soft shadow edges. Unshadowed pixels are left untouched.
     """
     ti, tj = wp.tid()
@@ -438,7 +438,7 @@ def ground_shadow_kernel(
     fade = wp.clamp((r - fade0) / (fade1 - fade0), 0.0, 1.0)
     base = _ground_base(eye, right, up, fwd, focal, cx, cy, fx, fy, hit, ground_y, tile, color_a, color_b)
     shade = lit + (shadowed - lit) * occluded / 9.0
-    image[i, j] = base * shade * (1.0 - fade) + background * fade
+    image_out[i, j] = base * shade * (1.0 - fade) + background * fade
 
 
 @wp.kernel

@@ -295,13 +295,13 @@ class Renderer:
                 if smooth:
                     wp.launch(
                         K.vertex_normals_kernel,
-                        dim=len(tri),
+                        dim=wp_tri.shape[0],
                         inputs=[wp_world, wp_tri, wp_normals],
                         device=DEVICE,
                     )
                 wp.launch(
                     K.raster_triangles_kernel,
-                    dim=len(tri),
+                    dim=wp_tri.shape[0],
                     inputs=[
                         wp_screen,
                         wp_world,
@@ -321,6 +321,7 @@ class Renderer:
                     device=DEVICE,
                 )
             elif tri is None:
+                assert radius_px is not None and radius_m is not None  # set above for points without faces
                 light_view = np.array([self.light_dir @ right, self.light_dir @ up, self.light_dir @ fwd])
                 wp.launch(
                     K.raster_points_kernel,
@@ -364,6 +365,7 @@ class Renderer:
             rm = np.broadcast_to(np.asarray(point_radius, np.float64), (n,))
             rp = rm * focal / zpos
         else:
+            assert point_radius_px is not None  # one of the two radii is set above
             rp = np.full(n, float(point_radius_px) * self.supersample)
             rm = rp * zpos / focal
         # At least ~1 output pixel so tiny or distant particles stay visible.

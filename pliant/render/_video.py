@@ -285,7 +285,6 @@ def render_video(
         r = default_point_radius(x[idx[0]])
         point_radius = r if r > 0.0 else 0.01 * camera.distance
     col = None if colors is None else np.asarray(colors)
-    per_frame_colors = col is not None and col.ndim == 3
     renderer = Renderer(camera, ground=ground, **renderer_options)
 
     from tqdm.auto import tqdm
@@ -297,11 +296,12 @@ def render_video(
                 last_img = renderer.render(
                     x[i],
                     faces,
-                    colors=col[i] if per_frame_colors else col,
+                    colors=col[i] if col is not None and col.ndim == 3 else col,  # per-frame colours
                     point_radius=point_radius,
                     point_radius_px=point_radius_px,
                 )
                 last_i = int(i)
+            assert last_img is not None  # the first index always renders
             vw.append_frame(last_img)
     return vw.path
 

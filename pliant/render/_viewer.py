@@ -13,11 +13,14 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ._export_objects import ObjectPart, _prim_names, trajectory_objects
+
+if TYPE_CHECKING:
+    from ..io import Trajectory
 
 #: Object colours (RGB 0-255), one per object in turn.
 PALETTE = [(90, 160, 230), (230, 130, 70), (110, 190, 110), (200, 90, 160), (220, 200, 80), (120, 120, 220)]
@@ -53,7 +56,7 @@ class Viewer:
 
     server: Any
     url: str
-    traj: Any
+    traj: Trajectory
     parts: list[ObjectPart]
     nodes: dict[str, str] = field(default_factory=dict)
     frame: int = 0
@@ -104,7 +107,7 @@ def move_nodes(handles: list[tuple[Any, ObjectPart]], x: np.ndarray) -> None:
 
 
 def add_object_nodes(
-    server: Any, traj: Any, x0: np.ndarray, *, spheres: float = 0.0
+    server: Any, traj: Trajectory, x0: np.ndarray, *, spheres: float = 0.0
 ) -> tuple[list[tuple[Any, ObjectPart]], dict[str, str]]:
     """One scene node per object of ``traj`` at positions ``x0`` [N, 3], plus its colliders and ground.
 
@@ -189,7 +192,9 @@ def add_object_nodes(
     return handles, nodes
 
 
-def serve_viewer(traj: Any, *, host: str = "127.0.0.1", port: int = 8080, verbose: bool = False) -> Viewer:
+def serve_viewer(
+    traj: Trajectory, *, host: str = "127.0.0.1", port: int = 8080, verbose: bool = False
+) -> Viewer:
     """Serve ``traj`` (a :class:`pliant.io.Trajectory`) in the browser at ``http://host:port``.
 
     Args:

@@ -20,11 +20,15 @@ import os
 import platform
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .. import integrators as I  # noqa: N812
+
+if TYPE_CHECKING:
+    from ..model import Model, State
+    from ..solvers import ForceSolver
 
 #: Row order of the study's tables (a registered integrator not named here follows, by name).
 _TABLE_ORDER = (
@@ -221,11 +225,13 @@ def _cloth_model(n: int, stiffness: float, dtype: str) -> Any:
     return b.finalize(device="cpu", dtype=dtype)
 
 
-def _total_energy(solver: Any, state: Any) -> float:
+def _total_energy(solver: ForceSolver, state: State) -> float:
     return float(sum(solver.energy(state).values()))
 
 
-def _cloth_run(model: Any, integ: I.Integrator, substeps: int, frames: int, *, measure: bool = False) -> dict:
+def _cloth_run(
+    model: Model, integ: I.Integrator, substeps: int, frames: int, *, measure: bool = False
+) -> dict:
     """Run ``frames`` frames of 1/60 s with ``substeps`` substeps; raises DivergenceError if it blows up."""
     from ..energies import Gravity, Springs
     from ..sim import DivergenceError, Simulator
@@ -250,7 +256,7 @@ def _cloth_run(model: Any, integ: I.Integrator, substeps: int, frames: int, *, m
             e = _total_energy(solver, sim.state_0)
             if e - e0 > ENERGY_SCALE_J:
                 raise DivergenceError(sim.frame, "energy gain (J)", e - e0, "lower dt")
-    out = {"wall_s": wall, "simulated_s": frames / 60.0}
+    out: dict[str, float | None] = {"wall_s": wall, "simulated_s": frames / 60.0}
     if measure:
         e1 = _total_energy(solver, sim.state_0)
         out.update(
@@ -314,7 +320,7 @@ def cloth_stability(
     }
 
 
-def _warmup(model: Any, integrator_cls: type) -> None:
+def _warmup(model: Model, integrator_cls: type) -> None:
     """Compile the kernels once (one frame, one substep), ignoring a blow-up."""
     from ..sim import DivergenceError
 
