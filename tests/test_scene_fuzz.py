@@ -546,7 +546,7 @@ def _observations(kind: str, frames: int = 3) -> bytes:
 #: (observation kind, extra `pliant fit` arguments, the exit codes it may end with).
 FIT_CASES = [
     # The nominal rollout diverges within the file's 3 frames (k = 3000 N/m at one substep): one line, exit 2.
-    # (At the scene's k = 300 only some CMA-ES candidates diverge there, so which run fails is left to chance.)
+    # (At k = 300 only some CMA-ES candidates diverge there, so which run fails was left to chance.)
     ("tracks", ["--set", "scene.substeps=1", "--set", "objects[0].material.stiffness=3000"], (2,)),
     ("images", ["--set", "scene.substeps=1"], (0, 2)),  # a photometric fit over diverging candidates
     ("tracks", ["--set", "objects[0].material.stiffness=1e12"], (0, 2)),

@@ -18,7 +18,7 @@ import argparse
 import os
 import sys
 from collections.abc import Sequence
-from typing import Any, NoReturn
+from typing import NoReturn
 
 # The exit codes and CliError live in ._common, below the command modules; pliant.cli.* still names them.
 from ._common import (  # noqa: F401 - EXIT_OK is re-exported
