@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# One prepared device call for a session that is lent a GPU (issue 24): the CUDA tests, then the figures the
+# open issues ask for on a GPU, each bounded in time so that one call (at most 10 minutes) returns all of
+# them. Run it as device call 2 of ../shared/gpu/README.md (after Warp is staged), from the repository root:
+#
+#   cp ../shared/gpu/bench_gpu.py .gpu/b/        # here, before the call (the harness is not in the tree)
+#   bash .gpu/b/stage_b.sh && source $HOME/gpu/env.sh && bash benchmarks/gpu_check.sh
+#
+# Every step writes into $OUT (the device tool brings it back); a step that fails or runs out of time is
+# recorded in $OUT/steps.txt and the script goes on, so one slow step never costs the others' figures.
+# Budget (seconds): tests 150, graphs 60, drape/xpbd harness 150, fits 150 — 510 s with start-up.
+set -u
+OUT=${OUT:-out/gpu}
+mkdir -p "$OUT"
+DEV=${DEV:-cuda:0}
+PY=${PY:-python3}
+export PYTHONPATH=${PYTHONPATH:-}:$PWD
+
+step() {  # step NAME SECONDS COMMAND...: run one step under a time limit, log its exit code and wall time
+    local name=$1 limit=$2
+    shift 2
+    local t0=$SECONDS
+    timeout "$limit" "$@" >"$OUT/$name.log" 2>&1
+    echo "$name rc=$? wall_s=$((SECONDS - t0))" | tee -a "$OUT/steps.txt"
+}
+
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv >"$OUT/gpu.txt" 2>&1
+$PY -c "import warp as wp; wp.init(); print(wp.__version__, wp.get_cuda_devices())" >>"$OUT/gpu.txt" 2>&1
+
+# 1. Correctness on CUDA: every device-parametrised test, graph replay equal to direct steps, the examples.
+step tests 150 $PY -m pytest -q -x -n 8 -p no:cacheprovider -k cuda \
+    tests/test_devices.py tests/test_graph.py tests/test_collisions.py tests/test_gaussians.py \
+    tests/test_gaussians_bind.py
+# 2. Graph replay against launch by launch, side by side, every scene the Simulator can replay.
+step graphs 60 $PY benchmarks/bench_graph.py --device "$DEV" --rounds 3 --frames 10
+# 3. The measured gap: pliant against Newton on the drape and XPBD (harness of ../shared/gpu).
+if [ -f .gpu/b/bench_gpu.py ]; then
+    step harness 150 $PY .gpu/b/bench_gpu.py "$DEV" "$OUT/rows.jsonl" drape xpbd
+fi
+# 4. Issues 25 and 30's figures on a GPU: the default fits of MuJoCo's cloth tracks and footage.
+step fit_tracks 60 $PY -m pliant.cli fit tests/data/foreign/mujoco_cloth.toml \
+    tests/data/foreign/mujoco_cloth.npz --out "$OUT/fit_tracks" --device "$DEV" --no-video -q
+step fit_footage 90 $PY -m pliant.cli fit tests/data/foreign/mujoco_cloth.toml \
+    tests/data/foreign/mujoco_cloth_video.npz --out "$OUT/fit_footage" --device "$DEV" --no-video -q
+cat "$OUT/steps.txt"
