@@ -206,6 +206,26 @@ def test_tolerance_stops_where_the_host_loop_stopped(iterations, every, dtype):
         assert len({next((k for k in checked if res[k] <= t), iterations) for t in tols}) == len(tols)
 
 
+def test_tolerance_steps_replay_their_recorded_launches():
+    """Repeated steps with a tolerance replay their recorded launches (``replay``), the loop bodies too:
+    bit for bit the steps launched afresh, with the same sweep count per step although it changes from
+    step to step (2 while the cloth barely moves, so the loop body first runs, and is recorded, in a
+    replayed step; up to the cap of 30, where the unchecked last sweeps run)."""
+    model = cloth_model(8)
+    runs = []
+    for replay in (True, False):
+        solver = XPBD(model, iterations=30, tolerance=1e-3, check_every=2)
+        solver.replay = replay
+        counts: list[int] = []
+        s = run(model, solver, 12, 1e-2, each=lambda _, sv=solver, c=counts: c.append(sv.last_iterations))
+        runs.append((s.particle_q.numpy(), counts, len(solver._plans)))
+    (x, counts, plans), (x_direct, counts_direct, no_plans) = runs
+    np.testing.assert_array_equal(x, x_direct)
+    assert counts == counts_direct
+    assert counts[0] == 2 and counts[-1] == 30 and len(set(counts)) >= 3, counts
+    assert plans == 2 and no_plans == 0  # one plan per ping-pong order of the states
+
+
 def test_tolerance_is_refused_where_a_fixed_count_is_needed():
     model = cloth_model(4)
     with pytest.raises(ValueError, match="PBD"):

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -79,8 +79,7 @@ class XPBD(Solver):
             other (on CUDA this needs conditional graph nodes, CUDA 12.4+; without them the frame runs
             launch by launch, :meth:`graph_blocker`). The positions equal those of a run with
             ``iterations`` = :attr:`last_iterations`. XPBD only (PBD's per-sweep stiffness depends on the
-            sweep count), and not with gradients (they need a fixed count). The launch replay
-            (``replay``) is off while a tolerance is set: a recorded plan has a fixed sweep count.
+            sweep count), and not with gradients (they need a fixed count).
         check_every: sweeps between two residual checks (each costs one residual pass; launched directly,
             also one host read of the flag, which a captured graph does not need).
         collisions: contact handlers run after each step, each with ``apply(model, state_in, state_out,
@@ -179,8 +178,7 @@ class XPBD(Solver):
         self._last_dt: float | None = None
         self._last_p: wp.array | None = None
         #: Replay recorded launches for repeated identical steps (set False to launch afresh every step).
-        #: Off with a tolerance: a recorded plan has a fixed sweep count.
-        self.replay = not self.requires_grad and self.tolerance is None
+        self.replay = not self.requires_grad
         self._plans: dict[tuple, list] = {}
         self._recording: list | None = None
 
@@ -256,19 +254,18 @@ class XPBD(Solver):
     def step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
         """Advance ``state_in`` by ``dt`` [s] into ``state_out`` (Algorithm 1); ``state_in`` is only read.
 
-        The first step for a given (states, control, Δt) records its launches; later identical steps replay
-        them (``wp.Launch``), which removes most of the per-step Python cost. Scalar control inputs (the
-        drag handle) are part of the key, array contents (forces, kinematic targets) are read at replay.
+        The first step for a given (states, control, Δt, sweep settings) records its launches; later
+        identical steps replay them (``wp.Launch``), which removes most of the per-step Python cost. Scalar
+        control inputs (the drag handle) are part of the key, array contents (forces, kinematic targets) are
+        read at replay. With a tolerance the loop bodies are recorded too (``_recorded``).
         """
-        # A tolerance may be set after construction: plans (a fixed sweep count) are off while it is.
-        replay = self.replay and self.tolerance is None
         key = self._plan_key(state_in, state_out, control, dt)
-        plan = self._plans.get(key) if replay else None
+        plan = self._plans.get(key) if self.replay else None
         if plan is not None:
             for f in plan:
                 f()
         else:
-            self._recording = [] if replay else None
+            self._recording = [] if self.replay else None
             try:
                 self._step(state_in, state_out, control, dt)
                 if self._recording is not None:
@@ -305,7 +302,8 @@ class XPBD(Solver):
 
     def _plan_key(self, state_in: State, state_out: State, control: Control | None, dt: float) -> tuple:
         arrays = (state_in.particle_q, state_in.particle_qd, state_out.particle_q, state_out.particle_qd)
-        key = (float(dt), *(a.ptr for a in arrays))
+        # The sweep settings too: a plan recorded without a tolerance (or with another) must not replay.
+        key = (float(dt), self.iterations, self.tolerance, self.check_every, *(a.ptr for a in arrays))
         if control is None:
             return key
         return (
@@ -421,7 +419,7 @@ class XPBD(Solver):
 
         def check() -> None:
             for c in self.constraints:
-                c.residual(ctx, p, dt, self._residual)
+                self.call(c.residual, ctx, p, dt, self._residual)  # launches of its own: recorded whole
             self.launch(T.tolerance_check, 1, [tol, every, checks, tail, *flags])
 
         def chunk() -> None:
@@ -429,8 +427,32 @@ class XPBD(Solver):
             check()
 
         check()
-        wp.capture_while(self._go, chunk)
-        wp.capture_if(self._tail, lambda: self._sweeps(ctx, p, dt, tail))
+        self.call(wp.capture_while, self._go, self._recorded(chunk))
+        self.call(wp.capture_if, self._tail, self._recorded(lambda: self._sweeps(ctx, p, dt, tail)))
+
+    def _recorded(self, body: Callable[[], None]) -> Callable[[], None]:
+        """``body`` (a loop body's launches) as a callable that, in a step being recorded, records them on
+        its first call and replays them after, so that a plan's loop bodies skip the Python launch cost
+        like the rest of the plan. The body may first run in a later step (a loop that never ran while
+        its step was recorded): it records then."""
+        if self._recording is None:
+            return body
+        plan: list | None = None
+
+        def run() -> None:
+            nonlocal plan
+            if plan is not None:
+                for f in plan:
+                    f()
+                return
+            outer, self._recording = self._recording, []
+            try:
+                body()
+                plan = self._recording
+            finally:
+                self._recording = outer
+
+        return run
 
     # ------------------------------------------------------------------ diagnostics
     @property
