@@ -19,6 +19,7 @@ MUST_COMPILE = {
     "pliant.solvers.fast_mass_spring._cg",
     "pliant.solvers.fast_mass_spring._explicit",
     "pliant.solvers.xpbd._kernels",
+    "pliant.solvers.xpbd._tolerance",
     "pliant.solvers.implicit._assembly",
     "pliant.solvers.implicit._newton",
     "pliant.solvers.force._solver",

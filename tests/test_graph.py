@@ -128,9 +128,61 @@ def test_blocked_solver_reasons():
     xpbd_model = pl.ModelBuilder()
     xpbd_model.add_cloth_grid(nx=3, ny=3, size=0.2, mass=0.05, stiffness=100.0, origin=(0, 0.5, 0))
     m = xpbd_model.finalize(device="cpu")
-    sim = pl.Simulator(m, pl.solvers.XPBD(m, tolerance=1e-6), frame_dt=1 / 30, substeps=2)
-    assert "tolerance" in sim.graph_reason
+    # A tolerance is tested on the device (wp.capture_while): no reason to run directly.
+    assert (
+        pl.Simulator(m, pl.solvers.XPBD(m, tolerance=1e-6), frame_dt=1 / 30, substeps=2).graph_reason is None
+    )
     assert pl.Simulator(m, pl.solvers.XPBD(m), frame_dt=1 / 30, substeps=2).graph_reason is None
+
+
+def test_xpbd_tolerance_without_conditional_cuda_graphs_says_why(monkeypatch):
+    """On a CUDA device without conditional graph nodes (driver or toolkit older than 12.4) an XPBD
+    tolerance cannot loop inside a graph: graph_blocker names the cause and the fix (the Simulator then
+    warns once and runs the frames directly); with them, or on the CPU, nothing blocks."""
+    b = pl.ModelBuilder()
+    b.add_cloth_grid(nx=3, ny=3, size=0.2, mass=0.05, stiffness=100.0, origin=(0, 0.5, 0))
+    m = b.finalize(device="cpu")
+    solver = pl.solvers.XPBD(m, tolerance=1e-6)
+    cuda = type("FakeCuda", (), {"is_cuda": True})()
+    monkeypatch.setattr(wp, "get_device", lambda d=None: cuda)
+    monkeypatch.setattr(wp, "is_conditional_graph_supported", lambda: False)
+    why = solver.graph_blocker()
+    monkeypatch.setattr(wp, "is_conditional_graph_supported", lambda: True)
+    assert solver.graph_blocker() is None
+    monkeypatch.undo()
+    assert why is not None and "12.4" in why and "tolerance" in why
+    solver.tolerance = None
+    assert solver.graph_blocker() is None
+
+
+@pytest.mark.parametrize("schedule", ["coloring", "jacobi"])
+def test_xpbd_tolerance_replays_bit_for_bit(schedule):
+    """An XPBD step with a tolerance, captured with its device-side loop, replays the direct frames bit for
+    bit, with the same sweep counts per step (read from the device once, at the end) although they vary
+    from step to step (the loop does stop early, and not always at the same sweep)."""
+    sims = []
+    for graph in (None, False):
+        b = pl.ModelBuilder()
+        b.add_cloth_grid(
+            nx=8, ny=8, size=0.4, mass=0.05, stiffness=100.0, origin=(-0.2, 0.5, -0.2), plane="xz",
+            pin="top-corners",
+        )  # fmt: skip
+        b.add_ground(friction=0.5)
+        m = b.finalize(device="cpu")
+        solver = pl.solvers.XPBD(m, iterations=21, schedule=schedule, tolerance=2e-5, check_every=2)
+        sims.append(pl.Simulator(m, solver, frame_dt=1 / 30, substeps=4, graph=graph))
+    graphed, direct = sims
+    assert graphed.graph_reason is None
+    for _ in range(8):
+        _run(graphed, 1)
+        _run(direct, 1)
+        np.testing.assert_array_equal(graphed.state_0.particle_q.numpy(), direct.state_0.particle_q.numpy())
+        assert graphed.solver.last_iterations == direct.solver.last_iterations
+    np.testing.assert_array_equal(graphed.state_0.particle_qd.numpy(), direct.state_0.particle_qd.numpy())
+    assert graphed._graphs.replays >= 6
+    steps, sweeps = graphed.solver.sweep_counts()
+    assert (steps, sweeps) == direct.solver.sweep_counts() and steps == 8 * 4
+    assert 2 * steps < sweeps < 21 * steps, "the tolerance never (or always) stopped the sweeps early"
 
 
 def test_failed_capture_falls_back_once(monkeypatch):
@@ -219,9 +271,19 @@ def test_a_key_that_changes_every_frame_runs_directly_and_does_not_pile_up():
     assert len(a._graphs._warm) <= _MAX_WARM and a._graphs.replays == 0
 
 
+class _HostHandler:
+    """A contact handler that does host work each step (so it cannot be replayed) and nothing else."""
+
+    def graph_blocker(self) -> str:
+        return "it reads on the host"
+
+    def apply(self, model, state_in, state_out, dt) -> None:
+        pass
+
+
 def test_a_blocker_set_after_construction_is_honoured():
-    """An XPBD tolerance set after the Simulator was made: that frame reads the residual on the host, so it
-    runs directly (graph_reason says why), and graphs come back once the tolerance is dropped."""
+    """A handler that blocks replay, added after the Simulator was made: those frames run directly
+    (graph_reason says why), and graphs come back once it is removed."""
     b = pl.ModelBuilder()
     b.add_cloth_grid(nx=4, ny=4, size=0.3, mass=0.05, stiffness=100.0, origin=(0, 0.5, 0), pin="top-corners")
     m = b.finalize(device="cpu")
@@ -229,9 +291,37 @@ def test_a_blocker_set_after_construction_is_honoured():
     _run(sim, 3)
     replays = sim._graphs.replays
     assert replays >= 1 and sim.graph_reason is None
-    sim.solver.tolerance = 1e-9
+    sim.solver.collisions.append(_HostHandler())
     _run(sim, 3)
-    assert "tolerance" in sim.graph_reason and sim._graphs.replays == replays
-    sim.solver.tolerance = None
+    assert "reads on the host" in sim.graph_reason and sim._graphs.replays == replays
+    sim.solver.collisions.pop()
     _run(sim, 3)
     assert sim.graph_reason is None and sim._graphs.replays > replays
+
+
+def test_a_tolerance_set_after_construction_is_captured_with_it():
+    """An XPBD tolerance set between frames is a new fingerprint: the frame is captured again, with the
+    device-side loop, and the run stays bit for bit the direct one given the same tolerance at the same
+    frame (a stale graph, or the solver's recorded fixed-count launches, would ignore it)."""
+    sims = []
+    for graph in (None, False):
+        b = pl.ModelBuilder()
+        b.add_cloth_grid(
+            nx=4, ny=4, size=0.3, mass=0.05, stiffness=100.0, origin=(0, 0.5, 0), pin="top-corners"
+        )
+        m = b.finalize(device="cpu")
+        sims.append(
+            pl.Simulator(m, pl.solvers.XPBD(m, iterations=40), frame_dt=1 / 30, substeps=2, graph=graph)
+        )
+    graphed, direct = sims
+    for sim in sims:
+        _run(sim, 3)
+    captures = graphed._graphs.captures
+    for sim in sims:
+        sim.solver.tolerance = 3e-3
+        _run(sim, 4)
+    assert graphed.graph_reason is None and graphed._graphs.captures > captures
+    assert graphed.solver.last_iterations == direct.solver.last_iterations
+    assert graphed.solver.sweep_counts() == direct.solver.sweep_counts()
+    assert graphed.solver.sweep_counts()[1] < 40 * 8, "the tolerance never stopped the sweeps early"
+    np.testing.assert_array_equal(graphed.state_0.particle_q.numpy(), direct.state_0.particle_q.numpy())

@@ -172,6 +172,60 @@ def test_tolerance_stops_the_sweeps_once_the_residual_is_below_it(schedule):
     assert counts[1] > counts[0] >= 2, counts
 
 
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+@pytest.mark.parametrize(("iterations", "every"), [(9, 2), (12, 4), (5, 5)])
+def test_tolerance_stops_where_the_host_loop_stopped(iterations, every, dtype):
+    """The device-side test (a flag, ``wp.capture_while``) stops at the sweep the former host loop did:
+    the first multiple of ``check_every`` below ``iterations`` whose residual is at most the tolerance,
+    else the cap (the last ``iterations mod check_every`` sweeps unchecked). The reference is independent
+    of the loop: ``residual()`` read on the host after a fixed count of k sweeps, for every k, and a
+    tolerance equal to one of those residuals checks the ≤ at its boundary. The positions equal the
+    fixed-count run's bit for bit and the device counts every sweep."""
+    model = cloth_model(8, dtype=dtype)
+    s = run(model, XPBD(model, iterations=5, schedule="coloring"), 10, 1e-2)
+    res, xs = {}, {}
+    for k in range(1, iterations + 1):
+        fixed = XPBD(model, iterations=k, schedule="jacobi")
+        out = model.state()
+        fixed.step(s, out, None, 1e-2)
+        res[k], xs[k] = fixed.residual(), out.particle_q.numpy()
+    checked = list(range(every, iterations, every))
+    tols = [res[k] for k in checked] + [0.5 * min(res.values())]  # the last one: nothing converges
+    solver = XPBD(model, iterations=iterations, schedule="jacobi", check_every=every)
+    total = 0
+    for tol in tols:
+        expected = next((k for k in checked if res[k] <= tol), iterations)
+        solver.tolerance = tol
+        out = model.state()
+        solver.step(s, out, None, 1e-2)
+        assert solver.last_iterations == expected, (tol, res)
+        np.testing.assert_array_equal(out.particle_q.numpy(), xs[expected])
+        total += expected
+    assert solver.sweep_counts() == (len(tols), total)
+    if checked:  # the Jacobi residual falls with each sweep here, so the cases differ
+        assert len({next((k for k in checked if res[k] <= t), iterations) for t in tols}) == len(tols)
+
+
+def test_tolerance_steps_replay_their_recorded_launches():
+    """Repeated steps with a tolerance replay their recorded launches (``replay``), the loop bodies too:
+    bit for bit the steps launched afresh, with the same sweep count per step although it changes from
+    step to step (2 while the cloth barely moves, so the loop body first runs, and is recorded, in a
+    replayed step; up to the cap of 30, where the unchecked last sweeps run)."""
+    model = cloth_model(8)
+    runs = []
+    for replay in (True, False):
+        solver = XPBD(model, iterations=30, tolerance=1e-3, check_every=2)
+        solver.replay = replay
+        counts: list[int] = []
+        s = run(model, solver, 12, 1e-2, each=lambda _, sv=solver, c=counts: c.append(sv.last_iterations))
+        runs.append((s.particle_q.numpy(), counts, len(solver._plans)))
+    (x, counts, plans), (x_direct, counts_direct, no_plans) = runs
+    np.testing.assert_array_equal(x, x_direct)
+    assert counts == counts_direct
+    assert counts[0] == 2 and counts[-1] == 30 and len(set(counts)) >= 3, counts
+    assert plans == 2 and no_plans == 0  # one plan per ping-pong order of the states
+
+
 def test_tolerance_is_refused_where_a_fixed_count_is_needed():
     model = cloth_model(4)
     with pytest.raises(ValueError, match="PBD"):

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -14,6 +14,7 @@ from ...constraints import Constraint, DihedralBending, Distance, Ground, Projec
 from ...model import Control, Model, State
 from .._base import Solver
 from . import _kernels as K
+from . import _tolerance as T
 
 _SCHEDULES = ("jacobi", "coloring")
 
@@ -72,11 +73,15 @@ class XPBD(Solver):
         contact_iterations: extra sweeps of the contact constraints alone at the end of each step.
         tolerance: stop a step's sweeps once the RMS of C + α̃λ over the bilateral constraints [constraint
             units: m for distances] is at most this; ``iterations`` is then the cap. None (the default):
-            always ``iterations`` sweeps. The check reads the residual on the host every ``check_every``
-            sweeps, so a tolerance turns the launch replay off; the positions equal those of a run with
+            always ``iterations`` sweeps. The check runs on the device every ``check_every`` sweeps (a
+            residual pass and a one-thread kernel that sets a flag; ``wp.capture_while`` repeats the sweeps
+            while it is set), so a frame with a tolerance is captured and replayed as a graph like any
+            other (on CUDA this needs conditional graph nodes, CUDA 12.4+; without them the frame runs
+            launch by launch, :meth:`graph_blocker`). The positions equal those of a run with
             ``iterations`` = :attr:`last_iterations`. XPBD only (PBD's per-sweep stiffness depends on the
             sweep count), and not with gradients (they need a fixed count).
-        check_every: sweeps between two residual checks (each costs one residual pass and a host read).
+        check_every: sweeps between two residual checks (each costs one residual pass; launched directly,
+            also one host read of the flag, which a captured graph does not need).
         collisions: contact handlers run after each step, each with ``apply(model, state_in, state_out,
             dt)`` (``pl.collision.Colliders``, ``SelfCollision``), as for every solver (:class:`Solver`).
 
@@ -133,8 +138,6 @@ class XPBD(Solver):
             raise ValueError(f"check_every must be >= 1, got {check_every}")
         self.tolerance = None if tolerance is None else float(tolerance)
         self.check_every = int(check_every)
-        #: Sweeps the last step ran (``iterations`` unless a ``tolerance`` stopped it earlier).
-        self.last_iterations = int(iterations)
         if schedule not in _SCHEDULES:
             raise ValueError(f"schedule must be one of {_SCHEDULES}, got {schedule!r}")
         if not 0.0 < relaxation < 2.0:
@@ -168,11 +171,14 @@ class XPBD(Solver):
         self.delta_count = wp.zeros(n, dtype=wp.int32, device=d)
         self.v_pred = wp.zeros(n, dtype=model.vec3, device=d)
         self._residual = wp.zeros(2, dtype=model.scalar, device=d)
+        # The tolerance loop's device state (see _tolerance.py): its two flags and the sweep counts.
+        self._go = wp.zeros(1, dtype=wp.int32, device=d)
+        self._tail = wp.zeros(1, dtype=wp.int32, device=d)
+        self._counts = wp.zeros(T.COUNT_SLOTS, dtype=wp.int32, device=d)
         self._last_dt: float | None = None
         self._last_p: wp.array | None = None
         #: Replay recorded launches for repeated identical steps (set False to launch afresh every step).
-        #: Off with a tolerance: a recorded plan has a fixed sweep count.
-        self.replay = not self.requires_grad and self.tolerance is None
+        self.replay = not self.requires_grad
         self._plans: dict[tuple, list] = {}
         self._recording: list | None = None
 
@@ -248,9 +254,10 @@ class XPBD(Solver):
     def step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
         """Advance ``state_in`` by ``dt`` [s] into ``state_out`` (Algorithm 1); ``state_in`` is only read.
 
-        The first step for a given (states, control, Δt) records its launches; later identical steps replay
-        them (``wp.Launch``), which removes most of the per-step Python cost. Scalar control inputs (the
-        drag handle) are part of the key, array contents (forces, kinematic targets) are read at replay.
+        The first step for a given (states, control, Δt, sweep settings) records its launches; later
+        identical steps replay them (``wp.Launch``), which removes most of the per-step Python cost. Scalar
+        control inputs (the drag handle) are part of the key, array contents (forces, kinematic targets) are
+        read at replay. With a tolerance the loop bodies are recorded too (``_recorded``).
         """
         key = self._plan_key(state_in, state_out, control, dt)
         plan = self._plans.get(key) if self.replay else None
@@ -295,7 +302,8 @@ class XPBD(Solver):
 
     def _plan_key(self, state_in: State, state_out: State, control: Control | None, dt: float) -> tuple:
         arrays = (state_in.particle_q, state_in.particle_qd, state_out.particle_q, state_out.particle_qd)
-        key = (float(dt), *(a.ptr for a in arrays))
+        # The sweep settings too: a plan recorded without a tolerance (or with another) must not replay.
+        key = (float(dt), self.iterations, self.tolerance, self.check_every, *(a.ptr for a in arrays))
         if control is None:
             return key
         return (
@@ -361,15 +369,10 @@ class XPBD(Solver):
             )
         for c in self.constraints:
             c.begin_step(ctx, x, p, dt)
-        done = 0
-        while done < self.iterations:
-            for c in self.constraints:
-                p = self._project(ctx, c, p, dt)
-            done += 1
-            if self.tolerance is not None and done % self.check_every == 0 and done < self.iterations:
-                if self._rms_residual(ctx, p, dt) <= self.tolerance:
-                    break
-        self.last_iterations = done
+        if self.tolerance is None:
+            p = self._sweeps(ctx, p, dt, self.iterations)
+        else:
+            self._sweep_to_tolerance(ctx, p, dt)
         # Contacts last: extra sweeps of the unilateral constraints alone, so that averaging with the
         # bilateral corrections does not leave particles inside what they touch at the end of the step.
         contacts = [c for c in self.constraints if c.is_contact]
@@ -384,7 +387,88 @@ class XPBD(Solver):
         if grad:
             self.launch(K.write_state, n, [p, v, state_out.particle_q, state_out.particle_qd])
 
+    def _sweeps(self, ctx: ProjectionContext, p: wp.array, dt: float, count: int) -> wp.array:
+        """``count`` sweeps over every constraint set; returns the positions after them."""
+        for _ in range(count):
+            for c in self.constraints:
+                p = self._project(ctx, c, p, dt)
+        return p
+
+    def _sweep_to_tolerance(self, ctx: ProjectionContext, p: wp.array, dt: float) -> None:
+        """Sweeps until the RMS residual is at most ``tolerance`` (checked after every ``check_every``
+        sweeps while fewer than ``iterations`` have run), deciding on the device.
+
+        With N = ``iterations`` and c = ``check_every``: min(c, N) sweeps; then, while a check finds the
+        residual too large, another c sweeps and a check, for at most M = ⌊(N − 1)/c⌋ checks; after the
+        M-th the last N − Mc sweeps run unchecked. ``wp.capture_while`` and ``wp.capture_if`` branch on the
+        flags ``tolerance_check`` sets: launched directly they read them on the host (a CPU memory read; on
+        CUDA a copy and a sync, as the host loop did), captured they become graph nodes (a CPU graph's
+        loop, a CUDA conditional node) and the step needs no host read at all. No tape: a tolerance is
+        refused with gradients, so ``p`` is projected in place and stays the same array.
+        """
+        n, every = self.iterations, self.check_every
+        first = min(every, n)
+        checks = (n - 1) // every
+        tail = n - checks * every
+        flags = [self._residual, self._go, self._tail, self._counts]
+        self.launch(T.tolerance_begin, 1, [first, *flags])
+        self._sweeps(ctx, p, dt, first)
+        if checks == 0:
+            return
+        tol = wp.float64(self.tolerance)
+
+        def check() -> None:
+            for c in self.constraints:
+                self.call(c.residual, ctx, p, dt, self._residual)  # launches of its own: recorded whole
+            self.launch(T.tolerance_check, 1, [tol, every, checks, tail, *flags])
+
+        def chunk() -> None:
+            self._sweeps(ctx, p, dt, every)
+            check()
+
+        check()
+        self.call(wp.capture_while, self._go, self._recorded(chunk))
+        self.call(wp.capture_if, self._tail, self._recorded(lambda: self._sweeps(ctx, p, dt, tail)))
+
+    def _recorded(self, body: Callable[[], None]) -> Callable[[], None]:
+        """``body`` (a loop body's launches) as a callable that, in a step being recorded, records them on
+        its first call and replays them after, so that a plan's loop bodies skip the Python launch cost
+        like the rest of the plan. The body may first run in a later step (a loop that never ran while
+        its step was recorded): it records then."""
+        if self._recording is None:
+            return body
+        plan: list | None = None
+
+        def run() -> None:
+            nonlocal plan
+            if plan is not None:
+                for f in plan:
+                    f()
+                return
+            outer, self._recording = self._recording, []
+            try:
+                body()
+                plan = self._recording
+            finally:
+                self._recording = outer
+
+        return run
+
     # ------------------------------------------------------------------ diagnostics
+    @property
+    def last_iterations(self) -> int:
+        """Sweeps the last step ran: ``iterations`` unless a ``tolerance`` stopped it earlier (then one
+        host read of the device's count, whether the step was launched or replayed from a graph)."""
+        if self.tolerance is None:
+            return self.iterations
+        return int(self._counts.numpy()[T.SWEEPS])
+
+    def sweep_counts(self) -> tuple[int, int]:
+        """(steps, sweeps) run with a tolerance since the solver was made, counted on the device (one host
+        read): sweeps / steps is the mean sweep count a tolerance left, replayed frames included."""
+        c = self._counts.numpy()
+        return int(c[T.STEPS]), int(c[T.TOTAL])
+
     def residual(self) -> float:
         """RMS of C + α̃λ over the bilateral constraints after the last step (host sync) [constraint units]."""
         if self._last_dt is None:
@@ -404,11 +488,17 @@ class XPBD(Solver):
         return sum(c.count for c in self.constraints if not c.is_contact)
 
     def graph_blocker(self) -> str | None:
-        """None for a fixed sweep count without a tape; a tolerance reads the residual on the host."""
+        """None without a tape: a fixed sweep count, or a tolerance tested on the device (on CUDA only
+        where conditional graph nodes exist: ``wp.capture_while`` needs a CUDA 12.4+ driver and toolkit)."""
         if self.requires_grad:
             return "a differentiable model's steps write fresh arrays each step"
-        if self.tolerance is not None:
-            return "a tolerance reads the constraint residual on the host"
+        if self.tolerance is not None and wp.get_device(self.model.device).is_cuda:
+            if not wp.is_conditional_graph_supported():
+                return (
+                    "an XPBD tolerance loops on a device flag (wp.capture_while), which a CUDA graph holds "
+                    "only with conditional nodes (CUDA driver and toolkit 12.4+); update the driver, or use "
+                    "a fixed iteration count (tolerance=None)"
+                )
         return self._collisions_blocker()
 
     def describe(self) -> dict:
