@@ -85,3 +85,72 @@ def test_rigid_body_solver_runs_its_handlers():
     out = _rollout(solver, model, steps=3)
     assert len(calls) == 3
     np.testing.assert_array_equal(calls[-1], out)
+
+
+@wp.kernel
+def _drift(
+    dt: wp.float64,
+    x_in: wp.array(dtype=wp.vec3d),
+    v_in: wp.array(dtype=wp.vec3d),
+    x_out: wp.array(dtype=wp.vec3d),
+    v_out: wp.array(dtype=wp.vec3d),
+):
+    i = wp.tid()
+    x_out[i] = x_in[i] + dt * v_in[i]
+    v_out[i] = v_in[i]
+
+
+def _post_stages(requires_grad: bool, penalty: float | None, stages: bool = True) -> np.ndarray:
+    """One ``finish_step`` (a drift, then kinematic targets, the ground, a sphere and a box) on a model
+    whose particles start inside the ground and the colliders, with or without gradients."""
+    from pliant.collision import ground_coefficients
+    from pliant.solvers._post import finish_step
+
+    rng = np.random.default_rng(4)
+    b = ModelBuilder()
+    b.add_particles(rng.uniform([-0.4, -0.05, -0.2], [0.4, 0.3, 0.2], size=(64, 3)), 0.01, radius=0.01)
+    b.add_kinematic([0, 7])
+    b.add_ground(0.0, friction=0.4, restitution=0.3)
+    m = b.finalize(device="cpu", dtype="float64", requires_grad=requires_grad)
+    col = pl.collision.Colliders()
+    col.add_sphere((-0.2, 0.1, 0.0), 0.15, friction=0.3, restitution=0.2)
+    col.add_box((0.2, 0.1, 0.0), (0.15, 0.1, 0.15), rotation=(0.0, 0.38, 0.0, 0.92), friction=0.6)
+    s0, s1 = m.state(), m.state()
+    s0.particle_qd.assign(rng.normal(0.0, 1.0, size=(64, 3)))
+    control = m.control()
+    control.set_kinematic_targets(control.kinematic_targets.numpy() + 0.01)
+    dt = 1e-2
+
+    def integrate(x, v):
+        wp.launch(
+            _drift, m.particle_count, [wp.float64(dt), s0.particle_q, s0.particle_qd, x, v], device="cpu"
+        )
+
+    if not stages:
+        finish_step(m, None, s0, s1, dt, integrate)
+    else:
+        g = ground_coefficients(m)
+        finish_step(m, control, s0, s1, dt, integrate, ground=g, collisions=[col], ground_penalty=penalty)
+    return np.concatenate([s1.particle_q.numpy(), s1.particle_qd.numpy()])
+
+
+@pytest.mark.parametrize("penalty", [None, 1.0e4], ids=["projection", "penalty_friction"])
+def test_recorded_and_plain_post_step_write_the_same_bits(penalty, capfd):
+    """One path for the post-step: on a requires_grad model under a tape (fresh arrays per stage, Warp's
+    read-then-write check on) the stages give exactly the bits of the in-place gradient-free step. (Warp
+    checks only kernels whose module was built with the check on: the recorded run goes first.)"""
+    prev = wp.config.verify_autograd_array_access
+    wp.config.verify_autograd_array_access = True
+    try:
+        capfd.readouterr()
+        with wp.Tape():
+            recorded = _post_stages(True, penalty)
+        err = capfd.readouterr().err
+    finally:
+        wp.config.verify_autograd_array_access = prev
+    plain = _post_stages(False, penalty)
+    assert "been read" not in "\n".join(ln for ln in err.splitlines() if "apply_deltas" not in ln), err
+    np.testing.assert_array_equal(recorded, plain)
+    # Every stage acted: without them the state differs in positions and velocities.
+    free = _post_stages(False, penalty, stages=False)
+    assert np.abs(plain - free)[:64].max() > 1e-3 and np.abs(plain - free)[64:].max() > 1e-1

@@ -1,8 +1,8 @@
-"""Contact: ground plane (more colliders and the hash-grid broad phase follow)."""
+"""Contact: ground plane, static colliders, self-collision and the broad phases they use."""
 
 from ._collider_sdf import collider_sdf
 from ._colliders import Colliders
-from ._ground import ground_contact, ground_penalty_friction
+from ._ground import ground_coefficients, ground_contact, ground_penalty_friction, respond_to_ground
 from ._hashgrid import ParticleGrid, TriangleBVH, triangle_closest_point
 from ._selfcollision import SelfCollision, closest_point_triangle
 
@@ -13,7 +13,9 @@ __all__ = [
     "collider_sdf",
     "ParticleGrid",
     "TriangleBVH",
+    "ground_coefficients",
     "ground_contact",
     "ground_penalty_friction",
+    "respond_to_ground",
     "triangle_closest_point",
 ]

@@ -2,9 +2,8 @@
 
 One collider of kind 0 sphere, 1 box, 2 capsule, 3 mesh (:class:`pliant.collision.Colliders` documents the
 parameters) is a signed distance φ(p) [m] (negative inside) with its gradient n = ∇φ and Hessian ∇²φ
-[1/m]. The in-place kernels (:mod:`._colliders`), the out-of-place ones of recorded steps
-(:mod:`._colliders_recorded`, a Warp module of its own) and the penalty energy all call these, so they sit
-below those modules and neither of the two kernel modules imports the other.
+[1/m]. The colliders' kernels (:mod:`._colliders`) and the penalty energy both call these, so they sit
+below both modules.
 """
 
 from __future__ import annotations

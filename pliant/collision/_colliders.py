@@ -22,17 +22,18 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from .._warp import launch
+from .._warp import GradientError, fresh, launch
 from ..model._parameters import Parameter, declares
 from ._collider_sdf import collider_contact, collider_sdf
-from ._colliders_recorded import collider_response_out
 
 SPHERE, BOX, CAPSULE, MESH = 0, 1, 2, 3
 _KIND_NAMES = {SPHERE: "sphere", BOX: "box", CAPSULE: "capsule", MESH: "mesh"}
 
 
 @wp.kernel
-def _collider_response(
+def collider_response(
+    first: int,
+    end: int,
     # Colliders:
     kind: wp.array(dtype=wp.int32),
     pos: wp.array(dtype=Any),
@@ -45,32 +46,38 @@ def _collider_response(
     # Model:
     particle_inv_mass: wp.array(dtype=Any),
     particle_radius: wp.array(dtype=Any),
-    # State out (in place):
-    x_io: wp.array(dtype=Any),
-    v_io: wp.array(dtype=Any),
+    # State in:
+    x_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    # Out:
+    x_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
 ):
+    """Colliders ``first`` to ``end`` − 1 in turn (:func:`collider_contact`): reads (x_in, v_in), writes
+    every particle's (x_out, v_out), which may be the inputs (an in-place update).
+
+    Recorded steps launch one collider at a time (``end`` = ``first`` + 1), which runs no loop: Warp's
+    adjoint re-runs a dynamic loop's body with the values its variables hold after the loop, so x and v
+    carried through the colliders in a loop would get a wrong gradient. The gradient-free step launches all
+    colliders at once and carries x and v through them in registers.
+    """
     i = wp.tid()
-    zero = particle_radius[i] * type(particle_radius[i])(0.0)
-    if particle_inv_mass[i] == zero:
-        return
-    x = x_io[i]
-    v = v_io[i]
-    for c in range(kind.shape[0]):
-        x, v = collider_contact(
-            kind[c],
-            pos[c],
-            aux[c],
-            rot[c],
-            radius[c],
-            mesh[c],
-            friction[c],
-            restitution[c],
-            particle_radius[i],
-            x,
-            v,
-        )
-    x_io[i] = x
-    v_io[i] = v
+    x = x_in[i]
+    v = v_in[i]
+    r = particle_radius[i]
+    if particle_inv_mass[i] != r * type(r)(0.0):
+        if end == first + 1:
+            k = first
+            x, v = collider_contact(
+                kind[k], pos[k], aux[k], rot[k], radius[k], mesh[k], friction[k], restitution[k], r, x, v
+            )
+        else:
+            for c in range(first, end):
+                x, v = collider_contact(
+                    kind[c], pos[c], aux[c], rot[c], radius[c], mesh[c], friction[c], restitution[c], r, x, v
+                )
+    x_out[i] = x
+    v_out[i] = v
 
 
 @wp.kernel
@@ -348,48 +355,41 @@ class Colliders:
         return None
 
     def apply(self, model: Any, state_in: Any, state_out: Any, dt: float) -> None:
-        """Velocity-level contact response on ``state_out`` (push out, restitution, Coulomb friction)."""
-        a = self.arrays(model)
-        launch(
-            _collider_response,
-            model.particle_count,
-            [
-                *self.geometry_inputs(model),
-                a["friction"],
-                a["restitution"],
-                model.particle_inv_mass,
-                model.particle_radius,
-                state_out.particle_q,
-                state_out.particle_qd,
-            ],
-            device=model.device,
-        )
+        """Velocity-level contact response on ``state_out`` (push out, restitution, Coulomb friction), in
+        place: :meth:`apply_out` with ``state_out``'s arrays as input and output."""
+        x, v = state_out.particle_q, state_out.particle_qd
+        self.apply_out(model, x, v, x, v)
 
     def apply_out(self, model: Any, x_in: wp.array, v_in: wp.array, x_out: wp.array, v_out: wp.array) -> None:
-        """:meth:`apply` out of place, for recorded (``wp.Tape``) steps: reads (x_in, v_in), writes
-        (x_out, v_out), one launch per collider into fresh arrays (a loop carrying x and v through the
-        colliders inside one kernel would not differentiate correctly). The friction μ and restitution e
-        arrays (``arrays(model)["friction"]``, ``["restitution"]``, one value per collider) and the
-        colliders' positions (``["pos"]``) receive gradients. Piecewise smooth: where a particle enters or
-        leaves contact or friction switches stick/slip the gradient is one-sided (a subgradient). Mesh
-        colliders raise :class:`~pliant.diff.GradientError` (Warp's BVH query has no adjoint here).
-        """
-        from .._warp import GradientError, fresh
+        """The response, collider after collider: reads (x_in, v_in), writes (x_out, v_out).
 
-        if any(r[0] == MESH for r in self._rows):
+        Outputs that are the inputs are updated in place, in one launch (the gradient-free step). Other
+        outputs are a recorded (``wp.Tape``) step's: one launch per collider, each but the last into fresh
+        arrays, so that no array is written after a recorded launch read it. The friction μ and
+        restitution e arrays (``arrays(model)["friction"]``, ``["restitution"]``, one value per collider)
+        and the colliders' positions (``["pos"]``) receive gradients. Piecewise smooth: where a particle
+        enters or leaves contact or friction switches stick/slip the gradient is one-sided (a subgradient).
+        Mesh colliders raise :class:`~pliant.diff.GradientError` out of place (Warp's BVH query has no
+        adjoint here).
+        """
+        in_place = x_out is x_in and v_out is v_in
+        if not in_place and any(r[0] == MESH for r in self._rows):
             raise GradientError(
                 "mesh colliders are not differentiable: use spheres, boxes and capsules, or "
                 "finalize(requires_grad=False)"
             )
         a = self.arrays(model)
         count = len(self._rows)
-        for c in range(count):
-            last = c == count - 1
+        # In place: one launch over every collider. Out of place: one launch per collider, each but the
+        # last into fresh arrays.
+        ranges = [(0, count)] if in_place else [(c, c + 1) for c in range(count)]
+        for first, end in ranges:
+            last = end == count
             xo, vo = (x_out, v_out) if last else (fresh(model), fresh(model))
             launch(
-                collider_response_out,
+                collider_response,
                 model.particle_count,
-                [c, *self.geometry_inputs(model), a["friction"], a["restitution"]]
+                [first, end, *self.geometry_inputs(model), a["friction"], a["restitution"]]
                 + [model.particle_inv_mass, model.particle_radius, x_in, v_in, xo, vo],
                 device=model.device,
             )

@@ -1,10 +1,18 @@
-"""Ground-plane contact as a velocity-level response with Coulomb friction and restitution."""
+"""Ground-plane contact as a velocity-level response with Coulomb friction and restitution.
+
+One kernel per response serves every step: it reads (x_in, v_in) and writes every particle of (x_out,
+v_out). A gradient-free step passes the same arrays as input and output (an in-place update: each thread
+touches only its own particle); a step that ``wp.Tape`` records passes fresh outputs, so that no array is
+written after a recorded launch read it (:func:`respond_to_ground` takes the outputs as arguments).
+"""
 
 from __future__ import annotations
 
 from typing import Any
 
 import warp as wp
+
+from .._warp import grad_enabled, launch
 
 
 @wp.func
@@ -38,21 +46,29 @@ def ground_contact(
     inv_mass: wp.array(dtype=Any),
     radius: wp.array(dtype=Any),
     height: Any,
-    friction: Any,
-    restitution: Any,
-    x_io: wp.array(dtype=Any),
-    v_io: wp.array(dtype=Any),
+    coefficients: wp.array(dtype=Any),
+    x_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    x_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
 ):
-    """Push particles above y = height + r, reflect the normal velocity (×e), Coulomb friction on v_t."""
+    """Push particles above y = height + r, reflect the normal velocity (×e), Coulomb friction on v_t.
+
+    ``coefficients`` = [friction μ, restitution e] (an array, so that their gradients can be read). Every
+    particle's output is written (the outputs may be the inputs). Differentiable almost everywhere: the
+    contact set, the sign of the normal velocity and the stick/slip switch of Coulomb friction are
+    piecewise, so at a switch the gradient is one-sided (a subgradient).
+    """
     i = wp.tid()
-    if inv_mass[i] == type(height)(0.0):
-        return
-    p = x_io[i]
+    p = x_in[i]
+    v = v_in[i]
     floor = height + radius[i]
-    if p[1] >= floor:
-        return
-    v_io[i] = ground_velocity(v_io[i], friction, restitution)
-    x_io[i] = type(p)(p[0], floor, p[2])
+    if inv_mass[i] != type(height)(0.0) and p[1] < floor:
+        x_out[i] = type(p)(p[0], floor, p[2])
+        v_out[i] = ground_velocity(v, coefficients[0], coefficients[1])
+    else:
+        x_out[i] = p
+        v_out[i] = v
 
 
 @wp.kernel
@@ -60,11 +76,13 @@ def ground_penalty_friction(
     inv_mass: wp.array(dtype=Any),
     radius: wp.array(dtype=Any),
     height: Any,
-    friction: Any,
+    coefficients: wp.array(dtype=Any),
     kappa: Any,
     dt: Any,
-    x_io: wp.array(dtype=Any),
-    v_io: wp.array(dtype=Any),
+    x_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    x_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
 ):
     """Coulomb friction for the normal impulse a ground penalty κ m d gave over the step (implicit steps).
 
@@ -72,16 +90,61 @@ def ground_penalty_friction(
     balances the weight; projecting it back to y = height + r after every step (``ground_contact``) would
     undo that equilibrium and leave Newton a residual of h·g per step. So particles keep their position
     and the normal velocity the potential gave them, and their tangential speed drops by μ κ d Δt (the
-    impulse bound). Even a particle that went deep is not moved: moving one vertex of an element after the
-    step's inversion-safe minimisation can invert the element; the penalty pushes it out in the next step.
+    impulse bound; ``coefficients`` = [μ, e]). Even a particle that went deep is not moved: moving one
+    vertex of an element after the step's inversion-safe minimisation can invert the element; the penalty
+    pushes it out in the next step. A subgradient where a particle enters or leaves the contact set or
+    friction switches stick/slip.
     """
     i = wp.tid()
-    if inv_mass[i] == type(height)(0.0):
-        return
-    p = x_io[i]
+    p = x_in[i]
+    v = v_in[i]
+    x_out[i] = p
     d = height + radius[i] - p[1]
     zero = type(height)(0.0)
-    if d <= zero:
-        return
-    v = v_io[i]
-    v_io[i] = coulomb_ground(v, kappa * d * dt, v[1], friction)
+    if inv_mass[i] != zero and d > zero:
+        v_out[i] = coulomb_ground(v, kappa * d * dt, v[1], coefficients[0])
+    else:
+        v_out[i] = v
+
+
+def ground_coefficients(model: Any) -> wp.array:
+    """[friction μ, restitution e] of ``model.ground`` as the device array the ground kernels read, with
+    ``requires_grad`` on a differentiable model (its ``.grad`` then holds ∂loss/∂μ, ∂loss/∂e)."""
+    g = model.ground
+    if g is None:
+        raise ValueError("the model has no ground plane: ModelBuilder.add_ground() first")
+    rg = grad_enabled(model)
+    return wp.array([g.friction, g.restitution], dtype=model.scalar, device=model.device, requires_grad=rg)
+
+
+def respond_to_ground(
+    model: Any,
+    coefficients: wp.array,
+    dt: float,
+    x_in: wp.array,
+    v_in: wp.array,
+    x_out: wp.array,
+    v_out: wp.array,
+    *,
+    penalty: float | None = None,
+) -> None:
+    """The ground response after a step of ``dt`` [s]: reads (x_in, v_in), writes (x_out, v_out).
+
+    Args:
+        model: the Model (``model.ground`` set).
+        coefficients: [μ, e] (:func:`ground_coefficients`).
+        dt: the step [s].
+        x_in: positions [m] after the step.
+        v_in: velocities [m/s] after the step.
+        x_out: positions [m] written (``x_in`` itself for an in-place update).
+        v_out: velocities [m/s] written (``v_in`` itself for an in-place update).
+        penalty: κ [1/s²] of a :class:`~pliant.energies.GroundPenalty` the step already minimised: the
+            response is then friction for the penalty's impulse instead of a projection.
+    """
+    m = model
+    common = [m.particle_inv_mass, m.particle_radius, m.s(m.ground.height), coefficients]
+    if penalty is not None:
+        kernel, args = ground_penalty_friction, [*common, m.s(penalty), m.s(dt)]
+    else:
+        kernel, args = ground_contact, common
+    launch(kernel, m.particle_count, [*args, x_in, v_in, x_out, v_out], device=m.device)

@@ -2,30 +2,59 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import weakref
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import warp as wp
 
-from .._warp import launch
-from ..collision import ground_contact, ground_penalty_friction
+from .._warp import fresh, grad_enabled, launch
+from ..collision import respond_to_ground
 from ..model import Control, Model, State
 
 
 @wp.kernel
+def _kinematic_slots(indices: wp.array(dtype=wp.int32), slot_out: wp.array(dtype=wp.int32)):
+    k = wp.tid()
+    slot_out[indices[k]] = k
+
+
+@wp.kernel
 def apply_kinematic(
-    indices: wp.array(dtype=wp.int32),
+    slot: wp.array(dtype=wp.int32),
     targets: wp.array(dtype=Any),
     inv_dt: Any,
+    x_start_in: wp.array(dtype=Any),
     x_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
     x_out: wp.array(dtype=Any),
     v_out: wp.array(dtype=Any),
 ):
-    """Put kinematic particles on their targets, with the velocity that got them there."""
-    k = wp.tid()
-    i = indices[k]
-    x_out[i] = targets[k]
-    v_out[i] = (targets[k] - x_in[i]) * inv_dt
+    """Put kinematic particles (``slot`` ≥ 0: their index in ``targets``) on their targets, with the
+    velocity that got them there from ``x_start_in``; the others keep (x_in, v_in). Every output element is
+    written once, so the outputs may be the inputs (in place) or fresh arrays (a recorded step)."""
+    i = wp.tid()
+    k = slot[i]
+    if k >= 0:
+        x_out[i] = targets[k]
+        v_out[i] = (targets[k] - x_start_in[i]) * inv_dt
+    else:
+        x_out[i] = x_in[i]
+        v_out[i] = v_in[i]
+
+
+#: Per kinematic-index array: the slot map of :func:`apply_kinematic` (particle → index in the targets,
+#: −1 for the others), built on first use. Weak keys: a Control's map goes with its indices.
+_SLOTS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _kinematic_slot(model: Model, indices: wp.array) -> wp.array:
+    slot = _SLOTS.get(indices)
+    if slot is None or slot.shape[0] != model.particle_count:
+        slot = wp.full(model.particle_count, -1, dtype=wp.int32, device=model.device)
+        wp.launch(_kinematic_slots, indices.shape[0], [indices, slot], device=model.device)
+        _SLOTS[indices] = slot
+    return slot
 
 
 @wp.func
@@ -67,72 +96,77 @@ def add_drag_force(
     f_io[index] = f_io[index] + drag_force(target, stiffness, max_force, x_in[index])
 
 
+#: One stage of a step after integration: reads (x_in, v_in), writes (x_out, v_out).
+Stage = Callable[[wp.array, wp.array, wp.array, wp.array], None]
+
+
 def finish_step(
     model: Model,
     control: Control | None,
     state_in: State,
     state_out: State,
     dt: float,
+    integrate: Callable[[wp.array, wp.array], None],
     *,
-    contact: bool,
+    ground: wp.array | None = None,
     collisions: Sequence[Any] = (),
     ground_penalty: float | None = None,
 ) -> None:
-    """Kinematic targets, then the ground response (when ``contact``), then each contact handler.
+    """A force-based step: integrate, then kinematic targets, the ground response, each contact handler.
 
-    ``ground_penalty``: κ [1/s²] of a :class:`~pliant.energies.GroundPenalty` the step already minimised;
-    the ground response is then friction for the penalty's impulse instead of a projection.
+    One path whether or not a ``wp.Tape`` records the step. Each stage reads the state the one before it
+    wrote and writes its outputs, which this function chooses: with gradients off, ``state_out``'s arrays
+    (every stage updates them in place); on a ``requires_grad`` model, fresh arrays for every stage but the
+    last, which writes ``state_out``'s, so that no array is written after a recorded launch read it (what
+    the tape needs to replay the step). The stages launch the same kernels either way.
+
+    Args:
+        model: the Model.
+        control: kinematic targets (the drag handle is the integrator's force); None: none.
+        state_in: the state at the start of the step (read only).
+        state_out: the state written.
+        dt: the step [s].
+        integrate: ``integrate(x_out, v_out)`` writes the integrated positions [m] and velocities [m/s].
+        ground: [friction μ, restitution e] of the ground response
+            (:func:`pliant.collision.ground_coefficients`); None: no ground contact.
+        collisions: contact handlers, run in order: ``apply_out(model, x_in, v_in, x_out, v_out)`` where
+            they have it (:class:`pliant.collision.Colliders`), else ``apply(model, state_in, state_out,
+            dt)`` (in place; callers refuse those on recorded steps).
+        ground_penalty: κ [1/s²] of a :class:`~pliant.energies.GroundPenalty` the step already minimised;
+            the ground response is then friction for the penalty's impulse instead of a projection.
     """
     m = model
+    stages: list[Stage] = []
     if control is not None and control.kinematic_indices.shape[0]:
-        launch(
-            apply_kinematic,
-            control.kinematic_indices.shape[0],
-            [
-                control.kinematic_indices,
-                control.kinematic_targets,
-                m.s(1.0 / dt),
-                state_in.particle_q,
-                state_out.particle_q,
-                state_out.particle_qd,
-            ],
-            device=m.device,
-        )
-    if contact and m.ground is not None and ground_penalty is not None:
-        g = m.ground
-        launch(
-            ground_penalty_friction,
-            m.particle_count,
-            [
-                m.particle_inv_mass,
-                m.particle_radius,
-                m.s(g.height),
-                m.s(g.friction),
-                m.s(ground_penalty),
-                m.s(dt),
-                state_out.particle_q,
-                state_out.particle_qd,
-            ],
-            device=m.device,
-        )
-    elif contact and m.ground is not None:
-        g = m.ground
-        launch(
-            ground_contact,
-            m.particle_count,
-            [
-                m.particle_inv_mass,
-                m.particle_radius,
-                m.s(g.height),
-                m.s(g.friction),
-                m.s(g.restitution),
-                state_out.particle_q,
-                state_out.particle_qd,
-            ],
-            device=m.device,
-        )
+        slot = _kinematic_slot(m, control.kinematic_indices)
+        targets, inv_dt = control.kinematic_targets, m.s(1.0 / dt)
+
+        def kinematic(x: wp.array, v: wp.array, xo: wp.array, vo: wp.array) -> None:
+            args = [slot, targets, inv_dt, state_in.particle_q, x, v, xo, vo]
+            launch(apply_kinematic, m.particle_count, args, device=m.device)
+
+        stages.append(kinematic)
+    if ground is not None:
+        kappa = ground_penalty
+        stages.append(lambda x, v, xo, vo: respond_to_ground(m, ground, dt, x, v, xo, vo, penalty=kappa))
     for c in collisions:
-        c.apply(m, state_in, state_out, dt)
+        if callable(getattr(c, "apply_out", None)):
+            stages.append(lambda x, v, xo, vo, c=c: c.apply_out(m, x, v, xo, vo))
+        else:  # in place on state_out, which is (x, v) on the gradient-free path
+            stages.append(lambda x, v, xo, vo, c=c: c.apply(m, state_in, state_out, dt))
+    recorded = grad_enabled(m)
+
+    def outputs(last: bool) -> tuple[wp.array, wp.array]:
+        if recorded and not last:
+            return fresh(m), fresh(m)
+        return state_out.particle_q, state_out.particle_qd
+
+    x, v = outputs(not stages)
+    integrate(x, v)
+    for k, stage in enumerate(stages):
+        xo, vo = outputs(k == len(stages) - 1)
+        stage(x, v, xo, vo)
+        x, v = xo, vo
 
 
 def check_collisions(collisions: Sequence[Any]) -> list[Any]:

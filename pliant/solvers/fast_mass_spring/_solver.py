@@ -34,6 +34,7 @@ import numpy as np
 import warp as wp
 
 from ..._warp import capturing, grad_enabled
+from ...collision import ground_coefficients
 from ...energies import Dashpots, Gravity, Springs
 from ...integrators import SymplecticEuler
 from ...model import Control, Model, State
@@ -156,6 +157,7 @@ class FastMassSpring(Solver):
         self.velocity_damping_factor = float(velocity_damping)
         self.damping_rate = damping_rate
         self.contact = contact and model.ground is not None
+        self._ground = ground_coefficients(model) if self.contact else None
         self.collisions = check_collisions(collisions)
         d = model.device
         off, nb, spr = spring_adjacency(model)
@@ -412,15 +414,22 @@ class FastMassSpring(Solver):
         m = self.model
         f_ext = self._external(control, state_in.particle_q)
         cmds = self._commands(state_in, state_out, f_ext, float(dt))
-        if self.method == "implicit":
-            self._system.scalars.zero_()
-            cmds[0].launch()
-            self._launch_cg(cmds[1:-1])
-            cmds[-1].launch()
-        else:
-            for cmd in cmds:
-                cmd.launch()
-        finish_step(m, control, state_in, state_out, dt, contact=self.contact, collisions=self.collisions)
+
+        def integrate(x: wp.array, v: wp.array) -> None:
+            # (x, v) are state_out's arrays here (no tape: recorded steps went to ForceSolver above), which
+            # the commands were built to write.
+            if self.method == "implicit":
+                self._system.scalars.zero_()
+                cmds[0].launch()
+                self._launch_cg(cmds[1:-1])
+                cmds[-1].launch()
+            else:
+                for cmd in cmds:
+                    cmd.launch()
+
+        finish_step(
+            m, control, state_in, state_out, dt, integrate, ground=self._ground, collisions=self.collisions
+        )
 
     def graph_blocker(self) -> str | None:
         """None without a tape: explicit kernels, and implicit steps whose CG stops on the device when

@@ -10,7 +10,7 @@ import numpy as np
 import warp as wp
 
 from ..._warp import GradientError, fresh, grad_enabled, launch
-from ...collision._ground_recorded import ground_contact_out, ground_penalty_friction_out
+from ...collision import ground_coefficients
 from ...energies import Energy, Gravity, GravityFromArray, GroundPenalty, mass_spring
 from ...energies._base import _axpy
 from ...integrators import ImplicitOptions, Integrator, SymplecticEuler
@@ -26,34 +26,6 @@ from ..implicit import (
     minimize,
     step_settings,
 )
-
-
-@wp.kernel
-def _kinematic_map(indices: wp.array(dtype=wp.int32), slot_out: wp.array(dtype=wp.int32)):
-    k = wp.tid()
-    slot_out[indices[k]] = k
-
-
-@wp.kernel
-def _kinematic_out(
-    slot: wp.array(dtype=wp.int32),
-    targets: wp.array(dtype=Any),
-    inv_dt: Any,
-    x_start: wp.array(dtype=Any),
-    x_in: wp.array(dtype=Any),
-    v_in: wp.array(dtype=Any),
-    x_out: wp.array(dtype=Any),
-    v_out: wp.array(dtype=Any),
-):
-    # Kinematic targets out of place (recorded steps): each output element written once.
-    i = wp.tid()
-    k = slot[i]
-    if k >= 0:
-        x_out[i] = targets[k]
-        v_out[i] = (targets[k] - x_start[i]) * inv_dt
-    else:
-        x_out[i] = x_in[i]
-        v_out[i] = v_in[i]
 
 
 @wp.kernel
@@ -140,14 +112,9 @@ class ForceSolver(Solver):
         self.collisions = check_collisions(collisions)
         d = model.device
         self._force = wp.zeros(model.particle_count, dtype=model.vec3, device=d)
-        #: [friction μ, restitution e] of the ground as read by recorded steps; their ``.grad`` holds
-        #: ∂loss/∂μ and ∂loss/∂e after ``tape.backward`` (None without gradients or ground contact).
-        self.ground_coefficients: wp.array | None = None
-        if grad_enabled(model) and self.contact:
-            g = model.ground
-            self.ground_coefficients = wp.array(
-                [g.friction, g.restitution], dtype=model.scalar, device=d, requires_grad=True
-            )
+        #: [friction μ, restitution e] of the ground as every step reads them; on a requires_grad model
+        #: their ``.grad`` holds ∂loss/∂μ and ∂loss/∂e after ``tape.backward`` (None without ground contact).
+        self.ground_coefficients: wp.array | None = ground_coefficients(model) if self.contact else None
         #: Recorded explicit steps read gravity g [m/s²] (1-element vec3) and the damping rate c [1/s]
         #: (1-element, only with ``damping_rate``) from these arrays; their ``.grad`` holds ∂loss/∂g and
         #: ∂loss/∂c after ``tape.backward``. None without gradients. Explicit and implicit steps alike read
@@ -240,37 +207,35 @@ class ForceSolver(Solver):
         return minimize(self, t, h, x_tilde, x_ref, v_ref, x_out, options, minimizer=self.minimizer)
 
     # ------------------------------------------------------------------ Solver interface
+    #: Contact handlers with ``apply_out`` (pl.collision.Colliders) are recorded out of place (``rollout``).
+    records_contact_handlers = True
+
     def step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
-        """Advance by ``dt`` [s]: integrate, then kinematic targets, then ground contact."""
+        """Advance by ``dt`` [s]: integrate, then kinematic targets, ground contact, contact handlers.
+
+        One path with or without gradients (:func:`~pliant.solvers._post.finish_step`): on a
+        ``requires_grad`` model each stage writes fresh arrays, so that ``wp.Tape`` can replay the step.
+        """
         m = self.model
         self._control = control
         if grad_enabled(m):
-            self._step_recorded(state_in, state_out, control, dt)
-            return
-        self.integrator.step_system(
-            self,
-            0.0,
-            dt,
-            state_in.particle_q,
-            state_in.particle_qd,
-            state_out.particle_q,
-            state_out.particle_qd,
-        )
+            self._check_recordable(control)
         finish_step(
             m,
             control,
             state_in,
             state_out,
             dt,
-            contact=self.contact,
+            lambda x, v: self.integrator.step_system(
+                self, 0.0, dt, state_in.particle_q, state_in.particle_qd, x, v
+            ),
+            ground=self.ground_coefficients,
             collisions=self.collisions,
             ground_penalty=self._ground_penalty(),
         )
 
-    def _step_recorded(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
-        """The step as ``wp.Tape`` can replay it: integrate into fresh arrays, then kinematic targets and
-        the ground response, each reading its input and writing a fresh output (no in-place update)."""
-        m = self.model
+    def _check_recordable(self, control: Control | None) -> None:
+        """GradientError, before any launch, for what a recorded step cannot differentiate."""
         if not self.integrator.explicit and not getattr(self.integrator, "differentiable", False):
             raise GradientError(
                 f"{self.integrator.name} has no adjoint in this version: differentiate an explicit "
@@ -286,68 +251,6 @@ class ForceSolver(Solver):
                 )
         if control is not None and control.drag_index >= 0:
             raise GradientError("the drag handle is interactive and not differentiable: release_drag() first")
-        kinematic = control is not None and control.kinematic_indices.shape[0] > 0
-        stages = int(kinematic) + int(self.contact) + len(self.collisions)
-        outs = [(fresh(m), fresh(m)) for _ in range(stages)] + [(state_out.particle_q, state_out.particle_qd)]
-        x, v = outs[0]
-        self.integrator.step_system(self, 0.0, dt, state_in.particle_q, state_in.particle_qd, x, v)
-        k = 1
-        if kinematic:
-            slot = wp.full(m.particle_count, -1, dtype=wp.int32, device=m.device)
-            n = control.kinematic_indices.shape[0]
-            wp.launch(_kinematic_map, n, [control.kinematic_indices, slot], device=m.device)
-            xo, vo = outs[k]
-            wp.launch(
-                _kinematic_out,
-                m.particle_count,
-                [slot, control.kinematic_targets, m.s(1.0 / dt), state_in.particle_q, x, v, xo, vo],
-                device=m.device,
-            )
-            x, v, k = xo, vo, k + 1
-        kappa = self._ground_penalty()
-        if self.contact and kappa is not None:
-            # The same response as the unrecorded step (finish_step): friction for the penalty's impulse.
-            xo, vo = outs[k]
-            wp.launch(
-                ground_penalty_friction_out,
-                m.particle_count,
-                [
-                    m.particle_inv_mass,
-                    m.particle_radius,
-                    m.s(m.ground.height),
-                    self.ground_coefficients,
-                    m.s(kappa),
-                    m.s(dt),
-                    x,
-                    v,
-                    xo,
-                    vo,
-                ],
-                device=m.device,
-            )
-        elif self.contact:
-            xo, vo = outs[k]
-            wp.launch(
-                ground_contact_out,
-                m.particle_count,
-                [
-                    m.particle_inv_mass,
-                    m.particle_radius,
-                    m.s(m.ground.height),
-                    self.ground_coefficients,
-                    x,
-                    v,
-                    xo,
-                    vo,
-                ],
-                device=m.device,
-            )
-        if self.contact:
-            x, v, k = xo, vo, k + 1
-        for c in self.collisions:  # then each handler, in the order of the unrecorded step (finish_step)
-            xo, vo = outs[k]
-            c.apply_out(m, x, v, xo, vo)
-            x, v, k = xo, vo, k + 1
 
     def reset(self) -> None:
         """Forget what earlier steps leave for the next: the L-BFGS curvature pairs and warm start, a
