@@ -12,9 +12,13 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from .._time import substep_dt
+
+if TYPE_CHECKING:
+    from ..model import Model
+    from ..solvers import Solver
 
 
 @dataclass(frozen=True)
@@ -32,8 +36,8 @@ class Timing:
 
 
 def run_timed(
-    model: Any,
-    solver: Any,
+    model: Model,
+    solver: Solver,
     control: Any,
     dt: float,
     *,
@@ -142,8 +146,8 @@ def curve_deviation(curve: Any, reference: Any, scale: float) -> float:
 
 
 def frame_curve(
-    model: Any,
-    solver: Any,
+    model: Model,
+    solver: Solver,
     measure: Callable[[Any], float],
     *,
     substeps: int,

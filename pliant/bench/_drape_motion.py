@@ -16,12 +16,16 @@ once and stored in ``pliant/bench/references/cloth_drape_<n>.npz``; regenerate w
 from __future__ import annotations
 
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ._common import REFERENCES, curve_deviation, frame_curve, load_reference
 from ._drape_scene import FRAME_DT, cloth_drape_model, make_solver, sag
+
+if TYPE_CHECKING:
+    from ..model import Model
+    from ..solvers import Solver
 
 #: Substeps per frame of the references (8× or more the stable benchmark setting).
 REFERENCE_SUBSTEPS = {16: 640, 64: 640, 128: 1280}
@@ -48,7 +52,9 @@ def sag_curve(
     return solver_curve(model, solver, substeps=substeps, frames=frames)
 
 
-def solver_curve(model: Any, solver: Any, *, substeps: int, frames: int = REFERENCE_FRAMES) -> np.ndarray:
+def solver_curve(
+    model: Model, solver: Solver, *, substeps: int, frames: int = REFERENCE_FRAMES
+) -> np.ndarray:
     """Sag [m] at frames 0 … ``frames`` of ``solver`` stepping ``model`` from its initial state, ``substeps``
     steps of 1/60 s / ``substeps`` per frame (any pliant solver: mass-spring, XPBD, ...)."""
     return frame_curve(

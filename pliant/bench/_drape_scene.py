@@ -8,9 +8,12 @@ neither of those imports the other.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..model import Model
 
 #: Frames of 1/60 s per run: the fall, which the motion references cover.
 FRAMES = 30
@@ -39,13 +42,13 @@ def cloth_drape_model(
     return b.finalize(device=device, dtype=dtype)
 
 
-def sag(model: Any, x: np.ndarray) -> float:
+def sag(model: Model, x: np.ndarray) -> float:
     """Pin height minus the lowest particle's height [m]."""
     pinned = model.particle_inv_mass.numpy() == 0
     return float(x[pinned, 1].mean() - x[:, 1].min())
 
 
-def sag_fields(model: Any, state: Any, reference: float) -> dict:
+def sag_fields(model: Model, state: Any, reference: float) -> dict:
     """The sanity columns of a drape row: sag [m] of the final ``state``, ``reference``, relative error,
     and whether every position is finite (the sag is NaN otherwise)."""
     x = state.particle_q.numpy()
@@ -61,7 +64,7 @@ def sag_fields(model: Any, state: Any, reference: float) -> dict:
 
 
 def make_solver(
-    model: Any,
+    model: Model,
     method: str,
     *,
     cg_iterations: int = 100,

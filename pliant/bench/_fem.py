@@ -28,12 +28,15 @@ import resource
 import sys
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .._time import substep_dt
 from ._box_reference import motion_fields
+
+if TYPE_CHECKING:
+    from ..model import Model
 
 SIDE = 0.5
 DENSITY = 1000.0
@@ -77,7 +80,7 @@ IMPLICIT_DTYPE = "float64"
 
 
 def make_solver(
-    model: Any,
+    model: Model,
     method: str,
     *,
     newton_tol: float | None = None,

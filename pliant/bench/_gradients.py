@@ -17,10 +17,13 @@ import resource
 import sys
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from .._time import substep_dt
 from ._common import print_rows
+
+if TYPE_CHECKING:
+    from ..model import Model
 
 FRAMES = 60
 FRAME_DT = 1.0 / 60.0
@@ -49,7 +52,7 @@ def _bench(n: int, substeps: int, implicit: bool = False) -> Callable[..., dict]
         from ..solvers import FastMassSpring, ForceSolver
         from ._mass_spring import cloth_drape_model
 
-        def make_solver(model: Any) -> Any:
+        def make_solver(model: Model) -> Any:
             if implicit:
                 return FastMassSpring(model, method="implicit", cg_iterations=40, damping_rate=1.0)
             return ForceSolver(model, integrator=SymplecticEuler(), damping_rate=1.0)
@@ -64,7 +67,7 @@ def _bench(n: int, substeps: int, implicit: bool = False) -> Callable[..., dict]
             wp.launch(kernel, state.particle_q.shape[0], [state.particle_q, out], device=out.device)
             return out
 
-        def forward(model: Any) -> float:
+        def forward(model: Model) -> float:
             solver = make_solver(model)
             s0, s1 = model.state(), model.state()
             solver.step(s0, s1, None, dt)  # warm-up (compilation)
@@ -76,7 +79,7 @@ def _bench(n: int, substeps: int, implicit: bool = False) -> Callable[..., dict]
             wp.synchronize_device(model.device)
             return time.perf_counter() - t0
 
-        def timed_recorded(model: Any) -> float:
+        def timed_recorded(model: Model) -> float:
             solver = make_solver(model)
             s = model.state()
             t0 = time.perf_counter()
@@ -122,7 +125,7 @@ def _bench(n: int, substeps: int, implicit: bool = False) -> Callable[..., dict]
     return bench
 
 
-def _with_grad(model: Any) -> Any:
+def _with_grad(model: Model) -> Any:
     """``model`` rebuilt with ``requires_grad=True`` (the drape builder finalises without gradients)."""
     import dataclasses
 
@@ -137,7 +140,7 @@ def _with_grad(model: Any) -> Any:
         "tet_mu",
         "tet_lam",
     )
-    changes = {k: wp.clone(getattr(model, k), requires_grad=True) for k in grads}
+    changes: dict[str, Any] = {k: wp.clone(getattr(model, k), requires_grad=True) for k in grads}
     return dataclasses.replace(model, requires_grad=True, **changes)
 
 

@@ -59,7 +59,7 @@ def _rollout(n: int, frames: int, record: bool) -> tuple[float, float, float, in
         minimizer={"method": "lbfgs"},
     )
     states = [model.state() for _ in range(frames + 1)]
-    weight = wp.array(
+    weight: wp.array = wp.array(
         np.tile([0.0, 1.0 / model.particle_count, 0.0], (model.particle_count, 1)),
         dtype=model.vec3,
         device=model.device,

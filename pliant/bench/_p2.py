@@ -26,9 +26,12 @@ from __future__ import annotations
 import json
 import sys
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..model import Model
 
 ELASTICA_V = {1.0: 0.30172, 2.0: 0.49346}  # Mattiasson (1981), Table 1: v/L at α = PL²/EI
 COOK_REFERENCE = 23.96
@@ -42,7 +45,7 @@ def _model(points: np.ndarray, tets: np.ndarray, *, order: int, E: float, nu: fl
     return b.finalize(device="cpu", dtype="float64")
 
 
-def _corner_faces(model: Any) -> tuple[np.ndarray, np.ndarray | None]:
+def _corner_faces(model: Model) -> tuple[np.ndarray, np.ndarray | None]:
     """Boundary triangles (corner nodes) and, for P2, their mid-edge nodes [F, 3] (edges 01, 12, 20)."""
     from ..geometry import surface_from_tets
 
@@ -50,6 +53,8 @@ def _corner_faces(model: Any) -> tuple[np.ndarray, np.ndarray | None]:
         return surface_from_tets(model.tet_indices.numpy()), None
     from ..geometry._p2 import P2_EDGES
 
+    if model.tet10_indices is None:
+        raise ValueError(f"the model has {model.tet10_count} quadratic tets but no tet10_indices")
     t10 = model.tet10_indices.numpy().astype(np.int64)
     tris = surface_from_tets(t10[:, :4])
     keys = np.sort(t10[:, P2_EDGES], axis=2).reshape(-1, 2)
@@ -66,7 +71,7 @@ def _corner_faces(model: Any) -> tuple[np.ndarray, np.ndarray | None]:
     )
 
 
-def face_loads(model: Any, on_face: Any, traction: np.ndarray) -> np.ndarray:
+def face_loads(model: Model, on_face: Any, traction: np.ndarray) -> np.ndarray:
     """Consistent nodal forces [N] of a uniform ``traction`` [Pa] on the boundary faces where ``on_face``.
 
     ``on_face(X)`` takes [k, 3] points and returns a bool per point; a face is loaded when its three
@@ -87,7 +92,7 @@ def face_loads(model: Any, on_face: Any, traction: np.ndarray) -> np.ndarray:
     return f
 
 
-def _solve(model: Any, energy: Any, fixed: np.ndarray, loads: Any = None, gravity: bool = False, **kw: Any):
+def _solve(model: Model, energy: Any, fixed: np.ndarray, loads: Any = None, gravity: bool = False, **kw: Any):
     from ..energies import Gravity
     from ..solvers import solve_static
 
@@ -98,7 +103,7 @@ def _solve(model: Any, energy: Any, fixed: np.ndarray, loads: Any = None, gravit
 
 
 def _row(
-    name: str, order: int, cells: Any, model: Any, value: float, ref: float, stats: Any, wall: float
+    name: str, order: int, cells: Any, model: Model, value: float, ref: float, stats: Any, wall: float
 ) -> dict:
     """One result row: the figure, its reference and relative error, the mesh's size, the solve."""
     return dict(

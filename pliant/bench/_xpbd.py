@@ -14,7 +14,7 @@ import json
 import sys
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -31,6 +31,10 @@ from ._common import (
     speed_fields,
 )
 from ._mass_spring import FRAME_DT, FRAMES, _reference_at, cloth_drape_model, sag, sag_fields
+
+if TYPE_CHECKING:
+    from ..model import Model
+    from ..solvers import XPBD
 
 #: Velocity damping rate c [1/s] of the reference runs at rest (v ← v e^{−cΔt}); the benchmark rows use 0.
 DAMPING = 3.0
@@ -56,7 +60,7 @@ SETTINGS: dict[tuple[int, str], tuple[int, int, float]] = {
 }
 
 
-def _run_xpbd(model: Any, solver: Any, *, frames: int, substeps: int, device: str, started: float):
+def _run_xpbd(model: Model, solver: XPBD, *, frames: int, substeps: int, device: str, started: float):
     """:func:`run_timed` for XPBD: the warm-up records both step plans, the timed steps replay them on the
     same state arrays."""
     return run_timed(
@@ -102,7 +106,7 @@ def _drape_solver(
     return model, solver
 
 
-def _xpbd_row(scene: str, timing: Timing, model: Any, solver: Any, settings: dict, sanity: dict) -> dict:
+def _xpbd_row(scene: str, timing: Timing, model: Model, solver: XPBD, settings: dict, sanity: dict) -> dict:
     """An XPBD row: the scene and run columns, ``settings``, the speed columns (with constraint projections
     per second and the final residual), then the ``sanity`` columns."""
     count, iterations = solver.constraint_count, solver.iterations
@@ -249,7 +253,7 @@ def soft_body_drop(
     model, solver = _box(cells, schedule, iterations, device, dtype)
     state, timing = _run_xpbd(model, solver, frames=frames, substeps=substeps, device=device, started=started)
     x = state.particle_q.numpy()
-    sanity = {
+    sanity: dict[str, float | bool | None] = {
         "final_height": round(float(x[:, 1].mean()), 5),
         "min_height": round(float(x[:, 1].min()), 5),
         "stable": bool(np.all(np.isfinite(x))),

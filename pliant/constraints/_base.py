@@ -200,9 +200,28 @@ class Constraint(abc.ABC):
         self.compliance = compliance
         self.stiffness = float(stiffness)
         self.count = 0
-        self.model: Model | None = None
+        self._model: Model | None = None
         self.lam: wp.array | None = None
         self.color_offsets = np.zeros(1, np.int64)
+
+    @property
+    def model(self) -> Model:
+        """The Model this set was bound to (:meth:`bind`, which the XPBD solver calls)."""
+        if self._model is None:
+            raise RuntimeError(
+                f"{type(self).__name__} is not bound to a model: call bind(model, coloring) first"
+            )
+        return self._model
+
+    @model.setter
+    def model(self, model: Model) -> None:
+        self._model = model
+
+    def _multipliers(self) -> wp.array:
+        """λ, the multipliers :meth:`bind` allocated (the set must be bound)."""
+        if self.lam is None:
+            raise RuntimeError(f"{type(self).__name__} has no multipliers: call bind(model, coloring) first")
+        return self.lam
 
     # ------------------------------------------------------------------ host set-up
     @abc.abstractmethod

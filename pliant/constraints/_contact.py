@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 import warp as wp
+from numpy.typing import ArrayLike
 
 from ..collision._hashgrid import ParticleGrid, TriangleBVH
 from ..model import Model
@@ -116,7 +117,7 @@ class Ground(Constraint):
     def __init__(
         self,
         *,
-        normal: Any = (0.0, 1.0, 0.0),
+        normal: ArrayLike = (0.0, 1.0, 0.0),
         offset: float | None = None,
         friction: float | None = None,
         restitution: float | None = None,
@@ -154,7 +155,9 @@ class Ground(Constraint):
         (sub)gradient at it.
         """
         m = self.model
-        p_out, lam_out = (ctx.fresh(p), ctx.fresh(self.lam)) if ctx.requires_grad else (p, self.lam)
+        p_out, lam_out = (
+            (ctx.fresh(p), ctx.fresh(self._multipliers())) if ctx.requires_grad else (p, self.lam)
+        )
         ctx.launch(
             _project_ground,
             self.count,
@@ -455,7 +458,7 @@ class PointTriangleCollision(Constraint):
         self,
         *,
         thickness: float = 0.01,
-        triangles: Any = None,
+        triangles: ArrayLike | None = None,
         margin: float | None = None,
         capacity: int | None = None,
     ) -> None:
@@ -475,7 +478,7 @@ class PointTriangleCollision(Constraint):
         if tris.shape[0] == 0:
             raise ValueError("PointTriangleCollision: the model has no triangles; pass triangles=")
         d, f = model.device, model.scalar
-        self.tri_indices = wp.array(tris, dtype=wp.int32, device=d)
+        self.tri_indices: wp.array = wp.array(tris, dtype=wp.int32, device=d)
         self.bvh = TriangleBVH(d, tris, model.particle_count)
         self.capacity = int(self._capacity or 8 * model.particle_count)
         self.contact_count = wp.zeros(1, dtype=wp.int32, device=d)

@@ -6,10 +6,13 @@ contract tests' view of C and ∇C — call the same funcs.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
+
+if TYPE_CHECKING:
+    from ..model import Model
 
 
 # ---------------------------------------------------------------------- ground
@@ -161,7 +164,7 @@ def _point_triangle_values(
     grad_out[k, 3] = g3
 
 
-def _outputs(model: Any, n: int, k: int) -> tuple[wp.array, wp.array]:
+def _outputs(model: Model, n: int, k: int) -> tuple[wp.array, wp.array]:
     """Zeroed C [n] and ∇C [n, k] arrays on the model's device and dtype."""
     return (
         wp.zeros(n, dtype=model.scalar, device=model.device),
@@ -169,7 +172,7 @@ def _outputs(model: Any, n: int, k: int) -> tuple[wp.array, wp.array]:
     )
 
 
-def evaluate_ground(model: Any, normal: np.ndarray, offset: float, x: wp.array) -> tuple:
+def evaluate_ground(model: Model, normal: np.ndarray, offset: float, x: wp.array) -> tuple:
     """C [N], indices [N, 1] and ∇C [N, 1, 3] of the ground constraint of every particle at ``x``.
 
     Args:
@@ -186,7 +189,7 @@ def evaluate_ground(model: Any, normal: np.ndarray, offset: float, x: wp.array) 
     return c.numpy(), np.arange(n, dtype=np.int32)[:, None], g.numpy()
 
 
-def evaluate_particle_pairs(model: Any, grid: Any, query_radius: float, x: wp.array) -> tuple:
+def evaluate_particle_pairs(model: Model, grid: Any, query_radius: float, x: wp.array) -> tuple:
     """C [P], pairs [P, 2] and ∇C [P, 2, 3] of every particle pair closer than ``query_radius`` [m] at x.
 
     Args:
@@ -211,7 +214,7 @@ def evaluate_particle_pairs(model: Any, grid: Any, query_radius: float, x: wp.ar
     return c.numpy(), pairs.numpy(), g.numpy()
 
 
-def evaluate_point_triangle(model: Any, constraint: Any, x: wp.array) -> tuple:
+def evaluate_point_triangle(model: Model, constraint: Any, x: wp.array) -> tuple:
     """C [K], indices [K, 4] (point, triangle) and ∇C [K, 4, 3] of the step's point–triangle contacts at x.
 
     Args:

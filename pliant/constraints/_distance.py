@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 import warp as wp
+from numpy.typing import ArrayLike
 
 from ..model import Model
 from ..model._parameters import Parameter, constraint_array, declares
@@ -30,7 +31,7 @@ def distance_grad(x0: Any, x1: Any):
     return n, -n
 
 
-def _as_pairs(indices: Any) -> np.ndarray:
+def _as_pairs(indices: ArrayLike) -> np.ndarray:
     idx = np.asarray(indices, np.int64).reshape(-1, 2)
     return idx.astype(np.int32)
 
@@ -73,9 +74,9 @@ class Distance(FixedArityConstraint):
 
     def __init__(
         self,
-        indices: Any = None,
+        indices: ArrayLike | None = None,
         *,
-        rest_length: Any = None,
+        rest_length: ArrayLike | None = None,
         compliance: Any = None,
         stiffness: float = 1.0,
     ) -> None:
@@ -176,10 +177,10 @@ class Attachment(Constraint):
 
     def __init__(
         self,
-        indices: Any,
-        targets: Any = None,
+        indices: ArrayLike,
+        targets: ArrayLike | None = None,
         *,
-        rest_length: Any = 0.0,
+        rest_length: ArrayLike = 0.0,
         compliance: float = 0.0,
         stiffness: float = 1.0,
     ) -> None:
@@ -201,10 +202,14 @@ class Attachment(Constraint):
         t = t.reshape(n, 3)
         d, f = model.device, model.scalar
         self.count = n
-        self.indices = wp.array(idx.astype(np.int32), dtype=wp.int32, device=d)
-        self.targets = wp.array(t, dtype=model.vec3, device=d)
-        self.rest_length = wp.array(np.broadcast_to(np.asarray(self._rest, float), (n,)), dtype=f, device=d)
-        self.compliance_array = wp.array(np.full(n, float(self.compliance)), dtype=f, device=d)
+        self.indices: wp.array = wp.array(idx.astype(np.int32), dtype=wp.int32, device=d)
+        self.targets: wp.array = wp.array(t, dtype=model.vec3, device=d)
+        self.rest_length: wp.array = wp.array(
+            np.broadcast_to(np.asarray(self._rest, float), (n,)), dtype=f, device=d
+        )
+        self.compliance_array: wp.array = wp.array(
+            np.full(n, float(self.compliance or 0.0)), dtype=f, device=d
+        )
         self.lam = wp.zeros(n, dtype=f, device=d)
 
     def evaluate(self, x: wp.array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -217,7 +222,7 @@ class Attachment(Constraint):
             wp.launch(_attachment_values, self.count, args, device=m.device)
         return c.numpy(), self.indices.numpy()[:, None], g.numpy()
 
-    def set_targets(self, targets: Any) -> None:
+    def set_targets(self, targets: ArrayLike) -> None:
         """Move the attachment points [m], shape [K, 3] (between steps)."""
         self.targets.assign(np.asarray(targets, float).reshape(self.count, 3))
 

@@ -235,7 +235,7 @@ class FixedArityConstraint(Constraint):
                 args = [*common, m.particle_inv_mass, inv_dt2, k, off, omega, p, self.lam]
                 ctx.launch(self.kernels.gauss_seidel, size, args)
                 continue
-            lam_out = ctx.fresh(self.lam) if ctx.requires_grad else self.lam
+            lam_out = ctx.fresh(self._multipliers()) if ctx.requires_grad else self.lam
             args = [*common, self.split, m.particle_inv_mass, inv_dt2, k, off, omega, p, self.lam, lam_out]
             ctx.launch(self.kernels.jacobi, size, [*args, ctx.delta, ctx.delta_count])
             self.lam = lam_out
@@ -270,9 +270,11 @@ class FixedArityConstraint(Constraint):
         rg = m.requires_grad
         d, f = m.device, m.scalar
         self.count = n
-        self.indices = wp.array(idx[order].astype(np.int32).reshape(-1, k), dtype=wp.int32, device=d)
-        self.rest = wp.array(rest[order], dtype=f, device=d, requires_grad=rg)
-        self.compliance_array = wp.array(comp[order], dtype=f, device=d, requires_grad=rg)
+        self.indices: wp.array = wp.array(
+            idx[order].astype(np.int32).reshape(-1, k), dtype=wp.int32, device=d
+        )
+        self.rest: wp.array = wp.array(rest[order], dtype=f, device=d, requires_grad=rg)
+        self.compliance_array: wp.array = wp.array(comp[order], dtype=f, device=d, requires_grad=rg)
         self.lam = wp.zeros(n, dtype=f, device=d, requires_grad=rg)
-        self.split = wp.array(self._split_counts(idx), dtype=wp.int32, device=d)
+        self.split: wp.array = wp.array(self._split_counts(idx), dtype=wp.int32, device=d)
         self.order = order

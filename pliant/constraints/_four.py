@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 import warp as wp
+from numpy.typing import ArrayLike
 
 from ..model import Model
 from ..model._parameters import BENDING_STIFFNESS, Parameter, constraint_array, declares
@@ -107,7 +108,9 @@ def volume_grad(x0: Any, x1: Any, x2: Any, x3: Any):
 class _FourPoint(FixedArityConstraint):
     _name = ""
 
-    def __init__(self, indices: Any, rest: Any, compliance: Any, stiffness: float) -> None:
+    def __init__(
+        self, indices: ArrayLike | None, rest: ArrayLike | None, compliance: Any, stiffness: float
+    ) -> None:
         super().__init__(
             compliance=None if compliance is None or np.ndim(compliance) else float(compliance),
             stiffness=stiffness,
@@ -125,6 +128,8 @@ class _FourPoint(FixedArityConstraint):
     def bind(self, model: Model, coloring: bool) -> None:
         """Resolve defaults from ``model`` and copy the colour-sorted constraints to its device."""
         self.model = model
+        rest: ArrayLike  # per constraint, or one value broadcast below
+        comp: ArrayLike
         if self._indices is None:
             idx, rest, comp = self._defaults(model)
         else:
@@ -189,7 +194,12 @@ class DihedralBending(_FourPoint):
         )
 
     def __init__(
-        self, indices: Any = None, *, rest_angle: Any = None, compliance: Any = None, stiffness: float = 1.0
+        self,
+        indices: ArrayLike | None = None,
+        *,
+        rest_angle: ArrayLike | None = None,
+        compliance: Any = None,
+        stiffness: float = 1.0,
     ) -> None:
         super().__init__(indices, rest_angle, compliance, stiffness)
 
@@ -239,7 +249,12 @@ class Volume(_FourPoint):
         )
 
     def __init__(
-        self, indices: Any = None, *, rest_volume: Any = None, compliance: Any = None, stiffness: float = 1.0
+        self,
+        indices: ArrayLike | None = None,
+        *,
+        rest_volume: ArrayLike | None = None,
+        compliance: Any = None,
+        stiffness: float = 1.0,
     ) -> None:
         super().__init__(indices, rest_volume, compliance, stiffness)
 
@@ -384,7 +399,9 @@ class IsometricBending(Constraint):
 
     relaxes_itself = True
 
-    def __init__(self, indices: Any = None, *, compliance: Any = None, stiffness: float = 1.0) -> None:
+    def __init__(
+        self, indices: ArrayLike | None = None, *, compliance: Any = None, stiffness: float = 1.0
+    ) -> None:
         super().__init__(
             compliance=None if compliance is None or np.ndim(compliance) else float(compliance),
             stiffness=stiffness,
@@ -411,11 +428,13 @@ class IsometricBending(Constraint):
         d, f = model.device, model.scalar
         vec4 = wp.vec4 if model.dtype == "float32" else wp.vec4d
         self.count = n
-        self.indices = wp.array(idx[order].astype(np.int32).reshape(-1, 4), dtype=wp.int32, device=d)
-        self.weights = wp.array(K[order], dtype=vec4, device=d)
-        self.compliance_array = wp.array(comp[order], dtype=f, device=d)
+        self.indices: wp.array = wp.array(
+            idx[order].astype(np.int32).reshape(-1, 4), dtype=wp.int32, device=d
+        )
+        self.weights: wp.array = wp.array(K[order], dtype=vec4, device=d)
+        self.compliance_array: wp.array = wp.array(comp[order], dtype=f, device=d)
         self.lam = wp.zeros(n, dtype=model.vec3, device=d)
-        self.split = wp.array(self._split_counts(idx), dtype=wp.int32, device=d)
+        self.split: wp.array = wp.array(self._split_counts(idx), dtype=wp.int32, device=d)
         self.order = order
 
     def evaluate(self, x: wp.array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 import warp as wp
+from numpy.typing import ArrayLike
 
 from ..model import Model
 from ._base import Constraint, ProjectionContext, constraint_delta_lambda
@@ -62,10 +63,11 @@ def _project_generic(
 def _make_eval(c_func: Any) -> Any:
     """A kernel evaluating ``c_func`` per constraint; its adjoint gives ∇C per constraint copy."""
 
+    # A Warp kernel built by wp.kernel below, not by a decorator: its annotations are Warp's, not types.
     def eval_c(
-        xg: wp.array2d(dtype=Any),
-        params: wp.array(dtype=Any),
-        c_out: wp.array(dtype=Any),
+        xg: wp.array2d(dtype=Any),  # type: ignore[valid-type]
+        params: wp.array(dtype=Any),  # type: ignore[valid-type]
+        c_out: wp.array(dtype=Any),  # type: ignore[valid-type]
     ):
         s = wp.tid()
         c_out[s] = c_func(xg[s, 0], xg[s, 1], xg[s, 2], xg[s, 3], params[s])
@@ -104,7 +106,7 @@ class GenericConstraint(Constraint):
     def __init__(
         self,
         c_func: Any,
-        indices: Any,
+        indices: ArrayLike,
         *,
         params: Any = 0.0,
         compliance: Any = 0.0,
@@ -132,12 +134,14 @@ class GenericConstraint(Constraint):
             raise ValueError(f"GenericConstraint: indices out of range [0, {model.particle_count})")
         d, f, v = model.device, model.scalar, model.vec3
         self.count = n
-        self.indices = wp.array(idx.astype(np.int32), dtype=wp.int32, device=d)
-        self.params = wp.array(np.broadcast_to(np.asarray(self._params, float), (n,)), dtype=f, device=d)
+        self.indices: wp.array = wp.array(idx.astype(np.int32), dtype=wp.int32, device=d)
+        self.params: wp.array = wp.array(
+            np.broadcast_to(np.asarray(self._params, float), (n,)), dtype=f, device=d
+        )
         comp = np.broadcast_to(np.asarray(self._compliance_arg, float), (n,))
-        self.compliance_array = wp.array(comp, dtype=f, device=d)
+        self.compliance_array: wp.array = wp.array(comp, dtype=f, device=d)
         self.lam = wp.zeros(n, dtype=f, device=d)
-        self.split = wp.array(self._split_counts(idx[:, : self.arity]), dtype=wp.int32, device=d)
+        self.split: wp.array = wp.array(self._split_counts(idx[:, : self.arity]), dtype=wp.int32, device=d)
         self.xg = wp.zeros((n, 4), dtype=v, device=d)
         self.grad = wp.zeros((n, 4), dtype=v, device=d)
         self.c = wp.zeros(n, dtype=f, device=d)

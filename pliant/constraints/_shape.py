@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 import warp as wp
+from numpy.typing import ArrayLike
 
 from ..model import Model
 from ._base import Constraint, ProjectionContext, color_incidence, pbd_iteration_stiffness, sort_by_color
@@ -218,7 +219,7 @@ class ShapeMatching(Constraint):
     differentiable = True
 
     def __init__(
-        self, clusters: Sequence[Any] | None = None, *, stiffness: float = 1.0, radii: Any = None
+        self, clusters: Sequence[Any] | None = None, *, stiffness: float = 1.0, radii: ArrayLike | None = None
     ) -> None:
         super().__init__(compliance=None, stiffness=stiffness)
         self._clusters = None if clusters is None else [np.asarray(c, np.int64).reshape(-1) for c in clusters]
@@ -262,23 +263,25 @@ class ShapeMatching(Constraint):
         self.differentiable = not self.oriented
         d, f, v = model.device, model.scalar, model.vec3
         self.count = len(clusters)
-        self.offsets = wp.array(offsets, dtype=wp.int32, device=d)
-        self.members = wp.array(mem.astype(np.int32), dtype=wp.int32, device=d)
-        self.rest = wp.array(q[mem], dtype=v, device=d)
-        self.rest_center = wp.array(rest_center, dtype=v, device=d)
-        self.member_mass = wp.array(mass, dtype=f, device=d)
-        self.radii = wp.array(radii, dtype=v, device=d)
+        self.offsets: wp.array = wp.array(offsets, dtype=wp.int32, device=d)
+        self.members: wp.array = wp.array(mem.astype(np.int32), dtype=wp.int32, device=d)
+        self.rest: wp.array = wp.array(q[mem], dtype=v, device=d)
+        self.rest_center: wp.array = wp.array(rest_center, dtype=v, device=d)
+        self.member_mass: wp.array = wp.array(mass, dtype=f, device=d)
+        self.radii: wp.array = wp.array(radii, dtype=v, device=d)
         quat = wp.quat if model.dtype == "float32" else wp.quatd
         ident = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (n, 1))
-        self.orientation = wp.array(ident, dtype=quat, device=d)
-        self._orientation_prev = wp.array(ident, dtype=quat, device=d)
+        self.orientation: wp.array = wp.array(ident, dtype=quat, device=d)
+        self._orientation_prev: wp.array = wp.array(ident, dtype=quat, device=d)
         self.angular_velocity = wp.zeros(n, dtype=v, device=d)
         self._ident = ident
         self.order = order
         sizes = np.diff(offsets)
-        self.member_cluster = wp.array(np.repeat(np.arange(len(clusters)), sizes).astype(np.int32), device=d)
+        self.member_cluster: wp.array = wp.array(
+            np.repeat(np.arange(len(clusters)), sizes).astype(np.int32), device=d
+        )
         cmass = np.array([model.particle_mass_np[c].sum() for c in clusters])
-        self.cluster_mass = wp.array(cmass, dtype=f, device=d)
+        self.cluster_mass: wp.array = wp.array(cmass, dtype=f, device=d)
         self._mat = model.mat33
 
     def reset_orientations(self) -> None:

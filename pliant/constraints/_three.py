@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 import warp as wp
+from numpy.typing import ArrayLike
 
 from ..model import Model
 from ._factory import FixedArityConstraint, projection_kernels
@@ -69,7 +70,12 @@ class TriangleArea(FixedArityConstraint):
     kernels = projection_kernels("triangle_area", triangle_area_c, triangle_area_grad, 3)
 
     def __init__(
-        self, indices: Any = None, *, rest_area: Any = None, compliance: Any = 0.0, stiffness: float = 1.0
+        self,
+        indices: ArrayLike | None = None,
+        *,
+        rest_area: ArrayLike | None = None,
+        compliance: Any = 0.0,
+        stiffness: float = 1.0,
     ) -> None:
         super().__init__(compliance=None if np.ndim(compliance) else float(compliance), stiffness=stiffness)
         self._indices = None if indices is None else np.asarray(indices, np.int64).reshape(-1, 3)

@@ -118,7 +118,7 @@ class AirDrag(ModalEnergy):
 
     def begin_step(self, model: Model, x: wp.array, v: wp.array, dt: float) -> None:
         """Freeze xⁿ and the relative speeds |uⁿ| for the implicit potential of this step of ``dt`` [s]."""
-        if self._speed is None or self._speed.shape[0] != model.particle_count:
+        if self._speed is None or self._x_ref is None or self._speed.shape[0] != model.particle_count:
             d = model.device
             self._speed = wp.zeros(model.particle_count, dtype=model.scalar, device=d)
             self._x_ref = wp.zeros(model.particle_count, dtype=model.vec3, device=d)

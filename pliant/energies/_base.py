@@ -145,15 +145,18 @@ class ModalEnergy(Energy):
 
     def _dummies(self, model: Model) -> tuple[wp.array, wp.array, wp.array, wp.array]:
         """1-element (int32, scalar, vec3, mat33) arrays on the model's device and dtype, cached."""
+        cache: dict[tuple[str, str], tuple[wp.array, wp.array, wp.array, wp.array]] | None
         cache = getattr(self, "_dummy_cache", None)
         if cache is None:
-            cache = self._dummy_cache = {}
+            cache = {}
+            self._dummy_cache = cache
         key = (str(wp.get_device(model.device)), model.dtype)
         if key not in cache:
-            cache[key] = tuple(
+            i, s, v, m = (
                 wp.zeros(1, dtype=t, device=model.device)
                 for t in (wp.int32, model.scalar, model.vec3, model.mat33)
             )
+            cache[key] = (i, s, v, m)
         return cache[key]
 
 

@@ -157,11 +157,21 @@ def _np(model: Model) -> type:
     return np.float32 if model.dtype == "float32" else np.float64
 
 
+def _tet10(model: Model, name: str) -> wp.array:
+    """The quadratic-tet array ``name`` of a model with ``tet10_count`` > 0 (its builder sets them all)."""
+    a = getattr(model, name)
+    if a is None:
+        raise ValueError(
+            f"the model has {model.tet10_count} quadratic tets but no {name}; build it with ModelBuilder"
+        )
+    return a
+
+
 def _guard_tets(model: Model) -> list[wp.array]:
     """The linear tets the step bounds watch: the model's tets and the sub-tets of its quadratic ones."""
     out = [model.tet_indices] if model.tet_count else []
     if model.tet10_count:
-        out.append(model.tet10_subtets)
+        out.append(_tet10(model, "tet10_subtets"))
     return out
 
 
@@ -348,7 +358,7 @@ class TetElasticity(Energy):
         rows = np.repeat(idx, 4, axis=1).ravel()
         cols = np.tile(idx, (1, 4)).ravel()
         if model.tet10_count:
-            r10, c10 = p2.p2_hessian_pattern(model.tet10_indices.numpy())
+            r10, c10 = p2.p2_hessian_pattern(_tet10(model, "tet10_indices").numpy())
             rows, cols = np.concatenate([rows, r10]), np.concatenate([cols, c10])
         return rows, cols
 

@@ -78,7 +78,7 @@ def declare_overloads(kernels: tuple, dtype: str, inputs: Any) -> None:
     s = wp.float32 if dtype == "float32" else wp.float64
     v3 = wp.types.vector(3, s)
     m33 = wp.types.matrix((3, 3), s)
-    common = {k: wp.array(dtype=t) for k, t in inputs(s, m33).items()}
+    common: dict[str, wp.array] = {k: wp.array(dtype=t) for k, t in inputs(s, m33).items()}
     common["x_in"] = wp.array(dtype=v3)
     wp.overload(kernels[0], {**common, "out": wp.array(dtype=s)})
     wp.overload(kernels[1], {**common, "out": wp.array(dtype=s), "grad_out": wp.array(dtype=v3)})

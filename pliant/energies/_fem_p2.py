@@ -14,13 +14,16 @@ and the 100 blocks V w_q (∇N_a)ᵀ ∂P/∂F (∇N_b) atomically.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
 
 from . import _fem_math as fm
 from ._materials import get_material_model
+
+if TYPE_CHECKING:
+    from ..model import Model
 
 
 @wp.func
@@ -219,7 +222,7 @@ def p2_hessian_pattern(tet10_indices: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return np.repeat(idx, 10, axis=1).ravel(), np.tile(idx, (1, 10)).ravel()
 
 
-def p2_min_det(model: Any, qp_bary: wp.array, x: wp.array) -> float:
+def p2_min_det(model: Model, qp_bary: wp.array, x: wp.array) -> float:
     """min det F over the model's 10-node tets and the quadrature points ``qp_bary`` (one host read)."""
     out = wp.full(1, model.s(np.inf), dtype=model.scalar, device=model.device)
     wp.launch(

@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 import warp as wp
+from numpy.typing import ArrayLike
 
 from .._warp import launch
 from ..model import Model
@@ -84,7 +85,7 @@ class ControlPoints(ModalEnergy):
     def __init__(
         self,
         model: Model,
-        points: Any,
+        points: ArrayLike,
         *,
         stiffness: float,
         radius: float,
@@ -115,10 +116,12 @@ class ControlPoints(ModalEnergy):
         dev = model.device
         self.point_count = pts.shape[0]
         self.link_count = int(part.size)
-        self.link_particle = wp.array(part.astype(np.int32), dtype=wp.int32, device=dev)
-        self.link_point = wp.array(np.concatenate(pids).astype(np.int32), dtype=wp.int32, device=dev)
-        self.link_rest = wp.array(np.concatenate(rests), dtype=model.scalar, device=dev)
-        self.points = wp.array(pts, dtype=model.vec3, device=dev)
+        self.link_particle: wp.array = wp.array(part.astype(np.int32), dtype=wp.int32, device=dev)
+        self.link_point: wp.array = wp.array(
+            np.concatenate(pids).astype(np.int32), dtype=wp.int32, device=dev
+        )
+        self.link_rest: wp.array = wp.array(np.concatenate(rests), dtype=model.scalar, device=dev)
+        self.points: wp.array = wp.array(pts, dtype=model.vec3, device=dev)
         self.point_velocities = wp.zeros(pts.shape[0], dtype=model.vec3, device=dev)
         #: The arrays this energy allocated (NumPy input is copied into them, never into a user's array).
         self._owned = {"points": self.points, "velocities": self.point_velocities}
@@ -126,7 +129,7 @@ class ControlPoints(ModalEnergy):
         self.stiffness = float(stiffness)
         self.damping = float(damping)
 
-    def set_positions(self, points: Any, velocities: Any = None) -> None:
+    def set_positions(self, points: ArrayLike, velocities: ArrayLike | None = None) -> None:
         """Move the control points to ``points`` [K, 3] m (velocities [K, 3] m/s for the dashpots).
 
         NumPy input is copied into the energy's own arrays. A Warp array (``model.vec3``, shape [K]) is
@@ -138,7 +141,7 @@ class ControlPoints(ModalEnergy):
         if velocities is not None:
             self.point_velocities = self._take(velocities, "velocities")
 
-    def _take(self, values: Any, what: str) -> wp.array:
+    def _take(self, values: ArrayLike, what: str) -> wp.array:
         own = self._owned[what]
         if isinstance(values, wp.array):
             if values.shape != (self.point_count,) or values.dtype != own.dtype:

@@ -281,7 +281,13 @@ class Dashpots(ModalEnergy):
             )
             self._x_ref = x
         else:
-            if self._axis is None or self._axis.shape[0] != model.spring_count or self._axis.requires_grad:
+            axis = self._axis
+            if (
+                axis is None
+                or self._x_ref is None
+                or axis.shape[0] != model.spring_count
+                or axis.requires_grad
+            ):
                 self._axis = wp.zeros(model.spring_count, dtype=model.vec3, device=model.device)
                 self._x_ref = wp.zeros(model.particle_count, dtype=model.vec3, device=model.device)
             wp.copy(self._x_ref, x)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
@@ -18,6 +18,11 @@ from ._params import (
     resolve_globals,
     widen_bounds,
 )
+
+if TYPE_CHECKING:
+    from ..model import Control, Model
+    from ..scene._build import Scene
+    from ..sim import Simulator
 
 #: Multiple shooting by default (:class:`Problem` ``shooting=None``): its window [frames], the share of the
 #: free particles the tracks must cover, and the fewest training frames.
@@ -158,7 +163,7 @@ class Problem:
             self.config(values), device=self.device, dtype=self.dtype, requires_grad=requires_grad
         )
 
-    def _check_controls(self, scene: Any, obs: Observations) -> None:
+    def _check_controls(self, scene: Scene, obs: Observations) -> None:
         if obs.controls is None:
             return
         n = sum(cp.point_count for cp in scene.control_points)
@@ -168,14 +173,14 @@ class Problem:
                 f'handles have {n}; give the scene one [[handles]] kind = "points" with as many points'
             )
 
-    def control_fn(self, scene: Any) -> Any:
+    def control_fn(self, scene: Scene) -> Any:
         """f(t, control) for the Simulator: the observed control points when there are any, else the
         scene's."""
         if self.obs.controls is None:
             return scene.control_fn
         ctrl, frame_dt = self.obs.controls, self.frame_dt
 
-        def control_fn(t: float, control: Any) -> None:
+        def control_fn(t: float, control: Control | None) -> None:
             f = min(int(round(t / frame_dt)) + (1 if control is not None else 0), ctrl.shape[0] - 1)
             vel = (ctrl[f] - ctrl[max(f - 1, 0)]) / frame_dt
             lo = 0
@@ -185,7 +190,14 @@ class Problem:
 
         return control_fn
 
-    def _shooting(self, scene: Any, shooting: int | None) -> int:
+    @property
+    def particle(self) -> np.ndarray:
+        """[K] int: the particle each observed track follows (``Observations.bind`` in the constructor)."""
+        if self.obs.particle is None:
+            raise FitError("the observations are not bound to the scene's particles yet (Observations.bind)")
+        return self.obs.particle
+
+    def _shooting(self, scene: Scene, shooting: int | None) -> int:
         if shooting is not None:
             if isinstance(shooting, bool) or int(shooting) != shooting or shooting < 0:
                 raise FitError(
@@ -193,7 +205,7 @@ class Problem:
                 )
             return int(shooting)
         free = int(np.count_nonzero(scene.model.particle_inv_mass.numpy() > 0))
-        covered = len(np.unique(self.obs.particle)) if self.obs.tracks else 0
+        covered = len(np.unique(self.particle)) if self.obs.tracks else 0
         dense = free > 0 and covered >= SHOOTING_COVERAGE * free
         return SHOOTING_WINDOW if dense and self.n_train - 1 >= SHOOTING_MIN_FRAMES else 0
 
@@ -202,7 +214,7 @@ class Problem:
         shooting: every :attr:`shooting` frames after frame 0, while there are observations)."""
         return getattr(self, "shooting", 0) > 0 and 0 < f < self.obs.frames and f % self.shooting == 0
 
-    def force_state(self, model: Any, f: int, q: np.ndarray, qd: np.ndarray) -> None:
+    def force_state(self, model: Model, f: int, q: np.ndarray, qd: np.ndarray) -> None:
         """Teacher forcing at frame ``f``, in place on positions ``q`` and velocities ``qd`` [N, 3] of
         ``model``: the tracked free particles take their observed positions and velocities (every copy of a
         batched object); :func:`observed_velocity` gives the velocities."""
@@ -212,12 +224,12 @@ class Problem:
         vel, vis = observed_velocity(o.points, o.visible, f, self.frame_dt)
         free = m.particle_inv_mass.numpy() > 0
         for s in starts:
-            idx = o.particle[vis] + s
+            idx = self.particle[vis] + s
             keep = free[idx]
             q[idx[keep]] = o.points[f][vis][keep]
             qd[idx[keep]] = vel[vis][keep]
 
-    def _force(self, sim: Any) -> None:
+    def _force(self, sim: Simulator) -> None:
         """The Simulator's ``on_frame`` hook of a forced run (:meth:`forces`, :meth:`force_state`)."""
         if not self.forces(sim.frame):
             return
@@ -226,7 +238,7 @@ class Problem:
         sim.state_0.particle_q.assign(q)
         sim.state_0.particle_qd.assign(qd)
 
-    def simulate(self, scene: Any, frames: int, forced: bool | None = None) -> np.ndarray:
+    def simulate(self, scene: Scene, frames: int, forced: bool | None = None) -> np.ndarray:
         """Positions [m], shape [frames, N, 3], of frames 0 … frames − 1 (DivergenceError on a blow-up).
 
         ``forced``: teacher forcing every :attr:`shooting` frames (see the class); None: for a training run
@@ -251,13 +263,13 @@ class Problem:
             return 0.0
         o, dev = self.obs, self.device or "cpu"
         dtype, vec = wp.float64, wp.vec3d
-        xs = wp.array(np.ascontiguousarray(x[lo:hi]).reshape(-1, 3), dtype=vec, device=dev)
+        xs: wp.array = wp.array(np.ascontiguousarray(x[lo:hi]).reshape(-1, 3), dtype=vec, device=dev)
         out = wp.zeros(1, dtype=dtype, device=dev)
         if self.weights["track"]:
             pts = np.nan_to_num(o.points[lo:hi]).reshape(-1, 3)
             track_loss(
                 xs,
-                wp.array(o.particle.astype(np.int32), dtype=wp.int32, device=dev),
+                wp.array(self.particle.astype(np.int32), dtype=wp.int32, device=dev),
                 wp.array(pts, dtype=vec, device=dev),
                 wp.array(o.visible[lo:hi].reshape(-1).astype(np.int32), dtype=wp.int32, device=dev),
                 out,
@@ -265,7 +277,7 @@ class Problem:
                 beta=self.beta,
                 weight=self.weights["track"],
             )
-        if o.cloud is not None and self.weights["chamfer"]:
+        if o.cloud is not None and o.cloud_count is not None and self.weights["chamfer"]:  # both or neither
             chamfer_loss(
                 xs,
                 wp.array(o.cloud[lo:hi].reshape(-1, 3), dtype=vec, device=dev),
@@ -280,7 +292,7 @@ class Problem:
         """Per-frame mean track error [m] of positions ``x`` [T, N, 3] (NaN where no track is visible)."""
         o = self.obs
         t = min(x.shape[0], o.frames)
-        return track_errors(x[:t], o.particle, o.points[:t], o.visible[:t])
+        return track_errors(x[:t], self.particle, o.points[:t], o.visible[:t])
 
     def split_errors(self, x: np.ndarray) -> dict[str, float]:
         """Mean track error [m] over the train frames (1 … n_train − 1) and the test frames (the rest)."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 
 class Camera:
@@ -93,10 +94,10 @@ class Camera:
     @classmethod
     def look_at(
         cls,
-        eye: np.ndarray,
-        target: np.ndarray,
+        eye: ArrayLike,
+        target: ArrayLike,
         *,
-        up: tuple[float, float, float] | np.ndarray = (0.0, 1.0, 0.0),
+        up: ArrayLike = (0.0, 1.0, 0.0),
         fov_y: float = 50.0,
         width: int = 64,
         height: int = 48,

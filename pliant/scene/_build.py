@@ -6,7 +6,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -25,6 +25,12 @@ from ._registry import (
 )
 from ._replicate import replicate_scene
 from ._schema import OutputSection, SceneConfig
+
+if TYPE_CHECKING:
+    from ..collision import Colliders
+    from ..model import Control, Model
+    from ..render import Camera
+    from ..solvers import Solver
 
 #: Video colours (RGB in [0, 1]) of simulated bodies and of drawn colliders.
 BODY_COLOR = (0.91, 0.42, 0.16)
@@ -54,14 +60,14 @@ class Scene:
     """
 
     config: SceneConfig
-    model: Any
-    solver: Any
+    model: Model
+    solver: Any  # a Solver; callers read the kind's own attributes (XPBD's constraints), so kept duck-typed
     frame_dt: float  # frame duration [s] (the Simulator's dt); each frame runs `substeps` solver steps
     substeps: int
     frames: int
-    camera: Any = None  # pliant.render.Camera, or None to frame the motion automatically
+    camera: Camera | None = None  # None to frame the motion automatically
     outputs: OutputSection = field(default_factory=OutputSection)
-    colliders: Any = None  # pliant.collision.Colliders of [[colliders]], or None
+    colliders: Colliders | None = None  # the [[colliders]], or None
     control_fn: Any = None  # f(t, control) moving the [[handles]], or None
     control_points: list = field(default_factory=list)  # pl.energies.ControlPoints of spring handles
     embeddings: list[Embedding] = field(default_factory=list)
@@ -312,14 +318,15 @@ def _entries(ctx: BuildContext, section: str, registry: dict, out: list) -> None
 
 def _make_control_fn(frame_dt: float, kin: list[tuple[Any, slice, np.ndarray]], springs: list):
     """f(t, control): kinematic targets / control points at the end of the coming frame (t + frame_dt)."""
-    state = {"targets": None}
+    state: dict[str, np.ndarray | None] = {"targets": None}
 
-    def control_fn(t: float, control: Any) -> None:
+    def control_fn(t: float, control: Control | None) -> None:
         te = t + frame_dt if control is not None else 0.0
         if kin:
-            if state["targets"] is None:
-                state["targets"] = np.concatenate([x0 for _, _, x0 in kin])
-            tg = state["targets"].copy()
+            targets = state["targets"]
+            if targets is None:
+                targets = state["targets"] = np.concatenate([x0 for _, _, x0 in kin])
+            tg = targets.copy()
             for h, sl, x0 in kin:
                 tg[sl] = x0 + h.offset(te)
             if control is not None:
@@ -331,20 +338,24 @@ def _make_control_fn(frame_dt: float, kin: list[tuple[Any, slice, np.ndarray]], 
     return control_fn
 
 
-def _camera(cfg: SceneConfig) -> Any:
+def _camera(cfg: SceneConfig) -> Camera | None:
     c = cfg.camera
     if c.eye is None:
         return None
+    if c.target is None:  # the loader's checks ask for both
+        raise ValueError("camera.eye needs camera.target")
     from ..render import Camera
 
-    return Camera(eye=c.eye, target=c.target, up=c.up, fov_y=c.fov, width=c.width, height=c.height)
+    eye, target, up = (np.asarray(v, dtype=np.float64) for v in (c.eye, c.target, c.up))
+    return Camera(eye=eye, target=target, up=up, fov_y=c.fov, width=c.width, height=c.height)
 
 
-def _apply_parameters(ctx: BuildContext, solver: Any) -> None:
-    """``[scene] parameters``: per-element values (a fit's output) replace the built arrays."""
+def _apply_parameters(ctx: BuildContext, solver: Solver, parameters: str) -> None:
+    """``[scene] parameters``: per-element values (a fit's output, in the file ``parameters`` relative to
+    the scene file) replace the built arrays."""
     from ._files import scene_path
 
-    path = scene_path(ctx.cfg, ctx.cfg.scene.parameters, "scene.parameters")
+    path = scene_path(ctx.cfg, parameters, "scene.parameters")
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
@@ -413,7 +424,7 @@ def build_scene(
     _entries(ctx, "constraints", CONSTRAINT_KINDS, ctx.constraints)
     solver = SOLVER_KINDS[cfg.solver_kind()].factory(ctx)
     if cfg.scene.parameters is not None:
-        _apply_parameters(ctx, solver)
+        _apply_parameters(ctx, solver, cfg.scene.parameters)
     maybe_prebuild(cfg.scene.name, ctx.model)  # compile its kernels on both cores while the caller goes on
     return Scene(
         config=cfg,

@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ._errors import SceneError, scene_error
+
+if TYPE_CHECKING:
+    from ..model import ModelBuilder
+    from ._schema import SceneConfig
 
 
 @dataclass
@@ -22,8 +26,8 @@ class BuildContext:
         constraints: Extra constraints (clusters, self-collision, ``[[constraints]]``) for XPBD / PBD.
     """
 
-    cfg: Any
-    builder: Any
+    cfg: SceneConfig
+    builder: ModelBuilder
     ranges: list[tuple[int, int]] = field(default_factory=list)
     model: Any = None
     handlers: list[Any] = field(default_factory=list)

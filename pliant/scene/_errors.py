@@ -6,6 +6,7 @@ import re
 from typing import Any
 
 from pydantic import BaseModel, ValidationError
+from pydantic_core import ErrorDetails
 
 from ._registry import COLLIDER_KINDS, OBJECT_KINDS
 from ._schema import HandleConfig, SceneConfig
@@ -53,7 +54,7 @@ def fmt_path(loc: tuple) -> str:
 def _allowed_fields(loc: tuple) -> list[str]:
     """Field names allowed next to the unknown one at ``loc`` (for "unknown field" messages)."""
     unions = _unions()
-    model: Any = SceneConfig
+    model: type[BaseModel] = SceneConfig
     parts = list(loc[:-1])
     i = 0
     while i < len(parts):
@@ -62,7 +63,7 @@ def _allowed_fields(loc: tuple) -> list[str]:
             i += 2  # index
             kind = parts[i] if i < len(parts) else None
             kinds, models = unions[p]
-            model = models.get(kind, models[kinds[0]])
+            model = models[kinds[0]] if kind is None else models.get(kind, models[kinds[0]])
             i += 1
             continue
         if p == "handles" and i == 0:
@@ -84,7 +85,7 @@ def _allowed_fields(loc: tuple) -> list[str]:
     return [k for k in model.model_fields if k not in excluded]
 
 
-def _message(err: dict) -> tuple[tuple, str]:
+def _message(err: ErrorDetails) -> tuple[tuple, str]:
     loc, typ, msg = tuple(err["loc"]), err["type"], err["msg"]
     ctx = err.get("ctx") or {}
     got = err.get("input")
@@ -175,6 +176,6 @@ def problems_from(exc: ValidationError, text: str) -> list[tuple[int | None, str
     return sorted(out, key=lambda p: p[0] or 0)
 
 
-def scene_error(cfg: Any, path: str, msg: str) -> SceneError:
+def scene_error(cfg: SceneConfig, path: str, msg: str) -> SceneError:
     """A one-problem SceneError for the field at ``path`` of the loaded scene ``cfg``."""
     return SceneError(cfg.source, [(line_of(cfg.text, path), path, msg)])

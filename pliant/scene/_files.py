@@ -5,11 +5,14 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ._errors import scene_error
+
+if TYPE_CHECKING:
+    from ._schema import SceneConfig
 
 #: Default particle budget of one scene (``PLIANT_MAX_PARTICLES`` overrides it): about 1 GB of model and
 #: solver arrays in float64, well above every built-in scene (the largest has ~17k particles).
@@ -34,7 +37,7 @@ def budget_message(n: float, what: str) -> str:
     )
 
 
-def scene_path(cfg: Any, rel: str, at: str) -> Path:
+def scene_path(cfg: SceneConfig, rel: str, at: str) -> Path:
     """The file ``rel`` relative to the scene file's folder; it must exist and be a regular file."""
     if "\x00" in rel:
         raise scene_error(cfg, at, "the path contains a NUL character; give a plain file path")
@@ -48,7 +51,7 @@ def scene_path(cfg: Any, rel: str, at: str) -> Path:
     return p
 
 
-def npy_shape(cfg: Any, path: Path, at: str) -> tuple[tuple[int, ...], np.dtype]:
+def npy_shape(cfg: SceneConfig, path: Path, at: str) -> tuple[tuple[int, ...], np.dtype]:
     """Shape and dtype from the ``.npy`` header, read without loading the data (or pickles)."""
     try:
         size = path.stat().st_size
@@ -75,7 +78,7 @@ def npy_shape(cfg: Any, path: Path, at: str) -> tuple[tuple[int, ...], np.dtype]
     return shape, dtype
 
 
-def load_points_npy(cfg: Any, path: Path, at: str) -> np.ndarray:
+def load_points_npy(cfg: SceneConfig, path: Path, at: str) -> np.ndarray:
     """Points [N, 3] float64 from a ``.npy`` file, shape and budget checked from the header first."""
     shape, _ = npy_shape(cfg, path, at)
     if shape[0] > max_particles():
@@ -92,7 +95,7 @@ def load_points_npy(cfg: Any, path: Path, at: str) -> np.ndarray:
     return pts
 
 
-def load_mesh_file(cfg: Any, rel: str, at: str) -> Any:
+def load_mesh_file(cfg: SceneConfig, rel: str, at: str) -> Any:
     """``pl.geometry.load_mesh`` of a file named by the scene, its failures reported at ``at``."""
     from ..geometry import load_mesh
 

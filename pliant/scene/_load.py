@@ -210,7 +210,7 @@ def _check_view(cfg: SceneConfig) -> list[tuple[str, str]]:
                 "give both eye and target, or neither (the camera then frames the motion)",
             )
         )
-    elif cam.eye is not None:
+    elif cam.eye is not None and cam.target is not None:  # both given (the test above)
         d = np.subtract(cam.target, cam.eye)
         if not np.linalg.norm(d) > 1e-9:
             out.append(("camera.target", "must differ from camera.eye"))

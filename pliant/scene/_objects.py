@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
 from pydantic import Field, Strict, field_validator, model_validator
@@ -23,6 +23,10 @@ from ._schema import (
     Size3,
     Vec3,
 )
+
+if TYPE_CHECKING:
+    from ._context import BuildContext
+    from ._schema import SceneConfig
 
 CLOTH_PINS = (
     "none",
@@ -95,9 +99,10 @@ class TetOrder(Section):
 
     @model_validator(mode="after")
     def _order_needs_fem(self) -> Any:
-        if self.order == 2 and getattr(self, "model", "fem") != "fem":
+        model = getattr(self, "model", "fem")  # a mixin: the object kind that uses it declares `model`
+        if self.order == 2 and model != "fem":
             raise ValueError(
-                f'order = 2 (quadratic tets) needs model = "fem", got model = "{self.model}"; '
+                f'order = 2 (quadratic tets) needs model = "fem", got model = "{model}"; '
                 "use order = 1 for mass-spring and pbd volumes"
             )
         return self
@@ -227,7 +232,7 @@ def _grid_count(size: Any, spacing: float) -> float:
     return float(np.prod([math.floor(s / spacing) + 1.0 for s in size]))
 
 
-def grid_points(o: Any, cfg: Any, at: str) -> np.ndarray:
+def grid_points(o: Any, cfg: SceneConfig, at: str) -> np.ndarray:
     """Points [N, 3] of a points / cluster object: its file's, centred on ``origin``, or a jittered grid."""
     if getattr(o, "path", None) is not None:
         p = scene_path(cfg, o.path, f"{at}.path")
@@ -272,7 +277,7 @@ def _tetgen_particles(volume: float, max_volume: float | None, surface: float) -
 
 
 # ---------------------------------------------------------------------------------------------- builders
-def build_cloth(ctx: Any, o: ClothObject, i: int) -> None:
+def build_cloth(ctx: BuildContext, o: ClothObject, i: int) -> None:
     mat = o.material
     if mat.Et is not None and mat.stiffness is None:
         kw: dict[str, Any] = {"youngs_modulus_thickness": mat.Et, "poisson": mat.nu}
@@ -294,7 +299,7 @@ def build_cloth(ctx: Any, o: ClothObject, i: int) -> None:
     )
 
 
-def build_rope(ctx: Any, o: RopeObject, i: int) -> None:
+def build_rope(ctx: BuildContext, o: RopeObject, i: int) -> None:
     mat = o.material
     ctx.builder.add_rope(
         n_segments=o.n_segments,
@@ -311,18 +316,18 @@ def build_rope(ctx: Any, o: RopeObject, i: int) -> None:
     )
 
 
-def build_soft_box(ctx: Any, o: SoftBoxObject, i: int) -> None:
+def build_soft_box(ctx: BuildContext, o: SoftBoxObject, i: int) -> None:
     ctx.builder.add_soft_box(cells=o.cells, size=o.size, origin=o.origin, **_tet_kw(o, i))
 
 
-def build_soft_sphere(ctx: Any, o: SoftSphereObject, i: int) -> None:
+def build_soft_sphere(ctx: BuildContext, o: SoftSphereObject, i: int) -> None:
     from ..geometry import sphere_tets
 
     tm = sphere_tets(o.radius, o.resolution, o.origin, max_volume=o.max_volume)
     ctx.builder.add_tet_mesh(tm.points, tm.tets, kind="soft_sphere", **_tet_kw(o, i))
 
 
-def build_mesh(ctx: Any, o: MeshObject, i: int) -> None:
+def build_mesh(ctx: BuildContext, o: MeshObject, i: int) -> None:
     from ..geometry import TetMesh, tetrahedralize
 
     mesh = load_mesh_file(ctx.cfg, o.path, f"objects[{i}].path")
@@ -335,7 +340,7 @@ def build_mesh(ctx: Any, o: MeshObject, i: int) -> None:
     ctx.builder.add_tet_mesh(pts, tets, **_tet_kw(o, i))
 
 
-def build_points(ctx: Any, o: PointsObject, i: int) -> None:
+def build_points(ctx: BuildContext, o: PointsObject, i: int) -> None:
     pts = grid_points(o, ctx.cfg, f"objects[{i}]")
     ctx.builder.add_point_cloud(
         pts,
@@ -349,7 +354,7 @@ def build_points(ctx: Any, o: PointsObject, i: int) -> None:
     )
 
 
-def build_cluster(ctx: Any, o: ClusterObject, i: int) -> None:
+def build_cluster(ctx: BuildContext, o: ClusterObject, i: int) -> None:
     pts = grid_points(o, ctx.cfg, f"objects[{i}]")
     name = _name(o, i)
     if pts.shape[0] < 2:
@@ -372,31 +377,31 @@ def _check_pin(o: Any, at: str, allowed: tuple[str, ...]) -> list[tuple[str, str
     return []
 
 
-def check_cloth(cfg: Any, o: ClothObject, at: str) -> list[tuple[str, str]]:
+def check_cloth(cfg: SceneConfig, o: ClothObject, at: str) -> list[tuple[str, str]]:
     return _check_pin(o, at, CLOTH_PINS)
 
 
-def check_rope(cfg: Any, o: RopeObject, at: str) -> list[tuple[str, str]]:
+def check_rope(cfg: SceneConfig, o: RopeObject, at: str) -> list[tuple[str, str]]:
     out = _check_pin(o, at, ROPE_PINS)
     if not np.any(o.direction):
         out.append((f"{at}.direction", "must be a non-zero vector"))
     return out
 
 
-def check_render_mesh(cfg: Any, o: Any, at: str) -> list[tuple[str, str]]:
+def check_render_mesh(cfg: SceneConfig, o: Any, at: str) -> list[tuple[str, str]]:
     rm = o.render_mesh
     if rm is not None and (rm.path is None) == (rm.icosphere is None):
         return [(f"{at}.render_mesh", "give either path (a surface mesh file) or icosphere (a level)")]
     return []
 
 
-def check_cluster(cfg: Any, o: ClusterObject, at: str) -> list[tuple[str, str]]:
+def check_cluster(cfg: SceneConfig, o: ClusterObject, at: str) -> list[tuple[str, str]]:
     if o.rigid and o.shape_stiffness is not None:
         return [(f"{at}.shape_stiffness", "a rigid cluster has k_S = 1; set rigid = false to use it")]
     return []
 
 
-def _points_estimate(cfg: Any, o: Any) -> float:
+def _points_estimate(cfg: SceneConfig, o: Any) -> float:
     if getattr(o, "path", None) is not None:
         p = scene_path(cfg, o.path, f"objects[{cfg.objects.index(o)}].path")
         if p.suffix == ".npy":
@@ -405,7 +410,7 @@ def _points_estimate(cfg: Any, o: Any) -> float:
     return _grid_count(o.size, o.spacing)
 
 
-def _mesh_estimate(cfg: Any, o: MeshObject) -> float:
+def _mesh_estimate(cfg: SceneConfig, o: MeshObject) -> float:
     # Only a TetGen bound needs the file now (its vertex count is checked when it is read): the bounding
     # box's volume over max_volume bounds the tets TetGen is asked for.
     if o.max_volume is None:
@@ -415,7 +420,7 @@ def _mesh_estimate(cfg: Any, o: MeshObject) -> float:
     return _tetgen_particles(float(np.prod(np.ptp(pts, axis=0))), o.max_volume, float(len(pts)))
 
 
-def _sphere_estimate(cfg: Any, o: SoftSphereObject) -> float:
+def _sphere_estimate(cfg: SceneConfig, o: SoftSphereObject) -> float:
     return _tetgen_particles(4.0 / 3.0 * math.pi * o.radius**3, o.max_volume, 10.0 * 4**o.resolution + 2)
 
 

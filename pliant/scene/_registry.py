@@ -18,7 +18,7 @@ the same ``file:line: field: ...`` messages as the built-in ones.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Annotated, Any, Union
 
@@ -38,7 +38,7 @@ class ObjectKind:
             registers it there (``add_*`` methods do, or ``builder.register_object``); raises ``ValueError``
             with the reason (reported with the object's field path).
         check: ``check(cfg, obj, at) -> [(path, message)]``: cross-field rules at load time (optional).
-        particles: ``particles(cfg, obj) -> int``: an upper estimate of the particles it creates, computed
+        particles: ``particles(cfg, obj) -> float``: an upper estimate of the particles it creates, computed
             from the schema before anything is allocated (for the memory budget; optional).
         volumetric: It is a tet mesh (may use ``model = "fem"``).
     """
@@ -47,7 +47,7 @@ class ObjectKind:
     schema: type[BaseModel]
     build: Callable[..., None]
     check: Callable[..., list[tuple[str, str]]] | None = None
-    particles: Callable[..., int] | None = None
+    particles: Callable[..., float] | None = None
     volumetric: bool = False
 
 
@@ -141,7 +141,8 @@ def _rebuild() -> None:
         schemas = tuple(k.schema for k in kinds.values())
         if not schemas:
             continue
-        union = Annotated[Union[schemas], Field(discriminator="kind")]  # noqa: UP007 - built at run time
+        # A Union of a run-time tuple: pydantic reads it, mypy cannot (it wants a static type).
+        union = Annotated[Union[schemas], Field(discriminator="kind")]  # type: ignore[valid-type]  # noqa: UP007
         SceneConfig.model_fields[section].annotation = list[union]
     SceneConfig.model_rebuild(force=True)
 
@@ -152,7 +153,7 @@ def register_object_kind(
     build: Callable[..., None],
     *,
     check: Callable[..., list[tuple[str, str]]] | None = None,
-    particles: Callable[..., int] | None = None,
+    particles: Callable[..., float] | None = None,
     volumetric: bool = False,
 ) -> None:
     """Make ``kind = name`` an ``[[objects]]`` kind (see :class:`ObjectKind` for the arguments)."""
@@ -177,7 +178,9 @@ def register_section(
     if name in SceneConfig.model_fields and name not in SECTIONS:
         raise ValueError(f"[{name}] is a built-in scene section")
     SECTIONS[name] = SectionKind(name, schema, check)
-    SceneConfig.model_fields[name] = FieldInfo.from_annotated_attribute(Union[schema, None], None)  # noqa: UP007
+    # A Union of a run-time class: pydantic reads it; mypy wants a static type (a special form is no type[]).
+    optional = Union[schema, None]  # type: ignore[valid-type]  # noqa: UP007
+    SceneConfig.model_fields[name] = FieldInfo.from_annotated_attribute(optional, None)  # type: ignore[arg-type]
     SceneConfig.model_rebuild(force=True)
 
 
@@ -229,12 +232,12 @@ def register_constraint(name: str, factory: Callable[..., Any]) -> None:
 
 def kind_names(section: str) -> tuple[str, ...]:
     """The registered kinds of ``section`` (objects, colliders, handles, solver, energies, constraints)."""
-    reg = {
+    registries: dict[str, Mapping[str, object]] = {
         "objects": OBJECT_KINDS,
         "colliders": COLLIDER_KINDS,
         "handles": HANDLE_KINDS,
         "solver": SOLVER_KINDS,
         "energies": ENERGY_KINDS,
         "constraints": CONSTRAINT_KINDS,
-    }[section]
-    return tuple(reg)
+    }
+    return tuple(registries[section])

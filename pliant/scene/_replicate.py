@@ -7,10 +7,14 @@ with ``build_scene``), so that neither of those imports the other.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ._context import BuildContext
+    from ._schema import SceneConfig
 
 
-def coupled(cfg: Any) -> str | None:
+def coupled(cfg: SceneConfig) -> str | None:
     """Why copies of ``cfg``'s objects in one model would not move as the scene alone does (None when they
     would): handles drive particles of one copy, and self-collision would couple the copies. What sweeps,
     CMA-ES generations and worlds all require before running runs together."""
@@ -21,7 +25,7 @@ def coupled(cfg: Any) -> str | None:
     return None
 
 
-def worlds_unsupported(cfg: Any) -> str | None:
+def worlds_unsupported(cfg: SceneConfig) -> str | None:
     """Why ``cfg`` cannot be replicated into worlds (None when it can): what would couple the worlds or
     apply to world 0 only."""
     why = coupled(cfg)
@@ -35,7 +39,7 @@ def worlds_unsupported(cfg: Any) -> str | None:
     return None
 
 
-def replicate_scene(ctx: Any, worlds: int) -> None:
+def replicate_scene(ctx: BuildContext, worlds: int) -> None:
     """Replicate what ``ctx.builder`` holds into ``worlds`` worlds, or raise SceneError saying why not."""
     why = worlds_unsupported(ctx.cfg)
     if why is not None:

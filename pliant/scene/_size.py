@@ -19,7 +19,10 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from ._schema import SceneConfig
 
 #: Scalars per particle of the model and the simulator's states (measured on soft_box: 36 × 4 bytes in
 #: float32, 36 × 8 in float64).
@@ -108,7 +111,7 @@ def _volume(o: Any, particles: float, tets: float, edges: float, exact: bool) ->
     return _Counts(particles, springs, stored, 0.0, 0.0, edges, exact)
 
 
-def _object_counts(cfg: Any, o: Any, i: int) -> _Counts:
+def _object_counts(cfg: SceneConfig, o: Any, i: int) -> _Counts:
     """The counts of object ``o`` (index ``i``), by kind; plugin kinds give their particle estimate only."""
     from ._files import load_mesh_file
     from ._objects import _grid_count, _points_estimate, _sphere_estimate
@@ -150,7 +153,7 @@ def _object_counts(cfg: Any, o: Any, i: int) -> _Counts:
     return _Counts(p, 0.0, 0.0, 0.0, 0.0, 0.0, False)
 
 
-def _implicit(cfg: Any) -> bool:
+def _implicit(cfg: SceneConfig) -> bool:
     """Whether the scene's solver assembles and factors a matrix."""
     kind = cfg.solver_kind()
     if kind == "fast_mass_spring":
@@ -165,7 +168,7 @@ def _implicit(cfg: Any) -> bool:
     return cls is not None and not getattr(cls, "explicit", True)
 
 
-def scene_size(cfg: Any) -> SceneSize:
+def scene_size(cfg: SceneConfig) -> SceneSize:
     """Estimate what the scene ``cfg`` allocates, from its fields alone (and mesh files' arrays).
 
     Args:
@@ -239,7 +242,7 @@ def available_memory() -> float | None:
         return None
 
 
-def size_problem(cfg: Any) -> list[tuple[str, str]]:
+def size_problem(cfg: SceneConfig) -> list[tuple[str, str]]:
     """``[("objects", message)]`` when the scene needs more memory than is available, else ``[]``."""
     size = scene_size(cfg)
     have = available_memory()

@@ -5,10 +5,15 @@ from __future__ import annotations
 
 import difflib
 import inspect
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ._errors import SceneError, line_of
 from ._registry import CONSTRAINT_KINDS, ENERGY_KINDS, SOLVER_KINDS, register_solver
+
+if TYPE_CHECKING:
+    from ..solvers import XPBD
+    from ._context import BuildContext
+    from ._schema import SceneConfig
 
 #: FEM material laws and the ``pliant.energies`` class each needs.
 FEM_LAWS = {"neohookean": "NeoHookean", "stvk": "StVK", "corotated": "Corotated", "linear": "LinearElastic"}
@@ -70,7 +75,8 @@ def accepted_keywords(target: Any) -> dict[str, inspect.Parameter]:
     out: dict[str, inspect.Parameter] = {}
     chain = [c for c in target.__mro__ if "__init__" in vars(c)] if isinstance(target, type) else [target]
     for fn in chain:
-        params = inspect.signature(fn.__init__ if isinstance(fn, type) else fn).parameters
+        # fn is a class of target's MRO that defines __init__ itself (mypy's "unsound" warns of subclasses)
+        params = inspect.signature(fn.__init__ if isinstance(fn, type) else fn).parameters  # type: ignore[misc]
         var_kw = False
         for p in params.values():
             if p.kind is inspect.Parameter.VAR_KEYWORD:
@@ -142,7 +148,7 @@ def check_options(
     return out
 
 
-def check_solver(cfg: Any) -> list[tuple[str, str]]:
+def check_solver(cfg: SceneConfig) -> list[tuple[str, str]]:
     """Load-time checks of ``[solver]``: its kind, fields that apply to it, integrator and option names."""
     from .. import integrators
 
@@ -194,7 +200,7 @@ def check_solver(cfg: Any) -> list[tuple[str, str]]:
 
 
 # ---------------------------------------------------------------------------------------------- factories
-def _self_collision(ctx: Any) -> list[Any]:
+def _self_collision(ctx: BuildContext) -> list[Any]:
     """The force-based solvers' self-collision handler of ``[solver] self_collision``, if any."""
     from ..collision import SelfCollision
 
@@ -216,7 +222,7 @@ def _self_collision(ctx: Any) -> list[Any]:
         raise ctx.fail("solver.self_collision", str(exc)) from None
 
 
-def _construct(ctx: Any, cls: Any, *args: Any, **kwargs: Any) -> Any:
+def _construct(ctx: BuildContext, cls: Any, *args: Any, **kwargs: Any) -> Any:
     """``cls(*args, **kwargs, **options)``; a refusal of the constructor names ``[solver] options``."""
     try:
         return cls(*args, **kwargs, **ctx.cfg.solver.options)
@@ -224,7 +230,7 @@ def _construct(ctx: Any, cls: Any, *args: Any, **kwargs: Any) -> Any:
         raise ctx.fail("solver.options", f"{cls.__name__}: {exc}") from None
 
 
-def make_force(ctx: Any) -> Any:
+def make_force(ctx: BuildContext) -> Any:
     """``pl.solvers.ForceSolver``: mass-spring (+ FEM) energies, an integrator of ``pl.integrators``."""
     from .. import energies, solvers
 
@@ -252,7 +258,7 @@ def make_force(ctx: Any) -> Any:
     )
 
 
-def make_fast_mass_spring(ctx: Any) -> Any:
+def make_fast_mass_spring(ctx: BuildContext) -> Any:
     """``pl.solvers.FastMassSpring``: the specialised mass-spring path (``options.method``)."""
     from .. import solvers
 
@@ -267,7 +273,7 @@ def make_fast_mass_spring(ctx: Any) -> Any:
     )
 
 
-def _xpbd_compliance(cfg: Any) -> float | None:
+def _xpbd_compliance(cfg: SceneConfig) -> float | None:
     compliance = cfg.solver.compliance
     if compliance is None:
         compliance = next(
@@ -278,7 +284,7 @@ def _xpbd_compliance(cfg: Any) -> float | None:
     return compliance
 
 
-def _position_based(ctx: Any, cls: Any, **kw: Any) -> Any:
+def _position_based(ctx: BuildContext, cls: Any, **kw: Any) -> Any:
     """XPBD / PBD with the scene's iterations, damping, contact handlers and extra constraints."""
     s = ctx.cfg.solver
     kw = {"iterations": s.iterations, "damping": s.damping_rate, **kw}
@@ -289,7 +295,7 @@ def _position_based(ctx: Any, cls: Any, **kw: Any) -> Any:
     return solver
 
 
-def _insert(solver: Any, ctx: Any) -> None:
+def _insert(solver: XPBD, ctx: BuildContext) -> None:
     """Put the scene's extra constraints before the solver's contact constraints (those run last and get
     extra sweeps), found by ``is_contact`` rather than assumed to be the last entry."""
     at = next((k for k, c in enumerate(solver.constraints) if c.is_contact), len(solver.constraints))
@@ -299,14 +305,14 @@ def _insert(solver: Any, ctx: Any) -> None:
     solver.reset_plans()
 
 
-def make_xpbd(ctx: Any) -> Any:
+def make_xpbd(ctx: BuildContext) -> Any:
     """``pl.solvers.XPBD`` (compliance α from ``[solver]`` or the objects' materials)."""
     from .. import solvers
 
     return _position_based(ctx, solvers.XPBD, compliance=_xpbd_compliance(ctx.cfg))
 
 
-def make_pbd(ctx: Any) -> Any:
+def make_pbd(ctx: BuildContext) -> Any:
     """``pl.solvers.PBD`` (dimensionless ``stiffness_factor`` k ∈ [0, 1])."""
     from .. import solvers
 

@@ -6,7 +6,7 @@ one model of replicated worlds (``ModelBuilder.replicate``) with each world's pa
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -16,6 +16,9 @@ from ._build import _add_objects, _finalize, _select_handles, build_scene
 from ._context import BuildContext
 from ._errors import scene_error
 from ._replicate import worlds_unsupported
+
+if TYPE_CHECKING:
+    from ._schema import SceneConfig
 
 #: Model arrays a world may have of its own (set with ``Model.set_world_parameter``).
 WORLD_ARRAYS = tuple(PARAMETERS)
@@ -46,7 +49,7 @@ def material_only(run: Sequence[str]) -> bool:
     return True
 
 
-def _model_of(cfg: Any, device: str | None, dtype: str | None) -> Any:
+def _model_of(cfg: SceneConfig, device: str | None, dtype: str | None) -> Any:
     ctx = BuildContext(cfg, ModelBuilder(gravity=cfg.scene.gravity))
     _add_objects(ctx)
     _select_handles(ctx)

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..solvers import Solver
 
 
 class DivergenceError(RuntimeError):
@@ -13,7 +16,7 @@ class DivergenceError(RuntimeError):
         super().__init__(f"diverged at frame {frame}: {quantity} {value:.3g}; {advice}")
 
 
-def stability_advice(solver: Any, substep: float, substeps: int) -> str:
+def stability_advice(solver: Solver, substep: float, substeps: int) -> str:
     """What to change when a run blows up: a smaller step, an implicit integrator (for an explicit one), a
     softer material. Shared by :class:`Simulator` and :func:`pliant.diff.rollout`.
 

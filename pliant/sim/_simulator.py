@@ -173,7 +173,9 @@ class Simulator:
         self._frozen_inv: dict[int, np.ndarray] = {}  # a frozen world's inverse masses before freezing
         self._per_world = per_world_divergence and model.world_count > 1
         if self._per_world:
-            self._particle_world = wp.array(model.particle_world(), dtype=wp.int32, device=model.device)
+            self._particle_world: wp.array = wp.array(
+                model.particle_world(), dtype=wp.int32, device=model.device
+            )
             self._world_stats = wp.zeros((model.world_count, 3), dtype=model.scalar, device=model.device)
         self._graphs: FrameGraphs | None = None
         #: Why frames run launch by launch instead of as a replayed graph (None while graphs are used).
@@ -450,7 +452,7 @@ class Simulator:
             **self.solver.describe(),
             "objects": m.objects,
         }
-        if m.world_count > 1:
+        if m.world_count > 1 and m.world_offsets is not None:  # replicate() sets both
             meta["worlds"] = {
                 "count": m.world_count,
                 "particle_offsets": [int(o) for o in m.world_offsets["particle"]],

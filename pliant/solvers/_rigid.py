@@ -153,11 +153,11 @@ class RigidBodySolver(Solver):
         members = np.concatenate(bodies)
         d, f = model.device, model.scalar
         self.body_count = len(bodies)
-        self.offsets = wp.array(np.asarray(offsets, np.int32), dtype=wp.int32, device=d)
-        self.members = wp.array(members.astype(np.int32), dtype=wp.int32, device=d)
-        self.rest = wp.array(q[members], dtype=model.vec3, device=d)
-        self.rest_center = wp.array(np.asarray(centers), dtype=model.vec3, device=d)
-        self.inertia_body = wp.array(np.asarray(inertia), dtype=model.mat33, device=d)
+        self.offsets: wp.array = wp.array(np.asarray(offsets, np.int32), dtype=wp.int32, device=d)
+        self.members: wp.array = wp.array(members.astype(np.int32), dtype=wp.int32, device=d)
+        self.rest: wp.array = wp.array(q[members], dtype=model.vec3, device=d)
+        self.rest_center: wp.array = wp.array(np.asarray(centers), dtype=model.vec3, device=d)
+        self.inertia_body: wp.array = wp.array(np.asarray(inertia), dtype=model.mat33, device=d)
         self._zero_f = wp.zeros(n, dtype=model.vec3, device=d)
         del f
 

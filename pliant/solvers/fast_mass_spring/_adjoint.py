@@ -123,7 +123,7 @@ class BaraffWitkinStep(Integrator):
     def __init__(self, system: BaraffWitkinSystem) -> None:
         self.system = system  # FastMassSpring's (adjacency, CG settings, work buffers)
         row = np.repeat(np.arange(system.model.particle_count), np.diff(system.adj_offsets.numpy()))
-        self.adj_row = wp.array(row.astype(np.int32), dtype=wp.int32, device=system.model.device)
+        self.adj_row: wp.array = wp.array(row.astype(np.int32), dtype=wp.int32, device=system.model.device)
 
     def step_ode(self, problem: Any, t: float, dt: float, y: np.ndarray) -> np.ndarray:
         """Not an ODE method: only FastMassSpring's physical path uses it."""
@@ -203,7 +203,7 @@ class _Adjoint:
                 + [m.s(h), r],
                 device=m.device,
             )
-        seed = wp.array(lam.astype(bw.np_dtype), dtype=m.vec3, device=m.device)
+        seed: wp.array = wp.array(lam.astype(bw.np_dtype), dtype=m.vec3, device=m.device)
         local.backward(grads={r: seed})
 
     def _solve_transpose(self, rhs: np.ndarray) -> np.ndarray:
@@ -211,7 +211,7 @@ class _Adjoint:
         preconditioner the assembly left in its work buffers, started from λ = 0 (pinned rows stay 0)."""
         m, bw = self.m, self.step.system
         with untaped_in_place():
-            rhs_w = wp.array(rhs.astype(bw.np_dtype), dtype=m.vec3, device=m.device)
+            rhs_w: wp.array = wp.array(rhs.astype(bw.np_dtype), dtype=m.vec3, device=m.device)
             bw.scalars.zero_()
             launch(
                 _cg_start,

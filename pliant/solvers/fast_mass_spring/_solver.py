@@ -161,9 +161,9 @@ class FastMassSpring(Solver):
         self.collisions = check_collisions(collisions)
         d = model.device
         off, nb, spr = spring_adjacency(model)
-        self.adj_offsets = wp.array(off, dtype=wp.int32, device=d)
-        self.adj_neighbor = wp.array(nb, dtype=wp.int32, device=d)
-        self.adj_spring = wp.array(spr, dtype=wp.int32, device=d)
+        self.adj_offsets: wp.array = wp.array(off, dtype=wp.int32, device=d)
+        self.adj_neighbor: wp.array = wp.array(nb, dtype=wp.int32, device=d)
+        self.adj_spring: wp.array = wp.array(spr, dtype=wp.int32, device=d)
         self._adj_param = wp.zeros(max(nb.shape[0], 1), dtype=model.vec3, device=d)
         if kernel is None:
             kernel = "scatter" if wp.get_device(d).is_cpu else "gather"
@@ -174,7 +174,7 @@ class FastMassSpring(Solver):
         self._scatter = method == "symplectic" and kernel == "scatter"
         if self._scatter:
             pairs = model.spring_indices.numpy().reshape(-1, 2) if model.spring_count else np.zeros((0, 2))
-            self._spring_pairs = wp.array(pairs.astype(np.int32), dtype=wp.vec2i, device=d)
+            self._spring_pairs: wp.array = wp.array(pairs.astype(np.int32), dtype=wp.vec2i, device=d)
             self._f_springs = wp.zeros(model.particle_count, dtype=model.vec3, device=d)
         self.update_parameters()
         n = model.particle_count
@@ -203,7 +203,7 @@ class FastMassSpring(Solver):
             return ForceSolver(
                 self.model,
                 energies=[Springs(), Dashpots(), Gravity()],
-                integrator=BaraffWitkinStep(self._system),
+                integrator=BaraffWitkinStep(self._implicit_system()),
                 velocity_damping=velocity_damping,
                 damping_rate=damping_rate,
                 contact=contact,
@@ -246,7 +246,13 @@ class FastMassSpring(Solver):
             self._damped = int(np.any(per_spring[:, 2] > 0))
         else:
             self._damped = 0
-        self._cmds = {}
+        self._cmds: dict[tuple[int, int, int, int, float], list] = {}
+
+    def _implicit_system(self) -> BaraffWitkinSystem:
+        """The implicit method's linear system (the symplectic method has none)."""
+        if self._system is None:
+            raise RuntimeError(f"FastMassSpring(method={self.method!r}) has no implicit linear system")
+        return self._system
 
     def velocity_damping(self, dt: float) -> float:
         """δ for a step of ``dt`` [s]: exp(−cΔt) when ``damping_rate`` c is set, else the fixed δ."""
@@ -339,7 +345,7 @@ class FastMassSpring(Solver):
             ]
         else:
             h = s(dt)
-            bw = self._system
+            bw = self._implicit_system()
             cmds = [
                 wp.launch(
                     _bw_assemble,
@@ -401,7 +407,7 @@ class FastMassSpring(Solver):
 
     def _converged_at(self, k_max: int, tol2: float) -> int | None:
         """The first iteration k ≤ ``k_max`` whose residual rz_k ≤ tol²·rz_0 (one host read), else None."""
-        sc = self._system.scalars.numpy()
+        sc = self._implicit_system().scalars.numpy()
         rz = sc[0 : 2 * k_max + 1 : 2]
         hit = np.flatnonzero(rz <= tol2 * sc[0])
         return int(hit[0]) if hit.size else None
@@ -419,7 +425,7 @@ class FastMassSpring(Solver):
             # (x, v) are state_out's arrays here (no tape: recorded steps went to ForceSolver above), which
             # the commands were built to write.
             if self.method == "implicit":
-                self._system.scalars.zero_()
+                self._implicit_system().scalars.zero_()
                 cmds[0].launch()
                 self._launch_cg(cmds[1:-1])
                 cmds[-1].launch()

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
@@ -42,8 +42,12 @@ from .._post import drag_force
 from ._assembly import _assemble, _inverse_diagonal, control_of
 from ._workspace import _workspace
 
+if TYPE_CHECKING:
+    from ...model import Model
+    from ._workspace import _Workspace
 
-def _recording(model: Any) -> Any:
+
+def _recording(model: Model) -> Any:
     """The active tape when gradients of this model are being recorded, else None."""
     if not (_tape_active() and getattr(model, "requires_grad", False)):
         return None
@@ -180,7 +184,7 @@ class _StepAdjoint:
                 device=m.device,
             )
         _check_adjoints(local, spans)
-        seed = wp.array((-w).astype(ws.np_dtype), dtype=m.vec3, device=m.device)
+        seed: wp.array = wp.array((-w).astype(ws.np_dtype), dtype=m.vec3, device=m.device)
         local.backward(grads={residual: seed})
         # Fixed rows: x₁ = x̃ there; add x̄₁ and the free rows' dependence on them through the energies.
         fixed = ~free
@@ -189,7 +193,7 @@ class _StepAdjoint:
             g[fixed] += (xbar[fixed] + x_c.grad.numpy()[fixed].astype(np.float64)).astype(g.dtype)
             self.x_tilde.grad.assign(g)
 
-    def _solve(self, ws: Any, rhs: np.ndarray) -> np.ndarray:
+    def _solve(self, ws: _Workspace, rhs: np.ndarray) -> np.ndarray:
         """w = H⁻¹ rhs with the exact Hessian in ``ws`` (SciPy sparse LU on the CPU, Warp CG on a GPU)."""
         m = self.model
         n = m.particle_count

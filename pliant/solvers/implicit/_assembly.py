@@ -10,13 +10,16 @@ and neither imports the other.
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import warp as wp
 
 from ..._warp import launch
 from .._post import drag_force, drag_hessian
 from ._workspace import MinimizerCache, _Workspace
+
+if TYPE_CHECKING:
+    from ...model import Model
 
 
 @wp.kernel(enable_backward=False)
@@ -117,7 +120,7 @@ class PotentialProblem(Protocol):
     ½k|x − target|², or None). Results go to ``last_stats``.
     """
 
-    model: Any
+    model: Model
     energies: list
     last_stats: Any
     #: Optional: where the minimisers keep their workspace and L-BFGS's state between steps

@@ -32,7 +32,7 @@ materials", ACM TOG 36(3), 2017; J. Nocedal, S. Wright, *Numerical Optimization*
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
@@ -44,6 +44,9 @@ from ._assembly import _assemble, _control_terms
 from ._newton import NewtonStats, _gradient, _trial_point
 from ._options import step_settings
 from ._workspace import MinimizerCache, _Workspace, cache_of
+
+if TYPE_CHECKING:
+    from ...model import Model
 
 
 def nested_dissection(points: np.ndarray, rows: np.ndarray, cols: np.ndarray, leaf: int = 32) -> np.ndarray:
@@ -91,7 +94,7 @@ def nested_dissection(points: np.ndarray, rows: np.ndarray, cols: np.ndarray, le
 class _LaggedHessian:
     """H₀ per axis: lagged energy Hessians + per-step contact terms, factorised by SciPy's SuperLU."""
 
-    def __init__(self, ws: _Workspace, model: Any, energies: list) -> None:
+    def __init__(self, ws: _Workspace, model: Model, energies: list) -> None:
         n = model.particle_count
         self.n = n
         self.rows = np.repeat(np.arange(n, dtype=np.int32), np.diff(ws.indptr))
@@ -114,11 +117,13 @@ class _LaggedHessian:
         for k, _ in self.volatile:
             s = ws.slots[k].numpy().astype(np.int64)
             keep = free[self.rows[s]] & free[self.cols[s]]
-            compact = wp.array(np.arange(s.size, dtype=np.int32), dtype=wp.int32, device=model.device)
+            compact: wp.array = wp.array(
+                np.arange(s.size, dtype=np.int32), dtype=wp.int32, device=model.device
+            )
             scratch = wp.zeros(max(s.size, 1), dtype=model.mat33, device=model.device)
             self.volatile_buffers.append((compact, scratch, keep, s[keep]))
         self.base: np.ndarray | None = None  # (3, nnz) lagged axis values
-        self.h = None
+        self.h: float | None = None
         self.values: list[np.ndarray | None] = [None, None, None]
         self.lu: list[Any] = [None, None, None]
         #: How H₀⁻¹ is applied: "lu" (SuperLU) or "amg" (a PyAMG V-cycle); ``set_method`` switches.
@@ -182,9 +187,9 @@ class _LaggedHessian:
         if method == self.method:
             return
         self.method = method
-        for d in range(3):
-            if self.values[d] is not None:
-                self.lu[d] = self.factor(self.values[d], d)
+        for d, v in enumerate(self.values):
+            if v is not None:
+                self.lu[d] = self.factor(v, d)
 
     def factor(self, v: np.ndarray, axis: int) -> Any:
         """The solver of axis ``axis``'s H₀ with values ``v`` (the pattern's entries, in our order): a
@@ -223,9 +228,11 @@ class _LaggedHessian:
     def stiffness_ratio(self) -> float:
         """max_i trace(H₀_ii)/(3 m_i) over free particles, contact terms included (the round-off floor's
         amplification, as Newton's from its assembled Hessian)."""
-        assert all(v is not None for v in self.values)
+        values = [v for v in self.values if v is not None]
+        assert len(values) == 3
         if self._ratio is None:
-            diag = sum(v[self.diag_slots] for v in self.values) / 3.0
+            s = self.diag_slots
+            diag = (values[0][s] + values[1][s] + values[2][s]) / 3.0
             ratio = diag[self.free] / self.mass[self.free]
             self._ratio = float(ratio.max()) if ratio.size else 1.0
         return self._ratio
@@ -288,7 +295,7 @@ class _History:
         return -r
 
 
-def _state(cache: MinimizerCache, ws: _Workspace, model: Any, energies: list):
+def _state(cache: MinimizerCache, ws: _Workspace, model: Model, energies: list):
     """L-BFGS's (lagged H₀, history, warm-start memo) in ``cache``, new when the workspace changed."""
     st = cache.lbfgs
     if st is None or st[0] is not ws:
@@ -575,7 +582,7 @@ def lbfgs_restore_checkpoint_state(solver: Any, state: dict[str, np.ndarray]) ->
     diag = h0.diag_slots
     if base is not None and not np.all(base[:, diag] > 0.0):
         raise ValueError("lbfgs_h0_base: H0's diagonal must be positive (a corrupt file)")
-    if values is not None and not np.all(values[:, diag] >= base[:, diag]):
+    if values is not None and base is not None and not np.all(values[:, diag] >= base[:, diag]):
         raise ValueError("lbfgs_h0_values: H0's diagonal is below its lagged part's (a corrupt file)")
     facts = 0
     if "lbfgs_h0_factorizations" in state:
@@ -586,8 +593,8 @@ def lbfgs_restore_checkpoint_state(solver: Any, state: dict[str, np.ndarray]) ->
         hist.y.append(np.array(y[k], dtype=np.float64))
         hist.rho.append(float(rho[k]))
     memo.clear()
-    for k, a in corr.items():
-        memo[k] = np.array(a, dtype=np.float64)
+    for name, a in corr.items():
+        memo[name] = np.array(a, dtype=np.float64)
     if h is not None:
         memo["h"] = h
     if refresh is not None:

@@ -216,7 +216,7 @@ def _fixed_mask(model: Model, fixed: Any) -> np.ndarray:
     return mask
 
 
-def _regularized_direct_solve(ws: Any, model: Model, free_np: np.ndarray, stats: StaticStats) -> bool:
+def _regularized_direct_solve(ws: _Workspace, model: Model, free_np: np.ndarray, stats: StaticStats) -> bool:
     """Δx = −H⁻¹∇ by SciPy's sparse LU; on a singular H, the smallest Levenberg–Marquardt shift
     H + μI (μ = 1e-8 · 100^k · max diag H, on free components) that factors. Returns False when none does.
     """
@@ -224,7 +224,7 @@ def _regularized_direct_solve(ws: Any, model: Model, free_np: np.ndarray, stats:
         return _direct_solve(ws, model, free_np, stats)
 
 
-def _direct_solve(ws: Any, model: Model, free_np: np.ndarray, stats: StaticStats) -> bool:
+def _direct_solve(ws: _Workspace, model: Model, free_np: np.ndarray, stats: StaticStats) -> bool:
     import scipy.sparse as sp
     from scipy.sparse.linalg import splu
 
@@ -253,7 +253,7 @@ def _direct_solve(ws: Any, model: Model, free_np: np.ndarray, stats: StaticStats
     return False
 
 
-def _roundoff_scales(model: Any, reach: float) -> tuple[float, float]:
+def _roundoff_scales(model: Model, reach: float) -> tuple[float, float]:
     """(force [N], energy [J]) sizes of the elastic terms whose round-off bounds what a minimiser resolves.
 
     Positions are known to eps·``reach`` (max |x| [m]) only, so one element's force is uncertain by its
@@ -371,7 +371,7 @@ def solve_static(
     np_dtype = np.float32 if model.dtype == "float32" else np.float64
     mask = _fixed_mask(model, fixed)
     free_np = (~mask).astype(np_dtype)
-    free = wp.array(free_np, dtype=model.vec3, device=dev)
+    free: wp.array = wp.array(free_np, dtype=model.vec3, device=dev)
     # Dead loads: the given forces plus gravity's m_i g (Gravity's potential −Σ m_i g·x exactly), ramped.
     f_total = np.zeros((n, 3))
     if loads is not None:

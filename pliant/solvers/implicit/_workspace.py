@@ -10,16 +10,19 @@ the cache's :meth:`MinimizerCache.reset` and L-BFGS's checkpoint functions on it
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
+
+if TYPE_CHECKING:
+    from ...model import Model
 
 
 class _Workspace:
     """Everything allocated once per (model, energies): the BSR pattern, slots, Newton vectors, CG state."""
 
-    def __init__(self, model: Any, energies: list) -> None:
+    def __init__(self, model: Model, energies: list) -> None:
         from warp.sparse import bsr_from_triplets
 
         n = model.particle_count
@@ -54,12 +57,12 @@ class _Workspace:
                 "warp.sparse built a BSR layout that differs from the sorted (row, col) pattern"
             )
         self.values = self.A.values
-        self.block_rows = wp.array(brow, dtype=wp.int32, device=d)
-        self.block_cols = wp.array(bcol, dtype=wp.int32, device=d)
-        self.diag_slots = wp.array(
+        self.block_rows: wp.array = wp.array(brow, dtype=wp.int32, device=d)
+        self.block_cols: wp.array = wp.array(bcol, dtype=wp.int32, device=d)
+        self.diag_slots: wp.array = wp.array(
             np.searchsorted(keys, diag * n + diag).astype(np.int32), dtype=wp.int32, device=d
         )
-        self.slots = []
+        self.slots: list[wp.array] = []
         for r, c in patterns:
             k = np.asarray(r, np.int64) * n + np.asarray(c, np.int64)
             self.slots.append(wp.array(np.searchsorted(keys, k).astype(np.int32), dtype=wp.int32, device=d))
@@ -103,7 +106,7 @@ class _Workspace:
         return self._cg
 
 
-def _resolve_linear_solver(name: str, model: Any) -> str:
+def _resolve_linear_solver(name: str, model: Model) -> str:
     if name == "auto":
         # The sparse LU stays the CPU default: "scipy-cg" (block-Jacobi CG on the host) is ~3x faster per
         # step on a 4k-DOF FEM box (12 ms vs 72 ms per solve) but its inexact directions stalled Newton just
@@ -112,7 +115,7 @@ def _resolve_linear_solver(name: str, model: Any) -> str:
     return name
 
 
-def _direct_solve(ws: _Workspace, model: Any) -> None:
+def _direct_solve(ws: _Workspace, model: Model) -> None:
     """Δx = −H⁻¹∇Φ by a SciPy sparse LU (float64 on the host; one copy each way)."""
     import scipy.sparse as sp
     from scipy.sparse.linalg import splu
@@ -127,7 +130,7 @@ def _direct_solve(ws: _Workspace, model: Any) -> None:
     ws.dx.assign(dx.reshape(n, 3).astype(ws.np_dtype))
 
 
-def _host_cg_solve(ws: _Workspace, model: Any, rtol: float, maxiter: int) -> int:
+def _host_cg_solve(ws: _Workspace, model: Model, rtol: float, maxiter: int) -> int:
     """Δx = −H⁻¹∇Φ by SciPy CG with a 3×3 block-Jacobi preconditioner (float64, host); returns iterations."""
     import scipy.sparse as sp
     from scipy.sparse.linalg import LinearOperator, cg
@@ -166,7 +169,7 @@ class MinimizerCache:
         self.newton: _Workspace | None = None
         self.lbfgs: tuple[Any, Any, Any, dict] | None = None
 
-    def workspace(self, model: Any, energies: list) -> _Workspace:
+    def workspace(self, model: Model, energies: list) -> _Workspace:
         """The workspace of (``model``, ``energies``), built on first use and when either changes."""
         key = (id(model), tuple(id(e) for e in energies))
         if self.newton is None or self.newton.key != key:
