@@ -107,7 +107,7 @@ class TriangleBVH:
         tris = np.asarray(tri_indices, np.int32).reshape(-1, 3)
         self.device = device
         self.points = wp.zeros(particle_count, dtype=wp.vec3, device=device)
-        self.indices = wp.array(tris.reshape(-1), dtype=wp.int32, device=device)
+        self.indices: wp.array = wp.array(tris.reshape(-1), dtype=wp.int32, device=device)
         self.mesh = wp.Mesh(points=self.points, indices=self.indices)
 
     @property

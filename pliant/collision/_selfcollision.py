@@ -234,7 +234,7 @@ class SelfCollision:
             if model.tri_count
             else np.zeros(3, np.int32)
         )
-        self._tris = wp.array(tris, dtype=wp.int32, device=d)
+        self._tris: wp.array = wp.array(tris, dtype=wp.int32, device=d)
         self._mesh = None
         if self.use_triangles:
             self._xf.assign(model.particle_q_np.astype(np.float32))

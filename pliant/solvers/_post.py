@@ -100,6 +100,24 @@ def add_drag_force(
 Stage = Callable[[wp.array, wp.array, wp.array, wp.array], None]
 
 
+def _contact_stage(c: Any, m: Model, state_in: State, state_out: State, dt: float) -> Stage:
+    """A contact handler as a post-step stage ``(x, v, x_out, v_out)``: out of place through its
+    ``apply_out`` when it has one, else in place on ``state_out`` (which is (x, v) on the gradient-free
+    path)."""
+    apply_out = getattr(c, "apply_out", None)
+    if callable(apply_out):
+
+        def out_of_place(x: wp.array, v: wp.array, xo: wp.array, vo: wp.array) -> None:
+            apply_out(m, x, v, xo, vo)
+
+        return out_of_place
+
+    def in_place(x: wp.array, v: wp.array, xo: wp.array, vo: wp.array) -> None:
+        c.apply(m, state_in, state_out, dt)
+
+    return in_place
+
+
 def finish_step(
     model: Model,
     control: Control | None,
@@ -150,10 +168,7 @@ def finish_step(
         kappa = ground_penalty
         stages.append(lambda x, v, xo, vo: respond_to_ground(m, ground, dt, x, v, xo, vo, penalty=kappa))
     for c in collisions:
-        if callable(getattr(c, "apply_out", None)):
-            stages.append(lambda x, v, xo, vo, c=c: c.apply_out(m, x, v, xo, vo))
-        else:  # in place on state_out, which is (x, v) on the gradient-free path
-            stages.append(lambda x, v, xo, vo, c=c: c.apply(m, state_in, state_out, dt))
+        stages.append(_contact_stage(c, m, state_in, state_out, dt))
     recorded = grad_enabled(m)
 
     def outputs(last: bool) -> tuple[wp.array, wp.array]:

@@ -166,7 +166,9 @@ class XPBD(Solver):
             model.particle_inv_mass.requires_grad = True
         d, n = model.device, model.particle_count
         #: Gravity [m/s²] as a vec3 array [1] (from ``model.gravity``); its ``.grad`` under a tape.
-        self.gravity = wp.array([model.gravity], dtype=model.vec3, device=d, requires_grad=self.requires_grad)
+        self.gravity: wp.array = wp.array(
+            [model.gravity], dtype=model.vec3, device=d, requires_grad=self.requires_grad
+        )
         self.delta = wp.zeros(n, dtype=model.vec3, device=d)
         self.delta_count = wp.zeros(n, dtype=wp.int32, device=d)
         self.v_pred = wp.zeros(n, dtype=model.vec3, device=d)
@@ -415,6 +417,7 @@ class XPBD(Solver):
         self._sweeps(ctx, p, dt, first)
         if checks == 0:
             return
+        assert self.tolerance is not None  # the caller's branch: only a solver with a tolerance sweeps here
         tol = wp.float64(self.tolerance)
 
         def check() -> None:
@@ -428,7 +431,11 @@ class XPBD(Solver):
 
         check()
         self.call(wp.capture_while, self._go, self._recorded(chunk))
-        self.call(wp.capture_if, self._tail, self._recorded(lambda: self._sweeps(ctx, p, dt, tail)))
+
+        def last() -> None:
+            self._sweeps(ctx, p, dt, tail)
+
+        self.call(wp.capture_if, self._tail, self._recorded(last))
 
     def _recorded(self, body: Callable[[], None]) -> Callable[[], None]:
         """``body`` (a loop body's launches) as a callable that, in a step being recorded, records them on
@@ -471,7 +478,7 @@ class XPBD(Solver):
 
     def residual(self) -> float:
         """RMS of C + α̃λ over the bilateral constraints after the last step (host sync) [constraint units]."""
-        if self._last_dt is None:
+        if self._last_dt is None or self._last_p is None:
             raise RuntimeError("residual() needs a step first")
         return self._rms_residual(self.context(), self._last_p, self._last_dt)
 
