@@ -518,6 +518,48 @@ def test_mutated_splat_scenes_fail_cleanly_long(case):
     _check_splat(case)
 
 
+#: A case the long fuzz found (2026-11-26): a near-zero density under L-BFGS's lagged Hessian, singular
+#: mid-run. It must end as a divergence does (one line, exit 2, partial outputs), not with a traceback.
+SINGULAR_H0 = """["scene"]
+"name" = "fem_squeeze"
+"frame_dt" = 0.03333333333333333
+"substeps" = 1
+"frames" = 1
+[["objects"]]
+"kind" = "soft_sphere"
+"name" = "ball"
+"model" = "fem"
+"radius" = 0.15
+"resolution" = 2
+"origin" = [0.0, 0.155, 0.0]
+"density" = 6.486812939067015e-193
+"material" = {"E" = 20000.0, "nu" = 0.45, "law" = "neohookean"}
+[["handles"]]
+"kind" = "box"
+"center" = [0.0, 0.3, 0.0]
+"half_extents" = [0.2, 0.04, 0.2]
+"path" = [[0.0, 0.0, 0.0, 0.0], [1.0, 0.0, -0.09, 0.0], [2.0, 0.0, -0.09, 0.0], [2.8, 0.0, 0.0, 0.0]]
+["ground"]
+"height" = 0.0
+"friction" = 0.8
+["solver"]
+"kind" = "force"
+"integrator" = "BackwardEuler"
+"options" = {"minimizer" = {"method" = "lbfgs"}}
+"damping_rate" = 1.0
+["camera"]
+"eye" = [0.5, 0.45, 1.2]
+"target" = [0.0, 0.12, 0.0]
+"fov" = 40.0
+["output"]
+"fps" = 30
+"""
+
+
+def test_a_singular_implicit_system_mid_run_ends_like_a_divergence():
+    assert run_case(SINGULAR_H0, {}) == "diverged"
+
+
 def test_splat_twin_divergence_is_one_line_exit_2():
     """The issue-31 reproducer: the correction twin diverges before the run starts; one line, exit 2."""
     data = _splat_base()

@@ -202,6 +202,7 @@ def simulate(
     from ..io._paths import OutputPathError, check_file_stem, check_writable_dir, confined
     from ..scene import build_scene
     from ..sim import DivergenceError
+    from ..solvers import SingularSystemError
 
     try:
         check_file_stem(name, "scene name")
@@ -272,7 +273,9 @@ def simulate(
         note = f"interrupted at frame {sim.frame} of {scene.frames}; partial outputs kept" + (
             f"; resume with: {resume_hint} --resume" if resume_hint else ""
         )
-    except DivergenceError as exc:
+    except (DivergenceError, SingularSystemError) as exc:
+        # A singular implicit system mid-run (masses lost next to h²K) ends the run as a divergence does:
+        # the frames so far are written, the message says what to change, exit 2.
         traj, status = sim.trajectory(), EXIT_DIVERGED
         note = str(exc)
     wall = time.perf_counter() - t0
