@@ -4,9 +4,11 @@ per-element parameters, then the outputs: ``fitted.toml`` (+ ``fitted_params.npz
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -43,13 +45,25 @@ def _bar(progress: bool, total: int, desc: str) -> Any:
     return tqdm(total=total, desc=desc, unit="it", leave=False, dynamic_ncols=True)
 
 
-def _tick(bar: Any) -> Any:
+def _tick(bar: Any) -> Callable[[int, float], None]:
     def cb(it: int, loss: float) -> None:
         if bar is not None:
             bar.update(1)
             bar.set_postfix_str(f"loss {loss:.4g}")
 
     return cb
+
+
+@contextlib.contextmanager
+def _stage_progress(progress: bool, total: int, desc: str) -> Iterator[Callable[[int, float], None]]:
+    """A stage's progress bar (none without ``progress``) as the stage's ``callback``, closed however the
+    stage ends (Ctrl-C included)."""
+    bar = _bar(progress, total, desc)
+    try:
+        yield _tick(bar)
+    finally:
+        if bar is not None:
+            bar.close()
 
 
 def fitted_scene(problem: Problem, values: dict[str, float], per_element: dict[str, np.ndarray]) -> Any:
@@ -165,12 +179,8 @@ def fit(
     values, arrays = problem.nominal, {}
     interrupted = False
     if problem.globals and generations > 0:
-        bar = _bar(progress, generations, "fit: CMA-ES")
-        try:
-            stages["cmaes"] = cmaes(problem, generations=generations, seed=seed, callback=_tick(bar))
-        finally:
-            if bar is not None:
-                bar.close()
+        with _stage_progress(progress, generations, "fit: CMA-ES") as tick:
+            stages["cmaes"] = cmaes(problem, generations=generations, seed=seed, callback=tick)
         values = stages["cmaes"].values
         interrupted = stages["cmaes"].interrupted
         if problem.shooting > 0 and not interrupted:
@@ -178,40 +188,33 @@ def fit(
             # loop (the held-out frames are): CMA-ES again, open loop, from there with half the step. Its
             # first evaluation is that start, so the open-loop training loss cannot get worse. On MuJoCo's
             # rope the windows' values alone predicted the held-out frames 1.3x worse than the nominal's.
-            bar = _bar(progress, generations, "fit: CMA-ES (open loop)")
             window, problem.shooting = problem.shooting, 0
             try:
-                stages["cmaes_open_loop"] = cmaes(
-                    problem,
-                    generations=generations,
-                    seed=seed,
-                    start=values,
-                    sigma=SIGMA_OPEN_LOOP,
-                    callback=_tick(bar),
-                )
+                with _stage_progress(progress, generations, "fit: CMA-ES (open loop)") as tick:
+                    stages["cmaes_open_loop"] = cmaes(
+                        problem,
+                        generations=generations,
+                        seed=seed,
+                        start=values,
+                        sigma=SIGMA_OPEN_LOOP,
+                        callback=tick,
+                    )
             finally:
                 problem.shooting = window
-                if bar is not None:
-                    bar.close()
             values = stages["cmaes_open_loop"].values
             interrupted = stages["cmaes_open_loop"].interrupted
     if isinstance(problem, PhotometricProblem) and epochs > 0 and not interrupted and refinable(problem):
         # From images, stage 2 refines the global values with image gradients through the rollout.
-        bar = _bar(progress, epochs, f"fit: {optimizer} (image gradients)")
-        try:
+        with _stage_progress(progress, epochs, f"fit: {optimizer} (image gradients)") as tick:
             stages["gradient"] = refine_globals(
-                problem, values, iterations=epochs, optimizer=optimizer, lr=lr, tol=tol, callback=_tick(bar)
+                problem, values, iterations=epochs, optimizer=optimizer, lr=lr, tol=tol, callback=tick
             )
-        finally:
-            if bar is not None:
-                bar.close()
         values, interrupted = stages["gradient"].values, stages["gradient"].interrupted
     if per_element is not None and epochs > 0 and not interrupted:
         n = problem.n_train
         n_fit = n - int(round(validation * (n - 1))) if n >= 6 else n
         n_fit = min(max(n_fit, 2), n)
-        bar = _bar(progress, epochs, f"fit: {optimizer} ({per_element})")
-        try:
+        with _stage_progress(progress, epochs, f"fit: {optimizer} ({per_element})") as tick:
             stages["gradient"] = gradient_stage(
                 problem,
                 values,
@@ -222,11 +225,8 @@ def fit(
                 smoothness=smoothness,
                 frames=n_fit,
                 tol=tol,
-                callback=_tick(bar),
+                callback=tick,
             )
-        finally:
-            if bar is not None:
-                bar.close()
         arrays = stages["gradient"].per_element
         interrupted = stages["gradient"].interrupted
         # The one-frame-horizon losses are not the open-loop rollout's, and many per-element values can fit
