@@ -52,10 +52,10 @@ def triangle_closest_point(p: Any, a: Any, b: Any, c: Any):
 
 
 @wp.kernel(enable_backward=False)
-def _to_float32(src: wp.array(dtype=Any), dst: wp.array(dtype=wp.vec3)):
+def _to_float32(x_in: wp.array(dtype=Any), x_out: wp.array(dtype=wp.vec3)):
     i = wp.tid()
-    x = src[i]
-    dst[i] = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
+    x = x_in[i]
+    x_out[i] = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
 
 
 class ParticleGrid:

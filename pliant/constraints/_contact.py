@@ -314,10 +314,10 @@ def _detect_point_triangle(
     x_in: wp.array(dtype=Any),
     p_in: wp.array(dtype=Any),
     capacity: int,
-    contact_count: wp.array(dtype=wp.int32),
-    contact_particle: wp.array(dtype=wp.int32),
-    contact_tri: wp.array(dtype=wp.int32),
-    contact_side: wp.array(dtype=Any),
+    contact_count_out: wp.array(dtype=wp.int32),
+    contact_particle_out: wp.array(dtype=wp.int32),
+    contact_tri_out: wp.array(dtype=wp.int32),
+    contact_side_out: wp.array(dtype=Any),
 ):
     q = wp.tid()
     xq = x_in[q]
@@ -352,11 +352,11 @@ def _detect_point_triangle(
         if bary[0] < tol or bary[1] < tol or bary[2] < tol:
             continue
         if point_triangle_c(pq, a, b, c, side, thickness) < margin:
-            k = wp.atomic_add(contact_count, 0, 1)
+            k = wp.atomic_add(contact_count_out, 0, 1)
             if k < capacity:
-                contact_particle[k] = q
-                contact_tri[k] = t
-                contact_side[k] = side
+                contact_particle_out[k] = q
+                contact_tri_out[k] = t
+                contact_side_out[k] = side
 
 
 @wp.kernel
