@@ -35,13 +35,6 @@ ATOMICS = ("atomic_add", "atomic_sub", "atomic_min", "atomic_max", "atomic_cas",
 
 #: Kernels that broke the rule when the lint was written (issue 26), to be fixed, never added to.
 ALLOWED: set[str] = {
-    "energies:_air_implicit",
-    "energies:_axpy_kernel",
-    "energies:_dashpot_implicit",
-    "energies:_ground_penalty",
-    "energies:_handle_kernel",
-    "energies:_penalty",
-    "energies:_spring_hessian",
     "energies:p2_hessian",
     "energies:tet_hessian",
     "gaussians:background_adjoint_kernel",

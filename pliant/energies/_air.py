@@ -46,7 +46,7 @@ def _air_implicit(
     inv_dt: Any,
     mode: int,
     scale: Any,
-    slots: wp.array(dtype=wp.int32),
+    slots_in: wp.array(dtype=wp.int32),
     value_out: wp.array(dtype=Any),
     grad_out: wp.array(dtype=Any),
     hess_out: wp.array(dtype=Any),
@@ -64,7 +64,7 @@ def _air_implicit(
     elif mode == 1:
         wp.atomic_add(grad_out, i, g * r)
     else:
-        wp.atomic_add(hess_out, slots[i], (scale * g) * wp.identity(n=3, dtype=type(c)))
+        wp.atomic_add(hess_out, slots_in[i], (scale * g) * wp.identity(n=3, dtype=type(c)))
 
 
 @wp.kernel

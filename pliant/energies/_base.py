@@ -102,7 +102,7 @@ class Energy(abc.ABC):
 class ModalEnergy(Energy):
     """An energy whose value, gradient and Hessian blocks come from one kernel with a ``mode`` switch.
 
-    The kernel takes, last, ``slots`` (int32), ``value_out`` (scalar), ``grad_out`` (vec3) and ``hess_out``
+    The kernel takes, last, ``slots_in`` (int32), ``value_out`` (scalar), ``grad_out`` (vec3) and ``hess_out``
     (mat33), and writes only the output of its mode (0 value, 1 gradient, 2 Hessian); the outputs not in
     use are 1-element dummies. Subclasses implement :meth:`_launch_mode` and :meth:`hessian_pattern`.
     """
@@ -161,7 +161,7 @@ class ModalEnergy(Energy):
 
 
 @wp.kernel
-def _axpy_kernel(out: wp.array(dtype=Any), x: wp.array(dtype=Any), a: Any):
+def _axpy_kernel(x: wp.array(dtype=Any), a: Any, out: wp.array(dtype=Any)):
     i = wp.tid()
     # An atomic add, not out[i] = out[i] + ...: a read-then-write of the same array cannot be replayed
     # by wp.Tape; the arithmetic (one addition) is the same.
@@ -169,4 +169,4 @@ def _axpy_kernel(out: wp.array(dtype=Any), x: wp.array(dtype=Any), a: Any):
 
 
 def _axpy(out: wp.array, x: wp.array, a: float, model: Model) -> None:
-    launch(_axpy_kernel, dim=out.shape[0], inputs=[out, x, model.s(a)], device=model.device)
+    launch(_axpy_kernel, dim=out.shape[0], inputs=[x, model.s(a), out], device=model.device)

@@ -31,7 +31,7 @@ def _penalty(
     mode: int,
     project: int,
     scale: Any,
-    slots: wp.array(dtype=wp.int32),
+    slots_in: wp.array(dtype=wp.int32),
     # Out:
     value_out: wp.array(dtype=Any),
     grad_out: wp.array(dtype=Any),
@@ -55,7 +55,7 @@ def _penalty(
                 h = wp.outer(n, n)
                 if project == 0:
                     h = h - p * Hphi  # curvature term: negative semidefinite for convex colliders
-                wp.atomic_add(hess_out, slots[i], scale * stiffness * h)
+                wp.atomic_add(hess_out, slots_in[i], scale * stiffness * h)
 
 
 class ColliderPenalty(ModalEnergy):

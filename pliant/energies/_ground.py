@@ -22,7 +22,7 @@ def _ground_penalty(
     x_in: wp.array(dtype=Any),
     mode: int,
     scale: Any,
-    slots: wp.array(dtype=wp.int32),
+    slots_in: wp.array(dtype=wp.int32),
     value_out: wp.array(dtype=Any),
     grad_out: wp.array(dtype=Any),
     hess_out: wp.array(dtype=Any),
@@ -45,7 +45,7 @@ def _ground_penalty(
     else:
         h = wp.outer(x_in[i], x_in[i]) * type(k)(0.0)
         h[1, 1] = scale * k
-        wp.atomic_add(hess_out, slots[i], h)
+        wp.atomic_add(hess_out, slots_in[i], h)
 
 
 class GroundPenalty(ModalEnergy):

@@ -25,7 +25,7 @@ def _handle_kernel(
     mode: int,
     project: int,
     scale: Any,
-    slots: wp.array(dtype=wp.int32),
+    slots_in: wp.array(dtype=wp.int32),
     value_out: wp.array(dtype=Any),
     grad_out: wp.array(dtype=Any),
     hess_out: wp.array(dtype=Any),
@@ -39,7 +39,7 @@ def _handle_kernel(
         wp.atomic_add(grad_out, i, spring_gradient(x_in[i], c, stiffness, link_rest[s]))
     else:
         h = spring_hessian(x_in[i], c, stiffness, link_rest[s], project)
-        wp.atomic_add(hess_out, slots[s], scale * h)
+        wp.atomic_add(hess_out, slots_in[s], scale * h)
 
 
 @wp.kernel

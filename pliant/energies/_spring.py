@@ -90,17 +90,17 @@ def _spring_hessian(
     x_in: wp.array(dtype=Any),
     scale: Any,
     project: int,
-    slots: wp.array(dtype=wp.int32),
+    slots_in: wp.array(dtype=wp.int32),
     values_out: wp.array(dtype=Any),
 ):
     s = wp.tid()
     i = spring_indices[s, 0]
     j = spring_indices[s, 1]
     h = scale * spring_hessian(x_in[i], x_in[j], spring_stiffness[s], spring_rest_length[s], project)
-    wp.atomic_add(values_out, slots[4 * s + 0], h)
-    wp.atomic_add(values_out, slots[4 * s + 1], h)
-    wp.atomic_sub(values_out, slots[4 * s + 2], h)
-    wp.atomic_sub(values_out, slots[4 * s + 3], h)
+    wp.atomic_add(values_out, slots_in[4 * s + 0], h)
+    wp.atomic_add(values_out, slots_in[4 * s + 1], h)
+    wp.atomic_sub(values_out, slots_in[4 * s + 2], h)
+    wp.atomic_sub(values_out, slots_in[4 * s + 3], h)
 
 
 def _spring_pattern(model: Model) -> tuple[np.ndarray, np.ndarray]:
@@ -215,7 +215,7 @@ def _dashpot_implicit(
     inv_dt: Any,
     mode: int,
     scale: Any,
-    slots: wp.array(dtype=wp.int32),
+    slots_in: wp.array(dtype=wp.int32),
     value_out: wp.array(dtype=Any),
     grad_out: wp.array(dtype=Any),
     hess_out: wp.array(dtype=Any),
@@ -235,10 +235,10 @@ def _dashpot_implicit(
         wp.atomic_sub(grad_out, j, g * r * n)
     else:
         h = scale * g * wp.outer(n, n)
-        wp.atomic_add(hess_out, slots[4 * s + 0], h)
-        wp.atomic_add(hess_out, slots[4 * s + 1], h)
-        wp.atomic_sub(hess_out, slots[4 * s + 2], h)
-        wp.atomic_sub(hess_out, slots[4 * s + 3], h)
+        wp.atomic_add(hess_out, slots_in[4 * s + 0], h)
+        wp.atomic_add(hess_out, slots_in[4 * s + 1], h)
+        wp.atomic_sub(hess_out, slots_in[4 * s + 2], h)
+        wp.atomic_sub(hess_out, slots_in[4 * s + 3], h)
 
 
 @declares
