@@ -107,13 +107,13 @@ def composite_kernel(
     depth: wp.array(dtype=Any),
     background: Any,
     tiles_x: int,
-    out_colour: wp.array2d(dtype=Any),
-    out_alpha: wp.array2d(dtype=Any),
-    out_depth: wp.array2d(dtype=Any),
-    out_T: wp.array2d(dtype=Any),
-    out_C: wp.array2d(dtype=Any),
-    out_D: wp.array2d(dtype=Any),
-    out_last: wp.array2d(dtype=wp.int32),
+    image_colour_out: wp.array2d(dtype=Any),
+    image_alpha_out: wp.array2d(dtype=Any),
+    image_depth_out: wp.array2d(dtype=Any),
+    T_out: wp.array2d(dtype=Any),
+    C_out: wp.array2d(dtype=Any),
+    D_out: wp.array2d(dtype=Any),
+    last_out: wp.array2d(dtype=wp.int32),
 ):
     y, x = wp.tid()
     px = type(background[0])(float(x))
@@ -137,16 +137,16 @@ def composite_kernel(
             D = D + depth[g] * (alpha * T)
             T = t_next
             last = k + 1
-    out_T[y, x] = T
-    out_C[y, x] = C
-    out_D[y, x] = D
-    out_last[y, x] = last
-    out_colour[y, x] = C + background * T
-    out_alpha[y, x] = one - T
+    T_out[y, x] = T
+    C_out[y, x] = C
+    D_out[y, x] = D
+    last_out[y, x] = last
+    image_colour_out[y, x] = C + background * T
+    image_alpha_out[y, x] = one - T
     if one - T > zero:
-        out_depth[y, x] = D / (one - T)
+        image_depth_out[y, x] = D / (one - T)
     else:
-        out_depth[y, x] = zero
+        image_depth_out[y, x] = zero
 
 
 @wp.kernel
@@ -160,18 +160,18 @@ def composite_backward_kernel(
     depth: wp.array(dtype=Any),
     background: Any,
     tiles_x: int,
-    out_T: wp.array2d(dtype=Any),
-    out_C: wp.array2d(dtype=Any),
-    out_D: wp.array2d(dtype=Any),
-    out_last: wp.array2d(dtype=wp.int32),
-    adj_colour_out: wp.array2d(dtype=Any),
-    adj_alpha_out: wp.array2d(dtype=Any),
-    adj_depth_out: wp.array2d(dtype=Any),
-    adj_mean2d: wp.array(dtype=Any),
-    adj_conic: wp.array(dtype=Any),
-    adj_opacity: wp.array(dtype=Any),
-    adj_colour: wp.array(dtype=Any),
-    adj_depth: wp.array(dtype=Any),
+    T_in: wp.array2d(dtype=Any),
+    C_in: wp.array2d(dtype=Any),
+    D_in: wp.array2d(dtype=Any),
+    last_in: wp.array2d(dtype=wp.int32),
+    adj_image_colour_in: wp.array2d(dtype=Any),
+    adj_image_alpha_in: wp.array2d(dtype=Any),
+    adj_image_depth_in: wp.array2d(dtype=Any),
+    adj_mean2d_out: wp.array(dtype=Any),
+    adj_conic_out: wp.array(dtype=Any),
+    adj_opacity_out: wp.array(dtype=Any),
+    adj_colour_out: wp.array(dtype=Any),
+    adj_depth_out: wp.array(dtype=Any),
 ):
     y, x = wp.tid()
     px = type(background[0])(float(x))
@@ -180,20 +180,20 @@ def composite_backward_kernel(
     one = type(background[0])(1.0)
     half = type(background[0])(0.5)
     rg = ranges[(y // wp.int32(TILE)) * tiles_x + x // wp.int32(TILE)]
-    T_end = out_T[y, x]
-    C_tot = out_C[y, x]
-    D_tot = out_D[y, x]
+    T_end = T_in[y, x]
+    C_tot = C_in[y, x]
+    D_tot = D_in[y, x]
     A = one - T_end
-    dC = adj_colour_out[y, x]
+    dC = adj_image_colour_in[y, x]
     dD = zero
-    dT_end = wp.dot(dC, background) - adj_alpha_out[y, x]
+    dT_end = wp.dot(dC, background) - adj_image_alpha_in[y, x]
     if A > zero:
-        dD = adj_depth_out[y, x] / A
-        dT_end = dT_end + adj_depth_out[y, x] * D_tot / (A * A)
+        dD = adj_image_depth_in[y, x] / A
+        dT_end = dT_end + adj_image_depth_in[y, x] * D_tot / (A * A)
     T = one
     C_pre = C_tot * zero
     D_pre = zero
-    for k in range(rg[0], out_last[y, x]):
+    for k in range(rg[0], last_in[y, x]):
         g = vals[k]
         m = mean2d[g]
         q = conic[g]
@@ -204,8 +204,8 @@ def composite_backward_kernel(
             c = colour[g]
             z = depth[g]
             w = alpha * T
-            wp.atomic_add(adj_colour, g, dC * w)
-            wp.atomic_add(adj_depth, g, dD * w)
+            wp.atomic_add(adj_colour_out, g, dC * w)
+            wp.atomic_add(adj_depth_out, g, dD * w)
             C_pre = C_pre + c * w
             D_pre = D_pre + z * w
             S_C = C_tot - C_pre
@@ -215,22 +215,28 @@ def composite_backward_kernel(
             )
             T = T * (one - alpha)
             if a_raw < type(background[0])(ALPHA_MAX):
-                wp.atomic_add(adj_opacity, g, d_alpha * G)
+                wp.atomic_add(adj_opacity_out, g, d_alpha * G)
                 d_pow = d_alpha * a_raw
                 dx = px - m[0]
                 dy = py - m[1]
                 wp.atomic_add(
-                    adj_mean2d, g, type(m)(d_pow * (q[0] * dx + q[1] * dy), d_pow * (q[1] * dx + q[2] * dy))
+                    adj_mean2d_out,
+                    g,
+                    type(m)(d_pow * (q[0] * dx + q[1] * dy), d_pow * (q[1] * dx + q[2] * dy)),
                 )
                 wp.atomic_add(
-                    adj_conic, g, type(q)(-half * d_pow * dx * dx, -d_pow * dx * dy, -half * d_pow * dy * dy)
+                    adj_conic_out,
+                    g,
+                    type(q)(-half * d_pow * dx * dx, -d_pow * dx * dy, -half * d_pow * dy * dy),
                 )
 
 
 @wp.kernel
 def background_adjoint_kernel(
-    adj_colour_out: wp.array2d(dtype=Any), out_T: wp.array2d(dtype=Any), adj_background: wp.array(dtype=Any)
+    adj_image_colour_in: wp.array2d(dtype=Any),
+    T_in: wp.array2d(dtype=Any),
+    adj_background_out: wp.array(dtype=Any),
 ):
     # colour = C + background · T_end per pixel, so ∂L/∂background = Σ_pixels ∂L/∂colour · T_end.
     y, x = wp.tid()
-    wp.atomic_add(adj_background, 0, adj_colour_out[y, x] * out_T[y, x])
+    wp.atomic_add(adj_background_out, 0, adj_image_colour_in[y, x] * T_in[y, x])
