@@ -37,7 +37,6 @@ ATOMICS = ("atomic_add", "atomic_sub", "atomic_min", "atomic_max", "atomic_cas",
 ALLOWED: set[str] = {
     "energies:p2_hessian",
     "energies:tet_hessian",
-    "integrators:_symplectic_update_rate",
     "solvers:_add_mass_diagonal",
     "solvers:_bw_apply",
     "solvers:_bw_finish",

@@ -43,11 +43,11 @@ def _symplectic_update(
 @wp.kernel
 def _symplectic_update_rate(
     inv_mass: wp.array(dtype=Any),
+    rate: wp.array(dtype=Any),
     x_in: wp.array(dtype=Any),
     v_in: wp.array(dtype=Any),
     a_in: wp.array(dtype=Any),
     dt: Any,
-    rate: wp.array(dtype=Any),
     x_out: wp.array(dtype=Any),
     v_out: wp.array(dtype=Any),
 ):
@@ -90,7 +90,7 @@ class SymplecticEuler(Integrator):
             launch(
                 _symplectic_update_rate,
                 m.particle_count,
-                [m.particle_inv_mass, x_in, v_in, a, m.s(dt), rate, x_out, v_out],
+                [m.particle_inv_mass, rate, x_in, v_in, a, m.s(dt), x_out, v_out],
                 device=m.device,
             )
             return
