@@ -38,18 +38,12 @@ ALLOWED: set[str] = {
     "energies:p2_hessian",
     "energies:tet_hessian",
     "solvers:_add_mass_diagonal",
-    "solvers:_bw_apply",
-    "solvers:_bw_finish",
-    "solvers:_bw_residual_springs",
-    "solvers:_bw_update",
     "solvers:_free_gradient_stats",
     "solvers:_incremental_gradient",
     "solvers:_project_fixed",
     "solvers:_project_fixed_dofs",
-    "solvers:_springs_scatter",
     "solvers:_static_step_stats",
     "solvers:_static_trial",
-    "solvers:_symplectic_update",
     "solvers:_trial_point",
 }
 

@@ -60,7 +60,7 @@ def _bw_residual_springs(
     particle_inv_mass: wp.array(dtype=Any),
     x_in: wp.array(dtype=Any),
     v_in: wp.array(dtype=Any),
-    dv: wp.array(dtype=Any),
+    dv_in: wp.array(dtype=Any),
     h: Any,
     r_out: wp.array(dtype=Any),
 ):
@@ -80,7 +80,7 @@ def _bw_residual_springs(
     f = f - spring_gradient_axis(d, l, spring_stiffness[s], spring_rest_length[s])
     K, H = _spring_blocks(xi, x_in[j], spring_rest_length[s], spring_stiffness[s], spring_damping[s], h)
     kv = -(K * (v_in[j] - vi))
-    wp.atomic_add(r_out, i, h * (f - h * kv) - H * (dv[i] - dv[j]))
+    wp.atomic_add(r_out, i, h * (f - h * kv) - H * (dv_in[i] - dv_in[j]))
 
 
 @wp.kernel

@@ -20,7 +20,7 @@ def _bw_apply(
     # CG:
     z_in: wp.array(dtype=Any),
     p_in: wp.array(dtype=Any),
-    scalars: wp.array(dtype=Any),
+    scalars_io: wp.array(dtype=Any),
     k: int,
     tol2: Any,
     p_out: wp.array(dtype=Any),
@@ -29,16 +29,16 @@ def _bw_apply(
     # p_new = z + β p_old (β = rz_k / rz_{k−1}; none at k = 0), then q = A p_new, accumulating p·q.
     # Neighbours' p_new are recomputed from z and p_old, so nobody reads a value written in this launch.
     i = wp.tid()
-    zero = scalars[0] * type(scalars[0])(0.0)
-    if k > 0 and not scalars[2 * k] > tol2 * scalars[0]:
+    zero = scalars_io[0] * type(scalars_io[0])(0.0)
+    if k > 0 and not scalars_io[2 * k] > tol2 * scalars_io[0]:
         # Converged: _bw_update freezes this iteration (α = 0), so skip the product. This device-side
         # flag is what lets a graph launch every iteration without a host read of the residual.
         return
     beta = zero
     if k > 0:
-        den = scalars[2 * k - 2]
+        den = scalars_io[2 * k - 2]
         if den > zero:
-            beta = scalars[2 * k] / den
+            beta = scalars_io[2 * k] / den
     # Pinned rows have z = 0 (zero preconditioner), hence p = 0: they never move.
     pi = z_in[i]
     if k > 0:
@@ -54,7 +54,7 @@ def _bw_apply(
         q = q * zero
     p_out[i] = pi
     q_out[i] = q
-    wp.atomic_add(scalars, 2 * k + 1, wp.dot(pi, q))
+    wp.atomic_add(scalars_io, 2 * k + 1, wp.dot(pi, q))
 
 
 @wp.kernel
@@ -62,7 +62,7 @@ def _bw_update(
     precond: wp.array(dtype=Any),
     p_in: wp.array(dtype=Any),
     q_in: wp.array(dtype=Any),
-    scalars: wp.array(dtype=Any),
+    scalars_io: wp.array(dtype=Any),
     k: int,
     tol2: Any,
     dv_io: wp.array(dtype=Any),
@@ -71,11 +71,11 @@ def _bw_update(
 ):
     # α = rz_k / (p·Ap); frozen (α = 0) once rz_k ≤ tol²·rz_0, so a fixed launch count needs no host sync.
     i = wp.tid()
-    rz = scalars[2 * k]
-    pq = scalars[2 * k + 1]
+    rz = scalars_io[2 * k]
+    pq = scalars_io[2 * k + 1]
     zero = rz * type(rz)(0.0)
     alpha = zero
-    if pq > zero and rz > tol2 * scalars[0]:
+    if pq > zero and rz > tol2 * scalars_io[0]:
         alpha = rz / pq
     dv_io[i] = dv_io[i] + alpha * p_in[i]
     r = r_io[i] - alpha * q_in[i]
@@ -84,4 +84,4 @@ def _bw_update(
     if alpha == zero:
         z = z * zero
     z_out[i] = z
-    wp.atomic_add(scalars, 2 * k + 2, wp.dot(r, z))
+    wp.atomic_add(scalars_io, 2 * k + 2, wp.dot(r, z))

@@ -58,9 +58,9 @@ def _springs_scatter(
     spring_stiffness: wp.array(dtype=Any),
     spring_damping: wp.array(dtype=Any),
     damped: int,
-    x: wp.array(dtype=Any),
-    v: wp.array(dtype=Any),
-    f: wp.array(dtype=Any),
+    x_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    f_out: wp.array(dtype=Any),
 ):
     """Spring ``s``'s force and dashpot, added to its two ends (the CPU's symplectic step: each spring
     evaluated once; CPU launches are sequential, so the atomic adds are plain adds and the sum order is
@@ -69,13 +69,13 @@ def _springs_scatter(
     ij = spring_pairs[s]  # one 8-byte load: 15 % faster than two reads of an [S, 2] array
     i = ij[0]
     j = ij[1]
-    d = x[i] - x[j]
+    d = x_in[i] - x_in[j]
     l = wp.length(d)
     fi = -spring_gradient_axis(d, l, spring_stiffness[s], spring_rest_length[s])
     if damped != 0:
-        fi += dashpot_force_axis(d, l, v[i], v[j], spring_damping[s])
-    wp.atomic_add(f, i, fi)
-    wp.atomic_sub(f, j, fi)
+        fi += dashpot_force_axis(d, l, v_in[i], v_in[j], spring_damping[s])
+    wp.atomic_add(f_out, i, fi)
+    wp.atomic_sub(f_out, j, fi)
 
 
 @wp.kernel
@@ -83,19 +83,19 @@ def _symplectic_update(
     particle_inv_mass: wp.array(dtype=Any),
     gravity: Any,
     f_ext: wp.array(dtype=Any),
-    f_springs: wp.array(dtype=Any),
     x_in: wp.array(dtype=Any),
     v_in: wp.array(dtype=Any),
     dt: Any,
     delta: Any,
+    f_springs_io: wp.array(dtype=Any),
     x_out: wp.array(dtype=Any),
     v_out: wp.array(dtype=Any),
 ):
     """v¹ = δ(v + Δt(g + w f)), x¹ = x + Δt v¹ from the scattered spring forces, which it clears for the
     next step."""
     i = wp.tid()
-    f = f_springs[i] + f_ext[i]
-    f_springs[i] = f * type(dt)(0.0)
+    f = f_springs_io[i] + f_ext[i]
+    f_springs_io[i] = f * type(dt)(0.0)
     w = particle_inv_mass[i]
     x, v = symplectic_particle(w, x_in[i], v_in[i], gravity + w * f, dt, delta)
     x_out[i] = x

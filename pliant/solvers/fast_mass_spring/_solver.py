@@ -312,8 +312,8 @@ class FastMassSpring(Solver):
                 wp.launch(
                     _symplectic_update,
                     n,
-                    [m.particle_inv_mass, m.gravity_vec, f_ext, self._f_springs]
-                    + [xi, vi, s(dt), delta, xo, vo],
+                    [m.particle_inv_mass, m.gravity_vec, f_ext, xi, vi, s(dt), delta]
+                    + [self._f_springs, xo, vo],
                     device=dev,
                     record_cmd=True,
                 ),

@@ -101,7 +101,7 @@ def _bw_finish(
     particle_inv_mass: wp.array(dtype=Any),
     x_in: wp.array(dtype=Any),
     v_in: wp.array(dtype=Any),
-    dv: wp.array(dtype=Any),
+    dv_in: wp.array(dtype=Any),
     h: Any,
     theta: Any,
     delta: Any,
@@ -114,12 +114,12 @@ def _bw_finish(
         x_out[i] = x_in[i] + h * v_in[i]
         v_out[i] = v_in[i]
         return
-    v = delta * (v_in[i] + dv[i])
+    v = delta * (v_in[i] + dv_in[i])
     v_out[i] = v
     if theta == type(h)(1.0):
         x_out[i] = x_in[i] + h * v  # backward Euler: x¹ = x + h v¹
     else:
-        x_out[i] = x_in[i] + h * delta * (v_in[i] + theta * dv[i])  # x¹ = x + h (v + θΔv)
+        x_out[i] = x_in[i] + h * delta * (v_in[i] + theta * dv_in[i])  # x¹ = x + h (v + θΔv)
 
 
 class BaraffWitkinSystem:
