@@ -41,13 +41,9 @@ def _sim(device: str, linear_solver: str, graph: bool | None = None, **kw) -> pl
     return sim
 
 
-def test_cg_solves_a_spd_system_to_its_tolerance(device: str) -> None:
-    """DeviceCG on a random SPD block system: ‖b − Hx‖ ≤ tol‖b‖ (its stopping test), the error within
-    cond(H)·tol of numpy's solve, in at most 3n iterations (CG's finite termination) rounded up to a chunk."""
-    rng = np.random.default_rng(3)
-    n = 7
-    a = rng.standard_normal((3 * n, 3 * n))
-    dense = a @ a.T + 3 * n * np.eye(3 * n)  # SPD, cond ≈ 10
+def _dense_cg(device: str, dense: np.ndarray) -> DeviceCG:
+    """DeviceCG on a dense block matrix (every block stored) of n = len(dense) / 3 particles."""
+    n = dense.shape[0] // 3
     rows, cols = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
     blocks = dense.reshape(n, 3, n, 3).transpose(0, 2, 1, 3)[rows.ravel(), cols.ravel()]
     A = bsr_from_triplets(
@@ -67,8 +63,18 @@ def test_cg_solves_a_spd_system_to_its_tolerance(device: str) -> None:
         scalar=wp.float64,
         particle_inv_mass=wp.ones(n, dtype=wp.float64, device=device),
     )
+    return DeviceCG(model, ws)  # type: ignore[arg-type]
+
+
+def test_cg_solves_a_spd_system_to_its_tolerance(device: str) -> None:
+    """DeviceCG on a random SPD block system: ‖b − Hx‖ ≤ tol‖b‖ (its stopping test), the error within
+    cond(H)·tol of numpy's solve, in at most 3n iterations (CG's finite termination) rounded up to a chunk."""
+    rng = np.random.default_rng(3)
+    n = 7
+    a = rng.standard_normal((3 * n, 3 * n))
+    dense = a @ a.T + 3 * n * np.eye(3 * n)  # SPD, cond ≈ 10
     b = rng.standard_normal((n, 3))
-    cg = DeviceCG(model, ws)  # type: ignore[arg-type]
+    cg = _dense_cg(device, dense)
     x = wp.zeros(n, dtype=wp.vec3d, device=device)
     tol = 1e-10
     cg.solve(wp.array(-b, dtype=wp.vec3d, device=device), x, tol, 1000)
@@ -84,6 +90,38 @@ def test_cg_solves_a_spd_system_to_its_tolerance(device: str) -> None:
     cg.solve(wp.array(-b, dtype=wp.vec3d, device=device), x, 1e-14, 3)
     assert cg.iterations() == 3
     assert np.linalg.norm(b.ravel() - dense @ x.numpy().ravel()) > 1e-6 * np.linalg.norm(b)
+
+
+def test_cg_stops_at_a_breakdown(device: str) -> None:
+    """On a negative definite H the first p·Hp is < 0: CG stops there (x stays 0, no iteration counted)
+    instead of running to its cap on a meaningless step."""
+    n = 4
+    cg = _dense_cg(device, -np.eye(3 * n) - 0.1 * np.ones((3 * n, 3 * n)))
+    x = wp.zeros(n, dtype=wp.vec3d, device=device)
+    cg.solve(wp.array(np.ones((n, 3)), dtype=wp.vec3d, device=device), x, 1e-10, 100)
+    assert cg.iterations() == 0
+    assert np.all(x.numpy() == 0.0)
+    assert int(cg.counts.numpy()[1]) == 1, "one chunk, then the breakdown flag ended the solve"
+
+
+def test_unconverged_step_says_so(device: str) -> None:
+    """A step capped at one Newton iteration, far from the tolerance, reports it: not converged, one
+    iteration, its residuals (start and after the step) and a gradient norm above the tolerance."""
+    m = _box(device)
+    solver = pl.solvers.ForceSolver(
+        m,
+        [pl.energies.NeoHookean(), pl.energies.Gravity()],
+        pl.integrators.BackwardEuler(newton_tol=1e-12, max_newton_iterations=1),
+        minimizer={"linear_solver": "pcg"},
+    )
+    s0, s1 = m.state(), m.state()
+    s0.particle_qd.fill_(wp.vec3d(0.0, -3.0, 0.0))  # lands within the step: contact makes it nonlinear
+    solver.step(s0, s1, None, 1 / 30)
+    st = solver.last_stats
+    assert st.iterations == 1 and not st.converged
+    assert len(st.residuals) == 2 and st.residuals[1] < st.residuals[0]
+    assert st.gradient_norm == st.residuals[1] > st.tolerance
+    assert st.linear_iterations > 0 and st.step_norm > 0
 
 
 def test_motion_matches_the_direct_solver(device: str) -> None:
