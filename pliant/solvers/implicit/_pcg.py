@@ -229,8 +229,8 @@ def _newton_check(
 class DeviceCG:
     """Block-Jacobi preconditioned CG on a BSR(3×3) matrix whose stopping test runs on the device.
 
-    ``solve`` launches x = −H⁻¹ g (relative residual ``tol``, at most ``cap`` iterations rounded up to
-    whole chunks of :data:`CG_CHUNK`) and reads nothing back; ``iterations()`` reads the count (one read).
+    ``solve`` launches x = −H⁻¹ g (relative residual ``tol``, at most ``cap`` iterations, launched in whole
+    chunks of :data:`CG_CHUNK`) and reads nothing back; ``iterations()`` reads the count (one read).
 
     Args:
         model: the Model (device, dtype, inverse masses: fixed rows are left at 0).
