@@ -8,7 +8,8 @@
 #
 # Every step writes into $OUT (the device tool brings it back); a step that fails or runs out of time is
 # recorded in $OUT/steps.txt and the script goes on, so one slow step never costs the others' figures.
-# Budget (seconds): tests 150, graphs 60, drape/xpbd harness 150, fits 150 — 510 s with start-up.
+# Budget (seconds): tests 150, graphs 60, drape/xpbd harness 150, fits 150, FEM 150 — 660 s with start-up
+# (more than one 10-minute call: run it with a timeout and the FEM step last, or split it).
 set -u
 OUT=${OUT:-out/gpu}
 mkdir -p "$OUT"
@@ -30,7 +31,7 @@ $PY -c "import warp as wp; wp.init(); print(wp.__version__, wp.get_cuda_devices(
 # 1. Correctness on CUDA: every device-parametrised test, graph replay equal to direct steps, the examples.
 step tests 150 $PY -m pytest -q -x -n 8 -p no:cacheprovider -k cuda \
     tests/test_devices.py tests/test_graph.py tests/test_collisions.py tests/test_gaussians.py \
-    tests/test_gaussians_bind.py
+    tests/test_gaussians_bind.py tests/test_implicit_pcg.py
 # 2. Graph replay against launch by launch, side by side, every scene the Simulator can replay.
 step graphs 60 $PY benchmarks/bench_graph.py --device "$DEV" --rounds 3 --frames 10
 # 3. The measured gap: pliant against Newton on the drape and XPBD (harness of ../shared/gpu).
@@ -42,4 +43,8 @@ step fit_tracks 60 $PY -m pliant.cli fit tests/data/foreign/mujoco_cloth.toml \
     tests/data/foreign/mujoco_cloth.npz --out "$OUT/fit_tracks" --device "$DEV" --no-video -q
 step fit_footage 90 $PY -m pliant.cli fit tests/data/foreign/mujoco_cloth.toml \
     tests/data/foreign/mujoco_cloth_video.npz --out "$OUT/fit_footage" --device "$DEV" --no-video -q
+# 5. Issue 24 item 3: the device Newton (frames replayed as graphs) on the soft box, beside Newton with Warp's
+#    CG (host decisions) at 10³; the CPU's L-BFGS row (91 ms per step at 30³ on one core) is the target.
+step fem_pcg 150 $PY -m pliant.cli bench soft_box_drop_10_implicit_pcg soft_box_drop_10_implicit_newton \
+    soft_box_drop_30_implicit_pcg --device "$DEV" --json "$OUT/fem_pcg.jsonl"
 cat "$OUT/steps.txt"

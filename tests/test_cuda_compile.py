@@ -22,6 +22,8 @@ MUST_COMPILE = {
     "pliant.solvers.xpbd._tolerance",
     "pliant.solvers.implicit._assembly",
     "pliant.solvers.implicit._newton",
+    "pliant.solvers.implicit._pcg",
+    "pliant.solvers.implicit._pcg_kernels",
     "pliant.solvers.force._solver",
     "pliant.integrators._symplectic",
     "pliant.integrators._implicit",

@@ -76,6 +76,16 @@ class Energy(abc.ABC):
         """Largest α ≤ 1 such that x + α dx stays admissible (no inversion, barrier); default 1."""
         return 1.0
 
+    def max_step_into(self, model: Model, x: wp.array, dx: wp.array, alpha_io: wp.array) -> bool:
+        """Lower ``alpha_io[0]`` (one element of the model's scalar, on its device) to this energy's
+        :meth:`max_step` by launches alone, with no host read (the device Newton, ``linear_solver="pcg"``).
+
+        Returns False, launching nothing, when the bound is only known on the host: the caller then uses
+        :meth:`max_step`. Default: True (nothing to lower) for an energy with the default :meth:`max_step`,
+        False for one that overrides it without overriding this.
+        """
+        return type(self).max_step is Energy.max_step
+
     def max_step_radius(self, model: Model, x: wp.array) -> float:
         """Radius r [m] around x: every configuration with all particle displacements |u_i| ≤ r is admissible
         (``max_step`` would return 1 for any step staying inside); default inf (no bound)."""

@@ -387,14 +387,19 @@ class TetElasticity(Energy):
             return 1.0
         a = self._buffers(model)["alpha"]
         launch(_fill, 1, [model.s(1.0), a], device=model.device)
+        self.max_step_into(model, x, dx, a)
+        return float(a.numpy()[0])
+
+    def max_step_into(self, model: Model, x: wp.array, dx: wp.array, alpha_io: wp.array) -> bool:
+        """Lower ``alpha_io[0]`` to :meth:`max_step`'s bound on the device (atomic min over the tets)."""
         for tets in _guard_tets(model):
             launch(
                 _tet_max_step,
                 tets.shape[0],
-                [tets, x, dx, model.s(self.inversion_margin), a],
+                [tets, x, dx, model.s(self.inversion_margin), alpha_io],
                 device=model.device,
             )
-        return float(a.numpy()[0])
+        return True
 
     def max_step_radius(self, model: Model, x: wp.array) -> float:
         """Radius r [m] around x: a displacement with every |u_i| ≤ r keeps each element's volume above η

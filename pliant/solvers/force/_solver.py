@@ -21,6 +21,7 @@ from .._post import add_drag_force, check_collisions, finish_step
 from ..implicit import (
     MinimizerCache,
     MinimizerOptions,
+    device_newton_blocker,
     lbfgs_checkpoint_state,
     lbfgs_restore_checkpoint_state,
     minimize,
@@ -289,11 +290,20 @@ class ForceSolver(Solver):
 
     def graph_blocker(self) -> str | None:
         """None for explicit integrators without a tape: their steps are kernel launches only (see
-        :meth:`Solver.graph_blocker`); implicit steps solve on the host, recorded steps allocate."""
+        :meth:`Solver.graph_blocker`) and for one-step implicit ones with the device Newton
+        (``minimizer={"linear_solver": "pcg"}``); other implicit steps solve on the host, recorded steps
+        allocate."""
         if grad_enabled(self.model):
             return "a differentiable model's steps write fresh arrays each step"
         if not self.integrator.explicit:
-            return f"{self.integrator.name} minimises on the host (line search, sparse solves)"
+            mz = self.minimizer
+            if mz.method != "newton" or mz.linear_solver != "pcg":
+                return f"{self.integrator.name} minimises on the host (line search, sparse solves)"
+            if getattr(self.integrator, "multistep", False):
+                return f"{self.integrator.name} chooses its history on the host"
+            why = device_newton_blocker(self.energies, self.model.device)
+            if why is not None:
+                return why
         return self._collisions_blocker()
 
     def describe(self) -> dict:

@@ -3,8 +3,9 @@ settings, workspace and assembly, the adjoint of a converged step, and the stati
 
 Modules, bottom to top: ``_options`` (the minimiser's settings) and ``_workspace`` (the BSR pattern, linear
 solvers, the per-problem cache) → ``_assembly`` (Hessian assembly, the Control's terms) → ``_adjoint``
-(gradients through a step) → ``_newton`` → ``_quasi_newton`` → ``_minimize`` / ``_static``. Other solver
-families use the names below, never these modules.
+(gradients through a step) → ``_newton`` → ``_pcg_kernels`` / ``_pcg`` (Newton on the device) →
+``_quasi_newton`` → ``_minimize`` / ``_static``. Other solver families use the names below, never these
+modules.
 """
 
 from ._adjoint import differentiable
@@ -12,6 +13,8 @@ from ._assembly import PotentialProblem, control_of
 from ._minimize import minimize
 from ._newton import NewtonStats, minimize_incremental_potential
 from ._options import MinimizerOptions, step_settings
+from ._pcg import DeviceCG, DeviceNewtonStats, minimize_device
+from ._pcg import graph_blocker as device_newton_blocker
 from ._quasi_newton import (
     lbfgs_checkpoint_state,
     lbfgs_restore_checkpoint_state,
@@ -22,6 +25,8 @@ from ._static import StaticStats, solve_static
 from ._workspace import MinimizerCache, cache_of
 
 __all__ = [
+    "DeviceCG",
+    "DeviceNewtonStats",
     "MinimizerCache",
     "MinimizerOptions",
     "NewtonStats",
@@ -29,10 +34,12 @@ __all__ = [
     "StaticStats",
     "cache_of",
     "control_of",
+    "device_newton_blocker",
     "differentiable",
     "lbfgs_checkpoint_state",
     "lbfgs_restore_checkpoint_state",
     "minimize",
+    "minimize_device",
     "minimize_incremental_potential",
     "minimize_quasi_newton",
     "nested_dissection",

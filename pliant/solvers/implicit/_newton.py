@@ -172,6 +172,12 @@ def _negate(src: wp.array(dtype=Any), out: wp.array(dtype=Any)):
 # ----------------------------------------------------------------------------------------------- Newton
 def _gradient(solver: Any, ws: _Workspace, x: wp.array, x_tilde: wp.array, h: float) -> np.ndarray:
     """∇Φ(x) into ws.grad (fixed rows zeroed); returns [max|g|/(m h), max|x|, inertia, E] (one host read)."""
+    _launch_gradient(solver, ws, x, x_tilde, h)
+    return ws.gstats.numpy().astype(np.float64)
+
+
+def _launch_gradient(solver: Any, ws: _Workspace, x: wp.array, x_tilde: wp.array, h: float) -> None:
+    """∇Φ(x) into ws.grad (fixed rows zeroed) and [max|g|/(m h), max|x|, inertia, E] into ws.gstats."""
     m = solver.model
     n = m.particle_count
     ws.egrad.zero_()
@@ -186,7 +192,6 @@ def _gradient(solver: Any, ws: _Workspace, x: wp.array, x_tilde: wp.array, h: fl
         + [ws.gstats],
         device=m.device,
     )
-    return ws.gstats.numpy().astype(np.float64)
 
 
 @differentiable

@@ -17,7 +17,7 @@ import numpy as np
 from ...integrators._implicit import MINIMIZER_SETTINGS, ImplicitOptions
 
 #: The linear solvers of Newton's steps.
-LINEAR_SOLVERS = ("cg", "scipy-cg", "direct", "auto")
+LINEAR_SOLVERS = ("cg", "scipy-cg", "direct", "auto", "pcg")
 
 
 @dataclass(frozen=True)
@@ -31,7 +31,9 @@ class MinimizerOptions:
             whose Hessian changes too much between steps for a lagged one).
         linear_solver: Newton's linear solver: "cg" (warp.optim.linear.cg, any device), "scipy-cg" (SciPy
             CG, block-Jacobi, host; falls back to the direct solve when a step stalls), "direct" (SciPy
-            sparse LU, host) or "auto" (direct on the CPU, cg on a GPU).
+            sparse LU, host), "auto" (direct on the CPU, cg on a GPU) or "pcg" (Newton with every decision on
+            the device: block-Jacobi CG, line search and stopping tests; no host read inside a step, so a
+            Simulator replays its frames as graphs; :mod:`pliant.solvers.implicit._pcg`).
         cg_tol: relative residual of CG, in (0, 1) (raised to 30 eps of the model's dtype).
         cg_max_iterations: CG iteration cap per linear solve (≥ 1).
         lbfgs_history: curvature pairs L-BFGS keeps (≥ 0; 0 is descent preconditioned by the lagged H₀).
@@ -70,7 +72,8 @@ class MinimizerOptions:
             raise ValueError(f"method must be 'newton' or 'lbfgs', got {self.method!r}")
         if self.linear_solver not in LINEAR_SOLVERS:
             raise ValueError(
-                f"linear_solver must be 'cg', 'scipy-cg', 'direct' or 'auto', got {self.linear_solver!r}"
+                "linear_solver must be 'cg', 'scipy-cg', 'direct' or 'auto' (host decisions), or 'pcg' (the "
+                f"device Newton), got {self.linear_solver!r}"
             )
         ok = isinstance(self.cg_tol, (int, float)) and not isinstance(self.cg_tol, bool)
         if not (ok and 0.0 < self.cg_tol < 1.0):  # NaN fails too

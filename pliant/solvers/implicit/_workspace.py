@@ -168,6 +168,8 @@ class MinimizerCache:
     def __init__(self) -> None:
         self.newton: _Workspace | None = None
         self.lbfgs: tuple[Any, Any, Any, dict] | None = None
+        #: The device Newton's buffers (``linear_solver="pcg"``, :mod:`._pcg`), or None before its first step.
+        self.pcg: Any = None
 
     def workspace(self, model: Model, energies: list) -> _Workspace:
         """The workspace of (``model``, ``energies``), built on first use and when either changes."""
