@@ -51,20 +51,12 @@ ALLOWED: set[str] = {
     "gaussians:composite_backward_kernel",
     "gaussians:composite_kernel",
     "integrators:_symplectic_update_rate",
-    "solvers:_add_mass_diagonal",
     "solvers:_bw_apply",
     "solvers:_bw_finish",
     "solvers:_bw_residual_springs",
     "solvers:_bw_update",
-    "solvers:_free_gradient_stats",
-    "solvers:_incremental_gradient",
-    "solvers:_project_fixed",
-    "solvers:_project_fixed_dofs",
     "solvers:_springs_scatter",
-    "solvers:_static_step_stats",
-    "solvers:_static_trial",
     "solvers:_symplectic_update",
-    "solvers:_trial_point",
 }
 
 
