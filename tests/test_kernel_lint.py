@@ -45,8 +45,6 @@ ALLOWED: set[str] = {
     "energies:_handle_kernel",
     "energies:_penalty",
     "energies:_spring_hessian",
-    "energies:p2_hessian",
-    "energies:tet_hessian",
     "gaussians:background_adjoint_kernel",
     "gaussians:composite_backward_kernel",
     "gaussians:composite_kernel",
