@@ -34,18 +34,7 @@ ROOT = Path(__file__).resolve().parent.parent / "pliant"
 ATOMICS = ("atomic_add", "atomic_sub", "atomic_min", "atomic_max", "atomic_cas", "atomic_exch")
 
 #: Kernels that broke the rule when the lint was written (issue 26), to be fixed, never added to.
-ALLOWED: set[str] = {
-    "energies:p2_hessian",
-    "energies:tet_hessian",
-    "solvers:_add_mass_diagonal",
-    "solvers:_free_gradient_stats",
-    "solvers:_incremental_gradient",
-    "solvers:_project_fixed",
-    "solvers:_project_fixed_dofs",
-    "solvers:_static_step_stats",
-    "solvers:_static_trial",
-    "solvers:_trial_point",
-}
+ALLOWED: set[str] = set()
 
 
 def _is_kernel(node: ast.AST) -> bool:

@@ -268,8 +268,8 @@ class Constraint(abc.ABC):
     def project(self, ctx: ProjectionContext, p: wp.array, dt: float) -> wp.array | None:
         """One sweep over the constraints, writing ``p`` (Gauss–Seidel) or ``ctx`` deltas (Jacobi).
 
-        Returns None, or (sets that move particles directly in a differentiable step) the fresh array of
-        projected positions that replaces ``p``.
+        Returns None, or (sets that move particles directly) the positions they wrote: ``p`` itself, or in a
+        differentiable step the fresh array that replaces it.
         """
 
     def residual(self, ctx: ProjectionContext, p: wp.array, dt: float, out: wp.array) -> None:  # noqa: B027
@@ -278,7 +278,8 @@ class Constraint(abc.ABC):
     def end_step(  # noqa: B027
         self, ctx: ProjectionContext, x: wp.array, p: wp.array, v: wp.array, dt: float
     ) -> wp.array | None:
-        """Velocity pass (friction, restitution) after v = (p − x)/dt; a fresh v, or None (in place)."""
+        """Velocity pass (friction, restitution) after v = (p − x)/dt; returns the velocities written (``v``
+        itself in place, a fresh array in a differentiable step), or None (nothing written)."""
 
     def evaluate(self, x: wp.array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """C [n], particle indices [n, k] and ∇C [n, k, 3] of every bound constraint at positions ``x``.

@@ -31,31 +31,25 @@ def _project_ground(
     radius: wp.array(dtype=Any),
     normal: Any,
     d: Any,
-    copy_through: int,
     p_in: wp.array(dtype=Any),
     lam_in: wp.array(dtype=Any),
     p_out: wp.array(dtype=Any),
     lam_out: wp.array(dtype=Any),
 ):
-    # p_out/lam_out are p_in/lam_in (in place) or, for a differentiable step, fresh arrays that every
-    # thread fills (copy_through != 0).
-    # Loads only what the in-place path needs (this kernel runs every sweep plus the contact sweeps).
+    # Every thread writes its particle's p_out and lam_out, so the outputs may be the inputs (in place) or
+    # fresh arrays (a step wp.Tape records), as collision.ground_contact's.
     i = wp.tid()
     w = inv_mass[i]
-    if w == type(w)(0.0):
-        if copy_through != 0:
-            p_out[i] = p_in[i]
-            lam_out[i] = lam_in[i]
-        return
     x = p_in[i]
-    c = ground_c(x, normal, d, radius[i])
-    if c < type(w)(0.0):
-        # |∇C| = 1: Δλ = −C/w and Δx = wΔλ n = −C n (the lecture's Δp = C n with C = min(·, 0)).
-        lam_out[i] = lam_in[i] - c / w
-        p_out[i] = x - c * ground_grad(x, normal)
-    elif copy_through != 0:
-        p_out[i] = x
-        lam_out[i] = lam_in[i]
+    lam = lam_in[i]
+    if w != type(w)(0.0):
+        c = ground_c(x, normal, d, radius[i])
+        if c < type(w)(0.0):
+            # |∇C| = 1: Δλ = −C/w and Δx = wΔλ n = −C n (the lecture's Δp = C n with C = min(·, 0)).
+            lam = lam - c / w
+            x = x - c * ground_grad(x, normal)
+    p_out[i] = x
+    lam_out[i] = lam
 
 
 @wp.kernel
@@ -66,21 +60,19 @@ def _ground_velocity(
     restitution: Any,
     threshold: Any,
     inv_dt: Any,
-    copy_through: int,
     lam_in: wp.array(dtype=Any),
     v_pre_in: wp.array(dtype=Any),
     v_in: wp.array(dtype=Any),
     v_out: wp.array(dtype=Any),
 ):
-    # v_out is v_in (in place) or a fresh array every thread fills (copy_through != 0).
+    # Every thread writes its particle's v_out: it may be v_in (in place) or a fresh array (recorded step).
     i = wp.tid()
     lam = lam_in[i]
     zero = type(lam)(0.0)
-    if lam <= zero:
-        if copy_through != 0:
-            v_out[i] = v_in[i]
-        return
     v = v_in[i]
+    if lam <= zero:
+        v_out[i] = v
+        return
     vn = wp.dot(v, normal)
     vt = v - vn * normal
     # Coulomb: the tangential velocity change is bounded by μ times the normal one, |Δx_n|/Δt = wλ/Δt.
@@ -150,7 +142,8 @@ class Ground(Constraint):
     def project(self, ctx: ProjectionContext, p: wp.array, dt: float) -> wp.array | None:
         """Push particles onto the plane (each thread touches only its own particle).
 
-        In a differentiable step the projection writes fresh positions and λ and returns the positions.
+        One kernel either way: it updates ``p`` and λ in place, or in a differentiable step writes fresh
+        arrays; it returns the positions it wrote.
         Its gradient is that of the active set: exact away from the contact switch C = 0, a one-sided
         (sub)gradient at it.
         """
@@ -166,7 +159,6 @@ class Ground(Constraint):
                 m.particle_radius,
                 m.vec3(*self.normal),
                 m.s(self.offset),
-                int(ctx.requires_grad),
                 p,
                 self.lam,
                 p_out,
@@ -174,7 +166,7 @@ class Ground(Constraint):
             ],
         )
         self.lam = lam_out
-        return p_out if ctx.requires_grad else None
+        return p_out
 
     def end_step(
         self, ctx: ProjectionContext, x: wp.array, p: wp.array, v: wp.array, dt: float
@@ -197,14 +189,13 @@ class Ground(Constraint):
                 m.s(self.restitution),
                 m.s(2.0 * g * dt),  # below this approach speed a contact rests instead of bouncing
                 m.s(1.0 / dt),
-                int(ctx.requires_grad),
                 self.lam,
                 ctx.v_pred,
                 v,
                 v_out,
             ],
         )
-        return v_out if ctx.requires_grad else None
+        return v_out
 
 
 # ---------------------------------------------------------------------- particle–particle

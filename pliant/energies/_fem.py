@@ -28,13 +28,19 @@ from ._materials import get_material_model, lame_parameters
 
 @wp.func
 def _add_tet_gradient(
-    grad_out: wp.array(dtype=Any), i: int, j: int, k: int, l: int, f0: Any, f1: Any, f2: Any, f3: Any
+    tet_indices: wp.array2d(dtype=wp.int32),
+    t: int,
+    f0: Any,
+    f1: Any,
+    f2: Any,
+    f3: Any,
+    grad_out: wp.array(dtype=Any),
 ):
     # ∂E/∂x_a = −f_a (element forces); vertices are shared between tets: atomics.
-    wp.atomic_sub(grad_out, i, f0)
-    wp.atomic_sub(grad_out, j, f1)
-    wp.atomic_sub(grad_out, k, f2)
-    wp.atomic_sub(grad_out, l, f3)
+    wp.atomic_sub(grad_out, tet_indices[t, 0], f0)
+    wp.atomic_sub(grad_out, tet_indices[t, 1], f1)
+    wp.atomic_sub(grad_out, tet_indices[t, 2], f2)
+    wp.atomic_sub(grad_out, tet_indices[t, 3], f3)
 
 
 _KERNELS: dict[str, tuple[Any, Any, Any, Any]] = {}
@@ -79,13 +85,7 @@ def _build_material_kernels(name: str) -> tuple[Any, Any, Any, Any]:
         out: wp.array(dtype=Any),
     ):
         t = wp.tid()
-        F = fm.deformation_gradient(
-            x_in[tet_indices[t, 0]],
-            x_in[tet_indices[t, 1]],
-            x_in[tet_indices[t, 2]],
-            x_in[tet_indices[t, 3]],
-            tet_rest_inv[t],
-        )
+        F = fm.tet_deformation_gradient(tet_indices, t, x_in, tet_rest_inv[t])
         wp.atomic_add(out, 0, tet_rest_volume[t] * psi_fn(F, tet_mu[t], tet_lam[t]))
 
     @wp.kernel(module=module)
@@ -102,17 +102,13 @@ def _build_material_kernels(name: str) -> tuple[Any, Any, Any, Any]:
     ):
         # ∂E/∂x, and E into out[0] when with_value (the quasi-Newton line search: F is built once for both).
         t = wp.tid()
-        i = tet_indices[t, 0]
-        j = tet_indices[t, 1]
-        k = tet_indices[t, 2]
-        l = tet_indices[t, 3]
         Dm_inv = tet_rest_inv[t]
-        F = fm.deformation_gradient(x_in[i], x_in[j], x_in[k], x_in[l], Dm_inv)
+        F = fm.tet_deformation_gradient(tet_indices, t, x_in, Dm_inv)
         V = tet_rest_volume[t]
         if with_value != 0:
             wp.atomic_add(out, 0, V * psi_fn(F, tet_mu[t], tet_lam[t]))
         g0, g1, g2, g3 = fm.tet_forces(pk1_fn(F, tet_mu[t], tet_lam[t]), Dm_inv, V)
-        _add_tet_gradient(grad_out, i, j, k, l, g0, g1, g2, g3)
+        _add_tet_gradient(tet_indices, t, g0, g1, g2, g3, grad_out)
 
     def make_hessian(dpdf: Any, mod: Any) -> Any:
         @wp.kernel(module=mod, enable_backward=False)
@@ -122,20 +118,14 @@ def _build_material_kernels(name: str) -> tuple[Any, Any, Any, Any]:
             tet_rest_volume: wp.array(dtype=Any),
             tet_mu: wp.array(dtype=Any),
             tet_lam: wp.array(dtype=Any),
+            slots: wp.array(dtype=wp.int32),
             x_in: wp.array(dtype=Any),
             scale: Any,
-            slots: wp.array(dtype=wp.int32),
             values_out: wp.array(dtype=Any),
         ):
             t = wp.tid()
             Dm_inv = tet_rest_inv[t]
-            F = fm.deformation_gradient(
-                x_in[tet_indices[t, 0]],
-                x_in[tet_indices[t, 1]],
-                x_in[tet_indices[t, 2]],
-                x_in[tet_indices[t, 3]],
-                Dm_inv,
-            )
+            F = fm.tet_deformation_gradient(tet_indices, t, x_in, Dm_inv)
             A = dpdf(F, tet_mu[t], tet_lam[t])
             V = scale * tet_rest_volume[t]
             for a in range(4):
@@ -369,7 +359,7 @@ class TetElasticity(Energy):
             launch(
                 k,
                 model.tet_count,
-                [*self._inputs(model), x, model.s(scale), slots, values],
+                [*self._inputs(model), slots, x, model.s(scale), values],
                 device=model.device,
             )
         if model.tet10_count:
@@ -377,7 +367,7 @@ class TetElasticity(Energy):
             launch(
                 k,
                 self._dim10(model),
-                [*self._inputs10(model), x, model.s(scale), slots, 16 * model.tet_count, values],
+                [*self._inputs10(model), slots, x, model.s(scale), 16 * model.tet_count, values],
                 device=model.device,
             )
 

@@ -114,13 +114,7 @@ def _tet_min_det(
     out: wp.array(dtype=Any),
 ):
     t = wp.tid()
-    F = fm.deformation_gradient(
-        x_in[tet_indices[t, 0]],
-        x_in[tet_indices[t, 1]],
-        x_in[tet_indices[t, 2]],
-        x_in[tet_indices[t, 3]],
-        tet_rest_inv[t],
-    )
+    F = fm.tet_deformation_gradient(tet_indices, t, x_in, tet_rest_inv[t])
     wp.atomic_min(out, 0, wp.determinant(F))
 
 

@@ -110,6 +110,19 @@ def deformation_gradient(x0: Any, x1: Any, x2: Any, x3: Any, Dm_inv: Any):
 
 
 @wp.func
+def tet_deformation_gradient(tet_indices: wp.array2d(dtype=wp.int32), t: int, x_in: Any, Dm_inv: Any):
+    """F of linear tet ``t`` (vertices ``tet_indices[t]``) at positions ``x_in``: the per-element gather every
+    tet kernel starts with."""
+    return deformation_gradient(
+        x_in[tet_indices[t, 0]],
+        x_in[tet_indices[t, 1]],
+        x_in[tet_indices[t, 2]],
+        x_in[tet_indices[t, 3]],
+        Dm_inv,
+    )
+
+
+@wp.func
 def green_strain(F: Any):
     """E = ½ (FᵀF − I)."""
     return type(F[0, 0])(0.5) * (wp.transpose(F) * F - wp.identity(n=3, dtype=type(F).dtype))

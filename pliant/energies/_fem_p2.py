@@ -72,6 +72,13 @@ def p2_deformation_gradient(idx: wp.array2d(dtype=wp.int32), t: int, x_in: Any, 
     return F
 
 
+@wp.func
+def p2_point(tid: int, nq: int):
+    """(element t, quadrature point q) of thread ``tid``: one thread per pair, ``nq`` points per element."""
+    t = tid // nq
+    return t, tid - t * nq
+
+
 @wp.kernel(enable_backward=False)
 def _p2_min_det(
     idx: wp.array2d(dtype=wp.int32),
@@ -80,10 +87,8 @@ def _p2_min_det(
     x_in: wp.array(dtype=Any),
     out: wp.array(dtype=Any),
 ):
-    tid = wp.tid()
-    nq = qp_bary.shape[0]
-    t = tid // nq
-    F = p2_deformation_gradient(idx, t, x_in, rest_inv[t], qp_bary[tid - t * nq])
+    t, q = p2_point(wp.tid(), qp_bary.shape[0])
+    F = p2_deformation_gradient(idx, t, x_in, rest_inv[t], qp_bary[q])
     wp.atomic_min(out, 0, wp.determinant(F))
 
 
@@ -131,10 +136,7 @@ def _build(name: str) -> tuple[Any, Any, Any, Any]:
         x_in: wp.array(dtype=Any),
         out: wp.array(dtype=Any),
     ):
-        tid = wp.tid()
-        nq = qp_weight.shape[0]
-        t = tid // nq
-        q = tid - t * nq
+        t, q = p2_point(wp.tid(), qp_weight.shape[0])
         F = p2_deformation_gradient(idx, t, x_in, rest_inv[t], qp_bary[q])
         wp.atomic_add(out, 0, rest_volume[t] * qp_weight[q] * psi_fn(F, mu[t], lam[t]))
 
@@ -153,10 +155,7 @@ def _build(name: str) -> tuple[Any, Any, Any, Any]:
         grad_out: wp.array(dtype=Any),
     ):
         # ∂E/∂x_a = V w_q P ∇N_a; E into out[0] when with_value.
-        tid = wp.tid()
-        nq = qp_weight.shape[0]
-        t = tid // nq
-        q = tid - t * nq
+        t, q = p2_point(wp.tid(), qp_weight.shape[0])
         Dm_inv = rest_inv[t]
         bary = qp_bary[q]
         F = p2_deformation_gradient(idx, t, x_in, Dm_inv, bary)
@@ -177,16 +176,13 @@ def _build(name: str) -> tuple[Any, Any, Any, Any]:
             lam: wp.array(dtype=Any),
             qp_bary: wp.array(dtype=Any),
             qp_weight: wp.array(dtype=Any),
+            slots: wp.array(dtype=wp.int32),
             x_in: wp.array(dtype=Any),
             scale: Any,
-            slots: wp.array(dtype=wp.int32),
             slot_offset: int,
             values_out: wp.array(dtype=Any),
         ):
-            tid = wp.tid()
-            nq = qp_weight.shape[0]
-            t = tid // nq
-            q = tid - t * nq
+            t, q = p2_point(wp.tid(), qp_weight.shape[0])
             Dm_inv = rest_inv[t]
             bary = qp_bary[q]
             F = p2_deformation_gradient(idx, t, x_in, Dm_inv, bary)

@@ -26,11 +26,11 @@ if TYPE_CHECKING:
 def _add_mass_diagonal(
     mass: wp.array(dtype=Any),
     diag_slots: wp.array(dtype=wp.int32),
-    values: wp.array(dtype=Any),
+    values_io: wp.array(dtype=Any),
 ):
     i = wp.tid()
     m = mass[i]
-    values[diag_slots[i]] = values[diag_slots[i]] + m * wp.identity(n=3, dtype=type(m))
+    values_io[diag_slots[i]] = values_io[diag_slots[i]] + m * wp.identity(n=3, dtype=type(m))
 
 
 @wp.kernel(enable_backward=False)
@@ -39,7 +39,7 @@ def _project_fixed(
     mass: wp.array(dtype=Any),
     block_rows: wp.array(dtype=wp.int32),
     block_cols: wp.array(dtype=wp.int32),
-    values: wp.array(dtype=Any),
+    values_io: wp.array(dtype=Any),
 ):
     # Fixed particles: their rows and columns become m_i·I on the diagonal and 0 elsewhere.
     k = wp.tid()
@@ -48,10 +48,10 @@ def _project_fixed(
     m = mass[r]
     zero = type(m)(0.0)
     if inv_mass[r] == zero or inv_mass[c] == zero:
-        v = values[k] * zero
+        v = values_io[k] * zero
         if r == c:
             v = m * wp.identity(n=3, dtype=type(m))
-        values[k] = v
+        values_io[k] = v
 
 
 @wp.kernel(enable_backward=False)

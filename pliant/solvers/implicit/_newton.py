@@ -38,6 +38,7 @@ import warp as wp
 from ..._warp import launch
 from ._adjoint import differentiable
 from ._assembly import _assemble, _control_terms, _inverse_diagonal
+from ._kernels import _incremental_gradient, _negate, _step_stats, _trial_point
 from ._options import step_settings
 from ._workspace import (
     _direct_solve,
@@ -82,73 +83,6 @@ class NewtonStats:
 
 # ----------------------------------------------------------------------------------------------- kernels
 @wp.kernel(enable_backward=False)
-def _incremental_gradient(
-    mass: wp.array(dtype=Any),
-    inv_mass: wp.array(dtype=Any),
-    h2: Any,
-    inv_h: Any,
-    x_in: wp.array(dtype=Any),
-    x_tilde: wp.array(dtype=Any),
-    egrad: wp.array(dtype=Any),
-    grad_out: wp.array(dtype=Any),
-    stats_out: wp.array(dtype=Any),
-):
-    # ∇Φ = M (x − x̃) + h² ∇E, zero on fixed rows; over the free particles stats[0] = max |g_i|/(m_i h),
-    # stats[1] = max |x|, stats[2] = ½‖x − x̃‖²_M (fixed ones stay at x̃).
-    i = wp.tid()
-    x = x_in[i]
-    d = x - x_tilde[i]
-    m = mass[i]
-    g = m * d + h2 * egrad[i]
-    zero = type(inv_h)(0.0)
-    if inv_mass[i] == zero:
-        grad_out[i] = g * zero
-        return
-    grad_out[i] = g
-    wp.atomic_max(stats_out, 1, wp.max(wp.max(wp.abs(x[0]), wp.abs(x[1])), wp.abs(x[2])))
-    gm = wp.max(wp.max(wp.abs(g[0]), wp.abs(g[1])), wp.abs(g[2])) * inv_mass[i] * inv_h
-    wp.atomic_max(stats_out, 0, gm)
-    wp.atomic_add(stats_out, 2, type(inv_h)(0.5) * m * wp.dot(d, d))
-
-
-@wp.kernel(enable_backward=False)
-def _step_stats(
-    inv_mass: wp.array(dtype=Any),
-    grad: wp.array(dtype=Any),
-    dx: wp.array(dtype=Any),
-    stats_out: wp.array(dtype=Any),
-):
-    # stats[0] = max |Δx| over free particles, stats[1] = ∇Φ·Δx (directional derivative).
-    i = wp.tid()
-    if inv_mass[i] == type(inv_mass[i])(0.0):  # (the type from an input: reading the output would be flagged)
-        return
-    d = dx[i]
-    wp.atomic_max(stats_out, 0, wp.max(wp.max(wp.abs(d[0]), wp.abs(d[1])), wp.abs(d[2])))
-    wp.atomic_add(stats_out, 1, wp.dot(grad[i], d))
-
-
-@wp.kernel(enable_backward=False)
-def _trial_point(
-    inv_mass: wp.array(dtype=Any),
-    x_in: wp.array(dtype=Any),
-    dx: wp.array(dtype=Any),
-    alpha: Any,
-    x_tilde: wp.array(dtype=Any),
-    mass: wp.array(dtype=Any),
-    x_out: wp.array(dtype=Any),
-    stats_out: wp.array(dtype=Any),
-):
-    # x_out = x + α Δx (free particles only) and stats[0] += ½‖x_out − x̃‖²_M.
-    i = wp.tid()
-    x = x_in[i]
-    if inv_mass[i] != type(alpha)(0.0):
-        x = x + alpha * dx[i]
-    x_out[i] = x
-    d = x - x_tilde[i]
-    wp.atomic_add(stats_out, 0, type(alpha)(0.5) * mass[i] * wp.dot(d, d))
-
-
-@wp.kernel(enable_backward=False)
 def _stiffness_ratio(
     inv_mass: wp.array(dtype=Any),
     diag_slots: wp.array(dtype=wp.int32),
@@ -161,12 +95,6 @@ def _stiffness_ratio(
         return
     b = values[diag_slots[i]]
     wp.atomic_max(ratio_out, 0, (b[0, 0] + b[1, 1] + b[2, 2]) * inv_mass[i] / type(inv_mass[i])(3.0))
-
-
-@wp.kernel(enable_backward=False)
-def _negate(src: wp.array(dtype=Any), out: wp.array(dtype=Any)):
-    i = wp.tid()
-    out[i] = -src[i]
 
 
 # ----------------------------------------------------------------------------------------------- Newton
@@ -188,7 +116,7 @@ def _launch_gradient(solver: Any, ws: _Workspace, x: wp.array, x_tilde: wp.array
     launch(
         _incremental_gradient,
         n,
-        [m.particle_mass, m.particle_inv_mass, m.s(h * h), m.s(1.0 / h), x, x_tilde, ws.egrad, ws.grad]
+        [m.particle_mass, m.particle_inv_mass, x, x_tilde, ws.egrad, m.s(h * h), m.s(1.0 / h), ws.grad]
         + [ws.gstats],
         device=m.device,
     )
@@ -302,7 +230,7 @@ def minimize_incremental_potential(
             launch(
                 _trial_point,
                 n,
-                [m.particle_inv_mass, x, ws.dx, m.s(alpha), x_tilde, m.particle_mass, ws.x_trial, ws.tstats],
+                [m.particle_inv_mass, m.particle_mass, x, ws.dx, x_tilde, m.s(alpha), ws.x_trial, ws.tstats],
                 device=m.device,
             )
             for e in solver.energies:

@@ -32,7 +32,8 @@ from ..._warp import launch
 from . import _pcg_kernels as K
 from ._adjoint import differentiable
 from ._assembly import _assemble, _control_terms
-from ._newton import _launch_gradient, _step_stats, _stiffness_ratio
+from ._kernels import _step_stats
+from ._newton import _launch_gradient, _stiffness_ratio
 from ._options import step_settings
 from ._workspace import _Workspace, _workspace, cache_of
 

@@ -41,7 +41,8 @@ from ..._warp import launch
 from .._errors import SingularSystemError
 from ._adjoint import differentiable
 from ._assembly import _assemble, _control_terms
-from ._newton import NewtonStats, _gradient, _trial_point
+from ._kernels import _trial_point
+from ._newton import NewtonStats, _gradient
 from ._options import step_settings
 from ._workspace import MinimizerCache, _Workspace, cache_of
 
@@ -417,7 +418,7 @@ def minimize_quasi_newton(
             launch(
                 _trial_point,
                 n,
-                [m.particle_inv_mass, x, ws.dx, m.s(alpha), x_tilde, m.particle_mass, ws.x_trial, ws.tstats],
+                [m.particle_inv_mass, m.particle_mass, x, ws.dx, x_tilde, m.s(alpha), ws.x_trial, ws.tstats],
                 device=m.device,
             )
             g_new = _gradient(solver, ws, ws.x_trial, x_tilde, h)

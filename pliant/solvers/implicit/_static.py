@@ -26,7 +26,7 @@ from ...energies import Energy, Gravity
 from ...model import Model
 from .._errors import SingularSystemError
 from ._assembly import _inverse_diagonal
-from ._newton import _negate
+from ._kernels import _negate, add_step_stats, max_abs
 from ._workspace import _Workspace
 
 
@@ -112,13 +112,13 @@ class _DeadLoads(Energy):
 
 @wp.kernel(enable_backward=False)
 def _free_gradient_stats(
-    free: wp.array(dtype=Any), grad: wp.array(dtype=Any), stats_out: wp.array(dtype=Any)
+    free: wp.array(dtype=Any), grad_io: wp.array(dtype=Any), stats_out: wp.array(dtype=Any)
 ):
     # Zero the fixed components; stats[0] = max over free components of |g_ik|.
     i = wp.tid()
-    g = wp.cw_mul(grad[i], free[i])
-    grad[i] = g
-    wp.atomic_max(stats_out, 0, wp.max(wp.max(wp.abs(g[0]), wp.abs(g[1])), wp.abs(g[2])))
+    g = wp.cw_mul(grad_io[i], free[i])
+    grad_io[i] = g
+    wp.atomic_max(stats_out, 0, max_abs(g))
 
 
 @wp.kernel(enable_backward=False)
@@ -126,7 +126,7 @@ def _project_fixed_dofs(
     free: wp.array(dtype=Any),
     block_rows: wp.array(dtype=wp.int32),
     block_cols: wp.array(dtype=wp.int32),
-    values: wp.array(dtype=Any),
+    values_io: wp.array(dtype=Any),
 ):
     # Rows and columns of fixed components become those of the identity.
     k = wp.tid()
@@ -134,41 +134,40 @@ def _project_fixed_dofs(
     c = block_cols[k]
     fr = free[r]
     fc = free[c]
-    m = values[k]
+    m = values_io[k]
     one = type(fr[0])(1.0)
     for a in range(3):
         for b in range(3):
             m[a, b] = m[a, b] * fr[a] * fc[b]
         if r == c:
             m[a, a] = m[a, a] + (one - fr[a])
-    values[k] = m
+    values_io[k] = m
 
 
 @wp.kernel(enable_backward=False)
 def _static_step_stats(
     free: wp.array(dtype=Any),
-    grad: wp.array(dtype=Any),
-    dx: wp.array(dtype=Any),
+    grad_in: wp.array(dtype=Any),
+    dx_io: wp.array(dtype=Any),
     stats_out: wp.array(dtype=Any),
 ):
-    # stats[0] = max |Δx_ik| over free components, stats[1] = ∇·Δx.
+    # Zero Δx's fixed components (so that a trial point moves only free ones), then the step's statistics.
     i = wp.tid()
-    d = wp.cw_mul(dx[i], free[i])
-    dx[i] = d
-    wp.atomic_max(stats_out, 0, wp.max(wp.max(wp.abs(d[0]), wp.abs(d[1])), wp.abs(d[2])))
-    wp.atomic_add(stats_out, 1, wp.dot(grad[i], d))
+    d = wp.cw_mul(dx_io[i], free[i])
+    dx_io[i] = d
+    add_step_stats(grad_in[i], d, stats_out)
 
 
 @wp.kernel(enable_backward=False)
 def _static_trial(
     free: wp.array(dtype=Any),
     x_in: wp.array(dtype=Any),
-    dx: wp.array(dtype=Any),
+    dx_in: wp.array(dtype=Any),
     alpha: Any,
     x_out: wp.array(dtype=Any),
 ):
     i = wp.tid()
-    x_out[i] = x_in[i] + alpha * wp.cw_mul(dx[i], free[i])
+    x_out[i] = x_in[i] + alpha * wp.cw_mul(dx_in[i], free[i])
 
 
 def _as_vec3_array(model: Model, a: Any, what: str) -> wp.array:
