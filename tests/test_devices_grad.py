@@ -17,12 +17,25 @@ import pliant as pl
 from pliant.fit import Problem, cmaes, gradient_stage, observe
 from pliant.fit._params import apply_globals
 from pliant.gaussians import Camera, Gaussians, VisualCorrector, bind, render
+from tests.test_gaussians import _camera, _scene, _weights
 
 
 @wp.kernel
 def _weighted_sum(x: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d), out: wp.array(dtype=wp.float64)):
     i = wp.tid()
     wp.atomic_add(out, 0, wp.dot(x[i], w[i]))
+
+
+def weighted_loss(m: pl.Model, device: str) -> Callable[[pl.State], wp.array]:
+    """L = Σ w·x of a State, w fixed random weights per particle (a loss that every particle moves)."""
+    w = wp.array(np.random.default_rng(0).normal(size=(m.particle_count, 3)), dtype=wp.vec3d, device=device)
+
+    def loss(state: pl.State) -> wp.array:
+        out = wp.zeros(1, dtype=wp.float64, device=device, requires_grad=True)
+        wp.launch(_weighted_sum, state.particle_q.shape[0], [state.particle_q, w, out], device=device)
+        return out
+
+    return loss
 
 
 # ----------------------------------------------------------------------------------------- gradient matrix
@@ -104,12 +117,7 @@ def _gradient_row(device: str, row: str) -> tuple[float, np.ndarray, float, floa
     make_model, make_solver, name, frames, substeps, dt, every, _ = ROWS[row]
     m = make_model(device)
     solver = make_solver(m)
-    w = wp.array(np.random.default_rng(0).normal(size=(m.particle_count, 3)), dtype=wp.vec3d, device=device)
-
-    def loss(state: pl.State) -> wp.array:
-        out = wp.zeros(1, dtype=wp.float64, device=device, requires_grad=True)
-        wp.launch(_weighted_sum, state.particle_q.shape[0], [state.particle_q, w, out], device=device)
-        return out
+    loss = weighted_loss(m, device)
 
     def run(params: list[str]) -> pl.diff.RolloutResult:
         return pl.diff.rollout(
@@ -156,13 +164,7 @@ def test_replayed_rollout_matches_direct_on_device(device: str) -> None:
     make_model, make_solver, name, frames, substeps, dt, every, _ = ROWS["springs-symplectic"]
     m = make_model(device)
     solver = make_solver(m)
-    w = wp.array(np.random.default_rng(0).normal(size=(m.particle_count, 3)), dtype=wp.vec3d, device=device)
-
-    def loss(state: pl.State) -> wp.array:
-        out = wp.zeros(1, dtype=wp.float64, device=device, requires_grad=True)
-        wp.launch(_weighted_sum, state.particle_q.shape[0], [state.particle_q, w, out], device=device)
-        return out
-
+    loss = weighted_loss(m, device)
     kw = {"frames": frames, "substeps": substeps, "dt": dt, "params": [name], "checkpoint_every": every}
     for _ in range(3):
         res = pl.diff.rollout(m, solver, loss, **kw)
@@ -217,28 +219,11 @@ def test_cmaes_stage_matches_cpu(device: str, rope_obs) -> None:
 
 
 # ------------------------------------------------------------------------------------ Gaussian rasteriser
-def _gaussians(device: str, requires_grad: bool = False) -> Gaussians:
-    rng = np.random.default_rng(1)
-    n = 40
-    g = Gaussians.from_values(
-        rng.uniform(-0.6, 0.6, (n, 3)),
-        scales=rng.uniform(0.03, 0.12, (n, 3)),
-        rotations=rng.normal(size=(n, 4)),
-        opacities=rng.uniform(0.2, 0.8, n),
-        colors=rng.uniform(0, 1, (n, 3)),
-        sh_degree=2,
-    )
-    p = g.numpy()
-    p["sh"][:, 1:] = rng.normal(scale=0.2, size=p["sh"][:, 1:].shape)
-    return Gaussians(**p, dtype="float64", device=device, requires_grad=requires_grad)
-
-
 def _render_grads(device: str) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """(colour, alpha, depth images) and the gradients of Σ w·images w.r.t. every Gaussian parameter."""
-    g = _gaussians(device, requires_grad=True)
-    cam = Camera.look_at([0.3, 0.2, 3.0], [0.0, 0.0, 0.0], width=64, height=48)
-    rng = np.random.default_rng(7)
-    w = rng.normal(size=(48, 64, 3)), rng.normal(size=(48, 64)), rng.normal(size=(48, 64))
+    g = _scene(requires_grad=True, device=device)
+    cam = _camera()
+    w = _weights((48, 64))
     tape = wp.Tape()
     with tape:
         c, a, d = render(g, cam, (0.1, 0.2, 0.3))

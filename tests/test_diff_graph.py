@@ -9,7 +9,7 @@ import logging
 import numpy as np
 import pytest
 import warp as wp
-from test_devices_grad import ROWS, _weighted_sum
+from test_devices_grad import ROWS, _weighted_sum, weighted_loss
 
 import pliant as pl
 from pliant.diff import _graph
@@ -19,13 +19,7 @@ def _setup(row: str):
     make_model, make_solver, name, frames, substeps, dt, every, _ = ROWS[row]
     m = make_model("cpu")
     solver = make_solver(m)
-    w = wp.array(np.random.default_rng(0).normal(size=(m.particle_count, 3)), dtype=wp.vec3d)
-
-    def loss(state: pl.State) -> wp.array:
-        out = wp.zeros(1, dtype=wp.float64, requires_grad=True)
-        wp.launch(_weighted_sum, state.particle_q.shape[0], [state.particle_q, w, out])
-        return out
-
+    loss = weighted_loss(m, "cpu")
     entry = pl.diff.PARAMETERS[name](m, solver, m.state(), None)
     kw = {"frames": frames, "substeps": substeps, "dt": dt, "params": [name, "v0"]}
     return m, solver, loss, entry, kw, every
