@@ -178,3 +178,24 @@ def test_a_python_callback_on_the_tape_keeps_the_rollout_direct() -> None:
         assert not res.replayed
     assert "Python callbacks (_Adjoint.backward)" in (res.graph_reason or "")
     assert _graph.rollout_graphs(solver).captures == 0
+
+
+def test_a_target_rebound_to_a_new_array_is_a_new_key() -> None:
+    """The loss reads a target array from its closure: rebinding it to a new array between calls (instead of
+    assign) changes what the callback reads, so the call is not replayed with the old array; every result
+    equals the direct run's."""
+    m, solver, _, _, kw, every = _setup("springs-symplectic")
+    rng = np.random.default_rng(4)
+    target = wp.array(rng.normal(size=(m.particle_count, 3)), dtype=wp.vec3d)
+
+    def loss(state: pl.State) -> wp.array:
+        out = wp.zeros(1, dtype=wp.float64, requires_grad=True)
+        wp.launch(_weighted_sum, state.particle_q.shape[0], [state.particle_q, target, out])
+        return out
+
+    for _ in range(3):
+        pl.diff.rollout(m, solver, loss, checkpoint_every=every, **kw)
+    target = wp.array(rng.normal(size=(m.particle_count, 3)), dtype=wp.vec3d)
+    res = pl.diff.rollout(m, solver, loss, checkpoint_every=every, **kw)
+    assert not res.replayed
+    _same(res, pl.diff.rollout(m, solver, loss, checkpoint_every=every, graph=False, **kw))

@@ -14,10 +14,11 @@ What a capture bakes in, and the answers (as for :mod:`pliant.sim._graph`, whose
   buffers, the losses) are allocated during the capture and kept by the graph, so every replay writes the
   same ones; the caller's ``state0`` and ``control`` arrays are part of the key.
 * **Python values**: the solver's and the control's scalars and array addresses (``fingerprint``), the
-  rollout's arguments (frames, Δt, substeps, checkpointing, parameters) and the *identity* of the callbacks
-  (``loss_fn``, ``frame_loss``, ``control_fn``). A callback that launches other kernels or passes other
-  Python values on a later call must be a new function (a new closure is a new key); the same rule the
-  backward pass already imposes on ``control_fn`` (it is re-run).
+  rollout's arguments (frames, Δt, substeps, checkpointing, parameters), the *identity* of the callbacks
+  (``loss_fn``, ``frame_loss``, ``control_fn``) and what their closures and named globals hold
+  (:func:`callback_values`: a target rebound to a new array is a new key). A callback that launches other
+  kernels or passes other Python values on a later call in any other way must be a new function; the same
+  rule the backward pass already imposes on ``control_fn`` (it is re-run).
 * **host work**: an implicit step minimises on the host and its adjoint is a host solve recorded as a Python
   callback on the tape (``wp.Tape.record_func``); neither can be replayed. :func:`tape_graph_blocker` names
   such solvers before capturing, a tape holding Python callbacks is refused after capturing, and the call
@@ -216,9 +217,32 @@ def rollout_graphs(solver: Any) -> RolloutGraphs:
     return g
 
 
-def rollout_key(solver: Any, control: Any, state0: Any, args: tuple) -> Hashable:
-    """What a captured rollout bakes in besides its callbacks: the solver's and control's scalars and array
-    addresses (:func:`pliant.sim._graph.fingerprint`), the initial state's arrays and the arguments."""
+def callback_values(fn: Callable | None) -> tuple:
+    """What a callback reads besides its arguments, as far as Python shows it: the values of its closure
+    cells and of the module globals its code names (arrays by address, Python scalars and small NumPy
+    arrays by value, pliant objects by their attributes; :func:`pliant.sim._graph.fingerprint`). A loss
+    whose target array is rebound to a new array between calls is then a new key; helpers it calls are not
+    looked into."""
+    if fn is None:
+        return ()
+    cells = [c.cell_contents for c in getattr(fn, "__closure__", None) or () if _filled(c)]
+    code, names = getattr(fn, "__code__", None), getattr(fn, "__globals__", {})
+    used = [names[n] for n in (code.co_names if code is not None else ()) if n in names]
+    return fingerprint(*cells, *used, depth=2)
+
+
+def _filled(cell: Any) -> bool:
+    try:
+        cell.cell_contents  # noqa: B018 - an empty cell (a variable assigned later) raises
+    except ValueError:
+        return False
+    return True
+
+
+def rollout_key(solver: Any, control: Any, state0: Any, callbacks: tuple, args: tuple) -> Hashable:
+    """What a captured rollout bakes in besides the callbacks' identities: the solver's and control's
+    scalars and array addresses (:func:`pliant.sim._graph.fingerprint`), what the callbacks read
+    (:func:`callback_values`), the initial state's arrays and the arguments."""
     s0 = None if state0 is None else tuple((a.ptr, a.shape) for a in (state0.particle_q, state0.particle_qd))
     fp = tuple(e for e in fingerprint(solver, control) if e[0].rsplit(".", 1)[-1] not in _STEP_OUTPUTS)
-    return (fp, s0, args)
+    return (fp, s0, tuple(callback_values(f) for f in callbacks), args)

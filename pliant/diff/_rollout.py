@@ -385,10 +385,12 @@ def rollout(
         out.adj = adj
         return out
 
+    callbacks = (loss_fn, frame_loss, control_fn)
     key = _graph.rollout_key(
         solver,
         control,
         state0,
+        callbacks,
         (id(model), frames, dt, substeps, tuple(params), checkpoint_every, first_frame, reset),
     )
     why = _graph.tape_graph_blocker(solver) if _graph.graphs_enabled(graph) else "graph=False"
@@ -396,7 +398,7 @@ def rollout(
     if why is None:
         done = graphs.run(
             key,
-            (loss_fn, frame_loss, control_fn),
+            callbacks,
             device_pass,
             lambda a, b: _Pass.same(a, b, model),
             model.device,
