@@ -106,14 +106,17 @@ def test_returned_state_is_not_overwritten_by_the_next_replay() -> None:
 
 
 def test_implicit_rollouts_run_directly_and_say_why_once(caplog) -> None:
-    """Backward Euler minimises on the host: its rollouts are never captured, the reason is on the result,
-    and the log says so once per process."""
+    """Backward Euler's adjoint is a linear solve run from Python: its rollouts are never captured, the
+    reason is on the result, and the log says so once per process."""
     _graph._REPORTED.clear()
     m, solver, loss, _, kw, every = _setup("implicit-backward-euler")
     with caplog.at_level(logging.INFO, logger="pliant"):
         results = [pl.diff.rollout(m, solver, loss, checkpoint_every=every, **kw) for _ in range(3)]
     assert not any(r.replayed for r in results)
-    assert all("BackwardEuler minimises on the host" in (r.graph_reason or "") for r in results)
+    assert all(
+        "BackwardEuler is differentiated by the implicit-function adjoint" in (r.graph_reason or "")
+        for r in results
+    )
     lines = [r.message for r in caplog.records if "no graph" in r.message]
     assert len(lines) == 1 and "BackwardEuler" in lines[0]
 

@@ -72,8 +72,8 @@ def tape_graph_blocker(solver: Any) -> str | None:
     integrator = getattr(solver, "integrator", None)
     if integrator is not None and not getattr(integrator, "explicit", True):
         return (
-            f"{integrator.name} minimises on the host and its adjoint is a host solve (a Python callback on "
-            "the tape)"
+            f"{integrator.name} is differentiated by the implicit-function adjoint, a linear solve run from "
+            "Python in the backward pass (a wp.Tape.record_func callback)"
         )
     collisions = getattr(solver, "_collisions_blocker", None)
     return collisions() if callable(collisions) else None
