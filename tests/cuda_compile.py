@@ -5,7 +5,8 @@ ahead of time (``wp.compile_aot_module``), so the CUDA side of every kernel — 
 Generic kernels compile only for registered overloads. This script registers those of every built-in
 scene (the prebuild manifests) and runs small CPU workloads for the paths no scene takes (FastMassSpring's
 three steps, XPBD's Jacobi schedule and tolerance loop, every FEM law explicit and under Newton, the
-Gaussian rasteriser), then compiles every pliant module with at least one compilable kernel. It prints one
+Gaussian rasteriser; the taped rollouts, fit losses and visual corrector of tests/test_devices_grad.py), then
+compiles every pliant module with at least one compilable kernel. It prints one
 JSON line: modules compiled, kernels skipped for lack of an overload, and the errors (module → message).
 Run by tests/test_cuda_compile.py in a fresh process.
 
@@ -73,6 +74,51 @@ def _workloads() -> None:
     tape.backward(grads={c: wp.ones(c.shape, dtype=wp.vec3)})
 
 
+def _gradient_workloads() -> None:
+    """The adjoint paths: a taped rollout per solver family (each family's custom adjoint modules), the fit's
+    losses under a tape, the Gaussian binding's backward pass and the visual corrector."""
+    from pliant import ModelBuilder, diff, energies, integrators
+    from pliant.fit._losses import acceleration_loss, chamfer_loss, track_loss
+    from pliant.gaussians import Camera, Gaussians, VisualCorrector, bind, render
+    from pliant.solvers import XPBD, FastMassSpring, ForceSolver
+
+    for dtype in ("float32", "float64"):
+        cloth = ModelBuilder()
+        cloth.add_cloth_grid(nx=3, ny=3, size=0.3, mass=0.05, stiffness=40.0, pin="top-corners")
+        m = cloth.finalize(device="cpu", dtype=dtype, requires_grad=True)
+        v3, s = m.vec3, m.scalar
+
+        def loss(state, m=m, s=s):
+            out = wp.zeros(1, dtype=s, requires_grad=True)
+            x = state.particle_q
+            idx = wp.array(np.arange(m.particle_count, dtype=np.int32))
+            track_loss(x, idx, wp.zeros_like(x), wp.ones(m.particle_count, dtype=wp.int32), out)
+            chamfer_loss(x, wp.zeros(4, dtype=v3), wp.array([4], dtype=wp.int32), out)
+            acceleration_loss(x, x, x, x, out)
+            return out
+
+        for solver in (
+            ForceSolver(m, energies.mass_spring(), integrators.SymplecticEuler()),
+            ForceSolver(m, energies.mass_spring(), integrators.BackwardEuler()),
+            FastMassSpring(m, method="symplectic"),
+            FastMassSpring(m, method="implicit"),  # its adjoint linear solve (fast_mass_spring._adjoint)
+            XPBD(m, iterations=2, schedule="jacobi"),
+        ):
+            diff.rollout(m, solver, loss, frames=1, substeps=1, dt=1e-4, params=["v0"])
+    rng = np.random.default_rng(1)
+    x = rng.uniform(-0.3, 0.3, (8, 3))
+    g = Gaussians.from_values(x, scales=0.1, opacities=0.8, colors=rng.uniform(0, 1, (8, 3)))
+    b = bind(g, x, method="lbs", k=4, neighbours=4)
+    q = wp.array(x, dtype=wp.vec3, requires_grad=True)
+    cam = Camera.look_at([0.0, 0.5, 3.0], [0.0, 0.0, 0.0], width=16, height=16)
+    with wp.Tape() as tape:
+        c = render(b.deform(q), cam).colour
+    tape.backward(grads={c: wp.ones(c.shape, dtype=wp.vec3)})
+    image = [c.numpy()]
+    VisualCorrector(b, [cam], iterations=2).estimate(q, image)
+    VisualCorrector(b, [cam], method="forces", iterations=2).forces(q, image)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--arch", type=int, default=90, help="CUDA architecture (90: H100/H200)")
@@ -93,6 +139,7 @@ def main() -> None:
     for manifest in json.loads(_prebuild.MANIFEST.read_text()).values():
         _prebuild.register_overloads(manifest)
     _workloads()
+    _gradient_workloads()
     compiled, errors, skipped = [], {}, 0
     for name, module in sorted(context.user_modules.items()):
         if not name.startswith("pliant."):

@@ -37,6 +37,12 @@ MUST_COMPILE = {
     "pliant.gaussians._project",
     "pliant.gaussians._composite",
     "pliant.sim._simulator",
+    # the adjoints and losses of tests/test_devices_grad.py
+    "pliant.solvers.fast_mass_spring._adjoint",
+    "pliant.solvers.implicit._adjoint",
+    "pliant.fit._losses",
+    "pliant.gaussians._bind",
+    "pliant.gaussians._correct",
 }
 
 

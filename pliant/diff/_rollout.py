@@ -13,6 +13,7 @@ from .._warp import GradientError
 from ..model import Control, Model, State
 from ..model._parameters import Parameter, RegistryView, registry
 from ..solvers import FrameStep
+from . import _graph
 
 if TYPE_CHECKING:
     from ..solvers import Solver
@@ -43,11 +44,16 @@ class RolloutResult:
         loss: the scalar loss of the final state.
         grads: ∂loss/∂parameter for each requested name, shaped like the parameter (NumPy, float64).
         state: the final State.
+        replayed: the rollout was replayed from a captured graph (:mod:`pliant.diff._graph`).
+        graph_reason: why it ran launch by launch, when a reason is known (None: replayed, or the first
+            call with these arguments, which always runs directly).
     """
 
     loss: float
     grads: dict[str, np.ndarray] = field(default_factory=dict)
     state: State | None = None
+    replayed: bool = False
+    graph_reason: str | None = None
 
 
 def _resolve(names: Sequence[str], model: Model, solver: Solver, state0: State, control: Control | None):
@@ -140,6 +146,62 @@ def check_rollout(
             )
 
 
+class _Pass:
+    """What one rollout's device work leaves for the host to read (pliant.diff._graph replays it)."""
+
+    def __init__(self, entries: dict, arrays: dict[int, wp.array], checkpoints: list[State]) -> None:
+        self.entries, self.arrays, self.checkpoints = entries, arrays, checkpoints
+        self.losses: list[wp.array] = []  # the segments' loss arrays, in the order they are summed
+        self.segment_grads: list[dict[int, wp.array]] = []  # each segment's parameter gradients
+        self.callbacks: list[str] = []  # Python callbacks the tapes held (a graph cannot replay them)
+        self.final: State = checkpoints[0]
+        self.adj: tuple[wp.array, wp.array] | None = None
+
+    def collect(self, model: Model) -> tuple[float, dict[str, np.ndarray]]:
+        """(loss, gradients by parameter name), read and summed on the host in the segments' order."""
+        loss = 0.0
+        for x in self.losses:
+            loss += float(x.numpy()[0])
+        totals = {k: np.zeros_like(a.grad.numpy(), dtype=np.float64) for k, a in self.arrays.items()}
+        for seg in self.segment_grads:
+            for k, snapshot in seg.items():
+                totals[k] += snapshot.numpy()
+        assert self.adj is not None
+        start = self.checkpoints[0]
+        grads: dict[str, np.ndarray] = {}
+        for name, (a, comp) in self.entries.items():
+            if a is start.particle_q:
+                g = self.adj[0].numpy().astype(np.float64)
+            elif a is start.particle_qd:
+                g = self.adj[1].numpy().astype(np.float64)
+            else:
+                g = totals[id(a)]
+            if name == "particle_mass":
+                inv = model.particle_inv_mass.numpy().astype(np.float64)
+                g = g - np.where(inv > 0, totals[id(model.particle_inv_mass)] * inv * inv, 0.0)
+            grads[name] = np.array(g[comp]) if comp is not None else g
+        return loss, grads
+
+    @staticmethod
+    def same(a: _Pass, b: _Pass, model: Model) -> bool:
+        """Whether two passes' loss, gradients and end state agree: bit for bit on the CPU (kernels run
+        serially); on CUDA, where atomics sum in any order, within 1e-6 (float64) or 1e-3 (float32) of each
+        array's largest entry (a stale host read differs by far more)."""
+        (la, ga), (lb, gb) = a.collect(model), b.collect(model)
+        pairs = [(np.float64(la), np.float64(lb))] + [(ga[k], gb[k]) for k in ga]
+        pairs += [
+            (x.numpy(), y.numpy())
+            for x, y in ((a.final.particle_q, b.final.particle_q), (a.final.particle_qd, b.final.particle_qd))
+        ]
+        if wp.get_device(model.device).is_cpu:
+            return all(x.tobytes() == y.tobytes() for x, y in pairs)
+        tol = 1e-6 if model.scalar == wp.float64 else 1e-3
+        return all(
+            np.allclose(x, y, rtol=0.0, atol=tol * float(np.max(np.abs(y), initial=0.0)), equal_nan=True)
+            for x, y in pairs
+        )
+
+
 def _copy_state(state: State) -> State:
     return State(
         wp.clone(state.particle_q, requires_grad=True), wp.clone(state.particle_qd, requires_grad=True)
@@ -163,6 +225,7 @@ def rollout(
     control_fn: Callable[[int, Control], None] | None = None,
     first_frame: int = 0,
     reset: bool = True,
+    graph: bool | None = None,
 ) -> RolloutResult:
     """Run ``frames`` × ``substeps`` steps of ``solver`` and return the loss and its gradients.
 
@@ -202,6 +265,13 @@ def rollout(
         first_frame: index of the first frame (passed to ``frame_loss`` and ``control_fn``).
         reset: call ``solver.reset()`` first (False: keep what the solver carries from the previous
             rollout, as a rollout continuing another one does).
+        graph: None (default): a rollout repeated with the same model, solver, callbacks and arguments is
+            captured as one graph on its second call (checked against a direct run) and replayed from the
+            third on, with the same numbers bit for bit (:mod:`pliant.diff._graph`; parameters changed in
+            place with ``assign`` take effect). The callbacks must then launch the same kernels with the
+            same Python values on every call (pass a new function otherwise). Solvers that work on the host
+            (implicit steps) run directly, reported once. False, or ``PLIANT_GRAPH=0`` in the
+            environment: always launch by launch.
 
     Returns:
         :class:`RolloutResult` with ``loss``, ``grads`` (name → array shaped like the parameter) and the
@@ -245,26 +315,6 @@ def rollout(
         control = model.control()
     if reset and hasattr(solver, "reset"):
         solver.reset()  # no L-BFGS pairs or BDF2 history from an earlier run
-    start = _copy_state(model.state() if state0 is None else state0)
-    entries = {
-        name: e if isinstance(e, tuple) else (e, None)
-        for name, e in _resolve(params, model, solver, start, control).items()
-    }
-    # Arrays whose gradients accumulate over segments (the initial state's come from the adjoint).
-    initial = (id(start.particle_q), id(start.particle_qd))
-    arrays = {id(a): a for a, _ in entries.values() if id(a) not in initial}
-    if "particle_mass" in entries:
-        # Built without gradients (constant in most rollouts): switch them on for this one.
-        model.particle_mass.requires_grad = True
-        model.particle_inv_mass.requires_grad = True
-        arrays[id(model.particle_inv_mass)] = model.particle_inv_mass
-    for a in arrays.values():
-        if a.grad is None:
-            raise GradientError(
-                "a requested parameter array does not require grad: finalize(requires_grad=True)"
-            )
-        a.grad.zero_()
-
     frame_step = FrameStep(solver, dt, substeps, fresh=True)  # one frame's substeps, fresh states
 
     def run(state: State, f0: int, f1: int, acc: wp.array | None = None) -> State:
@@ -276,57 +326,92 @@ def rollout(
                 frame_loss(first_frame + f + 1, state, acc)
         return state
 
-    # Forward without a tape, keeping the checkpoints; the last segment is run once, under the tape below.
     bounds = list(range(0, frames, checkpoint_every)) + [frames]
-    checkpoints = [start]
-    for a, b in zip(bounds[:-2], bounds[1:-1], strict=True):
-        checkpoints.append(run(checkpoints[-1], a, b))
-    final = start
 
-    totals = {k: np.zeros_like(a.grad.numpy(), dtype=np.float64) for k, a in arrays.items()}
-    adj: tuple[wp.array, wp.array] | None = None
-    loss_value = 0.0
-    for seg in range(len(bounds) - 2, -1, -1):
-        first = checkpoints[seg] if seg == 0 else _copy_state(checkpoints[seg])
-        for a in (first.particle_q, first.particle_qd):
+    def device_pass() -> _Pass:
+        # Device work only (no host read), so that it can be captured as one graph (pliant.diff._graph).
+        start = _copy_state(model.state() if state0 is None else state0)
+        entries = {
+            name: e if isinstance(e, tuple) else (e, None)
+            for name, e in _resolve(params, model, solver, start, control).items()
+        }
+        # Arrays whose gradients accumulate over segments (the initial state's come from the adjoint).
+        initial = (id(start.particle_q), id(start.particle_qd))
+        arrays = {id(a): a for a, _ in entries.values() if id(a) not in initial}
+        if "particle_mass" in entries:
+            # Built without gradients (constant in most rollouts): switch them on for this one.
+            model.particle_mass.requires_grad = True
+            model.particle_inv_mass.requires_grad = True
+            arrays[id(model.particle_inv_mass)] = model.particle_inv_mass
+        for a in arrays.values():
+            if a.grad is None:
+                raise GradientError(
+                    "a requested parameter array does not require grad: finalize(requires_grad=True)"
+                )
             a.grad.zero_()
-        tape = wp.Tape()
-        acc = None
-        if frame_loss is not None:
-            acc = wp.zeros(1, dtype=model.scalar, device=model.device, requires_grad=True)
-        with tape:
-            last = run(first, bounds[seg], bounds[seg + 1], acc)
-            loss = loss_fn(last) if adj is None and loss_fn is not None else None
-        # Seeds: 1 for this segment's losses, the adjoint of its last state from the segment after it.
-        seeds = {} if acc is None else {acc: wp.ones_like(acc)}
-        if loss is not None:
-            seeds[loss] = wp.ones_like(loss)
-            loss_value += float(loss.numpy()[0])
-        if acc is not None:
-            loss_value += float(acc.numpy()[0])
-        if adj is None:
-            final = last
-        else:
-            seeds[last.particle_q], seeds[last.particle_qd] = adj
-        tape.backward(grads=seeds)
-        adj = (wp.clone(first.particle_q.grad), wp.clone(first.particle_qd.grad))
-        for k, a in arrays.items():
-            totals[k] += a.grad.numpy()
-            a.grad.zero_()
-        tape.reset()
-    assert adj is not None
-    grads = {}
-    for name, (a, comp) in entries.items():
-        if a is start.particle_q:
-            g = adj[0].numpy().astype(np.float64)
-        elif a is start.particle_qd:
-            g = adj[1].numpy().astype(np.float64)
-        else:
-            g = totals[id(a)]
-        if name == "particle_mass":
-            inv = model.particle_inv_mass.numpy().astype(np.float64)
-            g = g - np.where(inv > 0, totals[id(model.particle_inv_mass)] * inv * inv, 0.0)
-        grads[name] = np.array(g[comp]) if comp is not None else g
+        out = _Pass(entries, arrays, [start])
+        # Forward without a tape, keeping the checkpoints; the last segment is run once, under the tape below.
+        for a, b in zip(bounds[:-2], bounds[1:-1], strict=True):
+            out.checkpoints.append(run(out.checkpoints[-1], a, b))
+        adj: tuple[wp.array, wp.array] | None = None
+        for seg in range(len(bounds) - 2, -1, -1):
+            first = out.checkpoints[seg] if seg == 0 else _copy_state(out.checkpoints[seg])
+            for a in (first.particle_q, first.particle_qd):
+                a.grad.zero_()
+            tape = wp.Tape()
+            acc = None
+            if frame_loss is not None:
+                acc = wp.zeros(1, dtype=model.scalar, device=model.device, requires_grad=True)
+            with tape:
+                last = run(first, bounds[seg], bounds[seg + 1], acc)
+                loss = loss_fn(last) if adj is None and loss_fn is not None else None
+            # Seeds: 1 for this segment's losses, the adjoint of its last state from the segment after it.
+            seeds = {} if acc is None else {acc: wp.ones_like(acc)}
+            if loss is not None:
+                seeds[loss] = wp.ones_like(loss)
+            out.losses += [x for x in (loss, acc) if x is not None]  # read in this order after the pass
+            if adj is None:
+                out.final = last
+            else:
+                seeds[last.particle_q], seeds[last.particle_qd] = adj
+            tape.backward(grads=seeds)
+            adj = (wp.clone(first.particle_q.grad), wp.clone(first.particle_qd.grad))
+            out.segment_grads.append({k: wp.clone(a.grad) for k, a in arrays.items()})
+            for a in arrays.values():
+                a.grad.zero_()
+            out.callbacks += _graph.tape_callbacks(tape)
+            tape.reset()
+        assert adj is not None
+        out.adj = adj
+        return out
+
+    callbacks = (loss_fn, frame_loss, control_fn)
+    key = _graph.rollout_key(
+        solver,
+        control,
+        state0,
+        callbacks,
+        (id(model), frames, dt, substeps, tuple(params), checkpoint_every, first_frame, reset),
+    )
+    why = _graph.tape_graph_blocker(solver) if _graph.graphs_enabled(graph) else "graph=False"
+    graphs = _graph.rollout_graphs(solver)
+    if why is None:
+        done = graphs.run(
+            key,
+            callbacks,
+            device_pass,
+            lambda a, b: _Pass.same(a, b, model),
+            model.device,
+        )
+        why, replayed = graphs.reason, graphs.last_replayed
+    else:
+        if why != "graph=False":
+            _graph.report_once(f"{type(solver).__name__}: {why}", model.device)
+        done, replayed = device_pass(), False
+    loss_value, grads = done.collect(model)
+    # A replay's arrays are rewritten by the next replay: the caller gets its own copy of the end state.
+    final = _copy_state(done.final) if replayed else done.final
+    checkpoints = done.checkpoints
 
     def frame_states() -> Iterable[tuple[int, State]]:
         # Only when the end blew up: the checkpoints, then frame by frame from the last good one.
@@ -351,4 +436,4 @@ def rollout(
         states=frame_states,
         max_speed=max_speed,
     )
-    return RolloutResult(loss_value, grads, final)
+    return RolloutResult(loss_value, grads, final, replayed, why)

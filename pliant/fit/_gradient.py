@@ -210,6 +210,9 @@ class _Rollout:
             control_fn=None if fn is None else (lambda f, c: fn(f * scene.frame_dt, c)),
             first_frame=f0,
             reset=reset or f0 == 0,  # a horizon continuing the previous one keeps what the solver carries
+            # Never replayed: each horizon starts from new arrays and its frame loss is a new closure that
+            # keeps host history (the acceleration term), so every call is a new key (pliant.diff._graph).
+            graph=False,
         )
         self.grads = res.grads
         assert res.state is not None  # rollout always returns its end state
