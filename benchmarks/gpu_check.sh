@@ -4,16 +4,18 @@
 # them. Run it as device call 2 of ../shared/gpu/README.md (after Warp is staged), from the repository root:
 #
 #   cp ../shared/gpu/bench_gpu.py .gpu/b/        # here, before the call (the harness is not in the tree)
-#   bash .gpu/b/stage_b.sh && source $HOME/gpu/env.sh && bash benchmarks/gpu_check.sh
+#   bash .gpu/b/stage_b.sh && source $HOME/gpu/env.sh && bash benchmarks/gpu_check.sh 1
+#   bash benchmarks/gpu_check.sh 2                # call 3, on the same warm machine
 #
 # Every step writes into $OUT (the device tool brings it back); a step that fails or runs out of time is
 # recorded in $OUT/steps.txt and the script goes on, so one slow step never costs the others' figures.
-# Budget (seconds): tests 150, graphs 60, drape/xpbd harness 150, fits 150, FEM 150 — 660 s with start-up
-# (more than one 10-minute call: run it with a timeout and the FEM step last, or split it).
+# Budget (seconds): part 1 = tests 180, graphs 60, drape/xpbd harness 150 (about 400 s with start-up);
+# part 2 = fits 150, FEM 150 (about 320 s). Each part fits one 10-minute call; no argument runs both.
 set -u
 OUT=${OUT:-out/gpu}
 mkdir -p "$OUT"
 DEV=${DEV:-cuda:0}
+PART=${1:-all}
 PY=${PY:-python3}
 export PYTHONPATH=${PYTHONPATH:-}:$PWD
 
@@ -28,16 +30,22 @@ step() {  # step NAME SECONDS COMMAND...: run one step under a time limit, log i
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv >"$OUT/gpu.txt" 2>&1
 $PY -c "import warp as wp; wp.init(); print(wp.__version__, wp.get_cuda_devices())" >>"$OUT/gpu.txt" 2>&1
 
+part() { [ "$PART" = all ] || [ "$PART" = "$1" ]; }
+
+if part 1; then
 # 1. Correctness on CUDA: every device-parametrised test, graph replay equal to direct steps, the examples.
-step tests 150 $PY -m pytest -q -x -n 8 -p no:cacheprovider -k cuda \
-    tests/test_devices.py tests/test_graph.py tests/test_collisions.py tests/test_gaussians.py \
-    tests/test_gaussians_bind.py tests/test_implicit_pcg.py
+step tests 180 $PY -m pytest -q -n 8 -p no:cacheprovider -k cuda \
+    tests/test_devices.py tests/test_devices_grad.py tests/test_graph.py tests/test_diff_graph.py \
+    tests/test_collisions.py tests/test_gaussians.py tests/test_gaussians_bind.py tests/test_implicit_pcg.py
 # 2. Graph replay against launch by launch, side by side, every scene the Simulator can replay.
 step graphs 60 $PY benchmarks/bench_graph.py --device "$DEV" --rounds 3 --frames 10
 # 3. The measured gap: pliant against Newton on the drape and XPBD (harness of ../shared/gpu).
 if [ -f .gpu/b/bench_gpu.py ]; then
     step harness 150 $PY .gpu/b/bench_gpu.py "$DEV" "$OUT/rows.jsonl" drape xpbd
 fi
+fi
+
+if part 2; then
 # 4. Issues 25 and 30's figures on a GPU: the default fits of MuJoCo's cloth tracks and footage.
 step fit_tracks 60 $PY -m pliant.cli fit tests/data/foreign/mujoco_cloth.toml \
     tests/data/foreign/mujoco_cloth.npz --out "$OUT/fit_tracks" --device "$DEV" --no-video -q
@@ -47,4 +55,5 @@ step fit_footage 90 $PY -m pliant.cli fit tests/data/foreign/mujoco_cloth.toml \
 #    CG (host decisions) at 10³; the CPU's L-BFGS row (91 ms per step at 30³ on one core) is the target.
 step fem_pcg 150 $PY -m pliant.cli bench soft_box_drop_10_implicit_pcg soft_box_drop_10_implicit_newton \
     soft_box_drop_30_implicit_pcg --device "$DEV" --json "$OUT/fem_pcg.jsonl"
+fi
 cat "$OUT/steps.txt"
