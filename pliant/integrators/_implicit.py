@@ -425,10 +425,12 @@ class BDF2(_ImplicitOptions, Integrator):
         if self._sys_key is None or getattr(self, "_ws", None) is None:
             return {}
         _, _, x_prev, v_prev = self._ws[1]
+        key = self._sys_key
+        dt_prev = key.dt if isinstance(key, _ResumedKey) else key[1]  # restored and not stepped since
         return {
             "bdf2_x_prev": x_prev.numpy().copy(),
             "bdf2_v_prev": v_prev.numpy().copy(),
-            "bdf2_dt": np.array(float(self._sys_key[1])),
+            "bdf2_dt": np.array(float(dt_prev)),
         }
 
     def restore_checkpoint_state(self, state: dict[str, np.ndarray], system: System) -> None:
