@@ -179,7 +179,7 @@ def render(
         device=dev,
         record_tape=False,
     )
-    if grad:
+    if grad and tape is not None:  # grad implies a tape; the second test tells mypy so
 
         def backward() -> None:
             wp.launch(
