@@ -18,7 +18,7 @@ from __future__ import annotations
 import functools
 import inspect
 import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, Any, ClassVar, Union
 
@@ -182,7 +182,7 @@ _DEFAULT_OPTIONS = ImplicitOptions()
 
 #: What :meth:`ImplicitOptions.coerce` accepts: None (the defaults), the options, a dict of some settings,
 #: or an implicit integrator (which holds its options).
-ImplicitOptionsLike = Union[ImplicitOptions, "_ImplicitOptions", Mapping[str, Any], None]
+ImplicitOptionsLike = Union[ImplicitOptions, "_ImplicitOptions", dict[str, Any], None]
 _OPTION_NAMES = frozenset(f.name for f in fields(ImplicitOptions))
 
 

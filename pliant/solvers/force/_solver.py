@@ -21,6 +21,7 @@ from .._post import add_drag_force, check_collisions, finish_step
 from ..implicit import (
     MinimizerCache,
     MinimizerOptions,
+    NewtonStats,
     lbfgs_checkpoint_state,
     lbfgs_restore_checkpoint_state,
     minimize,
@@ -131,7 +132,7 @@ class ForceSolver(Solver):
                     [damping_rate], dtype=model.scalar, device=d, requires_grad=True
                 )
         self._control: Control | None = None
-        self.last_stats: Any = None
+        self.last_stats: NewtonStats | None = None
         #: What the implicit minimisers keep between steps (Hessian pattern, L-BFGS pairs and warm start).
         self.minimizer_cache = MinimizerCache()
         implicit = getattr(self.integrator, "options", None)

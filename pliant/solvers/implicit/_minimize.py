@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
 import warp as wp
 
@@ -11,17 +11,22 @@ from ._newton import NewtonStats, minimize_incremental_potential
 from ._options import step_settings
 from ._quasi_newton import minimize_quasi_newton
 
+if TYPE_CHECKING:
+    from ...integrators._implicit import ImplicitOptionsLike
+    from ._assembly import PotentialProblem
+    from ._options import MinimizerLike
+
 
 def minimize(
-    problem: Any,
+    problem: PotentialProblem,
     t: float,
     h: float,
     x_tilde: wp.array,
     x_ref: wp.array,
     v_ref: wp.array,
     x_out: wp.array,
-    options: Any = None,
-    minimizer: Any = None,
+    options: ImplicitOptionsLike = None,
+    minimizer: MinimizerLike = None,
 ) -> NewtonStats:
     """x_out = argmin Φ by :func:`minimize_quasi_newton` when the minimiser's ``method`` is "lbfgs", else by
     :func:`minimize_incremental_potential` (arguments as there), with host BLAS on one thread: many small
