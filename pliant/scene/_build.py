@@ -209,7 +209,7 @@ def _embeddings(ctx: BuildContext, x0: np.ndarray) -> list[Embedding]:
     import trimesh
 
     from ..geometry import locate_points
-    from ._files import load_mesh_file
+    from ._files import load_surface_file
     from ._objects import orient
 
     out = []
@@ -226,7 +226,7 @@ def _embeddings(ctx: BuildContext, x0: np.ndarray) -> list[Embedding]:
             m = trimesh.creation.icosphere(subdivisions=rm.icosphere, radius=r)
             v, f = np.asarray(m.vertices) + center, np.asarray(m.faces)
         else:
-            mesh = load_mesh_file(ctx.cfg, rm.path, f"{at}.path")
+            mesh = load_surface_file(ctx.cfg, rm.path, f"{at}.path")
             # Turned like its object (up, rotation), so a rotated mesh keeps its render mesh aligned.
             v = orient(np.asarray(mesh.points) * np.asarray(rm.scale), o) + center
             f = np.asarray(mesh.triangles)

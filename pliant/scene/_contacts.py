@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 import numpy as np
 from pydantic import BeforeValidator
 
-from ._files import load_mesh_file
+from ._files import load_surface_file
 from ._registry import handle_mode, register_collider_kind, register_handle_kind
 from ._schema import ColliderBase, Float, Length, NonNegFloat, Scale3, Size3, Vec3, vector
 
@@ -94,7 +94,7 @@ def add_capsule(colliders: Any, cfg: SceneConfig, c: CapsuleCollider, at: str) -
 
 
 def add_mesh(colliders: Any, cfg: SceneConfig, c: MeshCollider, at: str) -> tuple | None:
-    mesh = load_mesh_file(cfg, c.path, f"{at}.path")
+    mesh = load_surface_file(cfg, c.path, f"{at}.path")
     v = mesh.points * np.asarray(c.scale) + np.asarray(c.origin)
     f = np.asarray(mesh.triangles)
     colliders.add_mesh(v, f, **_fr(c))

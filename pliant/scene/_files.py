@@ -12,6 +12,7 @@ import numpy as np
 from ._errors import scene_error
 
 if TYPE_CHECKING:
+    from ..geometry import TriMesh
     from ._schema import SceneConfig
 
 #: Default particle budget of one scene (``PLIANT_MAX_PARTICLES`` overrides it): about 1 GB of model and
@@ -118,4 +119,17 @@ def load_mesh_file(cfg: SceneConfig, rel: str, at: str) -> Any:
         raise scene_error(cfg, at, f"the mesh {path.name} has NaN, inf or coordinates beyond 1e6 m")
     if pts.shape[0] > max_particles():
         raise scene_error(cfg, at, budget_message(pts.shape[0], path.name))
+    return mesh
+
+
+def load_surface_file(cfg: SceneConfig, rel: str, at: str) -> TriMesh:
+    """:func:`load_mesh_file` of a file that must be a triangle surface (a collider, a render mesh): a
+    tetrahedral mesh there is a SceneError naming the formats, not an AttributeError later."""
+    from ..geometry import TriMesh
+
+    mesh = load_mesh_file(cfg, rel, at)
+    if not isinstance(mesh, TriMesh):
+        raise scene_error(
+            cfg, at, f"{Path(rel).name} is a tetrahedral mesh; give a triangle surface (OBJ, PLY or STL)"
+        )
     return mesh
