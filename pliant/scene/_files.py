@@ -5,14 +5,14 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ._errors import scene_error
 
 if TYPE_CHECKING:
-    from ..geometry import TriMesh
+    from ..geometry import TetMesh, TriMesh
     from ._schema import SceneConfig
 
 #: Default particle budget of one scene (``PLIANT_MAX_PARTICLES`` overrides it): about 1 GB of model and
@@ -96,7 +96,7 @@ def load_points_npy(cfg: SceneConfig, path: Path, at: str) -> np.ndarray:
     return pts
 
 
-def load_mesh_file(cfg: SceneConfig, rel: str, at: str) -> Any:
+def load_mesh_file(cfg: SceneConfig, rel: str, at: str) -> TriMesh | TetMesh:
     """``pl.geometry.load_mesh`` of a file named by the scene, its failures reported at ``at``."""
     from ..geometry import load_mesh
 
