@@ -28,7 +28,7 @@ import resource
 import sys
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -37,6 +37,7 @@ from ._box_reference import motion_fields
 
 if TYPE_CHECKING:
     from ..model import Model
+    from ..solvers import ForceSolver
 
 SIDE = 0.5
 DENSITY = 1000.0
@@ -47,7 +48,7 @@ FRAME_DT = 1.0 / 60.0
 FRAMES = 60
 
 
-def soft_box_model(n: int, *, device: str | None = "cpu", dtype: str = "float32") -> Any:
+def soft_box_model(n: int, *, device: str | None = "cpu", dtype: str = "float32") -> Model:
     """The scene's Model: n³ cells of 6 tets, 0.5 m, ρ = 1000 kg/m³, E = 1e5 Pa, ν = 0.3, ground at 0."""
     from ..model import ModelBuilder
 
@@ -87,7 +88,7 @@ def make_solver(
     minimizer: str = "lbfgs",
     integrator: str = "BackwardEuler",
     substeps: int = 1,
-) -> Any:
+) -> ForceSolver:
     """ForceSolver with NeoHookean + Gravity: "implicit" (BackwardEuler) or "explicit" (SymplecticEuler).
 
     ``newton_tol`` [m/s] (None: :data:`LBFGS_TOL` / :data:`NEWTON_TOL`) is a velocity error per frame; with
@@ -154,6 +155,7 @@ def soft_box_drop(
     import warp as wp
 
     from .._warp import resolve_device
+    from ..energies import NeoHookean
 
     if quick:
         n, frames = min(n, 4), min(frames, 10)
@@ -164,6 +166,7 @@ def soft_box_drop(
         model, method, newton_tol=newton_tol, minimizer=minimizer, integrator=integrator, substeps=substeps
     )
     elastic = solver.energies[0]
+    assert isinstance(elastic, NeoHookean)  # make_solver puts the elastic term first
     dt = substep_dt(FRAME_DT, substeps)
     s0, s1 = model.state(), model.state()
     solver.step(s0, s1, None, dt)  # warm-up: kernel compilation or cache load
@@ -185,7 +188,7 @@ def soft_box_drop(
         for _ in range(substeps):
             solver.step(s0, s1, None, dt)
             s0, s1 = s1, s0
-            if method == "implicit":
+            if method == "implicit" and solver.last_stats is not None:
                 iterations += solver.last_stats.iterations
         # The motion check's data, every frame (a copy of N positions: microseconds beside a step).
         com.append(float(mass @ s0.particle_q.numpy()[:, 1].astype(np.float64) / mass.sum()))

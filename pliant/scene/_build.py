@@ -430,7 +430,7 @@ def build_scene(
     solver = SOLVER_KINDS[cfg.solver_kind()].factory(ctx)
     if cfg.scene.parameters is not None:
         _apply_parameters(ctx, solver, cfg.scene.parameters)
-    maybe_prebuild(cfg.scene.name, ctx.model)  # compile its kernels on both cores while the caller goes on
+    maybe_prebuild(cfg.scene.name, ctx.finalized)  # kernels compile on both cores meanwhile
     return Scene(
         config=cfg,
         model=ctx.finalized,

@@ -168,7 +168,7 @@ def _control_terms(
 
 
 def _assemble(
-    solver: Any,
+    solver: PotentialProblem,
     ws: _Workspace,
     x: wp.array,
     h: float,

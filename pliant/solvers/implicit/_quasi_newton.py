@@ -47,6 +47,7 @@ from ._workspace import MinimizerCache, _Workspace, cache_of
 
 if TYPE_CHECKING:
     import scipy.sparse
+    from scipy.sparse.linalg import SuperLU
 
     from ...integrators._implicit import ImplicitOptionsLike
     from ...model import Model
@@ -196,7 +197,7 @@ class _LaggedHessian:
             if v is not None:
                 self.lu[d] = self.factor(v, d)
 
-    def factor(self, v: np.ndarray, axis: int) -> Any:
+    def factor(self, v: np.ndarray, axis: int) -> SuperLU | _VCycle:
         """The solver of axis ``axis``'s H₀ with values ``v`` (the pattern's entries, in our order): a
         SuperLU factor, or with :attr:`method` "amg" a smoothed-aggregation hierarchy whose ``solve`` is one
         V-cycle (a fixed SPD operator, as L-BFGS's H₀⁻¹ must be).
