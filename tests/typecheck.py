@@ -102,7 +102,7 @@ def plain_any(path: Path) -> list[str]:
     ``*args: Any`` / ``**kwargs: Any`` (they annotate each element of a pass-through, as ``dict[str, Any]``
     does a heterogeneous dict).
     """
-    rel = path.relative_to(ROOT) if path.is_absolute() else path
+    rel = path.relative_to(ROOT) if path.is_absolute() and path.is_relative_to(ROOT) else path
     found: list[str] = []
 
     def visit(node: ast.AST) -> None:
