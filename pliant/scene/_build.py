@@ -101,7 +101,7 @@ class Scene:
 
     @property
     def sim_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments of :class:`pliant.Simulator` (its ``dt`` is the frame duration)."""
+        """Keyword arguments of :class:`pliant.Simulator` (``frame_dt``: the frame duration [s])."""
         kw: dict[str, Any] = {
             "frame_dt": self.frame_dt,
             "substeps": self.substeps,

@@ -445,7 +445,7 @@ class Simulator:
         faces = m.render_faces if m.render_faces.size else None
         tets = m.tet_indices_np if m.tet_indices_np.size else None
         meta = {
-            "dt": self.frame_dt,
+            "frame_dt": self.frame_dt,
             "substeps": self.substeps,
             "dtype": m.dtype,
             "device": m.device,
