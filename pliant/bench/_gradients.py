@@ -32,7 +32,7 @@ FRAMES = 60
 FRAME_DT = 1.0 / 60.0
 
 
-def _loss_kernel() -> Any:
+def _loss_kernel() -> wp.Kernel:
     import warp as wp
 
     @wp.kernel
