@@ -27,10 +27,14 @@ import inspect
 import json
 import os
 import threading
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import warp as wp
+
+if TYPE_CHECKING:
+    from ._warp import ParticleModel
 
 #: Built-in scenes' manifests: {scene: {"modules": [...], "overloads": [...]}} (float32, CPU).
 MANIFEST = Path(__file__).resolve().parent / "scenes" / "kernels.json"
@@ -98,7 +102,7 @@ def _hold_main_thread() -> None:
     context.Module.load = load  # type: ignore[method-assign]  # wrapped on purpose (see above)
 
 
-def _start(target: Any) -> None:
+def _start(target: Callable[[], object]) -> None:
     t = threading.Thread(target=target, name="pliant-prebuild", daemon=True)
     _threads.append(t)
     t.start()
@@ -147,7 +151,7 @@ def wait() -> None:
 
 
 # ---------------------------------------------------------------------------------------------- manifests
-def _type_json(t: Any) -> Any:
+def _type_json(t: Any) -> str | dict[str, Any] | None:  # any Warp type: read by duck typing
     """A kernel argument type as JSON, or None when it cannot be written (structs, indexed arrays)."""
     if type(t) is wp.array or type(t).__name__ == "_ArrayAnnotation":  # not indexed or fabric arrays
         dtype = _type_json(t.dtype)
@@ -245,7 +249,7 @@ def enabled() -> bool:
     return os.environ.get(ENV, "1") != "0"
 
 
-def maybe_prebuild(name: str, model: Any) -> int:
+def maybe_prebuild(name: str, model: ParticleModel) -> int:
     """Start compiling built-in scene ``name``'s kernels (``build_scene`` calls this) when ``model`` is
     float32 on the CPU without gradients (what the manifest was recorded for) and :func:`enabled`.
 

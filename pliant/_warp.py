@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import contextlib
 import os
-from collections.abc import Iterator
-from typing import Any
+from collections.abc import Iterator, Sequence
+from typing import Any, Protocol
 
 import numpy as np
 import warp as wp
@@ -84,19 +84,19 @@ def _without_line_on_stderr(needle: bytes) -> Iterator[None]:
 DTYPES = ("float32", "float64")
 
 
-def scalar_type(dtype: str) -> Any:
+def scalar_type(dtype: str) -> type:
     """Warp scalar type for ``"float32"`` or ``"float64"``."""
     if dtype not in DTYPES:
         raise ValueError(f"dtype must be one of {DTYPES}, got {dtype!r}")
     return wp.float32 if dtype == "float32" else wp.float64
 
 
-def vec3_type(dtype: str) -> Any:
+def vec3_type(dtype: str) -> type:
     """Warp 3-vector type for ``dtype``."""
     return wp.vec3 if scalar_type(dtype) is wp.float32 else wp.vec3d
 
 
-def mat33_type(dtype: str) -> Any:
+def mat33_type(dtype: str) -> type:
     """Warp 3x3 matrix type for ``dtype``."""
     return wp.mat33 if scalar_type(dtype) is wp.float32 else wp.mat33d
 
@@ -141,12 +141,12 @@ def _runtime() -> Any:
     return runtime
 
 
-def active_tape() -> Any:
+def active_tape() -> wp.Tape | None:
     """The ``wp.Tape`` now recording, or None. The one place that reads Warp's runtime for it."""
     return getattr(_runtime(), "tape", None)
 
 
-def capturing(device: Any) -> bool:
+def capturing(device: wp.DeviceLike) -> bool:
     """Whether launches on ``device`` are being captured into a graph (so a host read would see stale
     data): a CUDA stream capture, or Warp's CPU capture (Warp 1.19+)."""
     d = wp.get_device(device)
@@ -163,7 +163,7 @@ def _tape_active() -> bool:
 
 
 @contextlib.contextmanager
-def tape_paused() -> Iterator[Any]:
+def tape_paused() -> Iterator[wp.Tape | None]:
     """Run the block with no active ``wp.Tape`` (yields the tape that was active, or None)."""
     runtime = _runtime()
     tape = getattr(runtime, "tape", None)
@@ -188,7 +188,7 @@ def untaped_in_place() -> Iterator[None]:
         wp.config.verify_autograd_array_access = old
 
 
-def launch(kernel: Any, dim: Any, inputs: list, device: Any = None) -> None:
+def launch(kernel: wp.Kernel, dim: int | Sequence[int], inputs: list, device: wp.DeviceLike = None) -> None:
     """``wp.launch(kernel, dim, inputs, device=device)``, replaying a recorded ``wp.Launch`` when it can.
 
     A plain launch of a generic kernel spends 10-60 µs in Python (overload resolution, argument packing),
@@ -242,19 +242,34 @@ def launch(kernel: Any, dim: Any, inputs: list, device: Any = None) -> None:
 
 
 # ----------------------------------------------------------------------------------------------- gradients
+class ParticleModel(Protocol):
+    """What this bottom layer reads of a :class:`pliant.model.Model` (a higher layer it may not name)."""
+
+    @property
+    def particle_count(self) -> int: ...
+    @property
+    def dtype(self) -> str: ...
+    @property
+    def requires_grad(self) -> bool: ...
+    @property
+    def device(self) -> str: ...
+    @property
+    def vec3(self) -> type: ...
+
+
 class GradientError(NotImplementedError):
     """A gradient was requested (a ``requires_grad`` model, or ``pl.diff``) from a solver, option or
     parameter that cannot give a correct one; the message says what to use instead."""
 
 
-def grad_enabled(model: Any) -> bool:
+def grad_enabled(model: object) -> bool:
     """True when steps on ``model`` must be replayable by ``wp.Tape`` (the model was finalised with
     ``requires_grad=True``): solvers then write every intermediate into a fresh array allocated with
     ``requires_grad`` instead of reusing scratch buffers in place."""
     return bool(getattr(model, "requires_grad", False))
 
 
-def fresh(model: Any, count: int | None = None, dtype: Any = None) -> wp.array:
+def fresh(model: ParticleModel, count: int | None = None, dtype: type | None = None) -> wp.array:
     """A new zeroed array of ``count`` (default: particle_count) ``dtype`` (default: the model's vec3) with
     ``requires_grad=True``, for one use inside a recorded step."""
     n = model.particle_count if count is None else count

@@ -339,3 +339,14 @@ def test_force_solver_runs_collision_handlers():
     d = np.linalg.norm(x[-1] - np.array([0.0, 0.3, 0.0]), axis=1)
     assert d.min() >= 0.25 + 0.005 - 1e-6, f"a particle is {0.255 - d.min():.3g} m inside the sphere"
     assert x[-1, :, 1].min() < 0.3, "the cloth should drape below the sphere's centre"
+
+
+def test_ground_response_without_a_ground_plane_names_the_fix():
+    """respond_to_ground on a model with no ground: a ValueError naming add_ground, before any launch."""
+    b = pl.ModelBuilder()
+    b.add_particles(np.zeros((2, 3)), mass=1.0)
+    model = b.finalize(device="cpu")
+    s = model.state()
+    coefficients = wp.zeros(2, dtype=model.scalar, device="cpu")
+    with pytest.raises(ValueError, match="add_ground"):
+        pl.collision.respond_to_ground(model, coefficients, 1e-3, s.x, s.v, s.x, s.v)

@@ -251,7 +251,10 @@ def test_p2_backward_euler_spinning_box_dissipates_and_keeps_momentum(method):
     p0 = (mass[:, None] * v0).sum(axis=0)
     e = TetElasticity("neohookean", quadrature=2)
     solver = pl.solvers.ForceSolver(
-        model, [e], pl.integrators.BackwardEuler(newton_tol=1e-4, project_psd=True, method=method)
+        model,
+        [e],
+        pl.integrators.BackwardEuler(newton_tol=1e-4, project_psd=True),
+        minimizer=pl.solvers.MinimizerOptions(method=method),
     )
     s0, s1 = model.state(), model.state()
     s0.particle_qd.assign(v0)

@@ -97,6 +97,21 @@ def test_trajectory_npz_round_trip(tmp_path):
     assert back.meta == traj.meta
 
 
+def test_trajectory_frame_dt_is_stored_as_frame_dt_and_read_from_older_files_dt():
+    """A Simulator's trajectory stores the frame duration as ``meta["frame_dt"]`` (``dt`` is a solver step
+    everywhere, issue 26); ``Trajectory.frame_dt`` also reads the ``dt`` key of files written before."""
+    b = pl.ModelBuilder()
+    b.add_particles(np.zeros((1, 3)), mass=1.0)
+    model = b.finalize(device="cpu")
+    solver = pl.solvers.ForceSolver(model, [], pl.integrators.SymplecticEuler())
+    traj = pl.Simulator(model, solver, frame_dt=0.04, substeps=4).run(2, progress=False)
+    assert traj.meta["frame_dt"] == 0.04 and "dt" not in traj.meta
+    assert traj.frame_dt == 0.04
+    old = pl.Trajectory(x=np.zeros((2, 1, 3)), t=np.array([0.0, 0.1]), meta={"dt": 0.1})
+    assert old.frame_dt == 0.1
+    assert pl.Trajectory(x=np.zeros((1, 1, 3)), t=np.zeros(1)).frame_dt is None
+
+
 def test_checkpoint_round_trip(tmp_path):
     """A checkpoint returns frame, time, state, parameters and the trajectory so far bit for bit."""
     rng = np.random.default_rng(1)

@@ -138,9 +138,12 @@ def solver_for(m, kind, integ, fast=False):
         )
     if fast:
         return pl.solvers.FastMassSpring(m, method="symplectic", damping_rate=0.5)
+    minimizer = None
+    if isinstance(integ, tuple):  # (integrator or factory, the solver's MinimizerOptions)
+        integ, minimizer = integ
     if not isinstance(integ, I.Integrator):
         integ = integ()  # a factory: a fresh integrator per solver (BDF2 keeps a step history)
-    return pl.solvers.ForceSolver(m, energies(kind), integ, damping_rate=0.5)
+    return pl.solvers.ForceSolver(m, energies(kind), integ, damping_rate=0.5, minimizer=minimizer)
 
 
 PARAMS = {
@@ -242,7 +245,10 @@ _TIGHT = {"newton_tol": 1e-12, "max_newton_iterations": 50}
 IMPLICIT = {
     "be_newton": lambda: I.BackwardEuler(**_TIGHT),
     "midpoint": lambda: I.ImplicitMidpoint(**_TIGHT),
-    "be_lbfgs": lambda: I.BackwardEuler(method="lbfgs", lbfgs_max_iterations=500, newton_tol=1e-12),
+    "be_lbfgs": (
+        lambda: I.BackwardEuler(newton_tol=1e-12),
+        pl.solvers.MinimizerOptions(method="lbfgs", lbfgs_max_iterations=500),
+    ),
     "bdf2": lambda: I.BDF2(**_TIGHT),
 }
 

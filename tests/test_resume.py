@@ -83,3 +83,18 @@ def test_lbfgs_resume_needs_the_stored_history(tmp_path):
     resumed = make().run(6, progress=False, checkpoint=ckpt, resume=True)
     np.testing.assert_array_equal(resumed.x[:4], reference.x[:4])
     assert not np.array_equal(resumed.x[4:], reference.x[4:])
+
+
+def test_bdf2_checkpoint_right_after_a_restore_gives_the_history_back():
+    """A checkpoint taken after a restore and before the next step (e.g. a resumed run interrupted at
+    once) holds the restored history, not a TypeError on the restored key."""
+    sim = _fem_box_sim(pl.integrators.BDF2())
+    sim.run(2, progress=False)
+    saved = sim.solver.integrator.checkpoint_state()
+    assert set(saved) == {"bdf2_x_prev", "bdf2_v_prev", "bdf2_dt"}
+    again = _fem_box_sim(pl.integrators.BDF2())
+    again.solver.integrator.restore_checkpoint_state(saved, again.solver)
+    back = again.solver.integrator.checkpoint_state()
+    assert set(back) == set(saved)
+    for k in saved:
+        np.testing.assert_array_equal(back[k], saved[k])

@@ -270,6 +270,22 @@ def test_unreadable_meshes_are_scene_errors(tmp_path, fname):
     assert msg.startswith("s.toml:7: objects[0].path: "), msg
 
 
+def test_a_tetrahedral_mesh_where_a_surface_is_needed_is_a_scene_error(tmp_path):
+    """A tet mesh file as a mesh collider or a render mesh (which need triangles) is a SceneError naming
+    the field and the surface formats, not an AttributeError on .triangles."""
+    import meshio
+
+    points = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float) * 0.1
+    meshio.write_points_cells(tmp_path / "t.vtk", points, [("tetra", np.array([[0, 1, 2, 3]]))])
+    collider = '[[colliders]]\nkind = "mesh"\npath = "t.vtk"\n'
+    msg = _error(HEAD + ROPE + collider, tmp_path)
+    assert "colliders[0].path" in msg and "tetrahedral mesh" in msg and "OBJ" in msg, msg
+    box = '[[objects]]\nkind = "soft_box"\nmodel = "fem"\nmaterial = {E = 1e4}\n'
+    box += 'render_mesh = {path = "t.vtk"}\n'
+    msg = _error(HEAD + box, tmp_path)
+    assert "objects[0].render_mesh.path" in msg and "tetrahedral mesh" in msg, msg
+
+
 def test_tetgen_bound_is_budgeted_before_tetgen_runs(tmp_path):
     """Item 4: a 0.2 m box filled with max_volume = 1e-12 m³ would ask TetGen for ~1e9 vertices: a load error
     naming the memory it needs (the same file with max_volume = 1e-4 builds)."""

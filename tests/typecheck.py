@@ -10,6 +10,7 @@ span (decorators, signature and body), found with ``ast``, and reports every oth
 ``disable_error_code`` would have hidden the same codes in the launchers beside the kernels too.
 
     python tests/typecheck.py            # exit 1 and the errors when host code has any
+    python tests/typecheck.py --any      # list the plain-Python ``Any`` annotations (see plain_any)
 
 Run by ``make test`` (so by ``.ci/run``).
 """
@@ -72,7 +73,67 @@ def host_errors(report: str) -> tuple[list[str], int]:
     return kept, dropped
 
 
+def _is_plain_any(node: ast.expr | None) -> bool:
+    """Whether an annotation is ``Any`` on its own (or ``Any | None``, ``Optional[Any]``, the string
+    ``"Any"``): the annotation then says nothing. ``dict[str, Any]``, ``list[Any]`` and ``Callable[..., Any]``
+    are not counted: they still name the container."""
+    if isinstance(node, ast.Constant) and isinstance(node.value, str):
+        try:
+            node = ast.parse(node.value, mode="eval").body
+        except SyntaxError:
+            return False
+    if isinstance(node, ast.Name):
+        return node.id == "Any"
+    if isinstance(node, ast.Attribute):
+        return node.attr == "Any" and ast.unparse(node.value) == "typing"
+    if isinstance(node, ast.BinOp) and isinstance(node.op, ast.BitOr):
+        none = [isinstance(side, ast.Constant) and side.value is None for side in (node.left, node.right)]
+        return (none[1] and _is_plain_any(node.left)) or (none[0] and _is_plain_any(node.right))
+    if isinstance(node, ast.Subscript) and ast.unparse(node.value) in ("Optional", "typing.Optional"):
+        return _is_plain_any(node.slice)
+    return False
+
+
+def plain_any(path: Path) -> list[str]:
+    """The plain-Python annotations of ``path`` that are ``Any`` alone, as ``"file:line: what"``.
+
+    Counted: a function's parameters and return, and annotated assignments (``x: Any = ...``). Not counted:
+    everything inside ``@wp.kernel``/``@wp.func`` functions (there ``Any`` is Warp's generic type), and
+    ``*args: Any`` / ``**kwargs: Any`` (they annotate each element of a pass-through, as ``dict[str, Any]``
+    does a heterogeneous dict).
+    """
+    rel = path.relative_to(ROOT) if path.is_absolute() and path.is_relative_to(ROOT) else path
+    found: list[str] = []
+
+    def visit(node: ast.AST) -> None:
+        for child in ast.iter_child_nodes(node):
+            if is_warp_function(child):
+                continue
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                a = child.args
+                for arg in a.posonlyargs + a.args + a.kwonlyargs:
+                    if _is_plain_any(arg.annotation):
+                        found.append(f"{rel}:{arg.lineno}: {child.name}({arg.arg}: Any)")
+                if _is_plain_any(child.returns):
+                    found.append(f"{rel}:{child.lineno}: {child.name}() -> Any")
+            elif isinstance(child, ast.AnnAssign) and _is_plain_any(child.annotation):
+                found.append(f"{rel}:{child.lineno}: {ast.unparse(child.target)}: Any")
+            visit(child)
+
+    visit(ast.parse(path.read_text(encoding="utf-8")))
+    return found
+
+
+def all_plain_any() -> list[str]:
+    """:func:`plain_any` over every module of ``pliant/``."""
+    return [hit for path in sorted((ROOT / "pliant").rglob("*.py")) for hit in plain_any(path)]
+
+
 def main() -> int:
+    if "--any" in sys.argv[1:]:
+        hits = all_plain_any()
+        print("\n".join([*hits, f"{len(hits)} plain-Python Any annotations in pliant/"]))
+        return 0
     from mypy import api
 
     os.chdir(ROOT)  # the configuration's `files` and the reported paths are relative to the repository

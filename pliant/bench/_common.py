@@ -17,7 +17,9 @@ from typing import TYPE_CHECKING, Any
 from .._time import substep_dt
 
 if TYPE_CHECKING:
-    from ..model import Model
+    import numpy as np
+
+    from ..model import Control, Model
     from ..solvers import Solver
 
 
@@ -38,7 +40,7 @@ class Timing:
 def run_timed(
     model: Model,
     solver: Solver,
-    control: Any,
+    control: Control | None,
     dt: float,
     *,
     frames: int,
@@ -122,7 +124,7 @@ def print_rows(benchmarks: Mapping[str, Callable[..., dict]], names: Sequence[st
 REFERENCES = Path(__file__).parent / "references"
 
 
-def load_reference(stem: str, key: str, remake: str) -> Any:
+def load_reference(stem: str, key: str, remake: str) -> np.ndarray:
     """Array ``key`` of ``references/<stem>.npz`` as float64; FileNotFoundError naming ``remake`` (the
     command that makes it) when the file is missing."""
     import numpy as np
@@ -134,7 +136,7 @@ def load_reference(stem: str, key: str, remake: str) -> Any:
         return np.asarray(d[key], dtype=np.float64)
 
 
-def curve_deviation(curve: Any, reference: Any, scale: float) -> float:
+def curve_deviation(curve: np.ndarray, reference: np.ndarray, scale: float) -> float:
     """max_k |curve_k − reference_k| / ``scale`` over the frames both have; inf if ``curve`` is not finite
     there (the ``trajectory_error`` of the motion benchmarks)."""
     import numpy as np
@@ -148,13 +150,13 @@ def curve_deviation(curve: Any, reference: Any, scale: float) -> float:
 def frame_curve(
     model: Model,
     solver: Solver,
-    measure: Callable[[Any], float],
+    measure: Callable[[np.ndarray], float],
     *,
     substeps: int,
     frames: int,
     frame_dt: float,
     include_start: bool = True,
-) -> Any:
+) -> np.ndarray:
     """``measure(positions)`` at every frame of ``solver`` stepping ``model`` from its initial state:
     ``frames`` frames of ``substeps`` steps of ``frame_dt / substeps`` [s] (frame 0 first when
     ``include_start``). The sanity curve of the motion benchmarks (sag, centre-of-mass height)."""

@@ -8,12 +8,13 @@ neither of those imports the other.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 if TYPE_CHECKING:
-    from ..model import Model
+    from ..model import Model, State
+    from ..solvers import Solver
 
 #: Frames of 1/60 s per run: the fall, which the motion references cover.
 FRAMES = 30
@@ -22,7 +23,7 @@ FRAME_DT = 1.0 / 60.0
 
 def cloth_drape_model(
     n: int, *, device: str | None = "cpu", dtype: str = "float32", damping: float = 0.0
-) -> Any:
+) -> Model:
     """The drape scene's Model: n × n cells, 1 m, 0.5 kg, E·t = 1000 N/m, ν = 0.3, two pinned corners."""
     from ..model import ModelBuilder
 
@@ -48,7 +49,7 @@ def sag(model: Model, x: np.ndarray) -> float:
     return float(x[pinned, 1].mean() - x[:, 1].min())
 
 
-def sag_fields(model: Model, state: Any, reference: float) -> dict:
+def sag_fields(model: Model, state: State, reference: float) -> dict:
     """The sanity columns of a drape row: sag [m] of the final ``state``, ``reference``, relative error,
     and whether every position is finite (the sag is NaN otherwise)."""
     x = state.particle_q.numpy()
@@ -70,7 +71,7 @@ def make_solver(
     cg_iterations: int = 100,
     cg_tol: float = 1.0e-2,
     damping_rate: float = 0.0,
-) -> Any:
+) -> Solver:
     """The solver of a benchmark row: "implicit" / "symplectic" (FastMassSpring) or "force" (ForceSolver).
 
     Args:

@@ -28,7 +28,7 @@ import resource
 import sys
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -37,6 +37,7 @@ from ._box_reference import motion_fields
 
 if TYPE_CHECKING:
     from ..model import Model
+    from ..solvers import ForceSolver, Solver
 
 SIDE = 0.5
 DENSITY = 1000.0
@@ -47,7 +48,7 @@ FRAME_DT = 1.0 / 60.0
 FRAMES = 60
 
 
-def soft_box_model(n: int, *, device: str | None = "cpu", dtype: str = "float32") -> Any:
+def soft_box_model(n: int, *, device: str | None = "cpu", dtype: str = "float32") -> Model:
     """The scene's Model: n³ cells of 6 tets, 0.5 m, ρ = 1000 kg/m³, E = 1e5 Pa, ν = 0.3, ground at 0."""
     from ..model import ModelBuilder
 
@@ -87,7 +88,7 @@ def make_solver(
     minimizer: str = "lbfgs",
     integrator: str = "BackwardEuler",
     substeps: int = 1,
-) -> Any:
+) -> ForceSolver:
     """ForceSolver with NeoHookean + Gravity: "implicit" (BackwardEuler) or "explicit" (SymplecticEuler).
 
     ``newton_tol`` [m/s] (None: :data:`LBFGS_TOL` / :data:`NEWTON_TOL`) is a velocity error per frame; with
@@ -139,7 +140,17 @@ def _peak_mem_mb(device: str) -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def _frame(solver: Any, states: tuple, dt: float, substeps: int) -> tuple:
+def _device_iterations(solver: ForceSolver) -> int:
+    """Newton iterations the device minimiser counted over ``solver``'s life (graph replays included)."""
+    from ..solvers.implicit import DeviceNewtonStats
+
+    stats = solver.last_stats
+    if not isinstance(stats, DeviceNewtonStats):  # only linear_solver="pcg" steps are replayed as graphs
+        raise TypeError(f"expected the device Newton's statistics, got {type(stats).__name__}")
+    return stats.totals()[1]
+
+
+def _frame(solver: Solver, states: tuple, dt: float, substeps: int) -> tuple:
     """One frame's steps from ``states`` = (state_0, state_1); returns the pair as the frame leaves it."""
     a, b = states
     for _ in range(substeps):
@@ -166,6 +177,7 @@ def soft_box_drop(
     import warp as wp
 
     from .._warp import resolve_device
+    from ..energies import NeoHookean
 
     if quick:
         n, frames = min(n, 4), min(frames, 10)
@@ -176,6 +188,7 @@ def soft_box_drop(
         model, method, newton_tol=newton_tol, minimizer=minimizer, integrator=integrator, substeps=substeps
     )
     elastic = solver.energies[0]
+    assert isinstance(elastic, NeoHookean)  # make_solver puts the elastic term first
     dt = substep_dt(FRAME_DT, substeps)
     s0, s1 = model.state(), model.state()
     solver.step(s0, s1, None, dt)  # warm-up: kernel compilation or cache load
@@ -203,7 +216,7 @@ def soft_box_drop(
         for st in (s0, s1):
             wp.copy(st.particle_q, rest.particle_q)
             wp.copy(st.particle_qd, rest.particle_qd)
-        iterations = -solver.last_stats.totals()[1]
+        iterations = -_device_iterations(solver)
     wp.synchronize_device(device)
     t0 = time.perf_counter()
     for _ in range(frames):
@@ -212,14 +225,14 @@ def soft_box_drop(
         for _ in range(substeps if graphs is None else 0):
             solver.step(s0, s1, None, dt)
             s0, s1 = s1, s0
-            if method == "implicit":
+            if method == "implicit" and solver.last_stats is not None:
                 iterations += solver.last_stats.iterations
         # The motion check's data, every frame (a copy of N positions: microseconds beside a step).
         com.append(float(mass @ s0.particle_q.numpy()[:, 1].astype(np.float64) / mass.sum()))
     wp.synchronize_device(device)
     wall = time.perf_counter() - t0
     if graphs is not None:  # counted on the device over the solver's life (replays included)
-        iterations += solver.last_stats.totals()[1]
+        iterations += _device_iterations(solver)
     if trajectory:
         np.save(trajectory, np.array(com))
     x = s0.particle_q.numpy().astype(np.float64)

@@ -23,13 +23,16 @@ from .._time import substep_dt
 from ._common import print_rows
 
 if TYPE_CHECKING:
-    from ..model import Model
+    import warp as wp
+
+    from ..model import Model, State
+    from ..solvers import Solver
 
 FRAMES = 60
 FRAME_DT = 1.0 / 60.0
 
 
-def _loss_kernel() -> Any:
+def _loss_kernel() -> wp.Kernel:
     import warp as wp
 
     @wp.kernel
@@ -52,7 +55,7 @@ def _bench(n: int, substeps: int, implicit: bool = False) -> Callable[..., dict]
         from ..solvers import FastMassSpring, ForceSolver
         from ._mass_spring import cloth_drape_model
 
-        def make_solver(model: Model) -> Any:
+        def make_solver(model: Model) -> Solver:
             if implicit:
                 return FastMassSpring(model, method="implicit", cg_iterations=40, damping_rate=1.0)
             return ForceSolver(model, integrator=SymplecticEuler(), damping_rate=1.0)
@@ -61,8 +64,9 @@ def _bench(n: int, substeps: int, implicit: bool = False) -> Callable[..., dict]
         dt = substep_dt(FRAME_DT, substeps)
         kernel = _loss_kernel()
 
-        def loss(state: Any) -> Any:
-            out = wp.zeros(1, dtype=state.particle_q.dtype._wp_scalar_type_, device=state.particle_q.device)
+        def loss(state: State) -> wp.array:
+            scalar = wp.float64 if state.particle_q.dtype == wp.vec3d else wp.float32
+            out = wp.zeros(1, dtype=scalar, device=state.particle_q.device)
             out.requires_grad = True
             wp.launch(kernel, state.particle_q.shape[0], [state.particle_q, out], device=out.device)
             return out
@@ -125,7 +129,7 @@ def _bench(n: int, substeps: int, implicit: bool = False) -> Callable[..., dict]
     return bench
 
 
-def _with_grad(model: Model) -> Any:
+def _with_grad(model: Model) -> Model:
     """``model`` rebuilt with ``requires_grad=True`` (the drape builder finalises without gradients)."""
     import dataclasses
 

@@ -20,13 +20,16 @@ from __future__ import annotations
 import json
 import resource
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
 
+if TYPE_CHECKING:
+    from ..model import Model
 
-def _model(n: int, requires_grad: bool) -> Any:
+
+def _model(n: int, requires_grad: bool) -> Model:
     from ..model import ModelBuilder
     from ._fem import DENSITY, DROP, POISSON, SIDE, YOUNG
 

@@ -64,6 +64,7 @@ def cloth_drape(
         quick: a 16 × 16 cloth (a smoke run).
     """
     from .._warp import resolve_device
+    from ..solvers import FastMassSpring
 
     if quick:
         n, frames = min(n, 16), min(frames, 30)
@@ -89,7 +90,9 @@ def cloth_drape(
         "iterations": cg_iterations if method == "implicit" else 0,
         # What the tolerance stop actually used: mean CG iterations per implicit step.
         "cg_iterations_mean": (
-            round(solver.cg_iterations_total / max(solver.cg_steps, 1), 2) if method == "implicit" else 0
+            round(solver.cg_iterations_total / max(solver.cg_steps, 1), 2)
+            if method == "implicit" and isinstance(solver, FastMassSpring)
+            else 0
         ),
         "damping_rate": damping_rate,
         **speed_fields(timing, model.particle_count),

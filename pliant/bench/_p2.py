@@ -31,13 +31,17 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from ..energies import Energy
     from ..model import Model
+    from ..solvers import StaticStats
 
 ELASTICA_V = {1.0: 0.30172, 2.0: 0.49346}  # Mattiasson (1981), Table 1: v/L at α = PL²/EI
 COOK_REFERENCE = 23.96
 
 
-def _model(points: np.ndarray, tets: np.ndarray, *, order: int, E: float, nu: float, **kw: Any) -> Any:
+def _model(points: np.ndarray, tets: np.ndarray, *, order: int, E: float, nu: float, **kw: Any) -> Model:
     from ..model import ModelBuilder
 
     b = ModelBuilder(gravity=kw.pop("gravity", (0.0, 0.0, 0.0)))
@@ -71,7 +75,7 @@ def _corner_faces(model: Model) -> tuple[np.ndarray, np.ndarray | None]:
     )
 
 
-def face_loads(model: Model, on_face: Any, traction: np.ndarray) -> np.ndarray:
+def face_loads(model: Model, on_face: Callable[[np.ndarray], np.ndarray], traction: np.ndarray) -> np.ndarray:
     """Consistent nodal forces [N] of a uniform ``traction`` [Pa] on the boundary faces where ``on_face``.
 
     ``on_face(X)`` takes [k, 3] points and returns a bool per point; a face is loaded when its three
@@ -92,7 +96,14 @@ def face_loads(model: Model, on_face: Any, traction: np.ndarray) -> np.ndarray:
     return f
 
 
-def _solve(model: Model, energy: Any, fixed: np.ndarray, loads: Any = None, gravity: bool = False, **kw: Any):
+def _solve(
+    model: Model,
+    energy: Energy,
+    fixed: np.ndarray,
+    loads: np.ndarray | None = None,
+    gravity: bool = False,
+    **kw: Any,
+) -> tuple[np.ndarray, StaticStats, float]:
     from ..energies import Gravity
     from ..solvers import solve_static
 
@@ -103,7 +114,14 @@ def _solve(model: Model, energy: Any, fixed: np.ndarray, loads: Any = None, grav
 
 
 def _row(
-    name: str, order: int, cells: Any, model: Model, value: float, ref: float, stats: Any, wall: float
+    name: str,
+    order: int,
+    cells: tuple[int, ...],
+    model: Model,
+    value: float,
+    ref: float,
+    stats: StaticStats,
+    wall: float,
 ) -> dict:
     """One result row: the figure, its reference and relative error, the mesh's size, the solve."""
     return dict(

@@ -8,7 +8,6 @@ imports it. Imports nothing but the standard library: ``pliant --help`` stays fa
 from __future__ import annotations
 
 import argparse
-from typing import Any
 
 EXIT_OK, EXIT_USER, EXIT_DIVERGED, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -26,7 +25,11 @@ def _examples(*lines: str) -> str:
     return "examples:\n" + "\n".join(f"  {line}" for line in lines)
 
 
-def _sub(sub: Any, name: str, help: str, *examples: str) -> argparse.ArgumentParser:
+#: What ``ArgumentParser.add_subparsers`` returns (the command modules add their parsers to it).
+Subparsers = argparse._SubParsersAction
+
+
+def _sub(sub: Subparsers, name: str, help: str, *examples: str) -> argparse.ArgumentParser:
     return sub.add_parser(
         name,
         help=help,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from ._common import CliError, _positive_float, _positive_int, _sub, add_force
 from ._run import _load
@@ -12,9 +12,10 @@ from ._run import _load
 if TYPE_CHECKING:
     from ..io import Observations
     from ..scene import Scene, SceneConfig
+    from ._common import Subparsers
 
 
-def add_parsers(sub: Any) -> None:
+def add_parsers(sub: Subparsers) -> None:
     """Register ``fit`` and ``observe`` on the ``pliant`` sub-parsers."""
     f = _sub(
         sub,
@@ -300,7 +301,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
-def _fit_models(args: argparse.Namespace, cfg: SceneConfig, obs: Observations, params: Any, out: Path) -> int:
+def _fit_models(
+    args: argparse.Namespace, cfg: SceneConfig, obs: Observations, params: list[str] | None, out: Path
+) -> int:
     """``pliant fit --models a,b``: each candidate model fitted, held-out errors side by side."""
     from ..fit import FitError, compare_models
     from ..fit._models import models_table

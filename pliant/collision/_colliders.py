@@ -17,14 +17,18 @@ the inside/outside sign; their Hessian omits the curvature term (exact on faces,
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
 from .._warp import GradientError, fresh, launch
-from ..model._parameters import Parameter, declares
+from ..model._parameters import Found, Getter, Parameter, declares
 from ._collider_sdf import collider_contact, collider_sdf
+
+if TYPE_CHECKING:
+    from ..model import Control, Model, State
 
 SPHERE, BOX, CAPSULE, MESH = 0, 1, 2, 3
 _KIND_NAMES = {SPHERE: "sphere", BOX: "box", CAPSULE: "capsule", MESH: "mesh"}
@@ -102,7 +106,7 @@ def _collider_query(
     phi_out[i] = best
 
 
-def _rotation_matrix(rotation: Any) -> np.ndarray:
+def _rotation_matrix(rotation: npt.ArrayLike | None) -> np.ndarray:
     if rotation is None:
         return np.eye(3)
     r = np.asarray(rotation, dtype=np.float64)
@@ -122,15 +126,15 @@ def _rotation_matrix(rotation: Any) -> np.ndarray:
     raise ValueError(f"box rotation must be a 3x3 matrix or an (x, y, z, w) quaternion, got shape {r.shape}")
 
 
-def _vec(v: Any, what: str) -> np.ndarray:
+def _vec(v: npt.ArrayLike, what: str) -> np.ndarray:
     a = np.asarray(v, dtype=np.float64).reshape(-1)
     if a.shape != (3,) or not np.all(np.isfinite(a)):
         raise ValueError(f"{what} must be 3 finite numbers [m], got {v!r}")
     return a
 
 
-def _collider_array(key: str) -> Any:
-    def get(model: Any, solver: Any, state0: Any, control: Any) -> Any:
+def _collider_array(key: str) -> Getter:
+    def get(model: Model, solver: object, state0: State, control: Control | None) -> Found:
         from .._warp import GradientError
 
         found = [c for c in getattr(solver, "collisions", ()) if callable(getattr(c, "apply_out", None))]
@@ -235,7 +239,7 @@ class Colliders:
         center: Sequence[float],
         half_extents: Sequence[float],
         *,
-        rotation: Any = None,
+        rotation: npt.ArrayLike | None = None,
         rounding: float = 0.0,
         friction: float = 0.5,
         restitution: float = 0.0,
@@ -290,7 +294,14 @@ class Colliders:
             raise ValueError("capsule endpoints coincide; use add_sphere")
         return self._add(CAPSULE, pa, pb, np.eye(3), radius, friction, restitution)
 
-    def add_mesh(self, vertices: Any, faces: Any, *, friction: float = 0.5, restitution: float = 0.0) -> int:
+    def add_mesh(
+        self,
+        vertices: npt.ArrayLike,
+        faces: npt.ArrayLike,
+        *,
+        friction: float = 0.5,
+        restitution: float = 0.0,
+    ) -> int:
         """A closed, outward-wound triangle mesh, queried through a BVH.
 
         Args:
@@ -312,7 +323,7 @@ class Colliders:
         )
 
     # ------------------------------------------------------------------ device data
-    def arrays(self, model: Any) -> dict:
+    def arrays(self, model: Model) -> dict:
         """Device arrays of the colliders in the model's device and dtype (built once, then cached)."""
         key = (str(model.device), model.dtype)
         if key in self._cache:
@@ -345,7 +356,7 @@ class Colliders:
         self._cache[key] = arr
         return arr
 
-    def geometry_inputs(self, model: Any) -> list:
+    def geometry_inputs(self, model: Model) -> list:
         """Kernel inputs (kind, pos, aux, rot, radius, mesh) for :func:`collider_sdf` loops."""
         a = self.arrays(model)
         return [a["kind"], a["pos"], a["aux"], a["rot"], a["radius"], a["mesh"]]
@@ -354,13 +365,15 @@ class Colliders:
         """None: the response is one launch over cached arrays (a frame of it can be replayed)."""
         return None
 
-    def apply(self, model: Any, state_in: Any, state_out: Any, dt: float) -> None:
+    def apply(self, model: Model, state_in: State, state_out: State, dt: float) -> None:
         """Velocity-level contact response on ``state_out`` (push out, restitution, Coulomb friction), in
         place: :meth:`apply_out` with ``state_out``'s arrays as input and output."""
         x, v = state_out.particle_q, state_out.particle_qd
         self.apply_out(model, x, v, x, v)
 
-    def apply_out(self, model: Any, x_in: wp.array, v_in: wp.array, x_out: wp.array, v_out: wp.array) -> None:
+    def apply_out(
+        self, model: Model, x_in: wp.array, v_in: wp.array, x_out: wp.array, v_out: wp.array
+    ) -> None:
         """The response, collider after collider: reads (x_in, v_in), writes (x_out, v_out).
 
         Outputs that are the inputs are updated in place, in one launch (the gradient-free step). Other
@@ -395,7 +408,7 @@ class Colliders:
             )
             x_in, v_in = xo, vo
 
-    def query(self, model: Any, x: wp.array) -> tuple[np.ndarray, np.ndarray]:
+    def query(self, model: Model, x: wp.array) -> tuple[np.ndarray, np.ndarray]:
         """Smallest signed distance φ [m] over the colliders and its normal, per point (host arrays)."""
         phi = wp.zeros(x.shape[0], dtype=model.scalar, device=model.device)
         n = wp.zeros(x.shape[0], dtype=model.vec3, device=model.device)

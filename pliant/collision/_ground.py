@@ -8,11 +8,14 @@ written after a recorded launch read it (:func:`respond_to_ground` takes the out
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import warp as wp
 
 from .._warp import grad_enabled, launch
+
+if TYPE_CHECKING:
+    from ..model import Model
 
 
 @wp.func
@@ -107,7 +110,7 @@ def ground_penalty_friction(
         v_out[i] = v
 
 
-def ground_coefficients(model: Any) -> wp.array:
+def ground_coefficients(model: Model) -> wp.array:
     """[friction μ, restitution e] of ``model.ground`` as the device array the ground kernels read, with
     ``requires_grad`` on a differentiable model (its ``.grad`` then holds ∂loss/∂μ, ∂loss/∂e)."""
     g = model.ground
@@ -118,7 +121,7 @@ def ground_coefficients(model: Any) -> wp.array:
 
 
 def respond_to_ground(
-    model: Any,
+    model: Model,
     coefficients: wp.array,
     dt: float,
     x_in: wp.array,
@@ -142,6 +145,8 @@ def respond_to_ground(
             response is then friction for the penalty's impulse instead of a projection.
     """
     m = model
+    if m.ground is None:
+        raise ValueError("the model has no ground plane: ModelBuilder.add_ground() first")
     common = [m.particle_inv_mass, m.particle_radius, m.s(m.ground.height), coefficients]
     if penalty is not None:
         kernel, args = ground_penalty_friction, [*common, m.s(penalty), m.s(dt)]

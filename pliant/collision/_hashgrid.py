@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable
+from typing import Any, Protocol
 
 import numpy as np
 import warp as wp
@@ -82,13 +83,20 @@ class ParticleGrid:
         self.grid = wp.HashGrid(dims, dims, dims, device=device, dtype=scalar)
 
     @property
-    def id(self) -> Any:
+    def id(self) -> int:
         """The grid handle for kernels (``wp.hash_grid_query``)."""
         return self.grid.id
 
     def build(self, points: wp.array) -> None:
         """Rebuild the grid over ``points`` (no host synchronisation)."""
         self.grid.build(points, self.cell_size)
+
+
+class StepRunner(Protocol):
+    """Runs a step's operations, e.g. recording them for replay (``pl.solvers.XPBD`` does)."""
+
+    def launch(self, kernel: wp.Kernel, dim: int, inputs: list) -> None: ...
+    def call(self, fn: Callable[..., object], *args: object) -> None: ...
 
 
 class TriangleBVH:
@@ -111,11 +119,11 @@ class TriangleBVH:
         self.mesh = wp.Mesh(points=self.points, indices=self.indices)
 
     @property
-    def id(self) -> Any:
+    def id(self) -> int:
         """The mesh handle for kernels (``wp.mesh_query_aabb``)."""
         return self.mesh.id
 
-    def update(self, points: wp.array, runner: Any = None) -> None:
+    def update(self, points: wp.array, runner: StepRunner | None = None) -> None:
         """Copy ``points`` (any precision) and refit the BVH (no host synchronisation).
 
         ``runner`` (optional) provides ``launch(kernel, dim, inputs)`` and ``call(fn, *args)``, e.g. a

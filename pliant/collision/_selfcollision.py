@@ -17,10 +17,13 @@ removes at most μ·Δv_n of the tangential relative velocity.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
+
+if TYPE_CHECKING:
+    from ..model import Model, State
 
 
 @wp.func
@@ -207,7 +210,7 @@ class SelfCollision:
 
     def __init__(
         self,
-        model: Any,
+        model: Model,
         *,
         thickness: float,
         friction: float = 0.0,
@@ -247,7 +250,7 @@ class SelfCollision:
         """Why self-collision is not replayed: its hash grid and BVH are rebuilt outside kernel launches."""
         return "it rebuilds a hash grid or refits a BVH each step"
 
-    def apply(self, model: Any, state_in: Any, state_out: Any, dt: float) -> None:
+    def apply(self, model: Model, state_in: State, state_out: State, dt: float) -> None:
         """Resolve contacts in ``state_out`` (positions and velocities), using ``state_in`` for the sides."""
         s = model.s
         for _ in range(self.iterations):

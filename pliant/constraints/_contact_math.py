@@ -12,7 +12,9 @@ import numpy as np
 import warp as wp
 
 if TYPE_CHECKING:
+    from ..collision import ParticleGrid
     from ..model import Model
+    from ._contact import PointTriangleCollision
 
 
 # ---------------------------------------------------------------------- ground
@@ -189,7 +191,7 @@ def evaluate_ground(model: Model, normal: np.ndarray, offset: float, x: wp.array
     return c.numpy(), np.arange(n, dtype=np.int32)[:, None], g.numpy()
 
 
-def evaluate_particle_pairs(model: Model, grid: Any, query_radius: float, x: wp.array) -> tuple:
+def evaluate_particle_pairs(model: Model, grid: ParticleGrid, query_radius: float, x: wp.array) -> tuple:
     """C [P], pairs [P, 2] and ∇C [P, 2, 3] of every particle pair closer than ``query_radius`` [m] at x.
 
     Args:
@@ -214,7 +216,7 @@ def evaluate_particle_pairs(model: Model, grid: Any, query_radius: float, x: wp.
     return c.numpy(), pairs.numpy(), g.numpy()
 
 
-def evaluate_point_triangle(model: Model, constraint: Any, x: wp.array) -> tuple:
+def evaluate_point_triangle(model: Model, constraint: PointTriangleCollision, x: wp.array) -> tuple:
     """C [K], indices [K, 4] (point, triangle) and ∇C [K, 4, 3] of the step's point–triangle contacts at x.
 
     Args:

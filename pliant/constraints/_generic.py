@@ -60,7 +60,7 @@ def _project_generic(
         wp.atomic_add(count_out, i, 1)
 
 
-def _make_eval(c_func: Any) -> Any:
+def _make_eval(c_func: Any) -> wp.Kernel:
     """A kernel evaluating ``c_func`` per constraint; its adjoint gives ∇C per constraint copy."""
 
     # A Warp kernel built by wp.kernel below, not by a decorator: its annotations are Warp's, not types.

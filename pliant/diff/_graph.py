@@ -30,14 +30,30 @@ from __future__ import annotations
 
 import logging
 import os
+import types
 import warnings
 import weakref
 from collections.abc import Callable, Hashable
-from typing import Any
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar, cast
 
 import warp as wp
 
 from ..sim._graph import fingerprint
+
+if TYPE_CHECKING:
+    from ..model import Control, State
+    from ..solvers import Solver
+
+
+class _DevicePass(Protocol):
+    """What a rollout's device pass returns for the host to read: at least the names of the Python callbacks
+    found on its tapes (:func:`tape_callbacks`)."""
+
+    callbacks: list[str]
+
+
+#: The rollout's own device-pass result type.
+R = TypeVar("R", bound=_DevicePass)
 
 _LOG = logging.getLogger("pliant")
 #: Graphs kept per solver (each holds one rollout's intermediate arrays).
@@ -58,7 +74,7 @@ def graphs_enabled(graph: bool | None) -> bool:
     return graph is not False and os.environ.get("PLIANT_GRAPH", "1") != "0"
 
 
-def tape_graph_blocker(solver: Any) -> str | None:
+def tape_graph_blocker(solver: Solver) -> str | None:
     """Why a taped rollout of ``solver`` cannot be replayed as a graph, or None when it can.
 
     A solver may answer itself through a ``tape_graph_blocker()`` method. Otherwise: an implicit integrator
@@ -79,7 +95,7 @@ def tape_graph_blocker(solver: Any) -> str | None:
     return collisions() if callable(collisions) else None
 
 
-def report_once(reason: str, device: Any) -> None:
+def report_once(reason: str, device: wp.DeviceLike) -> None:
     """Say once per process that rollouts run launch by launch, and why: a RuntimeWarning on CUDA (where a
     graph is the expected path), a log line on ``logging.getLogger("pliant")`` (INFO) on the CPU."""
     if reason in _REPORTED:
@@ -108,8 +124,8 @@ class _Entry:
 
     def __init__(self, callbacks: tuple) -> None:
         self.refs = tuple(None if f is None else _ref(f) for f in callbacks)
-        self.graph: Any = None
-        self.result: Any = None
+        self.graph: wp.Graph | None = None
+        self.result: object = None
         self.blocked: str | None = None
 
     def matches(self, callbacks: tuple) -> bool:
@@ -151,10 +167,10 @@ class RolloutGraphs:
         self,
         key: Hashable,
         callbacks: tuple,
-        device_pass: Callable[[], Any],
-        same: Callable[[Any, Any], bool],
-        device: Any,
-    ) -> Any:
+        device_pass: Callable[[], R],
+        same: Callable[[R, R], bool],
+        device: wp.DeviceLike,
+    ) -> R:
         """One rollout: replayed, captured (and checked), or direct. ``same(a, b)``: whether two passes'
         host results are identical."""
         self.last_replayed = False
@@ -194,22 +210,29 @@ class RolloutGraphs:
         wp.capture_launch(entry.graph)
         self.replays += 1
         self.last_replayed = True
-        return entry.result
+        return cast(R, entry.result)  # stored by this key's capture, from the same device_pass
 
-    def _direct(self, device_pass: Callable[[], Any]) -> Any:
+    def _direct(self, device_pass: Callable[[], R]) -> R:
         self.direct += 1
         return device_pass()
 
-    def _block(self, entry: _Entry, why: str, device: Any, device_pass: Callable | None, done: Any = None):
+    def _block(
+        self,
+        entry: _Entry,
+        why: str,
+        device: wp.DeviceLike,
+        device_pass: Callable[[], R] | None,
+        done: R | None = None,
+    ) -> R:
         entry.blocked = self.reason = why
         report_once(f"{self.name}: {why}", device)
-        return self._direct(device_pass) if device_pass is not None else done
+        return self._direct(device_pass) if device_pass is not None else cast(R, done)
 
 
-_GRAPHS: weakref.WeakKeyDictionary[Any, RolloutGraphs] = weakref.WeakKeyDictionary()
+_GRAPHS: weakref.WeakKeyDictionary[Solver, RolloutGraphs] = weakref.WeakKeyDictionary()
 
 
-def rollout_graphs(solver: Any) -> RolloutGraphs:
+def rollout_graphs(solver: Solver) -> RolloutGraphs:
     """The :class:`RolloutGraphs` of ``solver`` (made on first use, freed with the solver)."""
     g = _GRAPHS.get(solver)
     if g is None:
@@ -231,7 +254,7 @@ def callback_values(fn: Callable | None) -> tuple:
     return fingerprint(*cells, *used, depth=2)
 
 
-def _filled(cell: Any) -> bool:
+def _filled(cell: types.CellType) -> bool:
     try:
         cell.cell_contents  # noqa: B018 - an empty cell (a variable assigned later) raises
     except ValueError:
@@ -239,7 +262,9 @@ def _filled(cell: Any) -> bool:
     return True
 
 
-def rollout_key(solver: Any, control: Any, state0: Any, callbacks: tuple, args: tuple) -> Hashable:
+def rollout_key(
+    solver: Solver, control: Control | None, state0: State | None, callbacks: tuple, args: tuple
+) -> Hashable:
     """What a captured rollout bakes in besides the callbacks' identities: the solver's and control's
     scalars and array addresses (:func:`pliant.sim._graph.fingerprint`), what the callbacks read
     (:func:`callback_values`), the initial state's arrays and the arguments."""

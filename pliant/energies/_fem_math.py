@@ -51,7 +51,7 @@ mat99d = wp.types.matrix(shape=(9, 9), dtype=wp.float64)
 """9×9 float64 matrix type for ``dP/dF`` arrays."""
 
 
-def mat99_type(dtype: Any) -> type:
+def mat99_type(dtype: type) -> type:
     """The 9×9 matrix type (``mat99f`` or ``mat99d``) for a Warp scalar type.
 
     Args:

@@ -16,6 +16,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
+    from ..gaussians._appearance import AppearanceResult
+    from ..scene._gaussians import GaussiansSection
     from ._photometric import PhotometricProblem
     from ._problem import Problem
 
@@ -128,7 +130,7 @@ def before_physics(
     return report
 
 
-def _section(problem: PhotometricProblem, out: Path, res: Any) -> Any:
+def _section(problem: PhotometricProblem, out: Path, res: AppearanceResult) -> GaussiansSection | None:
     """The ``[gaussians]`` section that draws the fitted appearance (a PLY in ``out``), or None where a
     section cannot describe the splats (several objects: generated splats span the whole model)."""
     from ..gaussians import save_ply

@@ -26,7 +26,7 @@ import warp as wp
 from ..model import State
 from ._cmaes import StageResult
 from ._losses import acceleration_loss, chamfer_loss, track_loss
-from ._params import FitError, per_element_arrays, per_element_incidence
+from ._params import FitError, per_element_arrays, per_element_incidence, scene_constraints
 from ._problem import Problem
 
 if TYPE_CHECKING:
@@ -225,7 +225,7 @@ def _registry_name(scene: Scene, key: str) -> str:
     parts = key.split(".")
     if parts[0] == "model":
         return parts[1]
-    c = scene.solver.constraints[int(parts[1])]
+    c = scene_constraints(scene)[int(parts[1])]
     return next(
         p.name for p in type(c).parameters() if p.differentiable and p.arrays[0] == f"constraint.{parts[2]}"
     )

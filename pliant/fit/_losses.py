@@ -114,7 +114,7 @@ def _acceleration_kernel(
     wp.atomic_add(out, 0, weight * smooth_l1_vec(jerk, beta))
 
 
-def _scalar(out: wp.array) -> Any:
+def _scalar(out: wp.array) -> type:
     return wp.float64 if out.dtype == wp.float64 else wp.float32
 
 

@@ -19,7 +19,7 @@ if TYPE_CHECKING:
 MODELS = ("mass_spring", "fem", "pbd")
 
 
-def _spacing(o: Any) -> float:
+def _spacing(o: Any) -> float:  # any object kind: duck-typed on the fields its kind has
     """A typical element size [m] of object ``o`` (cell edge, segment length), for converting materials."""
     if getattr(o, "cells", None) is not None and getattr(o, "size", None) is not None:
         size = o.size if isinstance(o.size, (list, tuple)) else (o.size,) * 3
@@ -32,7 +32,7 @@ def _spacing(o: Any) -> float:
     return 0.05
 
 
-def candidate(cfg: SceneConfig, model: str) -> Any:
+def candidate(cfg: SceneConfig, model: str) -> SceneConfig:
     """A deep copy of scene ``cfg`` with every object given ``model``, its material converted where the
     candidate needs a value the scene does not give: a spring k = E·h from a Young's modulus, E = k / h from
     a spring constant (h the object's element size: a spring of a cubic lattice of spacing h carries about

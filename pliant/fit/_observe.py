@@ -83,12 +83,15 @@ def observe(
 def _controls(scene: Scene, frames: int) -> np.ndarray:
     """[frames, C, 3] positions [m] of the spring handles' control points at each frame time."""
     control = scene.model.control()
+    move = scene.control_fn
+    if move is None:  # spring handles always come with one (scene._build._make_control_fn)
+        raise ValueError("the scene has control points but no control_fn to move them")
     out = []
     for f in range(frames):
         # control_fn(t, control) places the points at the end of the frame that starts at t; (0, None): start.
-        scene.control_fn((f - 1) * scene.frame_dt if f else 0.0, control if f else None)
+        move((f - 1) * scene.frame_dt if f else 0.0, control if f else None)
         out.append(np.concatenate([cp.points.numpy() for cp in scene.control_points]))
-    scene.control_fn(0.0, None)
+    move(0.0, None)
     return np.stack(out).astype(float)
 
 

@@ -19,6 +19,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
+    from ..io import Observations
+    from ..model._parameters import Parameter
     from ..scene import Scene, SceneConfig
 
 
@@ -230,7 +232,14 @@ GLOBAL: dict[str, GlobalParam] = {
 }
 
 
-def _declares(c: Any, name: str) -> bool:
+def scene_constraints(scene: Scene) -> list[Any]:
+    """The constraint sets of the scene's solver (XPBD / PBD), indexed as in ``constraints.<i>.<array>``
+    keys; empty for the other solvers. Each is a :class:`~pliant.constraints.Constraint` of some kind;
+    callers read what their kind has (``indices``, the ``parameters()`` that ``@declares`` checked)."""
+    return list(getattr(scene.solver, "constraints", []))
+
+
+def _declares(c: object, name: str) -> bool:
     return any(p.name == name for p in getattr(type(c), "parameters", lambda: ())())
 
 
@@ -250,7 +259,7 @@ def registry_arrays(scene: Scene, names: tuple[str, ...]) -> dict[str, Any]:
                 out[f"model.{p.model_array}"] = a
         elif p.per == "constraint":
             attr = p.arrays[0].split(".", 1)[1]
-            for i, c in enumerate(getattr(scene.solver, "constraints", [])):
+            for i, c in enumerate(scene_constraints(scene)):
                 a = getattr(c, attr, None)
                 if a is not None and a.shape[0] and _declares(c, n):
                     out[f"constraints.{i}.{attr}"] = a
@@ -264,7 +273,7 @@ def _per_element(name: str, what: str) -> Callable[[Any], dict[str, Any]]:
             raise FitError(f"--per-element: this scene's model has no {what}")
         for key, a in out.items():
             if key.startswith("constraints.") and not np.all(a.numpy() > 0):
-                c = scene.solver.constraints[int(key.split(".")[1])]
+                c = scene_constraints(scene)[int(key.split(".")[1])]
                 raise FitError(
                     f"--per-element {name}: {type(c).__name__} constraints are rigid (α = 0), which a "
                     "log-scale factor cannot change; give the scene a compliance > 0"
@@ -319,7 +328,7 @@ PER_ELEMENT_OF = {"mass_spring": "stiffness", "fem": "E", "pbd": "compliance"}
 CONTACT = ("ground_friction", "ground_restitution")
 
 
-def ground_contact(cfg: SceneConfig, obs: Any) -> float | None:
+def ground_contact(cfg: SceneConfig, obs: Observations) -> float | None:
     """The lowest visible track height above the scene's ground [m] when the observations come within 5 % of
     their extent of it (they show contact), else None (no ground, no tracks, or motion well above it)."""
     g = getattr(cfg, "ground", None)
@@ -333,7 +342,7 @@ def ground_contact(cfg: SceneConfig, obs: Any) -> float | None:
     return gap if gap <= 0.05 * max(extent, 1e-9) else None
 
 
-def default_params(cfg: SceneConfig, obs: Any = None) -> list[str]:
+def default_params(cfg: SceneConfig, obs: Observations | None = None) -> list[str]:
     """The default parameters of the scene's models (:data:`WHY`: mass-spring k or E·t, damping rate,
     dashpot γ; FEM: E, ν, damping rate; XPBD: compliance, damping rate), plus the ground's friction and
     restitution when ``obs`` (Observations) reach the ground (:func:`ground_contact`)."""
@@ -354,7 +363,7 @@ def default_reasons(cfg: SceneConfig, obs: Any = None) -> dict[str, str]:
     return out
 
 
-def auto_per_element(cfg: SceneConfig, obs: Any) -> str | None:
+def auto_per_element(cfg: SceneConfig, obs: Observations) -> str | None:
     """``per_element="auto"``: the per-element parameter of the scene's first object's model
     (:data:`PER_ELEMENT_OF`), or None for image observations (per-element fits need tracks)."""
     if obs is not None and getattr(obs, "images", None) is not None:
@@ -446,7 +455,7 @@ def resolve_globals(cfg: SceneConfig, names: list[str]) -> list[Bound]:
     return out
 
 
-def apply_globals(cfg: SceneConfig, values: dict[str, float]) -> Any:
+def apply_globals(cfg: SceneConfig, values: dict[str, float]) -> SceneConfig:
     """A deep copy of the scene config with the global parameters set (``values``: name → value)."""
     cfg = cfg.model_copy(deep=True)
     for name, v in values.items():
@@ -462,7 +471,7 @@ def per_element_incidence(scene: Scene, name: str) -> np.ndarray:
     key = next(iter(per_element_arrays(scene, name)))
     parts = key.split(".")
     if parts[0] == "constraints":
-        c = scene.solver.constraints[int(parts[1])]
+        c = scene_constraints(scene)[int(parts[1])]
         return c.indices.numpy().reshape(c.count, -1)
     if parts[1].startswith("spring_"):
         return scene.model.spring_indices.numpy().reshape(-1, 2)
@@ -494,7 +503,7 @@ def _element_parameters() -> list[str]:
     return [n for n, (p, _) in registry().items() if _element_parameter(n) is not None]
 
 
-def _element_parameter(name: str) -> Any:
+def _element_parameter(name: str) -> Parameter | None:
     """The registry declaration of ``name`` when it can be a per-element fit parameter: differentiable, a
     positive magnitude (log-scale factors) held per spring, tet, bending element or constraint."""
     from ..diff import parameters as registry

@@ -37,10 +37,12 @@ from ..gaussians._surface import GENERATED_BACKGROUND
 from ..io import Observations
 from ._cmaes import StageResult
 from ._gradient import Convergence
-from ._params import GLOBAL, FitError
+from ._params import GLOBAL, FitError, GlobalParam
 from ._problem import Problem
 
 if TYPE_CHECKING:
+    from ..diff import RolloutResult
+    from ..gaussians import RenderOutput
     from ..scene import Scene, SceneConfig
     from ..scene._gaussians import GaussiansSection
 
@@ -144,7 +146,7 @@ class PhotometricProblem(Problem):
             self._targets[key] = (img, mk)
         return self._targets[key]
 
-    def render(self, q: wp.array, camera: int) -> Any:
+    def render(self, q: wp.array, camera: int) -> RenderOutput:
         """Colour, alpha and depth of the Gaussians bound to particle positions ``q`` seen by ``camera``."""
         return self.splats.render(q, self.cameras[camera])
 
@@ -244,7 +246,7 @@ class PhotometricProblem(Problem):
             yield np.concatenate([_label(top, labels), frame], axis=0)
 
     # ------------------------------------------------------------------ differentiable rollout
-    def rollout(self, scene: Scene, params: list[str] | tuple[str, ...] = ()) -> Any:
+    def rollout(self, scene: Scene, params: list[str] | tuple[str, ...] = ()) -> RolloutResult:
         """The training loss of ``scene`` (built with ``requires_grad``) simulated from its initial state by
         :func:`pliant.diff.rollout` (the one stepping loop), every substep and render on its tape; returns
         its :class:`pliant.diff.RolloutResult` (``loss`` equals :meth:`loss` of :meth:`simulate`'s
@@ -353,7 +355,7 @@ class _GlobalGradient:
         return {n: self.v0[n] * math.exp(float(t)) for n, t in zip(self.names, theta, strict=True)}
 
 
-def gradient_capable(param: Any) -> bool:
+def gradient_capable(param: GlobalParam) -> bool:
     """Whether the image-gradient stage can refine global parameter ``param`` (a ``GlobalParam``): a
     positive magnitude (log scale) that drives registry parameters (``drives``: stiffness, Et, damping,
     damping_rate, E, compliance); ν, the ground coefficients and the topology are CMA-ES's alone."""

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
@@ -20,7 +20,10 @@ from ._params import (
 )
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from ..model import Control, Model
+    from ..scene import SceneConfig
     from ..scene._build import Scene
     from ..sim import Simulator
 
@@ -99,7 +102,7 @@ class Problem:
 
     def __init__(
         self,
-        cfg: Any,
+        cfg: SceneConfig,
         obs: Observations,
         *,
         params: list[str] | None = None,
@@ -151,11 +154,11 @@ class Problem:
         """The scene's own values of the global parameters."""
         return {b.name: b.nominal for b in self.globals}
 
-    def config(self, values: dict[str, float]) -> Any:
+    def config(self, values: dict[str, float]) -> SceneConfig:
         """The scene config with global parameter ``values`` (name → value) set."""
         return apply_globals(self.cfg, values)
 
-    def build(self, values: dict[str, float], requires_grad: bool = False) -> Any:
+    def build(self, values: dict[str, float], requires_grad: bool = False) -> Scene:
         """Build the scene with global parameter ``values``."""
         from ..scene import build_scene
 
@@ -173,7 +176,7 @@ class Problem:
                 f'handles have {n}; give the scene one [[handles]] kind = "points" with as many points'
             )
 
-    def control_fn(self, scene: Scene) -> Any:
+    def control_fn(self, scene: Scene) -> Callable[[float, Control | None], None] | None:
         """f(t, control) for the Simulator: the observed control points when there are any, else the
         scene's."""
         if self.obs.controls is None:

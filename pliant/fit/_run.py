@@ -18,13 +18,16 @@ from ..io import Observations, atomic_savez
 from . import _explain
 from ._cmaes import StageResult, cmaes
 from ._gradient import gradient_stage
-from ._params import FitError, auto_per_element
+from ._params import FitError, auto_per_element, scene_constraints
 from ._photometric import PhotometricProblem, gradient_capable, problem_for, refinable, refine_globals
 from ._problem import Problem
 from ._toml import scene_toml
 
 if TYPE_CHECKING:
+    from tqdm.auto import tqdm
+
     from ..scene import Scene, SceneConfig
+    from ._params import Bound
 
 PARAMS_FILE = "fitted_params.npz"
 #: The per-element stage is kept only if it lowers the validation loss by at least this fraction. On
@@ -37,7 +40,7 @@ PER_ELEMENT_MARGIN = 0.1
 SIGMA_OPEN_LOOP = 1.0 / 12.0
 
 
-def _bar(progress: bool, total: int, desc: str) -> Any:
+def _bar(progress: bool, total: int, desc: str) -> tqdm | None:
     if not progress:
         return None
     from tqdm.auto import tqdm
@@ -45,7 +48,7 @@ def _bar(progress: bool, total: int, desc: str) -> Any:
     return tqdm(total=total, desc=desc, unit="it", leave=False, dynamic_ncols=True)
 
 
-def _tick(bar: Any) -> Callable[[int, float], None]:
+def _tick(bar: tqdm | None) -> Callable[[int, float], None]:
     def cb(it: int, loss: float) -> None:
         if bar is not None:
             bar.update(1)
@@ -66,14 +69,14 @@ def _stage_progress(progress: bool, total: int, desc: str) -> Iterator[Callable[
             bar.close()
 
 
-def fitted_scene(problem: Problem, values: dict[str, float], per_element: dict[str, np.ndarray]) -> Any:
+def fitted_scene(problem: Problem, values: dict[str, float], per_element: dict[str, np.ndarray]) -> Scene:
     """The scene built with fitted global values and per-element arrays."""
     scene = problem.build(values)
     for key, a in per_element.items():
         parts = key.split(".")
         target = getattr(scene.model, parts[1]) if parts[0] == "model" else None
         if parts[0] == "constraints":
-            target = getattr(scene.solver.constraints[int(parts[1])], parts[2])
+            target = getattr(scene_constraints(scene)[int(parts[1])], parts[2])
         if target is None:
             raise FitError(f"per-element array {key!r}: expected model.<array> or constraints.<i>.<array>")
         target.assign(a)
@@ -259,7 +262,7 @@ def fit(
     return report
 
 
-def stages_of(problem: Problem, b: Any) -> list[str]:
+def stages_of(problem: Problem, b: Bound) -> list[str]:
     """The stages that fit global parameter ``b`` (a Bound): CMA-ES always; from images also the
     image-gradient stage when it can differentiate it (:func:`pliant.fit._photometric.gradient_capable`)."""
     out = ["cmaes"]
@@ -284,7 +287,7 @@ def search_plan(problem: Problem) -> list[str]:
     return lines
 
 
-def _json_default(v: Any) -> Any:
+def _json_default(v: object) -> object:
     if isinstance(v, (np.floating, np.integer)):
         return v.item()
     if isinstance(v, np.ndarray):
@@ -315,7 +318,8 @@ def write_outputs(
     elif cfg.scene.parameters is not None:
         cfg.scene.parameters = str((Path(cfg.base_dir) / cfg.scene.parameters).resolve())
     if isinstance(problem, PhotometricProblem) and problem.appearance_section is not None:  # its splats
-        cfg.gaussians = problem.appearance_section
+        # a registered section (scene._registry.register_section): a field of the rebuilt model only
+        cfg = cfg.model_copy(update={"gaussians": problem.appearance_section})
     scene_toml(cfg, out / "fitted.toml", comment=f"Fitted by `pliant fit` from {problem.cfg.source}")
     x_nom = problem.simulate(problem.build({}), problem.frames)  # the scene as given
     scene = fitted_scene(problem, values, per_element)

@@ -11,7 +11,7 @@ if TYPE_CHECKING:
     from ..scene import SceneConfig
 
 
-def _value(v: Any) -> str:
+def _value(v: object) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, int):
@@ -33,11 +33,11 @@ def _key(k: str) -> str:
     return k if k.replace("_", "").replace("-", "").isalnum() else json.dumps(k)
 
 
-def _is_table(v: Any) -> bool:
+def _is_table(v: object) -> bool:
     return isinstance(v, dict)
 
 
-def _is_table_array(v: Any) -> bool:
+def _is_table_array(v: object) -> bool:
     return isinstance(v, list) and bool(v) and all(isinstance(a, dict) for a in v)
 
 

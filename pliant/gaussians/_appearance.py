@@ -18,7 +18,7 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
@@ -28,6 +28,9 @@ from ._camera import Camera
 from ._gaussians import SH_C0, Gaussians, vec4_type
 from ._optim import Adam, image_to_warp, photometric_loss, psnr
 from ._render import render
+
+if TYPE_CHECKING:
+    from ._scene import SceneSplats
 
 #: Learning rates of the appearance stage's Adam (per parameter; sh in SH units: colour = 0.28 · sh).
 APPEARANCE_LRS = {
@@ -94,7 +97,7 @@ def sample_colours(means: np.ndarray, cameras: Sequence[Camera], images: Sequenc
 
 
 def fit_splat_appearance(
-    splats: Any,
+    splats: SceneSplats,
     cameras: Sequence[Camera],
     positions: Sequence[np.ndarray],
     images: Sequence[Sequence[np.ndarray]],
@@ -156,7 +159,9 @@ def fit_splat_appearance(
             mk = None if raw is None else image_to_warp(raw, cam, dtype, dev, f"frame {f} camera {c} mask")
             views.append((f, cam, img, mk))
 
-    def psnrs(gs: list[Gaussians], bg: Any, light: Any) -> list[float]:
+    def psnrs(
+        gs: list[Gaussians], bg: tuple[float, float, float], light: Sequence[float] | None
+    ) -> list[float]:
         return [psnr(render(gs[f], cam, bg, light=light).colour, img) for f, cam, img, _ in views]
 
     before = psnrs(placed, splats.background, getattr(splats, "light", None))

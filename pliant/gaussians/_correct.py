@@ -21,7 +21,7 @@ full-size steps along directions with negligible gradient (docs/gaussians.md, "V
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
@@ -32,6 +32,10 @@ from ._camera import Camera
 from ._fit import _accumulate, _views
 from ._optim import Adam, photometric_loss
 from ._render import render
+
+if TYPE_CHECKING:
+    from ..model import Control
+    from ..sim import Simulator
 
 _METHODS = ("state", "forces")
 
@@ -225,7 +229,7 @@ class VisualCorrector:
         return best[1]
 
     # ------------------------------------------------------------------ the per-frame entry point
-    def correct(self, sim: Any, images: Sequence[Any]) -> wp.array:
+    def correct(self, sim: Simulator, images: Sequence[Any]) -> wp.array:
         """Correct ``sim`` (a :class:`pliant.Simulator`) toward ``images`` (one per camera, taken now).
 
         ``"state"`` changes ``sim.state_0`` in place and sets its residual force in
@@ -298,7 +302,7 @@ class VisualCorrector:
         )
         return f
 
-    def apply(self, particle_q: wp.array, control: Any, images: Sequence[Any]) -> wp.array:
+    def apply(self, particle_q: wp.array, control: Control, images: Sequence[Any]) -> wp.array:
         """Add EG's visual forces to ``control.particle_f`` (a :class:`pliant.Control`); returns them."""
         f = self.forces(particle_q, images)
         cur = control.particle_f

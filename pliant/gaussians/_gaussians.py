@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
 from .._warp import DTYPES, mat33_type, np_dtype, resolve_device, scalar_type, vec3_type
@@ -13,12 +12,12 @@ from .._warp import DTYPES, mat33_type, np_dtype, resolve_device, scalar_type, v
 SH_C0 = 0.28209479177387814
 
 
-def vec4_type(dtype: str) -> Any:
+def vec4_type(dtype: str) -> type:
     """Warp 4-vector type for ``dtype`` (quaternions)."""
     return wp.vec4 if scalar_type(dtype) is wp.float32 else wp.vec4d
 
 
-def vec2_type(dtype: str) -> Any:
+def vec2_type(dtype: str) -> type:
     """Warp 2-vector type for ``dtype`` (image points)."""
     return wp.vec2 if scalar_type(dtype) is wp.float32 else wp.vec2d
 
@@ -56,16 +55,16 @@ class Gaussians:
 
     def __init__(
         self,
-        means: Any,
-        quats: Any,
-        log_scales: Any,
-        opacity_logits: Any,
-        sh: Any,
+        means: wp.array | npt.ArrayLike,
+        quats: wp.array | npt.ArrayLike,
+        log_scales: wp.array | npt.ArrayLike,
+        opacity_logits: wp.array | npt.ArrayLike,
+        sh: wp.array | npt.ArrayLike,
         *,
         dtype: str = "float32",
         device: str | None = None,
         requires_grad: bool = False,
-        transforms: Any = None,
+        transforms: wp.array | npt.ArrayLike | None = None,
     ) -> None:
         if dtype not in DTYPES:
             raise ValueError(f"dtype must be one of {DTYPES}, got {dtype!r}")
@@ -111,7 +110,15 @@ class Gaussians:
                 _finite(a, "transforms")
                 self.transforms = wp.array(a, dtype=m33, device=self.device, requires_grad=requires_grad)
 
-    def _array(self, a: Any, wtype: Any, width: int, name: str, requires_grad: bool, n: int | None = None):
+    def _array(
+        self,
+        a: wp.array | npt.ArrayLike,
+        wtype: type,
+        width: int,
+        name: str,
+        requires_grad: bool,
+        n: int | None = None,
+    ) -> wp.array:
         if isinstance(a, wp.array):
             if a.dtype != wtype or a.ndim != 1:
                 raise ValueError(

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
 from .._warp import scalar_type, vec3_type
@@ -80,7 +81,9 @@ def photometric_loss(
     return float(loss.numpy()[0]), adj_c, adj_a
 
 
-def image_to_warp(image: Any, camera: Camera, dtype: str, device: str, name: str = "image") -> wp.array:
+def image_to_warp(
+    image: np.ndarray, camera: Camera, dtype: str, device: str, name: str = "image"
+) -> wp.array:
     """Validate an observed image [H, W, 3] (or a mask [H, W]) for ``camera`` and copy it to the device."""
     a = camera.check_image(image, name)
     if a.ndim == 3:
@@ -88,7 +91,7 @@ def image_to_warp(image: Any, camera: Camera, dtype: str, device: str, name: str
     return wp.array(a, dtype=scalar_type(dtype), device=device)
 
 
-def psnr(rendered: Any, target: Any) -> float:
+def psnr(rendered: wp.array | npt.ArrayLike, target: wp.array | npt.ArrayLike) -> float:
     """Peak signal-to-noise ratio [dB] of two images in [0, 1]: −10 log₁₀ MSE."""
     a = np.asarray(rendered.numpy() if hasattr(rendered, "numpy") else rendered, dtype=np.float64)
     b = np.asarray(target.numpy() if hasattr(target, "numpy") else target, dtype=np.float64)

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 import warp as wp
@@ -51,7 +52,7 @@ class _Frame:
     C: wp.array
     D: wp.array
     last: wp.array
-    background: Any  # a vec3 of the render's dtype
+    background: wp.vec3 | wp.vec3d  # of the render's dtype
     tiles_x: int
 
 
@@ -62,7 +63,7 @@ def render(
     *,
     near: float = 0.01,
     eps2d: float = 0.3,
-    light: Any = None,
+    light: wp.array | Sequence[float] | None = None,
 ) -> RenderOutput:
     """Rasterise ``gaussians`` seen by ``camera`` (3D Gaussian splatting, tiles of 16×16 pixels).
 
@@ -179,7 +180,7 @@ def render(
         device=dev,
         record_tape=False,
     )
-    if grad:
+    if grad and tape is not None:  # grad implies a tape; the second test tells mypy so
 
         def backward() -> None:
             wp.launch(
@@ -227,7 +228,7 @@ def render(
     return RenderOutput(out_colour, out_alpha, out_depth)
 
 
-def _light_array(light: Any, v4: Any, dev: str) -> wp.array:
+def _light_array(light: wp.array | Sequence[float] | None, v4: type, dev: str) -> wp.array:
     """The shading parameters as a Warp array of two vec4 (see :func:`render`); zeros when unlit."""
     if light is None:
         return wp.zeros(2, dtype=v4, device=dev)

@@ -6,7 +6,7 @@ fit all call it or :func:`scene_splats`)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
@@ -52,7 +52,7 @@ class SceneSplats:
     background: tuple[float, float, float]
     light: tuple[float, ...] | None = None
 
-    def place(self, x: Any) -> Gaussians:
+    def place(self, x: wp.array | np.ndarray) -> Gaussians:
         """The splats for model positions ``x`` [m] (NumPy [N, 3] of the whole model, or a Warp array)."""
         b = self.binding
         if isinstance(x, wp.array):
@@ -69,12 +69,12 @@ class SceneSplats:
             )
         return b.deform(q)
 
-    def render(self, x: Any, camera: Camera) -> RenderOutput:
+    def render(self, x: wp.array | np.ndarray, camera: Camera) -> RenderOutput:
         """Colour, alpha and depth of the splats at model positions ``x`` seen by ``camera`` (differentiable
         w.r.t. a Warp ``x`` under ``wp.Tape``)."""
         return render(self.place(x), camera, self.background, light=self.light)
 
-    def image(self, x: Any, camera: Camera) -> np.ndarray:
+    def image(self, x: wp.array | np.ndarray, camera: Camera) -> np.ndarray:
         """RGB image [H, W, 3] in [0, 1] of the object at model positions ``x`` seen by ``camera``."""
         return self.render(x, camera).colour.numpy()
 
@@ -91,7 +91,7 @@ def _object_range(cfg: SceneConfig, model: Model, index: int) -> tuple[int, int]
     return int(rec["start"]), int(rec["start"] + rec["count"])
 
 
-def _generate(spec: Any, X: np.ndarray, faces: np.ndarray, dtype: str, device: str) -> Gaussians:
+def _generate(spec: GaussiansSection, X: np.ndarray, faces: np.ndarray, dtype: str, device: str) -> Gaussians:
     """One flat splat per surface triangle (or one round splat per particle when there is no surface),
     coloured ``color`` or in a checker of ``color`` / ``color2``."""
     if len(faces):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import abc
 from dataclasses import dataclass
-from typing import Any, ClassVar, Protocol
+from typing import TYPE_CHECKING, ClassVar, Protocol
 
 import numpy as np
 import warp as wp
@@ -12,6 +12,10 @@ from numpy.typing import ArrayLike
 
 from .._warp import fresh, grad_enabled
 from ._problems import ODEProblem, SecondOrderODE
+
+if TYPE_CHECKING:
+    from ..model import Model
+    from ._implicit import ImplicitOptions
 
 
 class System(Protocol):
@@ -21,7 +25,7 @@ class System(Protocol):
     meshes. Implicit integrators additionally call ``minimize`` (Newton on the incremental potential).
     """
 
-    model: Any
+    model: Model
 
     def acceleration(self, t: float, x: wp.array, v: wp.array, out: wp.array) -> None:
         """Write a = M⁻¹F(t, x, v) [m/s²] into ``out`` (zero for pinned particles)."""
@@ -37,8 +41,8 @@ class System(Protocol):
         x_ref: wp.array,
         v_ref: wp.array,
         x_out: wp.array,
-        options: Any = None,
-    ) -> Any:
+        options: ImplicitOptions | None = None,
+    ) -> object:
         """x_out = argmin ½‖x − x̃‖²_M + h² E(x) (+ dissipation about x_ref); returns solver statistics."""
 
 

@@ -18,8 +18,9 @@ from __future__ import annotations
 import functools
 import inspect
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, fields
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Union
 
 import numpy as np
 import warp as wp
@@ -30,10 +31,13 @@ from ._explicit import scale_velocity
 from ._ops import lincomb
 from ._problems import ODEProblem, SecondOrderODE
 
+if TYPE_CHECKING:
+    from ..model import Model
+
 
 def newton_ode(
-    residual_fn: Any,
-    jacobian_fn: Any,
+    residual_fn: Callable[[np.ndarray], np.ndarray],
+    jacobian_fn: Callable[[np.ndarray], np.ndarray],
     y0: np.ndarray,
     *,
     tol: float = 1e-14,
@@ -159,7 +163,7 @@ class ImplicitOptions:
         return cls(**options)
 
     @classmethod
-    def coerce(cls, options: Any) -> ImplicitOptions:
+    def coerce(cls, options: ImplicitOptionsLike) -> ImplicitOptions:
         """``options`` as ImplicitOptions: None (the defaults), an ImplicitOptions, a dict of some settings,
         or an object with ``options`` (an implicit integrator)."""
         if options is None:
@@ -175,6 +179,10 @@ class ImplicitOptions:
 
 
 _DEFAULT_OPTIONS = ImplicitOptions()
+
+#: What :meth:`ImplicitOptions.coerce` accepts: None (the defaults), the options, a dict of some settings,
+#: or an implicit integrator (which holds its options).
+ImplicitOptionsLike = Union[ImplicitOptions, "_ImplicitOptions", dict[str, Any], None]
 _OPTION_NAMES = frozenset(f.name for f in fields(ImplicitOptions))
 
 
@@ -197,19 +205,19 @@ class _ImplicitOptions:
             return getattr(self.__dict__["options"], name)
         raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
-    def _minimize(self, system: System, t, h, x_tilde, x_ref, v_ref, x_out) -> Any:
+    def _minimize(self, system: System, t, h, x_tilde, x_ref, v_ref, x_out) -> object:
         if _accepts_options(system.minimize):
             return system.minimize(t, h, x_tilde, x_ref, v_ref, x_out, options=self.options)
         return system.minimize(t, h, x_tilde, x_ref, v_ref, x_out)
 
 
-def _accepts_options(fn: Any) -> bool:
+def _accepts_options(fn: Callable[..., object]) -> bool:
     """Whether a System's ``minimize`` takes ``options`` (the protocol's original form does not)."""
     return _takes_options(getattr(fn, "__func__", fn))
 
 
 @functools.lru_cache(maxsize=64)
-def _takes_options(fn: Any) -> bool:
+def _takes_options(fn: Callable[..., object]) -> bool:
     try:
         params = inspect.signature(fn).parameters
     except (TypeError, ValueError):
@@ -217,7 +225,7 @@ def _takes_options(fn: Any) -> bool:
     return "options" in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
 
 
-def recording_gradients(model: Any) -> bool:
+def recording_gradients(model: object) -> bool:
     """Whether a ``wp.Tape`` records while the model was finalised with ``requires_grad=True``: the implicit
     steps then use fresh arrays per step (the tape keeps every step's values) and no in-place updates."""
     return bool(getattr(model, "requires_grad", False)) and _tape_active()
@@ -283,7 +291,7 @@ def _velocity_kernel(
     v_out[i] = (x1[i] - x0[i]) * inv_h
 
 
-def _velocity_from_positions(model: Any, x1: wp.array, x0: wp.array, inv_h: float, v_out: wp.array) -> None:
+def _velocity_from_positions(model: Model, x1: wp.array, x0: wp.array, inv_h: float, v_out: wp.array) -> None:
     """v_out = (x1 − x0)/h."""
     launch(_velocity_kernel, model.particle_count, [x1, x0, model.s(inv_h), v_out], device=model.device)
 
@@ -352,7 +360,8 @@ class BDF2(_ImplicitOptions, Integrator):
     def reset(self) -> None:
         """Forget the previous step (the next step is backward Euler)."""
         self._ode_prev: tuple[np.ndarray, float, np.ndarray] | None = None  # (y₋₁, h₋₁, y₀ it produced)
-        self._sys_key: Any = None  # (model id, dt, x_out pointer) of the last physical step
+        # (model id, dt, x_out pointer) of the last physical step; after a restore, a key for its dt only
+        self._sys_key: tuple[int, float, int] | _ResumedKey | None = None
         self._grad_prev: tuple[wp.array, wp.array] | None = None  # (x₋₁, v₋₁) of a recorded step
 
     def step_ode(
@@ -425,10 +434,12 @@ class BDF2(_ImplicitOptions, Integrator):
         if self._sys_key is None or getattr(self, "_ws", None) is None:
             return {}
         _, _, x_prev, v_prev = self._ws[1]
+        key = self._sys_key
+        dt_prev = key.dt if isinstance(key, _ResumedKey) else key[1]  # restored and not stepped since
         return {
             "bdf2_x_prev": x_prev.numpy().copy(),
             "bdf2_v_prev": v_prev.numpy().copy(),
-            "bdf2_dt": np.array(float(self._sys_key[1])),
+            "bdf2_dt": np.array(float(dt_prev)),
         }
 
     def restore_checkpoint_state(self, state: dict[str, np.ndarray], system: System) -> None:

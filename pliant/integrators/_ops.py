@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import warp as wp
 
 from .._warp import fresh, grad_enabled, launch
+
+if TYPE_CHECKING:
+    from ..model import Model
 
 
 @wp.kernel
@@ -26,7 +29,7 @@ def _lincomb4(
     out[i] = base[i] + c0 * a0[i] + c1 * a1[i] + c2 * a2[i] + c3 * a3[i]
 
 
-def lincomb(model: Any, out: wp.array, base: wp.array, terms: list[tuple[float, wp.array]]) -> None:
+def lincomb(model: Model, out: wp.array, base: wp.array, terms: list[tuple[float, wp.array]]) -> None:
     """out = base + Σ c_k a_k (chunks of four terms per launch; ``out`` may alias ``base``).
 
     When the model requires gradients, ``out`` must not alias ``base`` or a term (a tape cannot replay an

@@ -85,6 +85,13 @@ class Trajectory:
         return int(self.x.shape[0])
 
     @property
+    def frame_dt(self) -> float | None:
+        """The frame duration [s] recorded in ``meta``: its ``frame_dt``, or ``dt`` in files written before
+        that key (where ``dt`` named the frame, not a solver step); None when neither is there."""
+        value = self.meta.get("frame_dt", self.meta.get("dt"))
+        return None if value is None else float(value)
+
+    @property
     def world_count(self) -> int:
         """Number of worlds recorded together (1 unless the model was replicated)."""
         return int(self.meta.get("worlds", {}).get("count", 1))

@@ -6,6 +6,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
 from .._warp import init, mat33_type, np_dtype, resolve_device, scalar_type, vec3_type
@@ -64,11 +65,11 @@ class ModelBuilder(ShapesMixin):
 
     def add_particles(
         self,
-        positions: Any,
-        mass: Any,
+        positions: npt.ArrayLike,
+        mass: npt.ArrayLike,
         *,
-        velocities: Any = None,
-        radius: Any = 0.01,
+        velocities: npt.ArrayLike | None = None,
+        radius: npt.ArrayLike = 0.01,
         name: str = "particles",
     ) -> int:
         """Add particles; returns the index of the first one.
@@ -119,7 +120,7 @@ class ModelBuilder(ShapesMixin):
                 f"[0, {self._count}); add the particles first or fix the indices ({bad.size} bad {what}s)"
             )
 
-    def pin(self, indices: Any) -> None:
+    def pin(self, indices: npt.ArrayLike) -> None:
         """Fix particles in place (infinite mass: inverse mass 0).
 
         Args:
@@ -129,7 +130,7 @@ class ModelBuilder(ShapesMixin):
         self._check_range(idx.reshape(-1, 1), "pin")
         self._pinned.update(int(i) for i in idx)
 
-    def add_kinematic(self, indices: Any) -> None:
+    def add_kinematic(self, indices: npt.ArrayLike) -> None:
         """Mark particles as kinematic: their positions follow ``Control.kinematic_targets``.
 
         Args:
@@ -141,7 +142,12 @@ class ModelBuilder(ShapesMixin):
 
     # ------------------------------------------------------------------ elements
     def add_springs(
-        self, indices: Any, *, stiffness: Any, damping: Any = 0.0, rest_length: Any = None
+        self,
+        indices: npt.ArrayLike,
+        *,
+        stiffness: npt.ArrayLike,
+        damping: npt.ArrayLike = 0.0,
+        rest_length: npt.ArrayLike | None = None,
     ) -> None:
         """Add springs between particle pairs.
 
@@ -176,7 +182,7 @@ class ModelBuilder(ShapesMixin):
             raise ValueError("spring stiffness [N/m] and damping [N s/m] must be >= 0")
         self._springs.append((idx, rest, k, g))
 
-    def add_triangles(self, indices: Any, *, render: bool = True) -> None:
+    def add_triangles(self, indices: npt.ArrayLike, *, render: bool = True) -> None:
         """Add surface triangles (used for rendering, bending, collisions); rejects degenerate ones.
 
         Args:
@@ -199,7 +205,14 @@ class ModelBuilder(ShapesMixin):
         if render:
             self._render_faces.append(idx)
 
-    def add_tetrahedra(self, indices: Any, *, E: Any, nu: Any, fix_orientation: bool = False) -> None:
+    def add_tetrahedra(
+        self,
+        indices: npt.ArrayLike,
+        *,
+        E: npt.ArrayLike,
+        nu: npt.ArrayLike,
+        fix_orientation: bool = False,
+    ) -> None:
         """Add linear tetrahedral elements with Young's modulus ``E`` [Pa] and Poisson ratio ``nu``.
 
         Inverted (negative-volume) tets raise unless ``fix_orientation``; degenerate ones always raise.
@@ -248,7 +261,13 @@ class ModelBuilder(ShapesMixin):
             idx[inverted, 2], idx[inverted, 3] = idx[inverted, 3], idx[inverted, 2].copy()
         return idx
 
-    def add_quadratic_tetrahedra(self, indices: Any, *, E: Any, nu: Any) -> None:
+    def add_quadratic_tetrahedra(
+        self,
+        indices: npt.ArrayLike,
+        *,
+        E: npt.ArrayLike,
+        nu: npt.ArrayLike,
+    ) -> None:
         """Add quadratic (10-node, P2) tetrahedra with Young's modulus ``E`` [Pa] and Poisson ratio ``nu``.
 
         Node order: corners 0–3, then the mid-edge nodes of (0,1), (1,2), (0,2), (0,3), (1,3), (2,3) (VTK
@@ -284,7 +303,7 @@ class ModelBuilder(ShapesMixin):
         mu, lam = lame_parameters(E_arr, nu_arr)
         self._tets10.append((idx, np.broadcast_to(mu, (n,)).copy(), np.broadcast_to(lam, (n,)).copy()))
 
-    def add_bending(self, indices: Any, *, stiffness: Any) -> None:
+    def add_bending(self, indices: npt.ArrayLike, *, stiffness: npt.ArrayLike) -> None:
         """Add dihedral bending elements: shared edge (0, 1), opposite vertices (2, 3).
 
         Args:
@@ -409,7 +428,7 @@ class ModelBuilder(ShapesMixin):
         else:
             b_idx, b_k, b_rest = np.zeros((0, 4), np.int32), np.zeros(0), np.zeros(0)
 
-        def arr(a: np.ndarray, wp_type: Any, rg: bool = False) -> wp.array:
+        def arr(a: np.ndarray, wp_type: type, rg: bool = False) -> wp.array:
             return wp.array(a, dtype=wp_type, device=device, requires_grad=rg)
 
         def ints(a: np.ndarray, width: int) -> wp.array:

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
+import numpy.typing as npt
 
 
-def _as_index_array(indices: Any, width: int, what: str) -> np.ndarray:
+def _as_index_array(indices: npt.ArrayLike, width: int, what: str) -> np.ndarray:
     arr = np.asarray(indices)
     if arr.size == 0:
         return np.zeros((0, width), np.int32)
@@ -19,7 +18,7 @@ def _as_index_array(indices: Any, width: int, what: str) -> np.ndarray:
     return arr.astype(np.int32)
 
 
-def _per_item(value: Any, n: int, what: str, unit: str) -> np.ndarray:
+def _per_item(value: npt.ArrayLike, n: int, what: str, unit: str) -> np.ndarray:
     arr = np.asarray(value, dtype=np.float64).reshape(-1)
     if np.ndim(value) == 0:
         arr = np.full(n, arr[0])

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
 from .._warp import mat33_type, np_dtype, scalar_type, vec3_type
@@ -266,21 +267,21 @@ class Model:
     tet10_subtets: wp.array | None = field(default=None, repr=False)
 
     @property
-    def scalar(self) -> Any:
+    def scalar(self) -> type:
         """Warp scalar type (wp.float32 or wp.float64)."""
         return scalar_type(self.dtype)
 
     @property
-    def vec3(self) -> Any:
+    def vec3(self) -> type:
         """Warp vec3 type matching ``dtype``."""
         return vec3_type(self.dtype)
 
     @property
-    def mat33(self) -> Any:
+    def mat33(self) -> type:
         """Warp mat33 type matching ``dtype``."""
         return mat33_type(self.dtype)
 
-    def s(self, value: float) -> Any:
+    def s(self, value: float) -> wp.float32 | wp.float64:
         """``value`` as this model's Warp scalar, for kernel launches."""
         return self.scalar(value)
 
@@ -296,7 +297,7 @@ class Model:
         return Control(self)
 
     @property
-    def gravity_vec(self) -> Any:
+    def gravity_vec(self) -> wp.vec3 | wp.vec3d:
         """Gravity [m/s²] as this model's vec3."""
         return self.vec3(*self.gravity)
 
@@ -313,7 +314,7 @@ class Model:
         per = int(self.world_offsets["particle"][1])
         return (np.arange(self.particle_count) // per).astype(np.int32)
 
-    def set_world_parameter(self, name: str, w: int, value: Any) -> None:
+    def set_world_parameter(self, name: str, w: int, value: npt.ArrayLike) -> None:
         """Set world ``w``'s per-element parameter ``name``: ``spring_stiffness`` [N/m], ``spring_damping``
         [N s/m], ``spring_rest_length`` [m], ``bending_stiffness`` [N m/rad], ``tet_mu`` / ``tet_lam``
         [Pa] or ``particle_mass`` [kg] (the inverse masses follow; fixed particles stay fixed).
@@ -327,11 +328,11 @@ class Model:
         """
         set_world_parameter(self, name, w, value)
 
-    def set_world_material(self, w: int, E: Any, nu: Any) -> None:
+    def set_world_material(self, w: int, E: npt.ArrayLike, nu: npt.ArrayLike) -> None:
         """Young's modulus ``E`` [Pa] and Poisson ratio ``nu`` [-] of world ``w``'s tets (via Lamé)."""
         set_world_material(self, w, E, nu)
 
-    def set_world_state(self, w: int, x: Any = None, v: Any = None) -> None:
+    def set_world_state(self, w: int, x: npt.ArrayLike | None = None, v: npt.ArrayLike | None = None) -> None:
         """Replace world ``w``'s initial positions ``x`` [m] and/or velocities ``v`` [m/s], [P, 3] each
         (what :meth:`state` and :meth:`reset_world` start from)."""
         set_world_state(self, w, x, v)

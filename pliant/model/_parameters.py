@@ -20,7 +20,12 @@ from __future__ import annotations
 import keyword
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import TYPE_CHECKING, Any, Union
+
+if TYPE_CHECKING:
+    import warp as wp
+
+    from ._model import Control, Model, State
 
 #: Element kinds a parameter may be given per (``global``: one value, or one vector, for the whole model).
 PER = ("particle", "spring", "tri", "tet", "bending", "constraint", "collider", "global")
@@ -43,7 +48,11 @@ class ParameterError(ValueError):
     """A parameter declaration that is inconsistent (unknown array, bad bounds, two owners disagreeing)."""
 
 
-Getter = Callable[[Any, Any, Any, Any], Any]
+#: What a getter finds: the Warp array, or (array, component) for one component of a shared array.
+Found = Union["wp.array", tuple["wp.array", int]]
+#: ``get(model, solver, state0, control)``: the solver is any solver class (read by attribute name: this
+#: layer sits below pliant.solvers), the control None when the caller passes none.
+Getter = Callable[["Model", object, "State", Union["Control", None]], Found]
 
 
 @dataclass(frozen=True)
@@ -100,7 +109,7 @@ def solver_array(attr: str, what: str, component: int | None = None) -> Getter:
     """A getter for ``solver.<attr>`` (component ``component`` of it when given); GradientError naming
     ``what`` (the set-ups that have it) when the solver has none."""
 
-    def get(model: Any, solver: Any, state0: Any, control: Any) -> Any:
+    def get(model: Model, solver: object, state0: State, control: Control | None) -> Found:
         from .._warp import GradientError
 
         a = getattr(solver, attr, None)
@@ -114,7 +123,7 @@ def solver_array(attr: str, what: str, component: int | None = None) -> Getter:
 def control_array(attr: str) -> Getter:
     """A getter for ``control.<attr>`` (GradientError when no Control is passed)."""
 
-    def get(model: Any, solver: Any, state0: Any, control: Any) -> Any:
+    def get(model: Model, solver: object, state0: State, control: Control | None) -> Found:
         from .._warp import GradientError
 
         if control is None:
@@ -128,7 +137,7 @@ def constraint_array(name: str, attr: str = "compliance_array") -> Getter:
     """A getter for ``<attr>`` of the solver's one constraint set whose class declares parameter ``name``
     (GradientError when there is none or several)."""
 
-    def get(model: Any, solver: Any, state0: Any, control: Any) -> Any:
+    def get(model: Model, solver: object, state0: State, control: Control | None) -> Found:
         from .._warp import GradientError
 
         sets = [

@@ -11,6 +11,7 @@ from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from ._checks import _as_index_array
 
@@ -226,8 +227,8 @@ class ShapesMixin:
 
     def add_tet_mesh(
         self,
-        points: Any,
-        tets: Any,
+        points: npt.ArrayLike,
+        tets: npt.ArrayLike,
         *,
         density: float = 1000.0,
         stiffness: float | None = None,
@@ -321,7 +322,7 @@ class ShapesMixin:
 
     def add_point_cloud(
         self,
-        points: Any,
+        points: npt.ArrayLike,
         *,
         mass: float,
         stiffness: float,

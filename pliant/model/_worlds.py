@@ -16,32 +16,36 @@ unchanged. The price is that solver-level settings (damping rate, time step, gro
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
+import numpy.typing as npt
 
 from ._parameters import RegistryView, parameter
 
 if TYPE_CHECKING:
-    from ._model import Model
+    import warp as wp
+
+    from ._builder import ModelBuilder
+    from ._model import Model, State
 
 #: Element kinds with a per-world block: name → the builder's list of per-call element tuples.
 KINDS = ("particle", "spring", "tri", "tet", "bending")
 
 
-def _count(builder: Any, kind: str) -> int:
+def _count(builder: ModelBuilder, kind: str) -> int:
     if kind == "particle":
         return builder._count
-    lists = {
+    per_kind: dict[str, Sequence[np.ndarray | tuple[np.ndarray, ...]]] = {
         "spring": builder._springs,
         "tri": builder._tris,
         "tet": builder._tets,
         "bending": builder._bending,
-    }[kind]
-    return int(sum((e[0] if isinstance(e, tuple) else e).shape[0] for e in lists))
+    }
+    return int(sum((e[0] if isinstance(e, tuple) else e).shape[0] for e in per_kind[kind]))
 
 
-def replicate(builder: Any, n: int, spacing: Sequence[float] = (0.0, 0.0, 0.0)) -> None:
+def replicate(builder: ModelBuilder, n: int, spacing: Sequence[float] = (0.0, 0.0, 0.0)) -> None:
     """Make ``n`` worlds of what ``builder`` holds (see :meth:`pliant.ModelBuilder.replicate`)."""
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise ValueError(f"replicate: n must be a positive number of worlds, got {n!r}")
@@ -93,7 +97,7 @@ def replicate(builder: Any, n: int, spacing: Sequence[float] = (0.0, 0.0, 0.0)) 
     builder._worlds = {"count": n, "per_world": per}
 
 
-def offsets(builder: Any) -> dict[str, np.ndarray] | None:
+def offsets(builder: ModelBuilder) -> dict[str, np.ndarray] | None:
     """Per-kind world offsets [W + 1] of a replicated builder, checked; None when not replicated.
 
     Raises:
@@ -141,7 +145,7 @@ def world_slice(model: Model, kind: str, w: int) -> slice:
     return slice(int(off[w]), int(off[w + 1]))
 
 
-def set_world_parameter(model: Model, name: str, w: int, value: Any) -> None:
+def set_world_parameter(model: Model, name: str, w: int, value: npt.ArrayLike) -> None:
     """Set parameter ``name`` of world ``w`` (see :meth:`pliant.model.Model.set_world_parameter`)."""
     import warp as wp
 
@@ -179,7 +183,7 @@ def set_world_parameter(model: Model, name: str, w: int, value: Any) -> None:
     wp.synchronize_device(model.device)
 
 
-def write_range(arr: Any, sl: slice, values: np.ndarray, dtype: str) -> None:
+def write_range(arr: wp.array, sl: slice, values: np.ndarray, dtype: str) -> None:
     """``arr[sl] = values`` on ``arr``'s device: one small upload and a device copy, so setting every
     world's values costs O(elements), not O(worlds × elements)."""
     import warp as wp
@@ -194,7 +198,7 @@ def write_range(arr: Any, sl: slice, values: np.ndarray, dtype: str) -> None:
     wp.copy(arr, src, dest_offset=sl.start, src_offset=0, count=sl.stop - sl.start)
 
 
-def set_world_material(model: Model, w: int, E: Any, nu: Any) -> None:
+def set_world_material(model: Model, w: int, E: npt.ArrayLike, nu: npt.ArrayLike) -> None:
     """Young's modulus ``E`` [Pa] and Poisson ratio ``nu`` of world ``w``'s tets (scalars or per tet)."""
     from ._materials import lame_parameters
 
@@ -205,13 +209,18 @@ def set_world_material(model: Model, w: int, E: Any, nu: Any) -> None:
     e_arr = np.broadcast_to(np.asarray(E, dtype=np.float64), (count,))
     nu_arr = np.broadcast_to(np.asarray(nu, dtype=np.float64), (count,))
     if np.any(e_arr <= 0) or np.any(nu_arr <= -1) or np.any(nu_arr >= 0.5):
-        raise ValueError(f"set_world_material: need E > 0 Pa and -1 < nu < 0.5, got E={E}, nu={nu}")
+        raise ValueError(f"set_world_material: need E > 0 Pa and -1 < nu < 0.5, got E={E!r}, nu={nu!r}")
     mu, lam = lame_parameters(e_arr, nu_arr)
     set_world_parameter(model, "tet_mu", w, np.broadcast_to(mu, (count,)))
     set_world_parameter(model, "tet_lam", w, np.broadcast_to(lam, (count,)))
 
 
-def set_world_state(model: Model, w: int, x: Any = None, v: Any = None) -> None:
+def set_world_state(
+    model: Model,
+    w: int,
+    x: npt.ArrayLike | None = None,
+    v: npt.ArrayLike | None = None,
+) -> None:
     """Replace world ``w``'s initial positions ``x`` [m] and/or velocities ``v`` [m/s] ([P, 3] each)."""
     sl = world_slice(model, "particle", w)
     count = sl.stop - sl.start
@@ -230,7 +239,7 @@ def set_world_state(model: Model, w: int, x: Any = None, v: Any = None) -> None:
             model.particle_q_np[sl] = a
 
 
-def reset_world(model: Model, state: Any, w: int) -> None:
+def reset_world(model: Model, state: State, w: int) -> None:
     """Copy world ``w``'s initial positions and velocities into ``state`` (the others are untouched)."""
     import warp as wp
 

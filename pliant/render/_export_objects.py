@@ -139,7 +139,7 @@ def export_usd_objects(
     Args:
         path: Output file (``.usd``, ``.usda`` or ``.usdc``).
         traj: A :class:`pliant.io.Trajectory`.
-        fps: Time codes per second (default: 1 / meta["dt"], else 30).
+        fps: Time codes per second (default: 1 / ``traj.frame_dt``, else 30).
         point_radius: Radius of ``Points`` particles and half the width of rope curves [m] (default: 1% of
             the motion's extent).
 
@@ -158,7 +158,7 @@ def export_usd_objects(
     if xs.ndim != 3 or xs.shape[2] != 3 or not len(xs):
         raise ValueError(f"the trajectory needs positions [T, N, 3] with T >= 1, got {xs.shape}")
     if fps is None:
-        frame_dt = traj.meta.get("dt")  # trajectory files name the frame duration "dt"
+        frame_dt = traj.frame_dt
         fps = 1.0 / frame_dt if frame_dt else 30.0
     codes = _time_codes(traj, fps)
     vs = None if traj.v is None else np.asarray(traj.v, np.float64)

@@ -6,7 +6,7 @@ import os
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -347,8 +347,16 @@ def realtime_indices(t: np.ndarray, fps: float, speed: float = 1.0) -> np.ndarra
     return np.where(times - t[lo] <= t[hi] - times, lo, hi)
 
 
+class TrajectoryLike(Protocol):
+    """What :func:`video` reads: ``x`` [T, N, 3] [m]; ``faces``, ``tets`` and ``t`` when present
+    (a :class:`pliant.io.Trajectory` has them all)."""
+
+    @property
+    def x(self) -> np.ndarray: ...
+
+
 def video(
-    traj: Any,
+    traj: TrajectoryLike,
     path: str | os.PathLike,
     *,
     fps: float = 30,
@@ -374,10 +382,11 @@ def video(
     """
     x = traj.x
     faces = kw.pop("faces", getattr(traj, "faces", None))
-    if faces is None and getattr(traj, "tets", None) is not None:
+    tets = getattr(traj, "tets", None)
+    if faces is None and tets is not None:
         from ..geometry import surface_from_tets  # a volumetric mesh is drawn by its boundary
 
-        faces = surface_from_tets(traj.tets)
+        faces = surface_from_tets(tets)
     t = getattr(traj, "t", None)
     if realtime and t is not None and "frame_indices" not in kw:
         kw["frame_indices"] = realtime_indices(np.asarray(t), fps, speed)

@@ -224,8 +224,7 @@ def serve_viewer(
     v._slider.on_update(lambda _: v.show(int(v._slider.value)))
     v._playing = server.gui.add_checkbox("play", False)
     v._speed = server.gui.add_slider("speed", min=0.1, max=4.0, step=0.1, initial_value=1.0)
-    # Trajectory files name the frame duration "dt".
-    frame_dt = float(traj.meta.get("dt") or (traj.t[1] - traj.t[0] if t > 1 else 1 / 30))
+    frame_dt = float(traj.frame_dt or (traj.t[1] - traj.t[0] if t > 1 else 1 / 30))
     v.play(min(1.0 / max(frame_dt, 1e-6), 60.0))
     return v
 

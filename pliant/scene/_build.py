@@ -4,7 +4,7 @@ the Solver from the registered solver kind; :class:`Scene` holds what a run and 
 from __future__ import annotations
 
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -30,6 +30,7 @@ if TYPE_CHECKING:
     from ..collision import Colliders
     from ..model import Control, Model
     from ..render import Camera
+    from ..sim import Simulator
     from ..solvers import Solver
 
 #: Video colours (RGB in [0, 1]) of simulated bodies and of drawn colliders.
@@ -61,14 +62,14 @@ class Scene:
 
     config: SceneConfig
     model: Model
-    solver: Any  # a Solver; callers read the kind's own attributes (XPBD's constraints), so kept duck-typed
+    solver: Solver
     frame_dt: float  # frame duration [s] (the Simulator's dt); each frame runs `substeps` solver steps
     substeps: int
     frames: int
     camera: Camera | None = None  # None to frame the motion automatically
     outputs: OutputSection = field(default_factory=OutputSection)
     colliders: Colliders | None = None  # the [[colliders]], or None
-    control_fn: Any = None  # f(t, control) moving the [[handles]], or None
+    control_fn: Callable[[float, Control | None], None] | None = None  # moves the [[handles]]
     control_points: list = field(default_factory=list)  # pl.energies.ControlPoints of spring handles
     embeddings: list[Embedding] = field(default_factory=list)
     static_meshes: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)  # drawn colliders
@@ -100,13 +101,17 @@ class Scene:
 
     @property
     def sim_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments of :class:`pliant.Simulator` (its ``dt`` is the frame duration)."""
-        kw = {"frame_dt": self.frame_dt, "substeps": self.substeps, "max_speed": self.config.scene.max_speed}
+        """Keyword arguments of :class:`pliant.Simulator` (``frame_dt``: the frame duration [s])."""
+        kw: dict[str, Any] = {
+            "frame_dt": self.frame_dt,
+            "substeps": self.substeps,
+            "max_speed": self.config.scene.max_speed,
+        }
         if self.control_fn is not None:
             kw["control_fn"] = self.control_fn
         return kw
 
-    def simulator(self, **overrides: Any) -> Any:
+    def simulator(self, **overrides: Any) -> Simulator:
         """A fresh :class:`pliant.Simulator` (``overrides`` replace ``sim_kwargs`` entries)."""
         from ..sim import Simulator
 
@@ -209,11 +214,11 @@ def _embeddings(ctx: BuildContext, x0: np.ndarray) -> list[Embedding]:
     import trimesh
 
     from ..geometry import locate_points
-    from ._files import load_mesh_file
+    from ._files import load_surface_file
     from ._objects import orient
 
     out = []
-    tets = ctx.model.tet_indices_np
+    tets = ctx.finalized.tet_indices_np
     for i, o in enumerate(ctx.cfg.objects):
         rm = getattr(o, "render_mesh", None)
         if rm is None:
@@ -226,7 +231,7 @@ def _embeddings(ctx: BuildContext, x0: np.ndarray) -> list[Embedding]:
             m = trimesh.creation.icosphere(subdivisions=rm.icosphere, radius=r)
             v, f = np.asarray(m.vertices) + center, np.asarray(m.faces)
         else:
-            mesh = load_mesh_file(ctx.cfg, rm.path, f"{at}.path")
+            mesh = load_surface_file(ctx.cfg, rm.path, f"{at}.path")
             # Turned like its object (up, rotation), so a rotated mesh keeps its render mesh aligned.
             v = orient(np.asarray(mesh.points) * np.asarray(rm.scale), o) + center
             f = np.asarray(mesh.triangles)
@@ -243,7 +248,7 @@ def _embeddings(ctx: BuildContext, x0: np.ndarray) -> list[Embedding]:
     return out
 
 
-def _colliders(ctx: BuildContext) -> tuple[Any, list]:
+def _colliders(ctx: BuildContext) -> tuple[Colliders | None, list]:
     from ..collision import Colliders
 
     if not ctx.cfg.colliders:
@@ -270,7 +275,7 @@ def _spring_handles(ctx: BuildContext, spring_handles: list) -> tuple[list, list
     for i, h, pts in spring_handles:
         try:
             cp = energies.ControlPoints(
-                ctx.model,
+                ctx.finalized,
                 pts,
                 stiffness=h.stiffness,
                 radius=h.radius if h.radius is not None else 1e-6,
@@ -290,7 +295,7 @@ def _extra_constraints(ctx: BuildContext) -> None:
     """Shape matching of cluster objects, self-collision constraints and ``[[constraints]]`` (XPBD / PBD)."""
     from .. import constraints as C
 
-    cfg, model = ctx.cfg, ctx.model
+    cfg, model = ctx.cfg, ctx.finalized
     by_k: dict[tuple[float, bool], list[np.ndarray]] = {}
     radii = model.particle_radius.numpy()
     for o, (lo, hi) in zip(cfg.objects, ctx.ranges, strict=True):
@@ -415,7 +420,7 @@ def build_scene(
     _finalize(ctx, device, dtype, requires_grad)
     for w, params in enumerate(world_parameters or ()):
         for name, value in params.items():
-            ctx.model.set_world_parameter(name, w, value)
+            ctx.finalized.set_world_parameter(name, w, value)
     embeddings = _embeddings(ctx, x0)
     colliders, static_meshes = _colliders(ctx)
     control_points, springs = _spring_handles(ctx, spring_handles)
@@ -425,10 +430,10 @@ def build_scene(
     solver = SOLVER_KINDS[cfg.solver_kind()].factory(ctx)
     if cfg.scene.parameters is not None:
         _apply_parameters(ctx, solver, cfg.scene.parameters)
-    maybe_prebuild(cfg.scene.name, ctx.model)  # compile its kernels on both cores while the caller goes on
+    maybe_prebuild(cfg.scene.name, ctx.finalized)  # kernels compile on both cores meanwhile
     return Scene(
         config=cfg,
-        model=ctx.model,
+        model=ctx.finalized,
         solver=solver,
         frame_dt=cfg.scene.frame_dt,
         substeps=cfg.scene.substeps,

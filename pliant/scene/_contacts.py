@@ -2,18 +2,19 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import numpy as np
 from pydantic import BeforeValidator
 
-from ._files import load_mesh_file
+from ._files import load_surface_file
 from ._registry import handle_mode, register_collider_kind, register_handle_kind
 from ._schema import ColliderBase, Float, Length, NonNegFloat, Scale3, Size3, Vec3, vector
 
 if TYPE_CHECKING:
+    from ..collision import Colliders
     from ._context import BuildContext
-    from ._schema import SceneConfig
+    from ._schema import HandleConfig, SceneConfig
 
 
 class SphereCollider(ColliderBase):
@@ -47,11 +48,11 @@ class MeshCollider(ColliderBase):
     origin: Vec3 = (0.0, 0.0, 0.0)  # translation after scaling [m]
 
 
-def _fr(c: Any) -> dict[str, float]:
+def _fr(c: ColliderBase) -> dict[str, float]:
     return {"friction": c.friction, "restitution": c.restitution}
 
 
-def add_sphere(colliders: Any, cfg: SceneConfig, c: SphereCollider, at: str) -> tuple | None:
+def add_sphere(colliders: Colliders, cfg: SceneConfig, c: SphereCollider, at: str) -> tuple | None:
     import trimesh
 
     colliders.add_sphere(c.center, c.radius, **_fr(c))
@@ -61,7 +62,7 @@ def add_sphere(colliders: Any, cfg: SceneConfig, c: SphereCollider, at: str) -> 
     return m.vertices + np.asarray(c.center), m.faces
 
 
-def add_box(colliders: Any, cfg: SceneConfig, c: BoxCollider, at: str) -> tuple | None:
+def add_box(colliders: Colliders, cfg: SceneConfig, c: BoxCollider, at: str) -> tuple | None:
     import trimesh
 
     if c.rotation is not None and not np.linalg.norm(c.rotation) > 1e-12:
@@ -78,7 +79,7 @@ def add_box(colliders: Any, cfg: SceneConfig, c: BoxCollider, at: str) -> tuple 
     return v + np.asarray(c.center), m.faces
 
 
-def add_capsule(colliders: Any, cfg: SceneConfig, c: CapsuleCollider, at: str) -> tuple | None:
+def add_capsule(colliders: Colliders, cfg: SceneConfig, c: CapsuleCollider, at: str) -> tuple | None:
     import trimesh
 
     a, b = np.asarray(c.a), np.asarray(c.b)
@@ -93,8 +94,8 @@ def add_capsule(colliders: Any, cfg: SceneConfig, c: CapsuleCollider, at: str) -
     return m.vertices @ rot.T + 0.5 * (a + b), m.faces  # trimesh's capsule is centred at the origin
 
 
-def add_mesh(colliders: Any, cfg: SceneConfig, c: MeshCollider, at: str) -> tuple | None:
-    mesh = load_mesh_file(cfg, c.path, f"{at}.path")
+def add_mesh(colliders: Colliders, cfg: SceneConfig, c: MeshCollider, at: str) -> tuple | None:
+    mesh = load_surface_file(cfg, c.path, f"{at}.path")
     v = mesh.points * np.asarray(c.scale) + np.asarray(c.origin)
     f = np.asarray(mesh.triangles)
     colliders.add_mesh(v, f, **_fr(c))
@@ -108,7 +109,7 @@ register_collider_kind("mesh", MeshCollider, add_mesh)
 
 
 # ---------------------------------------------------------------------------------------------- handles
-def select_box(ctx: BuildContext, h: Any, lo: int, hi: int, i: int) -> tuple[np.ndarray, np.ndarray]:
+def select_box(ctx: BuildContext, h: HandleConfig, lo: int, hi: int, i: int) -> tuple[np.ndarray, np.ndarray]:
     """The particles of [lo, hi) inside the box at t = 0: (global indices, their positions)."""
     x = ctx.builder.positions()
     inside = np.all(np.abs(x[lo:hi] - np.asarray(h.center)) <= np.asarray(h.half_extents), axis=1)
@@ -118,19 +119,19 @@ def select_box(ctx: BuildContext, h: Any, lo: int, hi: int, i: int) -> tuple[np.
     return idx, x[idx]
 
 
-def select_points(ctx: BuildContext, h: Any, lo: int, hi: int, i: int) -> tuple[None, np.ndarray]:
+def select_points(ctx: BuildContext, h: HandleConfig, lo: int, hi: int, i: int) -> tuple[None, np.ndarray]:
     """Control points [m] (linked by springs to the particles within ``radius``)."""
     return None, np.asarray(h.points, float)
 
 
-def check_box(cfg: SceneConfig, h: Any, at: str) -> list[tuple[str, str]]:
+def check_box(cfg: SceneConfig, h: HandleConfig, at: str) -> list[tuple[str, str]]:
     if h.center is None or h.half_extents is None:
         field_ = "center" if h.center is None else "half_extents"
         return [(f"{at}.{field_}", "a box handle needs center and half_extents [m]")]
     return []
 
 
-def check_points(cfg: SceneConfig, h: Any, at: str) -> list[tuple[str, str]]:
+def check_points(cfg: SceneConfig, h: HandleConfig, at: str) -> list[tuple[str, str]]:
     out = []
     if not h.points:
         out.append((f"{at}.points", "a points handle needs points = [[x, y, z], ...] [m]"))

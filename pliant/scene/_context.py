@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 from ._errors import SceneError, scene_error
 
 if TYPE_CHECKING:
-    from ..model import ModelBuilder
+    from ..model import Model, ModelBuilder
     from ._schema import SceneConfig
 
 
@@ -29,10 +29,17 @@ class BuildContext:
     cfg: SceneConfig
     builder: ModelBuilder
     ranges: list[tuple[int, int]] = field(default_factory=list)
-    model: Any = None
+    model: Model | None = None
     handlers: list[Any] = field(default_factory=list)
     terms: list[Any] = field(default_factory=list)
     constraints: list[Any] = field(default_factory=list)
+
+    @property
+    def finalized(self) -> Model:
+        """:attr:`model`, for the steps that run after it is built (a RuntimeError before: a builder bug)."""
+        if self.model is None:
+            raise RuntimeError("BuildContext.model is read before the model is finalized")
+        return self.model
 
     def fail(self, path: str, msg: str) -> SceneError:
         """A SceneError for the field at dotted ``path`` (with its line in the scene file)."""

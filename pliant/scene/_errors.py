@@ -112,7 +112,7 @@ def _message(err: ErrorDetails) -> tuple[tuple, str]:
     return loc, msg
 
 
-def _short(v: Any) -> str:
+def _short(v: object) -> str:
     """``repr(v)``, cut to 80 characters (a fuzzed 1 MB string must not flood the terminal)."""
     r = repr(v)
     return r if len(r) <= 80 else r[:77] + "..."

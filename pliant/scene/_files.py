@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ._errors import scene_error
 
 if TYPE_CHECKING:
+    from ..geometry import TetMesh, TriMesh
     from ._schema import SceneConfig
 
 #: Default particle budget of one scene (``PLIANT_MAX_PARTICLES`` overrides it): about 1 GB of model and
@@ -95,7 +96,7 @@ def load_points_npy(cfg: SceneConfig, path: Path, at: str) -> np.ndarray:
     return pts
 
 
-def load_mesh_file(cfg: SceneConfig, rel: str, at: str) -> Any:
+def load_mesh_file(cfg: SceneConfig, rel: str, at: str) -> TriMesh | TetMesh:
     """``pl.geometry.load_mesh`` of a file named by the scene, its failures reported at ``at``."""
     from ..geometry import load_mesh
 
@@ -118,4 +119,17 @@ def load_mesh_file(cfg: SceneConfig, rel: str, at: str) -> Any:
         raise scene_error(cfg, at, f"the mesh {path.name} has NaN, inf or coordinates beyond 1e6 m")
     if pts.shape[0] > max_particles():
         raise scene_error(cfg, at, budget_message(pts.shape[0], path.name))
+    return mesh
+
+
+def load_surface_file(cfg: SceneConfig, rel: str, at: str) -> TriMesh:
+    """:func:`load_mesh_file` of a file that must be a triangle surface (a collider, a render mesh): a
+    tetrahedral mesh there is a SceneError naming the formats, not an AttributeError later."""
+    from ..geometry import TriMesh
+
+    mesh = load_mesh_file(cfg, rel, at)
+    if not isinstance(mesh, TriMesh):
+        raise scene_error(
+            cfg, at, f"{Path(rel).name} is a tetrahedral mesh; give a triangle surface (OBJ, PLY or STL)"
+        )
     return mesh

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
@@ -98,7 +99,7 @@ class TetOrder(Section):
         return v
 
     @model_validator(mode="after")
-    def _order_needs_fem(self) -> Any:
+    def _order_needs_fem(self) -> TetOrder:
         model = getattr(self, "model", "fem")  # a mixin: the object kind that uses it declares `model`
         if self.order == 2 and model != "fem":
             raise ValueError(
@@ -132,7 +133,7 @@ class Oriented(Section):
     up: Literal["y", "z"] = "y"  # the file's up axis ("z": a Z-up mesh, e.g. from Blender or CAD)
 
 
-def rotation_matrix(rotation: Any, up: str = "y") -> np.ndarray | None:
+def rotation_matrix(rotation: Sequence[float], up: str = "y") -> np.ndarray | None:
     """3×3 matrix of :class:`Oriented`'s ``up`` then ``rotation`` (None when both leave points as they
     are, so that unrotated scenes keep their exact positions)."""
     if up == "y" and not any(rotation):
@@ -147,7 +148,7 @@ def rotation_matrix(rotation: Any, up: str = "y") -> np.ndarray | None:
     return rz @ ry @ rx @ upright
 
 
-def orient(points: np.ndarray, o: Any) -> np.ndarray:
+def orient(points: np.ndarray, o: ObjectBase) -> np.ndarray:
     """``points`` [N, 3] turned by the object's ``up`` and ``rotation`` (about the coordinate origin)."""
     r = rotation_matrix(getattr(o, "rotation", (0.0, 0.0, 0.0)), getattr(o, "up", "y"))
     return points if r is None else points @ r.T
@@ -215,26 +216,26 @@ class ClusterObject(ObjectBase):
 
 
 # ---------------------------------------------------------------------------------------------- helpers
-def _name(o: Any, i: int) -> str:
-    return o.name or f"{o.kind}{i}"
+def _name(o: ObjectBase, i: int) -> str:
+    return o.name or f"{getattr(o, 'kind', 'object')}{i}"  # every registered kind declares `kind`
 
 
-def _stiffness(o: Any) -> float:
+def _stiffness(o: ObjectBase) -> float:
     # pbd objects without a stiffness: the springs only carry topology (the solver gets compliance 0).
     return o.material.stiffness if o.material.stiffness is not None else 1.0
 
 
-def _radius_kw(o: Any, key: str = "radius") -> dict[str, Any]:
+def _radius_kw(o: ObjectBase, key: str = "radius") -> dict[str, Any]:
     return {} if o.particle_radius is None else {key: o.particle_radius}
 
 
-def _grid_count(size: Any, spacing: float) -> float:
+def _grid_count(size: Sequence[float], spacing: float) -> float:
     return float(np.prod([math.floor(s / spacing) + 1.0 for s in size]))
 
 
-def grid_points(o: Any, cfg: SceneConfig, at: str) -> np.ndarray:
+def grid_points(o: PointsObject | ClusterObject, cfg: SceneConfig, at: str) -> np.ndarray:
     """Points [N, 3] of a points / cluster object: its file's, centred on ``origin``, or a jittered grid."""
-    if getattr(o, "path", None) is not None:
+    if isinstance(o, PointsObject) and o.path is not None:
         p = scene_path(cfg, o.path, f"{at}.path")
         if p.suffix == ".npy":
             pts = load_points_npy(cfg, p, f"{at}.path")
@@ -247,13 +248,13 @@ def grid_points(o: Any, cfg: SceneConfig, at: str) -> np.ndarray:
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     if o.shape == "sphere":
         grid = grid[np.sum((grid / half) ** 2, axis=1) <= 1.0]
-    if getattr(o, "jitter", 0.0):
+    if isinstance(o, PointsObject) and o.jitter:
         rng = np.random.default_rng(o.seed)
         grid = grid + rng.uniform(-o.jitter, o.jitter, grid.shape) * o.spacing
     return orient(grid, o) + np.asarray(o.origin)
 
 
-def _tet_kw(o: Any, i: int) -> dict[str, Any]:
+def _tet_kw(o: SoftBoxObject | SoftSphereObject | MeshObject, i: int) -> dict[str, Any]:
     mat = o.material
     fem = o.model == "fem"
     # pbd volumes keep their tets (XPBD volume constraints); the builder stores tets with an E.
@@ -371,7 +372,7 @@ def build_cluster(ctx: BuildContext, o: ClusterObject, i: int) -> None:
 
 
 # ---------------------------------------------------------------------------------------------- checks
-def _check_pin(o: Any, at: str, allowed: tuple[str, ...]) -> list[tuple[str, str]]:
+def _check_pin(o: ClothObject | RopeObject, at: str, allowed: tuple[str, ...]) -> list[tuple[str, str]]:
     if isinstance(o.pin, str) and o.pin not in allowed:
         return [(f"{at}.pin", f"unknown pin {o.pin!r}; allowed: {', '.join(allowed)} or a list of indices")]
     return []
@@ -388,7 +389,9 @@ def check_rope(cfg: SceneConfig, o: RopeObject, at: str) -> list[tuple[str, str]
     return out
 
 
-def check_render_mesh(cfg: SceneConfig, o: Any, at: str) -> list[tuple[str, str]]:
+def check_render_mesh(
+    cfg: SceneConfig, o: SoftBoxObject | MeshObject | SoftSphereObject, at: str
+) -> list[tuple[str, str]]:
     rm = o.render_mesh
     if rm is not None and (rm.path is None) == (rm.icosphere is None):
         return [(f"{at}.render_mesh", "give either path (a surface mesh file) or icosphere (a level)")]
@@ -401,8 +404,8 @@ def check_cluster(cfg: SceneConfig, o: ClusterObject, at: str) -> list[tuple[str
     return []
 
 
-def _points_estimate(cfg: SceneConfig, o: Any) -> float:
-    if getattr(o, "path", None) is not None:
+def _points_estimate(cfg: SceneConfig, o: PointsObject | ClusterObject) -> float:
+    if isinstance(o, PointsObject) and o.path is not None:
         p = scene_path(cfg, o.path, f"objects[{cfg.objects.index(o)}].path")
         if p.suffix == ".npy":
             return float(npy_shape(cfg, p, f"objects[{cfg.objects.index(o)}].path")[0][0])

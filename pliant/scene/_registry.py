@@ -20,11 +20,14 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Annotated, Any, Union
+from typing import TYPE_CHECKING, Annotated, Any, Union
 
 from pydantic import BaseModel, Field
 
 from ._schema import ColliderBase, ObjectBase, SceneConfig
+
+if TYPE_CHECKING:
+    from ._schema import HandleConfig
 
 
 @dataclass(frozen=True)
@@ -195,7 +198,7 @@ def register_handle_kind(
     HANDLE_KINDS[name] = HandleKind(name, select, check, default_mode)
 
 
-def handle_mode(handle: Any) -> str:
+def handle_mode(handle: HandleConfig) -> str:
     """A ``[[handles]]`` entry's ``mode``, or its kind's default (``"kinematic"`` for an unknown kind).
 
     A function of the registry rather than a method of the schema: the schema sits below the registry.

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from ._schema import SceneConfig
+    from ._schema import ObjectBase, SceneConfig
 
 #: Scalars per particle of the model and the simulator's states (measured on soft_box: 36 × 4 bytes in
 #: float32, 36 × 8 in float64).
@@ -104,7 +104,7 @@ def _box_edges(nx: float, ny: float, nz: float) -> float:
     return axis + faces + nx * ny * nz
 
 
-def _volume(o: Any, particles: float, tets: float, edges: float, exact: bool) -> _Counts:
+def _volume(o: ObjectBase, particles: float, tets: float, edges: float, exact: bool) -> _Counts:
     """Counts of a tet volume: tet-edge springs (spring model), tets (FEM and XPBD volumes)."""
     springs = edges if o.model != "fem" else 0.0
     stored = tets if o.model in ("fem", "pbd") else 0.0

@@ -5,13 +5,15 @@ from __future__ import annotations
 
 import difflib
 import inspect
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from ._errors import SceneError, line_of
 from ._registry import CONSTRAINT_KINDS, ENERGY_KINDS, SOLVER_KINDS, register_solver
 
 if TYPE_CHECKING:
-    from ..solvers import XPBD
+    from ..collision import SelfCollision
+    from ..solvers import XPBD, FastMassSpring, ForceSolver
     from ._context import BuildContext
     from ._schema import SceneConfig
 
@@ -67,8 +69,11 @@ def make_integrator(
         raise SceneError(source or "<scene>", [(line_of(text, opt), opt, f"{match}: {exc}")]) from None
 
 
+S = TypeVar("S")  # the solver class _construct makes
+
+
 # ---------------------------------------------------------------------------------------------- options
-def accepted_keywords(target: Any) -> dict[str, inspect.Parameter]:
+def accepted_keywords(target: Callable[..., object]) -> dict[str, inspect.Parameter]:
     """Keyword parameters of ``target`` (a class or a function); a class whose ``__init__`` takes
     ``**kwargs`` and passes them on contributes its base classes' parameters too, and where no class
     in the chain names them, the fields of its ``options_type`` dataclass (the implicit integrators)."""
@@ -94,7 +99,7 @@ def accepted_keywords(target: Any) -> dict[str, inspect.Parameter]:
     return out
 
 
-def _type_problem(p: inspect.Parameter, value: Any) -> str | None:
+def _type_problem(p: inspect.Parameter, value: object) -> str | None:
     """What is wrong with ``value`` for parameter ``p``, judged from its default (cheap, not exhaustive)."""
     d = p.default
     if d is None:  # judge by the annotation's first type ("float | None" -> float)
@@ -200,7 +205,7 @@ def check_solver(cfg: SceneConfig) -> list[tuple[str, str]]:
 
 
 # ---------------------------------------------------------------------------------------------- factories
-def _self_collision(ctx: BuildContext) -> list[Any]:
+def _self_collision(ctx: BuildContext) -> list[SelfCollision]:
     """The force-based solvers' self-collision handler of ``[solver] self_collision``, if any."""
     from ..collision import SelfCollision
 
@@ -210,7 +215,7 @@ def _self_collision(ctx: BuildContext) -> list[Any]:
     try:
         return [
             SelfCollision(
-                ctx.model,
+                ctx.finalized,
                 thickness=sc.thickness,
                 friction=sc.friction,
                 iterations=sc.iterations,
@@ -222,7 +227,7 @@ def _self_collision(ctx: BuildContext) -> list[Any]:
         raise ctx.fail("solver.self_collision", str(exc)) from None
 
 
-def _construct(ctx: BuildContext, cls: Any, *args: Any, **kwargs: Any) -> Any:
+def _construct(ctx: BuildContext, cls: type[S], *args: Any, **kwargs: Any) -> S:
     """``cls(*args, **kwargs, **options)``; a refusal of the constructor names ``[solver] options``."""
     try:
         return cls(*args, **kwargs, **ctx.cfg.solver.options)
@@ -230,7 +235,7 @@ def _construct(ctx: BuildContext, cls: Any, *args: Any, **kwargs: Any) -> Any:
         raise ctx.fail("solver.options", f"{cls.__name__}: {exc}") from None
 
 
-def make_force(ctx: BuildContext) -> Any:
+def make_force(ctx: BuildContext) -> ForceSolver:
     """``pl.solvers.ForceSolver``: mass-spring (+ FEM) energies, an integrator of ``pl.integrators``."""
     from .. import energies, solvers
 
@@ -258,7 +263,7 @@ def make_force(ctx: BuildContext) -> Any:
     )
 
 
-def make_fast_mass_spring(ctx: BuildContext) -> Any:
+def make_fast_mass_spring(ctx: BuildContext) -> FastMassSpring:
     """``pl.solvers.FastMassSpring``: the specialised mass-spring path (``options.method``)."""
     from .. import solvers
 
@@ -284,7 +289,7 @@ def _xpbd_compliance(cfg: SceneConfig) -> float | None:
     return compliance
 
 
-def _position_based(ctx: BuildContext, cls: Any, **kw: Any) -> Any:
+def _position_based(ctx: BuildContext, cls: type[XPBD], **kw: Any) -> XPBD:
     """XPBD / PBD with the scene's iterations, damping, contact handlers and extra constraints."""
     s = ctx.cfg.solver
     kw = {"iterations": s.iterations, "damping": s.damping_rate, **kw}
@@ -305,14 +310,14 @@ def _insert(solver: XPBD, ctx: BuildContext) -> None:
     solver.reset_plans()
 
 
-def make_xpbd(ctx: BuildContext) -> Any:
+def make_xpbd(ctx: BuildContext) -> XPBD:
     """``pl.solvers.XPBD`` (compliance α from ``[solver]`` or the objects' materials)."""
     from .. import solvers
 
     return _position_based(ctx, solvers.XPBD, compliance=_xpbd_compliance(ctx.cfg))
 
 
-def make_pbd(ctx: BuildContext) -> Any:
+def make_pbd(ctx: BuildContext) -> XPBD:
     """``pl.solvers.PBD`` (dimensionless ``stiffness_factor`` k ∈ [0, 1])."""
     from .. import solvers
 

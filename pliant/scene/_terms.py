@@ -6,24 +6,26 @@ to the class): ``register_energy("name", lambda model, **options: MyEnergy(**opt
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from ._registry import register_constraint, register_energy
 
 if TYPE_CHECKING:
+    from ..constraints import ParticleCollision
+    from ..energies import AirDrag
     from ..model import Model
 
 
 def air_drag(
     model: Model, *, coefficient: float = 0.0, quadratic: float = 0.0, wind: list | None = None
-) -> Any:
+) -> AirDrag:
     """``pl.energies.AirDrag``: linear ``coefficient`` [N s/m], ``quadratic`` [N s²/m²], ``wind`` [m/s]."""
     from ..energies import AirDrag
 
     return AirDrag(coefficient, quadratic=quadratic, wind=wind if wind is not None else (0.0, 0.0, 0.0))
 
 
-def particle_collision(model: Model, *, cell_size: float | None = None) -> Any:
+def particle_collision(model: Model, *, cell_size: float | None = None) -> ParticleCollision:
     """``pl.constraints.ParticleCollision`` (particle–particle contact by the particles' radii)."""
     from ..constraints import ParticleCollision
 

@@ -6,7 +6,7 @@ one model of replicated worlds (``ModelBuilder.replicate``) with each world's pa
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -18,6 +18,8 @@ from ._errors import scene_error
 from ._replicate import worlds_unsupported
 
 if TYPE_CHECKING:
+    from ..model import Model
+    from ._build import Scene
     from ._schema import SceneConfig
 
 #: Model arrays a world may have of its own (set with ``Model.set_world_parameter``).
@@ -49,15 +51,15 @@ def material_only(run: Sequence[str]) -> bool:
     return True
 
 
-def _model_of(cfg: SceneConfig, device: str | None, dtype: str | None) -> Any:
+def _model_of(cfg: SceneConfig, device: str | None, dtype: str | None) -> Model:
     ctx = BuildContext(cfg, ModelBuilder(gravity=cfg.scene.gravity))
     _add_objects(ctx)
     _select_handles(ctx)
     _finalize(ctx, device, dtype)
-    return ctx.model
+    return ctx.finalized
 
 
-def build_worlds(cfgs: Sequence[Any], device: str | None = None, dtype: str | None = None) -> Any:
+def build_worlds(cfgs: Sequence[SceneConfig], device: str | None = None, dtype: str | None = None) -> Scene:
     """One :class:`~pliant.scene.Scene` whose model holds ``len(cfgs)`` worlds: world w is ``cfgs[w]``.
 
     Each configuration's model is built alone first (no solver); they must agree in everything but the

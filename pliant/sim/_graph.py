@@ -66,7 +66,7 @@ def fingerprint(*roots: Any, depth: int = 4) -> tuple:
     out: list = []
     seen: set[int] = set()
 
-    def walk(obj: Any, path: str, d: int) -> None:
+    def walk(obj: object, path: str, d: int) -> None:
         if isinstance(obj, wp.array):
             out.append((path, obj.ptr, obj.shape))
         elif isinstance(obj, _SCALARS):
@@ -105,7 +105,7 @@ class FrameGraphs:
         device: the Warp device the frame runs on.
     """
 
-    def __init__(self, device: Any) -> None:
+    def __init__(self, device: wp.DeviceLike) -> None:
         self.device = wp.get_device(device)
         self._graphs: dict[Hashable, tuple[Any, tuple]] = {}
         self._warm: set[Hashable] = set()

@@ -445,7 +445,7 @@ class Simulator:
         faces = m.render_faces if m.render_faces.size else None
         tets = m.tet_indices_np if m.tet_indices_np.size else None
         meta = {
-            "dt": self.frame_dt,
+            "frame_dt": self.frame_dt,
             "substeps": self.substeps,
             "dtype": m.dtype,
             "device": m.device,
@@ -540,7 +540,7 @@ class Simulator:
         self._vs = list(ck["traj_v"]) if ck["traj_v"] is not None and self._record_velocity else []
         self._restore_worlds(ck["meta"].get("worlds", {}), path)
 
-    def _restore_worlds(self, worlds: dict, path: Any) -> None:
+    def _restore_worlds(self, worlds: dict, path: str | os.PathLike) -> None:
         """Freeze again the worlds a checkpoint lists as diverged (as the run that wrote it had them)."""
         m = self.model
         try:

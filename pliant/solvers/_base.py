@@ -73,7 +73,8 @@ class Solver(abc.ABC):
     def _collisions_blocker(self) -> str | None:
         """The first contact handler's reason not to replay (handlers without ``graph_blocker`` block)."""
         for c in self.collisions:
-            why = c.graph_blocker() if callable(getattr(c, "graph_blocker", None)) else "an unknown handler"
+            blocker = getattr(c, "graph_blocker", None)  # optional: handlers without one block
+            why = blocker() if callable(blocker) else "an unknown handler"
             if why is not None:
                 return f"contact handler {type(c).__name__}: {why}"
         return None

@@ -12,11 +12,14 @@ Two ways to hold the states:
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import warp as wp
 
 from ..model import Control, State
+
+if TYPE_CHECKING:
+    from ._base import Solver
 
 
 class FrameStep:
@@ -40,7 +43,7 @@ class FrameStep:
 
     def __init__(
         self,
-        solver: Any,
+        solver: Solver,
         dt: float,
         substeps: int,
         *,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import weakref
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, Protocol
 
 import warp as wp
 
@@ -96,11 +96,19 @@ def add_drag_force(
     f_io[index] = f_io[index] + drag_force(target, stiffness, max_force, x_in[index])
 
 
+class ContactHandler(Protocol):
+    """A post-step contact handler (``pl.collision.Colliders``, ``SelfCollision``, a user's object): corrects
+    ``state_out`` in place; one with ``apply_out(model, x_in, v_in, x_out, v_out)`` too can be recorded
+    out of place."""
+
+    def apply(self, model: Model, state_in: State, state_out: State, dt: float) -> None: ...
+
+
 #: One stage of a step after integration: reads (x_in, v_in), writes (x_out, v_out).
 Stage = Callable[[wp.array, wp.array, wp.array, wp.array], None]
 
 
-def _contact_stage(c: Any, m: Model, state_in: State, state_out: State, dt: float) -> Stage:
+def _contact_stage(c: ContactHandler, m: Model, state_in: State, state_out: State, dt: float) -> Stage:
     """A contact handler as a post-step stage ``(x, v, x_out, v_out)``: out of place through its
     ``apply_out`` when it has one, else in place on ``state_out`` (which is (x, v) on the gradient-free
     path)."""
@@ -184,7 +192,7 @@ def finish_step(
         x, v = xo, vo
 
 
-def check_collisions(collisions: Sequence[Any]) -> list[Any]:
+def check_collisions(collisions: Sequence[Any]) -> list[ContactHandler]:
     """The handlers as a list, each checked for ``apply(model, state_in, state_out, dt)``."""
     out = list(collisions)
     for c in out:

@@ -217,7 +217,7 @@ def _oscillator_part(out: Path, quick: bool) -> dict[str, Any]:
 ENERGY_SCALE_J = 0.2 * 9.81 * 1.0
 
 
-def _cloth_model(n: int, stiffness: float, dtype: str) -> Any:
+def _cloth_model(n: int, stiffness: float, dtype: str) -> Model:
     from ..model import ModelBuilder
 
     b = ModelBuilder()

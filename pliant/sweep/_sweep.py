@@ -9,9 +9,12 @@ import time
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..scene import Scene, SceneConfig
 
 #: Columns of results.csv after the override columns.
 COLUMNS = [
@@ -154,7 +157,12 @@ def _as_worlds(
 
 
 def _as_copies(
-    scene: str, base: Any, runs: list[list[str]], frames: int | None, traj_dir: str | None, force: bool
+    scene: str,
+    base: SceneConfig,
+    runs: list[list[str]],
+    frames: int | None,
+    traj_dir: str | None,
+    force: bool,
 ):
     """The runs as copies of the objects in one scene; None when that fails (the caller runs them alone)."""
     from ..scene import SceneError, build_scene, load_scene
@@ -185,7 +193,7 @@ def _as_copies(
     return out
 
 
-def _simulate(built: Any, frames: int) -> np.ndarray:
+def _simulate(built: Scene, frames: int) -> np.ndarray:
     from ..sim import Simulator
 
     sim = Simulator(built.model, built.solver, **built.sim_kwargs)

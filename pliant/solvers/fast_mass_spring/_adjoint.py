@@ -17,7 +17,7 @@ The adjoint solve runs the forward step's own block-Jacobi CG (same kernels, sam
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import warp as wp
@@ -28,6 +28,9 @@ from ...integrators import Integrator
 from ...integrators._explicit import scale_velocity
 from ...integrators._ops import lincomb
 from ._system import BaraffWitkinSystem, _bw_assemble, _spring_blocks
+
+if TYPE_CHECKING:
+    from ...integrators import ODEProblem, SecondOrderODE
 
 
 @wp.kernel
@@ -125,7 +128,9 @@ class BaraffWitkinStep(Integrator):
         row = np.repeat(np.arange(system.model.particle_count), np.diff(system.adj_offsets.numpy()))
         self.adj_row: wp.array = wp.array(row.astype(np.int32), dtype=wp.int32, device=system.model.device)
 
-    def step_ode(self, problem: Any, t: float, dt: float, y: np.ndarray) -> np.ndarray:
+    def step_ode(
+        self, problem: ODEProblem | SecondOrderODE, t: float, dt: float, y: np.ndarray
+    ) -> np.ndarray:
         """Not an ODE method: only FastMassSpring's physical path uses it."""
         raise NotImplementedError("BaraffWitkinStep integrates FastMassSpring's model only")
 

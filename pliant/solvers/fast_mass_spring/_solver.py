@@ -187,13 +187,13 @@ class FastMassSpring(Solver):
                 model, self.adj_offsets, self.adj_neighbor, self.adj_spring, self.cg_iterations, self.cg_tol
             )
         #: Under requires_grad: the same step by ForceSolver's tape-correct path (see :meth:`step`).
-        self._recorded: Any = None
+        self._recorded: ForceSolver | None = None
         if grad_enabled(model):
             self._recorded = self._recorded_solver(
                 method, velocity_damping, damping_rate, contact, collisions
             )
 
-    def _recorded_solver(self, method, velocity_damping, damping_rate, contact, collisions) -> Any:
+    def _recorded_solver(self, method, velocity_damping, damping_rate, contact, collisions) -> ForceSolver:
         """The symplectic step as ``ForceSolver(Springs, Dashpots, Gravity; SymplecticEuler)``: the same
         update (equal to round-off, not bit for bit: the gather kernel sums in another order), written into
         fresh arrays so that ``wp.Tape`` can differentiate it, and reading the model's parameter arrays

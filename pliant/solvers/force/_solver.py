@@ -19,8 +19,10 @@ from ...model._parameters import Parameter, declares
 from .._base import DAMPING_RATE, Solver
 from .._post import add_drag_force, check_collisions, finish_step
 from ..implicit import (
+    DeviceNewtonStats,
     MinimizerCache,
     MinimizerOptions,
+    NewtonStats,
     device_newton_blocker,
     lbfgs_checkpoint_state,
     lbfgs_restore_checkpoint_state,
@@ -132,7 +134,7 @@ class ForceSolver(Solver):
                     [damping_rate], dtype=model.scalar, device=d, requires_grad=True
                 )
         self._control: Control | None = None
-        self.last_stats: Any = None
+        self.last_stats: NewtonStats | DeviceNewtonStats | None = None
         #: What the implicit minimisers keep between steps (Hessian pattern, L-BFGS pairs and warm start).
         self.minimizer_cache = MinimizerCache()
         implicit = getattr(self.integrator, "options", None)

@@ -44,10 +44,11 @@ from ._workspace import _workspace
 
 if TYPE_CHECKING:
     from ...model import Model
+    from ._assembly import PotentialProblem
     from ._workspace import _Workspace
 
 
-def _recording(model: Model) -> Any:
+def _recording(model: Model) -> wp.Tape | None:
     """The active tape when gradients of this model are being recorded, else None."""
     if not (_tape_active() and getattr(model, "requires_grad", False)):
         return None
@@ -101,7 +102,7 @@ def differentiable(minimize: Callable[..., Any]) -> Callable[..., Any]:
 class _StepAdjoint:
     """What one implicit step's adjoint needs, captured when the step runs; :meth:`backward` applies it."""
 
-    def __init__(self, problem: Any, h: float, x_tilde, x_ref, v_ref, x_out) -> None:
+    def __init__(self, problem: PotentialProblem, h: float, x_tilde, x_ref, v_ref, x_out) -> None:
         for name, a in (("x_tilde", x_tilde), ("x_out", x_out)):
             if not a.requires_grad:
                 raise GradientError(

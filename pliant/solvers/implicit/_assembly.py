@@ -19,7 +19,9 @@ from .._post import drag_force, drag_hessian
 from ._workspace import MinimizerCache, _Workspace
 
 if TYPE_CHECKING:
-    from ...model import Model
+    from ...model import Control, Model
+    from ._newton import NewtonStats
+    from ._pcg import DeviceNewtonStats
 
 
 @wp.kernel(enable_backward=False)
@@ -122,21 +124,23 @@ class PotentialProblem(Protocol):
 
     model: Model
     energies: list
-    last_stats: Any
+    last_stats: NewtonStats | DeviceNewtonStats | None
     #: Optional: where the minimisers keep their workspace and L-BFGS's state between steps
     #: (:class:`~pliant.solvers.implicit.MinimizerCache`); without it nothing is reused.
     minimizer_cache: MinimizerCache
 
     @property
-    def control(self) -> Any: ...
+    def control(self) -> Control | None: ...
 
 
-def control_of(problem: PotentialProblem) -> Any:
+def control_of(problem: PotentialProblem) -> Control | None:
     """The Control (external forces, drag handle) of the step ``problem`` is taking, or None."""
     return problem.control
 
 
-def _control_terms(solver: Any, ws: _Workspace, x: wp.array, grad: wp.array, value: wp.array) -> None:
+def _control_terms(
+    solver: PotentialProblem, ws: _Workspace, x: wp.array, grad: wp.array, value: wp.array
+) -> None:
     """Add the Control's external forces and drag handle (as potentials) into ``grad`` and ``value``."""
     c = control_of(solver)
     if c is None:
@@ -165,7 +169,7 @@ def _control_terms(solver: Any, ws: _Workspace, x: wp.array, grad: wp.array, val
 
 
 def _assemble(
-    solver: Any,
+    solver: PotentialProblem,
     ws: _Workspace,
     x: wp.array,
     h: float,

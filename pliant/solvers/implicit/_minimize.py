@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
 import warp as wp
 
@@ -12,17 +12,22 @@ from ._options import step_settings
 from ._pcg import DeviceNewtonStats, minimize_device
 from ._quasi_newton import minimize_quasi_newton
 
+if TYPE_CHECKING:
+    from ...integrators._implicit import ImplicitOptionsLike
+    from ._assembly import PotentialProblem
+    from ._options import MinimizerLike
+
 
 def minimize(
-    problem: Any,
+    problem: PotentialProblem,
     t: float,
     h: float,
     x_tilde: wp.array,
     x_ref: wp.array,
     v_ref: wp.array,
     x_out: wp.array,
-    options: Any = None,
-    minimizer: Any = None,
+    options: ImplicitOptionsLike = None,
+    minimizer: MinimizerLike = None,
 ) -> NewtonStats | DeviceNewtonStats:
     """x_out = argmin Φ by :func:`minimize_quasi_newton` when the minimiser's ``method`` is "lbfgs", else by
     :func:`minimize_incremental_potential` (or its device form, :func:`minimize_device`, with

@@ -30,7 +30,7 @@ Reference: D. Baraff, A. Witkin, "Large steps in cloth simulation", SIGGRAPH 199
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
@@ -47,6 +47,11 @@ from ._workspace import (
     _Workspace,
     _workspace,
 )
+
+if TYPE_CHECKING:
+    from ...integrators._implicit import ImplicitOptionsLike
+    from ._assembly import PotentialProblem
+    from ._options import MinimizerLike
 
 
 @dataclass
@@ -98,13 +103,17 @@ def _stiffness_ratio(
 
 
 # ----------------------------------------------------------------------------------------------- Newton
-def _gradient(solver: Any, ws: _Workspace, x: wp.array, x_tilde: wp.array, h: float) -> np.ndarray:
+def _gradient(
+    solver: PotentialProblem, ws: _Workspace, x: wp.array, x_tilde: wp.array, h: float
+) -> np.ndarray:
     """∇Φ(x) into ws.grad (fixed rows zeroed); returns [max|g|/(m h), max|x|, inertia, E] (one host read)."""
     _launch_gradient(solver, ws, x, x_tilde, h)
     return ws.gstats.numpy().astype(np.float64)
 
 
-def _launch_gradient(solver: Any, ws: _Workspace, x: wp.array, x_tilde: wp.array, h: float) -> None:
+def _launch_gradient(
+    solver: PotentialProblem, ws: _Workspace, x: wp.array, x_tilde: wp.array, h: float
+) -> None:
     """∇Φ(x) into ws.grad (fixed rows zeroed) and [max|g|/(m h), max|x|, inertia, E] into ws.gstats."""
     m = solver.model
     n = m.particle_count
@@ -124,15 +133,15 @@ def _launch_gradient(solver: Any, ws: _Workspace, x: wp.array, x_tilde: wp.array
 
 @differentiable
 def minimize_incremental_potential(
-    solver: Any,
+    solver: PotentialProblem,
     t: float,
     h: float,
     x_tilde: wp.array,
     x_ref: wp.array,
     v_ref: wp.array,
     x_out: wp.array,
-    options: Any = None,
-    minimizer: Any = None,
+    options: ImplicitOptionsLike = None,
+    minimizer: MinimizerLike = None,
 ) -> NewtonStats:
     """x_out = argmin_x ½‖x − x̃‖²_M + h² Σ E(x) by Newton with an Armijo line search.
 

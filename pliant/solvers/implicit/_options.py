@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ...integrators._implicit import MINIMIZER_SETTINGS, ImplicitOptions
+from ...integrators._implicit import MINIMIZER_SETTINGS, ImplicitOptions, ImplicitOptionsLike
 
 #: The linear solvers of Newton's steps.
 LINEAR_SOLVERS = ("cg", "scipy-cg", "direct", "auto", "pcg")
@@ -96,7 +96,7 @@ class MinimizerOptions:
         return cls(**options) if options else _DEFAULT
 
     @classmethod
-    def coerce(cls, minimizer: Any, owner: str = "the implicit solver") -> MinimizerOptions:
+    def coerce(cls, minimizer: MinimizerLike, owner: str = "the implicit solver") -> MinimizerOptions:
         """``minimizer`` as MinimizerOptions: None (the defaults), a MinimizerOptions or a dict of some
         settings."""
         if minimizer is None:
@@ -109,10 +109,15 @@ class MinimizerOptions:
 
 
 _DEFAULT = MinimizerOptions()
+
+#: What :meth:`MinimizerOptions.coerce` accepts: None (the defaults), the options, or a dict of some settings.
+MinimizerLike = MinimizerOptions | dict[str, Any] | None
 assert {f.name for f in fields(MinimizerOptions)} == set(MINIMIZER_SETTINGS), "one list of names"
 
 
-def step_settings(options: Any, minimizer: Any = None) -> tuple[ImplicitOptions, MinimizerOptions]:
+def step_settings(
+    options: ImplicitOptionsLike, minimizer: MinimizerLike = None
+) -> tuple[ImplicitOptions, MinimizerOptions]:
     """An implicit step's settings: the integrator's and the minimiser's.
 
     Args:

@@ -38,7 +38,11 @@ from ._options import step_settings
 from ._workspace import _Workspace, _workspace, cache_of
 
 if TYPE_CHECKING:
+    from ...energies import Energy
+    from ...integrators._implicit import ImplicitOptionsLike
     from ...model import Model
+    from ._assembly import PotentialProblem
+    from ._options import MinimizerLike
 
 #: CG iterations per chunk (even: the two search-direction buffers alternate and a chunk ends where it
 #: began). A chunk's iterations past convergence are frozen launches; launched directly, each chunk costs one
@@ -308,7 +312,7 @@ class _DeviceNewton:
         self.bound = wp.zeros(1, dtype=model.scalar, device=d)
 
 
-def _device_newton(problem: Any, ws: _Workspace, max_iterations: int) -> _DeviceNewton:
+def _device_newton(problem: PotentialProblem, ws: _Workspace, max_iterations: int) -> _DeviceNewton:
     cache = cache_of(problem)
     dn = cache.pcg
     if dn is None or dn.key != (id(ws), max_iterations):
@@ -383,14 +387,14 @@ def host_bound_energies(energies: list, model: Model, x: wp.array, dx: wp.array,
     return [e for e in energies if not e.max_step_into(model, x, dx, bound)]
 
 
-def _device_bound(cls: Any) -> bool:
+def _device_bound(cls: type[Energy]) -> bool:
     """Whether an energy class bounds the step on the device (or has no bound)."""
     from ...energies import Energy
 
     return cls.max_step is Energy.max_step or cls.max_step_into is not Energy.max_step_into
 
 
-def graph_blocker(energies: list, device: Any) -> str | None:
+def graph_blocker(energies: list, device: wp.DeviceLike) -> str | None:
     """Why a device-Newton step on ``device`` cannot be replayed as a graph (an energy whose step bound is
     read on the host; CUDA without conditional graph nodes), or None."""
     host = [type(e).__name__ for e in energies if not _device_bound(type(e))]
@@ -403,15 +407,15 @@ def graph_blocker(energies: list, device: Any) -> str | None:
 
 @differentiable
 def minimize_device(
-    solver: Any,
+    solver: PotentialProblem,
     t: float,
     h: float,
     x_tilde: wp.array,
     x_ref: wp.array,
     v_ref: wp.array,
     x_out: wp.array,
-    options: Any = None,
-    minimizer: Any = None,
+    options: ImplicitOptionsLike = None,
+    minimizer: MinimizerLike = None,
 ) -> DeviceNewtonStats:
     """x_out = argmin Φ by Newton with device-side PCG, line search and stopping tests (see the module).
 

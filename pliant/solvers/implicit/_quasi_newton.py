@@ -47,7 +47,13 @@ from ._options import step_settings
 from ._workspace import MinimizerCache, _Workspace, cache_of
 
 if TYPE_CHECKING:
+    import scipy.sparse
+    from scipy.sparse.linalg import SuperLU
+
+    from ...integrators._implicit import ImplicitOptionsLike
     from ...model import Model
+    from ._assembly import PotentialProblem
+    from ._options import MinimizerLike
 
 
 def nested_dissection(points: np.ndarray, rows: np.ndarray, cols: np.ndarray, leaf: int = 32) -> np.ndarray:
@@ -132,7 +138,7 @@ class _LaggedHessian:
         self.factorizations = 0
         self._ratio: float | None = None
 
-    def refresh(self, solver: Any, ws: _Workspace, x: wp.array, h: float) -> None:
+    def refresh(self, solver: PotentialProblem, ws: _Workspace, x: wp.array, h: float) -> None:
         """Assemble M + h² Σ_lagged H_e at x (PSD-projected, fixed rows m_i·I) and keep its axis values."""
         # The drag handle, like contact, switches on and off: L-BFGS learns it rather than H₀ lagging it.
         _assemble(solver, ws, x, h, True, skip=frozenset(k for k, _ in self.volatile), control=False)
@@ -143,7 +149,7 @@ class _LaggedHessian:
         self.values = [None, None, None]  # the next update factorises every axis afresh
         self.lu = [None, None, None]
 
-    def update(self, solver: Any, ws: _Workspace, x: wp.array, h: float) -> int:
+    def update(self, solver: PotentialProblem, ws: _Workspace, x: wp.array, h: float) -> int:
         """Add the contact terms at x; refactorise an axis when its contact stiffness is not covered.
 
         Returns the number of factorisations. An axis keeps its factor while no entry of the new H₀ exceeds
@@ -192,7 +198,7 @@ class _LaggedHessian:
             if v is not None:
                 self.lu[d] = self.factor(v, d)
 
-    def factor(self, v: np.ndarray, axis: int) -> Any:
+    def factor(self, v: np.ndarray, axis: int) -> SuperLU | _VCycle:
         """The solver of axis ``axis``'s H₀ with values ``v`` (the pattern's entries, in our order): a
         SuperLU factor, or with :attr:`method` "amg" a smoothed-aggregation hierarchy whose ``solve`` is one
         V-cycle (a fixed SPD operator, as L-BFGS's H₀⁻¹ must be).
@@ -244,7 +250,7 @@ class _VCycle:
     operator). Building the hierarchy costs about one sparse LU of the same axis at 10³ cells and less above;
     a V-cycle costs a few sparse products, linear in the particles."""
 
-    def __init__(self, mat: Any) -> None:
+    def __init__(self, mat: scipy.sparse.spmatrix) -> None:
         import pyamg
 
         hierarchy = pyamg.smoothed_aggregation_solver(mat.tocsr(), symmetry="symmetric", max_coarse=500)
@@ -305,7 +311,7 @@ def _state(cache: MinimizerCache, ws: _Workspace, model: Model, energies: list):
     return st[1], st[2], st[3]
 
 
-def _energy(solver: Any, ws: _Workspace, x: wp.array) -> float:
+def _energy(solver: PotentialProblem, ws: _Workspace, x: wp.array) -> float:
     """Σ E(x) [J] with the Control's potentials (one host read)."""
     m = solver.model
     ws.tstats.zero_()
@@ -321,15 +327,15 @@ def _phi(g: np.ndarray, h2: float) -> float:
 
 @differentiable
 def minimize_quasi_newton(
-    solver: Any,
+    solver: PotentialProblem,
     t: float,
     h: float,
     x_tilde: wp.array,
     x_ref: wp.array,
     v_ref: wp.array,
     x_out: wp.array,
-    options: Any = None,
-    minimizer: Any = None,
+    options: ImplicitOptionsLike = None,
+    minimizer: MinimizerLike = None,
 ) -> NewtonStats:
     """x_out = argmin_x ½‖x − x̃‖²_M + h² Σ E(x) by L-BFGS with a lagged, prefactored Hessian.
 
@@ -461,7 +467,9 @@ def minimize_quasi_newton(
     return _finish(solver, stats, memo, x, x_tilde, g, h)
 
 
-def _finish(solver: Any, stats: NewtonStats, memo: dict, x: wp.array, x_tilde: wp.array, g, h: float):
+def _finish(
+    solver: PotentialProblem, stats: NewtonStats, memo: dict, x: wp.array, x_tilde: wp.array, g, h: float
+):
     if not stats.iterations:
         stats.converged = True
     c = x.numpy().astype(np.float64) - x_tilde.numpy().astype(np.float64)
@@ -531,7 +539,7 @@ def _ck_array(state: dict, key: str, shape: tuple[int, ...], kind: str = "f") ->
     return a
 
 
-def lbfgs_restore_checkpoint_state(solver: Any, state: dict[str, np.ndarray]) -> None:
+def lbfgs_restore_checkpoint_state(solver: PotentialProblem, state: dict[str, np.ndarray]) -> None:
     """Set L-BFGS's state in ``solver.minimizer_cache`` from :func:`lbfgs_checkpoint_state`'s arrays
     (validated first); ``solver`` is a PotentialProblem that declares a cache.
 

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
 from ..._blas import single_threaded
@@ -96,7 +97,7 @@ class _DeadLoads(Energy):
         self.f = f
         self._dummy: dict = {}
 
-    def _d(self, model: Model, key: str, dtype: Any) -> wp.array:
+    def _d(self, model: Model, key: str, dtype: type) -> wp.array:
         if key not in self._dummy:
             self._dummy[key] = wp.zeros(1, dtype=dtype, device=model.device)
         return self._dummy[key]
@@ -170,7 +171,7 @@ def _static_trial(
     x_out[i] = x_in[i] + alpha * wp.cw_mul(dx_in[i], free[i])
 
 
-def _as_vec3_array(model: Model, a: Any, what: str) -> wp.array:
+def _as_vec3_array(model: Model, a: wp.array | npt.ArrayLike, what: str) -> wp.array:
     if isinstance(a, wp.array):
         if a.shape[0] != model.particle_count:
             raise ValueError(
@@ -188,7 +189,7 @@ def _as_vec3_array(model: Model, a: Any, what: str) -> wp.array:
     return wp.array(arr.astype(np_dtype), dtype=model.vec3, device=model.device)
 
 
-def _fixed_mask(model: Model, fixed: Any) -> np.ndarray:
+def _fixed_mask(model: Model, fixed: npt.ArrayLike | None) -> np.ndarray:
     """The fixed components as a bool [N, 3] mask: pinned/kinematic vertices plus ``fixed``."""
     n = model.particle_count
     mask = np.repeat((model.particle_inv_mass.numpy() == 0.0)[:, None], 3, axis=1)  # pins, kinematic
@@ -282,9 +283,9 @@ def solve_static(
     model: Model,
     energies: Sequence[Energy],
     *,
-    fixed: Any = None,
-    loads: Any = None,
-    x0: Any = None,
+    fixed: npt.ArrayLike | None = None,
+    loads: wp.array | npt.ArrayLike | None = None,
+    x0: wp.array | npt.ArrayLike | None = None,
     tol: float = 1e-6,
     max_iterations: int = 50,
     linear_solver: str = "auto",

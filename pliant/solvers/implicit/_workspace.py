@@ -16,7 +16,11 @@ import numpy as np
 import warp as wp
 
 if TYPE_CHECKING:
+    from warp.optim.linear import CG
+
     from ...model import Model
+    from ._assembly import PotentialProblem
+    from ._pcg import _DeviceNewton
 
 
 class _Workspace:
@@ -83,16 +87,16 @@ class _Workspace:
         self.tstats_e = self.tstats[1:2]
         self.tstats_step = self.tstats[2:4]
         self.np_dtype = np.float32 if model.dtype == "float32" else np.float64
-        self._cg: Any = None
-        self._cg_key: Any = None
+        self._cg: CG | None = None
+        self._cg_key: tuple[float, int] | None = None
 
-    def cg(self, tol: float, maxiter: int) -> Any:
+    def cg(self, tol: float, maxiter: int) -> CG:
         """The pre-allocated CG functor (Jacobi preconditioner on ``inv_diag``)."""
-        from warp.optim.linear import aslinearoperator, cg
+        from warp.optim.linear import CG, aslinearoperator, cg
 
         key = (tol, maxiter)
         if self._cg is None or self._cg_key != key:
-            self._cg = cg(
+            solver = cg(
                 self.A,
                 self.rhs,
                 self.dx,
@@ -102,7 +106,8 @@ class _Workspace:
                 M=aslinearoperator(self.inv_diag),
                 run=False,
             )
-            self._cg_key = key
+            assert isinstance(solver, CG)  # run=False returns the functor, not a result
+            self._cg, self._cg_key = solver, key
         return self._cg
 
 
@@ -169,7 +174,7 @@ class MinimizerCache:
         self.newton: _Workspace | None = None
         self.lbfgs: tuple[Any, Any, Any, dict] | None = None
         #: The device Newton's buffers (``linear_solver="pcg"``, :mod:`._pcg`), or None before its first step.
-        self.pcg: Any = None
+        self.pcg: _DeviceNewton | None = None
 
     def workspace(self, model: Model, energies: list) -> _Workspace:
         """The workspace of (``model``, ``energies``), built on first use and when either changes."""
@@ -187,13 +192,13 @@ class MinimizerCache:
             memo.clear()
 
 
-def cache_of(problem: Any) -> MinimizerCache:
+def cache_of(problem: object) -> MinimizerCache:
     """The problem's declared ``minimizer_cache``; a problem without one gets a fresh cache for this call
     (correct, but nothing is reused from one step to the next)."""
     cache = getattr(problem, "minimizer_cache", None)
     return cache if cache is not None else MinimizerCache()
 
 
-def _workspace(problem: Any) -> _Workspace:
+def _workspace(problem: PotentialProblem) -> _Workspace:
     """The Newton workspace of ``problem``'s model and energies (kept in its cache)."""
     return cache_of(problem).workspace(problem.model, problem.energies)
