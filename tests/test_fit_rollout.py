@@ -48,8 +48,8 @@ def test_fit_and_diff_give_identical_losses_and_gradients(problem):
     the same per-frame loss, and against a hand-written tape loop: the same loss and ∂L/∂k per spring."""
     n = problem.n_train - 1
     r = _Rollout(problem, problem.nominal, shared=False, n_train=problem.n_train)
-    s0 = r.scene.model.state()
-    fit_loss, _ = r.run(s0.particle_q, s0.particle_qd, 0, n, [s0.particle_q])
+    r.start()
+    fit_loss, _ = r.run(0, n, reset=True)
     fit_grad = r.grads["spring_stiffness"]
 
     m, solver = r.scene.model, r.scene.solver

@@ -158,6 +158,10 @@ class RolloutGraphs:
         self.captures = 0
         self.replays = 0
         self.direct = 0
+        #: Graphs kept (each holds one rollout's intermediate arrays). A caller that cycles through a known
+        #: set of keys (the fit's gradient stage: one per horizon shape) raises it to that set's size, or
+        #: every key's graph would be evicted before its next call and captured again.
+        self.max_graphs = _MAX_GRAPHS
         #: Why the last rollout ran directly (None: it was replayed, or it was a key's first call).
         self.reason: str | None = None
         #: Whether the last rollout was replayed.
@@ -180,7 +184,7 @@ class RolloutGraphs:
         self.reason = entry.blocked if entry is not None else None
         if entry is None or entry.blocked is not None:
             if entry is None:
-                if len(self._entries) >= _MAX_WARM:
+                if len(self._entries) >= max(_MAX_WARM, self.max_graphs):
                     self._entries.clear()  # keys that change every call (new closures) must not pile up
                 self._entries[key] = _Entry(callbacks)
             return self._direct(device_pass)
@@ -202,7 +206,7 @@ class RolloutGraphs:
                 why = "a replay differed from the direct run (a host read or a changing Python value in the "
                 return self._block(entry, why + "step or a callback)", device, None, direct)
             graphs = [e for e in self._entries.values() if e.graph is not None]
-            if len(graphs) >= _MAX_GRAPHS:
+            if len(graphs) >= self.max_graphs:
                 graphs[0].graph = graphs[0].result = None
             entry.graph, entry.result = cap.graph, captured
             self.captures += 1

@@ -9,6 +9,9 @@ window start (teacher forcing, as the CMA-ES stage's training runs). ``horizon=N
 the whole training rollout on one tape. Each per-element value is ``a = a₀ · exp(θ)``; θ is what is fitted,
 bounded to ``|θ| ≤ log(max_factor)``.
 
+Repeated horizons of one shape (frames, history depth, reset) replay one captured graph (:class:`_Rollout`,
+:mod:`pliant.diff._graph`), with the numbers of ``PLIANT_GRAPH=0`` bit for bit.
+
 A solver whose step is not tape-correct gives zero gradients; this stage refuses to go on when the
 gradient of a non-zero loss is exactly zero (a clear error, never a silent no-op).
 """
@@ -23,6 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import warp as wp
 
+from ..diff._graph import rollout_graphs
 from ..model import State
 from ._cmaes import StageResult
 from ._losses import acceleration_loss, chamfer_loss, track_loss
@@ -31,6 +35,9 @@ from ._problem import Problem
 
 if TYPE_CHECKING:
     from ..scene import Scene
+
+#: Most horizon shapes whose rollout graphs the stage keeps (each holds one horizon's intermediate arrays).
+_MAX_SHAPES = 8
 
 
 class Smoothness:
@@ -99,7 +106,15 @@ class Convergence:
 
 class _Rollout:
     """A scene built with gradients, its per-element arrays and the observation arrays on the device; its
-    rollouts are :func:`pliant.diff.rollout`'s (the one stepping loop), with the fit's per-frame loss."""
+    rollouts are :func:`pliant.diff.rollout`'s (the one stepping loop), with the fit's per-frame loss.
+
+    Repeated horizons replay one captured graph (:mod:`pliant.diff._graph`), which needs every call of a
+    horizon shape to launch the same kernels on the same arrays: the rollout starts from fixed state buffers
+    (:meth:`start`, :meth:`force`, and the end state copied back after each horizon), each horizon shape
+    (frames, history depth) has one loss closure, made once, that reads its frames' observations from
+    fixed buffers filled before the call, and the acceleration term's history (the positions of the up to
+    three frames before the horizon) lives in fixed device buffers that the loss refills inside the pass.
+    """
 
     def __init__(self, problem: Problem, values: dict[str, float], shared: bool, n_train: int) -> None:
         self.problem, self.n_train = problem, n_train
@@ -126,7 +141,16 @@ class _Rollout:
             self.count: list[wp.array] = [wp.array([int(c)], dtype=wp.int32, device=d) for c in o.cloud_count]
             self.cloud_norm = max(int(o.cloud_count[1:n_train].sum()), 1)
         self.control_fn = problem.control_fn(self.scene)
+        self.control = m.control()  # one Control: a new one each call would be a new graph key
         self.grads: dict[str, np.ndarray] = {}
+        # Fixed buffers (no gradient: the rollout differentiates its own copy of the start state).
+        n = m.particle_count
+        self.state0 = State(*(wp.empty(n, dtype=m.vec3, device=d) for _ in range(2)))
+        self.accel = bool(problem.weights["acceleration"])
+        self.hist = [wp.empty(n, dtype=m.vec3, device=d) for _ in range(3)]  # the frames before a horizon
+        self.hist_out = [wp.empty(n, dtype=m.vec3, device=d) for _ in range(3)]  # … after it
+        self.depth = 0  # how many of hist are frames (the last is the start state)
+        self._losses: dict[tuple[int, int], tuple[Callable[[int, State, wp.array], None], list]] = {}
 
     def set_theta(self, theta: np.ndarray) -> None:
         for k, a in self.arrays.items():
@@ -142,57 +166,101 @@ class _Rollout:
             g = g + self.grads[self.names[k]] * a.numpy().astype(np.float64)
         return np.atleast_1d(np.sum(g)) if self.shared else np.asarray(g)
 
-    def frame_loss(self, hist: list) -> Callable[[int, State, wp.array], None]:
-        """The fit's loss of observed frame ``g`` (tracks, Chamfer, acceleration over ``hist``, the
-        positions of the frames before), added into ``out``."""
+    def start(self) -> None:
+        """Start from the model's initial state (frame 0), with only it in the history."""
+        s = self.scene.model.state()
+        self._restart(s.particle_q, s.particle_qd)
+        self.depth = 1
+
+    def force(self, f: int) -> None:
+        """Teacher forcing at a window start of multiple shooting (``problem.shooting``), as the CMA-ES
+        stage's training runs do: the tracked particles restart from their observed state (which then ends
+        the history, as the frame it replaces did)."""
+        q, qd = self.state0.particle_q, self.state0.particle_qd
+        qn, qdn = q.numpy(), qd.numpy()
+        self.problem.force_state(self.scene.model, f, qn, qdn)
+        self._restart(
+            wp.array(qn, dtype=q.dtype, device=q.device), wp.array(qdn, dtype=q.dtype, device=q.device)
+        )
+
+    def _restart(self, q: wp.array, qd: wp.array) -> None:
+        wp.copy(self.state0.particle_q, q)
+        wp.copy(self.state0.particle_qd, qd)
+        wp.copy(self.hist[2], q)
+
+    def shape(self, frames: int) -> tuple[int, int]:
+        """The loss's shape key of a horizon of ``frames`` frames starting now: (frames, history depth)."""
+        return frames, self.depth if self.accel else 0
+
+    def frame_loss(self, frames: int, depth: int) -> tuple[Callable[[int, State, wp.array], None], list]:
+        """The fit's loss of a horizon of ``frames`` frames with ``depth`` frames of history (tracks,
+        Chamfer, acceleration), and its observation buffers; made once per shape, so that a repeated horizon
+        is the same callback on the same arrays (a replayable graph)."""
+        key = (frames, depth)
+        if key in self._losses:
+            return self._losses[key]
         p, m = self.problem, self.scene.model
+        track, chamfer, accel = p.weights["track"], p.weights["chamfer"], p.weights["acceleration"]
+        beta, track_norm, particle = p.beta, self.track_norm, self.particle
+        pts = [wp.empty_like(self.points[0]) for _ in range(frames)]
+        vis = [wp.empty_like(self.visible[0]) for _ in range(frames)]
+        buffers: list = [(pts, self.points), (vis, self.visible)]
+        cloud = count = None
+        cloud_norm = 0
+        if self.cloud is not None and chamfer:
+            cloud = [wp.empty_like(self.cloud[0]) for _ in range(frames)]
+            count = [wp.empty_like(self.count[0]) for _ in range(frames)]
+            buffers += [(cloud, self.cloud), (count, self.count)]
+            cloud_norm = self.cloud_norm
+        accel_norm = 3.0 * m.particle_count * max(self.n_train - 3, 1)
+        hist, hist_out = self.hist[3 - depth :], self.hist_out
+        keep = min(depth + frames, 3)  # history after the horizon
+        window: list[wp.array] = []  # filled during a pass only (a callback's closure is part of its key)
 
         def add(g: int, s: State, loss: wp.array) -> None:
-            if p.weights["track"]:
+            k = g - 1  # the horizon's frame (the rollout's first_frame is 0)
+            if track:
                 track_loss(
                     s.particle_q,
-                    self.particle,
-                    self.points[g],
-                    self.visible[g],
+                    particle,
+                    pts[k],
+                    vis[k],
                     loss,
-                    beta=p.beta,
-                    weight=p.weights["track"],
-                    normaliser=self.track_norm,
+                    beta=beta,
+                    weight=track,
+                    normaliser=track_norm,
                 )
-            if self.cloud is not None and p.weights["chamfer"]:
-                chamfer_loss(
-                    s.particle_q,
-                    self.cloud[g],
-                    self.count[g],
-                    loss,
-                    weight=p.weights["chamfer"],
-                    normaliser=self.cloud_norm,
-                )
-            hist.append(s.particle_q)
-            if p.weights["acceleration"] and len(hist) >= 4:
-                x0, x1, x2, x3 = hist[-4:]
-                acceleration_loss(
-                    x0,
-                    x1,
-                    x2,
-                    x3,
-                    loss,
-                    beta=p.beta,
-                    weight=p.weights["acceleration"],
-                    normaliser=3.0 * m.particle_count * max(self.n_train - 3, 1),
-                )
+            if cloud is not None and count is not None:
+                chamfer_loss(s.particle_q, cloud[k], count[k], loss, weight=chamfer, normaliser=cloud_norm)
+            if not depth:
+                return
+            if k == 0:
+                window[:] = hist
+            window.append(s.particle_q)
+            if len(window) >= 4:
+                x0, x1, x2, x3 = window[-4:]
+                acceleration_loss(x0, x1, x2, x3, loss, beta=beta, weight=accel, normaliser=accel_norm)
+            if k == frames - 1:  # the history the next horizon starts from, copied on the device
+                for j, x in enumerate(window[-keep:]):
+                    wp.copy(hist_out[3 - keep + j], x)
+                window.clear()
 
-        return add
+        self._losses[key] = (add, buffers)
+        return add, buffers
 
-    def run(
-        self, q: wp.array, qd: wp.array, f0: int, frames: int, hist: list, reset: bool = False
-    ) -> tuple[float, State]:
-        """Simulate frames f0+1 … f0+frames from (q, qd) through :func:`pliant.diff.rollout` (one tape);
-        returns (loss, end state) and keeps ∂loss/∂(per-element arrays) for :meth:`grad_theta`. ``reset``:
-        the solver forgets what it carries from the frame before (frame 0, or a teacher-forced start)."""
+    def run(self, f0: int, frames: int, reset: bool = False) -> tuple[float, State]:
+        """Simulate frames f0+1 … f0+frames from the start buffers through :func:`pliant.diff.rollout` (one
+        tape); returns (loss, end state), keeps ∂loss/∂(per-element arrays) for :meth:`grad_theta` and
+        carries the end state and history into the buffers for the next horizon. ``reset``: the solver
+        forgets what it carries from the frame before (frame 0, or a teacher-forced start)."""
         from ..diff import rollout
 
         scene, m = self.scene, self.scene.model
+        depth = self.shape(frames)[1]
+        loss, buffers = self.frame_loss(frames, depth)
+        for dst, src in buffers:
+            for k in range(frames):
+                wp.copy(dst[k], src[f0 + 1 + k])
         fn = self.control_fn
         res = rollout(
             m,
@@ -202,20 +270,26 @@ class _Rollout:
             dt=scene.substep_dt,
             substeps=scene.substeps,
             params=sorted(set(self.names.values())),
-            state0=State(q, qd),
-            control=m.control(),
+            state0=self.state0,
+            control=self.control,
             # One segment: the acceleration term reads the frames before, in order.
             checkpoint_every=frames,
-            frame_loss=self.frame_loss(hist),
-            control_fn=None if fn is None else (lambda f, c: fn(f * scene.frame_dt, c)),
-            first_frame=f0,
+            frame_loss=loss,
+            control_fn=None if fn is None else (lambda f, c: fn((f0 + f) * scene.frame_dt, c)),
+            # Frames are counted from the horizon's start, so that every horizon of a shape is one key.
+            first_frame=0,
             reset=reset or f0 == 0,  # a horizon continuing the previous one keeps what the solver carries
-            # Never replayed: each horizon starts from new arrays and its frame loss is a new closure that
-            # keeps host history (the acceleration term), so every call is a new key (pliant.diff._graph).
-            graph=False,
+            # A control function sets the control points from the host each frame: not replayable.
+            graph=None if fn is None else False,
         )
         self.grads = res.grads
         assert res.state is not None  # rollout always returns its end state
+        wp.copy(self.state0.particle_q, res.state.particle_q)
+        wp.copy(self.state0.particle_qd, res.state.particle_qd)
+        if depth:
+            self.depth = min(depth + frames, 3)
+            for i in range(3 - self.depth, 3):
+                wp.copy(self.hist[i], self.hist_out[i])
         return res.loss, res.state
 
 
@@ -231,8 +305,17 @@ def _registry_name(scene: Scene, key: str) -> str:
     )
 
 
-def _detach(a: wp.array) -> wp.array:
-    return wp.clone(a, requires_grad=True)
+def _schedule(problem: Problem, n_frames: int, h: int) -> list[tuple[int, int, bool]]:
+    """(first frame, frames, teacher-forced start) of each horizon of an Adam epoch of ``h``-frame
+    horizons over frames 1 … n_frames; a horizon never spans a window start of multiple shooting."""
+    out, f0 = [], 0
+    while f0 < n_frames:
+        frames = min(h, n_frames - f0)
+        if problem.shooting > 0:
+            frames = min(frames, problem.shooting - f0 % problem.shooting)
+        out.append((f0, frames, problem.forces(f0)))
+        f0 += frames
+    return out
 
 
 def gradient_stage(
@@ -284,7 +367,6 @@ def gradient_stage(
     t0 = time.perf_counter()
     n_train = problem.n_train if frames is None else min(max(2, int(frames)), problem.n_train)
     r = _Rollout(problem, values, shared, n_train)
-    m = r.scene.model
     n_frames = n_train - 1
     bound = math.log(max_factor)
     theta = np.zeros(r.size)
@@ -300,15 +382,13 @@ def gradient_stage(
         rv, rg = prior.value_grad(th)
         return value + share * rv, g + share * rg
 
-    def rollout_grad(
-        th: np.ndarray, f0: int, frames: int, q: wp.array, qd: wp.array, hist: list, reset: bool = False
-    ):
+    def rollout_grad(th: np.ndarray, f0: int, frames: int, reset: bool = False) -> tuple[float, np.ndarray]:
         from ..diff import check_rollout
         from ..sim import DivergenceError
 
         r.set_theta(th)
         try:  # pl.diff's check: non-finite, or a particle faster than 1000 m/s (a finite blow-up)
-            value, s = r.run(q, qd, f0, frames, hist, reset)  # the rollout checks its own states
+            value, s = r.run(f0, frames, reset)  # the rollout checks its own states
             g = r.grad_theta()
             sc = r.scene
             h = sc.substep_dt
@@ -328,30 +408,26 @@ def gradient_stage(
                     "--per-element), or use a differentiable solver (XPBD)"
                 )
             checked[0] = True
-        end = (_detach(s.particle_q), _detach(s.particle_qd))
-        return value, g, end
+        return value, g
 
-    def start_state():
-        s = m.state()
-        return _detach(s.particle_q), _detach(s.particle_qd)
-
-    def forced(f: int, q: wp.array, qd: wp.array) -> tuple[wp.array, wp.array]:
-        """Teacher forcing at a window start of multiple shooting (``problem.shooting``), as the CMA-ES
-        stage's training runs do: the tracked particles restart from their observed state."""
-        qn, qdn = q.numpy(), qd.numpy()
-        problem.force_state(m, f, qn, qdn)
-        return (
-            wp.array(qn, dtype=q.dtype, device=q.device, requires_grad=True),
-            wp.array(qdn, dtype=qd.dtype, device=qd.device, requires_grad=True),
-        )
+    h = n_frames if horizon is None or optimizer == "lbfgs" else max(1, int(horizon))
+    schedule = _schedule(problem, n_frames, h) if optimizer == "adam" else [(0, n_frames, False)]
+    # Each horizon shape (frames, history depth, reset) is one captured rollout graph, replayed every epoch
+    # (pliant.diff._graph): keep them all, or each would evict the next one before its turn.
+    shapes, depth = set(), 1
+    for f0, frames, restart in schedule:
+        shapes.add((frames, depth if r.accel else 0, restart or f0 == 0))
+        depth = min(depth + frames, 3)
+    graphs = rollout_graphs(r.scene.solver)
+    graphs.max_graphs = max(graphs.max_graphs, min(len(shapes), _MAX_SHAPES))
 
     try:
         if optimizer == "lbfgs":
             from scipy.optimize import minimize
 
             def fun(th: np.ndarray) -> tuple[float, np.ndarray]:
-                q, qd = start_state()
-                value, g, _ = rollout_grad(th, 0, n_frames, q, qd, [q])
+                r.start()
+                value, g = rollout_grad(th, 0, n_frames)
                 value, g = regularise(th, value, g, 1.0)
                 if value < result.loss:
                     result.loss, result.per_element = value, r.values(th)
@@ -373,29 +449,19 @@ def gradient_stage(
                 callback=cb,
             )
         else:
-            h = n_frames if horizon is None else max(1, int(horizon))
             mom, var = np.zeros(r.size), np.zeros(r.size)
             b1, b2, step = 0.9, 0.99, 0
             stop = Convergence(tol)
             for it in range(iterations):
                 # Step size decays geometrically from lr to lr / 10 over the run, so that Adam settles.
                 lr_it = lr * 0.1 ** (it / max(iterations - 1, 1))
-                q, qd = start_state()
-                hist: list = [q]
+                r.start()
                 epoch = 0.0
-                f0 = 0
-                while f0 < n_frames:
-                    frames = min(h, n_frames - f0)
-                    if problem.shooting > 0:  # a tape never spans a window start
-                        frames = min(frames, problem.shooting - f0 % problem.shooting)
-                    restart = problem.forces(f0)
+                for f0, frames, restart in schedule:
                     if restart:
-                        q, qd = forced(f0, q, qd)
-                        hist[-1] = q
-                    value, g, (q, qd) = rollout_grad(theta, f0, frames, q, qd, hist, restart)
+                        r.force(f0)
+                    value, g = rollout_grad(theta, f0, frames, restart)
                     value, g = regularise(theta, value, g, frames / n_frames)
-                    hist[-1] = q
-                    hist[:] = hist[-3:]
                     epoch += value
                     result.evaluations += 1
                     step += 1
@@ -403,7 +469,6 @@ def gradient_stage(
                     var = b2 * var + (1 - b2) * g * g
                     mhat, vhat = mom / (1 - b1**step), var / (1 - b2**step)
                     theta = np.clip(theta - lr_it * mhat / (np.sqrt(vhat) + 1e-12), -bound, bound)
-                    f0 += frames
                 # θ moved during the epoch (one step per horizon): its loss is the sum over the frames as
                 # they were simulated; the result is the θ after the epoch.
                 result.loss, result.per_element = epoch, r.values(theta)
