@@ -1,10 +1,15 @@
-"""The GPU rows of ``pliant bench`` (issue 24 item 6) in their quick form on the CPU: the drape's memory traffic
-per substep and the device's peak bandwidth."""
+"""The GPU rows of ``pliant bench`` (issue 24 item 6) in their quick form on the CPU: the 256² and 512² drapes
+with their memory traffic, XPBD at 256² and the references computed on demand."""
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import pytest
 
+from pliant import bench
+from pliant.bench import _drape_motion
 from pliant.bench._bandwidth import bytes_per_substep, dram_bandwidth, peak_bandwidth
 from pliant.bench._drape_scene import cloth_drape_model
 
@@ -56,3 +61,49 @@ def test_peak_bandwidth_from_memory_clock_and_bus_width():
     assert dram_bandwidth(2_619_000, 5120) == pytest.approx(3.35e12, rel=1e-3)
     assert dram_bandwidth(0, 5120) is None
     assert peak_bandwidth("cpu") is None
+
+
+def test_large_drape_rows_quick_carry_traffic_and_motion():
+    """The 512² row in quick form (a 16² cloth at the 512² row's 640 substeps): its motion within 0.5 % of
+    the converged curve, and the bytes of the CPU's scatter step (16 B per spring, 124 B per particle)."""
+    row = bench.run("cloth_drape_512_symplectic", quick=True, device="cpu")
+    n, s = _counts(16)
+    assert row["particles"] == n and row["elements"] == s and row["substeps"] == 640
+    assert row["stable"] and row["reference"] == "stored"
+    assert math.isfinite(row["trajectory_error"]) and row["trajectory_error"] < 0.005
+    assert row["bytes_per_substep"] == 16 * s + 124 * n
+    expected = row["bytes_per_substep"] * 30 * 640 / row["wall_s"] / 1e9
+    assert row["achieved_bandwidth_gbs"] == pytest.approx(expected, rel=0.01)
+    assert row["bandwidth_fraction"] is None and row["peak_bandwidth_gbs"] is None
+
+
+def test_implicit_drape_rows_have_no_traffic_figure():
+    row = bench.run("cloth_drape_256_implicit", quick=True, device="cpu")
+    assert row["bytes_per_substep"] is None and math.isfinite(row["trajectory_error"])
+
+
+@pytest.mark.parametrize("schedule", ["coloring", "jacobi"])
+def test_xpbd_256_rows_quick(schedule):
+    row = bench.run(f"xpbd_cloth_drape_256_{schedule}", quick=True, device="cpu")
+    assert row["schedule"] == schedule and row["particles"] == 289 and row["stable"]
+    assert row["substeps"] == (500 if schedule == "coloring" else 1000)
+    assert math.isfinite(row["trajectory_error"]) and row["reference"] == "stored"
+
+
+def test_missing_reference_is_computed_on_the_device_and_cached(tmp_path, monkeypatch):
+    """A size without a stored reference gets one computed on the row's device, cached and found again;
+    on the CPU the large sizes are not computed (None, with the reason)."""
+    monkeypatch.setenv("PLIANT_BENCH_CACHE", str(tmp_path))
+    monkeypatch.setattr(_drape_motion, "_RESOLVED", {})
+    ref, source = _drape_motion.reference_for(8, "cpu")
+    assert ref is not None and source.startswith("computed on cpu")
+    assert (tmp_path / "cloth_drape_8.npz").exists()
+    monkeypatch.setattr(_drape_motion, "_RESOLVED", {})
+    again, source = _drape_motion.reference_for(8, "cpu")
+    assert source.startswith("cached") and again is not None
+    np.testing.assert_array_equal(again, ref)
+    # converged: the float32 run at the stable setting (10 substeps per frame at 8²) follows it
+    curve = _drape_motion.sag_curve(8, "symplectic", substeps=10)
+    assert _drape_motion.trajectory_error(curve, ref) < 0.005
+    none, why = _drape_motion.reference_for(512, "cpu")
+    assert none is None and "not computed on the CPU" in why
