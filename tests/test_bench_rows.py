@@ -1,5 +1,5 @@
 """The GPU rows of ``pliant bench`` (issue 24 item 6) in their quick form on the CPU: the 256² and 512² drapes
-with their memory traffic, XPBD at 256² and the references computed on demand."""
+with their memory traffic, XPBD at 256², the references computed on demand, and the two fit rows."""
 
 from __future__ import annotations
 
@@ -107,3 +107,27 @@ def test_missing_reference_is_computed_on_the_device_and_cached(tmp_path, monkey
     assert _drape_motion.trajectory_error(curve, ref) < 0.005
     none, why = _drape_motion.reference_for(512, "cpu")
     assert none is None and "not computed on the CPU" in why
+
+
+def test_fit_rope_row_quick_recovers_the_readme_truth():
+    row = bench.run("fit_rope", quick=True, device="cpu")
+    assert row["truth"] == {"stiffness": 480.0, "damping_rate": 0.5} and row["tracks"] == 10
+    assert row["wall_s"] > 0 and row["compile_s"] > 0 and row["cpu_cores"] >= 1
+    assert row["max_param_rel_error"] < 0.05, row
+    assert row["test_error_mm"] < 0.25 * row["test_error_start_mm"], row
+
+
+def test_fit_cloth_row_quick_improves_the_held_out_error():
+    row = bench.run("fit_cloth_17", quick=True, device="cpu")
+    assert row["scene"] == "cloth_7x7" and row["tracks"] == 20 and row["epochs"] == 1
+    assert row["param_rel_error"]["damping_rate"] < 0.1, row
+    assert row["test_error_mm"] < 0.25 * row["test_error_start_mm"], row
+
+
+@pytest.mark.slow
+def test_fit_rope_row_is_the_readme_fit():
+    """The full row fits what the README's commands fit: the same stiffness (README: 479.262 N/m) and
+    held-out error (1.7 mm)."""
+    row = bench.run("fit_rope", device="cpu")
+    assert row["values"]["stiffness"] == pytest.approx(479.262, abs=0.5)
+    assert row["test_error_mm"] == pytest.approx(1.7, abs=0.1)
