@@ -31,6 +31,7 @@ import numpy as np
 import pliant as pl
 import pliant.fit
 import pliant.scene
+from pliant.bench._fit import CLOTH17, CLOTH17_OBSERVE, CLOTH17_START, CLOTH17_TRUTH
 
 FEM = """
 [scene]
@@ -53,31 +54,6 @@ nu = 0.35
 [ground]
 height = 0.0
 friction = 0.5
-[solver]
-integrator = "SymplecticEuler"
-damping_rate = 1.0
-"""
-
-CLOTH = """
-[scene]
-name = "cloth17"
-frame_dt = 0.03333333333333333
-substeps = 30
-frames = 89
-dtype = "float32"
-[[objects]]
-kind = "cloth"
-nx = 16
-ny = 16
-size = 0.8
-origin = [-0.4, 0.9, -0.4]
-plane = "xz"
-mass = 1.0
-pin = "top-corners"
-[objects.material]
-stiffness = 300.0
-bend_stiffness = 2.0
-damping = 0.005
 [solver]
 integrator = "SymplecticEuler"
 damping_rate = 1.0
@@ -136,15 +112,15 @@ def fem_box(noise: float = 0.0, dropout: float = 0.0) -> dict:
 def cloth17() -> dict:
     import tempfile
 
-    cfg = pl.scene.parse_scene(CLOTH)
-    obs = pl.fit.observe(pl.scene.build_scene(cfg, device="cpu"), tracks=60, noise=0.001, dropout=0.3, seed=3)
-    wrong = pl.fit.apply_globals(cfg, {"stiffness": 480.0, "damping_rate": 0.5})
+    cfg = pl.scene.parse_scene(CLOTH17)  # shared with the `pliant bench fit_cloth_17` row
+    obs = pl.fit.observe(pl.scene.build_scene(cfg, device="cpu"), **CLOTH17_OBSERVE)
+    wrong = pl.fit.apply_globals(cfg, CLOTH17_START)
     with tempfile.TemporaryDirectory() as out:
         rep = pl.fit.fit(
             wrong,
             obs,
             out,
-            params=["stiffness", "damping_rate"],
+            params=list(CLOTH17_TRUTH),
             per_element="stiffness",
             generations=20,
             epochs=1,
@@ -155,7 +131,7 @@ def cloth17() -> dict:
     v = {k: p["value"] for k, p in rep["params"].items()}
     return {
         "values": v,
-        "rel_error": {"stiffness": _rel(v["stiffness"], 300.0), "damping_rate": _rel(v["damping_rate"], 1.0)},
+        "rel_error": {k: _rel(v[k], t) for k, t in CLOTH17_TRUTH.items()},
         "test_error_m": rep["error"]["test"],
         "test_error_start_m": rep["error_nominal"]["test"],
         "gradient_stage_kept": rep["gradient_stage_kept"],

@@ -9,8 +9,14 @@
 #
 # Every step writes into $OUT (the device tool brings it back); a step that fails or runs out of time is
 # recorded in $OUT/steps.txt and the script goes on, so one slow step never costs the others' figures.
-# Budget (seconds): part 1 = tests 180, graphs 60, drape/xpbd harness 150 (about 400 s with start-up);
-# part 2 = fits 150, FEM 150 (about 320 s). Each part fits one 10-minute call; no argument runs both.
+# Budget (seconds, the steps' time limits): part 1 = tests 180, graphs 60, drape/xpbd harness 150 (about
+# 400 s with start-up); part 2 = fits of tracks and footage 150, FEM 150, drape/XPBD rows 90, fit rows 150
+# (540 s), with the fit rows' CPU side (one core, 300 s) running beside them on core 0 while the other steps
+# are pinned to the remaining cores. Each part fits one 10-minute call; no argument runs both.
+#
+# The drape and XPBD rows at 256² and 512² compute their converged references on the GPU (seconds there,
+# an hour of one CPU core at 512²) into $OUT/bench_cache: commit those .npz files (31 numbers each) to
+# pliant/bench/references/ so that later runs, on any device, find them stored.
 set -u
 OUT=${OUT:-out/gpu}
 mkdir -p "$OUT"
@@ -46,14 +52,37 @@ fi
 fi
 
 if part 2; then
+export PLIANT_BENCH_CACHE="$OUT/bench_cache"  # references computed on the GPU come back with $OUT
+# 7b. Issue 24's fit figure, its CPU side: the same rows on one core (taskset), beside the GPU steps.
+NCPU=$(nproc)
+REST=""
+if [ "$NCPU" -ge 4 ]; then
+    REST="taskset -c 1-$((NCPU - 1))"  # the GPU steps keep off core 0
+    step fit_rows_cpu 300 taskset -c 0 $PY -m pliant.cli bench fit_rope fit_cloth_17 --device cpu \
+        --json "$OUT/fit_rows_cpu.jsonl" &
+    CPU_FITS=$!
+fi
 # 4. Issues 25 and 30's figures on a GPU: the default fits of MuJoCo's cloth tracks and footage.
-step fit_tracks 60 $PY -m pliant.cli fit tests/data/foreign/mujoco_cloth.toml \
+step fit_tracks 60 $REST $PY -m pliant.cli fit tests/data/foreign/mujoco_cloth.toml \
     tests/data/foreign/mujoco_cloth.npz --out "$OUT/fit_tracks" --device "$DEV" --no-video -q
-step fit_footage 90 $PY -m pliant.cli fit tests/data/foreign/mujoco_cloth.toml \
+step fit_footage 90 $REST $PY -m pliant.cli fit tests/data/foreign/mujoco_cloth.toml \
     tests/data/foreign/mujoco_cloth_video.npz --out "$OUT/fit_footage" --device "$DEV" --no-video -q
 # 5. Issue 24 item 3: the device Newton (frames replayed as graphs) on the soft box, beside Newton with Warp's
 #    CG (host decisions) at 10³; the CPU's L-BFGS row (91 ms per step at 30³ on one core) is the target.
-step fem_pcg 150 $PY -m pliant.cli bench soft_box_drop_10_implicit_pcg soft_box_drop_10_implicit_newton \
+step fem_pcg 150 $REST $PY -m pliant.cli bench soft_box_drop_10_implicit_pcg soft_box_drop_10_implicit_newton \
     soft_box_drop_30_implicit_pcg --device "$DEV" --json "$OUT/fem_pcg.jsonl"
+# 6. Issue 24 item 6: the drape at 256² and 512² (bytes per substep, fraction of the peak bandwidth) and
+#    XPBD at 256², each with its trajectory_error against a reference computed here (PLIANT_BENCH_CACHE).
+step drape_rows 90 $REST $PY -m pliant.cli bench cloth_drape_256_symplectic cloth_drape_512_symplectic \
+    xpbd_cloth_drape_256_coloring xpbd_cloth_drape_256_jacobi --device "$DEV" --json "$OUT/drape_rows.jsonl"
+# 7a. Issue 24's fit figure: the README fit and the 17×17 cloth fit on the GPU (wall time, accuracy).
+step fit_rows 150 $REST $PY -m pliant.cli bench fit_rope fit_cloth_17 --device "$DEV" \
+    --json "$OUT/fit_rows.jsonl"
+if [ -n "$REST" ]; then
+    wait "$CPU_FITS"
+else  # too few cores to keep one aside: the CPU side after the GPU steps (over budget: shorten it)
+    step fit_rows_cpu 200 $PY -m pliant.cli bench fit_rope fit_cloth_17 --device cpu \
+        --json "$OUT/fit_rows_cpu.jsonl"
+fi
 fi
 cat "$OUT/steps.txt"

@@ -7,7 +7,9 @@ membrane stiffness E·t = 1000 N/m with ν = 0.3 mapped by :func:`pliant.energie
 −9.81 m/s² along y, no ground. The rows time the fall, frames 0–30 of 1/60 s, and judge the **whole
 motion**: ``trajectory_error`` is the largest deviation of the sag per frame (pin height minus the lowest
 particle) from a converged float64 reference (:mod:`pliant.bench._drape_motion`), relative to its final sag.
-A row's settings are the cheapest found with ``trajectory_error`` ≤ 2 %; no row adds damping.
+A row's settings are the cheapest found with ``trajectory_error`` ≤ 2 %; no row adds damping. Symplectic
+rows also state the memory traffic of a substep (``bytes_per_substep``, :mod:`pliant.bench._bandwidth`) and,
+on CUDA, the fraction of the device's peak bandwidth the timed run reached (launch by launch, no graph).
 :data:`REFERENCE_SAG` (the sag at rest, with damping) remains for the equilibrium tests.
 
 Each benchmark returns one JSON-serialisable dict; ``python -m pliant.bench._mass_spring`` prints them.
@@ -22,8 +24,9 @@ from collections.abc import Callable
 import numpy as np
 
 from .._time import substep_dt
+from ._bandwidth import bandwidth_fields
 from ._common import print_rows, run_timed, speed_fields
-from ._drape_motion import REFERENCES, motion_fields, reference_curve
+from ._drape_motion import motion_fields, reference_for
 
 # The scene and its solvers live one module down, where the motion references (._drape_motion) build them
 # too; they are re-exported here, the drape benchmark's public home.
@@ -77,6 +80,14 @@ def cloth_drape(
         model, solver, model.control(), dt, frames=frames, substeps=substeps, device=device, started=started
     )
     d = solver.describe()
+    traffic = (
+        bandwidth_fields(solver, frames * substeps, timing.wall, device)
+        if method == "symplectic" and isinstance(solver, FastMassSpring)
+        else {"bytes_per_substep": None}
+    )
+    # The whole fall against the converged curve (pliant.bench._drape_motion), not only the rest; it
+    # resolves (or computes on this device) the reference the final sag is compared with too.
+    motion = motion_fields(n, method, substeps, cg_iterations, damping_rate, dtype=dtype, device=device)
     return {
         "scene": f"cloth_drape_{n}x{n}",
         "solver": d["solver"],
@@ -96,18 +107,17 @@ def cloth_drape(
         ),
         "damping_rate": damping_rate,
         **speed_fields(timing, model.particle_count),
-        **sag_fields(model, state, _reference_at(n, frames)),
-        # The whole fall against the converged curve (pliant.bench._drape_motion), not only the rest.
-        **motion_fields(n, method, substeps, cg_iterations, damping_rate, dtype=dtype, device=device),
+        **traffic,
+        **sag_fields(model, state, _reference_at(n, frames, device)),
+        **motion,
     }
 
 
-def _reference_at(n: int, frame: int) -> float:
-    """The converged sag [m] at ``frame`` (NaN beyond the stored reference or without one)."""
-    if not (REFERENCES / f"cloth_drape_{n}.npz").exists():
-        return float("nan")
-    ref = reference_curve(n)
-    return float(ref[frame]) if frame < len(ref) else float("nan")
+def _reference_at(n: int, frame: int, device: str | None = "cpu") -> float:
+    """The converged sag [m] at ``frame`` (NaN beyond the reference or without one; see
+    :func:`pliant.bench._drape_motion.reference_for`)."""
+    ref, _ = reference_for(n, device)
+    return float(ref[frame]) if ref is not None and frame < len(ref) else float("nan")
 
 
 def reference_sag(
@@ -154,7 +164,8 @@ def _bench(n: int, method: str, substeps: int = 1, cg_iterations: int = 100) -> 
 
 #: Substeps per frame that keep symplectic Euler stable on the pinned drape (measured; see the report):
 #: trajectory_error 0.04 % at 64 (the stability limit, not accuracy, sets them).
-SYMPLECTIC_SUBSTEPS = {64: 80, 128: 160, 256: 320}
+#: 512: 640, the same Δt·n (the H200 run of 2026-11-26 was within 0.05 % of a converged curve there).
+SYMPLECTIC_SUBSTEPS = {64: 80, 128: 160, 256: 320, 512: 640}
 
 #: Baraff–Witkin steps per frame for trajectory_error ≤ 2 %. Backward Euler's own damping sets them, not
 #: CG: at 64 × 64 (CG to 1e-2) 1 step/frame is 7.6 % off, 16 steps 3.3 %, 32 steps 1.8 % (mean 5.8 CG
@@ -169,6 +180,9 @@ BENCHMARKS: dict[str, Callable[..., dict]] = {
     "cloth_drape_256_implicit": _bench(256, "implicit", IMPLICIT_STEPS[256], IMPLICIT_ITERATIONS[256]),
     "cloth_drape_64_symplectic": _bench(64, "symplectic", SYMPLECTIC_SUBSTEPS[64]),
     "cloth_drape_128_symplectic": _bench(128, "symplectic", SYMPLECTIC_SUBSTEPS[128]),
+    # The GPU sizes (issue 24): their references are computed on the row's device (_drape_motion).
+    "cloth_drape_256_symplectic": _bench(256, "symplectic", SYMPLECTIC_SUBSTEPS[256]),
+    "cloth_drape_512_symplectic": _bench(512, "symplectic", SYMPLECTIC_SUBSTEPS[512]),
     "cloth_drape_64_forcesolver": _bench(64, "force", SYMPLECTIC_SUBSTEPS[64]),
 }
 
