@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# One prepared device call for a session that is lent a GPU (issue 24): the CUDA tests, then the figures the
-# open issues ask for on a GPU, each bounded in time so that one call (at most 10 minutes) returns all of
-# them. Run it as device call 2 of ../shared/gpu/README.md (after Warp is staged), from the repository root:
+# Two prepared device calls for a session that is lent a GPU (issue 24): the CUDA tests, then the figures the
+# open issues ask for on a GPU, each step bounded in time so that each part (one call, at most 10 minutes)
+# returns all of its figures. Part 1 is device call 2 of ../shared/gpu/README.md (after Warp is staged),
+# part 2 the next call on the same warm machine; from the repository root:
 #
 #   cp ../shared/gpu/bench_gpu.py .gpu/b/        # here, before the call (the harness is not in the tree)
 #   bash .gpu/b/stage_b.sh && source $HOME/gpu/env.sh && bash benchmarks/gpu_check.sh 1
