@@ -144,6 +144,10 @@ class Simulator(Checkpoints):
         self.max_speed = float(max_speed)
         self.state_0: State = model.state()
         self.state_1: State = model.state()
+        # The two buffers in their first order and whether the control is this simulator's own: what
+        # restart() puts back (a captured graph is keyed by the buffers, so they are reused, not replaced).
+        self._buffers = (self.state_0, self.state_1)
+        self._own_control = control is None
         self.frame = 0
         self.time = 0.0
         self._xs: list[np.ndarray] = []
@@ -413,6 +417,43 @@ class Simulator(Checkpoints):
             self.diverged_worlds.pop(int(w), None)
         self.world_resets.append((self.frame, int(w)))
         self._solver_changed()
+
+    def restart(self) -> None:
+        """Start over from frame 0: the model's initial positions and velocities, no recorded frames, no
+        diverged or reset worlds, the solver's history forgotten (``Solver.reset``), a control this
+        simulator made itself back at rest, while the captured frame graphs are kept.
+
+        A run after ``restart()`` is the run a new Simulator of the same model and solver would make, bit
+        for bit, but replays from its first frame (no direct frame, no capture): what the CMA-ES stage does
+        with one batched scene across generations after writing new parameters into the model's arrays in
+        place (``pliant.fit._reuse``). The states are written in place, so a graph's baked-in addresses
+        stay valid; what the fingerprint cannot see must not change between runs (a solver that caches
+        values derived from the model arrays, see :class:`~pliant.sim._graph.FrameGraphs`).
+        """
+        m = self.model
+        for s in self._buffers:
+            wp.copy(s.particle_q, m.particle_q)
+            wp.copy(s.particle_qd, m.particle_qd)
+        self.state_0, self.state_1 = self._buffers
+        if self._own_control:
+            c, fresh = self.control, m.control()
+            wp.copy(c.particle_f, fresh.particle_f)
+            wp.copy(c.kinematic_targets, fresh.kinematic_targets)
+            c.drag_index, c.drag_target = fresh.drag_index, fresh.drag_target
+            c.drag_stiffness, c.drag_max_force = fresh.drag_stiffness, fresh.drag_max_force
+        if self._frozen_inv:
+            inv = m.particle_inv_mass.numpy()
+            for w, frozen in self._frozen_inv.items():
+                inv[m.world_slice("particle", w)] = frozen
+            m.particle_inv_mass.assign(inv)
+        self._frozen_inv, self.diverged_worlds, self.world_resets = {}, {}, []
+        reset = getattr(self.solver, "reset", None)
+        if callable(reset):
+            reset()  # history only (L-BFGS pairs, BDF2's past): set-up and arrays stay where graphs see them
+        self.frame, self.time = 0, 0.0
+        self._xs, self._vs, self._ts = [], [], []
+        self._last_good, self._solver_state = None, {}
+        self._warned_newton = False
 
     # ------------------------------------------------------------------ recording
     def _record(self, with_velocity: bool) -> None:
