@@ -158,7 +158,9 @@ def test_ctrl_c_keeps_the_best_values_in_the_output_folder(tmp_path, monkeypatch
 
     monkeypatch.setattr(cm, "evaluate", interrupted)
     # A batched generation is interrupted the same way: route it through the candidates one by one.
-    monkeypatch.setattr(cm, "evaluate_batch", lambda problem, cands: [cm.evaluate(problem, v) for v in cands])
+    monkeypatch.setattr(
+        cm, "evaluate_batch", lambda problem, cands, *_: [cm.evaluate(problem, v) for v in cands]
+    )
     with pytest.raises(KeyboardInterrupt):
         pl.fit.fit(
             apply_globals(cfg, {"stiffness": 80.0}),

@@ -11,6 +11,7 @@ import numpy as np
 
 from ._params import FitError
 from ._problem import Problem
+from ._reuse import BatchScenes, build_batch
 
 #: Loss given to a candidate whose simulation diverges or cannot be built (CMA-ES needs a finite number).
 PENALTY = 1.0e6
@@ -82,26 +83,28 @@ def batchable(problem: Problem) -> bool:
     )
 
 
-def evaluate_batch(problem: Problem, candidates: list[dict[str, float]]) -> list[float]:
+def evaluate_batch(
+    problem: Problem, candidates: list[dict[str, float]], scenes: BatchScenes | None = None
+) -> list[float]:
     """Training losses of several candidates from one simulation holding one copy of the object per
     candidate (see :func:`batchable`); when that simulation diverges or cannot be built, each candidate is
-    evaluated alone so that one bad candidate costs only its own PENALTY."""
+    evaluated alone so that one bad candidate costs only its own PENALTY.
+
+    ``scenes``: the run's batched scenes (:class:`~pliant.fit._reuse.BatchScenes`), which reuse one scene
+    and its captured frame graphs across generations where that gives the same numbers; None: a scene is
+    built for these candidates.
+    """
     from ..scene import SceneError
     from ..sim import DivergenceError
 
     if len(candidates) < 2:
         return [evaluate(problem, v) for v in candidates]
-    cfg = problem.cfg.model_copy(deep=True)
-    objects = []
-    for w, values in enumerate(candidates):
-        obj = problem.config(values).objects[0]
-        objects.append(obj.model_copy(update={"name": f"{obj.name or 'object'}_{w}"}))
-    cfg.objects = objects
     try:
-        from ..scene import build_scene
-
-        scene = build_scene(cfg, device=problem.device, dtype=problem.dtype)
-        x = problem.simulate(scene, problem.n_train)
+        if scenes is None:
+            scene, sim = build_batch(problem, candidates), None
+        else:
+            scene, sim = scenes.get(problem, candidates)
+        x = problem.simulate(scene, problem.n_train, sim=sim)
     except (DivergenceError, SceneError, ValueError):
         return [evaluate(problem, v) for v in candidates]
     losses = []
@@ -121,6 +124,7 @@ def cmaes(
     start: dict[str, float] | None = None,
     callback: Callable[[int, float], None] | None = None,
     batch: bool = True,
+    reuse: bool = True,
     rtol: float = 1e-3,
     patience: int = 5,
 ) -> StageResult:
@@ -145,6 +149,10 @@ def cmaes(
         start: Starting values (default: the scene's own).
         callback: ``callback(generation, best_loss)`` after each generation (progress bars).
         batch: Run a generation as one batched simulation when the problem allows it.
+        reuse: Run every generation on one batched scene, its candidates' values written into the model's
+            arrays in place and its frame graphs kept, where that gives the numbers of a scene built for
+            them (:mod:`pliant.fit._reuse`; a log line on ``pliant.fit`` says which); False: build a scene
+            per generation.
         rtol: Relative improvement of the best loss over ``patience`` generations below which it stops
             (0: never on this criterion).
         patience: Generations over which the improvement is measured.
@@ -193,6 +201,7 @@ def cmaes(
 
     t0 = time.perf_counter()
     batched = batch and batchable(problem)
+    scenes = BatchScenes(reuse) if batched else None
     es = cma.CMAEvolutionStrategy(x0, sigma, opts)
     best = StageResult(values=dict(start), loss=evaluate(problem, start), evaluations=1)
     try:
@@ -200,7 +209,7 @@ def cmaes(
             cands = es.ask()
             values = [decode(np.asarray(u)) for u in cands]
             if batched:
-                losses = evaluate_batch(problem, values)
+                losses = evaluate_batch(problem, values, scenes)
             else:
                 losses = [evaluate(problem, v) for v in values]
             best.evaluations += len(values)

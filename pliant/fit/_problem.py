@@ -241,19 +241,31 @@ class Problem:
         sim.state_0.particle_q.assign(q)
         sim.state_0.particle_qd.assign(qd)
 
-    def simulate(self, scene: Scene, frames: int, forced: bool | None = None) -> np.ndarray:
+    def simulator(self, scene: Scene) -> Simulator:
+        """A Simulator of ``scene`` under this problem's control function (:meth:`control_fn`)."""
+        from ..sim import Simulator
+
+        fn = self.control_fn(scene)
+        kw = {**scene.sim_kwargs, "control_fn": fn} if fn is not None else scene.sim_kwargs
+        return Simulator(scene.model, scene.solver, **kw)
+
+    def simulate(
+        self, scene: Scene, frames: int, forced: bool | None = None, sim: Simulator | None = None
+    ) -> np.ndarray:
         """Positions [m], shape [frames, N, 3], of frames 0 … frames − 1 (DivergenceError on a blow-up).
 
         ``forced``: teacher forcing every :attr:`shooting` frames (see the class); None: for a training run
         (``frames == n_train``, what the CMA-ES stage simulates) when :attr:`shooting` is on.
+        ``sim``: a Simulator of ``scene`` (:meth:`simulator`) to run again from frame 0
+        (``Simulator.restart``: its captured frame graphs are kept); None: a new one.
         """
-        from ..sim import Simulator
-
         fn = self.control_fn(scene)
         if fn is not None:
-            fn(0.0, None)
-        kw = {**scene.sim_kwargs, "control_fn": fn} if fn is not None else scene.sim_kwargs
-        sim = Simulator(scene.model, scene.solver, **kw)
+            fn(0.0, None)  # the handles' positions at t = 0 (the same function the Simulator calls)
+        if sim is None:
+            sim = self.simulator(scene)
+        else:
+            sim.restart()
         if forced is None:
             forced = getattr(self, "shooting", 0) > 0 and frames == self.n_train
         return sim.run(frames - 1, progress=False, on_frame=self._force if forced else None).x

@@ -12,22 +12,13 @@ import numpy as np
 import warp as wp
 
 from .._time import substep_dt
-from ..io import CheckpointError, CheckpointSpec, Trajectory, load_checkpoint, save_checkpoint
+from ..io import Trajectory
 from ..model import Control, Model, State
 from ..model._worlds import write_range
 from ..solvers import FrameStep, Solver
+from ._checkpoints import Checkpoints
 from ._divergence import DivergenceError, stability_advice
 from ._graph import FrameGraphs
-
-#: Model parameters that fitting may change; checkpoints carry them so a resumed run is the same run.
-_PARAMS = (
-    "spring_stiffness",
-    "spring_rest_length",
-    "spring_damping",
-    "tet_mu",
-    "tet_lam",
-    "bending_stiffness",
-)
 
 #: Reasons already reported for running without a CUDA graph (each is reported once per process).
 _REPORTED: set[str] = set()
@@ -83,7 +74,7 @@ def _health_worlds(
         wp.atomic_max(stats_out, w, 1, wp.dot(d, d))
 
 
-class Simulator:
+class Simulator(Checkpoints):
     """Owns model, solver, two states and the control; runs frames of ``substeps`` solver steps.
 
     Args:
@@ -153,6 +144,10 @@ class Simulator:
         self.max_speed = float(max_speed)
         self.state_0: State = model.state()
         self.state_1: State = model.state()
+        # The two buffers in their first order and whether the control is this simulator's own: what
+        # restart() puts back (a captured graph is keyed by the buffers, so they are reused, not replaced).
+        self._buffers = (self.state_0, self.state_1)
+        self._own_control = control is None
         self.frame = 0
         self.time = 0.0
         self._xs: list[np.ndarray] = []
@@ -423,6 +418,43 @@ class Simulator:
         self.world_resets.append((self.frame, int(w)))
         self._solver_changed()
 
+    def restart(self) -> None:
+        """Start over from frame 0: the model's initial positions and velocities, no recorded frames, no
+        diverged or reset worlds, the solver's history forgotten (``Solver.reset``), a control this
+        simulator made itself back at rest, while the captured frame graphs are kept.
+
+        A run after ``restart()`` is the run a new Simulator of the same model and solver would make, bit
+        for bit, but replays from its first frame (no direct frame, no capture): what the CMA-ES stage does
+        with one batched scene across generations after writing new parameters into the model's arrays in
+        place (``pliant.fit._reuse``). The states are written in place, so a graph's baked-in addresses
+        stay valid; what the fingerprint cannot see must not change between runs (a solver that caches
+        values derived from the model arrays, see :class:`~pliant.sim._graph.FrameGraphs`).
+        """
+        m = self.model
+        for s in self._buffers:
+            wp.copy(s.particle_q, m.particle_q)
+            wp.copy(s.particle_qd, m.particle_qd)
+        self.state_0, self.state_1 = self._buffers
+        if self._own_control:
+            c, fresh = self.control, m.control()
+            wp.copy(c.particle_f, fresh.particle_f)
+            wp.copy(c.kinematic_targets, fresh.kinematic_targets)
+            c.drag_index, c.drag_target = fresh.drag_index, fresh.drag_target
+            c.drag_stiffness, c.drag_max_force = fresh.drag_stiffness, fresh.drag_max_force
+        if self._frozen_inv:
+            inv = m.particle_inv_mass.numpy()
+            for w, frozen in self._frozen_inv.items():
+                inv[m.world_slice("particle", w)] = frozen
+            m.particle_inv_mass.assign(inv)
+        self._frozen_inv, self.diverged_worlds, self.world_resets = {}, {}, []
+        reset = getattr(self.solver, "reset", None)
+        if callable(reset):
+            reset()  # history only (L-BFGS pairs, BDF2's past): set-up and arrays stay where graphs see them
+        self.frame, self.time = 0, 0.0
+        self._xs, self._vs, self._ts = [], [], []
+        self._last_good, self._solver_state = None, {}
+        self._warned_newton = False
+
     # ------------------------------------------------------------------ recording
     def _record(self, with_velocity: bool) -> None:
         x = self.state_0.particle_q.numpy().copy()
@@ -460,104 +492,6 @@ class Simulator:
                 "resets": [list(r) for r in self.world_resets],
             }
         return Trajectory(x=x, t=np.asarray(self._ts), v=v, faces=faces, tets=tets, meta=meta)
-
-    # ------------------------------------------------------------------ checkpoints
-    def _params(self) -> dict[str, Any]:
-        """The model's parameter arrays a checkpoint carries (the whitelist, only those the model has)."""
-        m = self.model
-        return {k: getattr(m, k) for k in _PARAMS if isinstance(getattr(m, k, None), wp.array)}
-
-    def save_checkpoint(self, path: str | os.PathLike) -> Path:
-        """Write the last recorded state, its time, fitted parameters, the solver's state between steps
-        (``Solver.checkpoint_state``) and the trajectory, atomically."""
-        traj = self.trajectory()
-        params = {k: a.numpy() for k, a in self._params().items()}
-        if self._last_good is None:
-            raise ValueError("nothing to checkpoint yet: run at least frame 0 first")
-        frame, time, x, v = self._last_good
-        return save_checkpoint(
-            path,
-            frame=frame,
-            time=time,
-            x=x,
-            v=v,
-            params=params,
-            traj_x=traj.x,
-            traj_t=traj.t,
-            traj_v=traj.v,
-            meta=traj.meta,
-            solver_state=self._solver_state,
-        )
-
-    def load_checkpoint(self, path: str | os.PathLike, *, max_frame: int | None = None) -> None:
-        """Continue from a checkpoint: state, time, parameters, solver state and the recorded frames.
-
-        The file is validated against this simulator first (known keys, shapes and dtypes of the model,
-        ``frame`` in [0, ``max_frame``], the frame duration); nothing changes unless it all holds.
-
-        Raises:
-            CheckpointError: what is wrong, naming the file and the key.
-        """
-        m = self.model
-        spec = CheckpointSpec(
-            particle_count=m.particle_count,
-            dtype=m.dtype,
-            params={k: tuple(a.shape) for k, a in self._params().items()},
-            max_frame=max_frame,
-        )
-        ck = load_checkpoint(path, spec)
-        if not np.isclose(ck["time"], ck["frame"] * self.frame_dt, rtol=1e-9, atol=0.0):
-            raise CheckpointError(
-                f"{path}: time: {ck['time']} s at frame {ck['frame']} is not frame x frame_dt = "
-                f"{ck['frame'] * self.frame_dt} s; resume with the frame duration (frame_dt) that wrote the "
-                "checkpoint"
-            )
-        if ck["traj_v"] is None and self._record_velocity and ck["frame"] > 0:
-            raise CheckpointError(
-                f"{path}: traj_v: missing, but this run records velocities; resume with the same "
-                "record_velocity setting"
-            )
-        try:
-            self.solver.restore_checkpoint_state(ck["solver_state"])
-        except CheckpointError:
-            raise
-        except Exception as exc:  # whatever a foreign or corrupt solver_ array makes the solver raise
-            raise CheckpointError(
-                f"{path}: solver state: {exc}; resume with the solver that wrote the checkpoint, or "
-                "delete it to start over"
-            ) from None
-        for k, a in ck["params"].items():
-            getattr(m, k).assign(a)
-        self.state_0.particle_q.assign(ck["x"])
-        self.state_0.particle_qd.assign(ck["v"])
-        self.frame = ck["frame"]
-        self.time = self.frame * self.frame_dt  # as step_frame computes it, so control_fn sees the same times
-        self._last_good = (ck["frame"], self.time, ck["x"], ck["v"])
-        self._solver_state = dict(ck["solver_state"])
-        self._xs = list(ck["traj_x"])
-        self._ts = list(ck["traj_t"])
-        # Velocities only when this run records them too (else the trajectory's v would stop short of x).
-        self._vs = list(ck["traj_v"]) if ck["traj_v"] is not None and self._record_velocity else []
-        self._restore_worlds(ck["meta"].get("worlds", {}), path)
-
-    def _restore_worlds(self, worlds: dict, path: str | os.PathLike) -> None:
-        """Freeze again the worlds a checkpoint lists as diverged (as the run that wrote it had them)."""
-        m = self.model
-        try:
-            diverged = {int(w): dict(d) for w, d in worlds.get("diverged", {}).items()}
-            diverged = diverged if self._per_world else {}
-            resets = [(int(f), int(w)) for f, w in worlds.get("resets", [])]
-            for w in [*diverged, *(w for _, w in resets)]:
-                m.world_slice("particle", w)
-        except (ValueError, TypeError, AttributeError) as exc:
-            raise CheckpointError(f"{path}: worlds: {exc}; resume with the scene that wrote it") from None
-        self.diverged_worlds, self.world_resets = diverged, resets
-        if diverged:
-            inv = m.particle_inv_mass.numpy()
-            for w in diverged:
-                self._freeze(inv, w)
-            m.particle_inv_mass.assign(inv)
-            self._solver_changed()
 
     # ------------------------------------------------------------------ the loop
     def run(
