@@ -87,6 +87,28 @@ def update_velocity(
 
 
 @wp.kernel
+def apply_deltas_update_velocity(
+    relaxation: Any,
+    inv_dt: Any,
+    damping_factor: Any,
+    x_in: wp.array(dtype=Any),
+    delta_io: wp.array(dtype=Any),
+    count_io: wp.array(dtype=wp.int32),
+    p_io: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+):
+    """:func:`apply_deltas` then :func:`update_velocity` in one launch (the step's last Jacobi correction),
+    the same expressions in the same order: the positions and velocities are theirs bit for bit."""
+    i = wp.tid()
+    n = count_io[i]
+    if n > 0:
+        p_io[i] = p_io[i] + (relaxation / type(relaxation)(n)) * delta_io[i]
+        delta_io[i] = delta_io[i] * type(relaxation)(0.0)
+        count_io[i] = 0
+    v_out[i] = ((p_io[i] - x_in[i]) * inv_dt) * damping_factor
+
+
+@wp.kernel
 def apply_deltas_to(
     relaxation: Any,
     p_in: wp.array(dtype=Any),
