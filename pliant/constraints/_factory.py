@@ -249,7 +249,7 @@ class FixedArityConstraint(Constraint):
                 args = [*common, m.particle_inv_mass, inv_dt2, k, off, omega, lam_in, p, self.lam]
                 ctx.launch(self.kernels.gauss_seidel, size, args)
                 continue
-            lam_out = ctx.fresh(self._multipliers()) if ctx.requires_grad else self.lam
+            lam_out = ctx.fresh(self._multipliers()) if ctx.requires_grad else self._multipliers()
             args = [*common, self.split, m.particle_inv_mass, inv_dt2, k, off, omega, p, lam_in, lam_out]
             ctx.launch(self.kernels.jacobi, size, [*args, ctx.delta, ctx.delta_count])
             self.lam = lam_in = lam_out

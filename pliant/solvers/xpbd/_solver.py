@@ -36,7 +36,10 @@ class XPBD(Solver):
     Σ_c w_i Δλ_c ∇_i C_c: λ stays consistent with the motion applied, and a converged static state is the
     same as under Gauss–Seidel (plain averaging without the split would over-count λ and sag too far).
     Contacts are always averaged. On the CPU (serial threads) a colour-sorted sweep runs as one launch;
-    on CUDA each colour is a launch. Repeated identical steps replay recorded launches (``wp.Launch``).
+    on CUDA each colour is a launch, over a colouring made for the fewest colours (``color_constraints(...,
+    fewest=True)``: another Gauss–Seidel order than the CPU's, docs/design.md "XPBD on CUDA"). λ's reset
+    rides in the first sweep and the last Jacobi average in the velocity update, so a step is predict,
+    the sweeps' launches and the update. Repeated identical steps replay recorded launches (``wp.Launch``).
 
     Differentiable: when the model was finalized with ``requires_grad=True`` each step writes fresh arrays
     (positions after every constraint set's sweep, λ per sweep, predicted velocities) and launches afresh
