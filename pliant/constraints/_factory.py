@@ -292,5 +292,7 @@ class FixedArityConstraint(Constraint):
         self.lam = wp.zeros(n, dtype=f, device=d, requires_grad=rg)
         #: Never written: what a step's first sweep reads as λ (:meth:`begin_step`).
         self.zero_lam: wp.array = wp.zeros(n, dtype=f, device=d)
+        # An instance attribute from bind on: a graph fingerprint (pliant.sim._graph) must not see it appear.
+        self._reset_pending = False
         self.split: wp.array = wp.array(self._split_counts(idx), dtype=wp.int32, device=d)
         self.order = order
