@@ -4,10 +4,10 @@ ahead of time (``wp.compile_aot_module``), so the CUDA side of every kernel — 
 
 Generic kernels compile only for registered overloads. This script registers those of every built-in
 scene (the prebuild manifests) and runs small CPU workloads for the paths no scene takes (FastMassSpring's
-three steps, XPBD's Jacobi schedule and tolerance loop, every FEM law explicit and under Newton, the
-Gaussian rasteriser; the taped rollouts, fit losses and visual corrector of tests/test_devices_grad.py), then
-compiles every pliant module with at least one compilable kernel. It prints one
-JSON line: modules compiled, kernels skipped for lack of an overload, and the errors (module → message).
+three steps, XPBD's Jacobi and colouring schedules and tolerance loop, every FEM law explicit and under
+Newton, the Gaussian rasteriser; the taped rollouts, fit losses and visual corrector of
+tests/test_devices_grad.py), then compiles every pliant module with at least one compilable kernel. It prints
+one JSON line: modules compiled, kernels skipped for lack of an overload, and the errors (module → message).
 Run by tests/test_cuda_compile.py in a fresh process.
 
     python tests/cuda_compile.py [--arch 90] [--out DIR]
@@ -39,6 +39,8 @@ def _workloads() -> None:
             FastMassSpring(m, **kw).step(s0, s1, None, 1e-4)
         s0, s1 = m.state(), m.state()
         XPBD(m, schedule="jacobi").step(s0, s1, None, 1e-4)
+        # the Gauss–Seidel sweep, which CUDA launches per colour
+        XPBD(m, schedule="coloring").step(s0, s1, None, 1e-4)
         # the device-side tolerance loop's kernels (only a solver with a tolerance launches them)
         XPBD(m, iterations=3, tolerance=1e-12, check_every=1).step(s0, s1, None, 1e-4)
     from pliant import energies, integrators

@@ -5,7 +5,8 @@ adjacent corners, no ground, no damping: the fall, 30 frames of 1/60 s) under :c
 with the springs as distance constraints of compliance α = 1/k: the same physics, so its motion is judged
 against the same converged sag curve (``trajectory_error``, :mod:`pliant.bench._drape_motion`).
 ``python -m pliant.bench._xpbd`` prints the rows; ``python -m pliant.bench._xpbd reference 64`` recomputes
-:data:`REFERENCE_SAG` (the sag at rest after 300 damped frames, for the equilibrium tests).
+:data:`REFERENCE_SAG` (the sag at rest after 300 damped frames, for the equilibrium tests);
+``python -m pliant.bench._xpbd launches 64 128`` prints :func:`launch_rows` (docs/design.md, issue 24).
 """
 
 from __future__ import annotations
@@ -312,8 +313,59 @@ BENCHMARKS: dict[str, Callable[..., dict]] = {
 }
 
 
+#: The launch schedules :func:`launch_rows` compares: (XPBD schedule, CUDA schedule forced on the CPU, one
+#: fused launch per set on the CPU).
+LAUNCH_SCHEDULES = {
+    "cpu": ("coloring", False, True),
+    "cuda_luby": ("coloring", False, False),
+    "cuda": ("coloring", True, False),
+    "jacobi": ("jacobi", False, True),
+}
+
+
+def launch_rows(n: int) -> list[dict]:
+    """Launches per substep (the recorded plan of one step: kernels and memsets) and ``trajectory_error``
+    of the n × n drape at the row settings under each of :data:`LAUNCH_SCHEDULES`, on the CPU: "cuda" is
+    what a CUDA device runs (the fewest-colours colouring, a launch per colour), "cuda_luby" the same
+    per-colour launches over the CPU's Luby colouring (what CUDA ran before issue 24)."""
+    import pliant.constraints._base as cb
+
+    from ._drape_motion import curve_error, solver_curve
+
+    rows = []
+    saved = cb.CUDA_SCHEDULE_ON_CPU, cb.FUSE_CPU_COLORS
+    try:
+        for name, (schedule, cuda, fuse) in LAUNCH_SCHEDULES.items():
+            cb.CUDA_SCHEDULE_ON_CPU, cb.FUSE_CPU_COLORS = cuda, fuse
+            substeps, iterations, omega = SETTINGS[(n, schedule)]
+            model, solver = _drape_solver(n, schedule, iterations, "cpu", "float32", 0.0, omega)
+            solver.step(model.state(), model.state(), None, FRAME_DT / substeps)
+            (plan,) = solver._plans.values()
+            colours = [len(c.color_offsets) - 1 for c in solver.constraints]
+            model, solver = _drape_solver(n, schedule, iterations, "cpu", "float32", 0.0, omega)
+            curve = solver_curve(model, solver, substeps=substeps, frames=FRAMES)
+            rows.append(
+                {
+                    "n": n,
+                    "schedule": name,
+                    "substeps": substeps,
+                    "colours": colours,
+                    "launches_per_substep": len(plan),
+                    "launches_per_frame": len(plan) * substeps,
+                    **curve_error(n, curve),
+                }
+            )
+    finally:
+        cb.CUDA_SCHEDULE_ON_CPU, cb.FUSE_CPU_COLORS = saved
+    return rows
+
+
 if __name__ == "__main__":
-    if sys.argv[1:2] == ["box-reference"]:
+    if sys.argv[1:2] == ["launches"]:
+        for arg in sys.argv[2:] or ["64"]:
+            for row in launch_rows(int(arg)):
+                print(json.dumps(row), flush=True)
+    elif sys.argv[1:2] == ["box-reference"]:
         sub, it = BOX_REFERENCE
         ref = box_curve(6, "coloring", sub, it, dtype="float64")
         half = box_curve(6, "coloring", sub // 2, it, dtype="float64")

@@ -41,6 +41,20 @@ def constraint_delta_lambda(c: Any, w_grad_sq: Any, alpha_tilde: Any, lam: Any, 
 #: Run a colour-sorted Gauss–Seidel sweep as one launch on the CPU (identical arithmetic, fewer launches).
 FUSE_CPU_COLORS = True
 
+#: Use the CUDA schedule on the CPU too: the launch colouring (:func:`color_incidence_first_fit`) with a
+#: launch per colour. Private, for tests and launch counts: the CPU's own path keeps the Luby colouring, so
+#: its trajectories (tests/test_golden.py) stay bit for bit what they were.
+CUDA_SCHEDULE_ON_CPU = False
+
+#: Rounds of :func:`color_incidence_first_fit` in constraint order before the rest get random priorities.
+ORDERED_ROUNDS = 1024
+
+
+def per_colour_launches(device: Any) -> bool:
+    """Whether a colour sweep on ``device`` launches once per colour (CUDA, or the CPU forced to the CUDA
+    schedule): there the number of colours is the number of launches, so the colouring minimises it."""
+    return bool(wp.get_device(device).is_cuda or CUDA_SCHEDULE_ON_CPU)
+
 
 def pbd_iteration_stiffness(k: float, iterations: int) -> float:
     """Müller's k' = 1 − (1 − k)^(1/n): after n iterations the constraint error shrinks by (1 − k)."""
@@ -98,8 +112,61 @@ def color_incidence(
     return color.astype(np.int32)
 
 
-def color_constraints(indices: np.ndarray, inv_mass: np.ndarray, worlds: int = 1) -> np.ndarray:
+def color_incidence_first_fit(
+    constraint_ids: np.ndarray, particle_ids: np.ndarray, constraint_count: int, particle_count: int
+) -> np.ndarray | None:
+    """Sequential first-fit colouring in constraint order, computed in vectorised rounds (Jones–Plassmann).
+
+    Each round, every uncoloured constraint whose priority is the smallest among the uncoloured constraints
+    at each of its particles takes the lowest colour that none of its particles has yet. With the
+    constraint id as priority this is exactly the sequential greedy colouring in id order, which on meshes
+    the builder emits in a structured order needs few colours: 8 for a grid cloth's structural + shear
+    springs (its maximum degree, the least possible) where :func:`color_incidence`'s random priorities
+    give 12. The rounds follow chains of increasing ids (about 2 per grid row); after
+    :data:`ORDERED_ROUNDS` the rest get random priorities, which bounds the rounds again.
+
+    Args and return value as :func:`color_incidence`; None when more than 62 colours would be needed
+    (the colours at a particle are kept as bits of an int64).
+    """
+    cid = np.asarray(constraint_ids, np.int64)
+    pid = np.asarray(particle_ids, np.int64)
+    color = np.full(constraint_count, -1, np.int64)
+    used = np.zeros(particle_count, np.int64)  # bit c set: a constraint of colour c moves the particle
+    prio = np.arange(constraint_count, dtype=np.int64)
+    big = np.iinfo(np.int64).max
+    # Scratch arrays, reset after each round only where it wrote: a round costs O(incidences left).
+    owner = np.full(particle_count, big)
+    lose = np.zeros(constraint_count, bool)
+    taken = np.zeros(constraint_count, np.int64)
+    rounds = 0
+    while cid.size:
+        if rounds == ORDERED_ROUNDS:
+            prio = np.random.default_rng(0).permutation(constraint_count).astype(np.int64)
+        rounds += 1
+        np.minimum.at(owner, pid, prio[cid])
+        np.logical_or.at(lose, cid, owner[pid] != prio[cid])
+        won = ~lose[cid]  # incidences of this round's winners (an independent set)
+        np.bitwise_or.at(taken, cid[won], used[pid[won]])
+        win = np.unique(cid[won])
+        bits = taken[win]
+        if np.any(bits >= (1 << 62)):
+            return None
+        # The lowest clear bit of each winner's taken colours: ~b & (b + 1) isolates it.
+        color[win] = np.log2((~bits & (bits + 1)).astype(np.float64)).astype(np.int64)
+        np.bitwise_or.at(used, pid[won], np.left_shift(np.int64(1), color[cid[won]]))
+        owner[pid], lose[cid], taken[win] = big, False, 0
+        cid, pid = cid[~won], pid[~won]
+    color[color < 0] = 0  # constraints with no movable particle conflict with nothing
+    return color.astype(np.int32)
+
+
+def color_constraints(
+    indices: np.ndarray, inv_mass: np.ndarray, worlds: int = 1, *, fewest: bool = False
+) -> np.ndarray:
     """Colours for constraints with fixed arity, indices [n, k]; pinned particles (w = 0) never conflict.
+
+    ``fewest``: the colouring for a launch per colour (CUDA): the one of :func:`color_incidence_first_fit`
+    and :func:`color_incidence` with fewer colours (the first on a tie). Otherwise :func:`color_incidence`.
 
     With ``worlds`` > 1 and constraints that are ``worlds`` shifted copies of the first block (what
     ``ModelBuilder.replicate`` makes), the first block is coloured and its colours repeated: each world is
@@ -118,11 +185,17 @@ def color_constraints(indices: np.ndarray, inv_mass: np.ndarray, worlds: int = 1
             (inv_mass.reshape(worlds, p) > 0), np.broadcast_to(inv_mass[:p] > 0, (worlds, p))
         )
         if same_pins and np.array_equal(blocks, np.broadcast_to(blocks[0], blocks.shape)):
-            return np.tile(color_constraints(idx[:n0], inv_mass[:p]), worlds)
+            return np.tile(color_constraints(idx[:n0], inv_mass[:p], fewest=fewest), worlds)
     cid = np.repeat(np.arange(n), k)
     pid = idx.reshape(-1)
     keep = np.asarray(inv_mass)[pid] > 0.0
-    return color_incidence(cid[keep], pid[keep], n, len(inv_mass))
+    luby = color_incidence(cid[keep], pid[keep], n, len(inv_mass))
+    if not fewest:
+        return luby
+    first_fit = color_incidence_first_fit(cid[keep], pid[keep], n, len(inv_mass))
+    if first_fit is None or first_fit.max() > luby.max():
+        return luby
+    return first_fit
 
 
 def sort_by_color(colors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -203,6 +276,8 @@ class Constraint(abc.ABC):
         self._model: Model | None = None
         self.lam: wp.array | None = None
         self.color_offsets = np.zeros(1, np.int64)
+        #: Whether :meth:`bind` coloured for a launch per colour (:func:`per_colour_launches`).
+        self.per_colour = False
 
     @property
     def model(self) -> Model:
@@ -231,9 +306,11 @@ class Constraint(abc.ABC):
     def _colors(self, indices: np.ndarray, coloring: bool) -> tuple[np.ndarray, np.ndarray]:
         """(permutation, offsets) grouping ``indices`` [n, k] by colour; identity when not colouring."""
         n = indices.shape[0]
+        self.per_colour = per_colour_launches(self.model.device)
         if not coloring or n == 0:
             return np.arange(n), np.array([0, n], np.int64)
-        colors = color_constraints(indices, self.model.particle_inv_mass.numpy(), self.model.world_count)
+        w = self.model.particle_inv_mass.numpy()
+        colors = color_constraints(indices, w, self.model.world_count, fewest=self.per_colour)
         return sort_by_color(colors)
 
     def _split_counts(self, indices: np.ndarray) -> np.ndarray:
@@ -248,10 +325,11 @@ class Constraint(abc.ABC):
 
         On the CPU Warp runs a launch's threads one after another in thread order, so the whole
         colour-sorted list in one launch is exactly the colour-by-colour Gauss–Seidel sweep (the same
-        arithmetic in the same order); on CUDA each colour gets its own launch.
+        arithmetic in the same order); on CUDA (:attr:`per_colour`) each colour gets its own launch.
         """
         off = self.color_offsets
-        if not coloring or (FUSE_CPU_COLORS and wp.get_device(self.model.device).is_cpu):
+        per_colour = self.per_colour or per_colour_launches(self.model.device)
+        if not coloring or (FUSE_CPU_COLORS and not per_colour):
             return [(0, self.count)] if self.count else []
         return [(int(off[c]), int(off[c + 1] - off[c])) for c in range(len(off) - 1) if off[c + 1] > off[c]]
 

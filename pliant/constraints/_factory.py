@@ -7,7 +7,8 @@ then scatter wΔλ∇C — and only C and ∇C differ. :func:`projection_kernels
 - ``jacobi``: reads ``p_in`` and ``lam_in``, writes ``lam_out`` and accumulates the mass-split corrections
   and their counts atomically (the solver averages them); ``lam_in`` and ``lam_out`` may be one array
   (in place) or two (a fresh array per sweep, so a ``wp.Tape`` can replay it);
-- ``gauss_seidel``: one colour's constraints update ``p_io`` and ``lam_io`` in place;
+- ``gauss_seidel``: one colour's constraints update ``p_io`` in place, and λ from ``lam_in`` into ``lam_out``
+  (one array but in a step's first sweep, which reads zeros: the reset folded into the sweep);
 - ``residual``: Σ (C + α̃λ)² and the count of constraints with a movable particle;
 - ``evaluate``: C and ∇C of every constraint (:meth:`FixedArityConstraint.evaluate`, the contract tests).
 
@@ -112,8 +113,9 @@ def gauss_seidel(
     pbd_k: Any,
     offset: int,
     omega: Any,
+    lam_in: wp.array(dtype=Any),
     p_io: wp.array(dtype=Any),
-    lam_io: wp.array(dtype=Any),
+    lam_out: wp.array(dtype=Any),
 ):
     s = offset + wp.tid()
     i{j} = indices[s, {j}]
@@ -122,9 +124,9 @@ def gauss_seidel(
     c = c_func({x}, rest[s])
     {g} = grad_func({x})
     wgs = {wgs}
-    lam = lam_io[s]
+    lam = lam_in[s]
     dl = constraint_delta_lambda(c, wgs, compliance[s] * inv_dt2, lam, pbd_k) * omega
-    lam_io[s] = lam + dl
+    lam_out[s] = lam + dl
     p_io[i{j}] = x{j} + (w{j} * dl) * g{j}
 """
 
@@ -222,6 +224,16 @@ class FixedArityConstraint(Constraint):
     relaxes_itself = True
     differentiable = True
     kernels: ProjectionKernels
+    #: λ's reset is pending: the step's first sweep reads λ = 0 from ``zero_lam`` instead of a memset of λ
+    #: (one launch less per set and step; the same zeros, so the same arithmetic).
+    _reset_pending = False
+
+    def begin_step(self, ctx: ProjectionContext, x: wp.array, p: wp.array, dt: float) -> None:
+        """Reset λ: a tape step allocates fresh multipliers; otherwise the first sweep reads zeros."""
+        if ctx.requires_grad:
+            super().begin_step(ctx, x, p, dt)
+        else:
+            self._reset_pending = True
 
     def project(self, ctx: ProjectionContext, p: wp.array, dt: float) -> None:
         """One sweep: Gauss–Seidel per colour, or Jacobi into ``ctx.delta``."""
@@ -230,15 +242,17 @@ class FixedArityConstraint(Constraint):
         inv_dt2 = m.s(1.0 / (dt * dt))
         omega = m.s(ctx.relaxation)
         common = [self.indices, self.rest, self.compliance_array]
+        lam_in = self.zero_lam if self._reset_pending else self._multipliers()
+        self._reset_pending = False
         for off, size in self.color_ranges(ctx.coloring):
             if ctx.coloring:
-                args = [*common, m.particle_inv_mass, inv_dt2, k, off, omega, p, self.lam]
+                args = [*common, m.particle_inv_mass, inv_dt2, k, off, omega, lam_in, p, self.lam]
                 ctx.launch(self.kernels.gauss_seidel, size, args)
                 continue
-            lam_out = ctx.fresh(self._multipliers()) if ctx.requires_grad else self.lam
-            args = [*common, self.split, m.particle_inv_mass, inv_dt2, k, off, omega, p, self.lam, lam_out]
+            lam_out = ctx.fresh(self._multipliers()) if ctx.requires_grad else self._multipliers()
+            args = [*common, self.split, m.particle_inv_mass, inv_dt2, k, off, omega, p, lam_in, lam_out]
             ctx.launch(self.kernels.jacobi, size, [*args, ctx.delta, ctx.delta_count])
-            self.lam = lam_out
+            self.lam = lam_in = lam_out
 
     def residual(self, ctx: ProjectionContext, p: wp.array, dt: float, out: wp.array) -> None:
         """Σ (C + α̃λ)² into out[0], count into out[1] (constraints with a movable particle)."""
@@ -276,5 +290,9 @@ class FixedArityConstraint(Constraint):
         self.rest: wp.array = wp.array(rest[order], dtype=f, device=d, requires_grad=rg)
         self.compliance_array: wp.array = wp.array(comp[order], dtype=f, device=d, requires_grad=rg)
         self.lam = wp.zeros(n, dtype=f, device=d, requires_grad=rg)
+        #: Never written: what a step's first sweep reads as λ (:meth:`begin_step`).
+        self.zero_lam: wp.array = wp.zeros(n, dtype=f, device=d)
+        # An instance attribute from bind on: a graph fingerprint (pliant.sim._graph) must not see it appear.
+        self._reset_pending = False
         self.split: wp.array = wp.array(self._split_counts(idx), dtype=wp.int32, device=d)
         self.order = order

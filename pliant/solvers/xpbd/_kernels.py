@@ -57,6 +57,22 @@ def apply_kinematic(
     p_out[indices[k]] = targets[k]
 
 
+@wp.func
+def apply_average(
+    relaxation: Any,
+    i: int,
+    p_io: wp.array(dtype=Any),
+    delta_io: wp.array(dtype=Any),
+    count_io: wp.array(dtype=wp.int32),
+):
+    """p_i += ω Σ_c Δp_i^c / n_i, then the accumulators of particle i reset (nothing where n_i = 0)."""
+    n = count_io[i]
+    if n > 0:
+        p_io[i] = p_io[i] + (relaxation / type(relaxation)(n)) * delta_io[i]
+        delta_io[i] = delta_io[i] * type(relaxation)(0.0)
+        count_io[i] = 0
+
+
 @wp.kernel
 def apply_deltas(
     relaxation: Any,
@@ -65,12 +81,7 @@ def apply_deltas(
     count_io: wp.array(dtype=wp.int32),
 ):
     """Jacobi: p_i += ω Σ_c Δp_i^c / n_i (the average over the n_i constraints that moved i), then reset."""
-    i = wp.tid()
-    n = count_io[i]
-    if n > 0:
-        p_io[i] = p_io[i] + (relaxation / type(relaxation)(n)) * delta_io[i]
-        delta_io[i] = delta_io[i] * type(relaxation)(0.0)
-        count_io[i] = 0
+    apply_average(relaxation, wp.tid(), p_io, delta_io, count_io)
 
 
 @wp.kernel
@@ -84,6 +95,24 @@ def update_velocity(
     """Algorithm 1, lines 12–13: v ← (p − x)/Δt, scaled by exp(−cΔt) (x ← p is the state swap)."""
     i = wp.tid()
     v_out[i] = ((p_in[i] - x_in[i]) * inv_dt) * damping_factor
+
+
+@wp.kernel
+def apply_deltas_update_velocity(
+    relaxation: Any,
+    inv_dt: Any,
+    damping_factor: Any,
+    x_in: wp.array(dtype=Any),
+    delta_io: wp.array(dtype=Any),
+    count_io: wp.array(dtype=wp.int32),
+    p_io: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+):
+    """:func:`apply_deltas` then :func:`update_velocity` in one launch (the step's last Jacobi correction),
+    the same expressions in the same order: the positions and velocities are theirs bit for bit."""
+    i = wp.tid()
+    apply_average(relaxation, i, p_io, delta_io, count_io)
+    v_out[i] = ((p_io[i] - x_in[i]) * inv_dt) * damping_factor
 
 
 @wp.kernel

@@ -36,7 +36,10 @@ class XPBD(Solver):
     Σ_c w_i Δλ_c ∇_i C_c: λ stays consistent with the motion applied, and a converged static state is the
     same as under Gauss–Seidel (plain averaging without the split would over-count λ and sag too far).
     Contacts are always averaged. On the CPU (serial threads) a colour-sorted sweep runs as one launch;
-    on CUDA each colour is a launch. Repeated identical steps replay recorded launches (``wp.Launch``).
+    on CUDA each colour is a launch, over a colouring made for the fewest colours (``color_constraints(...,
+    fewest=True)``: another Gauss–Seidel order than the CPU's, docs/design.md "XPBD on CUDA"). λ's reset
+    rides in the first sweep and the last Jacobi average in the velocity update, so a step is predict,
+    the sweeps' launches and the update. Repeated identical steps replay recorded launches (``wp.Launch``).
 
     Differentiable: when the model was finalized with ``requires_grad=True`` each step writes fresh arrays
     (positions after every constraint set's sweep, λ per sweep, predicted velocities) and launches afresh
@@ -183,6 +186,9 @@ class XPBD(Solver):
         self.replay = not self.requires_grad
         self._plans: dict[tuple, list] = {}
         self._recording: list | None = None
+        # ω of a Jacobi correction not applied yet: the next projection (or the velocity update, fused with
+        # it) applies it first. Only the step's last one waits that long: it saves a launch per step.
+        self._pending_omega: float | None = None
 
     def _default_constraints(self, model, compliance, bending_compliance, volume_compliance, constraints):
         if constraints is not None:
@@ -284,9 +290,21 @@ class XPBD(Solver):
         """Forget the recorded steps; call after changing options (iterations, relaxation, constraints)."""
         self._plans.clear()
 
+    def _apply_pending(self, p: wp.array) -> None:
+        """Apply the Jacobi correction :meth:`_project` left pending, if any."""
+        if self._pending_omega is not None:
+            m = self.model
+            args = [m.s(self._pending_omega), p, self.delta, self.delta_count]
+            self._pending_omega = None
+            self.launch(K.apply_deltas, m.particle_count, args)
+
     def _project(self, ctx: ProjectionContext, c: Constraint, p: wp.array, dt: float) -> wp.array:
-        """One sweep of set ``c``; returns the positions after it (``p`` itself unless differentiable)."""
+        """One sweep of set ``c``; returns the positions after it (``p`` itself unless differentiable).
+
+        A Jacobi set's correction is left pending (:meth:`_apply_pending`): what reads the positions next
+        applies it first."""
         m = self.model
+        self._apply_pending(p)
         if not c.writes_deltas(self.coloring):
             out = c.project(ctx, p, dt)
             return p if out is None else out
@@ -296,7 +314,7 @@ class XPBD(Solver):
         c.project(ctx, p, dt)
         omega = 1.0 if (self.coloring or c.always_jacobi or c.relaxes_itself) else self.relaxation
         if not ctx.requires_grad:
-            self.launch(K.apply_deltas, m.particle_count, [m.s(omega), p, self.delta, self.delta_count])
+            self._pending_omega = omega
             return p
         p_next = ctx.fresh(p)
         self.launch(K.apply_deltas_to, m.particle_count, [m.s(omega), p, ctx.delta, ctx.delta_count, p_next])
@@ -371,8 +389,9 @@ class XPBD(Solver):
             )
         for c in self.constraints:
             c.begin_step(ctx, x, p, dt)
+        self._pending_omega = None
         if self.tolerance is None:
-            p = self._sweeps(ctx, p, dt, self.iterations)
+            p = self._sweeps(ctx, p, dt, self.iterations, apply=False)
         else:
             self._sweep_to_tolerance(ctx, p, dt)
         # Contacts last: extra sweeps of the unilateral constraints alone, so that averaging with the
@@ -382,18 +401,29 @@ class XPBD(Solver):
             for c in contacts:
                 p = self._project(ctx, c, p, dt)
         v = ctx.fresh(state_out.particle_qd) if grad else state_out.particle_qd
-        self.launch(K.update_velocity, n, [m.s(1.0 / dt), m.s(math.exp(-self.damping * dt)), x, p, v])
+        inv_dt, decay = m.s(1.0 / dt), m.s(math.exp(-self.damping * dt))
+        if self._pending_omega is None:
+            self.launch(K.update_velocity, n, [inv_dt, decay, x, p, v])
+        else:
+            args = [m.s(self._pending_omega), inv_dt, decay, x, self.delta, self.delta_count, p, v]
+            self._pending_omega = None
+            self.launch(K.apply_deltas_update_velocity, n, args)
         for c in self.constraints:
             out = c.end_step(ctx, x, p, v, dt)
             v = v if out is None else out
         if grad:
             self.launch(K.write_state, n, [p, v, state_out.particle_q, state_out.particle_qd])
 
-    def _sweeps(self, ctx: ProjectionContext, p: wp.array, dt: float, count: int) -> wp.array:
-        """``count`` sweeps over every constraint set; returns the positions after them."""
+    def _sweeps(
+        self, ctx: ProjectionContext, p: wp.array, dt: float, count: int, *, apply: bool = True
+    ) -> wp.array:
+        """``count`` sweeps over every constraint set; returns the positions after them (with ``apply``
+        False the last Jacobi correction may still be pending: :meth:`_apply_pending`)."""
         for _ in range(count):
             for c in self.constraints:
                 p = self._project(ctx, c, p, dt)
+        if apply:
+            self._apply_pending(p)
         return p
 
     def _sweep_to_tolerance(self, ctx: ProjectionContext, p: wp.array, dt: float) -> None:
