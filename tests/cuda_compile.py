@@ -4,8 +4,8 @@ ahead of time (``wp.compile_aot_module``), so the CUDA side of every kernel — 
 
 Generic kernels compile only for registered overloads. This script registers those of every built-in
 scene (the prebuild manifests) and runs small CPU workloads for the paths no scene takes (FastMassSpring's
-three steps, XPBD's Jacobi and colouring schedules and tolerance loop, every FEM law explicit and under
-Newton, the Gaussian rasteriser; the taped rollouts, fit losses and visual corrector of
+steps and gather variants, XPBD's Jacobi and colouring schedules and tolerance loop, every FEM law explicit
+and under Newton, the Gaussian rasteriser; the taped rollouts, fit losses and visual corrector of
 tests/test_devices_grad.py), then compiles every pliant module with at least one compilable kernel. It prints
 one JSON line: modules compiled, kernels skipped for lack of an overload, and the errors (module → message).
 Run by tests/test_cuda_compile.py in a fresh process.
@@ -34,7 +34,8 @@ def _workloads() -> None:
 
     for dtype in ("float32", "float64"):
         m = cloth_drape_model(4, dtype=dtype)
-        for kw in ({"kernel": "scatter"}, {"kernel": "gather"}, {"method": "implicit"}):
+        gathers = ({"kernel": "gather", "gather": g} for g in ("loop", "unrolled", "tiled", "tiled16"))
+        for kw in ({"kernel": "scatter"}, *gathers, {"method": "implicit"}):
             s0, s1 = m.state(), m.state()
             FastMassSpring(m, **kw).step(s0, s1, None, 1e-4)
         s0, s1 = m.state(), m.state()

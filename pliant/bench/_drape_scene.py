@@ -22,9 +22,16 @@ FRAME_DT = 1.0 / 60.0
 
 
 def cloth_drape_model(
-    n: int, *, device: str | None = "cpu", dtype: str = "float32", damping: float = 0.0
+    n: int,
+    *,
+    device: str | None = "cpu",
+    dtype: str = "float32",
+    damping: float = 0.0,
+    bend_stiffness: float = 0.0,
 ) -> Model:
-    """The drape scene's Model: n × n cells, 1 m, 0.5 kg, E·t = 1000 N/m, ν = 0.3, two pinned corners."""
+    """The drape scene's Model: n × n cells, 1 m, 0.5 kg, E·t = 1000 N/m, ν = 0.3, two pinned corners;
+    ``damping`` γ [N s/m] of the springs' dashpots and ``bend_stiffness`` [N/m] of bend springs (two cells
+    apart) are 0 in the scene, which has neither."""
     from ..model import ModelBuilder
 
     b = ModelBuilder(gravity=(0.0, -9.81, 0.0))
@@ -36,6 +43,7 @@ def cloth_drape_model(
         youngs_modulus_thickness=1000.0,
         poisson=0.3,
         damping=damping,
+        bend_stiffness=bend_stiffness,
         origin=(-0.5, 0.0, -0.5),
         plane="xz",
         pin="top-corners",

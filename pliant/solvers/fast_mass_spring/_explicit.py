@@ -1,6 +1,20 @@
 """FastMassSpring's explicit step (symplectic Euler): the per-particle gather kernel (one fused launch, CUDA's
 choice) and the per-spring scatter with its update kernel (two launches, the CPU's choice); see
-:mod:`pliant.solvers.fast_mass_spring._solver` for why each device gets which."""
+:mod:`pliant.solvers.fast_mass_spring._solver` for why each device gets which.
+
+The gather comes in three variants (``FastMassSpring(gather=...)``), because on CUDA a small cloth's step is
+latency-bound: a thread runs its 8-12 springs one after another, each a chain of dependent loads (CSR
+offset -> neighbour index -> neighbour position), with too few threads to hide it.
+
+* ``"loop"``: one spring per iteration (the reference);
+* ``"unrolled"``: the row in chunks of 4 springs, a chunk's loads issued before any of its arithmetic
+  (indices past the row's end are clamped to its last entry and their terms dropped), summed in the loop's
+  order: bit for bit the loop's step;
+* ``"tiled"`` / ``"tiled16"``: a block of 32 / 16 lanes per particle (``wp.launch_tiled``;
+  :data:`TILE_LANES`), one spring per lane, reduced with ``wp.tile_sum``; lane 0 writes the update. Another
+  summation order: equal to round-off. On the CPU a block is one lane (Warp runs tiles there with
+  ``block_dim`` 1), which sums the springs in the loop's order and adds the external force last.
+"""
 
 from __future__ import annotations
 
@@ -10,6 +24,22 @@ import warp as wp
 
 from ...energies._spring import dashpot_force_axis, spring_gradient_axis
 from ...integrators._symplectic import symplectic_particle
+
+#: Lanes per particle of each tiled gather variant on CUDA: a warp (the reduction stays in shuffles), or half
+#: of one (fewer idle lanes on rows of 8-12 springs, at most 32 resident blocks per SM).
+TILE_LANES = {"tiled": 32, "tiled16": 16}
+
+
+@wp.func
+def _add_spring(f: Any, xi: Any, vi: Any, xj: Any, v_in: wp.array(dtype=Any), j: int, prm: Any, damped: int):
+    """f − ∇E_spring (+ the dashpot's force when ``damped``) of one spring of particle i (prm: rest length,
+    stiffness, dashpot γ); the energies' own definitions (issue 10: one of each), |d| taken once."""
+    d = xi - xj
+    l = wp.length(d)
+    g = f - spring_gradient_axis(d, l, prm[1], prm[0])
+    if damped != 0:
+        g += dashpot_force_axis(d, l, vi, v_in[j], prm[2])
+    return g
 
 
 @wp.kernel
@@ -38,17 +68,109 @@ def _symplectic_gather(
     f = f_ext[i]
     for e in range(adj_offsets[i], adj_offsets[i + 1]):
         j = adj_neighbor[e]
-        prm = adj_param[e]  # (rest length, stiffness, dashpot γ)
-        # The energies' own spring force and dashpot (issue 10: one definition of each), |d| taken once.
-        d = xi - x_in[j]
-        l = wp.length(d)
-        f -= spring_gradient_axis(d, l, prm[1], prm[0])
-        if damped != 0:
-            f += dashpot_force_axis(d, l, vi, v_in[j], prm[2])
+        f = _add_spring(f, xi, vi, x_in[j], v_in, j, adj_param[e], damped)
     w = particle_inv_mass[i]
     x, v = symplectic_particle(w, xi, vi, gravity + w * f, dt, delta)
     x_out[i] = x
     v_out[i] = v
+
+
+@wp.kernel
+def _symplectic_gather_unrolled(
+    # Model (packed):
+    adj_offsets: wp.array(dtype=wp.int32),
+    adj_neighbor: wp.array(dtype=wp.int32),
+    adj_param: wp.array(dtype=Any),
+    particle_inv_mass: wp.array(dtype=Any),
+    gravity: Any,
+    damped: int,
+    # Control:
+    f_ext: wp.array(dtype=Any),
+    # State in:
+    x_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    dt: Any,
+    delta: Any,
+    # Out:
+    x_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+):
+    """:func:`_symplectic_gather` with the row read 4 springs at a time: the four index
+    loads, then the four positions and parameters, none waiting on the previous spring's arithmetic. Entries
+    past the row's end read its last entry again (valid memory, no branch before the loads) and are not
+    added; the terms are added in the loop's order, so the step is the loop's bit for bit."""
+    i = wp.tid()
+    xi = x_in[i]
+    vi = v_in[i]
+    f = f_ext[i]
+    start = adj_offsets[i]
+    end = adj_offsets[i + 1]
+    last = end - 1
+    for e in range(start, end, 4):
+        e1 = wp.min(e + 1, last)
+        e2 = wp.min(e + 2, last)
+        e3 = wp.min(e + 3, last)
+        j0 = adj_neighbor[e]
+        j1 = adj_neighbor[e1]
+        j2 = adj_neighbor[e2]
+        j3 = adj_neighbor[e3]
+        x0 = x_in[j0]
+        x1 = x_in[j1]
+        x2 = x_in[j2]
+        x3 = x_in[j3]
+        p0 = adj_param[e]
+        p1 = adj_param[e1]
+        p2 = adj_param[e2]
+        p3 = adj_param[e3]
+        f = _add_spring(f, xi, vi, x0, v_in, j0, p0, damped)
+        if e + 1 < end:
+            f = _add_spring(f, xi, vi, x1, v_in, j1, p1, damped)
+        if e + 2 < end:
+            f = _add_spring(f, xi, vi, x2, v_in, j2, p2, damped)
+        if e + 3 < end:
+            f = _add_spring(f, xi, vi, x3, v_in, j3, p3, damped)
+    w = particle_inv_mass[i]
+    x, v = symplectic_particle(w, xi, vi, gravity + w * f, dt, delta)
+    x_out[i] = x
+    v_out[i] = v
+
+
+@wp.kernel
+def _symplectic_gather_tiled(
+    # Model (packed):
+    adj_offsets: wp.array(dtype=wp.int32),
+    adj_neighbor: wp.array(dtype=wp.int32),
+    adj_param: wp.array(dtype=Any),
+    particle_inv_mass: wp.array(dtype=Any),
+    gravity: Any,
+    damped: int,
+    # Control:
+    f_ext: wp.array(dtype=Any),
+    # State in:
+    x_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    dt: Any,
+    delta: Any,
+    # Out:
+    x_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+):
+    """:func:`_symplectic_gather` with a block of lanes per particle (``wp.launch_tiled``, dim [N] + the
+    block): lane k sums springs k, k + block, … of the row, ``wp.tile_sum`` adds the lanes' sums, lane 0
+    adds the external force and writes the update."""
+    i, lane = wp.tid()
+    xi = x_in[i]
+    vi = v_in[i]
+    f = xi * type(dt)(0.0)
+    for e in range(adj_offsets[i] + lane, adj_offsets[i + 1], wp.block_dim()):
+        j = adj_neighbor[e]
+        f = _add_spring(f, xi, vi, x_in[j], v_in, j, adj_param[e], damped)
+    total = wp.tile_sum(wp.tile(f, preserve_type=True))
+    if lane == 0:
+        w = particle_inv_mass[i]
+        x, v = symplectic_particle(w, xi, vi, gravity + w * (f_ext[i] + total[0]), dt, delta)
+        x_out[i] = x
+        v_out[i] = v
 
 
 @wp.kernel
