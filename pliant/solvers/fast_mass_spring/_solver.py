@@ -99,7 +99,10 @@ class FastMassSpring(Solver):
             ``"unrolled"`` (the same sums, bit for bit, with four springs' loads issued together: less
             latency per step on a GPU) or ``"tiled"`` / ``"tiled16"`` (a block of 32 / 16 lanes per
             particle, one spring each, summed by a tile reduction: equal to round-off). Picking one other
-            than ``"loop"`` implies ``kernel="gather"``.
+            than ``"loop"`` implies ``kernel="gather"``. None (default): ``"unrolled"`` on CUDA (measured
+            on an H100, frames replayed as graphs: 1.28× the loop's frames per second at 64², 1.26× at
+            128², 1.09× at 256², 1.02× at 512², the same trajectory error; the tiled ones are 0.16-1.09×),
+            ``"loop"`` on the CPU (whose default kernel is the scatter).
         theta: the implicit step's θ: (M + θhD + θ²h²K)Δv = h(f − θhKv), x¹ = x + h(v + θΔv). 1 is
             Baraff–Witkin's linearised backward Euler (dissipative: it damps fast motion); 0.5 the
             linearised implicit midpoint rule (second order, no numerical damping; the drape benchmark
@@ -130,7 +133,7 @@ class FastMassSpring(Solver):
         cg_tol: float = 1.0e-6,
         cg_check_every: int | None = None,
         kernel: str | None = None,
-        gather: str = "loop",
+        gather: str | None = None,
         theta: float = 1.0,
         velocity_damping: float = 1.0,
         damping_rate: float | None = None,
@@ -186,6 +189,8 @@ class FastMassSpring(Solver):
         self.adj_neighbor: wp.array = wp.array(nb, dtype=wp.int32, device=d)
         self.adj_spring: wp.array = wp.array(spr, dtype=wp.int32, device=d)
         self._adj_param = wp.zeros(max(nb.shape[0], 1), dtype=model.vec3, device=d)
+        if gather is None:
+            gather = "loop" if wp.get_device(d).is_cpu else "unrolled"
         if gather not in GATHER_KERNELS:
             raise ValueError(f"gather must be one of {sorted(GATHER_KERNELS)}, got {gather!r}")
         if kernel is None:
