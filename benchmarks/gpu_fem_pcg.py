@@ -29,6 +29,7 @@ from pliant.solvers.implicit import _pcg
 def pcg_row(n: int, device: str, reduction: str, frames: int) -> dict:
     """One soft-box row of the device Newton with ``reduction`` (the ``soft_box_drop_N_implicit_pcg``
     setting at any size n)."""
+    default = _pcg.REDUCTION
     _pcg.REDUCTION = reduction  # read when the row's solver sets up its device Newton
     try:
         row = soft_box_drop(
@@ -42,7 +43,7 @@ def pcg_row(n: int, device: str, reduction: str, frames: int) -> dict:
             integrator="ImplicitMidpoint",
         )
     finally:
-        _pcg.REDUCTION = "atomic"
+        _pcg.REDUCTION = default
     return {"benchmark": f"soft_box_drop_{n}_implicit_pcg", "reduction": reduction, **row}
 
 

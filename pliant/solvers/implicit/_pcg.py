@@ -52,8 +52,10 @@ CG_CHUNK = 8
 #: How CG's dot products reduce: "atomic" (every thread adds its term to the one scalar) or "tile" (a block
 #: sum by ``wp.tile_sum``, then one atomic add per block; :mod:`._pcg_kernels`). Read when a solver's
 #: device Newton is set up (its first step), so that solvers made under either setting run side by side.
+#: "tile": 1.72x faster steps on the 30³ soft box on an H100 (5.83 against 10.03 ms), the same Newton
+#: iterations; on the CPU both add the same terms in the same order.
 REDUCTIONS = ("atomic", "tile")
-REDUCTION = "atomic"
+REDUCTION = "tile"
 
 # float64 Newton scalars (``state``) and int32 counters (``counts``).
 TOL, PHI0, ALPHA, STEP_NORM, GNORM = range(5)
