@@ -188,41 +188,48 @@ def untaped_in_place() -> Iterator[None]:
         wp.config.verify_autograd_array_access = old
 
 
-def launch(kernel: wp.Kernel, dim: int | Sequence[int], inputs: list, device: wp.DeviceLike = None) -> None:
-    """``wp.launch(kernel, dim, inputs, device=device)``, replaying a recorded ``wp.Launch`` when it can.
+def launch(
+    kernel: wp.Kernel,
+    dim: int | Sequence[int],
+    inputs: list,
+    device: wp.DeviceLike = None,
+    block_dim: int | None = None,
+) -> None:
+    """``wp.launch(kernel, dim, inputs, device=device, block_dim=block_dim)``, replaying a recorded
+    ``wp.Launch`` when it can (``block_dim``: threads per block, None: Warp's default).
 
     A plain launch of a generic kernel spends 10-60 µs in Python (overload resolution, argument packing),
     more than many of our kernels take to run on the CPU for a thousand particles. The first launch with a
-    given signature — kernel, dim, device, and for every array its pointer, shape, strides, dtype and
-    device — is recorded; later ones replay it after setting the non-array arguments (scalars, vectors,
-    ids), which costs 3-6 µs. A replay is exactly the same launch: the key holds everything the recorded
-    parameters hold, so an array freed and reallocated at the same address with the same layout is
-    launched correctly, and the cache holds no references to arrays. While a ``wp.Tape`` records, launches go
-    through ``wp.launch`` so that autodiff sees them, and so do launches on arrays that require gradients:
-    recorded steps write into fresh arrays each time, so their signatures never repeat and recording them
-    would only evict the replayable launches of the gradient-free path.
+    given signature — kernel, dim, device, block_dim, and for every array its pointer, shape, strides,
+    dtype and device — is recorded; later ones replay it after setting the non-array arguments (scalars,
+    vectors, ids), which costs 3-6 µs. A replay is exactly the same launch: the key holds everything the
+    recorded parameters hold, so an array freed and reallocated at the same address with the same layout
+    is launched correctly, and the cache holds no references to arrays. While a ``wp.Tape`` records,
+    launches go through ``wp.launch`` so that autodiff sees them, and so do launches on arrays that require
+    gradients: recorded steps write into fresh arrays each time, so their signatures never repeat and
+    recording them would only evict the replayable launches of the gradient-free path.
     """
     if _tape_active():
-        wp.launch(kernel, dim, inputs, device=device)
+        wp.launch(kernel, dim, inputs, device=device, block_dim=block_dim)
         return
-    parts: list = [kernel, dim, str(device)]
+    parts: list = [kernel, dim, str(device), block_dim]
     scalars = []
     for k, a in enumerate(inputs):
         if isinstance(a, wp.array):
             if a.requires_grad:
-                wp.launch(kernel, dim, inputs, device=device)
+                wp.launch(kernel, dim, inputs, device=device, block_dim=block_dim)
                 return
             parts.append((a.ptr, a.shape, a.strides, a.dtype, a.device.alias))  # type: ignore[union-attr]
         elif isinstance(a, (int, float, bool)) or type(a).__module__.startswith("warp"):
             parts.append(type(a))
             scalars.append(k)
         else:  # indexed/fabric arrays, structs: no replay
-            wp.launch(kernel, dim, inputs, device=device)
+            wp.launch(kernel, dim, inputs, device=device, block_dim=block_dim)
             return
     key = tuple(parts)
     hit = _LAUNCHES.get(key)
     if hit is None:
-        cmd = wp.launch(kernel, dim, inputs, device=device, record_cmd=True)
+        cmd = wp.launch(kernel, dim, inputs, device=device, record_cmd=True, block_dim=block_dim)
         # The recorded parameters hold raw pointers; the argument list is only needed by Warp's launch
         # capture (APIC). Dropping it lets the arrays of a deleted model be freed: the cache would otherwise
         # keep them alive.
@@ -238,7 +245,7 @@ def launch(kernel: wp.Kernel, dim: int | Sequence[int], inputs: list, device: wp
     try:
         cmd.launch()
     except RuntimeError:  # a launch capture that needs the argument list: launch the ordinary way
-        wp.launch(kernel, dim, inputs, device=device)
+        wp.launch(kernel, dim, inputs, device=device, block_dim=block_dim)
 
 
 # ----------------------------------------------------------------------------------------------- gradients

@@ -11,7 +11,7 @@ import warp as wp
 from warp.sparse import bsr_from_triplets
 
 import pliant as pl
-from pliant.solvers.implicit import DeviceCG
+from pliant.solvers.implicit import DeviceCG, _pcg
 
 NEWTON_TOL = 1e-7  # m/s
 
@@ -41,7 +41,13 @@ def _sim(device: str, linear_solver: str, graph: bool | None = None, **kw) -> pl
     return sim
 
 
-def _dense_cg(device: str, dense: np.ndarray) -> DeviceCG:
+@pytest.fixture(params=_pcg.REDUCTIONS)
+def reduction(request: pytest.FixtureRequest) -> str:
+    """Each way of reducing CG's dot products in turn."""
+    return request.param
+
+
+def _dense_cg(device: str, dense: np.ndarray, reduction: str | None = None) -> DeviceCG:
     """DeviceCG on a dense block matrix (every block stored) of n = len(dense) / 3 particles."""
     n = dense.shape[0] // 3
     rows, cols = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
@@ -63,18 +69,19 @@ def _dense_cg(device: str, dense: np.ndarray) -> DeviceCG:
         scalar=wp.float64,
         particle_inv_mass=wp.ones(n, dtype=wp.float64, device=device),
     )
-    return DeviceCG(model, ws)  # type: ignore[arg-type]
+    return DeviceCG(model, ws, reduction)  # type: ignore[arg-type]
 
 
-def test_cg_solves_a_spd_system_to_its_tolerance(device: str) -> None:
+def test_cg_solves_a_spd_system_to_its_tolerance(device: str, reduction: str) -> None:
     """DeviceCG on a random SPD block system: ‖b − Hx‖ ≤ tol‖b‖ (its stopping test), the error within
-    cond(H)·tol of numpy's solve, in at most 3n iterations (CG's finite termination) rounded up to a chunk."""
+    cond(H)·tol of numpy's solve, in at most 3n iterations (CG's finite termination) rounded up to a chunk.
+    Either reduction (7 rows: on CUDA the tiled launch is one block, mostly rows past the end)."""
     rng = np.random.default_rng(3)
     n = 7
     a = rng.standard_normal((3 * n, 3 * n))
     dense = a @ a.T + 3 * n * np.eye(3 * n)  # SPD, cond ≈ 10
     b = rng.standard_normal((n, 3))
-    cg = _dense_cg(device, dense)
+    cg = _dense_cg(device, dense, reduction)
     x = wp.zeros(n, dtype=wp.vec3d, device=device)
     tol = 1e-10
     cg.solve(wp.array(-b, dtype=wp.vec3d, device=device), x, tol, 1000)
@@ -84,6 +91,7 @@ def test_cg_solves_a_spd_system_to_its_tolerance(device: str) -> None:
     exact = np.linalg.solve(dense, b.ravel())
     assert np.abs(xs - exact).max() <= np.linalg.cond(dense) * tol * np.abs(exact).max()
     assert 0 < cg.iterations() <= 3 * n
+    assert int(cg.counts.numpy()[3]) == cg.iterations(), "the lifetime total counts the same iterations"
     # A cap stops it early: 3 iterations asked, one chunk of 8 run at most, the residual still large.
     x.zero_()
     cg.counts.zero_()
@@ -92,11 +100,11 @@ def test_cg_solves_a_spd_system_to_its_tolerance(device: str) -> None:
     assert np.linalg.norm(b.ravel() - dense @ x.numpy().ravel()) > 1e-6 * np.linalg.norm(b)
 
 
-def test_cg_stops_at_a_breakdown(device: str) -> None:
+def test_cg_stops_at_a_breakdown(device: str, reduction: str) -> None:
     """On a negative definite H the first p·Hp is < 0: CG stops there (x stays 0, no iteration counted)
     instead of running to its cap on a meaningless step."""
     n = 4
-    cg = _dense_cg(device, -np.eye(3 * n) - 0.1 * np.ones((3 * n, 3 * n)))
+    cg = _dense_cg(device, -np.eye(3 * n) - 0.1 * np.ones((3 * n, 3 * n)), reduction)
     x = wp.zeros(n, dtype=wp.vec3d, device=device)
     cg.solve(wp.array(np.ones((n, 3)), dtype=wp.vec3d, device=device), x, 1e-10, 100)
     assert cg.iterations() == 0
@@ -124,10 +132,13 @@ def test_unconverged_step_says_so(device: str) -> None:
     assert st.linear_iterations > 0 and st.step_norm > 0
 
 
-def test_motion_matches_the_direct_solver(device: str) -> None:
+def test_motion_matches_the_direct_solver(
+    device: str, reduction: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """A neo-Hookean box dropped on the ground (30 frames of 2 backward-Euler steps, float64, with contact):
     the device Newton (replayed as a graph) follows the direct solve's motion to 1e-8 m, both converged to
-    ``newton_tol`` = 1e-7 m/s per step (a position error of order tol·h per step)."""
+    ``newton_tol`` = 1e-7 m/s per step (a position error of order tol·h per step), with either reduction."""
+    monkeypatch.setattr(_pcg, "REDUCTION", reduction)
     xs, frames = {}, 30
     for lin in ("direct", "pcg"):
         sim = _sim(device if lin == "pcg" else "cpu", lin)
@@ -146,6 +157,31 @@ def test_motion_matches_the_direct_solver(device: str) -> None:
     assert err < 1e-8, f"device Newton differs from the direct solve by {err:.3g} m"
     fall = xs["pcg"][0, :, 1].min() - xs["pcg"][-1, :, 1].min()
     assert fall > 0.04, "the box did not reach the ground"
+
+
+def test_reductions_agree(device: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Block sums and per-thread atomics take the same Newton/CG decisions: bit for bit on the CPU (a CPU
+    block is one thread, so the same terms are added in the same order); on CUDA the sums differ only in
+    their order."""
+    sims = {}
+    for reduction in _pcg.REDUCTIONS:
+        monkeypatch.setattr(_pcg, "REDUCTION", reduction)
+        sims[reduction] = _sim(device, "pcg")
+        sims[reduction].step_frame()  # the setting is read when the solver's first step sets up
+    for _ in range(7):
+        for sim in sims.values():
+            sim.step_frame()
+    a, b = (sims[r] for r in ("atomic", "tile"))
+    assert b.solver.last_stats._dn.cg.reduction == "tile" and a.solver.last_stats._dn.cg.reduction == "atomic"
+    (steps, newton, cg), totals_b = a.solver.last_stats.totals(), b.solver.last_stats.totals()
+    assert steps == 16 and newton >= steps and cg >= newton
+    qa, qb = a.state_0.particle_q.numpy(), b.state_0.particle_q.numpy()
+    if device == "cpu":
+        assert totals_b == (steps, newton, cg)
+        np.testing.assert_array_equal(qa, qb)
+    else:
+        assert totals_b[:2] == (steps, newton) and abs(totals_b[2] - cg) <= 0.01 * cg
+        np.testing.assert_allclose(qa, qb, rtol=0, atol=1e-9)
 
 
 def test_graph_replay_equals_direct_launches(device: str) -> None:

@@ -140,14 +140,15 @@ def _peak_mem_mb(device: str) -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def _device_iterations(solver: ForceSolver) -> int:
-    """Newton iterations the device minimiser counted over ``solver``'s life (graph replays included)."""
+def _device_iterations(solver: ForceSolver) -> np.ndarray:
+    """(Newton, CG) iterations the device minimiser counted over ``solver``'s life (graph replays
+    included)."""
     from ..solvers.implicit import DeviceNewtonStats
 
     stats = solver.last_stats
     if not isinstance(stats, DeviceNewtonStats):  # only linear_solver="pcg" steps are replayed as graphs
         raise TypeError(f"expected the device Newton's statistics, got {type(stats).__name__}")
-    return stats.totals()[1]
+    return np.array(stats.totals()[1:])
 
 
 def _frame(solver: Solver, states: tuple, dt: float, substeps: int) -> tuple:
@@ -203,6 +204,7 @@ def soft_box_drop(
     mass = model.particle_mass_np
     com = []
     iterations = 0
+    device_counts = np.zeros(2, dtype=np.int64)  # (Newton, CG) on the device Newton's counters
     min_det = float("inf")
     graphs = None
     if method == "implicit" and minimizer == "pcg":
@@ -216,7 +218,7 @@ def soft_box_drop(
         for st in (s0, s1):
             wp.copy(st.particle_q, rest.particle_q)
             wp.copy(st.particle_qd, rest.particle_qd)
-        iterations = -_device_iterations(solver)
+        device_counts = -_device_iterations(solver)
     wp.synchronize_device(device)
     t0 = time.perf_counter()
     for _ in range(frames):
@@ -231,8 +233,11 @@ def soft_box_drop(
         com.append(float(mass @ s0.particle_q.numpy()[:, 1].astype(np.float64) / mass.sum()))
     wp.synchronize_device(device)
     wall = time.perf_counter() - t0
+    cg_per_step = None
     if graphs is not None:  # counted on the device over the solver's life (replays included)
-        iterations += _device_iterations(solver)
+        newton, cg = device_counts + _device_iterations(solver)
+        iterations += int(newton)
+        cg_per_step = round(int(cg) / (frames * substeps), 3)
     if trajectory:
         np.save(trajectory, np.array(com))
     x = s0.particle_q.numpy().astype(np.float64)
@@ -256,6 +261,8 @@ def soft_box_drop(
         "dt": dt,
         "minimizer": minimizer if method == "implicit" else None,
         "iterations_per_step": round(iterations / steps, 3) if method == "implicit" else 0,
+        # CG iterations per step of the device Newton (None for the host minimisers).
+        "cg_iterations_per_step": cg_per_step,
         "newton_tol": getattr(solver.integrator, "newton_tol", None),
         "wall_s": round(wall, 4),
         "compile_s": round(compile_s, 3),

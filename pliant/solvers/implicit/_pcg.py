@@ -49,6 +49,14 @@ if TYPE_CHECKING:
 #: flag read.
 CG_CHUNK = 8
 
+#: How CG's dot products reduce: "atomic" (every thread adds its term to the one scalar) or "tile" (a block
+#: sum by ``wp.tile_sum``, then one atomic add per block; :mod:`._pcg_kernels`). Read when a solver's
+#: device Newton is set up (its first step), so that solvers made under either setting run side by side.
+#: "tile": 1.72x faster steps on the 30³ soft box on an H100 (5.83 against 10.03 ms), the same Newton
+#: iterations; on the CPU both add the same terms in the same order.
+REDUCTIONS = ("atomic", "tile")
+REDUCTION = "tile"
+
 # float64 Newton scalars (``state``) and int32 counters (``counts``).
 TOL, PHI0, ALPHA, STEP_NORM, GNORM = range(5)
 # STEPS and TOTAL: steps and Newton iterations over the solver's life (never cleared).
@@ -240,11 +248,15 @@ class DeviceCG:
     Args:
         model: the Model (device, dtype, inverse masses: fixed rows are left at 0).
         ws: the Newton workspace whose BSR matrix ``ws.A`` (values ``ws.values``) is solved.
+        reduction: how the dot products reduce, one of :data:`REDUCTIONS` (None: :data:`REDUCTION`).
     """
 
-    def __init__(self, model: Model, ws: _Workspace) -> None:
+    def __init__(self, model: Model, ws: _Workspace, reduction: str | None = None) -> None:
         n, d, v3 = model.particle_count, model.device, model.vec3
-        self.model, self.ws = model, ws
+        reduction = REDUCTION if reduction is None else reduction
+        if reduction not in REDUCTIONS:
+            raise ValueError(f"DeviceCG reduction must be one of {REDUCTIONS}, got {reduction!r}")
+        self.model, self.ws, self.reduction = model, ws, reduction
         self.r, self.z, self.q = (wp.zeros(n, dtype=v3, device=d) for _ in range(3))
         self.p = (wp.zeros(n, dtype=v3, device=d), wp.zeros(n, dtype=v3, device=d))
         self.blocks = wp.zeros(n, dtype=model.mat33, device=d)
@@ -257,9 +269,20 @@ class DeviceCG:
         """x_out = −H⁻¹ grad to ‖r‖ ≤ tol ‖grad‖ (device; no host read when captured)."""
         m, ws = self.model, self.ws
         n, d = m.particle_count, m.device
+        # The dot-product launches: all rows, or whole blocks of rows for the block sums.
+        if self.reduction == "tile":
+            tiled, rows, block = K.TILE, K.tiled_dim(n), K.BLOCK_DIM
+        else:
+            tiled, rows, block = K.ATOMIC, n, None
         launch(K.cg_block_inverse, n, [m.particle_inv_mass, ws.diag_slots, ws.values, self.blocks], device=d)
         launch(K.cg_reset, 1, [self.limit, self.scalars, self.counts], device=d)
-        launch(K.cg_begin, n, [self.blocks, grad, x_out, self.r, self.z, *self.p, self.scalars], device=d)
+        launch(
+            K.cg_begin,
+            rows,
+            [tiled, n, self.blocks, grad, x_out, self.r, self.z, *self.p, self.scalars],
+            device=d,
+            block_dim=block,
+        )
         launch(K.cg_start, 1, [wp.float64(tol * tol), self.scalars, self.limit, self.go], device=d)
         checks = -(-cap // CG_CHUNK)
         offsets, columns = ws.A.offsets, ws.A.columns
@@ -270,17 +293,19 @@ class DeviceCG:
                 p_old, p_new = self.p[j % 2], self.p[(j + 1) % 2]
                 launch(
                     K.cg_apply,
-                    n,
-                    [offsets, columns, ws.values, self.limit, self.counts, self.z, p_old, j, prev]
+                    rows,
+                    [tiled, n, offsets, columns, ws.values, self.limit, self.counts, self.z, p_old, j, prev]
                     + [CG_CHUNK, cap, p_new, self.q, self.scalars],
                     device=d,
+                    block_dim=block,
                 )
                 launch(
                     K.cg_update,
-                    n,
-                    [self.blocks, self.limit, p_new, self.q, j, CG_CHUNK, cap, x_out, self.r, self.z]
-                    + [self.scalars, self.counts],
+                    rows,
+                    [tiled, n, self.blocks, self.limit, p_new, self.q, j, CG_CHUNK, cap, x_out, self.r]
+                    + [self.z, self.scalars, self.counts],
                     device=d,
+                    block_dim=block,
                 )
             launch(
                 K.cg_chunk_end,
@@ -334,10 +359,11 @@ class DeviceNewtonStats:
     def _counts(self) -> np.ndarray:
         return self._dn.counts.numpy()
 
-    def totals(self) -> tuple[int, int]:
-        """(steps, Newton iterations) over the solver's life, replayed steps included (one host read)."""
+    def totals(self) -> tuple[int, int, int]:
+        """(steps, Newton iterations, CG iterations) over the solver's life, replayed steps included (two
+        host reads)."""
         c = self._counts()
-        return int(c[STEPS]), int(c[TOTAL])
+        return int(c[STEPS]), int(c[TOTAL]), int(self._dn.cg.counts.numpy()[K.TOTAL])
 
     @property
     def iterations(self) -> int:

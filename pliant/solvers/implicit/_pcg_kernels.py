@@ -15,8 +15,14 @@ iteration index a launch argument. An iteration whose residual is already below 
 p·Hp ≤ 0, or past the iteration cap) is *frozen*: it launches but changes nothing, so a chunk needs no host
 read; :func:`cg_chunk_end` rolls the slots over to the next chunk and sets the flag that
 ``wp.capture_while`` tests. Integer state (``counts``): :data:`DONE` (frozen for good: a breakdown),
-:data:`CHECKS` (chunks finished in this solve) and :data:`ITERATIONS` (iterations that moved, over the
-Newton step).
+:data:`CHECKS` (chunks finished in this solve), :data:`ITERATIONS` (iterations that moved, over the
+Newton step) and :data:`TOTAL` (iterations that moved over the solver's life, never cleared).
+
+The dot products reduce in one of two ways (the kernels' ``tiled`` argument, :data:`ATOMIC` or
+:data:`TILE`): every thread adds its term to the one scalar (atomics to a single address, serialised on a
+GPU), or each block sums its terms with ``wp.tile_sum`` and one thread adds the block's sum. A tiled
+launch covers whole blocks (:func:`tiled_dim`); the threads past the last row contribute 0. On the CPU a
+block is one thread (Warp's CPU tile semantics), so both ways add the same terms in the same order.
 """
 
 from __future__ import annotations
@@ -29,7 +35,20 @@ import warp as wp
 DONE = 0
 CHECKS = 1
 ITERATIONS = 2
-COUNT_SLOTS = 3
+TOTAL = 3
+COUNT_SLOTS = 4
+
+#: ``tiled`` argument: per-thread atomic adds, or a block sum (``wp.tile_sum``) and one atomic per block.
+ATOMIC = 0
+TILE = 1
+
+#: Threads per block of a tiled launch.
+BLOCK_DIM = 256
+
+
+def tiled_dim(n: int) -> int:
+    """Launch size of a tiled kernel over n rows: whole blocks of :data:`BLOCK_DIM` threads."""
+    return -(-n // BLOCK_DIM) * BLOCK_DIM
 
 
 def slot(j: int) -> tuple[int, int, int]:
@@ -55,6 +74,21 @@ def _frozen(
 ) -> bool:
     # The same answer in every thread of a launch: it reads only values that earlier launches wrote.
     return counts[DONE] != 0 or not (scalars[2 + 3 * j] > limit[0]) or counts[CHECKS] * chunk + j >= cap
+
+
+@wp.func
+def _accumulate(tiled: int, i: int, n: int, total: wp.array(dtype=Any), k: int, value: Any):
+    # total[k] += Σ value over the launch's rows i < n. Tiled: every thread of the block must get here
+    # (the callers return early only where the whole launch does), rows past n bring 0.
+    if tiled == ATOMIC:
+        wp.atomic_add(total, k, value)
+    else:
+        v = value
+        if i >= n:
+            v = type(value)(0.0)
+        s = wp.tile_sum(wp.tile(v))
+        if i % wp.block_dim() == 0:
+            wp.atomic_add(total, k, s[0])
 
 
 @wp.kernel(enable_backward=False)
@@ -90,6 +124,8 @@ def cg_reset(
 
 @wp.kernel(enable_backward=False)
 def cg_begin(
+    tiled: int,
+    n: int,
     blocks: wp.array(dtype=Any),
     grad_in: wp.array(dtype=Any),
     x_out: wp.array(dtype=Any),
@@ -101,16 +137,21 @@ def cg_begin(
 ):
     # H x = −∇Φ from x = 0: r = −g, z = P r, both search-direction buffers 0 (β = 0 multiplies them first).
     i = wp.tid()
-    r = -grad_in[i]
-    z = blocks[i] * r
-    zero = r * type(r[0])(0.0)
-    x_out[i] = zero
-    r_out[i] = r
-    z_out[i] = z
-    p0_out[i] = zero
-    p1_out[i] = zero
-    wp.atomic_add(scalars_out, 1, wp.dot(r, z))
-    wp.atomic_add(scalars_out, 2, wp.dot(r, r))
+    rz = type(scalars_out[0])(0.0)
+    rr = rz
+    if i < n:
+        r = -grad_in[i]
+        z = blocks[i] * r
+        zero = r * type(r[0])(0.0)
+        x_out[i] = zero
+        r_out[i] = r
+        z_out[i] = z
+        p0_out[i] = zero
+        p1_out[i] = zero
+        rz = wp.dot(r, z)
+        rr = wp.dot(r, r)
+    _accumulate(tiled, i, n, scalars_out, 1, rz)
+    _accumulate(tiled, i, n, scalars_out, 2, rr)
 
 
 @wp.kernel(enable_backward=False)
@@ -132,6 +173,8 @@ def cg_start(
 
 @wp.kernel(enable_backward=False)
 def cg_apply(
+    tiled: int,
+    n: int,
     offsets: wp.array(dtype=wp.int32),
     columns: wp.array(dtype=wp.int32),
     values: wp.array(dtype=Any),
@@ -157,18 +200,23 @@ def cg_apply(
     beta = type(rz)(0.0)
     if den > beta:
         beta = rz / den
-    pi = z_in[i] + beta * p_in[i]
-    q = pi * type(rz)(0.0)
-    for k in range(offsets[i], offsets[i + 1]):
-        c = columns[k]
-        q += values[k] * (z_in[c] + beta * p_in[c])
-    p_out[i] = pi
-    q_out[i] = q
-    wp.atomic_add(scalars_io, 3 + 3 * j, wp.dot(pi, q))
+    pq = type(rz)(0.0)
+    if i < n:
+        pi = z_in[i] + beta * p_in[i]
+        q = pi * type(rz)(0.0)
+        for k in range(offsets[i], offsets[i + 1]):
+            c = columns[k]
+            q += values[k] * (z_in[c] + beta * p_in[c])
+        p_out[i] = pi
+        q_out[i] = q
+        pq = wp.dot(pi, q)
+    _accumulate(tiled, i, n, scalars_io, 3 + 3 * j, pq)
 
 
 @wp.kernel(enable_backward=False)
 def cg_update(
+    tiled: int,
+    n: int,
     blocks: wp.array(dtype=Any),
     limit: wp.array(dtype=Any),
     p_in: wp.array(dtype=Any),
@@ -197,15 +245,21 @@ def cg_update(
                 counts_io[DONE] = 1
         return
     alpha = rz / pq
-    x_io[i] = x_io[i] + alpha * p_in[i]
-    r = r_io[i] - alpha * q_in[i]
-    r_io[i] = r
-    z = blocks[i] * r
-    z_out[i] = z
-    wp.atomic_add(scalars_io, 1 + 3 * (j + 1), wp.dot(r, z))
-    wp.atomic_add(scalars_io, 2 + 3 * (j + 1), wp.dot(r, r))
+    rz_next = zero
+    rr_next = zero
+    if i < n:
+        x_io[i] = x_io[i] + alpha * p_in[i]
+        r = r_io[i] - alpha * q_in[i]
+        r_io[i] = r
+        z = blocks[i] * r
+        z_out[i] = z
+        rz_next = wp.dot(r, z)
+        rr_next = wp.dot(r, r)
+    _accumulate(tiled, i, n, scalars_io, 1 + 3 * (j + 1), rz_next)
+    _accumulate(tiled, i, n, scalars_io, 2 + 3 * (j + 1), rr_next)
     if i == 0:
         counts_io[ITERATIONS] = counts_io[ITERATIONS] + 1
+        counts_io[TOTAL] = counts_io[TOTAL] + 1
 
 
 @wp.kernel(enable_backward=False)
