@@ -50,7 +50,7 @@ CUDA_SCHEDULE_ON_CPU = False
 ORDERED_ROUNDS = 1024
 
 
-def per_colour_launches(device: Any) -> bool:
+def per_colour_launches(device: wp.DeviceLike) -> bool:
     """Whether a colour sweep on ``device`` launches once per colour (CUDA, or the CPU forced to the CUDA
     schedule): there the number of colours is the number of launches, so the colouring minimises it."""
     return bool(wp.get_device(device).is_cuda or CUDA_SCHEDULE_ON_CPU)

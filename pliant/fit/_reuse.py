@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
@@ -32,8 +32,10 @@ import warp as wp
 from ._params import GLOBAL, registry_arrays
 
 if TYPE_CHECKING:
+    from ..model import Model
     from ..scene import Scene
     from ..sim import Simulator
+    from ..solvers import XPBD
     from ._problem import Problem
 
 _LOG = logging.getLogger("pliant.fit")
@@ -60,7 +62,7 @@ def refresher(solver: object) -> tuple[Callable[[], bool] | None, str | None]:
     return None, f"{name} is not known to read the model's parameter arrays in its step"
 
 
-def _rebind(solver: Any) -> bool:
+def _rebind(solver: XPBD) -> bool:
     """Bind XPBD's constraints to the model again (compliances from the new spring k, ...) and copy every
     new array into the one the constraint held, so that graphs and recorded launches stay valid; False
     when an array changed shape (then nothing may be reused)."""
@@ -115,7 +117,7 @@ class _Writes:
                 self.rows.append((b.name, attr, a, idx, copy[idx]))
 
     @staticmethod
-    def _first_particle(m: Any, per: str, n: int) -> np.ndarray:
+    def _first_particle(m: Model, per: str, n: int) -> np.ndarray:
         """The first particle of each of ``n`` elements of kind ``per`` (which object owns it)."""
         if per == "particle":
             return np.arange(n)
