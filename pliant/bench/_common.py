@@ -18,9 +18,10 @@ from .._time import substep_dt
 
 if TYPE_CHECKING:
     import numpy as np
+    import warp as wp
 
-    from ..model import Control, Model
-    from ..solvers import Solver
+    from ..model import Control, Model, State
+    from ..solvers import FrameStep, Solver
 
 
 @dataclass(frozen=True)
@@ -35,6 +36,8 @@ class Timing:
     frames: int
     substeps: int
     device: str
+    #: Whether the timed frames were replayed as one captured graph each (``PLIANT_BENCH_GRAPH=1``).
+    graph: bool = False
 
 
 def run_timed(
@@ -56,6 +59,11 @@ def run_timed(
     from there. ``reuse_states`` restarts from the initial state in the warmed-up state arrays (for solvers
     that replay launches recorded for those arrays, e.g. XPBD) instead of in fresh ones. ``on_step`` runs
     after each timed step (e.g. to collect solver statistics). Returns the final state and the timing.
+
+    With ``PLIANT_BENCH_GRAPH=1`` (``pliant bench --graph``) a frame is captured once as a graph (a CUDA
+    graph on a GPU, Warp's CPU graph on the CPU) and the timed frames replay it, as the Simulator does by
+    default; the same final state bit for bit. Not when the solver names a graph blocker, with
+    ``on_step`` (a host call per step) or an odd substep count (a frame would end in the other buffer).
     """
     import warp as wp
 
@@ -75,11 +83,44 @@ def run_timed(
     from ..solvers import FrameStep
 
     frame = FrameStep(solver, dt, substeps, on_step=on_step)
-    for _ in range(frames):
-        s0, s1 = frame(s0, control, s1)
+    graph = _frame_graph(frame, solver, s0, s1, control, device) if _graph_asked(substeps, on_step) else None
+    if graph is not None:
+        s0.assign(model.state())  # a capture launches nothing, but start the timed frames from rest anyway
+        s1.assign(model.state())
+        wp.synchronize_device(device)
+        t0 = time.perf_counter()
+        c0 = time.process_time()
+        for _ in range(frames):
+            wp.capture_launch(graph)
+    else:
+        for _ in range(frames):
+            s0, s1 = frame(s0, control, s1)
     wp.synchronize_device(device)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    return s0, Timing(wall, cpu, compile_s, frames, substeps, device)
+    return s0, Timing(wall, cpu, compile_s, frames, substeps, device, graph is not None)
+
+
+def _graph_asked(substeps: int, on_step: Callable[[], None] | None) -> bool:
+    """Whether ``PLIANT_BENCH_GRAPH=1`` asks for graph replay and this run allows it (see run_timed)."""
+    return os.environ.get("PLIANT_BENCH_GRAPH") == "1" and on_step is None and substeps % 2 == 0
+
+
+def _frame_graph(
+    frame: FrameStep, solver: Solver, s0: State, s1: State, control: Control | None, device: str
+) -> wp.Graph | None:
+    """One frame of ``frame`` from ``s0`` (back in ``s0`` after its even substep count) captured as a graph,
+    or None when the solver names a graph blocker or the capture fails (the frames then run directly)."""
+    import warp as wp
+
+    blocker = getattr(solver, "graph_blocker", None)
+    if callable(blocker) and blocker() is not None:
+        return None
+    try:
+        with wp.ScopedCapture(device=device) as cap:
+            end, _ = frame(s0, control, s1)
+    except Exception:  # a solver that reads the host mid-step on CUDA: time it launch by launch
+        return None
+    return cap.graph if end is s0 else None
 
 
 def sig4(value: float) -> float:
@@ -106,6 +147,7 @@ def speed_fields(timing: Timing, particles: int, *, process: bool = True) -> dic
         row["load_avg_1min"] = round(os.getloadavg()[0], 2)
     row["compile_s"] = round(timing.compile, 3)
     row["fps"] = round(frames / wall, 2)
+    row["graph"] = timing.graph
     if process:
         row["fps_cpu_time"] = round(frames / cpu, 2) if device == "cpu" and cpu > 0 else None
     row["particle_substeps_per_s"] = sig4(particles * frames * timing.substeps / wall)

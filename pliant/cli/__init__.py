@@ -196,6 +196,11 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--json", metavar="PATH", help="also append the JSON lines to PATH")
     b.add_argument("--device", help="device passed to benchmarks that take one")
     b.add_argument("--quick", action="store_true", help="smaller problems (smoke test)")
+    b.add_argument(
+        "--graph",
+        action="store_true",
+        help="time frames replayed as captured graphs, as the Simulator runs them (rows say graph: true)",
+    )
 
     s = _sub(
         sub,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import sys
 import time
@@ -104,6 +105,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         )
     if not names:
         raise CliError("no benchmarks found in pliant.bench")
+    if getattr(args, "graph", False):
+        os.environ["PLIANT_BENCH_GRAPH"] = "1"  # read by the rows' timed loop (bench._common.run_timed)
     status = EXIT_OK
     sink = open(args.json, "a", encoding="utf-8") if args.json else None  # noqa: SIM115
     try:
