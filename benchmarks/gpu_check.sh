@@ -78,7 +78,8 @@ step fem_pcg 150 $REST $PY -m pliant.cli bench soft_box_drop_10_implicit_pcg sof
 #    one by one until 2026-11-26: 154 fps at 64² against Newton's 578 in a graph).
 step drape_rows 90 $REST $PY -m pliant.cli bench cloth_drape_256_symplectic cloth_drape_512_symplectic \
     xpbd_cloth_drape_64_coloring xpbd_cloth_drape_128_coloring xpbd_cloth_drape_256_coloring \
-    xpbd_cloth_drape_256_jacobi --graph --device "$DEV" --json "$OUT/drape_rows.jsonl"
+    xpbd_cloth_drape_256_jacobi xpbd_cloth_drape_64_jacobi_sum xpbd_cloth_drape_128_jacobi_sum \
+    xpbd_cloth_drape_256_jacobi_sum --graph --device "$DEV" --json "$OUT/drape_rows.jsonl"
 # 7a. Issue 24's fit figure: the README fit and the 17×17 cloth fit on the GPU (wall time, accuracy).
 step fit_rows 150 $REST $PY -m pliant.cli bench fit_rope fit_cloth_17 --device "$DEV" \
     --json "$OUT/fit_rows.jsonl"

@@ -206,7 +206,9 @@ def _project_once(model, constraint, dt: float = 1e-2, schedule: str = "coloring
     if constraint.writes_deltas(solver.coloring):
         from pliant.solvers.xpbd import _kernels as K
 
-        wp.launch(K.apply_deltas, model.particle_count, [model.s(1.0), p, solver.delta, solver.delta_count])
+        wp.launch(
+            K.apply_deltas, model.particle_count, [model.s(1.0), 1, p, solver.delta, solver.delta_count]
+        )
     return p.numpy()
 
 

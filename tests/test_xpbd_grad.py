@@ -89,7 +89,10 @@ SCENES = {"rope": _rope, "cloth": _cloth, "box": _box, "cluster": _cluster}
 class Rollout:
     """A scene, its XPBD solver and L = Σ w·x_final; ``loss(params)`` evaluates it for perturbed inputs."""
 
-    def __init__(self, scene: str, ground: bool, solver_cls: type = XPBD):
+    def __init__(
+        self, scene: str, ground: bool, solver_cls: type = XPBD, dt: float = DT, **options: object
+    ) -> None:
+        """``options``: solver keywords replacing the defaults below (``jacobi="sum"``, ``relaxation``)."""
         self.model = SCENES[scene](ground).finalize(device="cpu", dtype="float64", requires_grad=True)
         if scene in ("box", "cluster"):
             # Expanding and spinning, so that the volume constraints act (a rigid fall never violates them).
@@ -104,7 +107,9 @@ class Rollout:
             kw["constraints"] = [pc.ShapeMatching([np.arange(self.model.particle_count)], stiffness=0.5)]
         if solver_cls is PBD:
             kw = {"stiffness": 0.8}
-        self.solver = solver_cls(self.model, iterations=5, schedule="jacobi", relaxation=1.5, **kw)
+        kw = {"iterations": 5, "schedule": "jacobi", "relaxation": 1.5, **kw, **options}
+        self.solver = solver_cls(self.model, **kw)
+        self.dt = dt
         rng = np.random.default_rng(3)
         self.w = wp.array(rng.normal(size=(self.model.particle_count, 3)), dtype=wp.vec3d, device="cpu")
         self.ground = ground
@@ -115,7 +120,7 @@ class Rollout:
         for _ in range(STEPS):
             q = wp.zeros(n, dtype=wp.vec3d, device="cpu", requires_grad=True)
             qd = wp.zeros(n, dtype=wp.vec3d, device="cpu", requires_grad=True)
-            self.solver.step(State(*states[-1]), State(q, qd), None, DT)
+            self.solver.step(State(*states[-1]), State(q, qd), None, self.dt)
             states.append((q, qd))
         loss = wp.zeros(1, dtype=wp.float64, device="cpu", requires_grad=True)
         wp.launch(_weighted_sum, n, [states[-1][0], self.w, loss], device="cpu")

@@ -222,6 +222,8 @@ class ProjectionContext:
         delta: Jacobi correction accumulator [N] (vec3) of the current sweep.
         delta_count: Jacobi correction counts [N] (int32) of the current sweep.
         v_pred: the predicted velocity ṽ of this step [m/s] (restitution reads it).
+        jacobi_sum: Jacobi sets with :attr:`Constraint.sums_jacobi` project with full masses (no mass
+            splitting) and the solver sums their corrections instead of averaging them.
     """
 
     model: Model
@@ -235,6 +237,7 @@ class ProjectionContext:
     delta: wp.array
     delta_count: wp.array
     v_pred: wp.array
+    jacobi_sum: bool = False
 
     def fresh(self, like: wp.array) -> wp.array:
         """A zeroed array shaped like ``like``, tracking gradients when the step is differentiable."""
@@ -262,6 +265,8 @@ class Constraint(abc.ABC):
     is_contact = False
     #: Whether the set's Jacobi kernels apply the relaxation ω themselves (to Δλ and Δx together).
     relaxes_itself = False
+    #: Whether the set's Jacobi kernel can project with full masses, summed (XPBD jacobi="sum").
+    sums_jacobi = False
     #: Whether the set supports a tape-differentiable step (fresh arrays per sweep; see XPBD).
     differentiable = False
 

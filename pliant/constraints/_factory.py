@@ -223,6 +223,7 @@ class FixedArityConstraint(Constraint):
 
     relaxes_itself = True
     differentiable = True
+    sums_jacobi = True
     kernels: ProjectionKernels
     #: λ's reset is pending: the step's first sweep reads λ = 0 from ``zero_lam`` instead of a memset of λ
     #: (one launch less per set and step; the same zeros, so the same arithmetic).
@@ -250,7 +251,9 @@ class FixedArityConstraint(Constraint):
                 ctx.launch(self.kernels.gauss_seidel, size, args)
                 continue
             lam_out = ctx.fresh(self._multipliers()) if ctx.requires_grad else self._multipliers()
-            args = [*common, self.split, m.particle_inv_mass, inv_dt2, k, off, omega, p, lam_in, lam_out]
+            # jacobi="sum": a split of 1 everywhere, i.e. the full masses (inv_mass · 1 is inv_mass exactly).
+            split = self.unit_split if ctx.jacobi_sum else self.split
+            args = [*common, split, m.particle_inv_mass, inv_dt2, k, off, omega, p, lam_in, lam_out]
             ctx.launch(self.kernels.jacobi, size, [*args, ctx.delta, ctx.delta_count])
             self.lam = lam_in = lam_out
 
@@ -295,4 +298,5 @@ class FixedArityConstraint(Constraint):
         # An instance attribute from bind on: a graph fingerprint (pliant.sim._graph) must not see it appear.
         self._reset_pending = False
         self.split: wp.array = wp.array(self._split_counts(idx), dtype=wp.int32, device=d)
+        self.unit_split: wp.array = wp.ones(m.particle_count, dtype=wp.int32, device=d)
         self.order = order

@@ -58,17 +58,28 @@ def apply_kinematic(
 
 
 @wp.func
+def jacobi_scale(relaxation: Any, average: int, n: int):
+    """ω / n_i (the average of the n_i corrections at particle i) or, with ``average`` 0, ω (their sum)."""
+    scale = relaxation
+    if average != 0:
+        scale = relaxation / type(relaxation)(n)
+    return scale
+
+
+@wp.func
 def apply_average(
     relaxation: Any,
+    average: int,
     i: int,
     p_io: wp.array(dtype=Any),
     delta_io: wp.array(dtype=Any),
     count_io: wp.array(dtype=wp.int32),
 ):
-    """p_i += ω Σ_c Δp_i^c / n_i, then the accumulators of particle i reset (nothing where n_i = 0)."""
+    """p_i += ω Σ_c Δp_i^c / n_i (or ω Σ_c Δp_i^c without ``average``), then the accumulators of particle
+    i reset (nothing where n_i = 0)."""
     n = count_io[i]
     if n > 0:
-        p_io[i] = p_io[i] + (relaxation / type(relaxation)(n)) * delta_io[i]
+        p_io[i] = p_io[i] + jacobi_scale(relaxation, average, n) * delta_io[i]
         delta_io[i] = delta_io[i] * type(relaxation)(0.0)
         count_io[i] = 0
 
@@ -76,12 +87,14 @@ def apply_average(
 @wp.kernel
 def apply_deltas(
     relaxation: Any,
+    average: int,
     p_io: wp.array(dtype=Any),
     delta_io: wp.array(dtype=Any),
     count_io: wp.array(dtype=wp.int32),
 ):
-    """Jacobi: p_i += ω Σ_c Δp_i^c / n_i (the average over the n_i constraints that moved i), then reset."""
-    apply_average(relaxation, wp.tid(), p_io, delta_io, count_io)
+    """Jacobi: p_i += ω Σ_c Δp_i^c / n_i (the average over the n_i constraints that moved i; with ``average``
+    0 the sum ω Σ_c Δp_i^c), then reset."""
+    apply_average(relaxation, average, wp.tid(), p_io, delta_io, count_io)
 
 
 @wp.kernel
@@ -100,6 +113,7 @@ def update_velocity(
 @wp.kernel
 def apply_deltas_update_velocity(
     relaxation: Any,
+    average: int,
     inv_dt: Any,
     damping_factor: Any,
     x_in: wp.array(dtype=Any),
@@ -111,24 +125,26 @@ def apply_deltas_update_velocity(
     """:func:`apply_deltas` then :func:`update_velocity` in one launch (the step's last Jacobi correction),
     the same expressions in the same order: the positions and velocities are theirs bit for bit."""
     i = wp.tid()
-    apply_average(relaxation, i, p_io, delta_io, count_io)
+    apply_average(relaxation, average, i, p_io, delta_io, count_io)
     v_out[i] = ((p_io[i] - x_in[i]) * inv_dt) * damping_factor
 
 
 @wp.kernel
 def apply_deltas_to(
     relaxation: Any,
+    average: int,
     p_in: wp.array(dtype=Any),
     delta_in: wp.array(dtype=Any),
     count_in: wp.array(dtype=wp.int32),
     p_out: wp.array(dtype=Any),
 ):
-    """Jacobi into a fresh array (differentiable step): p_out = p_in + ω Σ_c Δp_i^c / n_i."""
+    """Jacobi into a fresh array (differentiable step): p_out = p_in + ω Σ_c Δp_i^c / n_i (or without / n_i
+    when ``average`` is 0)."""
     i = wp.tid()
     n = count_in[i]
     x = p_in[i]
     if n > 0:
-        x = x + (relaxation / type(relaxation)(n)) * delta_in[i]
+        x = x + jacobi_scale(relaxation, average, n) * delta_in[i]
     p_out[i] = x
 
 

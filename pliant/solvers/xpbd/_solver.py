@@ -17,6 +17,7 @@ from . import _kernels as K
 from . import _tolerance as T
 
 _SCHEDULES = ("jacobi", "coloring")
+_JACOBI_MODES = ("average", "sum")
 
 
 class XPBD(Solver):
@@ -65,6 +66,11 @@ class XPBD(Solver):
         volume_compliance: α of the default volume constraints.
         schedule: "jacobi" or "coloring".
         relaxation: ω in (0, 2) scaling each Δλ and its Δx together, so λ stays consistent with x.
+        jacobi: "average" (mass-split corrections averaged per particle) or "sum": the sets of
+            :class:`~pliant.constraints.FixedArityConstraint` (distance, area, bending, volume) see the full
+            masses and their corrections are summed, as Newton's XPBD does; other sets still average.
+            Accurate at one iteration per substep (docs/design.md "XPBD on CUDA"); may diverge when
+            Σ_c w|∇C|² outweighs α̃ by far (stiff constraints on light particles at large steps).
             Jacobi converges much faster with ω ≈ 1.8 (the drape benchmark uses it); keep 1 for "coloring",
             where over-relaxation destabilised the stiff drape. Contacts always use 1.
         damping: c [1/s] in v ← v e^{−cΔt}.
@@ -106,6 +112,7 @@ class XPBD(Solver):
         volume_compliance: float | None = None,
         schedule: str = "jacobi",
         relaxation: float = 1.0,
+        jacobi: str = "average",
         damping: float = 0.0,
         friction: float | None = None,
         restitution: float | None = None,
@@ -143,6 +150,8 @@ class XPBD(Solver):
         self.check_every = int(check_every)
         if schedule not in _SCHEDULES:
             raise ValueError(f"schedule must be one of {_SCHEDULES}, got {schedule!r}")
+        if jacobi not in _JACOBI_MODES:
+            raise ValueError(f"jacobi must be one of {_JACOBI_MODES}, got {jacobi!r}")
         if not 0.0 < relaxation < 2.0:
             raise ValueError(f"relaxation ω must be in (0, 2), got {relaxation}")
         if damping < 0:
@@ -151,6 +160,7 @@ class XPBD(Solver):
         self.schedule = schedule
         self.coloring = schedule == "coloring"
         self.relaxation = float(relaxation)
+        self.jacobi = jacobi
         self.damping = float(damping)
         self.contact_iterations = int(contact_iterations)
         self.constraints = self._default_constraints(
@@ -189,6 +199,7 @@ class XPBD(Solver):
         # ω of a Jacobi correction not applied yet: the next projection (or the velocity update, fused with
         # it) applies it first. Only the step's last one waits that long: it saves a launch per step.
         self._pending_omega: float | None = None
+        self._pending_average = 1
 
     def _default_constraints(self, model, compliance, bending_compliance, volume_compliance, constraints):
         if constraints is not None:
@@ -238,6 +249,7 @@ class XPBD(Solver):
             delta=self.delta,
             delta_count=self.delta_count,
             v_pred=self.v_pred,
+            jacobi_sum=self.jacobi == "sum",
         )
 
     # ------------------------------------------------------------------ launching
@@ -294,7 +306,7 @@ class XPBD(Solver):
         """Apply the Jacobi correction :meth:`_project` left pending, if any."""
         if self._pending_omega is not None:
             m = self.model
-            args = [m.s(self._pending_omega), p, self.delta, self.delta_count]
+            args = [m.s(self._pending_omega), self._pending_average, p, self.delta, self.delta_count]
             self._pending_omega = None
             self.launch(K.apply_deltas, m.particle_count, args)
 
@@ -313,11 +325,14 @@ class XPBD(Solver):
             ctx.delta_count = ctx.fresh(self.delta_count)
         c.project(ctx, p, dt)
         omega = 1.0 if (self.coloring or c.always_jacobi or c.relaxes_itself) else self.relaxation
+        # Summed (not averaged) where the set projected with full masses (jacobi="sum").
+        average = 0 if (ctx.jacobi_sum and c.sums_jacobi and not self.coloring) else 1
         if not ctx.requires_grad:
-            self._pending_omega = omega
+            self._pending_omega, self._pending_average = omega, average
             return p
         p_next = ctx.fresh(p)
-        self.launch(K.apply_deltas_to, m.particle_count, [m.s(omega), p, ctx.delta, ctx.delta_count, p_next])
+        args = [m.s(omega), average, p, ctx.delta, ctx.delta_count, p_next]
+        self.launch(K.apply_deltas_to, m.particle_count, args)
         return p_next
 
     def _plan_key(self, state_in: State, state_out: State, control: Control | None, dt: float) -> tuple:
@@ -405,7 +420,8 @@ class XPBD(Solver):
         if self._pending_omega is None:
             self.launch(K.update_velocity, n, [inv_dt, decay, x, p, v])
         else:
-            args = [m.s(self._pending_omega), inv_dt, decay, x, self.delta, self.delta_count, p, v]
+            omega, average = m.s(self._pending_omega), self._pending_average
+            args = [omega, average, inv_dt, decay, x, self.delta, self.delta_count, p, v]
             self._pending_omega = None
             self.launch(K.apply_deltas_update_velocity, n, args)
         for c in self.constraints:
@@ -546,6 +562,7 @@ class XPBD(Solver):
             "iterations": self.iterations,
             "schedule": self.schedule,
             "relaxation": self.relaxation,
+            "jacobi": self.jacobi,
             "damping": self.damping,
             "constraints": [c.describe() for c in self.constraints],
         }
