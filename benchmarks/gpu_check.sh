@@ -11,7 +11,7 @@
 # Every step writes into $OUT (the device tool brings it back); a step that fails or runs out of time is
 # recorded in $OUT/steps.txt and the script goes on, so one slow step never costs the others' figures.
 # Budget (seconds, the steps' time limits): part 1 = tests 180, graphs 60, drape/xpbd harness 150 (about
-# 400 s with start-up); part 2 = fits of tracks and footage 150, FEM 150, drape/XPBD rows 90, fit rows 150
+# 400 s with start-up); part 2 = fits of tracks and footage 150, FEM 120, drape/XPBD rows 120, fit rows 150
 # (540 s), with the fit rows' CPU side (one core, 300 s) running beside them on core 0 while the other steps
 # are pinned to the remaining cores. Each part fits one 10-minute call; no argument runs both.
 #
@@ -70,13 +70,13 @@ step fit_footage 90 $REST $PY -m pliant.cli fit tests/data/foreign/mujoco_cloth.
     tests/data/foreign/mujoco_cloth_video.npz --out "$OUT/fit_footage" --device "$DEV" --no-video -q
 # 5. Issue 24 item 3: the device Newton (frames replayed as graphs) on the soft box, beside Newton with Warp's
 #    CG (host decisions) at 10³; the CPU's L-BFGS row (91 ms per step at 30³ on one core) is the target.
-step fem_pcg 150 $REST $PY -m pliant.cli bench soft_box_drop_10_implicit_pcg soft_box_drop_10_implicit_newton \
+step fem_pcg 120 $REST $PY -m pliant.cli bench soft_box_drop_10_implicit_pcg soft_box_drop_10_implicit_newton \
     soft_box_drop_30_implicit_pcg --device "$DEV" --json "$OUT/fem_pcg.jsonl"
 # 6. Issue 24 item 6: the drape at 256² and 512² (bytes per substep, fraction of the peak bandwidth) and
 #    XPBD at 256², each with its trajectory_error against a reference computed here (PLIANT_BENCH_CACHE).
 #    --graph: frames replayed as captured CUDA graphs, as the Simulator runs them (XPBD's rows were launched
 #    one by one until 2026-11-26: 154 fps at 64² against Newton's 578 in a graph).
-step drape_rows 90 $REST $PY -m pliant.cli bench cloth_drape_256_symplectic cloth_drape_512_symplectic \
+step drape_rows 120 $REST $PY -m pliant.cli bench cloth_drape_256_symplectic cloth_drape_512_symplectic \
     xpbd_cloth_drape_64_coloring xpbd_cloth_drape_128_coloring xpbd_cloth_drape_256_coloring \
     xpbd_cloth_drape_256_jacobi xpbd_cloth_drape_64_jacobi_sum xpbd_cloth_drape_128_jacobi_sum \
     xpbd_cloth_drape_256_jacobi_sum --graph --device "$DEV" --json "$OUT/drape_rows.jsonl"
