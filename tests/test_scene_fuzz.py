@@ -459,7 +459,21 @@ def mutated_splat_scene(draw) -> tuple[str, str]:
             corr = data["gaussians"].setdefault("correction", {"cameras": 1, "width": 16, "height": 12})
             if isinstance(corr, dict):
                 corr["set"] = [draw(st.sampled_from(TWIN_SETS))]
+    _cap_run_length(data)
     return to_toml(data), draw(st.sampled_from(["auto", "mesh", "splats"]))
+
+
+def _cap_run_length(data: dict) -> None:
+    """Keep a scaled-up but valid run short: a mutation that multiplies frames and substeps makes a legal
+    scene of hours (the long fuzz drew 12,494 frames × 4000 substeps), which says nothing about bad input.
+    Values the schema must refuse (negative, zero, non-numbers) are left as drawn."""
+    scene = data.get("scene")
+    if not isinstance(scene, dict):
+        return
+    for key, cap in (("frames", 3), ("substeps", MAX_SUBSTEPS)):
+        v = scene.get(key)
+        if isinstance(v, int | float) and not isinstance(v, bool) and v > cap:
+            scene[key] = cap
 
 
 def run_cli_case(args: list[str], files: dict[str, bytes]) -> tuple[int, str]:
