@@ -72,7 +72,11 @@ def run_timed(
     solver.step(s1, s0, control, dt)
     wp.synchronize_device(device)
     compile_s = time.perf_counter() - started
-    if reuse_states:
+    from ..solvers import FrameStep
+
+    frame = FrameStep(solver, dt, substeps, on_step=on_step)
+    graph = _frame_graph(frame, solver, s0, s1, control, device) if _graph_asked(substeps, on_step) else None
+    if reuse_states or graph is not None:  # a graph (or XPBD's recorded launches) holds these arrays
         s0.assign(model.state())
         s1.assign(model.state())
     else:
@@ -80,16 +84,7 @@ def run_timed(
     wp.synchronize_device(device)
     t0 = time.perf_counter()
     c0 = time.process_time()
-    from ..solvers import FrameStep
-
-    frame = FrameStep(solver, dt, substeps, on_step=on_step)
-    graph = _frame_graph(frame, solver, s0, s1, control, device) if _graph_asked(substeps, on_step) else None
     if graph is not None:
-        s0.assign(model.state())  # a capture launches nothing, but start the timed frames from rest anyway
-        s1.assign(model.state())
-        wp.synchronize_device(device)
-        t0 = time.perf_counter()
-        c0 = time.process_time()
         for _ in range(frames):
             wp.capture_launch(graph)
     else:
