@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import contextlib
 import os
-from collections.abc import Iterator, Sequence
-from typing import Any, Protocol
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 import warp as wp
@@ -153,6 +153,18 @@ def capturing(device: wp.DeviceLike) -> bool:
     if d.is_cuda:
         return bool(d.is_capturing)
     return getattr(_runtime(), "_apic_capture", None) is not None
+
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def graph_safe(fn: _F) -> _F:
+    """Mark a tape callback (``wp.Tape.record_func``) as replayable in a captured graph: it only launches
+    Warp kernels and copies on the tape's device, reads nothing back to the host and takes no Python
+    decision from array values, so its launches captured once replay correctly (``pliant.diff``'s rollout
+    graphs refuse unmarked callbacks, and still compare the capturing call with a direct run)."""
+    fn.graph_safe = True  # type: ignore[attr-defined]
+    return fn
 
 
 def _tape_active() -> bool:

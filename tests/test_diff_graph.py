@@ -35,7 +35,10 @@ def _same(a: pl.diff.RolloutResult, b: pl.diff.RolloutResult) -> None:
 
 
 @pytest.mark.parametrize("whole", [False, True], ids=["checkpointed", "one-tape"])
-@pytest.mark.parametrize("row", ["springs-symplectic", "fem-explicit", "xpbd-jacobi", "fast-mass-spring"])
+@pytest.mark.parametrize(
+    "row",
+    ["springs-symplectic", "fem-explicit", "xpbd-jacobi", "fast-mass-spring", "fast-mass-spring-implicit"],
+)
 def test_replayed_rollouts_equal_direct_ones_bit_for_bit(row: str, whole: bool) -> None:
     """A gradient loop (the parameter changed in place before every call): from the third call on the
     rollout is replayed, and every call's loss, gradients and end state equal a direct run's exactly."""
@@ -170,9 +173,13 @@ def test_environment_switch_turns_rollout_graphs_off(monkeypatch) -> None:
     assert _graph.rollout_graphs(solver).captures == 0
 
 
-def test_a_python_callback_on_the_tape_keeps_the_rollout_direct() -> None:
-    """FastMassSpring's implicit adjoint is a host-driven linear solve recorded with wp.Tape.record_func:
-    the capturing call finds it on the tape, names it, and every call returns the direct run's numbers."""
+def test_a_python_callback_on_the_tape_keeps_the_rollout_direct(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A Python callback recorded with wp.Tape.record_func and not marked ``graph_safe`` (here
+    FastMassSpring's implicit adjoint with its mark taken off): the capturing call finds it on the tape,
+    names it, and every call returns the direct run's numbers."""
+    from pliant.solvers.fast_mass_spring._adjoint import _Adjoint
+
+    monkeypatch.setattr(_Adjoint.backward, "graph_safe", False)
     m, solver, loss, param, kw, every = _setup("fast-mass-spring-implicit")
     for _ in range(3):
         param.assign(param.numpy() * 1.01)

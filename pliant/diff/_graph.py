@@ -114,8 +114,11 @@ def tape_callbacks(tape: wp.Tape) -> list[str]:
     return [
         getattr(f, "__qualname__", type(f).__name__)
         for f in tape.launches
-        # Warp's own (the adjoint of a recorded wp.copy) only launch Warp operations, which are captured.
-        if callable(f) and not getattr(f, "__module__", "").startswith("warp.")
+        # Warp's own (the adjoint of a recorded wp.copy) and pliant's marked ones (pliant._warp.graph_safe)
+        # only launch Warp operations, which are captured.
+        if callable(f)
+        and not getattr(f, "__module__", "").startswith("warp.")
+        and not getattr(f, "graph_safe", False)
     ]
 
 

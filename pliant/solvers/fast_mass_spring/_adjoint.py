@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 import warp as wp
 
-from ..._warp import GradientError, active_tape, fresh, launch, untaped_in_place
+from ..._warp import GradientError, active_tape, capturing, fresh, graph_safe, launch, untaped_in_place
 from ...energies._spring import dashpot_force_axis, spring_gradient_axis
 from ...integrators import Integrator
 from ...integrators._explicit import scale_velocity
@@ -87,6 +87,18 @@ def _bw_residual_springs(
 
 
 @wp.kernel
+def _weight_plus_force(
+    particle_mass: wp.array(dtype=Any),
+    gravity: wp.array(dtype=Any),
+    f_ext: wp.array(dtype=Any),
+    f_out: wp.array(dtype=Any),
+):
+    # m_i g + f_i, the external load _bw_assemble adds (g from the 1-element array a recorded step reads).
+    i = wp.tid()
+    f_out[i] = particle_mass[i] * gravity[0] + f_ext[i]
+
+
+@wp.kernel
 def _cg_start(
     precond: wp.array(dtype=Any),
     inv_mass: wp.array(dtype=Any),
@@ -127,6 +139,8 @@ class BaraffWitkinStep(Integrator):
         self.system = system  # FastMassSpring's (adjacency, CG settings, work buffers)
         row = np.repeat(np.arange(system.model.particle_count), np.diff(system.adj_offsets.numpy()))
         self.adj_row: wp.array = wp.array(row.astype(np.int32), dtype=wp.int32, device=system.model.device)
+        m = system.model
+        self._forces = wp.zeros(m.particle_count, dtype=m.vec3, device=m.device)  # m_i g + f_i (scratch)
 
     def step_ode(
         self, problem: ODEProblem | SecondOrderODE, t: float, dt: float, y: np.ndarray
@@ -159,14 +173,23 @@ class BaraffWitkinStep(Integrator):
         wp.copy(dv_out, self.system.dv)
 
     def assemble(self, m, gravity, f_ext, x_in, v_in, h: float) -> None:
-        """FastMassSpring's assembly at (xⁿ, vⁿ): blocks H_e, preconditioner, b (g from ``gravity``)."""
+        """FastMassSpring's assembly at (xⁿ, vⁿ): blocks H_e, preconditioner, b (g from ``gravity``).
+
+        g stays on the device (a captured rollout must not read it back): the weights m_i g + f_i are
+        summed first into a scratch array and assembled with a zero g, the same sum (0 + a = a exactly)."""
         bw = self.system
         bw.scalars.zero_()
-        inputs = [*bw.model_inputs()[:-1], m.vec3(*gravity.numpy()[0])]
+        launch(
+            _weight_plus_force,
+            m.particle_count,
+            [m.particle_mass, gravity, f_ext, self._forces],
+            device=m.device,
+        )
+        inputs = [*bw.model_inputs()[:-1], m.vec3(0.0, 0.0, 0.0)]
         launch(
             _bw_assemble,
             m.particle_count,
-            [*inputs, f_ext, x_in, v_in, m.s(h), m.s(1.0), bw.block, bw.precond]
+            [*inputs, self._forces, x_in, v_in, m.s(h), m.s(1.0), bw.block, bw.precond]
             + [bw.r, bw.z, bw.p[0], bw.dv, bw.scalars],
             device=m.device,
         )
@@ -183,13 +206,14 @@ class _Adjoint:
         """Arrays whose gradients the adjoint writes (for ``Tape.zero``)."""
         return [a for a in (self.x_in, self.v_in, self.dv, self.gravity, self.f_ext) if a.requires_grad]
 
+    @graph_safe  # launches only: λ stays on the device, so a captured rollout replays this adjoint
     def backward(self) -> None:
         """λ = A⁻¹ Δv̄, then λᵀ ∂R/∂p into the inputs' ``.grad``."""
         m, bw, h = self.m, self.step.system, self.h
         n = m.particle_count
         with untaped_in_place():  # this step's blocks H_e (a later step overwrote them)
             self.step.assemble(m, self.gravity, self.f_ext, self.x_in, self.v_in, h)
-        lam = self._solve_transpose(self.dv.grad.numpy().astype(np.float64))
+        seed = self._solve_transpose(self.dv.grad)
         local = wp.Tape()
         r = wp.zeros(n, dtype=m.vec3, device=m.device, requires_grad=True)
         dv = wp.clone(self.dv, requires_grad=False)
@@ -208,25 +232,24 @@ class _Adjoint:
                 + [m.s(h), r],
                 device=m.device,
             )
-        seed: wp.array = wp.array(lam.astype(bw.np_dtype), dtype=m.vec3, device=m.device)
         local.backward(grads={r: seed})
 
-    def _solve_transpose(self, rhs: np.ndarray) -> np.ndarray:
+    def _solve_transpose(self, rhs: wp.array) -> wp.array:
         """λ with A λ = rhs (A is symmetric): FastMassSpring's own block-Jacobi CG on the blocks and
-        preconditioner the assembly left in its work buffers, started from λ = 0 (pinned rows stay 0)."""
+        preconditioner the assembly left in its work buffers, started from λ = 0 (pinned rows stay 0). Outside
+        a graph capture a non-finite λ raises here; inside one the rollout's gradient check names it."""
         m, bw = self.m, self.step.system
         with untaped_in_place():
-            rhs_w: wp.array = wp.array(rhs.astype(bw.np_dtype), dtype=m.vec3, device=m.device)
             bw.scalars.zero_()
             launch(
                 _cg_start,
                 m.particle_count,
-                [bw.precond, m.particle_inv_mass, rhs_w, bw.r, bw.z, bw.p[0], bw.dv, bw.scalars],
+                [bw.precond, m.particle_inv_mass, rhs, bw.r, bw.z, bw.p[0], bw.dv, bw.scalars],
                 device=m.device,
             )
             bw.run_cg()
-        lam = bw.dv.numpy().astype(np.float64)
-        if not np.all(np.isfinite(lam)):
+            lam = wp.clone(bw.dv)
+        if not capturing(m.device) and not np.all(np.isfinite(lam.numpy())):
             raise GradientError(
                 "FastMassSpring implicit adjoint: the step matrix's solve gave non-finite values"
             )
