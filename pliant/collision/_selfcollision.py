@@ -6,10 +6,10 @@ atomics; every thread reads a snapshot of the predicted positions, so CPU and CU
 * particle–particle, found with ``wp.HashGrid``: centres closer than the thickness h are pushed apart,
   half the overlap each, except pairs already closer than h in the rest configuration (neighbours in the
   same mesh);
-* point–triangle against every triangle of the model (found with ``wp.Mesh`` AABB queries over a BVH
-  refitted each pass), skipping the particle's own triangles. The side a particle must stay on is the side
-  it was on at the *start* of the step, so a particle that crossed a triangle within one step is put back:
-  its signed distance to the plane is restored to ≥ h on that side.
+* point–triangle against every triangle of the model (found with AABB queries of a ``wp.Bvh`` over the
+  triangles' boxes, refitted each pass), skipping the particle's own triangles. The side a particle must
+  stay on is the side it was on at the *start* of the step, so a particle that crossed a triangle within
+  one step is put back: its signed distance to the plane is restored to ≥ h on that side.
 
 The approaching normal velocity (relative to the triangle or partner) is removed, and Coulomb friction μ
 removes at most μ·Δv_n of the tangential relative velocity.
@@ -24,6 +24,11 @@ import warp as wp
 
 if TYPE_CHECKING:
     from ..model import Model, State
+
+
+#: Whether this Warp replays a HashGrid build (reserved beforehand) and a Bvh refit recorded in a graph,
+#: on the CPU as on CUDA (both documented from Warp 1.19).
+_CAPTURABLE = tuple(int(p) for p in wp.__version__.split(".")[:2]) >= (1, 19)
 
 
 @wp.func
@@ -68,6 +73,22 @@ def closest_point_triangle(p: Any, a: Any, b: Any, c: Any):
 
 
 @wp.kernel
+def _triangle_bounds(
+    tri_indices: wp.array(dtype=wp.int32),
+    xf_in: wp.array(dtype=wp.vec3f),
+    lower_out: wp.array(dtype=wp.vec3f),
+    upper_out: wp.array(dtype=wp.vec3f),
+):
+    # Triangle t's axis-aligned box, the leaf the BVH refits around.
+    t = wp.tid()
+    a = xf_in[tri_indices[3 * t]]
+    b = xf_in[tri_indices[3 * t + 1]]
+    c = xf_in[tri_indices[3 * t + 2]]
+    lower_out[t] = wp.min(wp.min(a, b), c)
+    upper_out[t] = wp.max(wp.max(a, b), c)
+
+
+@wp.kernel
 def _snapshot(
     x_in: wp.array(dtype=Any),
     v_in: wp.array(dtype=Any),
@@ -88,7 +109,7 @@ def _self_contact(
     particle_inv_mass: wp.array(dtype=Any),
     rest_q: wp.array(dtype=Any),
     tri_indices: wp.array(dtype=wp.int32),
-    mesh: wp.uint64,
+    tri_bvh: wp.uint64,
     grid: wp.uint64,
     use_particles: int,
     use_triangles: int,
@@ -141,9 +162,9 @@ def _self_contact(
         hi = wp.max(x, x0) + type(x)(thickness, thickness, thickness)
         lof = wp.vec3f(wp.float32(lo[0]), wp.float32(lo[1]), wp.float32(lo[2]))
         hif = wp.vec3f(wp.float32(hi[0]), wp.float32(hi[1]), wp.float32(hi[2]))
-        q = wp.mesh_query_aabb(mesh, lof, hif)
+        q = wp.bvh_query_aabb(tri_bvh, lof, hif)
         f = int(0)  # noqa: UP018
-        while wp.mesh_query_aabb_next(q, f):
+        while wp.bvh_query_next(q, f):
             ia = tri_indices[3 * f]
             ib = tri_indices[3 * f + 1]
             ic = tri_indices[3 * f + 2]
@@ -238,17 +259,37 @@ class SelfCollision:
             else np.zeros(3, np.int32)
         )
         self._tris: wp.array = wp.array(tris, dtype=wp.int32, device=d)
-        self._mesh = None
+        # Triangle bounds in a wp.Bvh, refit each iteration: Warp records a Bvh refit in a CPU graph and
+        # a CUDA one (a wp.Mesh's host refit is not replayed by a CPU graph).
+        self._bvh: wp.Bvh | None = None
+        ntri = max(model.tri_count, 1)
+        self._tri_lo = wp.zeros(ntri, dtype=wp.vec3f, device=d)
+        self._tri_hi = wp.zeros(ntri, dtype=wp.vec3f, device=d)
         if self.use_triangles:
             self._xf.assign(model.particle_q_np.astype(np.float32))
-            self._mesh = wp.Mesh(points=self._xf, indices=self._tris)
+            self._bound_triangles()
+            self._bvh = wp.Bvh(self._tri_lo, self._tri_hi)
         # Hash-table size ~2 cells per particle per axis³, capped: a build clears every cell.
         dim = int(np.clip(round(2.0 * n ** (1.0 / 3.0)), 8, 128))
         self._grid = wp.HashGrid(dim, dim, dim, device=d) if self.use_particles else None
+        if self._grid is not None and _CAPTURABLE:
+            # Sized once, so that a build inside a captured frame never allocates (a CPU capture cannot).
+            self._grid.reserve(n)
 
     def graph_blocker(self) -> str | None:
-        """Why self-collision is not replayed: its hash grid and BVH are rebuilt outside kernel launches."""
-        return "it rebuilds a hash grid or refits a BVH each step"
+        """None where Warp records the hash-grid build and the BVH refit in a graph (Warp ≥ 1.19; the grid
+        is reserved at construction): a frame with self-collision then replays. Older Warps say why not."""
+        if not _CAPTURABLE:
+            return f"Warp {wp.__version__} cannot replay a hash-grid build or a BVH refit (Warp >= 1.19 can)"
+        return None
+
+    def _bound_triangles(self) -> None:
+        wp.launch(
+            _triangle_bounds,
+            self._tri_lo.shape[0] if self.use_triangles else 0,
+            [self._tris, self._xf, self._tri_lo, self._tri_hi],
+            device=self._xf.device,
+        )
 
     def apply(self, model: Model, state_in: State, state_out: State, dt: float) -> None:
         """Resolve contacts in ``state_out`` (positions and velocities), using ``state_in`` for the sides."""
@@ -260,8 +301,9 @@ class SelfCollision:
                 [state_out.particle_q, state_out.particle_qd, self._x, self._v, self._xf],
                 device=model.device,
             )
-            if self._mesh is not None:
-                self._mesh.refit()
+            if self._bvh is not None:
+                self._bound_triangles()
+                self._bvh.refit()
             if self._grid is not None:
                 self._grid.build(self._xf, self.thickness)
             wp.launch(
@@ -271,7 +313,7 @@ class SelfCollision:
                     model.particle_inv_mass,
                     model.particle_q,
                     self._tris,
-                    wp.uint64(self._mesh.id if self._mesh is not None else 0),
+                    wp.uint64(self._bvh.id if self._bvh is not None else 0),
                     wp.uint64(self._grid.id if self._grid is not None else 0),
                     int(self.use_particles),
                     int(self.use_triangles),
