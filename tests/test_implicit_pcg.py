@@ -266,3 +266,30 @@ def test_blockers_say_why() -> None:
     s0, s1 = m.state(), m.state()
     solver.step(s0, s1, None, 1 / 120)  # its bound is read on the host, and the step still converges
     assert solver.last_stats.converged
+
+
+def test_auto_is_the_device_newton_on_cuda_and_the_direct_solve_on_the_cpu(
+    device: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The default ``linear_solver="auto"``: the host's sparse LU on the CPU, the device Newton on CUDA (so a
+    Simulator replays implicit FEM frames there by default); L-BFGS is never the device Newton. On a machine
+    without a GPU the CUDA branch is checked with a stand-in device."""
+    from pliant.solvers.implicit import _options
+
+    auto, pcg, lbfgs = (
+        pl.solvers.MinimizerOptions(**k) for k in ({}, {"linear_solver": "pcg"}, {"method": "lbfgs"})
+    )
+    assert not _options.device_newton(auto, "cpu") and _options.device_newton(pcg, "cpu")
+    m = _box(device)
+    solver = pl.solvers.ForceSolver(
+        m,
+        [pl.energies.NeoHookean(), pl.energies.Gravity()],
+        pl.integrators.BackwardEuler(newton_tol=NEWTON_TOL),
+    )
+    s0, s1 = m.state(), m.state()
+    solver.step(s0, s1, None, 1 / 120)
+    cuda = wp.get_device(device).is_cuda
+    assert isinstance(solver.last_stats, _pcg.DeviceNewtonStats) == cuda
+    assert (solver.graph_blocker() is None) == cuda
+    monkeypatch.setattr(_options.wp, "get_device", lambda d=None: types.SimpleNamespace(is_cuda=True))
+    assert _options.device_newton(auto, "cuda:0") and not _options.device_newton(lbfgs, "cuda:0")

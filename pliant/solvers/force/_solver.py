@@ -23,6 +23,7 @@ from ..implicit import (
     MinimizerCache,
     MinimizerOptions,
     NewtonStats,
+    device_newton,
     device_newton_blocker,
     lbfgs_checkpoint_state,
     lbfgs_restore_checkpoint_state,
@@ -293,13 +294,13 @@ class ForceSolver(Solver):
     def graph_blocker(self) -> str | None:
         """None for explicit integrators without a tape: their steps are kernel launches only (see
         :meth:`Solver.graph_blocker`) and for one-step implicit ones with the device Newton
-        (``minimizer={"linear_solver": "pcg"}``); other implicit steps solve on the host, recorded steps
-        allocate."""
+        (``minimizer={"linear_solver": "pcg"}``, or the default "auto" on CUDA); other implicit steps solve on
+        the host, recorded steps allocate."""
         if grad_enabled(self.model):
             return "a differentiable model's steps write fresh arrays each step"
         if not self.integrator.explicit:
             mz = self.minimizer
-            if mz.method != "newton" or mz.linear_solver != "pcg":
+            if not device_newton(mz, self.model.device):
                 return f"{self.integrator.name} minimises on the host (line search, sparse solves)"
             if getattr(self.integrator, "multistep", False):
                 return f"{self.integrator.name} chooses its history on the host"

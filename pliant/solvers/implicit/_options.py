@@ -13,6 +13,7 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
+import warp as wp
 
 from ...integrators._implicit import MINIMIZER_SETTINGS, ImplicitOptions, ImplicitOptionsLike
 
@@ -31,9 +32,11 @@ class MinimizerOptions:
             whose Hessian changes too much between steps for a lagged one).
         linear_solver: Newton's linear solver: "cg" (warp.optim.linear.cg, any device), "scipy-cg" (SciPy
             CG, block-Jacobi, host; falls back to the direct solve when a step stalls), "direct" (SciPy
-            sparse LU, host), "auto" (direct on the CPU, cg on a GPU) or "pcg" (Newton with every decision on
-            the device: block-Jacobi CG, line search and stopping tests; no host read inside a step, so a
-            Simulator replays its frames as graphs; :mod:`pliant.solvers.implicit._pcg`).
+            sparse LU, host), "pcg" (Newton with every decision on the device: block-Jacobi CG, line search
+            and stopping tests; no host read inside a step, so a Simulator replays its frames as graphs;
+            :mod:`pliant.solvers.implicit._pcg`) or "auto": the direct solve on the CPU, "pcg" on a GPU
+            (32x one CPU core at 30³ cells on an H100, where Warp's CG with host decisions was slower than
+            one core; :func:`device_newton`).
         cg_tol: relative residual of CG, in (0, 1) (raised to 30 eps of the model's dtype).
         cg_max_iterations: CG iteration cap per linear solve (≥ 1).
         lbfgs_history: curvature pairs L-BFGS keeps (≥ 0; 0 is descent preconditioned by the lagged H₀).
@@ -146,3 +149,12 @@ def step_settings(
             "in minimizer=; give them in minimizer= only"
         )
     return step, mz
+
+
+def device_newton(minimizer: MinimizerOptions, device: wp.DeviceLike) -> bool:
+    """Whether ``minimizer``'s Newton runs with every decision on the device: ``linear_solver="pcg"``, or
+    "auto" on a CUDA device (where a host decision per iteration costs a synchronisation)."""
+    if minimizer.method != "newton":
+        return False
+    lin = minimizer.linear_solver
+    return lin == "pcg" or (lin == "auto" and wp.get_device(device).is_cuda)
