@@ -194,21 +194,27 @@ def run_vbd(model, box: dict, n: int, device: str, substeps: int, iterations: in
     }
 
 
-def pliant_row(n: int, device: str, frames: int) -> dict:
+def pliant_row(
+    n: int, device: str, frames: int, substeps: int | None = None, dtype: str | None = None
+) -> dict:
     """pliant's ``soft_box_drop_N_implicit_pcg`` row (ImplicitMidpoint, 10 substeps, float64, Newton-PCG on
     the device, frames replayed as graphs) for any n, plus ms per frame and per step; an ``error`` row if it
-    fails."""
+    fails. ``substeps`` and ``dtype`` replace the row's own (then named ``..._pcg_<substeps>_<dtype>``)."""
     from pliant.bench import _fem
 
     name = f"soft_box_drop_{n}_implicit_pcg"
+    if substeps is not None or dtype is not None:
+        substeps = substeps or _fem.IMPLICIT_SUBSTEPS
+        dtype = dtype or _fem.IMPLICIT_DTYPE
+        name += f"_{substeps}_{dtype}"
     try:  # the row's own settings (_fem.BENCHMARKS names it for n = 10 and 30 only)
         row = _fem.soft_box_drop(
             n,
             "implicit",
-            _fem.IMPLICIT_SUBSTEPS,
+            substeps or _fem.IMPLICIT_SUBSTEPS,
             frames,
             device=device,
-            dtype=_fem.IMPLICIT_DTYPE,
+            dtype=dtype or _fem.IMPLICIT_DTYPE,
             minimizer="pcg",
             integrator="ImplicitMidpoint",
         )
@@ -267,6 +273,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--quick", action="store_true", help="n = 10 and three settings")
     ap.add_argument("--no-pliant", action="store_true", help="skip pliant's own implicit row")
     ap.add_argument("--no-vbd", action="store_true", help="only pliant's row (no Newton needed)")
+    ap.add_argument(
+        "--pliant-settings",
+        default="",
+        help="more pliant rows, comma-separated SUBSTEPS:DTYPE (e.g. 5:float32,10:float32)",
+    )
     args = ap.parse_args(argv)
 
     import warp as wp
@@ -298,6 +309,9 @@ def main(argv: list[str] | None = None) -> None:
             if not args.no_pliant:
                 mine = pliant_row(n, args.device, args.frames)
                 emit(mine)
+                for spec in filter(None, args.pliant_settings.split(",")):
+                    sub, _, dt = spec.partition(":")
+                    emit(pliant_row(n, args.device, args.frames, int(sub), dt or None))
             if args.no_vbd:
                 continue
             t = time.perf_counter()
