@@ -2,7 +2,7 @@
 
 FastMassSpring's explicit step is one gather kernel per substep; on CUDA a small cloth's step is
 latency-bound, and ``FastMassSpring(gather=...)`` offers variants that hide it ("loop", "unrolled",
-"tiled", "tiled16"; :mod:`pliant.solvers.fast_mass_spring._explicit`). This script measures them on the
+"ell", "tiled", "tiled16"; :mod:`pliant.solvers.fast_mass_spring._explicit`). This script measures them on the
 drape of the benchmark rows (:func:`pliant.bench._mass_spring.cloth_drape_model`, symplectic Euler at the
 rows' substeps: 80, 160, 320, 640 for 64², 128², 256², 512²; 30 frames; float32; no damping), on CUDA with a
 frame's substeps captured once in a CUDA graph and replayed (on the CPU the substeps are launched
@@ -38,7 +38,7 @@ if TYPE_CHECKING:
 
 #: Substeps per frame of the benchmark rows' symplectic drape (the stability bound: 1.25 n).
 ROW_SUBSTEPS = {64: 80, 128: 160, 256: 320, 512: 640}
-VARIANTS = ("loop", "unrolled", "tiled", "tiled16")
+VARIANTS = ("loop", "unrolled", "ell", "tiled", "tiled16")
 
 
 class DrapeRun:

@@ -17,7 +17,7 @@ from pliant.model import Model
 from pliant.solvers import FastMassSpring
 
 ROOT = Path(__file__).resolve().parent.parent
-VARIANTS = ("loop", "unrolled", "tiled", "tiled16")
+VARIANTS = ("loop", "unrolled", "ell", "tiled", "tiled16")
 
 
 def _cloth(device: str = "cpu", damping: float = 0.0) -> Model:
@@ -46,12 +46,13 @@ def test_rows_cover_every_chunk_remainder():
     assert set(np.diff(off) % 4) == {0, 1, 2, 3}
 
 
+@pytest.mark.parametrize("gather", ["unrolled", "ell"])
 @pytest.mark.parametrize("damping", [0.0, 0.05])
-def test_unrolled_gather_is_the_loop(device, damping):
+def test_unrolled_gather_is_the_loop(device, damping, gather):
     """Same loads, same sums in the same order: identical trajectories on the CPU (with and without the
     dashpots); on CUDA the compiler may contract the two kernels' arithmetic differently, so round-off."""
     x_loop, c_loop = _drape(device, "loop", damping=damping)
-    x_unr, c_unr = _drape(device, "unrolled", damping=damping)
+    x_unr, c_unr = _drape(device, gather, damping=damping)
     assert np.all(np.isfinite(x_loop)) and c_loop[-1] > c_loop[0]  # it fell
     if device == "cpu":
         assert np.array_equal(x_unr, x_loop)
@@ -141,3 +142,44 @@ def test_variants_benchmark_smoke(device):
         assert by["unrolled"]["bit_equal_loop"] and by["unrolled"]["curve_dev_vs_loop"] == 0.0
     summary = [r for r in rows if r.get("summary")]
     assert len(summary) == 1 and summary[0]["speedup_vs_loop"]["loop"] == 1.0
+
+
+def test_ell_layout_holds_every_row_in_order():
+    """The ELL slots of random CSR rows (lengths 0 to 16): slot k of particle i is its k-th entry while
+    k < its length, its last entry after (a particle without springs: entry 0), the slot count is the longest
+    row rounded up to 4; a row of 17 is refused with the fix named."""
+    from pliant.solvers.fast_mass_spring._explicit import ell_layout
+
+    rng = np.random.default_rng(3)
+    lengths = rng.integers(0, 17, size=50)
+    lengths[7] = 16
+    off = np.concatenate([[0], np.cumsum(lengths)])
+    slots, count, entry = ell_layout(off)
+    assert slots == 16 and np.array_equal(count, lengths)
+    table = entry.reshape(slots, -1)
+    for i, n in enumerate(lengths):
+        want = [off[i] + min(k, n - 1) if n else 0 for k in range(slots)]
+        assert table[:, i].tolist() == want
+    assert ell_layout(np.array([0, 3, 5]))[0] == 4
+    with pytest.raises(ValueError, match='gather="unrolled"'):
+        ell_layout(np.array([0, 17]))
+
+
+def test_block_dim_by_size_and_the_same_step(device):
+    """The gather's block: 64 threads below 32 768 particles, 256 above, any valid one on request; a
+    thread's sums do not depend on its block, so the trajectory is the same bit for bit; a bad value names
+    the range."""
+    small, large = cloth_drape_model(8, device=device), cloth_drape_model(182, device=device)
+    assert FastMassSpring(small, kernel="gather").block_dim == 64
+    assert FastMassSpring(large, kernel="gather").block_dim == 256
+    runs = []
+    for bd in (32, 256):
+        solver = FastMassSpring(small, kernel="gather", gather="unrolled", block_dim=bd)
+        s0, s1, ctl = small.state(), small.state(), small.control()
+        for _ in range(20):
+            solver.step(s0, s1, ctl, FRAME_DT / 20)
+            s0, s1 = s1, s0
+        runs.append(s0.particle_q.numpy())
+    assert np.array_equal(runs[0], runs[1]) and np.ptp(runs[0][:, 1]) > 0
+    with pytest.raises(ValueError, match=r"block_dim must be an integer in \[1, 1024\]"):
+        FastMassSpring(small, block_dim=2048)

@@ -10,6 +10,11 @@ offset -> neighbour index -> neighbour position), with too few threads to hide i
 * ``"unrolled"``: the row in chunks of 4 springs, a chunk's loads issued before any of its arithmetic
   (indices past the row's end are clamped to its last entry and their terms dropped), summed in the loop's
   order: bit for bit the loop's step;
+* ``"ell"``: the rows in ELL layout, column-major (slot k of every particle contiguous: a warp's loads of
+  a slot are one coalesced read, where CSR rows are 48 B apart), with the slot loop unrolled at build time
+  (:func:`ell_gather_kernel`: one kernel per slot count, a multiple of 4 up to :data:`ELL_MAX_SLOTS`) so
+  that the whole row's loads can be issued before its arithmetic; slots past a row's end repeat its last
+  entry and are not added (a select, no branch): bit for bit the loop's step;
 * ``"tiled"`` / ``"tiled16"``: a block of 32 / 16 lanes per particle (``wp.launch_tiled``;
   :data:`TILE_LANES`), one spring per lane, reduced with ``wp.tile_sum``; lane 0 writes the update. Another
   summation order: equal to round-off. On the CPU a block is one lane (Warp runs tiles there with
@@ -20,6 +25,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 import warp as wp
 
 from ...energies._spring import dashpot_force_axis, spring_gradient_axis
@@ -133,6 +139,87 @@ def _symplectic_gather_unrolled(
     x, v = symplectic_particle(w, xi, vi, gravity + w * f, dt, delta)
     x_out[i] = x
     v_out[i] = v
+
+
+#: Most springs per particle the "ell" gather takes (its slot loop is unrolled when the kernel is built).
+ELL_MAX_SLOTS = 16
+
+
+def ell_layout(offsets: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    """The ELL form of CSR rows ``offsets`` [N + 1]: (slots, count [N], entry [slots · N]) with ``entry[k · N
+    + i]`` the CSR entry of particle i's k-th spring (k < count[i]), else its last one (0 for a particle
+    without springs); ``slots`` is the longest row rounded up to a multiple of 4 (at least 4).
+
+    Raises:
+        ValueError: a row longer than :data:`ELL_MAX_SLOTS` (use ``gather="unrolled"``).
+    """
+    offsets = np.asarray(offsets, np.int64)
+    n = offsets.shape[0] - 1
+    count = np.diff(offsets)
+    longest = int(count.max(initial=0))
+    if longest > ELL_MAX_SLOTS:
+        raise ValueError(
+            f'gather="ell" holds at most {ELL_MAX_SLOTS} springs per particle; this model has a particle '
+            f'with {longest}: use gather="unrolled" (or "loop")'
+        )
+    slots = max(4, -(-longest // 4) * 4)
+    k = np.arange(slots)[:, None]
+    entry = offsets[None, :-1] + np.minimum(k, np.maximum(count - 1, 0)[None, :])
+    entry[:, count == 0] = 0  # any valid entry (its term is not selected); off[i] may be past the end
+    return slots, count.astype(np.int32), entry.reshape(slots * n)
+
+
+_ELL_KERNELS: dict[int, wp.Kernel] = {}
+
+
+def ell_gather_kernel(slots: int) -> wp.Kernel:
+    """The "ell" gather kernel for rows of at most ``slots`` springs (built once per slot count)."""
+    kernel = _ELL_KERNELS.get(slots)
+    if kernel is None:
+        kernel = _ELL_KERNELS[slots] = _make_ell_gather(slots)
+    return kernel
+
+
+def _make_ell_gather(slots: int) -> wp.Kernel:
+    @wp.kernel(module="unique")
+    def _symplectic_gather_ell(
+        # Model (packed, ELL: slot k of particle i at k·N + i):
+        ell_count: wp.array(dtype=wp.int32),
+        ell_neighbor: wp.array(dtype=wp.int32),
+        ell_param: wp.array(dtype=Any),
+        particle_inv_mass: wp.array(dtype=Any),
+        gravity: Any,
+        damped: int,
+        # Control:
+        f_ext: wp.array(dtype=Any),
+        # State in:
+        x_in: wp.array(dtype=Any),
+        v_in: wp.array(dtype=Any),
+        dt: Any,
+        delta: Any,
+        # Out:
+        x_out: wp.array(dtype=Any),
+        v_out: wp.array(dtype=Any),
+    ):
+        # :func:`_symplectic_gather` over ELL slots, unrolled (wp.static): no load waits on a previous
+        # slot's arithmetic; a slot past the row's end (its last entry again) is computed and not selected.
+        i = wp.tid()
+        n = x_in.shape[0]
+        xi = x_in[i]
+        vi = v_in[i]
+        f = f_ext[i]
+        count = ell_count[i]
+        for k in range(wp.static(slots)):
+            e = k * n + i
+            j = ell_neighbor[e]
+            g = _add_spring(f, xi, vi, x_in[j], v_in, j, ell_param[e], damped)
+            f = wp.where(k < count, g, f)
+        w = particle_inv_mass[i]
+        x, v = symplectic_particle(w, xi, vi, gravity + w * f, dt, delta)
+        x_out[i] = x
+        v_out[i] = v
+
+    return _symplectic_gather_ell
 
 
 @wp.kernel
