@@ -13,8 +13,9 @@ That is the run a rebuilt scene makes, bit for bit, only when
 * the solver reads those arrays in its step, or can be told to read them again in place. An explicit
   ForceSolver's energies read them in their kernels each step; XPBD converts the springs' k to compliances
   when it binds its constraints, so they are bound again and the new arrays copied into the ones its graphs
-  and recorded launches hold. FastMassSpring factorises its system at construction, and an implicit
-  integrator's minimiser keeps the lagged Hessian and its factorisation: both are rebuilt as before.
+  and recorded launches hold; FastMassSpring packs the springs' parameters per row at construction, so
+  they are packed again into the same arrays. An implicit integrator's minimiser keeps the lagged Hessian
+  and its factorisation: it is rebuilt as before.
 
 :class:`BatchScenes` decides once per (problem, candidate count), says which in a log line on
 ``logging.getLogger("pliant.fit")`` and in :attr:`BatchScenes.reason`.
@@ -35,7 +36,7 @@ if TYPE_CHECKING:
     from ..model import Model
     from ..scene import Scene
     from ..sim import Simulator
-    from ..solvers import XPBD
+    from ..solvers import XPBD, FastMassSpring
     from ._problem import Problem
 
 _LOG = logging.getLogger("pliant.fit")
@@ -58,8 +59,15 @@ def refresher(solver: object) -> tuple[Callable[[], bool] | None, str | None]:
     if isinstance(solver, XPBD):
         return (lambda: _rebind(solver)), None
     if isinstance(solver, FastMassSpring):
-        return None, f"{name} factorises its spring system from the model's arrays at construction"
+        return (lambda: _repack(solver)), None
     return None, f"{name} is not known to read the model's parameter arrays in its step"
+
+
+def _repack(solver: FastMassSpring) -> bool:
+    """Pack FastMassSpring's per-row spring parameters again from the model's arrays, into the arrays its
+    graphs and recorded launches hold (its implicit step and recorded path read the model's arrays)."""
+    solver.update_parameters()
+    return True
 
 
 def _rebind(solver: XPBD) -> bool:
