@@ -4,9 +4,11 @@
 # returns all of its figures. Part 1 is device call 2 of ../shared/gpu/README.md (after Warp is staged),
 # part 2 the next call on the same warm machine; from the repository root:
 #
-#   cp ../shared/gpu/bench_gpu.py .gpu/b/        # here, before the call (the harness is not in the tree)
+#   cp ../shared/gpu/bench_gpu.py .gpu/b/ && chmod 644 .gpu/b/bench_gpu.py  # here, before the call (not in the tree;
+#     a read-only copy did not arrive on the device on 2026-11-26)
 #   bash .gpu/b/stage_b.sh && source $HOME/gpu/env.sh && bash benchmarks/gpu_check.sh 1
 #   bash benchmarks/gpu_check.sh 2                # call 3, on the same warm machine
+#   bash benchmarks/gpu_check.sh 3                # or: the side-by-side figures alone (~350 s)
 #
 # Every step writes into $OUT (the device tool brings it back); a step that fails or runs out of time is
 # recorded in $OUT/steps.txt and the script goes on, so one slow step never costs the others' figures.
@@ -89,5 +91,22 @@ else  # too few cores to keep one aside: the CPU side after the GPU steps (over 
     step fit_rows_cpu 200 $PY -m pliant.cli bench fit_rope fit_cloth_17 --device cpu \
         --json "$OUT/fit_rows_cpu.jsonl"
 fi
+fi
+if part 3; then
+# 8. Issue 24's side-by-side figures in one call (what the README's GPU tables quote, 2026-11-26, ~350 s):
+#    the drape and XPBD against Newton (harness of ../shared/gpu, both in CUDA graphs), pliant's rows replayed
+#    as graphs (the 512² bandwidth fraction), Newton's VBD on the 30³ box beside the device Newton.
+export PLIANT_BENCH_CACHE="$OUT/bench_cache"
+step tests3 60 $PY -m pytest -q -n 8 -p no:cacheprovider -k cuda tests/test_drape_variants.py \
+    tests/test_collisions.py tests/test_implicit_pcg.py
+if [ -f .gpu/b/bench_gpu.py ]; then
+    step harness_drape 90 $PY .gpu/b/bench_gpu.py "$DEV" "$OUT/harness_drape.jsonl" drape
+    step harness_xpbd 100 $PY .gpu/b/bench_gpu.py "$DEV" "$OUT/harness_xpbd.jsonl" xpbd
+fi
+step rows3 60 $PY -m pliant.cli bench cloth_drape_512_symplectic cloth_drape_64_symplectic \
+    xpbd_cloth_drape_64_jacobi_sum xpbd_cloth_drape_128_jacobi_sum xpbd_cloth_drape_256_jacobi_sum \
+    --graph --device "$DEV" --json "$OUT/rows3.jsonl"
+step vbd 150 $PY benchmarks/peers/box_vbd.py "$DEV" "$OUT/box_vbd.jsonl" --n 30 --settings 10x10,40x10 \
+    --pliant-settings 5:float32,10:float32 --max-s 140
 fi
 cat "$OUT/steps.txt"
