@@ -266,13 +266,15 @@ def _crossings(x0, x1, tris):
     return int(inside.sum())
 
 
-def _fold(self_collision: bool, device: str = "cpu") -> tuple[int, float]:
-    n, size = 14, 0.4
+def _fold_setup(self_collision: bool, device: str):
+    """The folding cloth: (model, FastMassSpring with or without self-collision, the carried edge's rest
+    positions, a function writing the edge's targets at time t [s] into a Control)."""
+    n = 14
     b = pl.ModelBuilder()
     b.add_cloth_grid(
         nx=n,
         ny=n,
-        size=size,
+        size=0.4,
         mass=0.05,
         youngs_modulus_thickness=100.0,
         damping=0.01,
@@ -286,19 +288,28 @@ def _fold(self_collision: bool, device: str = "cpu") -> tuple[int, float]:
     solver = pl.solvers.FastMassSpring(
         model, method="implicit", cg_iterations=30, damping_rate=2.0, collisions=handlers
     )
-    control = model.control()
     x_edge = model.particle_q_np[edge]
-    tris = model.tri_indices.numpy()
-    s0, s1 = model.state(), model.state()
-    crossings, dt = 0, 1 / 240
-    prev = s0.particle_q.numpy()
-    for k in range(300):
-        t = min(k * dt / 1.0, 1.0)  # a half turn in 1 s: z from 0 to 0.35, up to 0.15 and down to 0.025
+
+    def carry(t: float, control: pl.Control) -> None:
+        t = min(t, 1.0)  # a half turn in 1 s: z from 0 to 0.35, up to 0.15 and down to 0.025
         angle = np.pi * t
         target = x_edge.copy()
         target[:, 2] = 0.175 - 0.175 * np.cos(angle)
         target[:, 1] = 0.005 + 0.15 * np.sin(angle) + 0.02 * t
         control.set_kinematic_targets(target)
+
+    return model, solver, carry
+
+
+def _fold(self_collision: bool, device: str = "cpu") -> tuple[int, float]:
+    model, solver, carry = _fold_setup(self_collision, device)
+    control = model.control()
+    tris = model.tri_indices.numpy()
+    s0, s1 = model.state(), model.state()
+    crossings, dt = 0, 1 / 240
+    prev = s0.particle_q.numpy()
+    for k in range(300):
+        carry(k * dt, control)
         solver.step(s0, s1, control, dt)
         s0, s1 = s1, s0
         cur = s0.particle_q.numpy()
@@ -357,37 +368,10 @@ def test_self_collision_frames_replay_as_graphs(device):
     """The fold above stepped by a Simulator: with self-collision (hash-grid build and BVH refit every
     substep) its frames replay as graphs, bit for bit with launch-by-launch frames on the CPU (on CUDA to
     round-off of the order of atomics), and the folded layer still never passes through a triangle."""
-    n = 14
     runs = {}
     for graph in (None, False):
-        b = pl.ModelBuilder()
-        b.add_cloth_grid(
-            nx=n,
-            ny=n,
-            size=0.4,
-            mass=0.05,
-            youngs_modulus_thickness=100.0,
-            damping=0.01,
-            origin=(-0.2, 0.005, 0.0),
-        )
-        b.add_ground(friction=0.5)
-        edge = np.arange(n + 1)
-        b.add_kinematic(edge)
-        model = b.finalize(device=device, dtype="float32")
-        sc = pl.collision.SelfCollision(model, thickness=0.008, friction=0.2)
-        assert sc.graph_blocker() is None
-        solver = pl.solvers.FastMassSpring(
-            model, method="implicit", cg_iterations=30, damping_rate=2.0, collisions=[sc]
-        )
-        x_edge = model.particle_q_np[edge]
-
-        def carry(t: float, control: pl.Control, x_edge: np.ndarray = x_edge) -> None:
-            angle = np.pi * min(t, 1.0)  # the edge carried over the cloth in 1 s, as in _fold
-            target = x_edge.copy()
-            target[:, 2] = 0.175 - 0.175 * np.cos(angle)
-            target[:, 1] = 0.005 + 0.15 * np.sin(angle) + 0.02 * min(t, 1.0)
-            control.set_kinematic_targets(target)
-
+        model, solver, carry = _fold_setup(True, device)
+        assert solver.collisions[0].graph_blocker() is None
         sim = pl.Simulator(model, solver, frame_dt=1 / 60, substeps=4, control_fn=carry, graph=graph)
         tris = model.tri_indices.numpy()
         crossings, prev = 0, sim.state_0.particle_q.numpy().copy()
