@@ -293,3 +293,37 @@ def test_auto_is_the_device_newton_on_cuda_and_the_direct_solve_on_the_cpu(
     assert (solver.graph_blocker() is None) == cuda
     monkeypatch.setattr(_options.wp, "get_device", lambda d=None: types.SimpleNamespace(is_cuda=True))
     assert _options.device_newton(auto, "cuda:0") and not _options.device_newton(lbfgs, "cuda:0")
+    # method="auto" (the FEM scenes'): L-BFGS on the CPU, the device Newton on CUDA
+    either = pl.solvers.MinimizerOptions(method="auto")
+    assert _options.resolve_method(either, "cuda:0") == "newton" and _options.device_newton(either, "cuda:0")
+    monkeypatch.undo()
+    assert _options.resolve_method(either, "cpu") == "lbfgs" and not _options.device_newton(either, "cpu")
+
+
+FEM_SCENES = ["cantilever", "fem_drop", "fem_embedded", "fem_squeeze", "soft_box_fem"]
+
+
+@pytest.mark.parametrize("name", FEM_SCENES)
+def test_fem_scenes_take_the_device_newton_a_gpu_gives_them(name: str) -> None:
+    """The FEM scenes ask for ``method="auto"``: L-BFGS on the CPU, the device Newton on a GPU. What a GPU
+    runs is run here on the CPU (method "newton", linear solver "pcg"): the scene's energies, contacts and
+    handles are all device-Newton steps (its frames replay as graphs), and 3 frames land within 1e-4 m of
+    L-BFGS's (both stop at the scene's tolerance)."""
+    from pliant.solvers.implicit._options import resolve_method
+
+    runs = {}
+    for mz in ({"method": "auto"}, {"method": "newton", "linear_solver": "pcg"}):
+        cfg = pl.scene.load_scene(name)
+        assert cfg.solver.options["minimizer"] == {"method": "auto"}
+        cfg.solver.options = {**cfg.solver.options, "minimizer": mz}
+        sim = pl.scene.build_scene(cfg).simulator()
+        for _ in range(3):
+            sim.step_frame()
+        runs[mz["method"]] = sim
+    auto, device = runs["auto"], runs["newton"]
+    assert resolve_method(auto.solver.minimizer, "cpu") == "lbfgs"
+    assert auto.solver.last_stats.linear_solver == "lbfgs"
+    assert isinstance(device.solver.last_stats, _pcg.DeviceNewtonStats) and device.graph_reason is None
+    x_auto, x_dev = auto.state_0.particle_q.numpy(), device.state_0.particle_q.numpy()
+    assert np.abs(x_dev - x_auto).max() < 1e-4
+    assert np.abs(x_auto - pl.scene.build_scene(pl.scene.load_scene(name)).model.particle_q_np).max() > 1e-3

@@ -116,12 +116,16 @@ def test_scene_files_old_and_new_spelling():
     assert old.solver.minimizer == new.solver.minimizer
     with pytest.raises(SceneError) as info:
         _build('options = { minimizer = { method = "lbgfs" } }')
-    assert "solver.options" in str(info.value) and "method must be 'newton' or 'lbfgs'" in str(info.value)
+    assert "solver.options" in str(info.value) and "method must be 'newton', 'lbfgs' or 'auto'" in str(
+        info.value
+    )
 
 
 @pytest.mark.parametrize("name", ["soft_box_fem", "fem_drop", "fem_embedded", "fem_squeeze", "cantilever"])
 def test_builtin_fem_scenes_use_lbfgs_through_the_solver(name):
-    """The built-in FEM scenes ask the solver for L-BFGS in the new spelling (no deprecated keyword)."""
+    """The built-in FEM scenes ask the solver for ``method="auto"`` (L-BFGS on the CPU, the device Newton
+    on a GPU) in the new spelling (no deprecated keyword), and get L-BFGS on the CPU."""
     cfg = pl.scene.load_scene(name)
-    assert cfg.solver.options.get("minimizer") == {"method": "lbfgs"}
+    assert cfg.solver.options.get("minimizer") == {"method": "auto"}
+    assert pl.scene.build_scene(cfg).solver.minimizer.method == "auto"
     assert not set(cfg.solver.integrator_options) & set(I._implicit.MINIMIZER_SETTINGS)

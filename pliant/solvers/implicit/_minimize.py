@@ -8,7 +8,7 @@ import warp as wp
 
 from ..._blas import single_threaded
 from ._newton import NewtonStats, minimize_incremental_potential
-from ._options import device_newton, step_settings
+from ._options import device_newton, resolve_method, step_settings
 from ._pcg import DeviceNewtonStats, minimize_device
 from ._quasi_newton import minimize_quasi_newton
 
@@ -29,13 +29,14 @@ def minimize(
     options: ImplicitOptionsLike = None,
     minimizer: MinimizerLike = None,
 ) -> NewtonStats | DeviceNewtonStats:
-    """x_out = argmin Φ by :func:`minimize_quasi_newton` when the minimiser's ``method`` is "lbfgs", else by
+    """x_out = argmin Φ by :func:`minimize_quasi_newton` when the minimiser's ``method`` is "lbfgs" ("auto"
+    on the CPU), else by
     :func:`minimize_incremental_potential` (or its device form, :func:`minimize_device`, with
     ``linear_solver="pcg"``, or "auto" on CUDA; arguments as there), with host BLAS on one thread: many small
     calls, for which a thread pool's wake-up costs more than it saves."""
     _, mz = step_settings(options, minimizer)
     with single_threaded():
-        if mz.method == "lbfgs":
+        if resolve_method(mz, problem.model.device) == "lbfgs":
             return minimize_quasi_newton(problem, t, h, x_tilde, x_ref, v_ref, x_out, options, minimizer=mz)
         if device_newton(mz, problem.model.device):
             return minimize_device(problem, t, h, x_tilde, x_ref, v_ref, x_out, options, minimizer=mz)

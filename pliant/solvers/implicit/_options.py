@@ -26,10 +26,12 @@ class MinimizerOptions:
     """How an implicit step's incremental potential is minimised (``ForceSolver(minimizer=...)``).
 
     Attributes:
-        method: "newton" (the default: exact PSD-projected Hessians, a linear solve per iteration) or
+        method: "newton" (the default: exact PSD-projected Hessians, a linear solve per iteration),
             "lbfgs" (L-BFGS whose initial Hessian is the per-axis, lagged, prefactorised one: no assembly or
             factorisation per iteration; the fast choice for FEM bodies on the CPU, not for spring cloth,
-            whose Hessian changes too much between steps for a lagged one).
+            whose Hessian changes too much between steps for a lagged one) or "auto": "lbfgs" on the CPU,
+            "newton" on a GPU (where the default linear solver is the device Newton, and L-BFGS's lagged
+            H₀ is a host factorisation); the FEM scenes ask for it (:func:`resolve_method`).
         linear_solver: Newton's linear solver: "cg" (warp.optim.linear.cg, any device), "scipy-cg" (SciPy
             CG, block-Jacobi, host; falls back to the direct solve when a step stalls), "direct" (SciPy
             sparse LU, host), "pcg" (Newton with every decision on the device: block-Jacobi CG, line search
@@ -71,8 +73,8 @@ class MinimizerOptions:
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
                 raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
 
-        if self.method not in ("newton", "lbfgs"):
-            raise ValueError(f"method must be 'newton' or 'lbfgs', got {self.method!r}")
+        if self.method not in ("newton", "lbfgs", "auto"):
+            raise ValueError(f"method must be 'newton', 'lbfgs' or 'auto', got {self.method!r}")
         if self.linear_solver not in LINEAR_SOLVERS:
             raise ValueError(
                 "linear_solver must be 'cg', 'scipy-cg', 'direct' or 'auto' (host decisions), or 'pcg' (the "
@@ -154,7 +156,14 @@ def step_settings(
 def device_newton(minimizer: MinimizerOptions, device: wp.DeviceLike) -> bool:
     """Whether ``minimizer``'s Newton runs with every decision on the device: ``linear_solver="pcg"``, or
     "auto" on a CUDA device (where a host decision per iteration costs a synchronisation)."""
-    if minimizer.method != "newton":
+    if resolve_method(minimizer, device) != "newton":
         return False
     lin = minimizer.linear_solver
     return lin == "pcg" or (lin == "auto" and wp.get_device(device).is_cuda)
+
+
+def resolve_method(minimizer: MinimizerOptions, device: wp.DeviceLike) -> str:
+    """``minimizer.method`` on ``device``: "newton" or "lbfgs" ("auto": L-BFGS on the CPU, Newton on CUDA)."""
+    if minimizer.method != "auto":
+        return minimizer.method
+    return "newton" if wp.get_device(device).is_cuda else "lbfgs"
