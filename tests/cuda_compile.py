@@ -147,7 +147,8 @@ def main() -> None:
     for name, module in sorted(context.user_modules.items()):
         # module="unique" kernels built by a factory (the "ell" gather) get a module of their own, named
         # after the factory: pliant's by their function's module.
-        own = any(getattr(k.func, "__module__", "").startswith("pliant.") for k in module.kernels.values())
+        homes = (getattr(k.func, "__module__", None) or "" for k in module.kernels.values())
+        own = any(home.startswith("pliant.") for home in homes)
         if not (name.startswith("pliant.") or own):
             continue
         skipped += sum(1 for k in module.kernels.values() if k.is_generic and not k.overloads)
