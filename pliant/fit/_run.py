@@ -403,7 +403,7 @@ def _plot(
     a.set_xlabel("iteration (CMA-ES generation, then gradient epoch)")
     a.set_ylabel("training loss")
     a.set_title("loss")
-    if stages:
+    if any(s.history for s in stages.values()):  # a run stopped before its first iteration has none
         a.legend()
     t = np.arange(len(err)) * frame_dt
     b.plot(t[:n_train], scale * err[:n_train], color="C0", label="fitted (train)")
