@@ -14,8 +14,8 @@ That is the run a rebuilt scene makes, bit for bit, only when
   ForceSolver's energies read them in their kernels each step; XPBD converts the springs' k to compliances
   when it binds its constraints, so they are bound again and the new arrays copied into the ones its graphs
   and recorded launches hold; FastMassSpring packs the springs' parameters per row at construction, so
-  they are packed again into the same arrays. An implicit integrator's minimiser keeps the lagged Hessian
-  and its factorisation: it is rebuilt as before.
+  they are packed again into the same arrays. An implicit step with Newton assembles from the arrays every
+  step; with L-BFGS its minimiser keeps the lagged Hessian and its factorisation: that one is rebuilt.
 
 :class:`BatchScenes` decides once per (problem, candidate count), says which in a log line on
 ``logging.getLogger("pliant.fit")`` and in :attr:`BatchScenes.reason`.
@@ -47,14 +47,19 @@ def refresher(solver: object) -> tuple[Callable[[], bool] | None, str | None]:
     (nothing to do), ``(refresh, None)`` when ``refresh()`` makes it read them again (False: it could not
     keep its arrays in place, rebuild), ``(None, why)`` when it caches what they give and must be rebuilt."""
     from ..solvers import XPBD, FastMassSpring, ForceSolver
+    from ..solvers.implicit._options import resolve_method
 
     name = type(solver).__name__
     if isinstance(solver, ForceSolver):
         if solver.integrator.explicit:
             return None, None
+        if resolve_method(solver.minimizer, solver.model.device) == "newton":
+            # Newton assembles from the model's arrays every step (its workspace is the Hessian's pattern);
+            # Simulator.restart forgets a multistep history (Solver.reset).
+            return None, None
         return None, (
-            f"{name}({solver.integrator.name}) keeps a lagged Hessian and its factorisation built from the "
-            "model's arrays"
+            f"{name}({solver.integrator.name}) with L-BFGS keeps a lagged Hessian and its factorisation "
+            "built from the model's arrays"
         )
     if isinstance(solver, XPBD):
         return (lambda: _rebind(solver)), None
