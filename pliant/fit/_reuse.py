@@ -47,7 +47,7 @@ def refresher(solver: object) -> tuple[Callable[[], bool] | None, str | None]:
     (nothing to do), ``(refresh, None)`` when ``refresh()`` makes it read them again (False: it could not
     keep its arrays in place, rebuild), ``(None, why)`` when it caches what they give and must be rebuilt."""
     from ..solvers import XPBD, FastMassSpring, ForceSolver
-    from ..solvers.implicit._options import resolve_method
+    from ..solvers.implicit import resolve_method
 
     name = type(solver).__name__
     if isinstance(solver, ForceSolver):

@@ -12,7 +12,7 @@ from ._adjoint import differentiable
 from ._assembly import PotentialProblem, control_of
 from ._minimize import minimize
 from ._newton import NewtonStats, minimize_incremental_potential
-from ._options import MinimizerOptions, device_newton, step_settings
+from ._options import MinimizerOptions, device_newton, resolve_method, step_settings
 from ._pcg import DeviceCG, DeviceNewtonStats, minimize_device
 from ._pcg import graph_blocker as device_newton_blocker
 from ._quasi_newton import (
@@ -44,6 +44,7 @@ __all__ = [
     "minimize_incremental_potential",
     "minimize_quasi_newton",
     "nested_dissection",
+    "resolve_method",
     "solve_static",
     "step_settings",
 ]
