@@ -27,8 +27,8 @@ demo: $(VENV)/.installed
 
 # The docs are part of the suite: tests/test_docs.py builds the site with `mkdocs build --strict` and runs
 # every tutorial's code, so `make test` stays CI's single entry. One pytest-xdist worker per core: the suite
-# (about 1320 tests) took 7.6 minutes on two shared cores from a fresh clone with an empty Warp kernel cache
-# (9.3 minutes with the venv's set-up, ruff and the type check; 2026-11-26).
+# (about 1460 tests) took 9.9 minutes on two shared cores from a fresh clone with an empty Warp kernel cache
+# (11.4 minutes with the venv's set-up, ruff and the type check; 2026-11-26, `CI=true bash .ci/run`).
 test: $(VENV)/.installed-test
 	$(BIN)/ruff check pliant tests benchmarks examples
 	$(BIN)/ruff format --check pliant tests benchmarks examples
