@@ -262,10 +262,9 @@ class SelfCollision:
         # Triangle bounds in a wp.Bvh, refit each iteration: Warp records a Bvh refit in a CPU graph and
         # a CUDA one (a wp.Mesh's host refit is not replayed by a CPU graph).
         self._bvh: wp.Bvh | None = None
-        ntri = max(model.tri_count, 1)
-        self._tri_lo = wp.zeros(ntri, dtype=wp.vec3f, device=d)
-        self._tri_hi = wp.zeros(ntri, dtype=wp.vec3f, device=d)
-        if self.use_triangles:
+        if self.use_triangles:  # (tri_count > 0)
+            self._tri_lo = wp.zeros(model.tri_count, dtype=wp.vec3f, device=d)
+            self._tri_hi = wp.zeros(model.tri_count, dtype=wp.vec3f, device=d)
             self._xf.assign(model.particle_q_np.astype(np.float32))
             self._bound_triangles()
             self._bvh = wp.Bvh(self._tri_lo, self._tri_hi)
@@ -284,9 +283,10 @@ class SelfCollision:
         return None
 
     def _bound_triangles(self) -> None:
+        """The BVH's leaves: each triangle's box around the snapshot positions ``_xf``."""
         wp.launch(
             _triangle_bounds,
-            self._tri_lo.shape[0] if self.use_triangles else 0,
+            self._tri_lo.shape[0],
             [self._tris, self._xf, self._tri_lo, self._tri_hi],
             device=self._xf.device,
         )
