@@ -160,8 +160,9 @@ _F = TypeVar("_F", bound=Callable[..., Any])
 
 def graph_safe(fn: _F) -> _F:
     """Mark a tape callback (``wp.Tape.record_func``) as replayable in a captured graph: it only launches
-    Warp kernels and copies on the tape's device, reads nothing back to the host and takes no Python
-    decision from array values, so its launches captured once replay correctly (``pliant.diff``'s rollout
+    Warp kernels and copies on the tape's device, reads nothing back to the host while a capture is on
+    (``capturing``) and takes no Python decision from array values, so its launches captured once replay
+    correctly (``pliant.diff``'s rollout
     graphs refuse unmarked callbacks, and still compare the capturing call with a direct run)."""
     fn.graph_safe = True  # type: ignore[attr-defined]
     return fn

@@ -23,7 +23,7 @@ offset -> neighbour index -> neighbour position), with too few threads to hide i
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import warp as wp
@@ -167,6 +167,33 @@ def ell_layout(offsets: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
     entry = offsets[None, :-1] + np.minimum(k, np.maximum(count - 1, 0)[None, :])
     entry[:, count == 0] = 0  # any valid entry (its term is not selected); off[i] may be past the end
     return slots, count.astype(np.int32), entry.reshape(slots * n)
+
+
+class EllRows(NamedTuple):
+    """FastMassSpring's spring rows in the "ell" gather's layout (:func:`ell_layout`), on the device."""
+
+    slots: int  # the unrolled slot count of the kernel that reads them
+    lengths: wp.array  # springs per particle [N] (int32)
+    neighbor: wp.array  # the other end of slot k of particle i, at k·N + i (int32)
+    param: wp.array  # (rest length, k, γ) of that slot (vec3), packed by ``pack``
+    entry: np.ndarray  # the CSR entry each slot repeats (host; packs the parameters)
+
+    @classmethod
+    def build(cls, offsets: np.ndarray, neighbor: np.ndarray, vec3: type, device: str) -> EllRows:
+        """The ELL rows of CSR ``offsets`` [N + 1] and ``neighbor`` [entries] (see :func:`ell_layout`)."""
+        slots, count, entry = ell_layout(offsets)
+        nb = neighbor[entry] if neighbor.shape[0] else np.zeros(entry.shape, np.int32)
+        return cls(
+            slots,
+            wp.array(count, dtype=wp.int32, device=device),
+            wp.array(nb, dtype=wp.int32, device=device),
+            wp.zeros(entry.shape[0], dtype=vec3, device=device),
+            entry,
+        )
+
+    def pack(self, per_entry: np.ndarray) -> None:
+        """Write the CSR entries' parameters [entries, 3] into the slots, in place (graphs keep ``param``)."""
+        self.param.assign(per_entry[self.entry])
 
 
 _ELL_KERNELS: dict[int, wp.Kernel] = {}

@@ -45,13 +45,13 @@ from ..force import ForceSolver
 from ._adjoint import BaraffWitkinStep
 from ._explicit import (
     TILE_LANES,
+    EllRows,
     _springs_scatter,
     _symplectic_gather,
     _symplectic_gather_tiled,
     _symplectic_gather_unrolled,
     _symplectic_update,
     ell_gather_kernel,
-    ell_layout,
 )
 from ._system import BaraffWitkinSystem, _bw_assemble, _bw_finish
 
@@ -223,12 +223,7 @@ class FastMassSpring(Solver):
             raise ValueError(f"block_dim must be an integer in [1, 1024] threads, got {block_dim!r}")
         #: Threads per block of the gather kernel (CUDA; a CPU launch runs its threads in sequence).
         self.block_dim = block_dim
-        self._ell: tuple[int, wp.array, wp.array, np.ndarray] | None = None
-        if gather == "ell":  # slots, count, neighbour per slot, CSR entry per slot (for the parameters)
-            slots, count, entry = ell_layout(off)
-            ell_nb = nb[entry] if nb.shape[0] else np.zeros(entry.shape, np.int32)
-            self._ell = (slots, wp.array(count, dtype=wp.int32, device=d), wp.array(ell_nb, device=d), entry)
-            self._ell_param = wp.zeros(entry.shape[0], dtype=model.vec3, device=d)
+        self._ell = EllRows.build(off, nb, model.vec3, d) if gather == "ell" else None
         #: The symplectic step's spring kernel (the implicit step always gathers).
         self.kernel = kernel
         self._scatter = method == "symplectic" and kernel == "scatter"
@@ -302,9 +297,10 @@ class FastMassSpring(Solver):
             per_spring = np.stack(
                 [m.spring_rest_length.numpy(), m.spring_stiffness.numpy(), m.spring_damping.numpy()], axis=1
             )
-            self._adj_param.assign(per_spring[spr])
+            per_entry = per_spring[spr]
+            self._adj_param.assign(per_entry)
             if self._ell is not None:
-                self._ell_param.assign(per_spring[spr][self._ell[3]])
+                self._ell.pack(per_entry)
             self._damped = int(np.any(per_spring[:, 2] > 0))
         else:
             self._damped = 0
@@ -386,8 +382,8 @@ class FastMassSpring(Solver):
             args += [m.gravity_vec, self._damped, f_ext, xi, vi, s(dt), delta, xo, vo]
             kernel = GATHER_KERNELS[self.gather]
             if self._ell is not None:
-                kernel = ell_gather_kernel(self._ell[0])
-                args[:3] = [self._ell[1], self._ell[2], self._ell_param]
+                kernel = ell_gather_kernel(self._ell.slots)
+                args[:3] = [self._ell.lengths, self._ell.neighbor, self._ell.param]
             lanes = TILE_LANES.get(self.gather)
             if lanes is not None:  # a block of lanes per particle (1 on the CPU)
                 cmd = wp.launch_tiled(
