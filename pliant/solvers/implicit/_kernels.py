@@ -29,6 +29,17 @@ def add_step_stats(g: Any, d: Any, stats_out: wp.array(dtype=Any)):
     wp.atomic_add(stats_out, 1, wp.dot(g, d))
 
 
+@wp.func
+def trial_point(w: Any, m: Any, alpha: Any, x: Any, dx: Any, x_tilde: Any):
+    """A line-search trial x + αΔx (x itself for a fixed particle, 1/m = w = 0) and its ½ m‖· − x̃‖² term of
+    Φ: the host minimisers' and the device Newton's trial, one expression."""
+    y = x
+    if w != type(m)(0.0):
+        y = x + alpha * dx
+    d = y - x_tilde
+    return y, type(m)(0.5) * m * wp.dot(d, d)
+
+
 # -------------------------------------------------------------------- Newton and L-BFGS (fixed particles)
 @wp.kernel(enable_backward=False)
 def _incremental_gradient(
@@ -86,12 +97,9 @@ def _trial_point(
 ):
     # x_out = x + α Δx (free particles only) and stats[0] += ½‖x_out − x̃‖²_M.
     i = wp.tid()
-    x = x_in[i]
-    if inv_mass[i] != type(alpha)(0.0):
-        x = x + alpha * dx_in[i]
+    x, e = trial_point(inv_mass[i], mass[i], alpha, x_in[i], dx_in[i], x_tilde_in[i])
     x_out[i] = x
-    d = x - x_tilde_in[i]
-    wp.atomic_add(stats_out, 0, type(alpha)(0.5) * mass[i] * wp.dot(d, d))
+    wp.atomic_add(stats_out, 0, e)
 
 
 @wp.kernel(enable_backward=False)

@@ -32,7 +32,7 @@ from ..._warp import launch
 from . import _pcg_kernels as K
 from ._adjoint import differentiable
 from ._assembly import _assemble, _control_terms
-from ._kernels import _step_stats
+from ._kernels import _step_stats, trial_point
 from ._newton import _launch_gradient, _stiffness_ratio
 from ._options import step_settings
 from ._workspace import _Workspace, _workspace, cache_of
@@ -157,13 +157,10 @@ def _trial_point_at(
 ):
     # x_out = x + α Δx (free particles; α from the device) and stats[0] += ½‖x_out − x̃‖²_M.
     i = wp.tid()
-    x = x_in[i]
     m = mass[i]
-    if inv_mass[i] != type(m)(0.0):
-        x = x + type(m)(state[ALPHA]) * dx_in[i]
+    x, e = trial_point(inv_mass[i], m, type(m)(state[ALPHA]), x_in[i], dx_in[i], x_tilde_in[i])
     x_out[i] = x
-    d = x - x_tilde_in[i]
-    wp.atomic_add(stats_out, 0, type(m)(0.5) * m * wp.dot(d, d))
+    wp.atomic_add(stats_out, 0, e)
 
 
 @wp.kernel(enable_backward=False)
