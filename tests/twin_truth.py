@@ -182,6 +182,20 @@ def _triangle_distance(q: np.ndarray, tri: np.ndarray) -> np.ndarray:
     return out
 
 
+def distance_to_surface(points: np.ndarray, x0: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """Distance [N] [m] from each point to the solid's surface (inside or out): e.g. of back-projected depth.
+
+    Args:
+        points: points [N, 3] [m].
+        x0: vertices [V, 3] [m].
+        tets: tets [E, 4].
+    """
+    points = _points(points, "points")
+    x0, tets = np.asarray(x0, np.float64), np.asarray(tets)
+    _check_mesh(x0, tets)
+    return _triangle_distance(points, x0[boundary_faces(tets)])
+
+
 def distance_to_solid(points: np.ndarray, x0: np.ndarray, tets: np.ndarray) -> np.ndarray:
     """Distance [N] [m] from each point to the solid ``(x0, tets)``: 0 inside, else to its surface.
 
