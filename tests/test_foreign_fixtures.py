@@ -47,9 +47,13 @@ def _match(truth0: np.ndarray, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_fixtures_are_small():
+    # The camera beam of issue 37 (mujoco_beam_*: 5 cameras x 91 frames with depth, ~5.5 MB) has a budget
+    # of its own; the rest stays under 2 MB.
     files = list(DATA.iterdir())
-    assert files, "no fixtures"
-    assert sum(f.stat().st_size for f in files) < 2_000_000
+    beam = [f for f in files if f.name.startswith("mujoco_beam")]
+    assert files and len(beam) == 4, "missing fixtures"
+    assert sum(f.stat().st_size for f in files if f not in beam) < 2_000_000
+    assert sum(f.stat().st_size for f in beam) < 12_000_000
 
 
 @pytest.mark.parametrize("name", sorted(TRACKS))
