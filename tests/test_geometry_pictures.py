@@ -73,6 +73,14 @@ def _box_distance(p: np.ndarray, lo=BLO, hi=BHI) -> np.ndarray:
     return np.where(np.all(q < 0, axis=1), q.max(axis=1), np.linalg.norm(np.maximum(q, 0.0), axis=1))
 
 
+def _iou(vox) -> float:
+    """Intersection over union of the kept voxels and the voxels whose centres lie inside the true box."""
+    c = vox.origin + (np.argwhere(np.ones(vox.shape, dtype=bool)) + 0.5) * vox.spacing
+    inside = np.all(np.abs(c - CENTRE) < 0.15, axis=1)
+    occ = vox.occupied.reshape(-1)
+    return float((occ & inside).sum() / (occ | inside).sum())
+
+
 def _face_errors(vox) -> np.ndarray:
     """[2, 3] errors of the kept voxels' box faces against the true box, in voxels."""
     lo, hi = vox.bounds()
@@ -136,6 +144,7 @@ def test_carving_pliant_rendered_masks_recovers_the_box_within_one_voxel():
     vox = carve(K, T, alpha, BLO - 0.1, BHI + 0.1, 0.01)  # float alpha: > 0.5 is the object
     err = _face_errors(vox)
     assert np.abs(err).max() <= 1.0 + 1e-9, err
+    assert _iou(vox) > 0.85  # the splats' soft edges widen the silhouettes by about a centimetre
 
 
 def test_depth_closes_the_visual_hull_and_unseen_voxels_stay():
@@ -146,6 +155,7 @@ def test_depth_closes_the_visual_hull_and_unseen_voxels_stay():
     assert np.abs(_face_errors(hull)).max() > 5.0  # four silhouettes alone bulge by centimetres
     vox = carve(K, T, masks, BLO - 0.1, BHI + 0.1, s, depth=depth)
     assert np.abs(_face_errors(vox)).max() <= 1.0 + 1e-9
+    assert _iou(vox) > 0.99 and _iou(hull) < 0.8
     assert np.all(vox.occupied <= hull.occupied)
     # a fifth camera looking away from the box sees only background: what lies outside its image stays
     away = Camera.look_at(CENTRE + [0.0, 0.0, 2.0], CENTRE + [0.0, 0.0, 4.0], width=W, height=H)
