@@ -18,6 +18,7 @@ from pliant.geometry import (
     hull_bounds,
     project,
     remove_outliers,
+    view_agreement,
 )
 from pliant.io import Observations
 
@@ -175,6 +176,15 @@ def test_a_camera_that_disagrees_stands_out_in_sole():
     masks[2] = np.roll(masks[2], 25, axis=1)  # camera 2's masks shifted by 25 px (a wrong pose)
     vox = carve(K, T, masks, BLO - 0.1, BHI + 0.1, 0.01)
     assert int(np.argmax(vox.sole)) == 2 and vox.sole[2] > 2.0 * np.delete(vox.sole, 2).max()
+
+
+def test_view_agreement_is_one_for_consistent_views_and_drops_for_a_shifted_one():
+    masks, _ = _box_pictures(TETRA)
+    K, T = _stack(TETRA)
+    assert view_agreement(K, T, masks, BLO - 0.1, BHI + 0.1, 0.01).min() > 0.99
+    masks[2] = np.roll(masks[2], 25, axis=1)
+    a = view_agreement(K, T, masks, BLO - 0.1, BHI + 0.1, 0.01)
+    assert int(np.argmin(a)) == 2 and a[2] < 0.85
 
 
 @pytest.mark.parametrize("cams", [FAR, TETRA], ids=["far", "tetra"])

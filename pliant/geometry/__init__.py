@@ -30,7 +30,7 @@ from ._p2 import (
     promote_tets_p2,
     tet_quadrature,
 )
-from ._pictures import Voxels, backproject, carve, frame_clouds, hull_bounds, project
+from ._pictures import Voxels, backproject, carve, frame_clouds, hull_bounds, project, view_agreement
 from ._shapes import ClothGrid, Rope, cloth_grid, rope
 from ._springs import springs_from_points
 from ._tets import box_tets, cylinder_tets, sphere_tets, tetrahedralize
@@ -61,6 +61,7 @@ __all__ = [
     "hull_bounds",
     "project",
     "remove_outliers",
+    "view_agreement",
     "ClothGrid",
     "Rope",
     "TetMesh",

@@ -75,7 +75,7 @@ def fit_plane(
         tol: Inlier distance [m].
         iters: Random triples tried.
         seed: Seed of the draws (the result is deterministic).
-        min_fraction: Smallest inlier fraction that counts as a dominant plane.
+        min_fraction: Smallest inlier fraction [0-1] that counts as a dominant plane.
 
     Returns:
         The :class:`Plane`, or None when no horizontal plane holds ``min_fraction`` of the points.

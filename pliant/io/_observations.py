@@ -274,7 +274,12 @@ class Observations:
 
     def depth_m(self, camera: int, frame: int) -> np.ndarray:
         """Camera ``camera``'s depth at ``frame`` as float32 [H, W] metres along its optical axis, 0 where
-        there is no reading (uint16 files are millimetres, converted here)."""
+        there is no reading (uint16 files are millimetres, converted here).
+
+        Args:
+            camera: Camera index, 0 … C − 1.
+            frame: Frame index, 0 … T − 1.
+        """
         if self.depth is None:
             raise ObservationError(f"{self.source}: depth: this file has no depth images")
         return depth_metres(self.depth[camera, frame])
