@@ -483,6 +483,27 @@ def backproject(
     return (q - T[:3, 3]) @ T[:3, :3]
 
 
+def _filtered_sample(
+    pts: np.ndarray, radius: float, min_neighbors: int, max_points: int, rng: np.random.Generator
+) -> np.ndarray:
+    """At most ``max_points`` of the points that pass :func:`~pliant.geometry.remove_outliers`, a uniform
+    random subset of them: candidates are tested in a random order (their neighbours counted in the whole
+    cloud) until enough pass, so a cloud of 30 000 points costs a few thousand neighbour counts, not all."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(pts)
+    order = rng.permutation(pts.shape[0])
+    kept, total = [], 0
+    for s in range(0, order.size, 2 * max_points):
+        cand = order[s : s + 2 * max_points]
+        count = np.asarray(tree.query_ball_point(pts[cand], radius, return_length=True)) - 1
+        kept.append(cand[count >= min_neighbors])
+        total += kept[-1].size
+        if total >= max_points:
+            break
+    return pts[np.sort(np.concatenate(kept)[:max_points])]
+
+
 def frame_clouds(
     K: ArrayLike,
     world_to_camera: ArrayLike,
@@ -525,8 +546,6 @@ def frame_clouds(
         (cloud [T, P, 3] float64 [m], zero-padded past each frame's count; count [T] int64), with
         P ≤ ``max_points``.
     """
-    from ._clouds import remove_outliers
-
     m = np.asarray(masks)
     if m.ndim != 4:
         raise ValueError(f"frame_clouds: masks: expected [C, T, H, W], got shape {m.shape}")
@@ -560,7 +579,7 @@ def frame_clouds(
                 ]
                 r = 4.0 * float(np.median(np.concatenate(foot)))
             if pts.shape[0]:
-                pts = pts[remove_outliers(pts, r, min_neighbors)]
+                pts = _filtered_sample(pts, r, min_neighbors, max_points, np.random.default_rng([seed, t]))
         if pts.shape[0] > max_points:
             pick = np.random.default_rng([seed, t]).choice(pts.shape[0], max_points, replace=False)
             pts = pts[np.sort(pick)]
