@@ -165,7 +165,10 @@ def carve(
     nothing there, and an object partly out of one camera's frame must keep the parts the other cameras
     see. With ``depth``, a voxel is also removed when, in a view whose depth reading at its pixel is valid
     (> 0), its centre lies in front of the observed surface by more than ``depth_tol`` (free-space carving:
-    the camera saw through it).
+    the camera saw through it). Depth is used at object pixels only. A reading behind the true surface
+    (noise, a sensor's flying pixels at silhouettes) carves the object itself, so ``depth_tol`` must cover
+    the depth's error: pliant's own rasteriser returns the alpha-blended depth of splat centres, 1–3 cm
+    inside a 0.3 m soft box of surface splats.
 
     Only the centre is tested (default): a voxel straddling the silhouette is kept when its centre is
     inside, so the kept set is the voxels whose centres lie in the visual hull, within half a voxel of it.
@@ -205,7 +208,11 @@ def carve(
         d = np.asarray(depth, dtype=np.float64)
         if d.shape != (C, H, W):
             raise ValueError(f"carve: depth: expected [C={C}, H={H}, W={W}] like masks, got {d.shape}")
-        d = np.where(np.isfinite(d), d, 0.0)
+        # Depth counts at object pixels only: the silhouettes already carve along background rays, and
+        # a floor's readings there would cut into the footprint test's margin. (Eroding the masks against
+        # silhouette pixels that mix object and background was tried: it leaves the visual hull's bulges,
+        # whose voxels project near silhouettes, uncarved.)
+        d = np.where(np.isfinite(d) & obj, d, 0.0)
     if not spacing > 0.0:
         raise ValueError(f"carve: spacing: expected a voxel edge > 0 m, got {spacing}")
     tol = 0.5 * spacing if depth_tol is None else float(depth_tol)
