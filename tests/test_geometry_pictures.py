@@ -148,6 +148,22 @@ def test_carving_pliant_rendered_masks_recovers_the_box_within_one_voxel():
     assert _iou(vox) > 0.85  # the splats' soft edges widen the silhouettes by about a centimetre
 
 
+def test_carving_observe_images_masks_contains_the_box():
+    """``observe_images(masks=True)``'s four ring cameras (35° above, azimuths 30° + 90° k) see no face
+    head-on and none from below, so their hull bulges (tens of voxels under the box); it still holds
+    every voxel of the box away from its corners, which surface splats cover with alpha < 0.5."""
+    from pliant.fit import observe_images
+
+    scene = pl.scene.build_scene(pl.scene.load_scene("soft_box"))
+    obs = observe_images(scene, frames=2, cameras=4, image_size=(W, H), masks=True)
+    lo, hi = hull_bounds(obs.K, obs.world_to_camera, obs.masks[:, 0])
+    assert np.all(lo < BLO) and np.all(hi > BHI)
+    vox = carve(obs.K, obs.world_to_camera, obs.masks[:, 0], lo, hi, 0.01)
+    c = vox.origin + (np.argwhere(np.ones(vox.shape, dtype=bool)) + 0.5) * vox.spacing
+    inner = np.all(np.abs(c - CENTRE) < 0.15 - 0.01, axis=1)
+    assert vox.occupied.reshape(-1)[inner].all()
+
+
 def test_depth_closes_the_visual_hull_and_unseen_voxels_stay():
     masks, depth = _box_pictures(TETRA)
     K, T = _stack(TETRA)
@@ -286,3 +302,37 @@ def test_frame_clouds_have_the_observation_layout_and_lie_on_each_frames_box():
         t=np.array([0.0, 0.1]), points=np.zeros((2, 1, 3)), cloud=cloud, cloud_count=count
     )
     assert obs.cloud.shape == (2, 500, 3)
+
+
+# ------------------------------------------------------------------------------------------------- errors
+@pytest.mark.parametrize(
+    ("call", "match"),
+    [
+        (lambda K, T, m: carve(K, T, m[0], BLO, BHI, 0.01), r"carve: masks: expected \[C, H, W\]"),
+        (lambda K, T, m: carve(K[:3], T[:3], m, BLO, BHI, 0.01), r"cameras: 3 cameras \(K\) but masks for 4"),
+        (lambda K, T, m: carve(K, T, m, BLO, BHI, 0.0), r"carve: spacing: expected a voxel edge > 0 m"),
+        (lambda K, T, m: carve(K, T, m, BHI, BLO, 0.01), r"carve: expected lo < hi"),
+        (lambda K, T, m: carve(K, T, m, BLO, BHI, 1e-5), r"carve: .* voxels; use a larger spacing"),
+        (
+            lambda K, T, m: carve(K, T, m, BLO, BHI, 0.01, depth=np.zeros((4, 2, 2))),
+            r"carve: depth: expected \[C=4, H=150, W=200\] like masks",
+        ),
+        (
+            lambda K, T, m: hull_bounds(K, T, np.concatenate([m[:3], np.zeros_like(m[:1])])),
+            r"hull_bounds: masks: camera 3 has no object pixel; drop that camera",
+        ),
+        (lambda K, T, m: hull_bounds(K[:1], T[:1], m[:1]), r"hull_bounds: .* at least two cameras"),
+        (lambda K, T, m: backproject(np.zeros(5), K[0], T[0]), r"backproject: depth: expected \[H, W\]"),
+        (
+            lambda K, T, m: backproject(np.ones((H, W)), K[0], T[0], m[0, :5]),
+            r"backproject: mask: expected \(150, 200\) like depth",
+        ),
+        (lambda K, T, m: frame_clouds(K, T, m), r"frame_clouds: masks: expected \[C, T, H, W\]"),
+        (lambda K, T, m: remove_outliers(np.zeros((3, 3)), 0.0, 1), r"remove_outliers: radius: expected > 0"),
+    ],
+)
+def test_bad_input_fails_in_one_line_naming_the_argument(call, match):
+    masks, _ = _box_pictures(FAR)
+    with pytest.raises(ValueError, match=match) as e:
+        call(*_stack(FAR), masks)
+    assert "\n" not in str(e.value)
