@@ -172,9 +172,10 @@ def carve(
 
     Only the centre is tested (default): a voxel straddling the silhouette is kept when its centre is
     inside, so the kept set is the voxels whose centres lie in the visual hull, within half a voxel of it.
-    With ``footprint=True`` a view removes a voxel only when its projected footprint (the square around the
-    projection of the voxel's circumscribed sphere, clipped to the image) holds no object pixel: a
-    conservative hull that keeps parts thinner than a voxel.
+    With ``footprint=True`` a view removes a voxel only when its projected footprint (the square of
+    half-width max(fx, fy) · (√3/2 · spacing) / z around its centre's projection, the circumscribed
+    sphere's image near the optical axis, clipped to the image) holds no object pixel: a conservative hull
+    that keeps parts thinner than a voxel.
 
     Args:
         K: [C, 3, 3] intrinsics [px] of each camera.
