@@ -7,7 +7,7 @@ arrays. Tetrahedra returned by this package are positively oriented
 """
 
 from ._barycentric import barycentric_coordinates, interpolate, locate_points, shape_functions
-from ._clouds import Plane, fit_plane, remove_outliers
+from ._clouds import Plane, fit_plane, frame_clouds, remove_outliers
 from ._io import SUPPORTED_EXTENSIONS, load_mesh
 from ._measures import (
     degenerate_tets,
@@ -30,7 +30,7 @@ from ._p2 import (
     promote_tets_p2,
     tet_quadrature,
 )
-from ._pictures import Voxels, backproject, carve, frame_clouds, hull_bounds, project, view_agreement
+from ._pictures import Voxels, backproject, carve, hull_bounds, project, view_agreement
 from ._shapes import ClothGrid, Rope, cloth_grid, rope
 from ._springs import springs_from_points
 from ._tets import box_tets, cylinder_tets, sphere_tets, tetrahedralize
