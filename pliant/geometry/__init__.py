@@ -1,4 +1,5 @@
-"""NumPy-only geometry: procedural ropes, cloths and tet volumes, mesh loading, topology, measures.
+"""NumPy-only geometry: procedural ropes, cloths and tet volumes, mesh loading, topology, measures, and
+geometry from calibrated pictures (projection, space carving, depth back-projection, point-cloud clean-up).
 
 Nothing here imports Warp; arrays are float64 positions [N, 3] (m) and int32 index
 arrays. Tetrahedra returned by this package are positively oriented
@@ -6,6 +7,7 @@ arrays. Tetrahedra returned by this package are positively oriented
 """
 
 from ._barycentric import barycentric_coordinates, interpolate, locate_points, shape_functions
+from ._clouds import Plane, fit_plane, frame_clouds, remove_outliers
 from ._io import SUPPORTED_EXTENSIONS, load_mesh
 from ._measures import (
     degenerate_tets,
@@ -28,6 +30,7 @@ from ._p2 import (
     promote_tets_p2,
     tet_quadrature,
 )
+from ._pictures import Voxels, backproject, carve, hull_bounds, project, view_agreement
 from ._shapes import ClothGrid, Rope, cloth_grid, rope
 from ._springs import springs_from_points
 from ._tets import box_tets, cylinder_tets, sphere_tets, tetrahedralize
@@ -49,6 +52,16 @@ __all__ = [
     "locate_points",
     "shape_functions",
     "SUPPORTED_EXTENSIONS",
+    "Plane",
+    "Voxels",
+    "backproject",
+    "carve",
+    "fit_plane",
+    "frame_clouds",
+    "hull_bounds",
+    "project",
+    "remove_outliers",
+    "view_agreement",
     "ClothGrid",
     "Rope",
     "TetMesh",

@@ -1,10 +1,11 @@
 """Image observations (calibrated camera videos) in an observation NPZ: validation of ``images``, ``K``,
-``world_to_camera`` and ``masks`` (the contract is in :mod:`pliant.io._observations`).
+``world_to_camera``, ``masks`` and ``depth`` (the contract is in :mod:`pliant.io._observations`).
 
 Checked here, each with a one-line error naming the file, the array and the fix: shapes and dtypes,
 non-positive focal lengths, skew, non-rigid poses (scale, shear, reflection), NaN or inf in images or masks,
-values outside [0, 1], principal points outside the images (a K made for another image size), and a frame
-count that differs from the observation times.
+values outside [0, 1], principal points outside the images (a K made for another image size), a frame
+count that differs from the observation times, a camera whose mask holds no object pixel in any frame, and
+depth that is not uint16 millimetres or float metres, or holds NaN, inf or negative values.
 """
 
 from __future__ import annotations
@@ -14,7 +15,10 @@ from collections.abc import Callable
 import numpy as np
 
 #: Arrays of an image observation (all optional in the file; images, K and world_to_camera come together).
-IMAGE_ARRAYS = ("images", "K", "world_to_camera", "masks")
+IMAGE_ARRAYS = ("images", "K", "world_to_camera", "masks", "depth")
+
+#: A mask value above this is an object pixel (bool True, uint8 >= 128, float > 0.5).
+MASK_THRESHOLD = 0.5
 
 #: Largest deviation of R Rᵀ from the identity accepted for a rigid pose (OpenCV calibrations print ~1e-9).
 RIGID_TOL = 1e-5
@@ -50,8 +54,9 @@ def check_image_arrays(
     K: np.ndarray | None,
     world_to_camera: np.ndarray | None,
     masks: np.ndarray | None,
+    depth: np.ndarray | None,
     fail: Callable[[str, str], Exception],
-) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+) -> tuple[np.ndarray | None, ...]:
     """Validate the image arrays of an observation file with T observation times.
 
     Args:
@@ -60,17 +65,21 @@ def check_image_arrays(
         K: [C, 3, 3] OpenCV intrinsics [px] of each camera, or None.
         world_to_camera: [C, 4, 4] rigid world → camera transforms (OpenCV axes, metres), or None.
         masks: [C, T, H, W] object masks (bool, uint8 or floats in [0, 1]), or None.
+        depth: [C, T, H, W] depth along each camera's optical axis (z): uint16 millimetres or float metres,
+            0 where there is no reading, or None.
         fail: ``fail(array, message)`` builds the exception (it names the file).
 
     Returns:
-        (images, K as float64, world_to_camera as float64, masks), unchanged dtypes for the images and masks.
+        (images, K as float64, world_to_camera as float64, masks, depth), unchanged dtypes for the images,
+        masks and depth.
     """
-    given = {n: a is not None for n, a in zip(IMAGE_ARRAYS, (images, K, world_to_camera, masks), strict=True)}
+    arrays = (images, K, world_to_camera, masks, depth)
+    given = {n: a is not None for n, a in zip(IMAGE_ARRAYS, arrays, strict=True)}
     if not given["images"]:
         extra = [n for n in IMAGE_ARRAYS[1:] if given[n]]
         if extra:
             raise fail(extra[0], "given without images [C, T, H, W, 3]; add the camera images or drop it")
-        return None, None, None, None
+        return None, None, None, None, None
     for n in ("K", "world_to_camera"):
         if not given[n]:
             raise fail(
@@ -137,7 +146,68 @@ def check_image_arrays(
         if masks.shape != (C, T, H, W):
             raise fail("masks", f"expected [C={C}, T={T}, H={H}, W={W}] like images, got shape {masks.shape}")
         _unit_range(masks, "masks", fail, "masks")
-    return images, K, T_wc, masks
+        seen = np.array([object_pixels(masks[c]).any() for c in range(C)])
+        if not seen.all():
+            c = int(np.flatnonzero(~seen)[0])
+            raise fail(
+                "masks",
+                f"camera {c} has no object pixel in any frame (none above {MASK_THRESHOLD}); mark the "
+                "object's pixels True / 255 / 1.0, or drop that camera's images, K, pose and masks",
+            )
+    if depth is not None:
+        depth = _check_depth(np.asarray(depth), (C, T, H, W), fail)
+    return images, K, T_wc, masks, depth
+
+
+def _check_depth(
+    depth: np.ndarray, shape: tuple[int, ...], fail: Callable[[str, str], Exception]
+) -> np.ndarray:
+    """Check a depth video [C, T, H, W]: uint16 mm or finite float metres >= 0 (0 = no reading)."""
+    if depth.shape != shape:
+        C, T, H, W = shape
+        raise fail("depth", f"expected [C={C}, T={T}, H={H}, W={W}] like images, got shape {depth.shape}")
+    if depth.dtype == np.uint16:
+        return depth
+    if depth.dtype not in (np.float32, np.float64):
+        raise fail(
+            "depth",
+            f"expected uint16 millimetres or float32/float64 metres, got {depth.dtype}; convert it, e.g. "
+            "np.round(d_mm).astype(np.uint16) or d_m.astype(np.float32)",
+        )
+    bad = ~np.isfinite(depth)
+    if bad.any():
+        idx = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise fail(
+            "depth",
+            f"{int(bad.sum())} values are NaN or inf (first at camera {idx[0]}, frame {idx[1]}, pixel "
+            f"y={idx[2]} x={idx[3]}); use 0 for no reading",
+        )
+    neg = depth < 0.0
+    if neg.any():
+        idx = tuple(int(i) for i in np.argwhere(neg)[0])
+        raise fail(
+            "depth",
+            f"{int(neg.sum())} values are negative (first {float(depth[idx]):.4g} at camera {idx[0]}, frame "
+            f"{idx[1]}, pixel y={idx[2]} x={idx[3]}); depth is metres along the optical axis, 0 for no "
+            "reading",
+        )
+    return depth
+
+
+def object_pixels(mask: np.ndarray) -> np.ndarray:
+    """Where a mask (bool, uint8 or floats in [0, 1], any shape) marks the object: bool, same shape."""
+    if mask.dtype == np.bool_:
+        return mask
+    if mask.dtype == np.uint8:
+        return mask >= 128
+    return mask > MASK_THRESHOLD
+
+
+def depth_metres(depth: np.ndarray) -> np.ndarray:
+    """A depth image (uint16 mm or float m, any shape) as float32 metres, 0 where there is no reading."""
+    if depth.dtype == np.uint16:
+        return depth.astype(np.float32) * np.float32(1e-3)
+    return depth.astype(np.float32)
 
 
 def to_unit_float(a: np.ndarray) -> np.ndarray:
@@ -147,4 +217,11 @@ def to_unit_float(a: np.ndarray) -> np.ndarray:
     return a.astype(np.float64)
 
 
-__all__ = ["IMAGE_ARRAYS", "check_image_arrays", "to_unit_float"]
+__all__ = [
+    "IMAGE_ARRAYS",
+    "MASK_THRESHOLD",
+    "check_image_arrays",
+    "depth_metres",
+    "object_pixels",
+    "to_unit_float",
+]

@@ -13,7 +13,10 @@ The format is a contract (issue 13); every array is plain NumPy, loaded with ``a
 - ``images`` [C, T, H, W, 3], optional: C calibrated camera videos, uint8 (0-255) or floats in [0, 1], one
   image per camera at every time of ``t``; they need ``K`` [C, 3, 3] (OpenCV intrinsics [px]: fx, fy > 0, no
   skew, principal point inside the image) and ``world_to_camera`` [C, 4, 4] (rigid, metres, OpenCV axes:
-  x right, y down, z forward), and may carry ``masks`` [C, T, H, W] (object masks, bool / uint8 / [0, 1]).
+  x right, y down, z forward), and may carry ``masks`` [C, T, H, W] (object masks, bool / uint8 / [0, 1];
+  a pixel is the object's where the value is above one half, and every camera must see the object in at
+  least one frame) and ``depth`` [C, T, H, W] (each pixel's depth along its camera's optical axis z, as
+  uint16 millimetres or float32 / float64 metres; 0 where there is no reading, never NaN, inf or negative).
 
 ``points`` may be left out when ``images`` are given (a photometric fit from the videos alone); a file must
 carry at least one of the two. Files without images read and write exactly as before.
@@ -27,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._observation_images import IMAGE_ARRAYS, check_image_arrays, to_unit_float
+from ._observation_images import IMAGE_ARRAYS, check_image_arrays, depth_metres, to_unit_float
 from ._trajectory import atomic_savez
 
 _KNOWN = ("t", "points", "visible", "particle", "controls", "cloud", "cloud_count", *IMAGE_ARRAYS)
@@ -54,6 +57,8 @@ class Observations:
         K: [C, 3, 3] intrinsics [px] of each camera, or None.
         world_to_camera: [C, 4, 4] rigid world → camera transforms [m], or None.
         masks: [C, T, H, W] object masks, or None.
+        depth: [C, T, H, W] depth along each camera's optical axis (uint16 mm or float m, kept as stored; 0 =
+            no reading), or None; :meth:`depth_m` reads it in metres.
         source: file name for messages.
 
     Without ``points`` in the file (images only) there are no tracks: ``points`` is [T, 0, 3].
@@ -70,6 +75,7 @@ class Observations:
     K: np.ndarray | None = None
     world_to_camera: np.ndarray | None = None
     masks: np.ndarray | None = None
+    depth: np.ndarray | None = None
     source: str = "<observations>"
 
     # ------------------------------------------------------------------ construction
@@ -87,6 +93,7 @@ class Observations:
         K: np.ndarray | None = None,
         world_to_camera: np.ndarray | None = None,
         masks: np.ndarray | None = None,
+        depth: np.ndarray | None = None,
         source: str = "<observations>",
     ) -> Observations:
         """Validated observations from arrays (units as in the module docstring).
@@ -105,7 +112,9 @@ class Observations:
         if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
             raise fail("t", "times must be finite and strictly increasing (one per frame, in seconds)")
         T = t.shape[0]
-        images, K, world_to_camera, masks = check_image_arrays(T, images, K, world_to_camera, masks, fail)
+        images, K, world_to_camera, masks, depth = check_image_arrays(
+            T, images, K, world_to_camera, masks, depth, fail
+        )
         if points is None:
             if images is None:
                 raise fail(
@@ -190,6 +199,7 @@ class Observations:
             K=K,
             world_to_camera=world_to_camera,
             masks=masks,
+            depth=depth,
             source=source,
         )
 
@@ -262,6 +272,18 @@ class Observations:
         """Camera ``camera``'s object mask at ``frame`` as float64 [H, W] in [0, 1], or None."""
         return None if self.masks is None else to_unit_float(self.masks[camera, frame])
 
+    def depth_m(self, camera: int, frame: int) -> np.ndarray:
+        """Camera ``camera``'s depth at ``frame`` as float32 [H, W] metres along its optical axis, 0 where
+        there is no reading (uint16 files are millimetres, converted here).
+
+        Args:
+            camera: Camera index, 0 … C − 1.
+            frame: Frame index, 0 … T − 1.
+        """
+        if self.depth is None:
+            raise ObservationError(f"{self.source}: depth: this file has no depth images")
+        return depth_metres(self.depth[camera, frame])
+
     def check_times(self, frame_dt: float, what: str = "the scene") -> None:
         """Raise unless ``t[i] = i · frame_dt`` (every frame from t = 0, within 1e-6 of a frame).
 
@@ -329,6 +351,7 @@ class Observations:
             cloud_count=cut(self.cloud_count),
             images=None if self.images is None else self.images[:, sl],
             masks=None if self.masks is None else self.masks[:, sl],
+            depth=None if self.depth is None else self.depth[:, sl],
         )
 
 
