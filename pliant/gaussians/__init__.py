@@ -19,6 +19,7 @@ from ._camera import Camera
 from ._correct import VisualCorrector
 from ._fit import DEFAULT_LRS, fit_appearance
 from ._gaussians import SH_C0, Gaussians
+from ._init import INIT_LRS, SplatInit, separate_particles, splats_from_particles
 from ._optim import Adam, photometric_loss, psnr
 from ._ply import PlyError, load_ply, save_ply
 from ._render import RenderOutput, render
@@ -26,6 +27,7 @@ from ._scene import SceneSplats
 
 __all__ = [
     "DEFAULT_LRS",
+    "INIT_LRS",
     "SH_C0",
     "Adam",
     "AppearanceResult",
@@ -35,6 +37,7 @@ __all__ = [
     "PlyError",
     "RenderOutput",
     "SceneSplats",
+    "SplatInit",
     "VisualCorrector",
     "bind",
     "fit_appearance",
@@ -44,4 +47,6 @@ __all__ = [
     "psnr",
     "render",
     "save_ply",
+    "separate_particles",
+    "splats_from_particles",
 ]

@@ -69,26 +69,38 @@ class AppearanceResult:
     wall_time: float = 0.0
 
 
-def sample_colours(means: np.ndarray, cameras: Sequence[Camera], images: Sequence[np.ndarray]) -> np.ndarray:
+def sample_colours(
+    means: np.ndarray,
+    cameras: Sequence[Camera],
+    images: Sequence[np.ndarray],
+    masks: Sequence[np.ndarray] | None = None,
+) -> np.ndarray:
     """Mean observed colour [N, 3] at the pixel each point ``means`` [m] projects to, over the cameras that
-    see it in front (occlusion ignored); 0.5 grey where no camera sees it. A starting value for the fit.
+    see it in front (occlusion ignored) and, with ``masks``, only where that pixel is the object's; 0.5 grey
+    where no camera sees it. A starting value for the fit.
 
     Args:
         means: Points [m], shape [N, 3].
         cameras: The cameras.
         images: One RGB image [H, W, 3] in [0, 1] per camera.
+        masks: One object mask [H, W] per camera (pixels > 0.5 are the object's), or None: every pixel counts.
     """
     mu = np.asarray(means, dtype=np.float64).reshape(-1, 3)
     acc = np.zeros((len(mu), 3))
     cnt = np.zeros(len(mu))
-    for cam, img in zip(cameras, images, strict=True):
+    for c, (cam, img) in enumerate(zip(cameras, images, strict=True)):
         p = mu @ cam.rotation.T + cam.translation
         z = p[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             u = np.round(cam.fx * p[:, 0] / z + cam.cx)
             v = np.round(cam.fy * p[:, 1] / z + cam.cy)
         ok = (z > 1e-6) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
-        acc[ok] += np.asarray(img, dtype=np.float64)[v[ok].astype(int), u[ok].astype(int)]
+        vi, ui = v[ok].astype(int), u[ok].astype(int)
+        if masks is not None:
+            inside = np.asarray(masks[c], dtype=np.float64)[vi, ui] > 0.5
+            ok[ok] = inside
+            vi, ui = vi[inside], ui[inside]
+        acc[ok] += np.asarray(img, dtype=np.float64)[vi, ui]
         cnt[ok] += 1
     out = np.full((len(mu), 3), 0.5)
     seen = cnt > 0
