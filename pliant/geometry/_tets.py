@@ -75,6 +75,34 @@ def box_tets(
     return TetMesh(points=points, tets=tets)
 
 
+def voxel_tets(centres: ArrayLike, spacing: float) -> TetMesh:
+    """Cubes of side ``spacing`` centred at ``centres`` (a carved voxel set), each split into 6 tetrahedra
+    with the one Kuhn split of :func:`box_tets`, so neighbouring cubes share their corners and faces.
+
+    Args:
+        centres: [M, 3] voxel centres [m], on a grid of pitch ``spacing`` (as :func:`carve` keeps them).
+        spacing: Voxel side [m].
+
+    Returns:
+        :class:`TetMesh` over the cubes' distinct corners (unused grid corners dropped), 6 M positive tets.
+    """
+    c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+    if len(c) == 0 or not spacing > 0:
+        raise ValueError(f"voxel_tets: expected voxel centres [M >= 1, 3] and spacing > 0, got {c.shape}")
+    lo = c.min(axis=0) - 0.5 * spacing
+    ijk = np.rint((c - lo) / spacing - 0.5).astype(np.int64)  # cell index of each voxel
+    n = ijk.max(axis=0) + 2  # corner grid size
+    off = np.array([[dx, dy, dz] for dz in (0, 1) for dy in (0, 1) for dx in (0, 1)])
+    corners = ijk[:, None, :] + off[None, :, :]  # [M, 8, 3], local corner ids as in box_tets
+    flat = corners[..., 0] + n[0] * (corners[..., 1] + n[1] * corners[..., 2])
+    used, cells = np.unique(flat, return_inverse=True)
+    cells = cells.reshape(-1, 8)
+    k, rem = np.divmod(used, n[0] * n[1])
+    j, i = np.divmod(rem, n[0])
+    points = lo + spacing * np.stack([i, j, k], axis=1)
+    return TetMesh(points=points, tets=cells[:, _KUHN].reshape(-1, 4).astype(np.int32))
+
+
 def _surface_problems(vertices: np.ndarray, faces: np.ndarray, name: str) -> str | None:
     """Describe why TetGen would reject this surface, or return None if it looks fine."""
     import trimesh
