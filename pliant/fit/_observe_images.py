@@ -25,6 +25,7 @@ def observe_images(
     image_size: tuple[int, int] = (96, 72),
     noise: float = 0.0,
     masks: bool = False,
+    depth: bool = False,
     uint8: bool = False,
     per_triangle: int = 1,
     seed: int = 0,
@@ -41,6 +42,8 @@ def observe_images(
         image_size: (width, height) [px].
         noise: Standard deviation of Gaussian pixel noise (in [0, 1] units; the images are clipped to [0, 1]).
         masks: Also write ``masks``: the rendered alpha (a soft object mask in [0, 1]).
+        depth: Also write ``depth`` [m]: the splats' expected depth along each camera's axis where the
+            rendered alpha exceeds one half, 0 elsewhere (no reading), as an RGB-D camera reports it.
         uint8: Store 8-bit images (quantised) instead of float32.
         per_triangle: Gaussians per surface triangle (1 or 3) of generated splats; ``pliant fit`` renders 1
             (3 here gives videos drawn with other splats than the fit's). A scene with a ``[gaussians]``
@@ -74,12 +77,15 @@ def observe_images(
     cams = ring_cameras(x[:, splats.lo : splats.hi], cameras, width=width, height=height)
     images = np.empty((cameras, frames, height, width, 3), dtype=np.float32)
     alpha = np.empty((cameras, frames, height, width), dtype=np.float32)
+    z = np.zeros((cameras, frames, height, width), dtype=np.float32)
     for f in range(frames):
         q: wp.array = wp.array(np.ascontiguousarray(x[f]), dtype=m.vec3, device=m.device)
         for c, cam in enumerate(cams):
-            colour, a, _ = splats.render(q, cam)
+            colour, a, d = splats.render(q, cam)
             images[c, f] = colour.numpy()
             alpha[c, f] = a.numpy()
+            if depth:
+                z[c, f] = np.where(alpha[c, f] > 0.5, d.numpy(), 0.0)
     if noise > 0:
         rng = np.random.default_rng(seed)
         images = np.clip(images + rng.normal(scale=noise, size=images.shape), 0.0, 1.0).astype(np.float32)
@@ -103,6 +109,7 @@ def observe_images(
         K=np.stack([c.K for c in cams]),
         world_to_camera=np.stack([c.world_to_camera for c in cams]),
         masks=np.clip(alpha, 0.0, 1.0) if masks else None,
+        depth=z if depth else None,
         source="<observe>",
         **kw,
     )

@@ -18,8 +18,9 @@ The format is a contract (issue 13); every array is plain NumPy, loaded with ``a
   least one frame) and ``depth`` [C, T, H, W] (each pixel's depth along its camera's optical axis z, as
   uint16 millimetres or float32 / float64 metres; 0 where there is no reading, never NaN, inf or negative).
 
-``points`` may be left out when ``images`` are given (a photometric fit from the videos alone); a file must
-carry at least one of the two. Files without images read and write exactly as before.
+``points`` may be left out when ``images`` are given (a photometric fit from the videos alone) or ``cloud``
+(a fit to depth clouds alone, as ``pliant twin`` makes from the pictures); a file must carry one of the
+three. Files without images read and write exactly as before.
 """
 
 from __future__ import annotations
@@ -116,15 +117,17 @@ class Observations:
             T, images, K, world_to_camera, masks, depth, fail
         )
         if points is None:
-            if images is None:
+            if images is None and cloud is None:
                 raise fail(
-                    "points", "missing: an observation file needs points [T, K, 3] or images [C, T, H, W, 3]"
+                    "points",
+                    "missing: an observation file needs points [T, K, 3], images [C, T, H, W, 3] or cloud "
+                    "[T, P, 3]",
                 )
             if visible is not None or particle is not None:
                 raise fail("visible" if visible is not None else "particle", "given without points; drop it")
             points = np.zeros((T, 0, 3))
         points = np.asarray(points)
-        no_tracks = images is not None and points.ndim == 3 and points.shape[1] == 0
+        no_tracks = (images is not None or cloud is not None) and points.ndim == 3 and points.shape[1] == 0
         if (
             points.ndim != 3
             or points.shape[0] != T
