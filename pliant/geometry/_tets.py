@@ -75,25 +75,49 @@ def box_tets(
     return TetMesh(points=points, tets=tets)
 
 
-def voxel_tets(centres: ArrayLike, spacing: float) -> TetMesh:
-    """Cubes of side ``spacing`` centred at ``centres`` (a carved voxel set), each split into 6 tetrahedra
+def voxel_tets(centres: ArrayLike, spacing: float, *, dual: bool = False) -> TetMesh:
+    """Tetrahedra of a carved voxel set (centres on a grid of pitch ``spacing``), every cube split into 6
     with the one Kuhn split of :func:`box_tets`, so neighbouring cubes share their corners and faces.
 
+    Two meshes of the same voxels:
+
+    - ``dual=False``: each voxel is a cube (its corners are the nodes): the mesh covers the carved volume
+      exactly, its nodes reach half a voxel past the centres;
+    - ``dual=True``: the nodes are the voxel centres themselves, and a cube joins every 8 neighbouring
+      centres: the mesh lies half a voxel inside the carved volume (centres without a complete cube of
+      neighbours, parts thinner than two voxels, are left out). A carved hull is the object plus up to half
+      a voxel, so the centres sit on the object's surface, the corners outside it.
+
     Args:
-        centres: [M, 3] voxel centres [m], on a grid of pitch ``spacing`` (as :func:`carve` keeps them).
+        centres: [M, 3] voxel centres [m] (as :func:`carve` keeps them).
         spacing: Voxel side [m].
+        dual: Nodes at the centres (True) or at the voxels' corners (False).
 
     Returns:
-        :class:`TetMesh` over the cubes' distinct corners (unused grid corners dropped), 6 M positive tets.
+        :class:`TetMesh` over the used nodes, 6 positive tets per cube.
+
+    Raises:
+        ValueError: no centres, a non-positive spacing, or (``dual``) no complete cube of 8 centres.
     """
     c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
     if len(c) == 0 or not spacing > 0:
         raise ValueError(f"voxel_tets: expected voxel centres [M >= 1, 3] and spacing > 0, got {c.shape}")
-    lo = c.min(axis=0) - 0.5 * spacing
-    ijk = np.rint((c - lo) / spacing - 0.5).astype(np.int64)  # cell index of each voxel
-    n = ijk.max(axis=0) + 2  # corner grid size
     off = np.array([[dx, dy, dz] for dz in (0, 1) for dy in (0, 1) for dx in (0, 1)])
-    corners = ijk[:, None, :] + off[None, :, :]  # [M, 8, 3], local corner ids as in box_tets
+    if dual:
+        lo = c.min(axis=0)
+        ijk = np.rint((c - lo) / spacing).astype(np.int64)  # grid index of each centre
+        n = ijk.max(axis=0) + 2
+        occupied = np.zeros(n, dtype=bool)
+        occupied[tuple(ijk.T)] = True
+        full = np.all([occupied[tuple((ijk + o).T)] for o in off], axis=0)  # the 8 corners are centres
+        if not full.any():
+            raise ValueError("voxel_tets: no 8 neighbouring voxel centres form a cube (dual=True)")
+        corners = ijk[full][:, None, :] + off[None, :, :]
+    else:
+        lo = c.min(axis=0) - 0.5 * spacing
+        ijk = np.rint((c - lo) / spacing - 0.5).astype(np.int64)  # cell index of each voxel
+        n = ijk.max(axis=0) + 2  # corner grid size
+        corners = ijk[:, None, :] + off[None, :, :]  # [M, 8, 3], local corner ids as in box_tets
     flat = corners[..., 0] + n[0] * (corners[..., 1] + n[1] * corners[..., 2])
     used, cells = np.unique(flat, return_inverse=True)
     cells = cells.reshape(-1, 8)
