@@ -42,6 +42,7 @@ _SUBMODULES = (
     "fit",
     "gaussians",
     "sweep",
+    "twin",
     "live",
 )
 
@@ -96,4 +97,5 @@ __all__ = [
     "solvers",
     "studies",
     "sweep",
+    "twin",
 ]

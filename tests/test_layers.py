@@ -33,6 +33,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("render",),
     ("scene",),
     ("diff", "fit", "gaussians", "sweep"),
+    ("twin",),  # pictures → a fitted twin: carving, splats, detection, then pl.fit (docs/twin.md)
     ("studies", "bench", "cli", "live"),  # live: the live viewer (uses fit's parameter arrays, splats)
     ("",),  # pliant/__init__.py: the public surface, on top of the library
     ("examples",),  # user code shipped with the package: it uses the public surface (`import pliant as pl`)

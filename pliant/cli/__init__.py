@@ -278,6 +278,9 @@ def build_parser() -> argparse.ArgumentParser:
     from ._fit import add_parsers as _fit_parsers
 
     _fit_parsers(sub)  # fit, observe
+    from ._twin import add_parsers as _twin_parsers
+
+    _twin_parsers(sub)
     return p
 
 
@@ -290,7 +293,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     debug = bool(os.environ.get("PLIANT_DEBUG"))
     try:
         if (
-            args.command in ("demo", "run", "sweep", "fit", "observe")
+            args.command in ("demo", "run", "sweep", "fit", "observe", "twin")
             and os.environ.get("PLIANT_PREBUILD") != "0"
         ):
             from .._prebuild import warm_up
@@ -309,6 +312,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             from ._fit import cmd_fit, cmd_observe
 
             return cmd_fit(args) if args.command == "fit" else cmd_observe(args)
+        if args.command == "twin":
+            from ._twin import cmd_twin
+
+            return cmd_twin(args)
         if args.command == "sweep":
             from ._sweep import cmd_sweep
 
