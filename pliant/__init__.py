@@ -22,6 +22,8 @@ _LAZY = {
     "Trajectory": "io",
     "DivergenceError": "sim",
     "Simulator": "sim",
+    "RunReport": "runner",
+    "run_scene": "runner",
 }
 _SUBMODULES = (
     "energies",
@@ -42,6 +44,7 @@ _SUBMODULES = (
     "fit",
     "gaussians",
     "sweep",
+    "runner",
     "live",
 )
 
@@ -73,6 +76,7 @@ __all__ = [
     "DivergenceError",
     "Model",
     "ModelBuilder",
+    "RunReport",
     "Simulator",
     "State",
     "Trajectory",
@@ -91,6 +95,8 @@ __all__ = [
     "live",
     "model",
     "render",
+    "run_scene",
+    "runner",
     "scene",
     "sim",
     "solvers",

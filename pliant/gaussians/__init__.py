@@ -22,7 +22,8 @@ from ._gaussians import SH_C0, Gaussians
 from ._optim import Adam, photometric_loss, psnr
 from ._ply import PlyError, load_ply, save_ply
 from ._render import RenderOutput, render
-from ._scene import SceneSplats
+from ._scene import SceneSplats, SplatSceneError
+from ._session import RENDERERS, SplatSession, splat_session
 
 __all__ = [
     "DEFAULT_LRS",
@@ -32,9 +33,12 @@ __all__ = [
     "Binding",
     "Camera",
     "Gaussians",
+    "RENDERERS",
     "PlyError",
     "RenderOutput",
     "SceneSplats",
+    "SplatSceneError",
+    "SplatSession",
     "VisualCorrector",
     "bind",
     "fit_appearance",
@@ -44,4 +48,5 @@ __all__ = [
     "psnr",
     "render",
     "save_ply",
+    "splat_session",
 ]
