@@ -16,7 +16,7 @@ def test_run_scene_returns_a_report_and_prints_nothing(tmp_path, capsys):
     assert report.status == "ok" and report.frames == report.frames_requested == 2
     assert report.written == [tmp_path / "rope.npz"] and report.checkpoint == tmp_path / "rope.ckpt.npz"
     assert report.trajectory.x.shape[0] == 3 and report.wall_simulate > 0
-    assert report.metrics["particle_substeps_per_s"] > 0
+    assert report.metrics["particle_substeps_per_s"] > 0 and report.cameras == []
 
 
 def test_from_mesh_gives_a_scene_that_loads(tmp_path):

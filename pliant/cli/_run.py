@@ -115,6 +115,7 @@ def simulate(
     quiet: bool = False,
     resume_hint: str = "",
     renderer: str = "auto",
+    cameras: str | None = None,
 ) -> int:
     """``pliant run``'s call of :func:`pliant.runner.run_scene`: its lines printed as the run goes, then
     what it wrote and how it ended; returns the exit status.
@@ -137,6 +138,7 @@ def simulate(
             resume=resume,
             video=video,
             renderer=renderer,
+            cameras=cameras,
             progress=not quiet,
             log=say,
         )
@@ -163,7 +165,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     hint = ["pliant", "run", args.scene, "--out", args.out] + (["--force"] if args.force else [])
     for item in args.overrides:
         hint += ["--set", item]
-    for opt in ("frames", "frame_dt", "substeps", "integrator", "device", "dtype"):
+    for opt in ("frames", "frame_dt", "substeps", "integrator", "device", "dtype", "cameras"):
         val = getattr(args, opt, None)
         if val is not None:
             hint += [f"--{opt.replace('_', '-')}", str(val)]
@@ -178,6 +180,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         quiet=args.quiet,
         resume_hint=shlex.join(hint),
         renderer=args.renderer,
+        cameras=getattr(args, "cameras", None),
     )
 
 

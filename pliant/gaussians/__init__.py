@@ -19,7 +19,7 @@ from ._camera import Camera
 from ._correct import VisualCorrector
 from ._fit import DEFAULT_LRS, fit_appearance
 from ._gaussians import SH_C0, Gaussians
-from ._optim import Adam, photometric_loss, psnr
+from ._optim import Adam, iou, photometric_loss, psnr
 from ._ply import PlyError, load_ply, save_ply
 from ._render import RenderOutput, render
 from ._scene import SceneSplats, SplatSceneError
@@ -43,6 +43,7 @@ __all__ = [
     "bind",
     "fit_appearance",
     "fit_splat_appearance",
+    "iou",
     "load_ply",
     "photometric_loss",
     "psnr",

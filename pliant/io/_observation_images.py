@@ -44,50 +44,28 @@ def _unit_range(a: np.ndarray, array: str, fail: Callable[[str, str], Exception]
     return a
 
 
-def check_image_arrays(
-    T: int,
-    images: np.ndarray | None,
-    K: np.ndarray | None,
-    world_to_camera: np.ndarray | None,
-    masks: np.ndarray | None,
+def check_cameras(
+    K: np.ndarray,
+    world_to_camera: np.ndarray,
+    C: int,
+    W: int,
+    H: int,
     fail: Callable[[str, str], Exception],
-) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
-    """Validate the image arrays of an observation file with T observation times.
+) -> tuple[np.ndarray, np.ndarray]:
+    """Validate C OpenCV cameras for W x H images: shapes, positive focal lengths, no skew, principal points
+    inside the images, rigid poses.
 
     Args:
-        T: Number of observation times (``t``).
-        images: [C, T, H, W, 3] RGB, uint8 or floats in [0, 1], or None.
-        K: [C, 3, 3] OpenCV intrinsics [px] of each camera, or None.
-        world_to_camera: [C, 4, 4] rigid world → camera transforms (OpenCV axes, metres), or None.
-        masks: [C, T, H, W] object masks (bool, uint8 or floats in [0, 1]), or None.
+        K: [C, 3, 3] intrinsics [px].
+        world_to_camera: [C, 4, 4] rigid world → camera transforms (OpenCV axes, metres).
+        C: the number of cameras (of the images, or of K).
+        W: image width [px].
+        H: image height [px].
         fail: ``fail(array, message)`` builds the exception (it names the file).
 
     Returns:
-        (images, K as float64, world_to_camera as float64, masks), unchanged dtypes for the images and masks.
+        (K, world_to_camera) as float64.
     """
-    given = {n: a is not None for n, a in zip(IMAGE_ARRAYS, (images, K, world_to_camera, masks), strict=True)}
-    if not given["images"]:
-        extra = [n for n in IMAGE_ARRAYS[1:] if given[n]]
-        if extra:
-            raise fail(extra[0], "given without images [C, T, H, W, 3]; add the camera images or drop it")
-        return None, None, None, None
-    for n in ("K", "world_to_camera"):
-        if not given[n]:
-            raise fail(
-                n, f"missing: images need K [C, 3, 3] and world_to_camera [C, 4, 4] (the {n} of each camera)"
-            )
-    images = np.asarray(images)
-    if images.ndim != 5 or images.shape[4] != 3 or min(images.shape[:4]) < 1:
-        raise fail("images", f"expected RGB videos [C, T={T}, H, W, 3], got shape {images.shape}")
-    C, Ti, H, W = images.shape[:4]
-    if Ti != T:
-        raise fail(
-            "images",
-            f"{Ti} frames per camera but t has {T} times; one image per camera at every observation time",
-        )
-    if images.dtype == np.bool_:
-        raise fail("images", "expected uint8 or float RGB, got bool (a mask belongs in masks)")
-    _unit_range(images, "images", fail, "RGB")
     K = np.asarray(K, dtype=np.float64)
     if K.shape != (C, 3, 3):
         raise fail("K", f"expected [C={C}, 3, 3] intrinsic matrices (one per camera), got shape {K.shape}")
@@ -132,6 +110,54 @@ def check_image_arrays(
                 f"camera {c}: not a rigid transform (|R Rᵀ − I| = {ortho:.3g}, det R = {det:.6g}); its 3x3 "
                 "block must be a rotation (no scale, shear or reflection), in metres",
             )
+    return K, T_wc
+
+
+def check_image_arrays(
+    T: int,
+    images: np.ndarray | None,
+    K: np.ndarray | None,
+    world_to_camera: np.ndarray | None,
+    masks: np.ndarray | None,
+    fail: Callable[[str, str], Exception],
+) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+    """Validate the image arrays of an observation file with T observation times.
+
+    Args:
+        T: Number of observation times (``t``).
+        images: [C, T, H, W, 3] RGB, uint8 or floats in [0, 1], or None.
+        K: [C, 3, 3] OpenCV intrinsics [px] of each camera, or None.
+        world_to_camera: [C, 4, 4] rigid world → camera transforms (OpenCV axes, metres), or None.
+        masks: [C, T, H, W] object masks (bool, uint8 or floats in [0, 1]), or None.
+        fail: ``fail(array, message)`` builds the exception (it names the file).
+
+    Returns:
+        (images, K as float64, world_to_camera as float64, masks), unchanged dtypes for the images and masks.
+    """
+    given = {n: a is not None for n, a in zip(IMAGE_ARRAYS, (images, K, world_to_camera, masks), strict=True)}
+    if not given["images"]:
+        extra = [n for n in IMAGE_ARRAYS[1:] if given[n]]
+        if extra:
+            raise fail(extra[0], "given without images [C, T, H, W, 3]; add the camera images or drop it")
+        return None, None, None, None
+    for n in ("K", "world_to_camera"):
+        if not given[n]:
+            raise fail(
+                n, f"missing: images need K [C, 3, 3] and world_to_camera [C, 4, 4] (the {n} of each camera)"
+            )
+    images = np.asarray(images)
+    if images.ndim != 5 or images.shape[4] != 3 or min(images.shape[:4]) < 1:
+        raise fail("images", f"expected RGB videos [C, T={T}, H, W, 3], got shape {images.shape}")
+    C, Ti, H, W = images.shape[:4]
+    if Ti != T:
+        raise fail(
+            "images",
+            f"{Ti} frames per camera but t has {T} times; one image per camera at every observation time",
+        )
+    if images.dtype == np.bool_:
+        raise fail("images", "expected uint8 or float RGB, got bool (a mask belongs in masks)")
+    _unit_range(images, "images", fail, "RGB")
+    K, T_wc = check_cameras(np.asarray(K), np.asarray(world_to_camera), C, W, H, fail)
     if masks is not None:
         masks = np.asarray(masks)
         if masks.shape != (C, T, H, W):
@@ -147,4 +173,4 @@ def to_unit_float(a: np.ndarray) -> np.ndarray:
     return a.astype(np.float64)
 
 
-__all__ = ["IMAGE_ARRAYS", "check_image_arrays", "to_unit_float"]
+__all__ = ["IMAGE_ARRAYS", "check_cameras", "check_image_arrays", "to_unit_float"]

@@ -11,9 +11,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ._cameras import CameraScore, compared_frames, render_cameras
+
 if TYPE_CHECKING:
     from ..gaussians import SplatSession
-    from ..io import Trajectory
+    from ..io import CameraFile, Trajectory
     from ..scene import Scene, SceneConfig
 
 #: Where :func:`run_scene` sends its summary lines.
@@ -24,7 +26,7 @@ STATUSES = ("ok", "diverged", "interrupted", "failed")
 
 
 class RunError(ValueError):
-    """A run that cannot start: an output path, frame rate, splat section or initial state the
+    """A run that cannot start: an output path, frame rate, camera file, splat section or initial state the
     user must change. Raised before anything is simulated or written; the message is the error line."""
 
 
@@ -44,11 +46,12 @@ class RunReport:
             None.
         wall_simulate: wall time of the simulation [s] (build, splats and twin excluded).
         wall_render: wall time of the video [s], or None when none was rendered.
-        written: every file written, in order (trajectory, render mesh, video).
+        written: every file written, in order (trajectory, render mesh, video, camera videos).
         checkpoint: the checkpoint file when it exists after the run, else None.
-        warnings: notes about the run.
+        warnings: notes about the run (a camera file with another frame count, ...).
         metrics: figures of the run: ``particle_substeps_per_s``, ``drift`` (mean distance [m] to the
             correction twin, ``corrected`` / ``uncorrected``) when a correction ran.
+        cameras: one :class:`CameraScore` per camera of the camera file.
         trajectory: the simulated trajectory (positions [T, N, 3], times), or None before a run.
     """
 
@@ -64,6 +67,7 @@ class RunReport:
     checkpoint: Path | None = None
     warnings: list[str] = field(default_factory=list)
     metrics: dict[str, Any] = field(default_factory=dict)
+    cameras: list[CameraScore] = field(default_factory=list)
     trajectory: Trajectory | None = None
 
     @property
@@ -72,18 +76,37 @@ class RunReport:
         return self.status == "ok"
 
 
-def _outputs(out: Path, name: str) -> list[Path]:
-    """The run's output paths (trajectory, video, checkpoint, render mesh), each one file directly in
-    ``out`` (links followed); ``out`` is created and checked writable."""
+def _outputs(out: Path, name: str, cameras: int) -> tuple[list[Path], list[Path]]:
+    """The run's output paths (trajectory, video, checkpoint, render mesh) and the camera videos, each one
+    file directly in ``out`` (links followed); ``out`` is created and checked writable."""
     from ..io._paths import OutputPathError, check_file_stem, check_writable_dir, confined
 
     try:
         check_file_stem(name, "scene name")
         main = [confined(out, f"{name}{suffix}") for suffix in (".npz", ".mp4", ".ckpt.npz", ".render.npz")]
+        videos = [confined(out, f"camera_{c}.mp4") for c in range(cameras)]
         check_writable_dir(out)  # a forbidden out fails now, not after the simulation
     except OutputPathError as exc:
         raise RunError(str(exc)) from None
-    return main
+    return main, videos
+
+
+def _camera_file(cfg: SceneConfig, cameras: str | os.PathLike | None) -> CameraFile | None:
+    """The validated camera file (None without one); the scene must have splats to draw."""
+    if cameras is None:
+        return None
+    from ..gaussians._scene import gaussians_section
+    from ..io import CameraFileError, load_camera_file
+
+    if gaussians_section(cfg) is None:
+        raise RunError(
+            f"--cameras: {cfg.source} has no [gaussians] section, so there are no splats to render; add one, "
+            'e.g.\n    [gaussians]\n    generate = "mesh"'
+        )
+    try:
+        return load_camera_file(cameras)
+    except (CameraFileError, FileNotFoundError) as exc:
+        raise RunError(f"--cameras: {exc}") from None
 
 
 def run_scene(
@@ -96,14 +119,15 @@ def run_scene(
     resume: bool = False,
     video: bool = True,
     renderer: str = "auto",
+    cameras: str | os.PathLike | None = None,
     progress: bool = False,
     log: Callable[[str], None] | None = None,
 ) -> RunReport:
     """Build ``cfg``, run its frames, and write ``<out>/<name>.npz`` (+ ``.mp4``, ``.ckpt.npz``,
-    ``.render.npz``), as ``pliant run`` does.
+    ``.render.npz``, ``camera_<c>.mp4``), as ``pliant run`` does.
 
     Every output path is checked first (one file name inside ``out``, links followed), then the video's
-    frame rate, then the scene is built, its splats (and correction twin) made and its
+    frame rate and the camera file, then the scene is built, its splats (and correction twin) made and its
     initial state checked: a mistake in any of them is a :class:`RunError` before anything is simulated or
     written. The kernels of a built-in scene's first frames compile on background threads meanwhile
     (:meth:`pliant.scene.Scene.prebuild_kernels`). A divergence or Ctrl-C during the run ends it with the
@@ -118,6 +142,9 @@ def run_scene(
         resume: continue from ``<out>/<name>.ckpt.npz`` (it must exist).
         video: render ``<name>.mp4`` (when ``[output] video`` is on too).
         renderer: "auto" (splats when the scene has ``[gaussians]``), "mesh" or "splats".
+        cameras: a camera file (:mod:`pliant.io._camera_file`): the run's splats are rendered from each of
+            its cameras into ``camera_<c>.mp4`` and, when it holds images, scored against them
+            (:attr:`RunReport.cameras`); the scene needs a ``[gaussians]`` section.
         progress: progress bars (and the correction twin's timing line).
         log: called with each summary line as the run goes (the header, the timings); None: silent.
 
@@ -129,7 +156,7 @@ def run_scene(
         SceneError: the scene cannot be built (naming the field).
         DivergenceError: the correction twin diverged (nothing written).
     """
-    from ..gaussians import SplatSceneError, splat_session
+    from ..gaussians import SplatSceneError, SplatSession, splat_session
     from ..scene import build_scene
     from ..sim import DivergenceError
     from ..solvers import SingularSystemError
@@ -137,7 +164,8 @@ def run_scene(
     say: Log = log if log is not None else (lambda line: None)
     out = Path(out)
     name = cfg.scene.name if name is None else name
-    traj_path, video_path, ckpt, render_path = _outputs(out, name)
+    cams = _camera_file(cfg, cameras) if cameras is not None else None
+    (traj_path, video_path, ckpt, render_path), camera_videos = _outputs(out, name, cams.count if cams else 0)
     want_video = video and cfg.output.video
     if want_video:
         from ..render import check_fps
@@ -154,19 +182,21 @@ def run_scene(
         scene = build_scene(cfg, device=device, dtype=dtype)
     scene.prebuild_kernels()  # the first frames' kernels compile on both cores while the splats are made
     m = scene.model
-    if want_video:
+    if want_video or cams is not None:
         from ..render import check_fps
 
         try:
             check_fps(scene.fps)
         except ValueError as exc:
-            raise RunError(
-                f"video frame rate (output.fps, default 1/frame_dt): {exc}; or use --no-video"
-            ) from None
+            fix = "or use --no-video" if want_video else "needed by the --cameras videos"
+            raise RunError(f"video frame rate (output.fps, default 1/frame_dt): {exc}; {fix}") from None
     if resume and not ckpt.exists():
         raise RunError(f"--resume: no checkpoint at {ckpt}; run once without --resume first")
     try:  # [gaussians]: splats, twin, corrector
         splats = splat_session(cfg, scene, renderer, log=log if progress else None)
+        if cams is not None and splats is None:  # renderer "mesh": the cameras still draw splats
+            splats = SplatSession(cfg, scene, log=log if progress else None)
+            splats.draw = False
     except SplatSceneError as exc:
         raise RunError(str(exc)) from None
     sim = scene.simulator()
@@ -229,6 +259,8 @@ def run_scene(
         say(splats.drift_summary(traj.x, report.metrics["drift"]))
     if want_video and traj.frame_count > 0:
         _video(report, scene, splats, traj, video_path, progress, say)
+    if cams is not None and traj.frame_count > 0 and splats is not None:
+        _cameras(report, cams, splats, traj, camera_videos, scene.fps, progress, say)
     return report
 
 
@@ -270,3 +302,33 @@ def _video(
     except (OSError, ValueError) as exc:  # VideoError (ffmpeg), a camera the frames cannot be fitted to
         report.status = "failed" if report.status == "ok" else report.status
         report.message = report.message or f"could not render the video: {exc}; the trajectory is saved"
+
+
+def _cameras(
+    report: RunReport,
+    cams: CameraFile,
+    splats: SplatSession,
+    traj: Trajectory,
+    videos: list[Path],
+    fps: float,
+    progress: bool,
+    say: Log,
+) -> None:
+    """Render the camera file's cameras and score them into the report; a failure sets its status."""
+    n, notes = compared_frames(cams, np.asarray(traj.t))
+    report.warnings += notes
+    for note in notes:
+        say(f"note: {note}")
+    try:
+        report.cameras = render_cameras(splats, traj.x, cams, videos, fps, compare=n, progress=progress)
+    except KeyboardInterrupt:
+        report.status = "interrupted"
+        report.message = report.message or "interrupted while rendering the cameras; the trajectory is saved"
+        return
+    except (OSError, ValueError) as exc:
+        report.status = "failed" if report.status == "ok" else report.status
+        report.message = report.message or f"could not render the cameras: {exc}; the trajectory is saved"
+        return
+    for s in report.cameras:
+        report.written.append(s.video)
+        say(s.summary())
