@@ -22,6 +22,8 @@ _LAZY = {
     "Trajectory": "io",
     "DivergenceError": "sim",
     "Simulator": "sim",
+    "RunReport": "runner",
+    "run_scene": "runner",
 }
 _SUBMODULES = (
     "energies",
@@ -43,6 +45,7 @@ _SUBMODULES = (
     "gaussians",
     "sweep",
     "twin",
+    "runner",
     "live",
 )
 
@@ -74,6 +77,7 @@ __all__ = [
     "DivergenceError",
     "Model",
     "ModelBuilder",
+    "RunReport",
     "Simulator",
     "State",
     "Trajectory",
@@ -92,6 +96,8 @@ __all__ = [
     "live",
     "model",
     "render",
+    "run_scene",
+    "runner",
     "scene",
     "sim",
     "solvers",

@@ -233,7 +233,7 @@ def record(prefix: str = "pliant.") -> dict:
 
 @functools.cache
 def _manifests() -> dict:
-    """Every stored manifest, read once per process (build_scene asks for one at each build)."""
+    """Every stored manifest, read once per process (each run asks for one)."""
     try:
         return json.loads(MANIFEST.read_text())
     except (OSError, ValueError):
@@ -250,8 +250,9 @@ def enabled() -> bool:
 
 
 def maybe_prebuild(name: str, model: ParticleModel) -> int:
-    """Start compiling built-in scene ``name``'s kernels (``build_scene`` calls this) when ``model`` is
-    float32 on the CPU without gradients (what the manifest was recorded for) and :func:`enabled`.
+    """Start compiling built-in scene ``name``'s kernels (``Scene.prebuild_kernels`` calls this) when
+    ``model`` is float32 on the CPU without gradients (what the manifest was recorded for) and
+    :func:`enabled`.
 
     Args:
         name: the scene's name (``[scene] name``); scenes without a stored manifest queue nothing.

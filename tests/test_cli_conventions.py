@@ -124,8 +124,7 @@ def test_mesh_scene_suggestion_is_stable_on_a_small_torus(tmp_path, capsys):
     particle's ω at ω·Δt = 1 < 2 (symplectic Euler's limit)."""
     import trimesh
 
-    from pliant.cli._run import mesh_scene_values
-    from pliant.scene import build_scene, load_scene
+    from pliant.scene import build_scene, load_scene, mesh_scene_values
 
     trimesh.creation.torus(major_radius=0.07, minor_radius=0.03, major_sections=24, minor_sections=12).export(
         tmp_path / "torus.obj"

@@ -127,11 +127,11 @@ def test_run_draws_splats_and_refuses_splats_without_section(tmp_path, capsys):
 
 
 def test_demo_scene_corrects_toward_its_twin():
-    from pliant.cli._splats import SplatRun
+    from pliant.gaussians import SplatSession
 
     cfg = load_scene("splat_cloth", ["scene.frames=12", "gaussians.correction.iterations=4"])
     scene = build_scene(cfg, device="cpu")
-    run = SplatRun(cfg, scene, quiet=True)
+    run = SplatSession(cfg, scene)
     traj = scene.simulator().run(12, progress=False, on_frame=run.on_frame)
     plain = scene.simulator().run(12, progress=False)
     corrected = np.linalg.norm(traj.x - run.twin_x, axis=2).mean()

@@ -4,8 +4,8 @@ Walks every module's imports with ``ast``, function-level ones included, and fai
 layer. Layers, bottom to top:
 
     _warp → geometry → model → integrators / energies / constraints / collision → solvers → io → sim
-    → render → scene → diff / fit / gaussians / sweep → studies / bench / cli / live → pliant/__init__.py
-    → examples (user code on the public surface)
+    → render → scene → diff / fit / gaussians / sweep → runner → studies / bench / cli / live
+    → pliant/__init__.py → examples (user code on the public surface)
 
 Modules of one layer may import each other. Inside ``pliant/solvers`` the sub-packages are layered too
 (:data:`SOLVER_LAYERS`), and none imports another's private ``_name`` modules (only what its ``__init__``
@@ -33,7 +33,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("render",),
     ("scene",),
     ("diff", "fit", "gaussians", "sweep"),
-    ("twin",),  # pictures → a fitted twin: carving, splats, detection, then pl.fit (docs/twin.md)
+    ("runner", "twin"),  # run_scene (`pliant run` as a function) and pictures → a fitted twin (pl.twin)
     ("studies", "bench", "cli", "live"),  # live: the live viewer (uses fit's parameter arrays, splats)
     ("",),  # pliant/__init__.py: the public surface, on top of the library
     ("examples",),  # user code shipped with the package: it uses the public surface (`import pliant as pl`)

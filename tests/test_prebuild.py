@@ -66,6 +66,7 @@ from pliant.scene._kernels import FRAMES
 out = {}
 for name in ("cloth", "soft_box_fem", "xpbd_soft_body"):
     scene = build_scene(load_scene(name), device="cpu", dtype="float32")
+    scene.prebuild_kernels()  # what run_scene does before its first step
     _prebuild.wait()
     mods = _prebuild._user_modules()
     listed = _prebuild.manifest_for(name)["modules"]
@@ -106,7 +107,9 @@ wb.build_cpu = counting
 from pliant._prebuild import warm_up
 warm_up("cpu")
 from pliant.scene import build_scene, load_scene
-build_scene(load_scene("soft_box_fem"), device="cpu").simulator().run(1, progress=False)
+scene = build_scene(load_scene("soft_box_fem"), device="cpu")
+scene.prebuild_kernels()
+scene.simulator().run(1, progress=False)
 print(json.dumps(built))
 """
 

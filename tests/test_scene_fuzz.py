@@ -1,9 +1,10 @@
 """Property-based fuzz of scene files (issue 11): mutations of the built-in scenes — wrong types, missing and
 unknown fields, 0 / negative / NaN / inf / huge numbers, unknown kinds, odd names, broken TOML, garbage or
-empty mesh and ``.npy`` files — through the in-process path ``pliant run`` uses (load → build → simulate one
-frame → save into ``--out``). Every case must end as a success, a ``SceneError`` naming the file, a
-``CliError`` or a clean divergence; never another exception, a file outside the output folder, or non-finite
-output. The default run takes about 15-45 s (1000 cases); ``-m slow`` runs many more cases.
+empty mesh and ``.npy`` files — through the library function behind ``pliant run`` (``pl.run_scene``: load →
+build → simulate one frame → save into ``out``). Every case must end as a success, a ``SceneError`` naming
+the file, a ``RunError`` (a user error found before the run) or a clean divergence; never another
+exception, a file outside the output folder, or non-finite output. The default run takes about 15-45 s
+(1000 cases); ``-m slow`` runs many more cases.
 """
 
 from __future__ import annotations
@@ -29,8 +30,7 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 import pliant as pl
-from pliant.cli import CliError
-from pliant.cli._run import simulate
+from pliant.runner import RunError, run_scene
 from pliant.scene import SceneError, load_scene
 
 # Small built-in scenes (a frame costs milliseconds); the big ones only differ in sizes, which are mutated.
@@ -340,15 +340,15 @@ def run_case(text: str, files: dict[str, bytes]) -> str:
                 cfg = load_scene(scene_dir / "s.toml")
                 cfg.scene.frames = 1
                 cfg.scene.substeps = min(cfg.scene.substeps, MAX_SUBSTEPS)
-                status = simulate(cfg, out, cfg.scene.name, device="cpu", video=False, quiet=True)
+                report = run_scene(cfg, out, device="cpu", video=False)
             except SceneError as exc:
                 assert str(exc).startswith(str(scene_dir / "s.toml")), f"SceneError without the file: {exc}"
                 return "rejected"
-            except CliError:
-                return "cli_error"
-        assert status in (0, 2), status
-        _check_outputs(root, scene_dir, out, status)
-        return "ok" if status == 0 else "diverged"
+            except RunError:
+                return "run_error"
+        assert report.status in ("ok", "diverged"), (report.status, report.message)
+        _check_outputs(root, scene_dir, out, report.status)
+        return report.status
 
 
 @contextlib.contextmanager
@@ -370,7 +370,7 @@ def _sandbox(root: Path, cwd: Path):
         shutil.rmtree(root, ignore_errors=True)
 
 
-def _check_outputs(root: Path, inputs: Path, out: Path, status: int) -> None:
+def _check_outputs(root: Path, inputs: Path, out: Path, status: str) -> None:
     """Nothing written outside ``out`` (but the case's ``inputs``), and every trajectory in it finite."""
     written = [p for p in root.rglob("*") if p.is_file() and not p.is_relative_to(inputs)]
     outside = [p for p in written if not p.is_relative_to(out)]
@@ -379,10 +379,10 @@ def _check_outputs(root: Path, inputs: Path, out: Path, status: int) -> None:
         if f.name == "fitted_params.npz":  # a fit's per-element values (named arrays), not a trajectory
             with np.load(f) as z:
                 for k in z.files:
-                    assert np.all(np.isfinite(z[k])), f"non-finite {k} in {f.name} (exit {status})"
+                    assert np.all(np.isfinite(z[k])), f"non-finite {k} in {f.name} ({status})"
         elif not f.name.endswith(".ckpt.npz") and not f.name.startswith("obs"):
             x = pl.Trajectory.load(f).x
-            assert np.all(np.isfinite(x)), f"non-finite output in {f.name} (exit {status})"
+            assert np.all(np.isfinite(x)), f"non-finite output in {f.name} ({status})"
 
 
 def _check(case) -> None:

@@ -173,9 +173,12 @@ def test_builtin_scenes_use_the_new_keys():
 
 
 def test_io_keeps_only_trajectory_files():
-    """pliant.io holds trajectories, checkpoints and observation files (fitting) only; scene files are
-    pliant.scene."""
+    """pliant.io holds trajectories, checkpoints, observation files (fitting) and camera files (`pliant run
+    --cameras`) only; scene files are pliant.scene."""
     assert set(pl.io.__all__) == {
+        "CameraFile",
+        "CameraFileError",
+        "load_camera_file",
         "CheckpointError",
         "CheckpointSpec",
         "Trajectory",

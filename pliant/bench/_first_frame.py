@@ -25,6 +25,7 @@ if os.environ.get("PLIANT_PREBUILD") != "0":
     warm_up("cpu")
 from pliant.scene import build_scene, load_scene
 scene = build_scene(load_scene({name!r}), device="cpu")
+scene.prebuild_kernels()
 scene.simulator().run(1, progress=False)
 print("FIRST_FRAME_AT", time.time())
 """

@@ -131,6 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
         "pliant run rope --set 'objects[0].material.stiffness=200' --set scene.frames=10",
         "pliant run rope --integrator RK4 --no-video",
         "pliant run my_scene.toml --resume            # continue after Ctrl-C",
+        "pliant run twin.toml --cameras held_out.npz  # splats from new cameras, PSNR / IoU vs their images",
     )
     r.add_argument("scene", help="a scene .toml file or a built-in scene name")
     r.add_argument("--frames", type=_positive_int, help="override [scene] frames")
@@ -158,6 +159,13 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("auto", "mesh", "splats"),
         default="auto",
         help="draw the video as meshes or as the [gaussians] splats (auto: splats when the scene has them)",
+    )
+    r.add_argument(
+        "--cameras",
+        metavar="CAMS.npz",
+        help="also render the [gaussians] splats from these cameras (K [C,3,3], world_to_camera [C,4,4], "
+        "image_size [2] or images [C,T,H,W,3] (+ masks, t)) into <out>/camera_<c>.mp4; with images, print "
+        "PSNR and mask IoU per camera",
     )
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     add_force(r)

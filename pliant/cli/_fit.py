@@ -155,6 +155,7 @@ def cmd_observe(args: argparse.Namespace) -> int:
 
     cfg = _load(args.scene, args.overrides, force=args.force)
     scene = build_scene(cfg, device=args.device)
+    scene.prebuild_kernels()  # a built-in scene's first kernels compile on both cores meanwhile
     frames = None if args.frames is None else args.frames + 1
     obs: Observations | None = None
     if args.cameras is None or args.tracks is not None:

@@ -27,6 +27,7 @@ def start_live(args: argparse.Namespace) -> tuple[Any, str]:
         raise CliError(f"--out {out}: not a folder; give the folder the record button writes into")
     with np.errstate(over="ignore", invalid="ignore"):
         scene = build_scene(cfg, device=getattr(args, "device", None), dtype=getattr(args, "dtype", None))
+    scene.prebuild_kernels()  # the first frames' kernels compile while the session starts
     try:
         session = LiveSession(scene)
     except DivergenceError as exc:

@@ -20,10 +20,11 @@ from ._correct import VisualCorrector
 from ._fit import DEFAULT_LRS, fit_appearance
 from ._gaussians import SH_C0, Gaussians
 from ._init import INIT_LRS, SplatInit, separate_particles, splats_from_particles
-from ._optim import Adam, photometric_loss, psnr
+from ._optim import Adam, iou, photometric_loss, psnr
 from ._ply import PlyError, load_ply, save_ply
 from ._render import RenderOutput, render
-from ._scene import SceneSplats
+from ._scene import SceneSplats, SplatSceneError
+from ._session import RENDERERS, SplatSession, splat_session
 
 __all__ = [
     "DEFAULT_LRS",
@@ -34,14 +35,18 @@ __all__ = [
     "Binding",
     "Camera",
     "Gaussians",
+    "RENDERERS",
     "PlyError",
     "RenderOutput",
     "SceneSplats",
     "SplatInit",
+    "SplatSceneError",
+    "SplatSession",
     "VisualCorrector",
     "bind",
     "fit_appearance",
     "fit_splat_appearance",
+    "iou",
     "load_ply",
     "photometric_loss",
     "psnr",
@@ -49,4 +54,5 @@ __all__ = [
     "save_ply",
     "separate_particles",
     "splats_from_particles",
+    "splat_session",
 ]

@@ -99,6 +99,28 @@ def psnr(rendered: wp.array | npt.ArrayLike, target: wp.array | npt.ArrayLike) -
     return float("inf") if mse == 0.0 else -10.0 * np.log10(mse)
 
 
+def iou(
+    rendered: wp.array | npt.ArrayLike, target: wp.array | npt.ArrayLike, threshold: float = 0.5
+) -> float:
+    """Intersection over union of two silhouettes: the pixels where ``rendered`` > ``threshold`` against
+    those where ``target`` > ``threshold`` (e.g. a rendered alpha in [0, 1] against an object mask; bool
+    masks count as 0 / 1). Arrays of the same shape, any number of dimensions (a stack of frames pools
+    their pixels). 1.0 when both silhouettes are empty (they agree everywhere).
+
+    Args:
+        rendered: alpha or mask values (NumPy or a Warp array).
+        target: mask values, the same shape.
+        threshold: the value a pixel must exceed to count as the object's.
+    """
+    a = np.asarray(rendered.numpy() if hasattr(rendered, "numpy") else rendered, dtype=np.float64)
+    b = np.asarray(target.numpy() if hasattr(target, "numpy") else target, dtype=np.float64)
+    if a.shape != b.shape:
+        raise ValueError(f"iou: rendered {a.shape} and target {b.shape} must have the same shape")
+    pa, pb = a > threshold, b > threshold
+    union = int(np.count_nonzero(pa | pb))
+    return 1.0 if union == 0 else int(np.count_nonzero(pa & pb)) / union
+
+
 @wp.kernel
 def _adam_kernel(
     g: wp.array(dtype=Any),

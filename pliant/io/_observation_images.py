@@ -48,6 +48,75 @@ def _unit_range(a: np.ndarray, array: str, fail: Callable[[str, str], Exception]
     return a
 
 
+def check_cameras(
+    K: np.ndarray,
+    world_to_camera: np.ndarray,
+    C: int,
+    W: int,
+    H: int,
+    fail: Callable[[str, str], Exception],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Validate C OpenCV cameras for W x H images: shapes, positive focal lengths, no skew, principal points
+    inside the images, rigid poses.
+
+    Args:
+        K: [C, 3, 3] intrinsics [px].
+        world_to_camera: [C, 4, 4] rigid world → camera transforms (OpenCV axes, metres).
+        C: the number of cameras (of the images, or of K).
+        W: image width [px].
+        H: image height [px].
+        fail: ``fail(array, message)`` builds the exception (it names the file).
+
+    Returns:
+        (K, world_to_camera) as float64.
+    """
+    K = np.asarray(K, dtype=np.float64)
+    if K.shape != (C, 3, 3):
+        raise fail("K", f"expected [C={C}, 3, 3] intrinsic matrices (one per camera), got shape {K.shape}")
+    T_wc = np.asarray(world_to_camera, dtype=np.float64)
+    if T_wc.shape != (C, 4, 4):
+        raise fail(
+            "world_to_camera", f"expected [C={C}, 4, 4] rigid transforms (one per camera), got {T_wc.shape}"
+        )
+    for c in range(C):
+        k = K[c]
+        if not np.all(np.isfinite(k)):
+            raise fail("K", f"camera {c}: non-finite entries")
+        if k[0, 0] <= 0.0 or k[1, 1] <= 0.0:
+            raise fail(
+                "K",
+                f"camera {c}: focal lengths must be positive pixels, got fx={k[0, 0]:.6g}, fy={k[1, 1]:.6g}; "
+                "K is [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]",
+            )
+        if k[0, 1] != 0.0 or k[1, 0] != 0.0 or not np.allclose(k[2], [0.0, 0.0, 1.0]):
+            raise fail(
+                "K", f"camera {c}: expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew), got {k.tolist()}"
+            )
+        if not (0.0 <= k[0, 2] <= W and 0.0 <= k[1, 2] <= H):
+            raise fail(
+                "K",
+                f"camera {c}: principal point ({k[0, 2]:.6g}, {k[1, 2]:.6g}) px lies outside the {W}x{H} "
+                "images; K must be for this image size (scale fx, fy, cx, cy by the resize factor)",
+            )
+        t = T_wc[c]
+        if not np.all(np.isfinite(t)):
+            raise fail("world_to_camera", f"camera {c}: non-finite entries")
+        if not np.allclose(t[3], [0.0, 0.0, 0.0, 1.0]):
+            raise fail(
+                "world_to_camera", f"camera {c}: the last row must be [0, 0, 0, 1], got {t[3].tolist()}"
+            )
+        R = t[:3, :3]
+        ortho = float(np.abs(R @ R.T - np.eye(3)).max())
+        det = float(np.linalg.det(R))
+        if ortho > RIGID_TOL or det < 0.0:
+            raise fail(
+                "world_to_camera",
+                f"camera {c}: not a rigid transform (|R Rᵀ − I| = {ortho:.3g}, det R = {det:.6g}); its 3x3 "
+                "block must be a rotation (no scale, shear or reflection), in metres",
+            )
+    return K, T_wc
+
+
 def check_image_arrays(
     T: int,
     images: np.ndarray | None,
@@ -97,50 +166,7 @@ def check_image_arrays(
     if images.dtype == np.bool_:
         raise fail("images", "expected uint8 or float RGB, got bool (a mask belongs in masks)")
     _unit_range(images, "images", fail, "RGB")
-    K = np.asarray(K, dtype=np.float64)
-    if K.shape != (C, 3, 3):
-        raise fail("K", f"expected [C={C}, 3, 3] intrinsic matrices (one per camera), got shape {K.shape}")
-    T_wc = np.asarray(world_to_camera, dtype=np.float64)
-    if T_wc.shape != (C, 4, 4):
-        raise fail(
-            "world_to_camera", f"expected [C={C}, 4, 4] rigid transforms (one per camera), got {T_wc.shape}"
-        )
-    for c in range(C):
-        k = K[c]
-        if not np.all(np.isfinite(k)):
-            raise fail("K", f"camera {c}: non-finite entries")
-        if k[0, 0] <= 0.0 or k[1, 1] <= 0.0:
-            raise fail(
-                "K",
-                f"camera {c}: focal lengths must be positive pixels, got fx={k[0, 0]:.6g}, fy={k[1, 1]:.6g}; "
-                "K is [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]",
-            )
-        if k[0, 1] != 0.0 or k[1, 0] != 0.0 or not np.allclose(k[2], [0.0, 0.0, 1.0]):
-            raise fail(
-                "K", f"camera {c}: expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew), got {k.tolist()}"
-            )
-        if not (0.0 <= k[0, 2] <= W and 0.0 <= k[1, 2] <= H):
-            raise fail(
-                "K",
-                f"camera {c}: principal point ({k[0, 2]:.6g}, {k[1, 2]:.6g}) px lies outside the {W}x{H} "
-                "images; K must be for this image size (scale fx, fy, cx, cy by the resize factor)",
-            )
-        t = T_wc[c]
-        if not np.all(np.isfinite(t)):
-            raise fail("world_to_camera", f"camera {c}: non-finite entries")
-        if not np.allclose(t[3], [0.0, 0.0, 0.0, 1.0]):
-            raise fail(
-                "world_to_camera", f"camera {c}: the last row must be [0, 0, 0, 1], got {t[3].tolist()}"
-            )
-        R = t[:3, :3]
-        ortho = float(np.abs(R @ R.T - np.eye(3)).max())
-        det = float(np.linalg.det(R))
-        if ortho > RIGID_TOL or det < 0.0:
-            raise fail(
-                "world_to_camera",
-                f"camera {c}: not a rigid transform (|R Rᵀ − I| = {ortho:.3g}, det R = {det:.6g}); its 3x3 "
-                "block must be a rotation (no scale, shear or reflection), in metres",
-            )
+    K, T_wc = check_cameras(np.asarray(K), np.asarray(world_to_camera), C, W, H, fail)
     if masks is not None:
         masks = np.asarray(masks)
         if masks.shape != (C, T, H, W):
@@ -218,6 +244,7 @@ def to_unit_float(a: np.ndarray) -> np.ndarray:
 
 
 __all__ = [
+    "check_cameras",
     "IMAGE_ARRAYS",
     "MASK_THRESHOLD",
     "check_image_arrays",

@@ -490,12 +490,4 @@ def scene_trajectory_meta(scene: Scene) -> dict[str, Any]:
     Args:
         scene: a built scene (:func:`pliant.scene.build_scene`).
     """
-    m = scene.model
-    return {
-        "scene": scene.config.scene.name,
-        "ground": m.ground.height if m.ground is not None else None,
-        "colliders": [
-            {"points": np.asarray(p, float).round(6).tolist(), "faces": np.asarray(f).tolist()}
-            for p, f in scene.static_meshes
-        ],
-    }
+    return scene.trajectory_meta()

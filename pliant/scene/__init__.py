@@ -14,6 +14,7 @@ from . import _contacts, _gaussians, _objects  # noqa: F401 - register the built
 from ._build import Embedding, Scene, build_scene
 from ._context import BuildContext
 from ._errors import SceneError
+from ._from_mesh import MeshScene, from_mesh, mesh_scene_toml, mesh_scene_values
 from ._load import builtin_scenes, load_scene, parse_scene
 from ._registry import (
     register_collider_kind,
@@ -37,6 +38,7 @@ __all__ = [
     "ColliderBase",
     "Embedding",
     "Material",
+    "MeshScene",
     "ObjectBase",
     "Scene",
     "SceneConfig",
@@ -46,9 +48,12 @@ __all__ = [
     "build_scene",
     "build_worlds",
     "builtin_scenes",
+    "from_mesh",
     "integrator_names",
     "load_scene",
     "make_integrator",
+    "mesh_scene_toml",
+    "mesh_scene_values",
     "parse_scene",
     "register_collider_kind",
     "register_constraint",

@@ -119,6 +119,29 @@ class Scene:
             self.control_fn(0.0, None)  # handles back to their start
         return Simulator(self.model, self.solver, **{**self.sim_kwargs, **overrides})
 
+    def prebuild_kernels(self) -> int:
+        """Start compiling the kernels a built-in scene's first frames launch, on background threads
+        (:func:`pliant._prebuild.maybe_prebuild`: CPU, float32, no gradients, a stored manifest). The runner
+        calls this before its first step, so the compilation overlaps what it does meanwhile (splats, the
+        correction twin); building a scene alone compiles nothing.
+
+        Returns the number of modules queued (0 when there is nothing to prebuild)."""
+        return maybe_prebuild(self.config.scene.name, self.model)
+
+    def trajectory_meta(self) -> dict[str, Any]:
+        """What a saved trajectory carries beside the simulator's meta so that ``pliant view`` and
+        ``pliant export`` draw the whole scene: its name, the ground height (None without one) and the drawn
+        colliders (points and faces, rounded to µm)."""
+        m = self.model
+        return {
+            "scene": self.config.scene.name,
+            "ground": m.ground.height if m.ground is not None else None,
+            "colliders": [
+                {"points": np.asarray(p, float).round(6).tolist(), "faces": np.asarray(f).tolist()}
+                for p, f in self.static_meshes
+            ],
+        }
+
     def render_mesh(
         self, x: np.ndarray, faces: np.ndarray | None
     ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
@@ -430,7 +453,6 @@ def build_scene(
     solver = SOLVER_KINDS[cfg.solver_kind()].factory(ctx)
     if cfg.scene.parameters is not None:
         _apply_parameters(ctx, solver, cfg.scene.parameters)
-    maybe_prebuild(cfg.scene.name, ctx.finalized)  # kernels compile on both cores meanwhile
     return Scene(
         config=cfg,
         model=ctx.finalized,

@@ -1,6 +1,7 @@
 """Kernel manifests of the built-in scenes: which Warp modules and overloads their first frames launch.
 
-``build_scene`` hands a built-in scene's manifest to :func:`pliant._prebuild.prebuild` (through
+``Scene.prebuild_kernels`` (called by :func:`pliant.runner.run_scene` and the live viewer, not by
+``build_scene``) hands a built-in scene's manifest to :func:`pliant._prebuild.prebuild` (through
 :func:`pliant._prebuild.maybe_prebuild`), which compiles them
 on two threads before the first step (docs/design.md, "First frame on a fresh kernel cache"). Regenerate the
 file after changing kernels or scenes::

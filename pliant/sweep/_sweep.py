@@ -196,6 +196,7 @@ def _as_copies(
 def _simulate(built: Scene, frames: int) -> np.ndarray:
     from ..sim import Simulator
 
+    built.prebuild_kernels()  # a built-in scene's kernels compile on both cores (once per process)
     sim = Simulator(built.model, built.solver, **built.sim_kwargs)
     return sim.run(frames, progress=False).x
 

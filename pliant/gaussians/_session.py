@@ -1,41 +1,61 @@
-"""``pliant run`` with a ``[gaussians]`` section: the video drawn as Gaussian splats, and visual correction
-toward a "real" twin (``[gaussians.correction]``: the same scene with other parameters, rendered by a ring
-of cameras, the images fed to :class:`pliant.gaussians.VisualCorrector` after every frame)."""
+"""A splat session: the ``[gaussians]`` splats of a built scene for one run, drawn as its video and, with
+``[gaussians.correction]``, a "real" twin (the same scene with other parameters, rendered by a ring of
+cameras) whose images a :class:`~pliant.gaussians.VisualCorrector` pulls the run toward after every frame
+(:meth:`SplatSession.on_frame`, the simulator's ``on_frame`` hook). :func:`pliant.runner.run_scene` makes one
+for ``pliant run``."""
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ._common import CliError
+from ._camera import Camera
+from ._correct import VisualCorrector
+from ._render import RenderOutput
+from ._scene import SplatSceneError, gaussians_section, scene_splats
+from ._surface import ring_cameras
 
 if TYPE_CHECKING:
-    from ..gaussians import VisualCorrector
     from ..scene import Scene, SceneConfig
     from ..scene._gaussians import GaussianCorrectionSection
     from ..sim import Simulator
 
+#: How a run's video is drawn: "auto" (splats when the scene has a [gaussians] section), "mesh", "splats".
 RENDERERS = ("auto", "mesh", "splats")
 
 
-class SplatRun:
+class SplatSession:
     """The splats of a built scene and, with ``[gaussians.correction]``, the twin and the corrector.
 
     Everything that can fail on the user's input (PLY, binding, the twin's overrides) fails here, before
     anything is simulated.
+
+    Args:
+        cfg: the scene's validated config (its ``[gaussians]`` section).
+        scene: the built scene (``build_scene(cfg)``).
+        correct: simulate the twin and correct toward it when the scene has ``[gaussians.correction]``.
+        log: called with each progress line (the twin's timing); None: silent.
+
+    Raises:
+        SplatSceneError: the section cannot be built, or the twin is invalid or has another particle count;
+            the message names the scene file and the field.
+        DivergenceError: the twin diverged (nothing written).
     """
 
-    def __init__(self, cfg: SceneConfig, scene: Scene, *, correct: bool = True, quiet: bool = False) -> None:
-        from ..gaussians._scene import SplatSceneError, gaussians_section, scene_splats
-
-        self.cfg, self.scene, self.quiet = cfg, scene, quiet
-        try:
-            self.splats = scene_splats(cfg, scene)
-        except SplatSceneError as exc:
-            raise CliError(str(exc)) from None
+    def __init__(
+        self,
+        cfg: SceneConfig,
+        scene: Scene,
+        *,
+        correct: bool = True,
+        log: Callable[[str], None] | None = None,
+    ) -> None:
+        self.cfg, self.scene, self.log = cfg, scene, log
+        self.splats = scene_splats(cfg, scene)
         self.draw = True  # render the video as splats (False: the mesh renderer draws it)
         section = gaussians_section(cfg)
         self.spec = section.correction if correct and section is not None else None
@@ -47,8 +67,6 @@ class SplatRun:
 
     def _twin(self, spec: GaussianCorrectionSection) -> None:
         """Simulate the twin (the scene file with ``correction.set``), render it, make the corrector."""
-        from ..gaussians import VisualCorrector
-        from ..gaussians._surface import ring_cameras
         from ..scene import SceneError, build_scene, parse_scene
         from ..sim import DivergenceError
 
@@ -57,13 +75,13 @@ class SplatRun:
             # Sized as this run's scene was (parameters only: the particle count is compared below).
             twin_cfg = parse_scene(cfg.text, cfg.source, cfg.base_dir, overrides=spec.set, force=True)
         except SceneError as exc:
-            raise CliError(f"gaussians.correction.set: the twin scene is invalid:\n{exc}") from None
+            raise SplatSceneError(f"gaussians.correction.set: the twin scene is invalid:\n{exc}") from None
         for key in ("frames", "frame_dt", "substeps"):  # the twin runs in step with this run
             setattr(twin_cfg.scene, key, getattr(cfg.scene, key))
         m = self.scene.model
         twin = build_scene(twin_cfg, device=m.device, dtype=m.dtype)
         if twin.model.particle_count != m.particle_count:
-            raise CliError(
+            raise SplatSceneError(
                 f"{cfg.source}: gaussians.correction.set: the twin has {twin.model.particle_count} "
                 f"particles, this scene {m.particle_count}; change parameters only, not the geometry"
             )
@@ -83,11 +101,10 @@ class SplatRun:
             self.twin_x[:, lo:hi], spec.cameras, width=spec.width, height=spec.height, elevation=30.0
         )
         self.images = [[self.splats.image(x, c) for c in self.cameras] for x in self.twin_x]
-        if not self.quiet:
-            print(
+        if self.log is not None:
+            self.log(
                 f"real twin ({', '.join(spec.set)}): simulated and rendered by {spec.cameras} cameras "
-                f"at {spec.width}x{spec.height} in {time.perf_counter() - t0:.2f} s",
-                flush=True,
+                f"at {spec.width}x{spec.height} in {time.perf_counter() - t0:.2f} s"
             )
         self.corrector = VisualCorrector(
             self.splats.binding,
@@ -102,26 +119,44 @@ class SplatRun:
         )
 
     def on_frame(self, sim: Simulator) -> None:
-        """After frame ``sim.frame``: correct the simulation toward the twin's images of that time."""
+        """The simulator's ``on_frame`` hook: after frame ``sim.frame``, correct the simulation toward the
+        twin's images of that time (nothing without a correction)."""
         if self.corrector is not None and sim.frame < len(self.images):
             self.corrector.correct(sim, self.images[sim.frame])
 
-    def drift_summary(self, x: np.ndarray) -> str:
-        """Mean particle distance [m] to the twin of the run ``x`` [T, N, 3], and of an uncorrected run."""
+    def drift(self, x: np.ndarray) -> dict[str, float]:
+        """Mean particle distance [m] of the run ``x`` [T, N, 3] to the twin (``corrected``) and, with
+        ``report_uncorrected``, of a run of the scene without correction (``uncorrected``); {} without a
+        twin."""
         if self.twin_x is None:
-            return ""
+            return {}
         n = min(len(x), len(self.twin_x))
-        corrected = float(np.linalg.norm(x[:n] - self.twin_x[:n], axis=2).mean())
-        line = f"visual correction: mean drift from the real twin {corrected:.4g} m"
+        out = {"corrected": float(np.linalg.norm(x[:n] - self.twin_x[:n], axis=2).mean())}
         if self.spec is not None and self.spec.report_uncorrected:
             plain = self.scene.simulator().run(n - 1, progress=False).x
-            d = float(np.linalg.norm(plain - self.twin_x[:n], axis=2).mean())
-            line += f", uncorrected {d:.4g} m ({100 * (1 - corrected / max(d, 1e-300)):.0f}% less)"
+            out["uncorrected"] = float(np.linalg.norm(plain - self.twin_x[:n], axis=2).mean())
+        return out
+
+    def drift_summary(self, x: np.ndarray, drift: dict[str, float] | None = None) -> str:
+        """One line of :meth:`drift` (computed here unless given); "" without a twin."""
+        d = self.drift(x) if drift is None else drift
+        if not d:
+            return ""
+        corrected = d["corrected"]
+        line = f"visual correction: mean drift from the real twin {corrected:.4g} m"
+        if "uncorrected" in d:
+            u = d["uncorrected"]
+            line += f", uncorrected {u:.4g} m ({100 * (1 - corrected / max(u, 1e-300)):.0f}% less)"
         return line
 
+    def render(self, x: np.ndarray, camera: Camera) -> RenderOutput:
+        """Colour, alpha and depth of the splats at model positions ``x`` ([N, 3], metres) seen by
+        ``camera``."""
+        return self.splats.render(x, camera)
+
     def render_video(self, x: np.ndarray, path: Path, fps: float, progress: bool) -> None:
-        """Draw the trajectory ``x`` [T, N, 3] as splats with the scene's camera into ``path``."""
-        from ..gaussians import Camera
+        """Draw the trajectory ``x`` [T, N, 3] as splats with the scene's camera into ``path`` (``fps``
+        frames per second; ``progress``: a progress bar)."""
         from ..render import Camera as ViewCamera
         from ..render import write_video
 
@@ -140,21 +175,35 @@ class SplatRun:
         write_video(frames, path, fps=fps)
 
 
-def splat_run(cfg: SceneConfig, scene: Scene, renderer: str, *, quiet: bool) -> SplatRun | None:
-    """The :class:`SplatRun` of ``pliant run`` (None when the scene has no ``[gaussians]`` section or the
-    renderer is ``"mesh"``; with ``"mesh"`` no correction runs either)."""
+def splat_session(
+    cfg: SceneConfig, scene: Scene, renderer: str = "auto", *, log: Callable[[str], None] | None = None
+) -> SplatSession | None:
+    """The :class:`SplatSession` of a run (None when the scene has no ``[gaussians]`` section, or the
+    renderer is ``"mesh"`` and there is no correction to run).
+
+    Args:
+        cfg: the scene's validated config.
+        scene: the built scene.
+        renderer: one of :data:`RENDERERS`; ``"mesh"`` draws the video with the mesh renderer (a correction
+            still runs), ``"splats"`` requires a ``[gaussians]`` section.
+        log: progress lines (see :class:`SplatSession`); None: silent.
+
+    Raises:
+        SplatSceneError: an unknown renderer, ``"splats"`` without a section, or a section that cannot be
+            built.
+    """
     if renderer not in RENDERERS:
-        raise CliError(f"--renderer must be one of {', '.join(RENDERERS)}, got {renderer!r}")
-    spec = getattr(cfg, "gaussians", None)
+        raise SplatSceneError(f"--renderer must be one of {', '.join(RENDERERS)}, got {renderer!r}")
+    spec = gaussians_section(cfg)
     if spec is None:
         if renderer == "splats":
-            raise CliError(
+            raise SplatSceneError(
                 f"--renderer splats: {cfg.source} has no [gaussians] section; add one, e.g.\n"
                 '    [gaussians]\n    generate = "mesh"'
             )
         return None
     if renderer == "mesh" and spec.correction is None:
         return None
-    run = SplatRun(cfg, scene, correct=True, quiet=quiet)
+    run = SplatSession(cfg, scene, correct=True, log=log)
     run.draw = renderer != "mesh"
     return run
