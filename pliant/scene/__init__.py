@@ -14,6 +14,7 @@ from . import _contacts, _gaussians, _objects  # noqa: F401 - register the built
 from ._build import Embedding, Scene, build_scene
 from ._context import BuildContext
 from ._errors import SceneError
+from ._knobs import KNOBS, Around, Knob, UpTo, knob, knob_arrays, registry_arrays
 from ._load import builtin_scenes, load_scene, parse_scene
 from ._registry import (
     register_collider_kind,
@@ -33,9 +34,12 @@ from ._worlds import build_worlds
 register_builtin_terms()
 
 __all__ = [
+    "KNOBS",
+    "Around",
     "BuildContext",
     "ColliderBase",
     "Embedding",
+    "Knob",
     "Material",
     "ObjectBase",
     "Scene",
@@ -47,6 +51,8 @@ __all__ = [
     "build_worlds",
     "builtin_scenes",
     "integrator_names",
+    "knob",
+    "knob_arrays",
     "load_scene",
     "make_integrator",
     "parse_scene",
@@ -57,5 +63,7 @@ __all__ = [
     "register_object_kind",
     "register_section",
     "register_solver",
+    "registry_arrays",
     "scene_size",
+    "UpTo",
 ]
