@@ -221,7 +221,7 @@ def _load_registry() -> None:
     from .. import collision, constraints, energies, solvers  # noqa: F401  (their classes register)
 
 
-def _xpbd_compliance(cfg: Any, sec: Any) -> float:
+def _xpbd_compliance(cfg: SceneConfig, sec: object) -> float:
     """XPBD's scene-wide compliance when unset: the first object's own, else 1e-6 m/N."""
     return next((o.material.compliance for o in cfg.objects if o.material.compliance is not None), 1e-6)
 
