@@ -27,6 +27,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from ..model._parameters import SPRING_STIFFNESS
+
 if TYPE_CHECKING:
     from ..model._parameters import Parameter
     from ._build import Scene
@@ -272,10 +274,10 @@ KNOBS: dict[str, Knob] = _table(
             "k of the bend springs (across two segments or cells) of every mass-spring object that has them "
             "[N/m]",
             # No `drives`: the bend springs share spring_stiffness with the others, so a gradient through
-            # that array is not this knob's; CMA-ES fits it. Its bounds are spring_stiffness's.
+            # that array is not this knob's; CMA-ES fits it. Its bounds are spring_stiffness's, by reference.
             models=_MS,
             when=lambda cfg, m: m.bend_stiffness > 0,
-            bounds=(1e-2, 1e6),
+            bounds=SPRING_STIFFNESS.bounds,
             # ×100: a bend spring is a crude stand-in for another engine's rod or shell bending (MuJoCo's rope
             # fits at a tenth of its converted value), so the data may put it far from the conversion.
             search=Around(100.0, 1e-6),
@@ -378,7 +380,7 @@ KNOBS: dict[str, Knob] = _table(
             "objects[].material.shear_stiffness",
             "k of a mass-spring cloth's shear springs [N/m] (default: stiffness)",
             models=_MS,
-            bounds=(1e-2, 1e6),
+            bounds=SPRING_STIFFNESS.bounds,
             fit=False,
         ),
     ]
