@@ -216,11 +216,9 @@ def test_cmaes_runs_every_generation_on_one_scene_where_it_is_exact(case, monkey
 
 def test_xpbd_takes_spring_stiffness_written_in_place():
     """XPBD converts spring k to compliances when it binds its constraints: after a new k is written into the
-    model, ``refresher``'s refresh binds them again into the same arrays, and the restarted Simulator
+    model, ``refresh_parameters`` binds them again into the same arrays, and the restarted Simulator
     replays its captured graph (no new capture) to the trajectory of a scene built with that k, bit for
     bit."""
-    from pliant.fit._reuse import refresher
-
     text = FIT_ROPE.replace('kind = "rope"', 'kind = "rope"\nmodel = "pbd"').replace(
         'integrator = "SymplecticEuler"', 'kind = "xpbd"\niterations = 4'
     )
@@ -228,12 +226,10 @@ def test_xpbd_takes_spring_stiffness_written_in_place():
     held = pl.scene.build_scene(cfg)
     sim = pl.Simulator(held.model, held.solver, **held.sim_kwargs)
     before = sim.run(6, progress=False).x
-    refresh, why = refresher(held.solver)
-    assert why is None and refresh is not None
     k = held.model.spring_stiffness.numpy()
     assert np.all(k == 50.0)
     held.model.spring_stiffness.assign(np.full_like(k, 7.0))
-    assert refresh()
+    assert held.solver.refresh_parameters() is None
     sim.restart()
     after = sim.run(6, progress=False).x
     cfg.objects[0].material.stiffness = 7.0

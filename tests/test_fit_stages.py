@@ -92,7 +92,7 @@ def test_a_gradient_that_is_exactly_zero_is_an_error():
         ({"params": ["stifness"]}, r"--params: unknown parameter 'stifness'; the global parameters are"),
         (
             {"params": ["E"]},
-            r"--params: 'E' .* does not exist in this scene; it has stiffness, damping, damping_rate",
+            r"--params: 'E' .* does not exist in this scene; it has stiffness, damping_rate, damping",
         ),
         ({"params": []}, r"nothing to fit"),
         ({"params": [], "per_element": "volume"}, r"--per-element: unknown parameter 'volume'"),

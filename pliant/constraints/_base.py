@@ -308,6 +308,22 @@ class Constraint(abc.ABC):
     def bind(self, model: Model, coloring: bool) -> None:
         """Copy indices and rest data to ``model.device``; colour them when ``coloring``."""
 
+    def rebind(self, model: Model, coloring: bool) -> str | None:
+        """:meth:`bind` again (after the model's parameter arrays changed in place), keeping every Warp array
+        this set holds: the new values are copied into the old arrays, so that captured graphs and recorded
+        launches holding them stay valid. Returns None, or why it could not (an array changed shape or
+        type: the solver must be rebuilt)."""
+        old = {k: v for k, v in vars(self).items() if isinstance(v, wp.array)}
+        self.bind(model, coloring)
+        for k, v in list(vars(self).items()):
+            a = old.get(k)
+            if isinstance(v, wp.array) and v is not a:
+                if a is None or a.shape != v.shape or a.dtype != v.dtype:
+                    return f"{type(self).__name__}.{k} changed shape when bound again"
+                wp.copy(a, v)
+                setattr(self, k, a)
+        return None
+
     def _colors(self, indices: np.ndarray, coloring: bool) -> tuple[np.ndarray, np.ndarray]:
         """(permutation, offsets) grouping ``indices`` [n, k] by colour; identity when not colouring."""
         n = indices.shape[0]

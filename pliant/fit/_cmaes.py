@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._params import FitError
+from ._params import GLOBAL, FitError
 from ._problem import Problem
 from ._reuse import BatchScenes, build_batch
 
@@ -62,8 +62,9 @@ def evaluate(problem: Problem, values: dict[str, float]) -> float:
 
 
 #: Global parameters that live in the object's own section (material, point-cloud topology): candidates
-#: differing only in these can run as copies of the object in one model, stepped by the same launches.
-OBJECT_PARAMS = frozenset({"stiffness", "Et", "damping", "E", "nu", "radius", "neighbours"})
+#: differing only in these can run as copies of the object in one model, stepped by the same launches. A
+#: view of the knobs (``Knob.on_object``, pliant/scene/_knobs.py).
+OBJECT_PARAMS = frozenset(n for n, k in GLOBAL.items() if k.on_object)
 
 
 def batchable(problem: Problem) -> bool:

@@ -2,9 +2,11 @@
 (model arrays changed in place, with gradients from the tape). Both name the registry parameters
 (:mod:`pliant.model._parameters`) they drive; the arrays and the classes that read them come from there.
 
-Global parameters (``GLOBAL``) live in the scene file; the CMA-ES stage searches them in a box normalised to
-[0, 1]ᵈ, log-scaled for positive magnitudes. Topology parameters (spring radius and neighbour count of
-point-cloud objects) rebuild the springs, so only the derivative-free stage may change them.
+Global parameters (``GLOBAL``) live in the scene file: they are the knobs of :data:`pliant.scene.KNOBS`
+(declared once, beside the schema), and every table here is a view of them. The CMA-ES stage searches them
+in a box normalised to [0, 1]ᵈ, log-scaled for positive magnitudes. Topology parameters (spring radius and
+neighbour count of point-cloud objects) rebuild the springs, so only the derivative-free stage may
+change them.
 Per-element parameters (``PER_ELEMENT``) are log-scale factors θ on model arrays, ``a = a₀ · exp(θ)``:
 ``stiffness`` (per spring k) and ``E`` (per tet, μ and λ together: ν unchanged).
 """
@@ -18,6 +20,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..scene import KNOBS, Knob, registry_arrays
+
 if TYPE_CHECKING:
     from ..io import Observations
     from ..model._parameters import Parameter
@@ -29,207 +33,14 @@ class FitError(ValueError):
     fix."""
 
 
-def _materials(cfg: SceneConfig, models: tuple[str, ...]) -> list[Any]:
-    return [o.material for o in cfg.objects if o.model in models]
+#: A global parameter is a knob (:class:`pliant.scene.Knob`): its scene field, bounds, search box and the
+#: registry parameters it drives are declared once, in ``pliant/scene/_knobs.py``.
+GlobalParam = Knob
 
-
-def _mat_field(field: str, models: tuple[str, ...]) -> Callable[[Any], list[tuple[Any, str]]]:
-    def where(cfg: SceneConfig) -> list[tuple[Any, str]]:
-        return [(m, field) for m in _materials(cfg, models) if getattr(m, field) is not None]
-
-    return where
-
-
-def _section_field(section: str, field: str, default: float | None = None) -> Callable[[Any], list]:
-    def where(cfg: SceneConfig) -> list[tuple[Any, str]]:
-        sec = getattr(cfg, section)
-        if sec is None or (getattr(sec, "enabled", True) is False):
-            return []
-        if getattr(sec, field) is None:
-            if default is None:
-                return []
-            setattr(sec, field, default)  # an unset optional value: start the search from its default
-        return [(sec, field)]
-
-    return where
-
-
-def _compliance(cfg: SceneConfig) -> list[tuple[Any, str]]:
-    if cfg.solver_kind() != "xpbd":
-        return []
-    if cfg.solver.compliance is None:
-        cfg.solver.compliance = next(
-            (o.material.compliance for o in cfg.objects if o.material.compliance is not None), 1e-6
-        )
-    return [(cfg.solver, "compliance")]
-
-
-def _points_field(field: str, default: Callable[[Any], float]) -> Callable[[Any], list]:
-    def where(cfg: SceneConfig) -> list[tuple[Any, str]]:
-        out = []
-        for o in cfg.objects:
-            if o.kind == "points":
-                if getattr(o, field) is None:
-                    setattr(o, field, default(o))
-                out.append((o, field))
-        return out
-
-    return where
-
-
-@dataclass(frozen=True)
-class GlobalParam:
-    """A global parameter: where it lives in a scene, its scale and bounds.
-
-    Attributes:
-        name: The ``--params`` name.
-        doc: What it is, with units.
-        where: ``where(cfg) -> [(section, field)]`` the scene values it sets (all set to one value); may fill
-            in an unset optional field with its default.
-        log: Searched in log scale (positive magnitudes).
-        bounds: ``bounds(nominal) -> (lo, hi)``.
-        topology: Changes the springs (derivative-free stage only).
-        integer: Rounded to a whole number.
-        drives: The registry parameters (:mod:`pliant.model._parameters`) whose arrays the scene builds
-            proportional to this value (``Et`` → ``spring_stiffness``; ``E`` → ``tet_mu``, ``tet_lam``;
-            ``compliance`` → every XPBD compliance): the gradient stages differentiate through them. Empty:
-            derivative-free only (ν, topology).
-    """
-
-    name: str
-    doc: str
-    where: Callable[[Any], list[tuple[Any, str]]]
-    log: bool
-    bounds: Callable[[float], tuple[float, float]]
-    topology: bool = False
-    integer: bool = False
-    drives: tuple[str, ...] = ()
-
-    def to_unit(self, value: float, lo: float, hi: float) -> float:
-        """Value → [0, 1] (log scale for ``log``)."""
-        if self.log:
-            return (math.log(value) - math.log(lo)) / (math.log(hi) - math.log(lo))
-        return (value - lo) / (hi - lo)
-
-    def from_unit(self, u: float, lo: float, hi: float) -> float:
-        """[0, 1] → value."""
-        u = min(max(float(u), 0.0), 1.0)
-        v = math.exp(math.log(lo) + u * (math.log(hi) - math.log(lo))) if self.log else lo + u * (hi - lo)
-        return float(round(v)) if self.integer else v
-
-
-def _around(factor: float, floor: float) -> Callable[[float], tuple[float, float]]:
-    return lambda v: (max(v, floor) / factor, max(v, floor) * factor)
-
-
-GLOBAL: dict[str, GlobalParam] = {
-    p.name: p
-    for p in [
-        GlobalParam(
-            "stiffness",
-            "spring constant k of every mass-spring object [N/m]",
-            _mat_field("stiffness", ("mass_spring",)),
-            True,
-            _around(10.0, 1e-6),
-            drives=("spring_stiffness",),
-        ),
-        GlobalParam(
-            "Et",
-            "membrane stiffness E·t of every mass-spring cloth given by it [N/m] (sets its structural and "
-            "shear springs)",
-            lambda cfg: [(m, f) for m, f in _mat_field("Et", ("mass_spring",))(cfg) if m.stiffness is None],
-            True,
-            _around(10.0, 1e-6),
-            drives=("spring_stiffness",),
-        ),
-        GlobalParam(
-            "bend_stiffness",
-            "k of the bend springs (across two segments or cells) of every mass-spring object that has them "
-            "[N/m]",
-            lambda cfg: [
-                (m, f) for m, f in _mat_field("bend_stiffness", ("mass_spring",))(cfg) if m.bend_stiffness > 0
-            ],
-            True,
-            # ×100: a bend spring is a crude stand-in for another engine's rod or shell bending (MuJoCo's rope
-            # fits at a tenth of its converted value), so the data may put it far from the conversion.
-            _around(100.0, 1e-6),
-            # No `drives`: the bend springs share spring_stiffness with the others, so a gradient through
-            # that array is not this parameter's; CMA-ES fits it.
-        ),
-        GlobalParam(
-            "damping",
-            "dashpot γ along each spring of every mass-spring object [N s/m]",
-            _mat_field("damping", ("mass_spring",)),
-            True,
-            _around(10.0, 1e-5),
-            drives=("spring_damping",),
-        ),
-        GlobalParam(
-            "damping_rate",
-            "velocity damping rate of the solver [1/s]",
-            _section_field("solver", "damping_rate", 0.0),
-            True,
-            lambda v: (v / 10.0, v * 10.0) if v > 0 else (1e-3, 20.0),
-            drives=("damping_rate",),
-        ),
-        GlobalParam(
-            "ground_friction",
-            "Coulomb friction μ of the ground",
-            _section_field("ground", "friction"),
-            False,
-            lambda v: (0.0, 2.0),
-            drives=("ground_friction",),
-        ),
-        GlobalParam(
-            "ground_restitution",
-            "restitution e of the ground",
-            _section_field("ground", "restitution"),
-            False,
-            lambda v: (0.0, 1.0),
-            drives=("ground_restitution",),
-        ),
-        GlobalParam(
-            "E",
-            "Young's modulus of every FEM object [Pa]",
-            _mat_field("E", ("fem",)),
-            True,
-            _around(10.0, 1.0),
-            drives=("tet_mu", "tet_lam"),
-        ),
-        GlobalParam(
-            "nu",
-            "Poisson ratio of every FEM object",
-            _mat_field("nu", ("fem",)),
-            False,
-            lambda v: (0.0, 0.49),
-        ),
-        GlobalParam(
-            "compliance",
-            "XPBD compliance α [m/N]",
-            _compliance,
-            True,
-            _around(100.0, 1e-10),
-            drives=("compliance_distance", "compliance_dihedralbending", "compliance_volume"),
-        ),
-        GlobalParam(
-            "radius",
-            "spring radius of point-cloud objects [m] (topology)",
-            _points_field("radius", lambda o: 1.8 * o.spacing),
-            False,
-            lambda v: (0.5 * v, 2.0 * v),
-            topology=True,
-        ),
-        GlobalParam(
-            "neighbours",
-            "most springs per point of point-cloud objects (topology)",
-            _points_field("max_neighbors", lambda o: o.max_neighbors),
-            False,
-            lambda v: (1.0, max(2.0 * v, 2.0)),
-            topology=True,
-            integer=True,
-        ),
-    ]
-}
+#: The global parameters: the knobs the fit may search (:attr:`Knob.fit`), in :data:`pliant.scene.KNOBS`
+#: order. The CMA-ES stage searches them in a box normalised to [0, 1]ᵈ: ``Knob.box(value)``, the knob's
+#: declared policy around the scene's value (×/÷ 10 for most magnitudes), not its physical bounds.
+GLOBAL: dict[str, GlobalParam] = {n: k for n, k in KNOBS.items() if k.fit}
 
 
 def scene_constraints(scene: Scene) -> list[Any]:
@@ -237,33 +48,6 @@ def scene_constraints(scene: Scene) -> list[Any]:
     keys; empty for the other solvers. Each is a :class:`~pliant.constraints.Constraint` of some kind;
     callers read what their kind has (``indices``, the ``parameters()`` that ``@declares`` checked)."""
     return list(getattr(scene.solver, "constraints", []))
-
-
-def _declares(c: object, name: str) -> bool:
-    return any(p.name == name for p in getattr(type(c), "parameters", lambda: ())())
-
-
-def registry_arrays(scene: Scene, names: tuple[str, ...]) -> dict[str, Any]:
-    """The arrays of registry parameters ``names`` in a built scene that hold one value per element:
-    ``model.<array>`` for model arrays (when the model has such elements) and
-    ``constraints.<i>.<array>`` for every constraint set of the solver whose class declares the name."""
-    from ..diff import parameters as registry
-
-    reg = registry()
-    out: dict[str, Any] = {}
-    for n in names:
-        p = reg[n][0]
-        if p.model_array is not None:
-            a = getattr(scene.model, p.model_array)
-            if a.shape[0]:
-                out[f"model.{p.model_array}"] = a
-        elif p.per == "constraint":
-            attr = p.arrays[0].split(".", 1)[1]
-            for i, c in enumerate(scene_constraints(scene)):
-                a = getattr(c, attr, None)
-                if a is not None and a.shape[0] and _declares(c, n):
-                    out[f"constraints.{i}.{attr}"] = a
-    return out
 
 
 def _per_element(name: str, what: str) -> Callable[[Any], dict[str, Any]]:
@@ -283,49 +67,35 @@ def _per_element(name: str, what: str) -> Callable[[Any], dict[str, Any]]:
     return arrays
 
 
-#: Per-element parameters: name → (the arrays scaled together by exp(θ) per element, what it is): the
-#: model arrays and constraint arrays of the registry parameters the global parameter of that name drives.
+#: Per-element parameters: name → (the arrays scaled together by exp(θ) per element, what it is): the knobs
+#: with :attr:`~pliant.scene.Knob.per_element`, over the model arrays and constraint arrays of the registry
+#: parameters each drives.
 PER_ELEMENT: dict[str, tuple[Callable[[Any], dict[str, Any]], str]] = {
-    "stiffness": (_per_element("stiffness", "springs"), "log-scale factor of each spring's k"),
-    "E": (
-        _per_element("E", "tetrahedra"),
-        "log-scale factor of each tet's E (μ and λ together: ν unchanged)",
-    ),
-    "compliance": (
-        _per_element("compliance", "XPBD constraints with a compliance"),
-        "log-scale factor of each XPBD constraint's compliance α",
-    ),
+    n: (_per_element(n, k.per_element[0]), k.per_element[1])
+    for n, k in GLOBAL.items()
+    if k.per_element is not None
 }
-
-_DISSIPATION = (
-    "velocity damping: the dissipation of the observed motion (air, material loss) is unknown to the scene"
-)
 
 #: Default parameters per object model, each with why it is searched (issue 25): the ones that matter for
 #: motion recorded elsewhere — the stiffness, and the two dissipations (velocity damping rate and, for
 #: mass-spring, the dashpot along the springs), which another engine's or a real object's motion always has.
+#: A view of the knobs' ``default_for`` and ``why``, in knob order.
 WHY: dict[str, tuple[tuple[str, str], ...]] = {
-    "mass_spring": (
-        ("stiffness", "default for mass-spring: the spring stiffness"),
-        ("Et", "default for mass-spring cloth: the membrane stiffness"),
-        ("bend_stiffness", "default for mass-spring with bend springs: the bending stiffness"),
-        ("damping_rate", _DISSIPATION),
-        ("damping", "default for mass-spring: the dashpot along each spring (internal dissipation)"),
-    ),
-    "fem": (
-        ("E", "default for FEM: Young's modulus"),
-        ("nu", "default for FEM: Poisson's ratio"),
-        ("damping_rate", _DISSIPATION),
-    ),
-    "pbd": (("compliance", "default for XPBD: the constraints' compliance"), ("damping_rate", _DISSIPATION)),
+    model: tuple((n, k.why) for n, k in GLOBAL.items() if model in k.default_for)
+    for model in dict.fromkeys(m for k in GLOBAL.values() for m in k.default_for)
 }
 #: Default parameter names per object model (the names of :data:`WHY`).
 DEFAULTS = {model: tuple(n for n, _ in rows) for model, rows in WHY.items()}
-#: The per-element parameter of each model (``per_element="auto"``).
-PER_ELEMENT_OF = {"mass_spring": "stiffness", "fem": "E", "pbd": "compliance"}
+#: The per-element parameter of each model (``per_element="auto"``): its first default knob that has one.
+PER_ELEMENT_OF = {
+    model: next(n for n in names if n in PER_ELEMENT)
+    for model, names in DEFAULTS.items()
+    if any(n in PER_ELEMENT for n in names)
+}
 
-#: Ground coefficients, searched by default when the observations reach the ground.
-CONTACT = ("ground_friction", "ground_restitution")
+#: Ground coefficients (the knobs of the ``[ground]`` section), searched by default when the observations
+#: reach the ground.
+CONTACT = tuple(n for n, k in GLOBAL.items() if k.section == "ground")
 
 
 def ground_contact(cfg: SceneConfig, obs: Observations) -> float | None:
@@ -386,9 +156,7 @@ def _critical_damping(scene: Scene) -> float | None:
 def widen_bounds(bounds: list[Any], scene: Scene) -> None:
     """Physically scaled bounds, set in place: a dashpot γ spans 10⁻⁴ … 1 × the critical damping
     2√(k m) of a typical spring of ``scene`` (built at the nominal values; a placeholder γ of 0 would
-    otherwise leave a box around 10⁻⁵ N s/m), and a damping rate of 0 the registry's range."""
-    from ..diff import parameters as registry
-
+    otherwise leave a box around 10⁻⁵ N s/m), and a damping rate of 0 its knob's physical range."""
     for b in bounds:
         if b.name == "damping":
             gc = _critical_damping(scene)
@@ -399,9 +167,7 @@ def widen_bounds(bounds: list[Any], scene: Scene) -> None:
             else:  # a placeholder 0: the physical range alone
                 b.lo, b.hi = 1e-4 * gc, gc
         elif b.name == "damping_rate" and not (b.scene_value or 0.0) > 0:
-            physical = registry()["damping_rate"][0].bounds
-            assert physical is not None  # damping_rate declares its range (pliant/model/_parameters.py)
-            b.lo, b.hi = physical
+            b.lo, b.hi = b.param.physical_bounds()
         else:
             continue
         if not (b.scene_value or 0.0) > 0:
@@ -448,7 +214,7 @@ def resolve_globals(cfg: SceneConfig, names: list[str]) -> list[Bound]:
                 f"{', '.join(usable) or 'none'}"
             )
         nominal = scene_value = float(getattr(*where[0]))
-        lo, hi = p.bounds(nominal)
+        lo, hi = p.box(nominal)
         if p.log and nominal <= 0:
             nominal = math.sqrt(lo * hi)
         out.append(Bound(p, min(max(nominal, lo), hi), lo, hi, scene_value))

@@ -10,12 +10,10 @@ That is the run a rebuilt scene makes, bit for bit, only when
   value it was built with (the bend springs of ``stiffness`` keep theirs). A value the scene derives
   (``Et``: the structural and shear k; ``E``: the Lamé parameters) matches no element, and ν, the topology
   parameters (radius, neighbours) change more than an array: those scenes are rebuilt;
-* the solver reads those arrays in its step, or can be told to read them again in place. An explicit
-  ForceSolver's energies read them in their kernels each step; XPBD converts the springs' k to compliances
-  when it binds its constraints, so they are bound again and the new arrays copied into the ones its graphs
-  and recorded launches hold; FastMassSpring packs the springs' parameters per row at construction, so
-  they are packed again into the same arrays. An implicit step with Newton assembles from the arrays every
-  step; with L-BFGS its minimiser keeps the lagged Hessian and its factorisation: that one is rebuilt.
+* the solver takes the new arrays in place: ``Solver.refresh_parameters()`` says how each solver does (an
+  explicit ForceSolver's energies read them each step; XPBD binds its constraints again into the arrays its
+  graphs hold; FastMassSpring packs them again per row) or returns why it cannot (L-BFGS keeps a lagged
+  Hessian and its factorisation): that one is rebuilt.
 
 :class:`BatchScenes` decides once per (problem, candidate count), says which in a log line on
 ``logging.getLogger("pliant.fit")`` and in :attr:`BatchScenes.reason`.
@@ -24,7 +22,6 @@ That is the run a rebuilt scene makes, bit for bit, only when
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -36,60 +33,9 @@ if TYPE_CHECKING:
     from ..model import Model
     from ..scene import Scene
     from ..sim import Simulator
-    from ..solvers import XPBD, FastMassSpring
     from ._problem import Problem
 
 _LOG = logging.getLogger("pliant.fit")
-
-
-def refresher(solver: object) -> tuple[Callable[[], bool] | None, str | None]:
-    """How ``solver`` takes model arrays written in place: ``(None, None)`` when its step reads them
-    (nothing to do), ``(refresh, None)`` when ``refresh()`` makes it read them again (False: it could not
-    keep its arrays in place, rebuild), ``(None, why)`` when it caches what they give and must be rebuilt."""
-    from ..solvers import XPBD, FastMassSpring, ForceSolver
-    from ..solvers.implicit import resolve_method
-
-    name = type(solver).__name__
-    if isinstance(solver, ForceSolver):
-        if solver.integrator.explicit:
-            return None, None
-        if resolve_method(solver.minimizer, solver.model.device) == "newton":
-            # Newton assembles from the model's arrays every step (its workspace is the Hessian's pattern);
-            # Simulator.restart forgets a multistep history (Solver.reset).
-            return None, None
-        return None, (
-            f"{name}({solver.integrator.name}) with L-BFGS keeps a lagged Hessian and its factorisation "
-            "built from the model's arrays"
-        )
-    if isinstance(solver, XPBD):
-        return (lambda: _rebind(solver)), None
-    if isinstance(solver, FastMassSpring):
-        return (lambda: _repack(solver)), None
-    return None, f"{name} is not known to read the model's parameter arrays in its step"
-
-
-def _repack(solver: FastMassSpring) -> bool:
-    """Pack FastMassSpring's per-row spring parameters again from the model's arrays, into the arrays its
-    graphs and recorded launches hold (its implicit step and recorded path read the model's arrays)."""
-    solver.update_parameters()
-    return True
-
-
-def _rebind(solver: XPBD) -> bool:
-    """Bind XPBD's constraints to the model again (compliances from the new spring k, ...) and copy every
-    new array into the one the constraint held, so that graphs and recorded launches stay valid; False
-    when an array changed shape (then nothing may be reused)."""
-    for c in solver.constraints:
-        old = {k: v for k, v in vars(c).items() if isinstance(v, wp.array)}
-        c.bind(solver.model, solver.coloring)
-        for k, v in vars(c).items():
-            a = old.get(k)
-            if isinstance(v, wp.array) and v is not a:
-                if a is None or a.shape != v.shape or a.dtype != v.dtype:
-                    return False
-                wp.copy(a, v)
-                setattr(c, k, a)
-    return True
 
 
 class _Writes:
@@ -158,7 +104,7 @@ class BatchScenes:
 
     def __init__(self, reuse: bool = True) -> None:
         self.reuse = reuse
-        self._held: dict[int, tuple[Scene, Simulator, _Writes, Callable[[], bool] | None]] = {}
+        self._held: dict[int, tuple[Scene, Simulator, _Writes]] = {}
         #: Why this run's batches are built rather than reused, decided once (None: reused, or undecided).
         self.reason: str | None = None
         #: Scenes built so far, and generations run on a held scene.
@@ -170,13 +116,14 @@ class BatchScenes:
         n = len(candidates)
         held = self._held.get(n)
         if held is not None:
-            scene, sim, writes, refresh = held
+            scene, sim, writes = held
             writes.write(candidates)
-            if refresh is None or refresh():
+            why = scene.solver.refresh_parameters()
+            if why is None:
                 self.reused += 1
                 return scene, sim
             del self._held[n]
-            self._say(f"{type(scene.solver).__name__} could not keep its arrays in place")
+            self._say(why)
         scene = build_batch(problem, candidates)
         self.built += 1
         if not self.reuse:
@@ -184,14 +131,14 @@ class BatchScenes:
             return scene, None
         if self.reason is not None:
             return scene, None  # decided already: rebuild
-        refresh, why = refresher(scene.solver)
+        # The scene was built with these values: refreshing it changes nothing, and says whether it can.
         writes = _Writes(problem, scene, candidates)
-        why = why or writes.reason
+        why = writes.reason or scene.solver.refresh_parameters()
         if why is not None:
             self._say(why)
             return scene, None
         sim = problem.simulator(scene)
-        self._held[n] = (scene, sim, writes, refresh)
+        self._held[n] = (scene, sim, writes)
         _LOG.info(
             "CMA-ES: one batched scene of %d copies reused across generations (%s; written in place: %s)",
             n,
@@ -219,4 +166,4 @@ def build_batch(problem: Problem, candidates: list[dict[str, float]]) -> Scene:
     return build_scene(cfg, device=problem.device, dtype=problem.dtype)
 
 
-__all__ = ["BatchScenes", "build_batch", "refresher"]
+__all__ = ["BatchScenes", "build_batch"]

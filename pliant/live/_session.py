@@ -55,9 +55,12 @@ class LiveParameter:
 
 
 def live_parameters(scene: Scene) -> dict[str, LiveParameter]:
-    """The material parameters of a built scene that :func:`write_parameter` can change: per-element ones
-    (``pliant.fit``'s arrays: stiffness, E, compliance) and spring damping as factors in [0.1, 10], and the
-    solver's velocity damping rate [1/s] when it has one.
+    """The knobs of a built scene that :func:`write_parameter` can change: a view of
+    :data:`pliant.scene.KNOBS` (those with a ``live`` range). A knob held in per-element arrays (stiffness,
+    E, compliance, spring damping) is a factor on the arrays the solver's step reads (the model's, or a
+    position-based solver's constraint compliances), over the knob's ``live`` range; one held by the solver
+    alone (the velocity damping rate [1/s]) is its value, from the range's floor to max(its ceiling, 4× the
+    scene's value).
 
     Args:
         scene: a built scene (:func:`pliant.scene.build_scene`).
@@ -65,48 +68,30 @@ def live_parameters(scene: Scene) -> dict[str, LiveParameter]:
     Returns:
         name → :class:`LiveParameter`, with the arrays' current values as the base the factors scale.
     """
-    from ..fit._params import PER_ELEMENT, FitError
+    from ..scene import KNOBS, knob_arrays
 
     out: dict[str, LiveParameter] = {}
-    constraints = getattr(scene.solver, "constraints", None)
-    for name, (arrays_of, doc) in PER_ELEMENT.items():
-        if (name == "compliance") != (constraints is not None):
-            continue  # position-based solvers read compliances, the others the model's arrays
-        if name == "compliance":  # the compliant sets only: a factor cannot soften a rigid one (α = 0)
-            arrays = [
-                c.compliance_array
-                for c in constraints or ()
-                if type(c).__name__ in ("Distance", "DihedralBending", "Volume")
-                and getattr(c, "compliance_array", None) is not None
-                and np.any(c.compliance_array.numpy() > 0)
-            ]
-        else:
-            try:
-                arrays = list(arrays_of(scene).values())
-            except FitError:
-                continue
-        arrays = [a for a in arrays if a.shape[0]]
-        if arrays:
-            out[name] = LiveParameter(name, doc.replace("log-scale ", ""), arrays, [], 1.0, 0.1, 10.0)
-    m = scene.model
-    if "stiffness" in out and _explicit_springs(scene.solver):
-        out["stiffness"].hi = max(1.0, min(10.0, _stable_stiffness_factor(scene)))
-    if m.spring_count and "stiffness" in out and np.any(m.spring_damping.numpy() > 0):
-        out["damping"] = LiveParameter(
-            "damping", "factor of each spring's dashpot γ", [m.spring_damping], [], 1.0, 0.0, 10.0
-        )
+    # Position-based solvers read their constraints' compliances, the others the model's arrays.
+    home = "constraints." if getattr(scene.solver, "constraints", None) is not None else "model."
     attr = _damping_attribute(scene.solver)
-    if attr is not None:
-        rate = float(getattr(scene.solver, attr))
-        out["damping_rate"] = LiveParameter(
-            "damping_rate",
-            "the solver's velocity damping c [1/s] (v ← v exp(−c Δt))",
-            [],
-            [],
-            rate,
-            0.0,
-            max(10.0, 4.0 * rate),
-        )
+    for name, k in KNOBS.items():
+        if k.live is None:
+            continue
+        lo, hi = k.live
+        if k.section == "solver" and k.per_element is None:  # a solver value, not an array
+            if attr is not None:
+                rate = float(getattr(scene.solver, attr))
+                out[name] = LiveParameter(name, k.doc, [], [], rate, lo, max(hi, 4.0 * rate))
+            continue
+        # All-zero arrays (a rigid constraint set, no dashpots) are left out: a factor cannot change them.
+        arrays = [
+            a for key, a in knob_arrays(scene, k).items() if key.startswith(home) and np.any(a.numpy() != 0)
+        ]
+        if arrays:
+            doc = k.per_element[1].replace("log-scale ", "") if k.per_element else f"factor of the {k.doc}"
+            out[name] = LiveParameter(name, doc, arrays, [], 1.0, lo, hi)
+    if "stiffness" in out and _explicit_springs(scene.solver):
+        out["stiffness"].hi = max(1.0, min(out["stiffness"].hi, _stable_stiffness_factor(scene)))
     for p in out.values():
         p.base = [a.numpy().copy() for a in p.arrays]
     return out
@@ -172,9 +157,9 @@ def write_parameter(session: LiveSession, name: str, value: float) -> None:
     with session.lock:
         for a, b in zip(p.arrays, p.base, strict=True):
             a.assign((b * value).astype(b.dtype))
-        if name == "damping_rate":
+        if not p.arrays:  # a solver value (the damping rate)
             attr = _damping_attribute(session.sim.solver)
-            assert attr is not None  # "damping_rate" is offered only for a solver that has one
+            assert attr is not None  # a solver value is offered only for a solver that has one
             setattr(session.sim.solver, attr, value)
             arr = getattr(session.sim.solver, "damping_rate_array", None)
             if arr is not None:

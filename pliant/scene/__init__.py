@@ -15,6 +15,7 @@ from ._build import Embedding, Scene, build_scene
 from ._context import BuildContext
 from ._errors import SceneError
 from ._from_mesh import MeshScene, from_mesh, mesh_scene_toml, mesh_scene_values
+from ._knobs import KNOBS, Around, Knob, UpTo, knob, knob_arrays, registry_arrays
 from ._load import builtin_scenes, load_scene, parse_scene
 from ._registry import (
     register_collider_kind,
@@ -34,9 +35,12 @@ from ._worlds import build_worlds
 register_builtin_terms()
 
 __all__ = [
+    "KNOBS",
+    "Around",
     "BuildContext",
     "ColliderBase",
     "Embedding",
+    "Knob",
     "Material",
     "MeshScene",
     "ObjectBase",
@@ -50,6 +54,8 @@ __all__ = [
     "builtin_scenes",
     "from_mesh",
     "integrator_names",
+    "knob",
+    "knob_arrays",
     "load_scene",
     "make_integrator",
     "mesh_scene_toml",
@@ -62,5 +68,7 @@ __all__ = [
     "register_object_kind",
     "register_section",
     "register_solver",
+    "registry_arrays",
     "scene_size",
+    "UpTo",
 ]

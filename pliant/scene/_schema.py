@@ -120,7 +120,8 @@ class Section(BaseModel):
 
 
 class Material(Section):
-    """Material parameters; which ones are needed depends on the object's ``model``."""
+    """Material parameters; which ones are needed depends on the object's ``model``. Those that a fit,
+    worlds or the live view change are knobs, declared once in ``_knobs.py`` (``KNOBS``)."""
 
     stiffness: NonNegFloat | None = None  # spring constant k [N/m] (mass_spring) or PBD stiffness
     shear_stiffness: NonNegFloat | None = None  # cloth shear springs [N/m] (default: stiffness)

@@ -15,6 +15,7 @@ from ..model._worlds import PARAMETERS
 from ._build import _add_objects, _finalize, _select_handles, build_scene
 from ._context import BuildContext
 from ._errors import scene_error
+from ._knobs import KNOBS
 from ._replicate import worlds_unsupported
 
 if TYPE_CHECKING:
@@ -37,8 +38,11 @@ _SHARED = (
     "bending_indices",
     "bending_rest_angle",
 )
-#: Material fields that change only the model's per-element arrays (others pick laws or solver settings).
-MATERIAL_FIELDS = ("stiffness", "shear_stiffness", "bend_stiffness", "damping", "Et", "E", "nu")
+#: Material fields that change only the model's per-element arrays (others pick laws or solver settings): the
+#: material knobs that leave the topology alone (:data:`pliant.scene._knobs.KNOBS`).
+MATERIAL_FIELDS = tuple(
+    k.attr for k in KNOBS.values() if k.section == "objects[].material" and not k.topology
+)
 
 
 def material_only(run: Sequence[str]) -> bool:

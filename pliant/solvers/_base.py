@@ -79,6 +79,18 @@ class Solver(abc.ABC):
                 return f"contact handler {type(c).__name__}: {why}"
         return None
 
+    def refresh_parameters(self) -> str | None:
+        """Take parameter values written in place into the model's arrays (``spring_stiffness``,
+        ``tet_mu``, ...) since construction: afterwards the next step reads them, as a solver built on the
+        changed model would, and the arrays that captured graphs and recorded launches hold stay the same.
+
+        Returns:
+            None when it did (or has nothing to do: its step reads the arrays), else one line saying why this
+            solver must be rebuilt to take them (it caches what they give). Default: the reason that this
+            solver does not say how; a solver that can overrides this.
+        """
+        return f"{type(self).__name__} is not known to read the model's parameter arrays in its step"
+
     def describe(self) -> dict:
         """Name and options, recorded in trajectory metadata and benchmark lines."""
         return {"solver": type(self).__name__}

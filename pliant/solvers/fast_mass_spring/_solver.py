@@ -306,6 +306,13 @@ class FastMassSpring(Solver):
             self._damped = 0
         self._cmds: dict[tuple[int, int, int, int, float], list] = {}
 
+    def refresh_parameters(self) -> str | None:
+        """Pack the springs' parameters again per row (:meth:`update_parameters`), into the arrays its graphs
+        and recorded launches hold (its implicit step and recorded path read the model's arrays); always
+        None (see :meth:`Solver.refresh_parameters`)."""
+        self.update_parameters()
+        return None
+
     def _implicit_system(self) -> BaraffWitkinSystem:
         """The implicit method's linear system (the symplectic method has none)."""
         if self._system is None:

@@ -28,6 +28,7 @@ from ..implicit import (
     lbfgs_checkpoint_state,
     lbfgs_restore_checkpoint_state,
     minimize,
+    resolve_method,
     step_settings,
 )
 
@@ -263,6 +264,18 @@ class ForceSolver(Solver):
         self.minimizer_cache.reset()
         if hasattr(self.integrator, "reset"):
             self.integrator.reset()
+
+    def refresh_parameters(self) -> str | None:
+        """Nothing to do for explicit integrators (the energies read the model's arrays in their kernels each
+        step) and for implicit ones with Newton (it assembles from them every step; its workspace is the
+        Hessian's pattern). L-BFGS keeps a lagged Hessian and its factorisation built from them: it returns
+        why such a solver must be rebuilt (see :meth:`Solver.refresh_parameters`)."""
+        if self.integrator.explicit or resolve_method(self.minimizer, self.model.device) == "newton":
+            return None
+        return (
+            f"{type(self).__name__}({self.integrator.name}) with L-BFGS keeps a lagged Hessian and its "
+            "factorisation built from the model's arrays"
+        )
 
     def _ground_penalty(self) -> float | None:
         """κ of the GroundPenalty among the energies (the post-step then only adds friction).

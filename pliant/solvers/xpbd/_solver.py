@@ -554,6 +554,15 @@ class XPBD(Solver):
                 )
         return self._collisions_blocker()
 
+    def refresh_parameters(self) -> str | None:
+        """Bind every constraint set again (compliances from the new spring k, ...) into the arrays it held
+        (``Constraint.rebind``); why not when an array changed shape (:meth:`Solver.refresh_parameters`)."""
+        for c in self.constraints:
+            why = c.rebind(self.model, self.coloring)
+            if why is not None:
+                return why
+        return None
+
     def describe(self) -> dict:
         """Solver options and constraint sets."""
         return {
