@@ -122,7 +122,7 @@ def test_image_size_only_renders_videos_without_scores(tmp_path):
         (
             {"images": np.zeros((2, 1, H, W, 3), np.uint8), "masks": np.zeros((2, 1, H, W), bool)},
             "masks",
-            "no pixel",
+            "no object pixel",
         ),
     ],
 )

@@ -152,8 +152,6 @@ def load_camera_file(path: str | os.PathLike) -> CameraFile:
             f"{_image_size(data['image_size'], fail)} differs from the images' (width, height) ({W}, {H}); "
             "drop image_size or make it match",
         )
-    if masks is not None and not np.any(np.asarray(masks) > 0.5):
-        raise fail("masks", "no pixel is above 0.5 in any mask; give the object's pixels or drop masks")
     return CameraFile(path, K, T_wc, W, H, images, masks, None if t is None else np.asarray(t, np.float64))
 
 
