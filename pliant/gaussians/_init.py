@@ -235,7 +235,6 @@ class _View:
         self.nd = np_dtype(dtype)
         self.device = device
         self.mask_wp = wp.array(mask.astype(self.nd), dtype=scalar_type(dtype), device=device)
-        self.obj_wp = wp.array(self.obj.astype(self.nd), dtype=self.v3, device=device)
 
     def target(self, background: np.ndarray) -> wp.array:
         """The observed image with its background pixels replaced by ``background`` (RGB)."""
