@@ -103,6 +103,7 @@ def test_particles_keep_apart_and_splats_stay_attached(built):
     _, _, _, points, res = built
     d = cKDTree(res.particles).query(res.particles, k=2)[0][:, 1]
     assert d.min() >= 2 * R * (1 - 1e-3)
+    assert res.separation == pytest.approx(d.min() / (2 * R))
     g = res.gaussians
     near = cKDTree(res.particles).query(g.means.numpy(), k=1)[0]
     assert near.max() <= 2.3 * R + 1e-6

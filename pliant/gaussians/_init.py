@@ -73,6 +73,8 @@ class SplatInit:
         gaussians: The visual splats (the second set, attached: none farther than ``attach`` · r from a
             particle).
         radius: Particle radius r [m].
+        separation: The least distance between two particles, in units of 2r (≥ 1 − 10⁻³ unless the final
+            projections ran out of iterations on a very crowded input).
         pruned: Input points dropped by opacity (step 5).
         buried: Input points whose splat faded but that every camera sees only through kept particles,
             kept as particles (step 5).
@@ -97,6 +99,7 @@ class SplatInit:
     kept: np.ndarray
     gaussians: Gaussians
     radius: float
+    separation: float
     pruned: int
     buried: int
     visual_dropped: int
@@ -214,6 +217,15 @@ def separate_particles(
         )
         x += relaxation * delta
     return x
+
+
+def _separation(x: np.ndarray, radius: float) -> float:
+    """Least distance between two of the points ``x`` [m], in units of 2 · ``radius`` (inf for one point)."""
+    from scipy.spatial import cKDTree
+
+    if len(x) < 2:
+        return math.inf
+    return float(np.min(cKDTree(x).query(x, k=2)[0][:, 1]) / (2.0 * radius))
 
 
 @wp.kernel
@@ -562,6 +574,7 @@ def splats_from_particles(
         kept=kept,
         gaussians=visual,
         radius=r,
+        separation=_separation(particles, r),
         pruned=int(n - kept.sum()),
         buried=int(np.sum(kept & ~opaque)),
         visual_dropped=int(n - keep_v.sum()),
