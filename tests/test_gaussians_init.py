@@ -103,6 +103,7 @@ def test_particles_keep_apart_and_splats_stay_attached(built):
     _, _, _, points, res = built
     d = cKDTree(res.particles).query(res.particles, k=2)[0][:, 1]
     assert d.min() >= 2 * R * (1 - 1e-3)
+    assert res.separation == pytest.approx(d.min() / (2 * R))
     g = res.gaussians
     near = cKDTree(res.particles).query(g.means.numpy(), k=1)[0]
     assert near.max() <= 2.3 * R + 1e-6
@@ -174,3 +175,18 @@ def test_bad_inputs_name_the_array():
         splats_from_particles(pts, cams, [img, img], [mask, mask], **{**ok, "radius": 0.0})
     with pytest.raises(ValueError, match="unknown lrs"):
         splats_from_particles(pts, cams, [img, img], [mask, mask], lrs={"mean": 1.0}, **ok)
+
+
+def test_hidden_points_are_those_behind_the_particles_in_every_view():
+    from pliant.gaussians._init import hidden_points
+
+    cam = Camera.look_at([0.0, 0.0, 0.5], [0, 0, 0], width=64, height=48)
+    wall = _grid(1.0)  # a 21 cm x 11 cm x 11 cm block of particles, the camera 0.45 m from its front
+    inside = [0.0, 0.0, 0.0]  # 5 cm behind the front face, more than 2r
+    front = [0.0, 0.0, 0.2]  # between the camera and the block
+    beside = [0.5, 0.0, 0.0]  # out of the block's silhouette
+    assert hidden_points([inside, front, beside], wall, R, [cam]).tolist() == [True, False, False]
+    # a point behind the block is hidden from this camera, but one looking down from above sees it
+    behind = [[0.0, 0.0, -0.2]]
+    side = Camera.look_at([0.0, 0.5, 0.0], [0, 0, 0], up=(0, 0, 1), width=64, height=48)
+    assert hidden_points(behind, wall, R, [cam])[0] and not hidden_points(behind, wall, R, [cam, side])[0]
