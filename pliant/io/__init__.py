@@ -1,5 +1,6 @@
 """Files: trajectories, checkpoints and observations (NPZ). Scene files (TOML) are :mod:`pliant.scene`."""
 
+from ._npz import available_memory, npz_headers, npz_memory_problem
 from ._observations import ObservationError, Observations
 from ._trajectory import (
     CheckpointError,
@@ -17,6 +18,9 @@ __all__ = [
     "Observations",
     "Trajectory",
     "atomic_savez",
+    "available_memory",
     "load_checkpoint",
+    "npz_headers",
+    "npz_memory_problem",
     "save_checkpoint",
 ]

@@ -11,6 +11,8 @@ from typing import Any
 
 import numpy as np
 
+from ._npz import npz_memory_problem
+
 
 def atomic_savez(path: str | os.PathLike, **arrays: Any) -> Path:
     """Write an NPZ through a temporary file and ``os.replace`` so a crash never leaves half a file."""
@@ -54,6 +56,9 @@ def _load_npz(
             f"{path}: the {what} NPZ expands to {size / 2**30:.3g} GiB, more than the "
             f"{max_bytes / 2**30:.3g} GiB it can need; it is not a file pliant wrote for this run"
         )
+    too_big = npz_memory_problem(path, what)
+    if too_big:  # the headers' declared shapes, before np.load allocates them
+        raise ValueError(too_big)
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}

@@ -17,9 +17,10 @@ estimates elsewhere (TetGen fills, point-cloud springs). The bytes count what pl
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
+
+from ..io import available_memory
 
 if TYPE_CHECKING:
     from ._schema import ObjectBase, SceneConfig
@@ -264,30 +265,6 @@ def scene_size(cfg: SceneConfig) -> SceneSize:
         solver_bytes=solver,
         exact=total.exact,
     )
-
-
-def available_memory() -> float | None:
-    """The memory a scene may use [bytes]: ``PLIANT_MEMORY_GB`` if set, else the machine's available memory
-    (``MemAvailable`` of /proc/meminfo, else the free physical pages); None when it cannot be told."""
-    raw = os.environ.get("PLIANT_MEMORY_GB", "").strip()
-    if raw:
-        try:
-            v = float(raw)
-            if v > 0 and math.isfinite(v):
-                return v * _GB
-        except ValueError:
-            pass
-    try:
-        with open("/proc/meminfo", encoding="ascii") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return float(line.split()[1]) * 1024.0
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
-    except (ValueError, OSError, AttributeError):
-        return None
 
 
 def size_problem(cfg: SceneConfig) -> list[tuple[str, str]]:
