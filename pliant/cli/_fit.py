@@ -100,7 +100,7 @@ def add_parsers(sub: Subparsers) -> None:
         help="override a scene field first, as in `pliant run` (repeatable)",
     )
     f.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
-    add_force(f)
+    add_force(f, "; and run an image fit whose memory estimate (printed in the plan) exceeds it")
 
     o = _sub(
         sub,
@@ -252,6 +252,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
             dtype=args.dtype,
             progress=not args.quiet,
             video=not args.no_video,
+            force=args.force,
         )
     except FitError as exc:
         raise CliError(str(exc)) from None

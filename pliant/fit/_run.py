@@ -15,9 +15,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..io import Observations, atomic_savez
+from ..scene._size import format_bytes
 from . import _explain
 from ._cmaes import StageResult, cmaes
 from ._gradient import gradient_stage
+from ._memory import device_memory, memory_problem, problem_memory
 from ._params import FitError, auto_per_element, scene_constraints
 from ._photometric import PhotometricProblem, gradient_capable, problem_for, refinable, refine_globals
 from ._problem import Problem
@@ -106,6 +108,7 @@ def fit(
     progress: bool = True,
     video: bool = True,
     appearance: bool | None = None,
+    force: bool = False,
 ) -> dict[str, Any]:
     """Fit a scene to observations and write the outputs into ``out``.
 
@@ -147,9 +150,15 @@ def fit(
         video: Write ``fit.mp4``.
         appearance: From images: fit the splats' appearance to the first frame before the physics
             (``pl.fit._explain.before_physics``); None: when the scene has no ``[gaussians]`` section.
+        force: From images: go on when the fit's memory estimate (:mod:`pliant.fit._memory`) exceeds the
+            memory available on its device.
 
     Returns:
         The contents of ``fit.json`` (also written to ``out``).
+
+    Raises:
+        FitError: bad options, a problem that cannot be built, or an image fit whose memory estimate
+            exceeds the memory available (without ``force``).
     """
     t0 = time.perf_counter()
     if not 0.0 <= validation < 1.0:
@@ -174,8 +183,17 @@ def fit(
             raise
         per_element = None  # "auto" on a scene without such elements (rigid XPBD sets): no per-element stage
         problem = make(cfg, obs, per_element=None, shooting=shooting, **kw)
+    image_gradient = isinstance(problem, PhotometricProblem) and epochs > 0 and bool(refinable(problem))
+    mem = problem_memory(problem, gradient=image_gradient)
+    plan = search_plan(problem)
+    if mem is not None:
+        have = device_memory(problem.model_device)  # type: ignore[attr-defined]
+        plan.append(f"  memory: {mem.describe()}; {'?' if have is None else format_bytes(have)} available")
+        too_big = None if force else memory_problem(mem, have)
+        if too_big:  # before the appearance stage and the searches: nothing is rendered yet
+            raise FitError(too_big)
     if progress:
-        print("fit: searching\n" + "\n".join(search_plan(problem)), flush=True)
+        print("fit: searching\n" + "\n".join(plan), flush=True)
     # images: the appearance stage, and whether the splats can explain the images at all (warns if not)
     explained = _explain.before_physics(problem, out, appearance=appearance)
     stages: dict[str, StageResult] = {}
