@@ -236,3 +236,26 @@ def test_atomic_output_keeps_the_old_file_when_the_writer_fails(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert path.read_text() == "new = 2\n" and (path.stat().st_mode & 0o777) == 0o666 & ~umask
+
+
+def test_models_resume_the_stopped_fit_and_start_the_rest(rope, tmp_path, monkeypatch):
+    """`--models mass_spring,pbd --resume`: stopped in the first model's CMA-ES (generation 1 of 2), the
+    resume continues that model's checkpoint and starts the second's: models.json's fitted values are the
+    uninterrupted comparison's."""
+    wrong, obs = rope
+    kw = dict(generations=2, epochs=0, progress=False, video=False)
+    ref = pl.fit.compare_models(wrong, obs, ["mass_spring", "pbd"], tmp_path / "ref", **kw)
+    assert all("values" in r for r in ref["models"].values()), ref  # both fitted, none failed
+    with monkeypatch.context() as m:
+        _stop_at(m, "cmaes", 1)
+        with pytest.raises(KeyboardInterrupt):
+            pl.fit.compare_models(wrong, obs, ["mass_spring", "pbd"], tmp_path / "cut", **kw)
+    assert not (tmp_path / "cut" / "pbd").exists()
+    rep = pl.fit.compare_models(wrong, obs, ["mass_spring", "pbd"], tmp_path / "cut", resume=True, **kw)
+    assert {m: r.get("values") for m, r in rep["models"].items()} == {
+        m: r.get("values") for m, r in ref["models"].items()
+    }
+    for m in ("mass_spring", "pbd"):
+        assert (tmp_path / "cut" / m / "fitted.toml").read_bytes() == (
+            tmp_path / "ref" / m / "fitted.toml"
+        ).read_bytes()

@@ -338,6 +338,8 @@ def _fit_models(
             dtype=args.dtype,
             progress=not args.quiet,
             video=not args.no_video,
+            force=args.force,
+            resume=args.resume,
         )
     except FitError as exc:
         raise CliError(str(exc)) from None
