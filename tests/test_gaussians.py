@@ -187,6 +187,28 @@ def test_ply_missing_properties_named(tmp_path):
         pl.gaussians.load_ply(path)
 
 
+@pytest.mark.parametrize("fmt", ["ascii", "binary_little_endian"])
+def test_ply_header_counts_are_checked_against_the_file_before_allocating(tmp_path, fmt):
+    """Issue 41: a header declaring 10¹⁰ vertices in a 200-byte file is a PlyError naming the element, the
+    bytes it needs (2 per ASCII property, 4 per float32 one) and those the file has, at once (an ASCII
+    file's rows were allocated from the header's count first)."""
+    import time
+
+    path = tmp_path / "huge.ply"
+    head = f"ply\nformat {fmt} 1.0\nelement vertex 10000000000\n"
+    head += "".join(f"property float {n}\n" for n in ("x", "y", "z")) + "end_header\n"
+    path.write_bytes(head.encode() + b"0 0 0\n")
+    t0 = time.perf_counter()
+    with pytest.raises(pl.gaussians.PlyError) as info:
+        pl.gaussians.load_ply(path)
+    need = 10**10 * (2 * 3 if fmt == "ascii" else 3 * 4)
+    assert (
+        f"element 'vertex' declares 10000000000 rows, at least {need} bytes, but the file holds 6 bytes"
+        in str(info.value)
+    )
+    assert time.perf_counter() - t0 < 1.0
+
+
 def test_camera_validation():
     K = np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]])
     T = np.eye(4)

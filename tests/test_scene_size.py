@@ -4,6 +4,7 @@ with one line naming both, built anyway with ``--force``, and printed by ``plian
 
 from __future__ import annotations
 
+import re
 import time
 
 import numpy as np
@@ -11,7 +12,8 @@ import pytest
 import warp as wp
 
 from pliant.cli import main
-from pliant.scene import SceneError, available_memory, build_scene, load_scene, scene_size
+from pliant.scene import SceneError, available_memory, build_scene, load_scene, parse_scene, scene_size
+from pliant.scene._size import MAX_COUNT
 
 HUGE = ["objects[0].cells=1000"]  # soft_box: 1001³ ≈ 1e9 particles, 7e9 tet-edge springs
 
@@ -156,3 +158,43 @@ def test_implicit_solver_matrices_bound_the_hessian():
     pairs = {tuple(sorted((int(t[a]), int(t[b])))) for t in tets for a in range(4) for b in range(a + 1, 4)}
     assert size.pairs == len(pairs)  # the Kuhn split's edges, in closed form
     assert size.solver_bytes >= (model.particle_count + 2 * len(pairs)) * (9 * 4 + 12)
+
+
+MESH = '[scene]\nname = "m"\nframes = 1\n[[objects]]\nkind = "mesh"\npath = "b.obj"\nmax_volume = {v}\n'
+MESH += "material = {{stiffness = 1.0}}\n"
+
+
+@pytest.mark.parametrize("force", [False, True])
+def test_a_denormal_max_volume_is_refused_naming_the_field(tmp_path, force):
+    """Issue 41, item 2 (found by the fuzz): a 0.2 m box with max_volume = 5e-324 m³ (a denormal) gives
+    0.008 / 5e-324 / 5 = inf TetGen particles; scene_size used to crash on int(inf). It is one SceneError at
+    the field's line, with or without --force (no machine holds more than MAX_COUNT = 1e12 particles)."""
+    import trimesh
+
+    trimesh.creation.box(extents=(0.2, 0.2, 0.2)).export(tmp_path / "b.obj")
+    with pytest.raises(SceneError) as info:
+        parse_scene(MESH.format(v="5e-324"), "m.toml", tmp_path, force=force)
+    msg = str(info.value)
+    assert len(msg.splitlines()) == 1, msg
+    assert msg.startswith("m.toml:7: objects[0].max_volume: max_volume = 5e-324 gives inf particles"), msg
+    assert "use a larger max_volume" in msg, msg
+    # 1e-20 m³: 0.008 / 1e-20 / 5 = 1.6e17 particles, finite but above the bound; 3.5 x that in springs.
+    with pytest.raises(SceneError, match=r"max_volume = 1e-20 gives 5.6e\+17 particles or elements"):
+        parse_scene(MESH.format(v="1e-20"), "m.toml", tmp_path, force=force)
+    cfg = parse_scene(MESH.format(v="1e-4"), "m.toml", tmp_path, force=force)
+    assert 0 < scene_size(cfg).particles <= MAX_COUNT
+
+
+@pytest.mark.parametrize(
+    "name, sets, field",
+    [
+        ("cloth", ["objects[0].nx=2000000", "objects[0].ny=1000000"], "objects[0].nx"),  # 2e12 particles
+        ("soft_box", ["objects[0].cells=[100000,100000,1000]"], "objects[0].cells"),  # 1e13 particles
+        ("fem_drop", ["objects[1].max_volume=5e-324"], "objects[1].max_volume"),  # a soft_sphere: inf
+    ],
+)
+def test_every_count_is_finite_and_bounded(name, sets, field):
+    """Counts above 1e12 or beyond the double range (infinite) are refused naming the field that sets them."""
+    with pytest.raises(SceneError, match=rf": {re.escape(field)}: .* beyond any machine") as info:
+        load_scene(name, sets)
+    assert len(str(info.value).splitlines()) == 1, str(info.value)

@@ -59,12 +59,12 @@ def _positive_float(text: str) -> float:
     return v
 
 
-def add_force(parser: argparse.ArgumentParser) -> None:
+def add_force(parser: argparse.ArgumentParser, also: str = "") -> None:
     """``--force``: build a scene that needs more memory than is available (or more particles than the
-    budget) anyway."""
+    budget) anyway; ``also``: what else the command's ``--force`` lets through (appended to the help)."""
     parser.add_argument(
         "--force",
         action="store_true",
         help="build the scene even when its estimated memory exceeds the machine's available memory "
-        "(see `pliant info SCENE`) or its particles exceed PLIANT_MAX_PARTICLES",
+        "(see `pliant info SCENE`) or its particles exceed PLIANT_MAX_PARTICLES" + also,
     )

@@ -100,7 +100,14 @@ def add_parsers(sub: Subparsers) -> None:
         help="override a scene field first, as in `pliant run` (repeatable)",
     )
     f.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
-    add_force(f)
+    add_force(f, "; and run an image fit whose memory estimate (printed in the plan) exceeds it")
+    f.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue a stopped or killed fit from OUT/fit_checkpoint.json (written after every CMA-ES "
+        "generation and gradient iteration; the same scene, observations and options): the same fitted.toml "
+        "as a fit never stopped",
+    )
 
     o = _sub(
         sub,
@@ -253,11 +260,17 @@ def cmd_fit(args: argparse.Namespace) -> int:
             dtype=args.dtype,
             progress=not args.quiet,
             video=not args.no_video,
+            force=args.force,
+            resume=args.resume,
         )
     except FitError as exc:
         raise CliError(str(exc)) from None
     except KeyboardInterrupt:
-        print(f"interrupted: the best parameters so far are in {out}", flush=True)
+        print(
+            f"interrupted: the best parameters so far are in {out}; continue with the same command and "
+            "--resume",
+            flush=True,
+        )
         raise
     for name, p in report["params"].items():
         print(f"{name}: {p['value']:.6g} (nominal {p['nominal']:.6g})")
@@ -326,6 +339,8 @@ def _fit_models(
             dtype=args.dtype,
             progress=not args.quiet,
             video=not args.no_video,
+            force=args.force,
+            resume=args.resume,
         )
     except FitError as exc:
         raise CliError(str(exc)) from None

@@ -6,11 +6,13 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from ._params import GLOBAL, FitError
 from ._problem import Problem
+from ._resume import StageHook, rng_state, set_rng_state
 from ._reuse import BatchScenes, build_batch
 
 #: Loss given to a candidate whose simulation diverges or cannot be built (CMA-ES needs a finite number).
@@ -128,6 +130,7 @@ def cmaes(
     reuse: bool = True,
     rtol: float = 1e-3,
     patience: int = 5,
+    checkpoint: StageHook | None = None,
 ) -> StageResult:
     """Minimise the training loss over ``problem.globals`` with CMA-ES (the ``cma`` package).
 
@@ -157,6 +160,8 @@ def cmaes(
         rtol: Relative improvement of the best loss over ``patience`` generations below which it stops
             (0: never on this criterion).
         patience: Generations over which the improvement is measured.
+        checkpoint: Saves the search after every generation (:mod:`pliant.fit._resume`), and when it holds
+            a saved search, continues it: the saved generations are replayed into ``cma`` (no simulation).
     """
     import cma
 
@@ -204,9 +209,17 @@ def cmaes(
     batched = batch and batchable(problem)
     scenes = BatchScenes(reuse) if batched else None
     es = cma.CMAEvolutionStrategy(x0, sigma, opts)
-    best = StageResult(values=dict(start), loss=evaluate(problem, start), evaluations=1)
+    saved = None if checkpoint is None else checkpoint.state
+    if saved is None:
+        best = StageResult(values=dict(start), loss=evaluate(problem, start), evaluations=1)
+    else:
+        best = _replay(es, saved)
+    gens: list[dict] = [] if saved is None else saved["generations"]
     try:
-        for gen in range(generations):
+        for gen in range(len(gens), generations):
+            if best.stop:  # the saved search had stopped at its last generation
+                break
+            rng = None if checkpoint is None else rng_state()
             cands = es.ask()
             values = [decode(np.asarray(u)) for u in cands]
             if batched:
@@ -219,14 +232,18 @@ def cmaes(
                     best.values, best.loss = v, f
             es.tell(cands, losses)
             best.history.append(best.loss)
-            if callback is not None:
-                callback(gen + 1, best.loss)
             h = best.history
             if len(h) > patience and h[-1 - patience] - h[-1] <= rtol * abs(h[-1 - patience]):
                 best.stop = "converged"
-                break
-            if es.stop() and "maxiter" not in es.stop():
+            elif es.stop() and "maxiter" not in es.stop():
                 best.stop = "step"
+            if checkpoint is not None:
+                cand = [np.asarray(u).tolist() for u in cands]
+                gens.append({"rng": rng, "candidates": cand, "losses": [float(f) for f in losses]})
+                checkpoint.save({"generations": gens, "best": _best_json(best), "rng": rng_state()}, gen + 1)
+            if callback is not None:
+                callback(gen + 1, best.loss)
+            if best.stop:
                 break
         else:
             best.stop = "cap"
@@ -235,6 +252,42 @@ def cmaes(
         best.stop = "interrupted"
     best.wall_time = time.perf_counter() - t0
     return best
+
+
+def _best_json(best: StageResult) -> dict:
+    return {
+        "values": {k: float(v) for k, v in best.values.items()},
+        "loss": float(best.loss),
+        "evaluations": best.evaluations,
+        "history": [float(v) for v in best.history],
+        "stop": best.stop,
+    }
+
+
+def _replay(es: Any, saved: dict) -> StageResult:
+    """Bring ``es`` (a fresh ``cma.CMAEvolutionStrategy``) to the state of a checkpoint's search: each saved
+    generation's ask (from its generator state; the candidates must come out bit for bit) and tell (its
+    saved losses); then the best candidate and the generator state as saved."""
+    for i, g in enumerate(saved["generations"]):
+        set_rng_state(g["rng"])
+        cands = es.ask()
+        if len(cands) != len(g["candidates"]) or not all(
+            np.array_equal(np.asarray(u), np.asarray(c)) for u, c in zip(cands, g["candidates"], strict=False)
+        ):
+            raise FitError(
+                f"the checkpoint's CMA-ES generation {i + 1} does not replay (another version of cma?); run "
+                "without --resume to start over"
+            )
+        es.tell(cands, [float(f) for f in g["losses"]])
+    set_rng_state(saved["rng"])
+    b = saved["best"]
+    return StageResult(
+        values={k: float(v) for k, v in b["values"].items()},
+        loss=float(b["loss"]),
+        history=[float(v) for v in b["history"]],
+        evaluations=int(b["evaluations"]),
+        stop=str(b["stop"]),
+    )
 
 
 __all__ = ["OBJECT_PARAMS", "PENALTY", "StageResult", "batchable", "cmaes", "evaluate", "evaluate_batch"]

@@ -134,6 +134,7 @@ def _section(problem: PhotometricProblem, out: Path, res: AppearanceResult) -> G
     """The ``[gaussians]`` section that draws the fitted appearance (a PLY in ``out``), or None where a
     section cannot describe the splats (several objects: generated splats span the whole model)."""
     from ..gaussians import save_ply
+    from ..io import atomic_output
     from ..scene._gaussians import GaussiansSection
 
     own = getattr(problem.cfg, "gaussians", None)
@@ -141,7 +142,8 @@ def _section(problem: PhotometricProblem, out: Path, res: AppearanceResult) -> G
         return None
     path = Path(out).resolve() / "appearance.ply"
     b = problem.binding
-    save_ply(b.gaussians.baked(), path)
+    with atomic_output(path) as tmp:  # a kill never leaves half a PLY that fitted.toml names
+        save_ply(b.gaussians.baked(), tmp)
     fields: dict[str, Any] = {"ply": str(path), "bind": b.method, "background": res.background}
     if res.light is not None:
         fields["light"] = list(res.light)

@@ -32,6 +32,7 @@ from ._cmaes import StageResult
 from ._losses import acceleration_loss, chamfer_loss, track_loss
 from ._params import FitError, per_element_arrays, per_element_incidence, scene_constraints
 from ._problem import Problem
+from ._resume import Journal, StageHook
 
 if TYPE_CHECKING:
     from ..scene import Scene
@@ -332,6 +333,7 @@ def gradient_stage(
     frames: int | None = None,
     tol: float = 1e-4,
     callback: Callable[[int, float], None] | None = None,
+    checkpoint: StageHook | None = None,
 ) -> StageResult:
     """Fit ``problem.per_element`` (log-scale factors θ per element) with gradients from the tape.
 
@@ -352,6 +354,8 @@ def gradient_stage(
         tol: Stop when the epoch loss improves by less than this fraction five epochs in a row (Adam;
             L-BFGS-B: its ``ftol``); ``iterations`` is the cap. 0: run every iteration.
         callback: ``callback(iteration, loss)`` after each iteration.
+        checkpoint: Saves the stage after each iteration (:mod:`pliant.fit._resume`: Adam's θ and moments
+            after each epoch; L-BFGS-B's evaluations) and continues a saved one.
 
     Raises:
         FitError: no per-element parameter, an unknown optimiser, or a solver that gives no gradient.
@@ -421,14 +425,20 @@ def gradient_stage(
     graphs = rollout_graphs(r.scene.solver)
     graphs.max_graphs = max(graphs.max_graphs, min(len(shapes), _MAX_SHAPES))
 
+    saved = None if checkpoint is None else checkpoint.state
     try:
         if optimizer == "lbfgs":
             from scipy.optimize import minimize
 
-            def fun(th: np.ndarray) -> tuple[float, np.ndarray]:
+            journal = Journal(None if saved is None else saved["journal"])
+
+            def evaluate(th: np.ndarray) -> tuple[float, np.ndarray]:
                 r.start()
                 value, g = rollout_grad(th, 0, n_frames)
-                value, g = regularise(th, value, g, 1.0)
+                return regularise(th, value, g, 1.0)
+
+            def fun(th: np.ndarray) -> tuple[float, np.ndarray]:
+                value, g = journal(evaluate, th)
                 if value < result.loss:
                     result.loss, result.per_element = value, r.values(th)
                 result.evaluations += 1
@@ -436,6 +446,8 @@ def gradient_stage(
 
             def cb(th: np.ndarray) -> None:
                 result.history.append(result.loss)
+                if checkpoint is not None and not journal.replaying:
+                    checkpoint.save({"journal": journal.entries}, len(result.history))
                 if callback is not None:
                     callback(len(result.history), result.loss)
 
@@ -450,9 +462,22 @@ def gradient_stage(
             )
         else:
             mom, var = np.zeros(r.size), np.zeros(r.size)
-            b1, b2, step = 0.9, 0.99, 0
+            b1, b2, step, first = 0.9, 0.99, 0, 0
             stop = Convergence(tol)
-            for it in range(iterations):
+            if saved is not None:  # the state after the saved epoch
+                theta, mom, var = (np.asarray(saved[k], np.float64) for k in ("theta", "mom", "var"))
+                step, first, stop.best, stop.stalled = (
+                    saved["step"],
+                    saved["epochs"],
+                    saved["best"],
+                    saved["stalled"],
+                )
+                result.loss, result.per_element = saved["loss"], r.values(theta)
+                result.history, result.evaluations = list(saved["history"]), saved["evaluations"]
+                checked[0] = True
+            for it in range(first, iterations):
+                if saved is not None and saved["stopped"]:
+                    break
                 # Step size decays geometrically from lr to lr / 10 over the run, so that Adam settles.
                 lr_it = lr * 0.1 ** (it / max(iterations - 1, 1))
                 r.start()
@@ -473,9 +498,15 @@ def gradient_stage(
                 # they were simulated; the result is the θ after the epoch.
                 result.loss, result.per_element = epoch, r.values(theta)
                 result.history.append(epoch)
+                stopped = stop(epoch)
+                if checkpoint is not None:
+                    state = {k: v.tolist() for k, v in (("theta", theta), ("mom", mom), ("var", var))}
+                    state.update(step=step, epochs=it + 1, best=stop.best, stalled=stop.stalled, loss=epoch)
+                    state.update(history=result.history, evaluations=result.evaluations, stopped=stopped)
+                    checkpoint.save(state, it + 1)
                 if callback is not None:
                     callback(it + 1, epoch)
-                if stop(epoch):
+                if stopped:
                     break
     except KeyboardInterrupt:
         result.interrupted = True

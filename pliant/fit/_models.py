@@ -9,8 +9,9 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..io import Observations
+from ..io import Observations, atomic_write_text
 from ._params import FitError
+from ._resume import CHECKPOINT_FILE
 
 if TYPE_CHECKING:
     from ..scene import SceneConfig
@@ -72,7 +73,8 @@ def compare_models(
         obs: The observations.
         models: Candidate model names (:data:`MODELS`), at least two.
         out: Output folder.
-        **fit_kwargs: Passed to :func:`pliant.fit.fit` (params, generations, device, ...).
+        **fit_kwargs: Passed to :func:`pliant.fit.fit` (params, generations, device, ...); ``resume``
+            continues the models whose folder holds a checkpoint and starts the others.
     """
     from ..scene import SceneError
     from ._run import fit
@@ -86,8 +88,10 @@ def compare_models(
     rows: dict[str, Any] = {}
     for m in models:
         t0 = time.perf_counter()
+        # --resume: continue each model's fit that has a checkpoint; start the ones never begun
+        kw = {**fit_kwargs, "resume": bool(fit_kwargs.get("resume")) and (out / m / CHECKPOINT_FILE).exists()}
         try:
-            rep = fit(candidate(cfg, m), obs, out / m, **fit_kwargs)
+            rep = fit(candidate(cfg, m), obs, out / m, **kw)
         except (FitError, SceneError, ValueError) as exc:
             rows[m] = {"failed": str(exc).splitlines()[0]}
             continue
@@ -100,7 +104,7 @@ def compare_models(
         }
     scored = {m: r["test"] for m, r in rows.items() if r.get("test") is not None and math.isfinite(r["test"])}
     report = {"models": rows, "best": min(scored, key=scored.__getitem__) if scored else None}
-    (out / "models.json").write_text(json.dumps(report, indent=2) + "\n")
+    atomic_write_text(out / "models.json", json.dumps(report, indent=2) + "\n")
     return report
 
 

@@ -39,6 +39,7 @@ from ._cmaes import StageResult
 from ._gradient import Convergence
 from ._params import GLOBAL, FitError, GlobalParam
 from ._problem import Problem
+from ._resume import Journal, StageHook
 
 if TYPE_CHECKING:
     from ..diff import RolloutResult
@@ -376,6 +377,7 @@ def refine_globals(
     lr: float = 0.01,
     tol: float = 1e-4,
     callback: Callable[[int, float], None] | None = None,
+    checkpoint: StageHook | None = None,
 ) -> StageResult:
     """Stage 2 of a photometric fit: gradient descent on the log of the global parameters that enter the
     model or the solver as proportional arrays (:func:`gradient_capable`: every log-scale parameter that
@@ -392,6 +394,8 @@ def refine_globals(
             ``ftol`` on the loss relative to the start; Adam: five such iterations in a row); the cap is
             ``iterations``.
         callback: ``callback(iteration, best_loss)`` after each iteration.
+        checkpoint: Saves every evaluation after each iteration (:mod:`pliant.fit._resume`); a saved
+            stage is continued by returning its evaluations to the optimiser in order.
 
     Returns:
         A StageResult whose ``values`` are the best found (never worse than ``values``: ``kept`` says
@@ -421,14 +425,22 @@ def refine_globals(
     scale = 1.0 / start if start > 0 else 1.0  # the optimisers see L / L(start): tolerances are relative
 
     first = [True]
+    journal = Journal(None if checkpoint is None or checkpoint.state is None else checkpoint.state["journal"])
 
-    def fun(theta: np.ndarray) -> tuple[float, np.ndarray]:
+    def evaluate(theta: np.ndarray) -> tuple[float, np.ndarray]:
         from ..sim import DivergenceError
 
         try:
-            value, g = gg.evaluate(theta)
+            return gg.evaluate(theta)
         except DivergenceError:  # pl.diff refuses a rollout that blew up: a failed trial, not an error
-            value, g = math.inf, np.zeros_like(theta)
+            return math.inf, np.zeros_like(theta)
+
+    def save() -> None:
+        if checkpoint is not None and not journal.replaying:
+            checkpoint.save({"journal": journal.entries}, len(result.history))
+
+    def fun(theta: np.ndarray) -> tuple[float, np.ndarray]:
+        value, g = journal(evaluate, theta)
         result.evaluations += 1
         if not (np.isfinite(value) and np.all(np.isfinite(g))):
             # A step too stiff for the substep diverged: a high loss without slope sends the line search back.
@@ -451,6 +463,7 @@ def refine_globals(
 
             def cb(theta: np.ndarray) -> None:
                 result.history.append(result.loss)
+                save()
                 if callback is not None:
                     callback(len(result.history), result.loss)
 
@@ -475,6 +488,7 @@ def refine_globals(
                 mhat, vhat = mom / (1 - 0.9 ** (it + 1)), var / (1 - 0.99 ** (it + 1))
                 theta = np.clip(theta - step * mhat / (np.sqrt(vhat) + 1e-12), lo, hi)
                 result.history.append(result.loss)
+                save()
                 if callback is not None:
                     callback(it + 1, result.loss)
                 if stop(result.loss):

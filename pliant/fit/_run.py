@@ -14,13 +14,16 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..io import Observations, atomic_savez
+from ..io import Observations, atomic_output, atomic_savez, atomic_write_text
+from ..scene._size import format_bytes
 from . import _explain
 from ._cmaes import StageResult, cmaes
 from ._gradient import gradient_stage
+from ._memory import device_memory, memory_problem, problem_memory
 from ._params import FitError, auto_per_element, scene_constraints
 from ._photometric import PhotometricProblem, gradient_capable, problem_for, refinable, refine_globals
 from ._problem import Problem
+from ._resume import FitCheckpoint, StageHook
 from ._toml import scene_toml
 
 if TYPE_CHECKING:
@@ -106,6 +109,8 @@ def fit(
     progress: bool = True,
     video: bool = True,
     appearance: bool | None = None,
+    force: bool = False,
+    resume: bool = False,
 ) -> dict[str, Any]:
     """Fit a scene to observations and write the outputs into ``out``.
 
@@ -147,9 +152,20 @@ def fit(
         video: Write ``fit.mp4``.
         appearance: From images: fit the splats' appearance to the first frame before the physics
             (``pl.fit._explain.before_physics``); None: when the scene has no ``[gaussians]`` section.
+        resume: Continue from ``out/fit_checkpoint.json``, which every fit writes after each CMA-ES
+            generation and gradient iteration (:mod:`pliant.fit._resume`): the same outputs as a fit that was
+            never stopped (on the CPU, ``fitted.toml`` byte for byte). Its scene, observations, options and
+            fit version must be this fit's.
+        force: From images: go on when the fit's memory estimate (:mod:`pliant.fit._memory`) exceeds the
+            memory available on its device.
 
     Returns:
         The contents of ``fit.json`` (also written to ``out``).
+
+    Raises:
+        FitError: bad options, a problem that cannot be built, an image fit whose memory estimate
+            exceeds the memory available (without ``force``), or with ``resume`` a missing checkpoint or one
+            from another scene, other observations, other options or another version of the fit.
     """
     t0 = time.perf_counter()
     if not 0.0 <= validation < 1.0:
@@ -158,6 +174,35 @@ def fit(
         raise FitError(f"--smoothness: expected a weight >= 0, got {smoothness}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    options = {
+        "params": params,
+        "per_element": per_element,
+        "train_fraction": train_fraction,
+        "generations": generations,
+        "epochs": epochs,
+        "optimizer": optimizer,
+        "horizon": horizon,
+        "lr": lr,
+        "smoothness": smoothness,
+        "validation": validation,
+        "tol": tol,
+        "shooting": shooting,
+        "seed": seed,
+        "device": device,
+        "dtype": dtype,
+        "appearance": appearance,
+    }
+    ck = FitCheckpoint.open(out, cfg, obs, options, resume)  # refused here, before any work
+
+    def staged(name: str, run: Callable[[StageHook], StageResult]) -> StageResult:
+        """Stage ``name``: its result when the checkpoint has it, else run (continuing a saved state)."""
+        done = ck.finished(name)
+        if done is None:
+            done = run(ck.stage(name))
+            if not done.interrupted:
+                ck.finish(name, done)
+        return done
+
     auto = per_element == "auto"
     per_element = auto_per_element(cfg, obs) if auto else (None if per_element == "none" else per_element)
     kw: dict[str, Any] = {
@@ -174,8 +219,17 @@ def fit(
             raise
         per_element = None  # "auto" on a scene without such elements (rigid XPBD sets): no per-element stage
         problem = make(cfg, obs, per_element=None, shooting=shooting, **kw)
+    image_gradient = isinstance(problem, PhotometricProblem) and epochs > 0 and bool(refinable(problem))
+    mem = problem_memory(problem, gradient=image_gradient)
+    plan = search_plan(problem)
+    if mem is not None:
+        have = device_memory(problem.model_device)  # type: ignore[attr-defined]
+        plan.append(f"  memory: {mem.describe()}; {'?' if have is None else format_bytes(have)} available")
+        too_big = None if force else memory_problem(mem, have)
+        if too_big:  # before the appearance stage and the searches: nothing is rendered yet
+            raise FitError(too_big)
     if progress:
-        print("fit: searching\n" + "\n".join(search_plan(problem)), flush=True)
+        print("fit: searching\n" + "\n".join(plan), flush=True)
     # images: the appearance stage, and whether the splats can explain the images at all (warns if not)
     explained = _explain.before_physics(problem, out, appearance=appearance)
     stages: dict[str, StageResult] = {}
@@ -183,7 +237,12 @@ def fit(
     interrupted = False
     if problem.globals and generations > 0:
         with _stage_progress(progress, generations, "fit: CMA-ES") as tick:
-            stages["cmaes"] = cmaes(problem, generations=generations, seed=seed, callback=tick)
+            stages["cmaes"] = staged(
+                "cmaes",
+                lambda hook: cmaes(
+                    problem, generations=generations, seed=seed, callback=tick, checkpoint=hook
+                ),
+            )
         values = stages["cmaes"].values
         interrupted = stages["cmaes"].interrupted
         if problem.shooting > 0 and not interrupted:
@@ -194,13 +253,17 @@ def fit(
             window, problem.shooting = problem.shooting, 0
             try:
                 with _stage_progress(progress, generations, "fit: CMA-ES (open loop)") as tick:
-                    stages["cmaes_open_loop"] = cmaes(
-                        problem,
-                        generations=generations,
-                        seed=seed,
-                        start=values,
-                        sigma=SIGMA_OPEN_LOOP,
-                        callback=tick,
+                    stages["cmaes_open_loop"] = staged(
+                        "cmaes_open_loop",
+                        lambda hook: cmaes(
+                            problem,
+                            generations=generations,
+                            seed=seed,
+                            start=values,
+                            sigma=SIGMA_OPEN_LOOP,
+                            callback=tick,
+                            checkpoint=hook,
+                        ),
                     )
             finally:
                 problem.shooting = window
@@ -209,8 +272,18 @@ def fit(
     if isinstance(problem, PhotometricProblem) and epochs > 0 and not interrupted and refinable(problem):
         # From images, stage 2 refines the global values with image gradients through the rollout.
         with _stage_progress(progress, epochs, f"fit: {optimizer} (image gradients)") as tick:
-            stages["gradient"] = refine_globals(
-                problem, values, iterations=epochs, optimizer=optimizer, lr=lr, tol=tol, callback=tick
+            stages["gradient"] = staged(
+                "image_gradient",
+                lambda hook: refine_globals(
+                    problem,
+                    values,
+                    iterations=epochs,
+                    optimizer=optimizer,
+                    lr=lr,
+                    tol=tol,
+                    callback=tick,
+                    checkpoint=hook,
+                ),
             )
         values, interrupted = stages["gradient"].values, stages["gradient"].interrupted
     if per_element is not None and epochs > 0 and not interrupted:
@@ -218,17 +291,21 @@ def fit(
         n_fit = n - int(round(validation * (n - 1))) if n >= 6 else n
         n_fit = min(max(n_fit, 2), n)
         with _stage_progress(progress, epochs, f"fit: {optimizer} ({per_element})") as tick:
-            stages["gradient"] = gradient_stage(
-                problem,
-                values,
-                iterations=epochs,
-                lr=lr,
-                horizon=horizon,
-                optimizer=optimizer,
-                smoothness=smoothness,
-                frames=n_fit,
-                tol=tol,
-                callback=tick,
+            stages["gradient"] = staged(
+                "gradient",
+                lambda hook: gradient_stage(
+                    problem,
+                    values,
+                    iterations=epochs,
+                    lr=lr,
+                    horizon=horizon,
+                    optimizer=optimizer,
+                    smoothness=smoothness,
+                    frames=n_fit,
+                    tol=tol,
+                    callback=tick,
+                    checkpoint=hook,
+                ),
             )
         arrays = stages["gradient"].per_element
         interrupted = stages["gradient"].interrupted
@@ -256,7 +333,7 @@ def fit(
     report["shooting"] = problem.shooting
     report["wall_time"] = time.perf_counter() - t0
     report["interrupted"] = interrupted
-    (out / "fit.json").write_text(json.dumps(report, indent=2, default=_json_default) + "\n")
+    atomic_write_text(out / "fit.json", json.dumps(report, indent=2, default=_json_default) + "\n")
     if interrupted:
         raise KeyboardInterrupt
     return report
@@ -373,7 +450,8 @@ def write_outputs(
             ylabel, scale = "RMS image error (0-1 per channel)", 1.0
     _plot(out / "fit.png", stages, err, err_nom, problem.n_train, problem.frame_dt, ylabel, scale)
     if video:
-        _video(out / "fit.mp4", scene, x, problem, progress)
+        with atomic_output(out / "fit.mp4") as tmp:
+            _video(tmp, scene, x, problem, progress)
     return report
 
 
@@ -415,7 +493,8 @@ def _plot(
     b.set_title("per-frame error (train | test)")
     b.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, dpi=100)
     plt.close(fig)
 
 

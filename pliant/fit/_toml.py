@@ -7,6 +7,8 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from ..io import atomic_write_text
+
 if TYPE_CHECKING:
     from ..scene import SceneConfig
 
@@ -87,9 +89,7 @@ def scene_toml(cfg: SceneConfig, path: str | Path, comment: str = "") -> Path:
     g = data.get("gaussians")  # a [gaussians] PLY, relative to the scene file
     if isinstance(g, dict) and isinstance(g.get("ply"), str) and not Path(g["ply"]).is_absolute():
         g["ply"] = str((base / g["ply"]).resolve())
-    path = Path(path)
-    path.write_text(dumps(data, comment))
-    return path
+    return atomic_write_text(path, dumps(data, comment))  # a kill never leaves half a scene
 
 
 __all__ = ["dumps", "scene_toml"]

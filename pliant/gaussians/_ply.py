@@ -118,6 +118,15 @@ def load_ply(
                 break
             endian = ">" if fmt == "binary_big_endian" else "<"
             record = np.dtype([(pn, endian + _TYPES[pt]) for pt, pn in props])  # one vertex
+            # The header's count is checked against the bytes left before anything is allocated for it: an
+            # ASCII row needs at least two bytes per property ("0 "), a binary one its record's size.
+            need = count * (2 * len(props) if fmt == "ascii" else record.itemsize)
+            left = os.fstat(f.fileno()).st_size - f.tell()
+            if count < 0 or need > left:
+                raise PlyError(
+                    f"{path}: element {name!r} declares {count} rows, at least {need} bytes, but the file "
+                    f"holds {left} bytes after its header; it is truncated or its header is wrong"
+                )
             if fmt == "ascii":
                 rows = [f.readline().split() for _ in range(count)]
                 arr = np.zeros(count, dtype=record)

@@ -2,12 +2,15 @@
 :mod:`pliant.scene`."""
 
 from ._camera_file import CameraFile, CameraFileError, load_camera_file
+from ._npz import available_memory, npz_headers, npz_memory_problem
 from ._observations import ObservationError, Observations
 from ._trajectory import (
     CheckpointError,
     CheckpointSpec,
     Trajectory,
+    atomic_output,
     atomic_savez,
+    atomic_write_text,
     load_checkpoint,
     save_checkpoint,
 )
@@ -20,8 +23,13 @@ __all__ = [
     "ObservationError",
     "Observations",
     "Trajectory",
+    "atomic_output",
     "atomic_savez",
     "load_camera_file",
+    "atomic_write_text",
+    "available_memory",
     "load_checkpoint",
+    "npz_headers",
+    "npz_memory_problem",
     "save_checkpoint",
 ]

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._npz import npz_memory_problem
 from ._observation_images import check_cameras, check_image_arrays
 
 #: The arrays a camera file may hold.
@@ -98,6 +99,9 @@ def load_camera_file(path: str | os.PathLike) -> CameraFile:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"camera file not found: {path}")
+    too_big = npz_memory_problem(path, "camera")
+    if too_big:  # from the arrays' headers, before np.load allocates what they declare
+        raise CameraFileError(too_big)
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._npz import npz_memory_problem
 from ._observation_images import IMAGE_ARRAYS, check_image_arrays, depth_metres, to_unit_float
 from ._trajectory import atomic_savez
 
@@ -212,11 +213,15 @@ class Observations:
 
         Raises:
             FileNotFoundError: no such file.
-            ObservationError: unreadable file, missing ``t``/``points``, unknown arrays, bad shapes or values.
+            ObservationError: arrays whose headers declare more than the available memory holds, unreadable
+                file, missing ``t``/``points``, unknown arrays, bad shapes or values.
         """
         path = Path(path)
         if not path.exists():
             raise FileNotFoundError(f"observation file not found: {path}")
+        too_big = npz_memory_problem(path, "observation")
+        if too_big:  # from the arrays' headers, before np.load allocates what they declare
+            raise ObservationError(too_big)
         try:
             with np.load(path, allow_pickle=False) as z:
                 data = {k: z[k] for k in z.files}

@@ -2,24 +2,35 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import tempfile
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ._npz import npz_memory_problem
 
-def atomic_savez(path: str | os.PathLike, **arrays: Any) -> Path:
-    """Write an NPZ through a temporary file and ``os.replace`` so a crash never leaves half a file."""
+
+@contextlib.contextmanager
+def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
+    """A temporary path beside ``path`` (same suffix, so writers that go by it pick the format) to write
+    into; on a clean exit it replaces ``path`` with ``os.replace``, so a crash or a kill never leaves half a
+    file at ``path`` (the old one, or none, stays). On an error the temporary file is removed.
+
+    Args:
+        path: The output file.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp.npz", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".tmp{path.suffix}", dir=path.parent)
     os.close(fd)
     try:
-        np.savez(tmp, **arrays)
+        yield Path(tmp)
         # mkstemp creates 0600 files; give the output the permissions a plain open() would.
         umask = os.umask(0)
         os.umask(umask)
@@ -28,7 +39,20 @@ def atomic_savez(path: str | os.PathLike, **arrays: Any) -> Path:
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
-    return path
+
+
+def atomic_savez(path: str | os.PathLike, **arrays: Any) -> Path:
+    """Write an NPZ through a temporary file and ``os.replace`` so a crash never leaves half a file."""
+    with atomic_output(path) as tmp, open(tmp, "wb") as f:  # a file object: np.savez adds no suffix
+        np.savez(f, **arrays)
+    return Path(path)
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` through :func:`atomic_output`."""
+    with atomic_output(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return Path(path)
 
 
 #: Default bound on the uncompressed size of an NPZ pliant reads [bytes] (a compressed member could
@@ -54,6 +78,9 @@ def _load_npz(
             f"{path}: the {what} NPZ expands to {size / 2**30:.3g} GiB, more than the "
             f"{max_bytes / 2**30:.3g} GiB it can need; it is not a file pliant wrote for this run"
         )
+    too_big = npz_memory_problem(path, what)
+    if too_big:  # the headers' declared shapes, before np.load allocates them
+        raise ValueError(too_big)
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}

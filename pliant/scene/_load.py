@@ -17,7 +17,7 @@ from ._files import budget_message, max_particles
 from ._overrides import apply_overrides
 from ._registry import HANDLE_KINDS, OBJECT_KINDS, SECTIONS, SOLVER_KINDS, handle_mode
 from ._schema import SceneConfig
-from ._size import size_problem
+from ._size import scene_size, size_problem
 from ._solvers import check_solver
 
 if sys.version_info >= (3, 11):
@@ -253,6 +253,17 @@ def _check_budget(cfg: SceneConfig) -> list[tuple[str, str]]:
     return []
 
 
+def _check_counts(cfg: SceneConfig) -> list[tuple[str, str]]:
+    """With --force: only the absurd counts (non-finite, or above ``MAX_COUNT``), which no memory holds; a
+    mesh file that cannot be read is left to the build, which names it."""
+    try:
+        scene_size(cfg)
+    except SceneError as exc:
+        if any("beyond any machine" in m for _, _, m in exc.problems):
+            return [(p, m) for _, p, m in exc.problems]
+    return []
+
+
 def check(cfg: SceneConfig, *, force: bool = False) -> list[tuple[str, str]]:
     """Cross-field rules that pydantic's per-field types cannot express: (path, message) each (``force``:
     without the size checks)."""
@@ -267,4 +278,6 @@ def check(cfg: SceneConfig, *, force: bool = False) -> list[tuple[str, str]]:
             out += sec.check(cfg, value)
     if not out and not force:
         out += _check_budget(cfg)
+    elif not out:
+        out += _check_counts(cfg)
     return out

@@ -17,9 +17,10 @@ estimates elsewhere (TetGen fills, point-cloud springs). The bytes count what pl
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
+
+from ..io import available_memory
 
 if TYPE_CHECKING:
     from ._schema import ObjectBase, SceneConfig
@@ -30,6 +31,10 @@ _PARTICLE_SCALARS = 36
 _GB = 1e9
 #: Tets per vertex of TetGen's quality fills (the built-in spheres: 2.0-2.5); edges ≈ vertices + tets (Euler).
 _TETGEN_TETS = 2.5
+#: The largest count (particles, springs, tets, ...) an object may derive: 1e12 particles hold 144 TB of
+#: float32 states, beyond any machine, so a larger or non-finite count is a mistake in the file (a denormal
+#: max_volume, a huge cell count), refused even with --force rather than overflowing the estimate.
+MAX_COUNT = 1e12
 
 
 @dataclass(frozen=True)
@@ -153,6 +158,48 @@ def _object_counts(cfg: SceneConfig, o: Any, i: int) -> _Counts:
     return _Counts(p, 0.0, 0.0, 0.0, 0.0, 0.0, False)
 
 
+def _driver(o: Any) -> tuple[str, str]:
+    """The field of object ``o`` that sets its counts, and how to lower them."""
+    if o.kind == "cloth":
+        return ("nx" if o.nx >= o.ny else "ny"), "use fewer cells"
+    if o.kind == "rope":
+        return "n_segments", "use fewer segments"
+    if o.kind == "soft_box":
+        return "cells", "use fewer cells"
+    if o.kind in ("mesh", "soft_sphere") and getattr(o, "max_volume", None) is not None:
+        return "max_volume", "use a larger max_volume [m³]"
+    if o.kind == "soft_sphere":
+        return "radius", "use a smaller radius"
+    if o.kind in ("points", "cluster") and getattr(o, "path", None) is None:
+        return "spacing", "use a larger spacing or a smaller size"
+    return ("path" if getattr(o, "path", None) is not None else ""), "make the object coarser"
+
+
+def _bounded_counts(cfg: SceneConfig, o: Any, i: int) -> _Counts:
+    """:func:`_object_counts`, every count finite and at most :data:`MAX_COUNT` (an overflowing closed form,
+    e.g. a bounding box's volume over a denormal max_volume, counts as infinite)."""
+    from ._errors import scene_error
+
+    try:
+        c = _object_counts(cfg, o, i)
+        counts = (c.particles, c.springs, c.tets, c.triangles, c.bending, c.pairs)
+    except (OverflowError, ZeroDivisionError):  # float ** or / beyond the double range
+        counts = (math.inf,)
+    worst = max(counts, key=lambda v: v if math.isfinite(v) else math.inf)
+    if math.isfinite(worst) and worst <= MAX_COUNT:
+        return c
+    field, fix = _driver(o)
+    at = f"objects[{i}].{field}" if field else f"objects[{i}]"
+    value = getattr(o, field, None) if field else None
+    shown = f" = {value!r}" if isinstance(value, (int, float)) else ""
+    raise scene_error(
+        cfg,
+        at,
+        f"{field or 'this object'}{shown} gives {worst:.3g} particles or elements, beyond any machine "
+        f"(at most {MAX_COUNT:.0e}); {fix}",
+    )
+
+
 def _implicit(cfg: SceneConfig) -> bool:
     """Whether the scene's solver assembles and factors a matrix."""
     kind = cfg.solver_kind()
@@ -179,11 +226,13 @@ def scene_size(cfg: SceneConfig) -> SceneSize:
         matrices.
 
     Raises:
-        SceneError: a mesh file the estimate needs cannot be read (naming the object's path field).
+        SceneError: a mesh file the estimate needs cannot be read (naming the object's path field), or an
+            object derives a non-finite count or one above :data:`MAX_COUNT` (naming the field that sets it,
+            e.g. ``objects[0].max_volume``).
     """
     total = _Counts()
     for i, o in enumerate(cfg.objects):
-        c = _object_counts(cfg, o, i)
+        c = _bounded_counts(cfg, o, i)
         total.particles += c.particles
         total.springs += c.springs
         total.tets += c.tets
@@ -216,30 +265,6 @@ def scene_size(cfg: SceneConfig) -> SceneSize:
         solver_bytes=solver,
         exact=total.exact,
     )
-
-
-def available_memory() -> float | None:
-    """The memory a scene may use [bytes]: ``PLIANT_MEMORY_GB`` if set, else the machine's available memory
-    (``MemAvailable`` of /proc/meminfo, else the free physical pages); None when it cannot be told."""
-    raw = os.environ.get("PLIANT_MEMORY_GB", "").strip()
-    if raw:
-        try:
-            v = float(raw)
-            if v > 0 and math.isfinite(v):
-                return v * _GB
-        except ValueError:
-            pass
-    try:
-        with open("/proc/meminfo", encoding="ascii") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return float(line.split()[1]) * 1024.0
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
-    except (ValueError, OSError, AttributeError):
-        return None
 
 
 def size_problem(cfg: SceneConfig) -> list[tuple[str, str]]:
