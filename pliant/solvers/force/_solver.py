@@ -300,7 +300,7 @@ class ForceSolver(Solver):
             return "a differentiable model's steps write fresh arrays each step"
         if not self.integrator.explicit:
             mz = self.minimizer
-            if not device_newton(mz, self.model.device):
+            if not device_newton(mz, self.model.device, self):
                 return f"{self.integrator.name} minimises on the host (line search, sparse solves)"
             if getattr(self.integrator, "multistep", False):
                 return f"{self.integrator.name} chooses its history on the host"

@@ -89,6 +89,18 @@ class _Workspace:
         self.np_dtype = np.float32 if model.dtype == "float32" else np.float64
         self._cg: CG | None = None
         self._cg_key: tuple[float, int] | None = None
+        self._band: tuple[np.ndarray, int] | None = None
+
+    def band_order(self) -> tuple[np.ndarray, int]:
+        """The particles' bandwidth-reducing order and its half-bandwidth in particles (computed once; see
+        :func:`pliant.solvers.implicit._band.band_order`)."""
+        if self._band is None:
+            from ._band import band_order
+
+            n = self.indptr.size - 1
+            rows = np.repeat(np.arange(n, dtype=np.int64), np.diff(self.indptr))
+            self._band = band_order(n, rows, self.indices.astype(np.int64))
+        return self._band
 
     def cg(self, tol: float, maxiter: int) -> CG:
         """The pre-allocated CG functor (Jacobi preconditioner on ``inv_diag``)."""

@@ -1,0 +1,350 @@
+"""Newton's linear solve for small problems, on the device: banded LDLᵀ in a bandwidth-reducing order,
+factorised again only when convergence slows (``MinimizerOptions(linear_solver="band")``; what
+``method="auto"`` takes on the CPU for small bodies, :func:`pliant.solvers.implicit._options.small_problem`).
+
+The device Newton (:mod:`._pcg`) keeps every decision on the device, so a Simulator replays its frames as
+graphs, on the CPU too (Warp's CPU graphs): no Python per step. On a 117-particle beam its block-Jacobi CG
+needed ~90 iterations per Newton step (two launches each); here a solve is one launch:
+
+* :func:`_band_scatter`: the lower triangle of the assembled BSR(3×3) Hessian into a band matrix in float64,
+  rows and columns permuted by reverse Cuthill–McKee on the particle graph (a 12×2×2-cell beam's
+  half-bandwidth is 10 particles, 32 scalar columns);
+* :func:`_band_factor`: one thread factors H = L D Lᵀ in place (Crout order, no pivoting), N b²/2
+  multiply-adds for N = 3n unknowns and half-bandwidth b (:func:`band_work`);
+* :func:`_band_solve`: one thread solves L D Lᵀ Δx = −∇Φ, 2 N b multiply-adds.
+
+**Lagging.** On the CPU the Hessian's assembly (the neo-Hookean kernel with its PSD projection: 0.33 ms
+for 288 tets in float32, 0.59 ms in float64) and the factorisation (0.19 ms) cost more than the rest of a
+Newton iteration together (~0.1 ms). So the factor is kept while it works (:func:`_lag_decide`): the next
+iteration factorises afresh when an iteration lowered the gradient norm by less than :data:`LAG_RATE`, a
+step's first iteration when the previous step needed more than :data:`LAG_MAX_ITERATIONS` iterations or h
+changed, and where Newton would stop unconverged with a lagged factor (a rejected step, stagnation) it goes
+on with a fresh one. The iteration then is Newton's with a lagged Hessian, converging to the same
+tolerance (tests/test_band_newton.py: within 1e-9 m of the host Newton, tolerances tight, float64); with
+``LAG_RATE = 0`` and ``LAG_MAX_ITERATIONS = -1`` every iteration factorises (Newton's own iterates).
+
+LDLᵀ rather than Cholesky: with PSD-projected Hessians (the default) H ⪰ M is positive definite and both
+agree; with exact ones (``project_psd=False``) H may be indefinite, and LDLᵀ still gives the exact Newton
+step, as the host Newton's sparse LU does, which the line search then accepts or rejects. A zero or
+non-finite pivot (a singular H) gives Δx = 0: the line search accepts no movement and Newton stops (after
+one retry with a fresh factor when the singular one was lagged); such factorisations are counted
+(:attr:`BandLDL.failures`).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import warp as wp
+
+from ..._warp import launch
+from ._pcg_kernels import COUNT_SLOTS
+from ._pcg_kernels import ITERATIONS as CG_ITERATIONS
+from ._pcg_kernels import TOTAL as CG_TOTAL
+from ._slots import CONVERGED, GNORM, ITER
+
+if TYPE_CHECKING:
+    from ...model import Model
+    from ._workspace import _Workspace
+
+#: ``counts`` slot of :class:`BandLDL`: factorisations that met a zero or non-finite pivot.
+FAILURES = COUNT_SLOTS
+#: Lagging: a lagged factor is refreshed for the next iteration when an iteration lowered the gradient norm
+#: by less than this factor, and at a step's start when the previous step needed more than
+#: :data:`LAG_MAX_ITERATIONS` iterations. 0 and −1: a factorisation every iteration (Newton's).
+LAG_RATE = 0.25
+LAG_MAX_ITERATIONS = 2
+
+#: ``lag`` slots (float64): the gradient norm at the start of the iteration, the h of the factorisation.
+G_START, FACTOR_H = range(2)
+#: ``flags`` slots (int32): factorise before the next solve, the current iteration's factor is fresh, a
+#: factor exists, the last factor is singular, iterations of the last step.
+REFACTOR, FRESH, HAVE, SINGULAR, LAST_ITERATIONS = range(5)
+FLAG_SLOTS = 5
+
+
+def band_order(n: int, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, int]:
+    """Reverse Cuthill–McKee order of the n-node graph (``rows``, ``cols``: its edges, both directions) and
+    the half-bandwidth in nodes of the matrix in that order.
+
+    Returns:
+        (perm, width): node ``perm[k]`` goes to position k; max |position(i) − position(j)| over the edges.
+    """
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+    if n == 0:
+        return np.zeros(0, dtype=np.int64), 0
+    adj = sp.csr_matrix((np.ones(rows.size, dtype=np.int8), (rows, cols)), shape=(n, n))
+    perm = np.asarray(reverse_cuthill_mckee(adj, symmetric_mode=True), dtype=np.int64)
+    inv = np.empty_like(perm)
+    inv[perm] = np.arange(n)
+    width = int(np.abs(inv[rows] - inv[cols]).max()) if rows.size else 0
+    return perm, width
+
+
+def band_work(n: int, width: int) -> int:
+    """Multiply-adds of one banded LDLᵀ factorisation: N (b + 1)² / 2 with N = 3n unknowns and scalar
+    half-bandwidth b = 3·width + 2."""
+    b = 3 * width + 2
+    return 3 * n * (b + 1) * (b + 1) // 2
+
+
+@wp.func
+def _dot(
+    a: wp.array(dtype=wp.float64), pa: int, sa: int, c: wp.array(dtype=wp.float64), pc: int, sc: int, n: int
+):
+    """Σ_t a[pa + t sa] c[pc + t sc] over t < n, in four partial sums: a single running sum waits on each
+    multiply-add's latency (measured: 4x slower factorisations and solves on the CPU)."""
+    s0 = wp.float64(0.0)  # four separate constructions: Warp would alias s0 = s1 = ... = one variable
+    s1 = wp.float64(0.0)
+    s2 = wp.float64(0.0)
+    s3 = wp.float64(0.0)
+    m = n - n % 4
+    for t in range(0, m, 4):
+        s0 = s0 + a[pa + t * sa] * c[pc + t * sc]
+        s1 = s1 + a[pa + (t + 1) * sa] * c[pc + (t + 1) * sc]
+        s2 = s2 + a[pa + (t + 2) * sa] * c[pc + (t + 2) * sc]
+        s3 = s3 + a[pa + (t + 3) * sa] * c[pc + (t + 3) * sc]
+    for t in range(m, n):
+        s0 = s0 + a[pa + t * sa] * c[pc + t * sc]
+    return (s0 + s1) + (s2 + s3)
+
+
+@wp.kernel(enable_backward=False)
+def _band_scatter(
+    inv_perm: wp.array(dtype=wp.int32),
+    block_rows: wp.array(dtype=wp.int32),
+    block_cols: wp.array(dtype=wp.int32),
+    values: wp.array(dtype=Any),
+    b: int,
+    band_out: wp.array(dtype=wp.float64),
+):
+    # One BSR block per thread: its entries on or below the diagonal, at (I, J) of the permuted matrix,
+    # go to band[I (b + 1) + I − J]. Each lower entry has one block, so nothing is added twice.
+    k = wp.tid()
+    pr = inv_perm[block_rows[k]]
+    pc = inv_perm[block_cols[k]]
+    if pr < pc:
+        return
+    v = values[k]
+    for a in range(3):
+        for c in range(3):
+            i = 3 * pr + a
+            j = 3 * pc + c
+            if i >= j:
+                band_out[i * (b + 1) + i - j] = wp.float64(v[a, c])
+
+
+@wp.kernel(enable_backward=False)
+def _band_factor(
+    n: int,
+    b: int,
+    h: wp.float64,
+    band_io: wp.array(dtype=wp.float64),
+    counts_io: wp.array(dtype=wp.int32),
+    lag_io: wp.array(dtype=wp.float64),
+    flags_io: wp.array(dtype=wp.int32),
+):
+    # One thread: H = L D Lᵀ in place. Row j, Crout order: t_i = H_ji − Σ_k t_k L_ik for i < j (t_k =
+    # L_jk d_k, kept in row j's storage until the row is done), then L_ji = t_i / d_i and
+    # d_j = H_jj − Σ_i t_i L_ji.
+    size = 3 * n
+    w = b + 1
+    ok = int(1)  # noqa: UP018 (a Warp variable that the loop may change, not a constant)
+    for j in range(size):
+        lo = wp.max(0, j - b)
+        rj = j * w + j  # band index of (j, c): rj − c
+        for i in range(lo, j):
+            # Σ_k t_k L_ik over k in [max(lo, i − b), i): both rows' entries run contiguously.
+            k0 = wp.max(lo, i - b)
+            ri = i * w + i
+            band_io[rj - i] = band_io[rj - i] - _dot(band_io, rj - i + 1, 1, band_io, ri - i + 1, 1, i - k0)
+        d = band_io[rj - j]
+        for i in range(lo, j):
+            t = band_io[rj - i]
+            lji = t / band_io[i * w]  # d_i sits at (i, i): band index i (b + 1)
+            band_io[rj - i] = lji
+            d = d - t * lji
+        band_io[rj - j] = d
+        if not (wp.abs(d) > wp.float64(0.0) and wp.isfinite(d)):
+            ok = 0
+    counts_io[CG_ITERATIONS] = counts_io[CG_ITERATIONS] + 1
+    counts_io[CG_TOTAL] = counts_io[CG_TOTAL] + 1
+    if ok == 0:
+        counts_io[FAILURES] = counts_io[FAILURES] + 1
+    flags_io[SINGULAR] = 1 - ok
+    flags_io[HAVE] = 1
+    flags_io[REFACTOR] = 0
+    lag_io[FACTOR_H] = h
+
+
+@wp.kernel(enable_backward=False)
+def _band_solve(
+    perm: wp.array(dtype=wp.int32),
+    b: int,
+    grad: wp.array(dtype=Any),
+    band: wp.array(dtype=wp.float64),
+    flags: wp.array(dtype=wp.int32),
+    work: wp.array(dtype=wp.float64),
+    dx_out: wp.array(dtype=Any),
+):
+    # One thread: L y = −g (permuted), z = D⁻¹ y, Lᵀ x = z; Δx = 0 after a singular factorisation.
+    n = perm.shape[0]
+    size = 3 * n
+    w = b + 1
+    for p in range(n):
+        g = grad[perm[p]]
+        for a in range(3):
+            work[3 * p + a] = -wp.float64(g[a])
+    for j in range(size):
+        k0 = wp.max(0, j - b)  # y_j −= Σ_k L_jk y_k, k in [k0, j)
+        work[j] = work[j] - _dot(band, j * w + j - k0, -1, work, k0, 1, j - k0)
+    for j in range(size):
+        work[j] = work[j] / band[j * w]
+    for jj in range(size):
+        j = size - 1 - jj  # x_j −= Σ_i L_ij x_i, i in (j, j + b]: band index i (b + 1) + i − j, step b + 2
+        i1 = wp.min(size, j + b + 1)
+        work[j] = work[j] - _dot(band, (j + 1) * (w + 1) - j, w + 1, work, j + 1, 1, i1 - j - 1)
+    ok = flags[SINGULAR] == 0
+    for p in range(n):
+        v = dx_out[p] * type(dx_out[p][0])(0.0)
+        if ok:
+            for a in range(3):
+                v[a] = type(v[0])(work[3 * p + a])
+        dx_out[perm[p]] = v
+
+
+# --------------------------------------------------------------------------- when to factorise (lagging)
+@wp.kernel(enable_backward=False)
+def _lag_step_begin(
+    h: wp.float64, max_lagged: int, lag: wp.array(dtype=wp.float64), flags_io: wp.array(dtype=wp.int32)
+):
+    # This step's first iteration factorises afresh without a factor, at another h, or when the previous
+    # step needed more than ``max_lagged`` iterations.
+    r = 0
+    if flags_io[HAVE] == 0 or lag[FACTOR_H] != h or flags_io[LAST_ITERATIONS] > max_lagged:
+        r = 1
+    flags_io[REFACTOR] = r
+
+
+@wp.kernel(enable_backward=False)
+def _lag_iteration_begin(
+    state: wp.array(dtype=wp.float64), lag_out: wp.array(dtype=wp.float64), flags_io: wp.array(dtype=wp.int32)
+):
+    lag_out[G_START] = state[GNORM]
+    flags_io[FRESH] = flags_io[REFACTOR]
+
+
+@wp.kernel(enable_backward=False)
+def _lag_decide(
+    rate: wp.float64,
+    max_iterations: int,
+    state: wp.array(dtype=wp.float64),
+    counts: wp.array(dtype=wp.int32),
+    lag: wp.array(dtype=wp.float64),
+    flags_io: wp.array(dtype=wp.int32),
+    go_io: wp.array(dtype=wp.int32),
+):
+    # After the Newton test: factorise afresh for the next iteration when this one lowered the gradient
+    # norm by less than ``rate``; where Newton stopped unconverged (a rejected step, stagnation) with a
+    # lagged factor, go on with a fresh one instead (a fresh factor's outcome stands, as in Newton).
+    it = counts[ITER]
+    flags_io[LAST_ITERATIONS] = it
+    if counts[CONVERGED] != 0:
+        return
+    if go_io[0] != 0:
+        if state[GNORM] > rate * lag[G_START]:
+            flags_io[REFACTOR] = 1
+    elif flags_io[FRESH] == 0 and it < max_iterations:
+        flags_io[REFACTOR] = 1
+        go_io[0] = 1
+
+
+class BandLDL:
+    """Δx = −H⁻¹∇Φ by banded LDLᵀ on the device (see the module), with :class:`~._pcg.DeviceCG`'s
+    ``solve`` and ``iterations``, and the factorisation apart (:meth:`factor`) so that it can be lagged.
+
+    Args:
+        model: the Model (device, dtype).
+        ws: the Newton workspace whose BSR values ``ws.values`` are factorised.
+    """
+
+    def __init__(self, model: Model, ws: _Workspace) -> None:
+        n, d = model.particle_count, model.device
+        self.model, self.ws = model, ws
+        perm, width = ws.band_order()
+        self.b = 3 * width + 2
+        inv = np.empty_like(perm)
+        inv[perm] = np.arange(n)
+        self.perm: wp.array = wp.array(perm.astype(np.int32), dtype=wp.int32, device=d)
+        self.inv_perm: wp.array = wp.array(inv.astype(np.int32), dtype=wp.int32, device=d)
+        self.band = wp.zeros(3 * n * (self.b + 1), dtype=wp.float64, device=d)
+        self.work = wp.zeros(3 * n, dtype=wp.float64, device=d)
+        #: int32 counters in the CG's layout (its ITERATIONS slot: factorisations in the step, TOTAL: over
+        #: the solver's life) and :data:`FAILURES`.
+        self.counts = wp.zeros(COUNT_SLOTS + 1, dtype=wp.int32, device=d)
+        #: Lagging state: float64 (:data:`G_START`, :data:`FACTOR_H`) and int32 flags (:data:`REFACTOR`, ...).
+        self.lag = wp.zeros(2, dtype=wp.float64, device=d)
+        self.flags = wp.zeros(FLAG_SLOTS, dtype=wp.int32, device=d)
+        #: ``flags[REFACTOR]`` as the condition of ``wp.capture_if``.
+        self.refactor = self.flags[REFACTOR : REFACTOR + 1]
+        #: Where Newton's per-iteration clearing of the stiffness ratio goes: the ratio is the factor's.
+        self.ratio_scratch = wp.zeros(1, dtype=model.scalar, device=d)
+        self.rate, self.max_lagged = LAG_RATE, LAG_MAX_ITERATIONS
+
+    def step_begin(self, h: float) -> None:
+        """At a step's start (after the Newton state's): whether its first iteration factorises afresh."""
+        args = [wp.float64(h), self.max_lagged, self.lag, self.flags]
+        launch(_lag_step_begin, 1, args, device=self.model.device)
+
+    def iteration_begin(self, state: wp.array) -> None:
+        """At an iteration's start: the gradient norm it starts from, whether its factor is fresh."""
+        launch(_lag_iteration_begin, 1, [state, self.lag, self.flags], device=self.model.device)
+
+    def decide(self, state: wp.array, counts: wp.array, go: wp.array, max_iterations: int) -> None:
+        """After Newton's test: factorise afresh for the next iteration, or go on where Newton stopped with
+        a lagged factor (see :func:`_lag_decide`)."""
+        launch(
+            _lag_decide,
+            1,
+            [wp.float64(self.rate), max_iterations, state, counts, self.lag, self.flags, go],
+            device=self.model.device,
+        )
+
+    def factor(self, h: float) -> None:
+        """Factorise the Hessian in ``ws.values`` (assembled at step h [s]); no host read."""
+        ws, d, n = self.ws, self.model.device, self.model.particle_count
+        self.band.zero_()
+        launch(
+            _band_scatter,
+            ws.nnz,
+            [self.inv_perm, ws.block_rows, ws.block_cols, ws.values, self.b, self.band],
+            device=d,
+        )
+        launch(
+            _band_factor,
+            1,
+            [n, self.b, wp.float64(h), self.band, self.counts, self.lag, self.flags],
+            device=d,
+        )
+
+    def solve(self, grad: wp.array, x_out: wp.array, tol: float = 0.0, cap: int = 0) -> None:
+        """x_out = −H⁻¹ grad with the last factorisation (no host read). ``tol`` and ``cap`` are CG's,
+        unused by a direct solve."""
+        launch(
+            _band_solve,
+            1,
+            [self.perm, self.b, grad, self.band, self.flags, self.work, x_out],
+            device=self.model.device,
+        )
+
+    def iterations(self) -> int:
+        """Factorisations in the current step (one host read)."""
+        return int(self.counts.numpy()[CG_ITERATIONS])
+
+    @property
+    def failures(self) -> int:
+        """Factorisations over the solver's life that met a zero or non-finite pivot (one host read)."""
+        return int(self.counts.numpy()[FAILURES])
