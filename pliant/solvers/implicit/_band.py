@@ -294,6 +294,12 @@ class BandLDL:
         self.ratio_scratch = wp.zeros(1, dtype=model.scalar, device=d)
         self.rate, self.max_lagged = LAG_RATE, LAG_MAX_ITERATIONS
 
+    def reset(self) -> None:
+        """Forget the factor (the next step factorises afresh, as a new solver's first; in place, so that
+        captured graphs stay valid)."""
+        self.flags.zero_()
+        self.lag.zero_()
+
     def step_begin(self, h: float) -> None:
         """At a step's start (after the Newton state's): whether its first iteration factorises afresh."""
         args = [wp.float64(h), self.max_lagged, self.lag, self.flags]

@@ -345,6 +345,11 @@ class _DeviceNewton:
         self.go_search = wp.zeros(1, dtype=wp.int32, device=d)
         self.bound = wp.zeros(1, dtype=model.scalar, device=d)
 
+    def reset(self) -> None:
+        """Forget what a step leaves for the next: the band solve's lagged factor (CG keeps nothing)."""
+        if isinstance(self.cg, BandLDL):
+            self.cg.reset()
+
 
 def _device_newton(
     problem: PotentialProblem, ws: _Workspace, max_iterations: int, band: bool = False

@@ -196,12 +196,15 @@ class MinimizerCache:
         return self.newton
 
     def reset(self) -> None:
-        """Forget what one step leaves for the next (L-BFGS's curvature pairs and warm start); keep what
-        depends only on the model (the Hessian pattern, the lagged H₀ and its factorisation)."""
+        """Forget what one step leaves for the next (L-BFGS's curvature pairs and warm start, the device
+        Newton's lagged band factor); keep what depends only on the model (the Hessian pattern, L-BFGS's
+        lagged H₀ and its factorisation)."""
         if self.lbfgs is not None:
             _, _, history, memo = self.lbfgs
             history.clear()
             memo.clear()
+        if self.pcg is not None:
+            self.pcg.reset()  # the band solve's lagged factor: a restarted run factorises as a new one
 
 
 def cache_of(problem: object) -> MinimizerCache:
