@@ -21,7 +21,12 @@ step's first iteration when the previous step needed more than :data:`LAG_MAX_IT
 changed, and where Newton would stop unconverged with a lagged factor (a rejected step, stagnation) it goes
 on with a fresh one. The iteration then is Newton's with a lagged Hessian, converging to the same
 tolerance (tests/test_band_newton.py: within 1e-9 m of the host Newton, tolerances tight, float64); with
-``LAG_RATE = 0`` and ``LAG_MAX_ITERATIONS = -1`` every iteration factorises (Newton's own iterates).
+``LAG_RATE = 0``, ``LAG_MAX_ITERATIONS = -1`` and no warm start every iteration factorises and the iterates
+are the host Newton's.
+
+**Warm start.** As L-BFGS's: a step starts from x̃ plus the correction x − x̃ of the last two steps,
+extrapolated (1.5 c − 0.5 c_last), when that lowers Φ below Φ(x̃), else from x̃; decided on the device
+(``wp.capture_if``). On the beam it cuts the iterations per step from 1.6 to 1.1 (float32).
 
 LDLᵀ rather than Cholesky: with PSD-projected Hessians (the default) H ⪰ M is positive definite and both
 agree; with exact ones (``project_psd=False``) H may be indefinite, and LDLᵀ still gives the exact Newton
@@ -53,15 +58,23 @@ FAILURES = COUNT_SLOTS
 #: Lagging: a lagged factor is refreshed for the next iteration when an iteration lowered the gradient norm
 #: by less than this factor, and at a step's start when the previous step needed more than
 #: :data:`LAG_MAX_ITERATIONS` iterations. 0 and −1: a factorisation every iteration (Newton's).
+#: Measured on the 12x2x2 beam (float32, 4 substeps of 1/120 s, with the warm start): 0.25 and 2 take 1.14
+#: iterations and 0.07 factorisations per step, trajectory error 5.8e-5 m (L-BFGS: 5.7e-5 m); 0.5 and 3
+#: 1.24 and 0.05, 6.8e-5 m; 0.1 and 1 1.09 and 0.17, 5.7e-5 m.
 LAG_RATE = 0.25
 LAG_MAX_ITERATIONS = 2
+#: Start each step from x̃ plus the correction x − x̃ of the last steps, extrapolated, when that lowers Φ
+#: (L-BFGS's warm start).
+WARM_START = True
 
-#: ``lag`` slots (float64): the gradient norm at the start of the iteration, the h of the factorisation.
-G_START, FACTOR_H = range(2)
+#: ``lag`` slots (float64): the gradient norm at the start of the iteration, the h of the factorisation, the
+#: h of the last step (the warm start's).
+G_START, FACTOR_H, WARM_H = range(3)
 #: ``flags`` slots (int32): factorise before the next solve, the current iteration's factor is fresh, a
-#: factor exists, the last factor is singular, iterations of the last step.
-REFACTOR, FRESH, HAVE, SINGULAR, LAST_ITERATIONS = range(5)
-FLAG_SLOTS = 5
+#: factor exists, the last factor is singular, iterations of the last step; a step's correction is kept
+#: (for the next step's warm start), the warm start is taken, the gradient at x̃ is needed after all.
+REFACTOR, FRESH, HAVE, SINGULAR, LAST_ITERATIONS, HAVE_WARM, TAKE_WARM, REDO_GRADIENT = range(8)
+FLAG_SLOTS = 8
 
 
 def band_order(n: int, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, int]:
@@ -262,6 +275,71 @@ def _lag_decide(
         go_io[0] = 1
 
 
+# ------------------------------------------------------------------------------------------ warm start
+@wp.kernel(enable_backward=False)
+def _warm_point(
+    inv_mass: wp.array(dtype=Any),
+    x_tilde: wp.array(dtype=Any),
+    correction: wp.array(dtype=Any),
+    h: wp.float64,
+    lag: wp.array(dtype=wp.float64),
+    flags: wp.array(dtype=wp.int32),
+    x_out: wp.array(dtype=Any),
+):
+    # x̃ plus the correction kept from the last steps (at the same h), free particles only.
+    i = wp.tid()
+    y = x_tilde[i]
+    if flags[HAVE_WARM] != 0 and lag[WARM_H] == h and inv_mass[i] != type(inv_mass[i])(0.0):
+        y = y + correction[i]
+    x_out[i] = y
+
+
+@wp.kernel(enable_backward=False)
+def _warm_decide(
+    h: wp.float64,
+    h2: wp.float64,
+    tstats: wp.array(dtype=Any),
+    gstats: wp.array(dtype=Any),
+    lag: wp.array(dtype=wp.float64),
+    flags_io: wp.array(dtype=wp.int32),
+):
+    # Take the warm start when there is one and it lowers Φ below Φ(x̃) = h² E(x̃) (L-BFGS's rule).
+    take = 0
+    if flags_io[HAVE_WARM] != 0 and lag[WARM_H] == h:
+        phi_warm = wp.float64(gstats[2]) + h2 * wp.float64(gstats[3])
+        if phi_warm < h2 * wp.float64(tstats[1]):
+            take = 1
+    flags_io[TAKE_WARM] = take
+    flags_io[REDO_GRADIENT] = 1 - take
+
+
+@wp.kernel(enable_backward=False)
+def _warm_keep(
+    x: wp.array(dtype=Any),
+    x_tilde: wp.array(dtype=Any),
+    h: wp.float64,
+    lag: wp.array(dtype=wp.float64),
+    flags: wp.array(dtype=wp.int32),
+    correction_out: wp.array(dtype=Any),
+    last_out: wp.array(dtype=Any),
+):
+    # The next step's start: the correction c = x − x̃ extrapolated from the last two, damped by half
+    # (1.5 c − 0.5 c_last, as L-BFGS's warm start), or c alone after another h.
+    i = wp.tid()
+    c = x[i] - x_tilde[i]
+    out = c
+    if flags[HAVE_WARM] != 0 and lag[WARM_H] == h:
+        out = type(c[0])(1.5) * c - type(c[0])(0.5) * last_out[i]
+    correction_out[i] = out
+    last_out[i] = c
+
+
+@wp.kernel(enable_backward=False)
+def _warm_kept(h: wp.float64, lag_out: wp.array(dtype=wp.float64), flags_out: wp.array(dtype=wp.int32)):
+    lag_out[WARM_H] = h
+    flags_out[HAVE_WARM] = 1
+
+
 class BandLDL:
     """Δx = −H⁻¹∇Φ by banded LDLᵀ on the device (see the module), with :class:`~._pcg.DeviceCG`'s
     ``solve`` and ``iterations``, and the factorisation apart (:meth:`factor`) so that it can be lagged.
@@ -286,8 +364,13 @@ class BandLDL:
         #: the solver's life) and :data:`FAILURES`.
         self.counts = wp.zeros(COUNT_SLOTS + 1, dtype=wp.int32, device=d)
         #: Lagging state: float64 (:data:`G_START`, :data:`FACTOR_H`) and int32 flags (:data:`REFACTOR`, ...).
-        self.lag = wp.zeros(2, dtype=wp.float64, device=d)
+        self.lag = wp.zeros(3, dtype=wp.float64, device=d)
+        #: The warm start: the next step's correction x − x̃ (extrapolated) and the last step's.
+        self.correction = wp.zeros(n, dtype=model.vec3, device=d)
+        self.last_correction = wp.zeros(n, dtype=model.vec3, device=d)
         self.flags = wp.zeros(FLAG_SLOTS, dtype=wp.int32, device=d)
+        self.take_warm = self.flags[TAKE_WARM : TAKE_WARM + 1]
+        self.redo_gradient = self.flags[REDO_GRADIENT : REDO_GRADIENT + 1]
         #: ``flags[REFACTOR]`` as the condition of ``wp.capture_if``.
         self.refactor = self.flags[REFACTOR : REFACTOR + 1]
         #: Where Newton's per-iteration clearing of the stiffness ratio goes: the ratio is the factor's.
@@ -299,6 +382,36 @@ class BandLDL:
         captured graphs stay valid)."""
         self.flags.zero_()
         self.lag.zero_()
+
+    def warm_start(self, problem: Any, x_tilde: wp.array, x: wp.array, h: float, gradient: Any) -> None:
+        """Start the step at x̃ + the kept correction when that lowers Φ (:data:`WARM_START`), else at x̃
+        (``x`` holds x̃): ``x`` and ``gradient(at)``'s ∇Φ and statistics at the start, on the device."""
+        from ._assembly import _control_terms
+
+        m, ws, d = self.model, self.ws, self.model.device
+        if not WARM_START:
+            gradient(x)
+            return
+        f64 = wp.float64
+        ws.tstats.zero_()
+        for e in problem.energies:
+            e.value(m, x, ws.tstats_e)
+        _control_terms(problem, ws, x, ws.egrad_scratch, ws.tstats_e)
+        args = [m.particle_inv_mass, x_tilde, self.correction, f64(h), self.lag, self.flags, ws.x_trial]
+        launch(_warm_point, m.particle_count, args, device=d)
+        gradient(ws.x_trial)
+        launch(_warm_decide, 1, [f64(h), f64(h * h), ws.tstats, ws.gstats, self.lag, self.flags], device=d)
+        wp.capture_if(self.take_warm, lambda: wp.copy(x, ws.x_trial))
+        wp.capture_if(self.redo_gradient, lambda: gradient(x))
+
+    def keep_correction(self, x: wp.array, x_tilde: wp.array, h: float) -> None:
+        """After the step: the correction the next step's warm start adds to its x̃."""
+        if not WARM_START:
+            return
+        f64, d = wp.float64, self.model.device
+        args = [x, x_tilde, f64(h), self.lag, self.flags, self.correction, self.last_correction]
+        launch(_warm_keep, self.model.particle_count, args, device=d)
+        launch(_warm_kept, 1, [f64(h), self.lag, self.flags], device=d)
 
     def step_begin(self, h: float) -> None:
         """At a step's start (after the Newton state's): whether its first iteration factorises afresh."""

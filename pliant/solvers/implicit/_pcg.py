@@ -482,7 +482,11 @@ def minimize_device(
             e.begin_step(m, x_ref, v_ref, h)
     wp.copy(x_out, x_tilde)
     x = x_out
-    _launch_gradient(solver, ws, x, x_tilde, h)
+    band = dn.cg if isinstance(dn.cg, BandLDL) else None
+    if band is None:
+        _launch_gradient(solver, ws, x, x_tilde, h)
+    else:
+        band.warm_start(solver, x_tilde, x, h, lambda at: _launch_gradient(solver, ws, at, x_tilde, h))
     launch(
         _newton_begin,
         1,
@@ -546,10 +550,11 @@ def minimize_device(
         if band is not None:
             band.decide(dn.state, dn.counts, dn.go, max_it)
 
-    band = dn.cg if isinstance(dn.cg, BandLDL) else None
     if band is not None:
         band.step_begin(h)
     wp.capture_while(dn.go, iteration)
+    if band is not None:
+        band.keep_correction(x, x_tilde, h)
     stats = DeviceNewtonStats(dn, project)
     solver.last_stats = stats
     return stats
