@@ -156,3 +156,36 @@ def test_restart_runs_as_a_new_simulator_bit_for_bit():
     again = sim.run(3, progress=False).x
     assert sim.graph_reason is None and scene.solver.last_stats.linear_solver == "band"
     np.testing.assert_array_equal(again, first)
+
+
+def test_band_newton_resumes_bit_for_bit(tmp_path):
+    """The lagged factor, its stiffness ratio and the warm start's corrections are in the checkpoint: a
+    resumed run's frames are the uninterrupted run's, bit for bit."""
+    from tests.test_resume import _resume_matches
+
+    info = _resume_matches(lambda: _beam(dtype="float32").simulator(), tmp_path, 6, 3)
+    assert {"solver_band_factor", "solver_band_correction"} <= set(info["solver_keys"])
+
+
+def test_band_newton_resume_needs_its_state(tmp_path):
+    """Control: without the band state the resumed run differs (so the test above can fail); a wrong
+    array is refused with its name."""
+    make = lambda: _beam(dtype="float32").simulator()  # noqa: E731
+    reference = make().run(6, progress=False)
+    ckpt = tmp_path / "run.ckpt.npz"
+    make().run(3, progress=False, checkpoint=ckpt)
+    with np.load(ckpt) as z:
+        kept = {k: z[k] for k in z.files if not k.startswith("solver_band_")}
+        factor = z["solver_band_factor"]
+    np.savez(ckpt, **kept)
+    resumed = make().run(6, progress=False, checkpoint=ckpt, resume=True)
+    np.testing.assert_array_equal(resumed.x[:4], reference.x[:4])
+    assert not np.array_equal(resumed.x[4:], reference.x[4:])
+    sim = make()
+    state = sim.solver.checkpoint_state()
+    assert state == {} or not any(k.startswith("band_") for k in state)  # no step yet: nothing kept
+    sim.run(1, progress=False)
+    state = sim.solver.checkpoint_state()
+    state["band_factor"] = factor[:-1]
+    with pytest.raises(ValueError, match="band_factor"):
+        make().solver.restore_checkpoint_state(state)

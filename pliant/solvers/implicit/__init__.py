@@ -10,6 +10,7 @@ modules.
 
 from ._adjoint import differentiable
 from ._assembly import PotentialProblem, control_of
+from ._band import band_checkpoint_state, band_restore_checkpoint_state
 from ._minimize import minimize
 from ._newton import NewtonStats, minimize_incremental_potential
 from ._options import MinimizerOptions, device_newton, resolve_method, step_settings
@@ -31,6 +32,8 @@ __all__ = [
     "MinimizerOptions",
     "NewtonStats",
     "PotentialProblem",
+    "band_checkpoint_state",
+    "band_restore_checkpoint_state",
     "StaticStats",
     "cache_of",
     "control_of",

@@ -51,7 +51,8 @@ from ._slots import CONVERGED, GNORM, ITER
 
 if TYPE_CHECKING:
     from ...model import Model
-    from ._workspace import _Workspace
+    from ._assembly import PotentialProblem
+    from ._workspace import MinimizerCache, _Workspace
 
 #: ``counts`` slot of :class:`BandLDL`: factorisations that met a zero or non-finite pivot.
 FAILURES = COUNT_SLOTS
@@ -413,6 +414,10 @@ class BandLDL:
         self.ratio_scratch = wp.zeros(1, dtype=model.scalar, device=d)
         self.rate, self.max_lagged = LAG_RATE, LAG_MAX_ITERATIONS
 
+    def take_state(self, cache: MinimizerCache) -> None:
+        """Take the state a checkpoint left in ``cache`` (:func:`band_restore_checkpoint_state`), if any."""
+        _take_state(self, cache)
+
     def reset(self) -> None:
         """Forget the factor (the next step factorises afresh, as a new solver's first; in place, so that
         captured graphs stay valid)."""
@@ -503,3 +508,85 @@ class BandLDL:
     def failures(self) -> int:
         """Factorisations over the solver's life that met a zero or non-finite pivot (one host read)."""
         return int(self.counts.numpy()[FAILURES])
+
+
+# ----------------------------------------------------------------------------------------- checkpoints
+# What the band Newton keeps between steps, so that a resumed run continues bit for bit: the lagged factor,
+# the stiffness ratio of its Hessian (the tolerance's round-off floor), the lagging and warm-start state and
+# the warm start's corrections.
+_CKPT_KEYS = (
+    "band_factor",
+    "band_ratio",
+    "band_lag",
+    "band_flags",
+    "band_correction",
+    "band_last_correction",
+)
+
+
+def band_checkpoint_state(cache: MinimizerCache) -> dict[str, np.ndarray]:
+    """The band Newton's state between steps kept in ``cache`` (copies; empty without a band Newton)."""
+    dn = cache.pcg
+    if dn is None or not isinstance(dn.cg, BandLDL):
+        return {}
+    band = dn.cg
+    return {
+        "band_factor": band.band.numpy().copy(),
+        "band_ratio": band.ws.hstats.numpy().copy(),
+        "band_lag": band.lag.numpy().copy(),
+        "band_flags": band.flags.numpy().copy(),
+        "band_correction": band.correction.numpy().copy(),
+        "band_last_correction": band.last_correction.numpy().copy(),
+    }
+
+
+def band_restore_checkpoint_state(problem: PotentialProblem, state: dict[str, np.ndarray]) -> None:
+    """Validate :func:`band_checkpoint_state`'s arrays and give them to ``problem``'s band Newton (now, or
+    when its first step sets it up).
+
+    Raises:
+        ValueError: an unknown or missing key, or an array of the wrong shape or kind, or non-finite.
+    """
+    unknown = sorted(set(state) - set(_CKPT_KEYS))
+    if unknown:
+        raise ValueError(f"unknown band-Newton state keys {unknown}")
+    cache = problem.minimizer_cache
+    if not state:
+        cache.band_state = None
+        return
+    missing = sorted(set(_CKPT_KEYS) - set(state))
+    if missing:
+        raise ValueError(f"band-Newton state without {missing}: the keys come together (a corrupt file)")
+    m = problem.model
+    n = m.particle_count
+    b = 3 * cache.workspace(m, problem.energies).band_order()[1] + 2
+    shapes = {
+        "band_factor": ((3 * n * (b + 1),), "f"),
+        "band_ratio": ((1,), "f"),
+        "band_lag": ((3,), "f"),
+        "band_flags": ((FLAG_SLOTS,), "iu"),
+        "band_correction": ((n, 3), "f"),
+        "band_last_correction": ((n, 3), "f"),
+    }
+    for key, (shape, kind) in shapes.items():
+        a = np.asarray(state[key])
+        if a.shape != shape or a.dtype.kind not in kind:
+            raise ValueError(f"{key}: expected {shape} of kind {kind!r}, got {a.dtype} {a.shape}")
+        if kind == "f" and not np.all(np.isfinite(a)):
+            raise ValueError(f"{key}: contains NaN or inf")
+    cache.band_state = {k: np.array(state[k]) for k in _CKPT_KEYS}
+    if cache.pcg is not None and isinstance(cache.pcg.cg, BandLDL):
+        cache.pcg.cg.take_state(cache)
+
+
+def _take_state(band: BandLDL, cache: MinimizerCache) -> None:
+    st = cache.band_state
+    if st is None:
+        return
+    cache.band_state = None
+    band.band.assign(st["band_factor"])
+    band.ws.hstats.assign(st["band_ratio"].astype(band.ws.np_dtype))
+    band.lag.assign(st["band_lag"])
+    band.flags.assign(st["band_flags"].astype(np.int32))
+    band.correction.assign(st["band_correction"].astype(band.ws.np_dtype))
+    band.last_correction.assign(st["band_last_correction"].astype(band.ws.np_dtype))

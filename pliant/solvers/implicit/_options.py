@@ -22,12 +22,14 @@ LINEAR_SOLVERS = ("cg", "scipy-cg", "direct", "auto", "pcg", "band")
 
 #: The largest banded LDLᵀ factorisation (multiply-adds, :func:`pliant.solvers.implicit._band.band_work`) for
 #: which ``method="auto"`` takes the device Newton with the band solve on the CPU rather than L-BFGS.
-#: Measured (float32 beams 0.6 x 0.1 x 0.1 m, 4 substeps of 1/120 s, CPU time per substep, one core):
-#: 12x2x2 cells (191k) 0.73 ms against L-BFGS's 1.51, 24x2x2 (368k) 0.95 / 1.39, 8x3x3 (630k) 0.88 / 1.26,
-#: 12x3x3 (910k) 1.30 / 1.47, 32x2x2 (902k) 1.49 / 1.60, 16x3x3 (2.3M) 2.37 / 2.06, 12x4x4 (6.0M)
-#: 4.30 / 1.71: the crossover is near 1.2M. Set lower, at 350k, so that the built-in FEM scenes
-#: (``fem_embedded`` 413k, ``soft_box_fem`` 1.2M, ``cantilever`` 2.3M) keep L-BFGS and their golden
-#: trajectories; between 350k and 1.2M the band solve would save 10-30 %.
+#: Measured (float32 beams 0.6 x 0.1 x 0.1 m of c0 x c1 x c1 cells, 4 substeps of 1/120 s, ms per substep
+#: over frames 3-22 (10 from 12x5x5), band / L-BFGS, one core): 12x2x2 (191k multiply-adds) 0.50 / 1.12,
+#: 24x2x2 (368k) 0.60 / 1.25, 8x3x3 (630k) 0.54 / 1.13, 12x3x3 (910k) 0.71 / 1.35, 16x3x3 (2.3M)
+#: 0.98 / 1.50, 12x4x4 (6.0M) 1.27 / 1.61, 12x5x5 (9.1M) 2.46 / 2.16, 12x6x6 (41M) 5.28 / 3.08: the
+#: crossover is near 7M. Set far lower, at 350k, so that the built-in FEM scenes (``fem_embedded`` 413k,
+#: ``soft_box_fem`` 1.2M, ``cantilever`` 2.3M) keep L-BFGS and their golden trajectories; raising it to ~7M
+#: would move them to the band Newton (1.5x faster on the 16x3x3 beam above) and change their goldens (to
+#: the scenes' tolerance, not bit for bit).
 SMALL_BAND_WORK = 350_000
 
 

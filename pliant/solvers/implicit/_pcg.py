@@ -358,6 +358,8 @@ def _device_newton(
     dn = cache.pcg
     if dn is None or dn.key != (id(ws), max_iterations, band):
         dn = cache.pcg = _DeviceNewton(problem.model, ws, max_iterations, band)
+    if isinstance(dn.cg, BandLDL):
+        dn.cg.take_state(cache)  # a checkpoint's, restored before this first step
     return dn
 
 

@@ -187,6 +187,8 @@ class MinimizerCache:
         self.lbfgs: tuple[Any, Any, Any, dict] | None = None
         #: The device Newton's buffers (``linear_solver="pcg"``, :mod:`._pcg`), or None before its first step.
         self.pcg: _DeviceNewton | None = None
+        #: A checkpoint's band-Newton state not yet taken by a band Newton (:mod:`._band`), or None.
+        self.band_state: dict[str, np.ndarray] | None = None
 
     def workspace(self, model: Model, energies: list) -> _Workspace:
         """The workspace of (``model``, ``energies``), built on first use and when either changes."""
