@@ -3,7 +3,8 @@ settings, workspace and assembly, the adjoint of a converged step, and the stati
 
 Modules, bottom to top: ``_options`` (the minimiser's settings) and ``_workspace`` (the BSR pattern, linear
 solvers, the per-problem cache) → ``_assembly`` (Hessian assembly, the Control's terms) → ``_adjoint``
-(gradients through a step) → ``_newton`` → ``_pcg_kernels`` / ``_pcg`` (Newton on the device) →
+(gradients through a step) → ``_newton`` → ``_pcg_kernels``, ``_slots`` and ``_band`` (its banded LDLᵀ
+solve for small bodies) / ``_pcg`` (Newton on the device) →
 ``_quasi_newton`` → ``_minimize`` / ``_static``. Other solver families use the names below, never these
 modules.
 """
