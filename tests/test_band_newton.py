@@ -88,14 +88,19 @@ def test_band_ldlt_solves_the_assembled_system(shift):
     assert band.failures == failures
 
 
-def test_band_newton_follows_the_host_newton_to_1e_9_m():
-    """float64, tolerances tight: 10 frames of the beam (40 steps, the lagged factor and the line search at
-    work) by the device Newton with the band solve, replayed as CPU graphs, land within 1e-9 m of the host
-    Newton's (SciPy's sparse LU every iteration), frame by frame; and a factorisation is lagged over most
-    iterations."""
+def test_band_newton_follows_the_existing_solvers_to_1e_9_m():
+    """float64, tolerances tight: 10 frames of the beam (40 steps, the lagged factor, the warm start and the
+    line search at work) by the device Newton with the band solve, replayed as CPU graphs, land within
+    1e-9 m of the host Newton's (SciPy's sparse LU every iteration), L-BFGS's and the device Newton's with
+    CG, frame by frame; and the factorisation is lagged over most iterations."""
     tight = 1e-8
     runs = {}
-    for name, mz in (("band", {"method": "auto"}), ("host", {"method": "newton", "linear_solver": "direct"})):
+    for name, mz in (
+        ("band", {"method": "auto"}),
+        ("host", {"method": "newton", "linear_solver": "direct"}),
+        ("lbfgs", {"method": "lbfgs", "lbfgs_max_iterations": 500}),
+        ("pcg", {"method": "newton", "linear_solver": "pcg", "cg_tol": 1e-10}),
+    ):
         sim = _beam(minimizer=mz, newton_tol=tight).simulator()
         runs[name] = sim.run(10, progress=False).x
         stats = sim.solver.last_stats
@@ -104,7 +109,8 @@ def test_band_newton_follows_the_host_newton_to_1e_9_m():
             steps, iterations, factorisations = stats.totals()
             assert steps == 40 and factorisations < 0.5 * iterations
     assert np.abs(runs["band"][-1] - runs["band"][0]).max() > 1e-3  # the beam moved
-    assert np.abs(runs["band"] - runs["host"]).max() <= 1e-9
+    for name in ("host", "lbfgs", "pcg"):
+        assert np.abs(runs["band"] - runs[name]).max() <= 1e-9, name
 
 
 def test_band_newton_without_lagging_takes_newtons_iterates(monkeypatch):
