@@ -38,6 +38,7 @@ one retry with a fresh factor when the singular one was lagged); such factorisat
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -424,7 +425,14 @@ class BandLDL:
         self.flags.zero_()
         self.lag.zero_()
 
-    def warm_start(self, problem: Any, x_tilde: wp.array, x: wp.array, h: float, gradient: Any) -> None:
+    def warm_start(
+        self,
+        problem: PotentialProblem,
+        x_tilde: wp.array,
+        x: wp.array,
+        h: float,
+        gradient: Callable[[wp.array], None],
+    ) -> None:
         """Start the step at x̃ + the kept correction when that lowers Φ (:data:`WARM_START`), else at x̃
         (``x`` holds x̃): ``x`` and ``gradient(at)``'s ∇Φ and statistics at the start, on the device."""
         from ._assembly import _control_terms

@@ -10,12 +10,15 @@ still works, with a DeprecationWarning, and :func:`step_settings` merges it here
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
 
 from ...integrators._implicit import MINIMIZER_SETTINGS, ImplicitOptions, ImplicitOptionsLike
+
+if TYPE_CHECKING:
+    from ._assembly import PotentialProblem
 
 #: The linear solvers of Newton's steps.
 LINEAR_SOLVERS = ("cg", "scipy-cg", "direct", "auto", "pcg", "band")
@@ -170,7 +173,9 @@ def step_settings(
     return step, mz
 
 
-def device_newton(minimizer: MinimizerOptions, device: wp.DeviceLike, problem: Any = None) -> bool:
+def device_newton(
+    minimizer: MinimizerOptions, device: wp.DeviceLike, problem: PotentialProblem | None = None
+) -> bool:
     """Whether ``minimizer``'s Newton runs with every decision on the device: ``linear_solver="pcg"`` or
     "band", "auto" on a CUDA device (where a host decision per iteration costs a synchronisation), or
     ``method="auto"`` on the CPU for a small ``problem`` (:func:`resolve_method`)."""
@@ -190,7 +195,9 @@ def band_solve(minimizer: MinimizerOptions, device: wp.DeviceLike) -> bool:
     return lin == "band" or (lin == "auto" and not wp.get_device(device).is_cuda)
 
 
-def resolve_method(minimizer: MinimizerOptions, device: wp.DeviceLike, problem: Any = None) -> str:
+def resolve_method(
+    minimizer: MinimizerOptions, device: wp.DeviceLike, problem: PotentialProblem | None = None
+) -> str:
     """``minimizer.method`` on ``device``: "newton" or "lbfgs".
 
     "auto": Newton on CUDA; on the CPU Newton for a small ``problem`` (a PotentialProblem: ``model``,
@@ -204,7 +211,7 @@ def resolve_method(minimizer: MinimizerOptions, device: wp.DeviceLike, problem: 
     return "newton" if problem is not None and small_problem(problem) else "lbfgs"
 
 
-def small_problem(problem: Any) -> bool:
+def small_problem(problem: PotentialProblem) -> bool:
     """Whether ``problem``'s Newton system is small enough for the banded LDLᵀ on the CPU: its factorisation
     at most :data:`SMALL_BAND_WORK` multiply-adds (the bandwidth from the Hessian pattern, computed once per
     workspace)."""

@@ -520,6 +520,7 @@ def minimize_device(
 
     def factor() -> None:
         # The band solve's factorisation, when its lagging rule asks (the ratio: the factor's Hessian's).
+        assert band is not None  # launched only on the band solve's branch
         ws.hstats.zero_()
         assemble()
         band.factor(h)
