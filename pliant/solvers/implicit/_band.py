@@ -14,13 +14,15 @@ needed ~90 iterations per Newton step (two launches each); here a solve is one l
 * :func:`_band_solve`: one thread solves L D Lᵀ Δx = −∇Φ, 2 N b multiply-adds.
 
 **Lagging.** On the CPU the Hessian's assembly (the neo-Hookean kernel with its PSD projection: 0.33 ms
-for 288 tets in float32, 0.59 ms in float64) and the factorisation (0.19 ms) cost more than the rest of a
-Newton iteration together (~0.1 ms). So the factor is kept while it works (:func:`_lag_decide`): the next
-iteration factorises afresh when an iteration lowered the gradient norm by less than :data:`LAG_RATE`, a
+for 288 tets in float32, 0.59 ms in float64) and the factorisation (0.08 ms) cost more than the rest of a
+Newton iteration together (~0.05 ms). So the factor is kept while it works (:func:`_lag_decide`): the next
+iteration factorises afresh when an iteration left the gradient norm above :data:`LAG_RATE` times its
+value at the iteration's start, a
 step's first iteration when the previous step needed more than :data:`LAG_MAX_ITERATIONS` iterations or h
 changed, and where Newton would stop unconverged with a lagged factor (a rejected step, stagnation) it goes
 on with a fresh one. The iteration then is Newton's with a lagged Hessian, converging to the same
-tolerance (tests/test_band_newton.py: within 1e-9 m of the host Newton, tolerances tight, float64); with
+tolerance (tests/test_band_newton.py: within 1e-9 m of the host Newton, L-BFGS and the device Newton with
+CG, tolerances tight, float64); with
 ``LAG_RATE = 0``, ``LAG_MAX_ITERATIONS = -1`` and no warm start every iteration factorises and the iterates
 are the host Newton's.
 
@@ -34,6 +36,10 @@ step, as the host Newton's sparse LU does, which the line search then accepts or
 non-finite pivot (a singular H) gives Δx = 0: the line search accepts no movement and Newton stops (after
 one retry with a fresh factor when the singular one was lagged); such factorisations are counted
 (:attr:`BandLDL.failures`).
+
+What a step leaves for the next (the factor, its Hessian's stiffness ratio, the lagging flags, the warm
+start's corrections) is forgotten by ``Simulator.restart`` (``MinimizerCache.reset``: a restarted run is a
+new one, bit for bit) and saved in checkpoints (``band_*`` keys: a resumed run continues bit for bit).
 """
 
 from __future__ import annotations
@@ -57,9 +63,9 @@ if TYPE_CHECKING:
 
 #: ``counts`` slot of :class:`BandLDL`: factorisations that met a zero or non-finite pivot.
 FAILURES = COUNT_SLOTS
-#: Lagging: a lagged factor is refreshed for the next iteration when an iteration lowered the gradient norm
-#: by less than this factor, and at a step's start when the previous step needed more than
-#: :data:`LAG_MAX_ITERATIONS` iterations. 0 and −1: a factorisation every iteration (Newton's).
+#: Lagging: a lagged factor is refreshed for the next iteration when an iteration left the gradient norm
+#: above this fraction of its value at the iteration's start, and at a step's start when the previous step
+#: needed more than :data:`LAG_MAX_ITERATIONS` iterations. 0 and −1: a factorisation every iteration.
 #: Measured on the 12x2x2 beam (float32, 4 substeps of 1/120 s, with the warm start): 0.25 and 2 take 1.14
 #: iterations and 0.07 factorisations per step, trajectory error 5.8e-5 m (L-BFGS: 5.7e-5 m); 0.5 and 3
 #: 1.24 and 0.05, 6.8e-5 m; 0.1 and 1 1.09 and 0.17, 5.7e-5 m.
