@@ -54,16 +54,17 @@ def _workloads() -> None:
         for integ in (integrators.SymplecticEuler(), integrators.BackwardEuler()):
             s0, s1 = box.state(), box.state()
             ForceSolver(box, [getattr(energies, law)(), energies.Gravity()], integ).step(s0, s1, None, 1e-4)
-    for dtype in ("float32", "float64"):  # the device Newton's kernels (linear_solver="pcg")
-        box = soft_box_model(1, dtype=dtype)
-        s0, s1 = box.state(), box.state()
-        pcg = ForceSolver(
-            box,
-            [energies.NeoHookean(), energies.Gravity()],
-            integrators.BackwardEuler(),
-            minimizer={"linear_solver": "pcg"},
-        )
-        pcg.step(s0, s1, None, 1e-3)
+    for dtype in ("float32", "float64"):  # the device Newton's kernels (linear_solver "pcg" and "band")
+        for linear in ("pcg", "band"):
+            box = soft_box_model(1, dtype=dtype)
+            s0, s1 = box.state(), box.state()
+            pcg = ForceSolver(
+                box,
+                [energies.NeoHookean(), energies.Gravity()],
+                integrators.BackwardEuler(),
+                minimizer={"linear_solver": linear},
+            )
+            pcg.step(s0, s1, None, 1e-3)
     rng = np.random.default_rng(0)
     g = Gaussians.from_values(rng.uniform(-0.5, 0.5, (8, 3)), scales=np.full((8, 3), 0.1), sh_degree=1)
     cam = Camera.look_at([0.0, 0.0, 3.0], [0.0, 0.0, 0.0], width=16, height=16)

@@ -24,6 +24,7 @@ MUST_COMPILE = {
     "pliant.solvers.implicit._newton",
     "pliant.solvers.implicit._pcg",
     "pliant.solvers.implicit._pcg_kernels",
+    "pliant.solvers.implicit._band",
     "pliant.solvers.force._solver",
     "pliant.integrators._symplectic",
     "pliant.integrators._implicit",

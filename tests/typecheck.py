@@ -26,12 +26,12 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 ERROR = re.compile(r"^(?P<path>[^:\s]+\.py):(?P<line>\d+):(?:\d+:)? error: ")
-KERNEL_DECORATORS = ("wp.kernel", "wp.func", "warp.kernel", "warp.func")
+KERNEL_DECORATORS = ("wp.kernel", "wp.func", "wp.func_native", "warp.kernel", "warp.func", "warp.func_native")
 
 
 def is_warp_function(node: ast.AST) -> bool:
-    """Whether ``node`` is a function decorated with ``@wp.kernel`` or ``@wp.func`` (with or without
-    arguments, e.g. ``@wp.kernel(enable_backward=False)``)."""
+    """Whether ``node`` is a function decorated with ``@wp.kernel``, ``@wp.func`` or ``@wp.func_native``
+    (with or without arguments, e.g. ``@wp.kernel(enable_backward=False)``)."""
     if not isinstance(node, ast.FunctionDef):
         return False
     for dec in node.decorator_list:

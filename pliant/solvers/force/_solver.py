@@ -23,6 +23,8 @@ from ..implicit import (
     MinimizerCache,
     MinimizerOptions,
     NewtonStats,
+    band_checkpoint_state,
+    band_restore_checkpoint_state,
     device_newton,
     device_newton_blocker,
     lbfgs_checkpoint_state,
@@ -313,7 +315,7 @@ class ForceSolver(Solver):
             return "a differentiable model's steps write fresh arrays each step"
         if not self.integrator.explicit:
             mz = self.minimizer
-            if not device_newton(mz, self.model.device):
+            if not device_newton(mz, self.model.device, self):
                 return f"{self.integrator.name} minimises on the host (line search, sparse solves)"
             if getattr(self.integrator, "multistep", False):
                 return f"{self.integrator.name} chooses its history on the host"
@@ -334,8 +336,10 @@ class ForceSolver(Solver):
 
     # ------------------------------------------------------------------ checkpoints
     def checkpoint_state(self) -> dict[str, np.ndarray]:
-        """L-BFGS's history and warm start (``lbfgs_*``) and the integrator's (e.g. BDF2's ``bdf2_*``)."""
+        """L-BFGS's history and warm start (``lbfgs_*``), the band Newton's factor and warm start
+        (``band_*``) and the integrator's (e.g. BDF2's ``bdf2_*``)."""
         out = lbfgs_checkpoint_state(self.minimizer_cache)
+        out.update(band_checkpoint_state(self.minimizer_cache))
         own = getattr(self.integrator, "checkpoint_state", None)
         if own is not None:
             out.update(own())
@@ -344,7 +348,8 @@ class ForceSolver(Solver):
     def restore_checkpoint_state(self, state: dict[str, np.ndarray]) -> None:
         """Take back :meth:`checkpoint_state`'s arrays (validated by their owners; ValueError if wrong)."""
         lbfgs = {k: a for k, a in state.items() if k.startswith("lbfgs_")}
-        rest = {k: a for k, a in state.items() if not k.startswith("lbfgs_")}
+        band = {k: a for k, a in state.items() if k.startswith("band_")}
+        rest = {k: a for k, a in state.items() if not k.startswith(("lbfgs_", "band_"))}
         own = getattr(self.integrator, "restore_checkpoint_state", None)
         if own is None and rest:
             raise ValueError(
@@ -352,5 +357,6 @@ class ForceSolver(Solver):
                 "resume with the integrator that wrote the checkpoint"
             )
         lbfgs_restore_checkpoint_state(self, lbfgs)
+        band_restore_checkpoint_state(self, band)
         if own is not None:
             own(rest, self)

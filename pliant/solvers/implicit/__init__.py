@@ -3,13 +3,15 @@ settings, workspace and assembly, the adjoint of a converged step, and the stati
 
 Modules, bottom to top: ``_options`` (the minimiser's settings) and ``_workspace`` (the BSR pattern, linear
 solvers, the per-problem cache) → ``_assembly`` (Hessian assembly, the Control's terms) → ``_adjoint``
-(gradients through a step) → ``_newton`` → ``_pcg_kernels`` / ``_pcg`` (Newton on the device) →
+(gradients through a step) → ``_newton`` → ``_pcg_kernels``, ``_slots`` and ``_band`` (its banded LDLᵀ
+solve for small bodies) / ``_pcg`` (Newton on the device) →
 ``_quasi_newton`` → ``_minimize`` / ``_static``. Other solver families use the names below, never these
 modules.
 """
 
 from ._adjoint import differentiable
 from ._assembly import PotentialProblem, control_of
+from ._band import band_checkpoint_state, band_restore_checkpoint_state
 from ._minimize import minimize
 from ._newton import NewtonStats, minimize_incremental_potential
 from ._options import MinimizerOptions, device_newton, resolve_method, step_settings
@@ -31,6 +33,8 @@ __all__ = [
     "MinimizerOptions",
     "NewtonStats",
     "PotentialProblem",
+    "band_checkpoint_state",
+    "band_restore_checkpoint_state",
     "StaticStats",
     "cache_of",
     "control_of",

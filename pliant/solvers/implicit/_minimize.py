@@ -36,9 +36,9 @@ def minimize(
     calls, for which a thread pool's wake-up costs more than it saves."""
     _, mz = step_settings(options, minimizer)
     with single_threaded():
-        if resolve_method(mz, problem.model.device) == "lbfgs":
+        if resolve_method(mz, problem.model.device, problem) == "lbfgs":
             return minimize_quasi_newton(problem, t, h, x_tilde, x_ref, v_ref, x_out, options, minimizer=mz)
-        if device_newton(mz, problem.model.device):
+        if device_newton(mz, problem.model.device, problem):
             return minimize_device(problem, t, h, x_tilde, x_ref, v_ref, x_out, options, minimizer=mz)
         return minimize_incremental_potential(
             problem, t, h, x_tilde, x_ref, v_ref, x_out, options, minimizer=mz

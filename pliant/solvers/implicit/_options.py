@@ -10,15 +10,30 @@ still works, with a DeprecationWarning, and :func:`step_settings` merges it here
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
 
 from ...integrators._implicit import MINIMIZER_SETTINGS, ImplicitOptions, ImplicitOptionsLike
 
+if TYPE_CHECKING:
+    from ._assembly import PotentialProblem
+
 #: The linear solvers of Newton's steps.
-LINEAR_SOLVERS = ("cg", "scipy-cg", "direct", "auto", "pcg")
+LINEAR_SOLVERS = ("cg", "scipy-cg", "direct", "auto", "pcg", "band")
+
+#: The largest banded LDLᵀ factorisation (multiply-adds, :func:`pliant.solvers.implicit._band.band_work`) for
+#: which ``method="auto"`` takes the device Newton with the band solve on the CPU rather than L-BFGS.
+#: Measured (float32 beams 0.6 x 0.1 x 0.1 m of c0 x c1 x c1 cells, 4 substeps of 1/120 s, ms per substep
+#: over frames 3-22 (10 from 12x5x5), band / L-BFGS, one core): 12x2x2 (191k multiply-adds) 0.50 / 1.12,
+#: 24x2x2 (368k) 0.60 / 1.25, 8x3x3 (630k) 0.54 / 1.13, 12x3x3 (910k) 0.71 / 1.35, 16x3x3 (2.3M)
+#: 0.98 / 1.50, 12x4x4 (6.0M) 1.27 / 1.61, 12x5x5 (9.1M) 2.46 / 2.16, 12x6x6 (41M) 5.28 / 3.08: the
+#: crossover is near 7M. Set far lower, at 350k, so that the built-in FEM scenes (``fem_embedded`` 413k,
+#: ``soft_box_fem`` 1.2M, ``cantilever`` 2.3M) keep L-BFGS and their golden trajectories; raising it to ~7M
+#: would move them to the band Newton (1.5x faster on the 16x3x3 beam above) and change their goldens (to
+#: the scenes' tolerance, not bit for bit).
+SMALL_BAND_WORK = 350_000
 
 
 @dataclass(frozen=True)
@@ -29,16 +44,21 @@ class MinimizerOptions:
         method: "newton" (the default: exact PSD-projected Hessians, a linear solve per iteration),
             "lbfgs" (L-BFGS whose initial Hessian is the per-axis, lagged, prefactorised one: no assembly or
             factorisation per iteration; the fast choice for FEM bodies on the CPU, not for spring cloth,
-            whose Hessian changes too much between steps for a lagged one) or "auto": "lbfgs" on the CPU,
-            "newton" on a GPU (where the default linear solver is the device Newton, and L-BFGS's lagged
-            H₀ is a host factorisation); the FEM scenes ask for it (:func:`resolve_method`).
+            whose Hessian changes too much between steps for a lagged one) or "auto": "newton" on a GPU
+            (where the default linear solver is the device Newton, and L-BFGS's lagged H₀ is a host
+            factorisation); on the CPU "newton" with the band solve for a small body (at most
+            :data:`SMALL_BAND_WORK` multiply-adds per factorisation: its steps replay as CPU graphs), else
+            "lbfgs"; the FEM scenes ask for it (:func:`resolve_method`).
         linear_solver: Newton's linear solver: "cg" (warp.optim.linear.cg, any device), "scipy-cg" (SciPy
             CG, block-Jacobi, host; falls back to the direct solve when a step stalls), "direct" (SciPy
             sparse LU, host), "pcg" (Newton with every decision on the device: block-Jacobi CG, line search
             and stopping tests; no host read inside a step, so a Simulator replays its frames as graphs;
-            :mod:`pliant.solvers.implicit._pcg`) or "auto": the direct solve on the CPU, "pcg" on a GPU
-            (32x one CPU core at 30³ cells on an H100, where Warp's CG with host decisions was slower than
-            one core; :func:`device_newton`).
+            :mod:`pliant.solvers.implicit._pcg`), "band" (the same device Newton with a banded LDLᵀ
+            direct solve, refactorised only when convergence slows: for small bodies, whose steps it
+            replays as graphs on the CPU too; :mod:`pliant.solvers.implicit._band`) or "auto": the direct
+            solve on the CPU ("band" with ``method="auto"`` on a small body), "pcg" on a GPU (32x one CPU
+            core at 30³ cells on an H100, where Warp's CG with host decisions was slower than one core;
+            :func:`device_newton`).
         cg_tol: relative residual of CG, in (0, 1) (raised to 30 eps of the model's dtype).
         cg_max_iterations: CG iteration cap per linear solve (≥ 1).
         lbfgs_history: curvature pairs L-BFGS keeps (≥ 0; 0 is descent preconditioned by the lagged H₀).
@@ -77,8 +97,8 @@ class MinimizerOptions:
             raise ValueError(f"method must be 'newton', 'lbfgs' or 'auto', got {self.method!r}")
         if self.linear_solver not in LINEAR_SOLVERS:
             raise ValueError(
-                "linear_solver must be 'cg', 'scipy-cg', 'direct' or 'auto' (host decisions), or 'pcg' (the "
-                f"device Newton), got {self.linear_solver!r}"
+                "linear_solver must be 'cg', 'scipy-cg', 'direct' or 'auto' (host decisions), or 'pcg' or "
+                f"'band' (the device Newton), got {self.linear_solver!r}"
             )
         ok = isinstance(self.cg_tol, (int, float)) and not isinstance(self.cg_tol, bool)
         if not (ok and 0.0 < self.cg_tol < 1.0):  # NaN fails too
@@ -153,17 +173,51 @@ def step_settings(
     return step, mz
 
 
-def device_newton(minimizer: MinimizerOptions, device: wp.DeviceLike) -> bool:
-    """Whether ``minimizer``'s Newton runs with every decision on the device: ``linear_solver="pcg"``, or
-    "auto" on a CUDA device (where a host decision per iteration costs a synchronisation)."""
-    if resolve_method(minimizer, device) != "newton":
+def device_newton(
+    minimizer: MinimizerOptions, device: wp.DeviceLike, problem: PotentialProblem | None = None
+) -> bool:
+    """Whether ``minimizer``'s Newton runs with every decision on the device: ``linear_solver="pcg"`` or
+    "band", "auto" on a CUDA device (where a host decision per iteration costs a synchronisation), or
+    ``method="auto"`` on the CPU for a small ``problem`` (:func:`resolve_method`)."""
+    if resolve_method(minimizer, device, problem) != "newton":
         return False
     lin = minimizer.linear_solver
-    return lin == "pcg" or (lin == "auto" and wp.get_device(device).is_cuda)
+    if lin in ("pcg", "band"):
+        return True
+    return lin == "auto" and (wp.get_device(device).is_cuda or minimizer.method == "auto")
 
 
-def resolve_method(minimizer: MinimizerOptions, device: wp.DeviceLike) -> str:
-    """``minimizer.method`` on ``device``: "newton" or "lbfgs" ("auto": L-BFGS on the CPU, Newton on CUDA)."""
+def band_solve(minimizer: MinimizerOptions, device: wp.DeviceLike) -> bool:
+    """Whether the device Newton solves its linear systems by the banded LDLᵀ (``linear_solver="band"``,
+    or "auto" on the CPU, where only ``method="auto"`` on a small problem takes the device Newton) rather
+    than by block-Jacobi CG."""
+    lin = minimizer.linear_solver
+    return lin == "band" or (lin == "auto" and not wp.get_device(device).is_cuda)
+
+
+def resolve_method(
+    minimizer: MinimizerOptions, device: wp.DeviceLike, problem: PotentialProblem | None = None
+) -> str:
+    """``minimizer.method`` on ``device``: "newton" or "lbfgs".
+
+    "auto": Newton on CUDA; on the CPU Newton for a small ``problem`` (a PotentialProblem: ``model``,
+    ``energies``; :func:`small_problem`), whose steps the device Newton with the band solve takes as
+    replayed CPU graphs, else L-BFGS (also when no problem is given).
+    """
     if minimizer.method != "auto":
         return minimizer.method
-    return "newton" if wp.get_device(device).is_cuda else "lbfgs"
+    if wp.get_device(device).is_cuda:
+        return "newton"
+    return "newton" if problem is not None and small_problem(problem) else "lbfgs"
+
+
+def small_problem(problem: PotentialProblem) -> bool:
+    """Whether ``problem``'s Newton system is small enough for the banded LDLᵀ on the CPU: its factorisation
+    at most :data:`SMALL_BAND_WORK` multiply-adds (the bandwidth from the Hessian pattern, computed once per
+    workspace)."""
+    from ._band import band_work
+    from ._workspace import cache_of
+
+    ws = cache_of(problem).workspace(problem.model, problem.energies)
+    _, width = ws.band_order()
+    return band_work(problem.model.particle_count, width) <= SMALL_BAND_WORK

@@ -32,9 +32,25 @@ from ..._warp import launch
 from . import _pcg_kernels as K
 from ._adjoint import differentiable
 from ._assembly import _assemble, _control_terms
+from ._band import BandLDL
 from ._kernels import _step_stats, trial_point
 from ._newton import _launch_gradient, _stiffness_ratio
-from ._options import step_settings
+from ._options import band_solve, step_settings
+from ._slots import (
+    ACCEPTED,
+    ALPHA,
+    BACKTRACKS,
+    CONVERGED,
+    GNORM,
+    ITER,
+    PHI0,
+    RESIDUALS,
+    STEP_NORM,
+    STEPS,
+    TOL,
+    TOTAL,
+    TRIALS,
+)
 from ._workspace import _Workspace, _workspace, cache_of
 
 if TYPE_CHECKING:
@@ -56,11 +72,6 @@ CG_CHUNK = 8
 #: iterations; on the CPU both add the same terms in the same order.
 REDUCTIONS = ("atomic", "tile")
 REDUCTION = "tile"
-
-# float64 Newton scalars (``state``) and int32 counters (``counts``).
-TOL, PHI0, ALPHA, STEP_NORM, GNORM = range(5)
-# STEPS and TOTAL: steps and Newton iterations over the solver's life (never cleared).
-ITER, CONVERGED, ACCEPTED, TRIALS, BACKTRACKS, RESIDUALS, STEPS, TOTAL = range(8)
 
 
 # ----------------------------------------------------------------------------------------------- kernels
@@ -319,13 +330,14 @@ class DeviceCG:
 
 
 class _DeviceNewton:
-    """The device Newton's buffers for one workspace: CG, flags, float64 scalars, counters, residuals."""
+    """The device Newton's buffers for one workspace: the linear solver (CG, or the banded LDLᵀ with
+    ``band``), flags, float64 scalars, counters, residuals."""
 
-    def __init__(self, model: Model, ws: _Workspace, max_iterations: int) -> None:
+    def __init__(self, model: Model, ws: _Workspace, max_iterations: int, band: bool = False) -> None:
         d = model.device
         self.ws = ws
-        self.key = (id(ws), max_iterations)
-        self.cg = DeviceCG(model, ws)
+        self.key = (id(ws), max_iterations, band)
+        self.cg: DeviceCG | BandLDL = BandLDL(model, ws) if band else DeviceCG(model, ws)
         self.state = wp.zeros(5, dtype=wp.float64, device=d)
         self.counts = wp.zeros(8, dtype=wp.int32, device=d)
         self.residuals = wp.zeros(max_iterations + 1, dtype=wp.float64, device=d)
@@ -333,12 +345,21 @@ class _DeviceNewton:
         self.go_search = wp.zeros(1, dtype=wp.int32, device=d)
         self.bound = wp.zeros(1, dtype=model.scalar, device=d)
 
+    def reset(self) -> None:
+        """Forget what a step leaves for the next: the band solve's lagged factor (CG keeps nothing)."""
+        if isinstance(self.cg, BandLDL):
+            self.cg.reset()
 
-def _device_newton(problem: PotentialProblem, ws: _Workspace, max_iterations: int) -> _DeviceNewton:
+
+def _device_newton(
+    problem: PotentialProblem, ws: _Workspace, max_iterations: int, band: bool = False
+) -> _DeviceNewton:
     cache = cache_of(problem)
     dn = cache.pcg
-    if dn is None or dn.key != (id(ws), max_iterations):
-        dn = cache.pcg = _DeviceNewton(problem.model, ws, max_iterations)
+    if dn is None or dn.key != (id(ws), max_iterations, band):
+        dn = cache.pcg = _DeviceNewton(problem.model, ws, max_iterations, band)
+    if isinstance(dn.cg, BandLDL):
+        dn.cg.take_state(cache)  # a checkpoint's, restored before this first step
     return dn
 
 
@@ -346,12 +367,12 @@ class DeviceNewtonStats:
     """:class:`~pliant.solvers.implicit.NewtonStats` of the latest device-Newton step, read from the device
     when an attribute is asked for (one host read each; a replayed graph updates them too)."""
 
-    linear_solver = "pcg"
-
     def __init__(self, dn: _DeviceNewton, projected: bool) -> None:
         self._dn = dn
         self.projected = projected
         self.warm_started = False
+        #: "pcg" (block-Jacobi CG) or "band" (the banded LDLᵀ of :mod:`._band`).
+        self.linear_solver = "band" if isinstance(dn.cg, BandLDL) else "pcg"
 
     def _counts(self) -> np.ndarray:
         return self._dn.counts.numpy()
@@ -379,7 +400,7 @@ class DeviceNewtonStats:
 
     @property
     def linear_iterations(self) -> int:
-        """Total CG iterations of the step."""
+        """Total CG iterations of the step (0 for the direct band solve)."""
         return self._dn.cg.iterations()
 
     @property
@@ -451,7 +472,7 @@ def minimize_device(
     ws = _workspace(solver)
     opts, mz = step_settings(options, minimizer)
     max_it = int(opts.max_newton_iterations)
-    dn = _device_newton(solver, ws, max_it)
+    dn = _device_newton(solver, ws, max_it, band_solve(mz, d))
     eps = float(np.finfo(np.float32 if m.dtype == "float32" else np.float64).eps)
     cg_tol = max(float(mz.cg_tol), 30.0 * eps)
     project = opts.project_psd is not False
@@ -463,7 +484,11 @@ def minimize_device(
             e.begin_step(m, x_ref, v_ref, h)
     wp.copy(x_out, x_tilde)
     x = x_out
-    _launch_gradient(solver, ws, x, x_tilde, h)
+    band = dn.cg if isinstance(dn.cg, BandLDL) else None
+    if band is None:
+        _launch_gradient(solver, ws, x, x_tilde, h)
+    else:
+        band.warm_start(solver, x_tilde, x, h, lambda at: _launch_gradient(solver, ws, at, x_tilde, h))
     launch(
         _newton_begin,
         1,
@@ -489,10 +514,25 @@ def minimize_device(
             device=d,
         )
 
-    def iteration() -> None:
-        launch(_newton_iteration, 1, [f64(h2), ws.gstats, dn.state, ws.hstats], device=d)
+    def assemble() -> None:
         _assemble(solver, ws, x, h, project)
         launch(_stiffness_ratio, n, [m.particle_inv_mass, ws.diag_slots, ws.values, ws.hstats], device=d)
+
+    def factor() -> None:
+        # The band solve's factorisation, when its lagging rule asks (the ratio: the factor's Hessian's).
+        assert band is not None  # launched only on the band solve's branch
+        ws.hstats.zero_()
+        assemble()
+        band.factor(h)
+
+    def iteration() -> None:
+        if band is None:
+            launch(_newton_iteration, 1, [f64(h2), ws.gstats, dn.state, ws.hstats], device=d)
+            assemble()
+        else:
+            launch(_newton_iteration, 1, [f64(h2), ws.gstats, dn.state, band.ratio_scratch], device=d)
+            band.iteration_begin(dn.state)
+            wp.capture_if(band.refactor, factor)
         launch(_first_floor, 1, [f64(eps), f64(h), ws.gstats, ws.hstats, dn.counts, dn.state], device=d)
         dn.cg.solve(ws.grad, ws.dx, cg_tol, int(mz.cg_max_iterations))
         ws.tstats.zero_()
@@ -510,8 +550,14 @@ def minimize_device(
             [f64(h), max_it, ws.gstats, ws.tstats, dn.state, dn.counts, dn.residuals, dn.go],
             device=d,
         )
+        if band is not None:
+            band.decide(dn.state, dn.counts, dn.go, max_it)
 
+    if band is not None:
+        band.step_begin(h)
     wp.capture_while(dn.go, iteration)
+    if band is not None:
+        band.keep_correction(x, x_tilde, h)
     stats = DeviceNewtonStats(dn, project)
     solver.last_stats = stats
     return stats

@@ -89,6 +89,18 @@ class _Workspace:
         self.np_dtype = np.float32 if model.dtype == "float32" else np.float64
         self._cg: CG | None = None
         self._cg_key: tuple[float, int] | None = None
+        self._band: tuple[np.ndarray, int] | None = None
+
+    def band_order(self) -> tuple[np.ndarray, int]:
+        """The particles' bandwidth-reducing order and its half-bandwidth in particles (computed once; see
+        :func:`pliant.solvers.implicit._band.band_order`)."""
+        if self._band is None:
+            from ._band import band_order
+
+            n = self.indptr.size - 1
+            rows = np.repeat(np.arange(n, dtype=np.int64), np.diff(self.indptr))
+            self._band = band_order(n, rows, self.indices.astype(np.int64))
+        return self._band
 
     def cg(self, tol: float, maxiter: int) -> CG:
         """The pre-allocated CG functor (Jacobi preconditioner on ``inv_diag``)."""
@@ -175,6 +187,8 @@ class MinimizerCache:
         self.lbfgs: tuple[Any, Any, Any, dict] | None = None
         #: The device Newton's buffers (``linear_solver="pcg"``, :mod:`._pcg`), or None before its first step.
         self.pcg: _DeviceNewton | None = None
+        #: A checkpoint's band-Newton state not yet taken by a band Newton (:mod:`._band`), or None.
+        self.band_state: dict[str, np.ndarray] | None = None
 
     def workspace(self, model: Model, energies: list) -> _Workspace:
         """The workspace of (``model``, ``energies``), built on first use and when either changes."""
@@ -184,12 +198,15 @@ class MinimizerCache:
         return self.newton
 
     def reset(self) -> None:
-        """Forget what one step leaves for the next (L-BFGS's curvature pairs and warm start); keep what
-        depends only on the model (the Hessian pattern, the lagged H₀ and its factorisation)."""
+        """Forget what one step leaves for the next (L-BFGS's curvature pairs and warm start, the device
+        Newton's lagged band factor); keep what depends only on the model (the Hessian pattern, L-BFGS's
+        lagged H₀ and its factorisation)."""
         if self.lbfgs is not None:
             _, _, history, memo = self.lbfgs
             history.clear()
             memo.clear()
+        if self.pcg is not None:
+            self.pcg.reset()  # the band solve's lagged factor: a restarted run factorises as a new one
 
 
 def cache_of(problem: object) -> MinimizerCache:
