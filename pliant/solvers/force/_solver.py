@@ -272,7 +272,7 @@ class ForceSolver(Solver):
         step) and for implicit ones with Newton (it assembles from them every step; its workspace is the
         Hessian's pattern). L-BFGS keeps a lagged Hessian and its factorisation built from them: it returns
         why such a solver must be rebuilt (see :meth:`Solver.refresh_parameters`)."""
-        if self.integrator.explicit or resolve_method(self.minimizer, self.model.device) == "newton":
+        if self.integrator.explicit or resolve_method(self.minimizer, self.model.device, self) == "newton":
             return None
         return (
             f"{type(self).__name__}({self.integrator.name}) with L-BFGS keeps a lagged Hessian and its "
