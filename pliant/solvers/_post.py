@@ -98,7 +98,7 @@ def add_drag_force(
 
 class ContactHandler(Protocol):
     """A post-step contact handler (``pl.collision.Colliders``, ``SelfCollision``, a user's object): corrects
-    ``state_out`` in place; one with ``apply_out(model, x_in, v_in, x_out, v_out)`` too can be recorded
+    ``state_out`` in place; one with ``apply_out(model, x_in, v_in, x_out, v_out, dt)`` too can be recorded
     out of place."""
 
     def apply(self, model: Model, state_in: State, state_out: State, dt: float) -> None: ...
@@ -116,7 +116,7 @@ def _contact_stage(c: ContactHandler, m: Model, state_in: State, state_out: Stat
     if callable(apply_out):
 
         def out_of_place(x: wp.array, v: wp.array, xo: wp.array, vo: wp.array) -> None:
-            apply_out(m, x, v, xo, vo)
+            apply_out(m, x, v, xo, vo, dt)
 
         return out_of_place
 
@@ -155,7 +155,7 @@ def finish_step(
         integrate: ``integrate(x_out, v_out)`` writes the integrated positions [m] and velocities [m/s].
         ground: [friction μ, restitution e] of the ground response
             (:func:`pliant.collision.ground_coefficients`); None: no ground contact.
-        collisions: contact handlers, run in order: ``apply_out(model, x_in, v_in, x_out, v_out)`` where
+        collisions: contact handlers, run in order: ``apply_out(model, x_in, v_in, x_out, v_out, dt)`` where
             they have it (:class:`pliant.collision.Colliders`), else ``apply(model, state_in, state_out,
             dt)`` (in place; callers refuse those on recorded steps).
         ground_penalty: κ [1/s²] of a :class:`~pliant.energies.GroundPenalty` the step already minimised;
