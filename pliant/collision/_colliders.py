@@ -191,7 +191,7 @@ class Colliders:
 
     Args:
         stick_velocity: ε_v [m/s] >= 0 of every collider's smoothed Coulomb friction (a contact loaded
-            inside the friction cone creeps below ε_v/2; 0: exact Coulomb, with a kink at stick/slip;
+            inside the friction cone creeps below ε_v; 0: exact Coulomb, with a kink at stick/slip;
             :mod:`pliant.collision._friction`).
     """
 
@@ -411,8 +411,11 @@ class Colliders:
     def apply_out(
         self, model: Model, x_in: wp.array, v_in: wp.array, x_out: wp.array, v_out: wp.array, dt: float
     ) -> None:
-        """The response after a step of ``dt`` [s], collider after collider: reads (x_in, v_in), writes
-        (x_out, v_out) (friction moves positions by Δt Δv_t: it acts inside the step).
+        """The response after a step, collider after collider: reads (x_in, v_in), writes (x_out, v_out).
+
+        Friction acts inside the step, so its velocity change Δv_t moves positions by ``dt``·Δv_t: pass
+        ∂x₁/∂v₁ [s] of the step, Δt after x₁ = x₀ + Δt v₁ (explicit steps, backward Euler), Δt/2 after the
+        implicit midpoint rule (what :func:`~pliant.solvers._post.finish_step` passes).
 
         Outputs that are the inputs are updated in place, in one launch (the gradient-free step). Other
         outputs are a recorded (``wp.Tape``) step's: one launch per collider, each but the last into fresh

@@ -8,17 +8,17 @@ Coulomb's law in impulse form: the tangential velocity change is at most b, so
 * stick (s ≤ b): v_t' = 0;
 * slip (s > b): |v_t'| = s − b, along ṽ_t (a block sliding on the ground decelerates by exactly μ g).
 
-The friction impulse acts inside the step, so each response moves the particle by Δt (v_t' − ṽ_t) as well:
-the step's position x + Δt ṽ already used ṽ_t, and without the correction
-a sticking particle would still advance by Δt ṽ_t every step: gravity's Δt² g sin θ on its own, more where
-the body's weight is carried by a few contact particles, a steady creep down any slope.
+The friction impulse acts inside the step, so each response moves the particle by Δt (v_t' − ṽ_t) as
+well: the step's position x + Δt ṽ already used ṽ_t, and without the correction a sticking particle would
+still advance by Δt ṽ_t every step (gravity's Δt² g sin θ on its own, more where a body's weight rests on a
+few contact particles): a steady creep down any slope.
 
-Smoothing, as IPC's (Li et al. 2020): friction is evaluated at the end velocity, with the magnitude μ Δv_n
-f₁(|v_t'|), f₁(u) = 2u/ε_v − u²/ε_v² below the stick velocity ε_v and 1 above. The law is then C¹ in ṽ_t and
-μ (it is differentiable through the stick/slip switch), exact Coulomb slip wherever |v_t'| ≥ ε_v (the
-same expression as unsmoothed, bit for bit), and static friction is a viscous ramp: a contact under a
-tangential load below the cone slides at most ε_v s/(2b) < ε_v/2 [m/s]. ε_v = 0 is exact Coulomb with a
-kink at s = b. The default ε_v is :data:`pliant.model.STICK_VELOCITY`.
+Smoothing, as IPC's (Li et al. 2020): friction is evaluated at the end velocity, with the magnitude
+μ Δv_n f₁(|v_t'|), f₁(u) = 2u/ε_v − u²/ε_v² below the stick velocity ε_v and 1 above. The law is then C¹
+in ṽ_t and μ (differentiable through the stick/slip switch), exact Coulomb slip wherever |v_t'| ≥ ε_v
+(the same expression as unsmoothed, bit for bit), and static friction is a viscous ramp: a contact under
+a tangential load inside the cone slides slower than ε_v [m/s] (about ε_v s/(2b) well inside it).
+ε_v = 0 is exact Coulomb, with a kink at s = b. The default ε_v is :data:`pliant.model.STICK_VELOCITY`.
 """
 
 from __future__ import annotations

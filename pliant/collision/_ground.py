@@ -58,14 +58,15 @@ def ground_contact(
     height: Any,
     coefficients: wp.array(dtype=Any),
     stick_velocity: Any,
-    dt: Any,
+    shift_dt: Any,
     x_in: wp.array(dtype=Any),
     v_in: wp.array(dtype=Any),
     x_out: wp.array(dtype=Any),
     v_out: wp.array(dtype=Any),
 ):
     """Push particles above y = height + r, reflect the normal velocity (×e), Coulomb friction on v_t
-    (the position moved by its Δt Δv_t too, :func:`friction_shift`).
+    (the position moved by ``shift_dt`` Δv_t too, :func:`friction_shift`; ``shift_dt`` = Δt after
+    x₁ = x₀ + Δt v₁).
 
     ``coefficients`` = [friction μ, restitution e] (an array, so that their gradients can be read). Every
     particle's output is written (the outputs may be the inputs). Differentiable almost everywhere: the
@@ -78,7 +79,7 @@ def ground_contact(
     floor = height + radius[i]
     if inv_mass[i] != type(height)(0.0) and p[1] < floor:
         v_new = ground_velocity(v, coefficients[0], coefficients[1], stick_velocity)
-        x_out[i] = friction_shift(type(p)(p[0], floor, p[2]), v, v_new, dt)
+        x_out[i] = friction_shift(type(p)(p[0], floor, p[2]), v, v_new, shift_dt)
         v_out[i] = v_new
     else:
         x_out[i] = p
@@ -92,8 +93,11 @@ def ground_penalty_friction(
     height: Any,
     coefficients: wp.array(dtype=Any),
     stick_velocity: Any,
-    dt: Any,
+    shift_dt: Any,
     kappa: Any,
+    impulse_dt: Any,
+    point: Any,
+    x_start: wp.array(dtype=Any),
     x_in: wp.array(dtype=Any),
     v_in: wp.array(dtype=Any),
     x_out: wp.array(dtype=Any),
@@ -104,8 +108,10 @@ def ground_penalty_friction(
     Inside the incremental potential the penalty holds a resting particle at the depth d = g/κ where it
     balances the weight; projecting it back to y = height + r after every step (``ground_contact``) would
     undo that equilibrium and leave Newton a residual of h·g per step. So particles keep their height and
-    the normal velocity the potential gave them, and their tangential speed drops by at most μ κ d Δt (the
-    impulse bound; ``coefficients`` = [μ, e]; stopped below it), their position by Δt times that change
+    the normal velocity the potential gave them. The penalty acted at x_θ = x₁ + (1 − θ)(x₀ − x₁)
+    (θ = ``point``: 1 for backward Euler, ½ for the implicit midpoint rule; x₀ = ``x_start``) over
+    ``impulse_dt``, so the tangential speed drops by at most μ κ d(x_θ) ``impulse_dt`` (the impulse bound;
+    ``coefficients`` = [μ, e]; stopped below it), and the position by ``shift_dt`` times that change
     (:func:`friction_shift`: it only takes back part of this step's own tangential motion). Even a
     particle that went deep is not lifted: moving one vertex of an element along the normal after the
     step's inversion-safe minimisation can invert the element; the penalty pushes it out in the next step.
@@ -114,11 +120,13 @@ def ground_penalty_friction(
     i = wp.tid()
     p = x_in[i]
     v = v_in[i]
-    d = height + radius[i] - p[1]
+    one = type(height)(1.0)
+    # x₁ + (1 − θ)(x₀ − x₁): exactly x₁ for θ = 1.
+    d = height + radius[i] - (p[1] + (one - point) * (x_start[i][1] - p[1]))
     zero = type(height)(0.0)
     if inv_mass[i] != zero and d > zero:
-        v_new = coulomb_ground(v, kappa * d * dt, v[1], coefficients[0], stick_velocity)
-        x_out[i] = friction_shift(p, v, v_new, dt)
+        v_new = coulomb_ground(v, kappa * d * impulse_dt, v[1], coefficients[0], stick_velocity)
+        x_out[i] = friction_shift(p, v, v_new, shift_dt)
         v_out[i] = v_new
     else:
         x_out[i] = p
@@ -145,6 +153,10 @@ def respond_to_ground(
     v_out: wp.array,
     *,
     penalty: float | None = None,
+    x_start: wp.array | None = None,
+    point: float = 1.0,
+    impulse: float = 1.0,
+    shift: float = 1.0,
 ) -> None:
     """The ground response after a step of ``dt`` [s]: reads (x_in, v_in), writes (x_out, v_out).
 
@@ -158,21 +170,24 @@ def respond_to_ground(
         v_out: velocities [m/s] written (``v_in`` itself for an in-place update).
         penalty: κ [1/s²] of a :class:`~pliant.energies.GroundPenalty` the step already minimised: the
             response is then friction for the penalty's impulse instead of a projection.
+        x_start: positions [m] at the start of the step (needed with a penalty and ``point`` < 1).
+        point: θ [-]: the step's forces act at x₀ + θ(x₁ − x₀) (the integrator's ``contact_point``).
+        impulse: [-]: they act over ``impulse``·Δt (``contact_impulse``).
+        shift: [-]: x₁ moves by ``shift``·Δt per unit change of v₁ (``contact_shift``), and so by
+            ``shift``·Δt·Δv_t for friction's change Δv_t.
     """
     m = model
     if m.ground is None:
         raise ValueError("the model has no ground plane: ModelBuilder.add_ground() first")
     g = m.ground
-    common = [
-        m.particle_inv_mass,
-        m.particle_radius,
-        m.s(g.height),
-        coefficients,
-        m.s(g.stick_velocity),
-        m.s(dt),
-    ]
+    common = [m.particle_inv_mass, m.particle_radius, m.s(g.height), coefficients, m.s(g.stick_velocity)]
+    common.append(m.s(shift * dt))
     if penalty is not None:
-        kernel, args = ground_penalty_friction, [*common, m.s(penalty)]
+        if point != 1.0 and x_start is None:
+            raise ValueError("respond_to_ground: a penalty with point < 1 needs x_start (the step's x₀)")
+        x0 = x_in if x_start is None else x_start
+        args = [*common, m.s(penalty), m.s(impulse * dt), m.s(point), x0]
+        kernel = ground_penalty_friction
     else:
         kernel, args = ground_contact, common
     launch(kernel, m.particle_count, [*args, x_in, v_in, x_out, v_out], device=m.device)

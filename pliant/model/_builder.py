@@ -331,7 +331,7 @@ class ModelBuilder(ShapesMixin):
             friction: Coulomb friction coefficient μ [-], >= 0.
             restitution: normal restitution coefficient [-], in [0, 1].
             stick_velocity: ε_v [m/s], >= 0: the smoothed Coulomb law's static-friction ramp (a contact
-                loaded inside the friction cone creeps below ε_v/2; 0: exact Coulomb, with a kink).
+                loaded inside the friction cone creeps below ε_v; 0: exact Coulomb, with a kink).
         """
         if friction < 0:
             raise ValueError(f"ground friction must be >= 0, got {friction}")

@@ -15,8 +15,8 @@ from ._worlds import reset_world, set_world_material, set_world_parameter, set_w
 
 #: Default stick velocity ε_v [m/s] of the smoothed Coulomb friction every contact response applies
 #: (:mod:`pliant.collision._friction`): below it friction is a viscous ramp that holds a contact loaded
-#: inside the friction cone to a creep below ε_v/2 (at most 75 µm over 1.5 s on an incline at the edge of
-#: the cone); 0 is exact, unsmoothed Coulomb.
+#: inside the friction cone to a creep below ε_v (at most 0.15 mm over 1.5 s, ε_v s/(2b) ≈ 0.04 mm/s on
+#: the incline test's μ = 0.6, tan θ = 0.5); 0 is exact, unsmoothed Coulomb.
 STICK_VELOCITY = 1.0e-4
 
 _GROUND_GRAD = (
