@@ -154,6 +154,39 @@ def test_a_particle_on_a_sphere_collider_rests_inside_the_cone(mu: float):
         assert travel > 0.05, f"μ = {mu}: it should slide off, travelled {travel * 1e3:.1f} mm"
 
 
+@pytest.mark.parametrize("family", ["symplectic_euler", "xpbd"])
+def test_an_oblique_bounce_on_the_ground_has_restitution_and_coulombs_impulse(family: str):
+    """A particle dropped from h = 0.1 m with v_x = 2 m/s onto the ground (e = 0.5, μ = 0.2) rises to e²h
+    (2 %). Symplectic Euler's projection removes μ(1 + e)√(2gh) of v_x in the impact step (1 %): the
+    friction budget is the whole normal velocity change, restitution included. XPBD's velocity pass bounds
+    friction by the projection's μ|Δx_n|/Δt alone (Müller et al. 2020): v_x drops by at most μ√(2gh)."""
+    h, e, mu, vx0, r, dt = 0.1, 0.5, 0.2, 2.0, 0.01, 1e-4
+    b = pl.ModelBuilder(gravity=(0.0, -G, 0.0))
+    b.add_particles([[0.0, r + h, 0.0]], [0.01], velocities=[[vx0, 0.0, 0.0]], radius=r)
+    b.add_ground(0.0, friction=mu, restitution=e)
+    model = b.finalize(device="cpu", dtype="float64")
+    if family == "xpbd":
+        solver = pl.solvers.XPBD(model, iterations=4)
+    else:
+        solver = pl.solvers.ForceSolver(model, [pl.energies.Gravity()], pl.integrators.SymplecticEuler())
+    s0, s1 = model.state(), model.state()
+    peak, vx_after, bounced = 0.0, None, False
+    for _ in range(int(2.2 * np.sqrt(2 * h / G) / dt)):
+        solver.step(s0, s1, None, dt)
+        s0, s1 = s1, s0
+        x, v = s0.particle_q.numpy()[0], s0.particle_qd.numpy()[0]
+        if v[1] > 0 and not bounced:
+            bounced, vx_after = True, float(v[0])
+        if bounced:
+            peak = max(peak, float(x[1]) - r)
+    assert bounced and peak == pytest.approx(e * e * h, rel=0.02)
+    vn = np.sqrt(2 * G * h)
+    if family == "xpbd":
+        assert vx0 - mu * vn * 1.01 <= vx_after < vx0
+    else:
+        assert vx_after == pytest.approx(vx0 - mu * (1 + e) * vn, rel=0.01)
+
+
 def test_friction_law_is_c1_through_stick_and_slip():
     """The smoothed law's outgoing speed s'(s) for a budget b: 0 at s = 0, s − b from s = b + ε_v on (the
     unsmoothed slip, exactly), monotonic with a continuous slope through the switch, and below ε_v inside
