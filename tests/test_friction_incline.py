@@ -214,3 +214,13 @@ def test_friction_law_is_c1_through_stick_and_slip():
     slope = np.diff(sp) / np.diff(s)
     # No kink (the unsmoothed law's slope jumps from 0 to 1 at s = b): ≤ 2b/ε² ds = 0.008 per sample here.
     assert np.abs(np.diff(slope)).max() < 0.02
+
+
+def test_scene_ground_defaults_to_the_models_stick_velocity():
+    """A scene's ``[ground] stick_velocity`` defaults to :data:`pl.model.STICK_VELOCITY` and reaches the
+    model."""
+    from pliant.scene._schema import GroundSection
+
+    assert GroundSection().stick_velocity == pl.model.STICK_VELOCITY
+    scene = pl.scene.build_scene(pl.scene.load_scene("points_push"), device="cpu")
+    assert scene.model.ground.stick_velocity == pl.model.STICK_VELOCITY
