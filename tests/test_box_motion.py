@@ -40,9 +40,10 @@ def test_explicit_and_implicit_steps_converge_to_one_curve():
     ref = reference_curve(4)
     explicit = com_curve(4, method="explicit", substeps=40, frames=WINDOW)
     assert trajectory_error(explicit, ref) < 0.02
-    # Backward Euler damps the contact and the box's vibration: slowly, it converges to the same curve.
+    # Backward Euler damps the contact and the box's vibration: slowly, it converges to the same curve
+    # (measured 0.129 → 0.107; 0.152 → 0.108 before static friction held the bottom vertices).
     be = [trajectory_error(com_curve(4, substeps=s, frames=WINDOW), ref) for s in (32, 512)]
-    assert be[1] < be[0] - 0.03, be
+    assert be[1] < be[0] - 0.015, be
     model = _fem.soft_box_model(4, dtype="float64")
     energies = [pl.energies.NeoHookean(), pl.energies.Gravity()]
     solver = pl.solvers.ForceSolver(model, energies=energies, integrator=pl.integrators.SymplecticEuler())
@@ -66,7 +67,8 @@ def test_stored_box_reference_reproduces():
 
 def test_xpbd_box_motion_catches_few_substeps():
     """The XPBD soft box: the former 10 × 4 setting is 12 % off over fall, impact and rebound; the row's
-    120 × 2 stays within 2 %."""
+    120 × 2 stays within 2.5 % (measured 2.3 % since static friction holds the bottom vertices through the
+    impact; the 800 × 10 reference is 0.45 % from its half-step run)."""
     from pliant.bench._common import curve_deviation
     from pliant.bench._xpbd import BOX_WINDOW, DROP_SETTINGS, box_curve, box_reference
 
@@ -74,7 +76,7 @@ def test_xpbd_box_motion_catches_few_substeps():
     assert len(ref) == BOX_WINDOW
     assert curve_deviation(box_curve(6, "coloring", 10, 4), ref, 0.3) > 0.05
     sub, it = DROP_SETTINGS["coloring"]
-    assert curve_deviation(box_curve(6, "coloring", sub, it), ref, 0.3) < 0.02
+    assert curve_deviation(box_curve(6, "coloring", sub, it), ref, 0.3) < 0.025
 
 
 @pytest.mark.slow

@@ -91,9 +91,10 @@ def test_collider_gradients_match_finite_differences(integ):
     )
     base, s = _plain(integ, "x0", m.particle_q.numpy(), w)
     assert res.loss == pytest.approx(base, rel=1e-12)
-    # The set-up must exercise the contact: particles end on or inside the colliders' skin.
+    # The set-up must exercise the contact: particles end on or inside the colliders' skin (within 1 µm:
+    # friction moves a resting particle along the tangent after the push, δ²/2R off a curved surface).
     phi, _ = col.query(m, s.particle_q)
-    assert (phi < m.particle_radius.numpy() + 1e-9).sum() >= 3
+    assert (phi < m.particle_radius.numpy() + 1e-6).sum() >= 3
     rng = np.random.default_rng(2)
     for name in PARAMS:
         theta = _array(m, solver, col, name).numpy().astype(np.float64)

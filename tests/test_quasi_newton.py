@@ -61,7 +61,11 @@ def test_lbfgs_and_newton_agree_on_a_box_landing_on_the_ground(h0):
     L-BFGS applies H₀⁻¹ by its sparse LU or by a multigrid V-cycle (``lbfgs_h0``).
 
     The bound: both solvers stop with max_i |∇Φ_i|/(m_i h) ≤ 1e-7 m/s, and H ⪰ M puts each within
-    √(3 M/m_min)·1e-7 m/s·h ≈ 1e-7 m of the exact minimiser per step."""
+    √(3 M/m_min)·1e-7 m/s·h ≈ 1e-7 m of the exact minimiser per step.
+
+    The penalty is κ = 1e5 1/s², not the default 1e6: since static friction holds (issue 39) the bottom
+    vertices stick and slip, and at κ = 1e6 L-BFGS stalls at ~1e-4 m/s in 2 of the 8 steps on the
+    penalty's curvature jump (κ m at d = 0), though it still agrees with Newton to 2e-7 m."""
     model = _box()
     v0 = np.tile([0.3, -1.0, 0.0], (model.particle_count, 1))
     radius = float(model.particle_radius.numpy()[0])
@@ -69,12 +73,11 @@ def test_lbfgs_and_newton_agree_on_a_box_landing_on_the_ground(h0):
     for method in ("newton", "lbfgs"):
         extra = {"lbfgs_h0": h0} if method == "lbfgs" else {}
         integ, mz = I.BackwardEuler(newton_tol=1e-7), {"method": method, **extra}
-        res[method], stats = _simulate(
-            model, [NeoHookean(), pl.energies.Gravity()], integ, 8, v0=v0, minimizer=mz
-        )
+        energies = [NeoHookean(), pl.energies.Gravity(), pl.energies.GroundPenalty(1e5)]
+        res[method], stats = _simulate(model, energies, integ, 8, v0=v0, minimizer=mz)
         assert all(s.linear_solver == ("lbfgs" if method == "lbfgs" else "direct") for s in stats)
     assert res["lbfgs"][:, :, 1].min() < radius - 1e-4, "the box never pressed into the ground penalty"
-    assert np.abs(res["lbfgs"][-1] - model.particle_q_np).max() > 0.02, "nothing moved"
+    assert np.abs(res["lbfgs"][-1] - model.particle_q_np).max() > 0.01, "nothing moved"
     diff = np.abs(res["lbfgs"] - res["newton"]).max()
     assert diff < 1e-6, f"L-BFGS and Newton differ by {diff:.3g} m"
 
@@ -426,8 +429,9 @@ def test_launch_under_a_tape_is_differentiable():
 @pytest.mark.parametrize("method", ["newton", "lbfgs"])
 def test_particles_sliding_on_the_penalty_ground_stop_after_v2_over_2_mu_g(method):
     """Two particles launched along x and z at v₀ = 2 m/s on a ground with μ = 0.4 under backward Euler at
-    Δt = 1/60 s stop exactly (v = 0) after v₀²/(2μg) (+3.3% measured: friction acts on the velocity after the
-    implicit step, which overshoots by v₀Δt/2, i.e. μgΔt/v₀ = 3.3% — assert 5%)."""
+    Δt = 1/60 s stop exactly (v = 0) after v₀²/(2μg) (−3.3% measured: friction acts inside the step, on the
+    position x₁ = x₀ + Δt v₁ too, so the steps sum Δt v₁ … Δt v_N, v₀Δt/2 short of the integral, i.e.
+    μgΔt/v₀ = 3.3% — assert 5%)."""
     v0, mu, r = 2.0, 0.4, 0.01
     b = pl.ModelBuilder()
     b.add_particles(
@@ -441,7 +445,7 @@ def test_particles_sliding_on_the_penalty_ground_stop_after_v2_over_2_mu_g(metho
     d = np.linalg.norm((xs[-1] - model.particle_q_np)[:, [0, 2]], axis=1)
     expected = v0**2 / (2 * mu * G)
     np.testing.assert_allclose(d, expected, rtol=0.05)
-    assert np.all(d > expected), "implicit step + post-step friction should overshoot, not undershoot"
+    assert np.all(d < expected), "friction inside the step should stop v₀Δt/2 short, not overshoot"
     # Stopped: the last steps do not move horizontally, and the particles rest at the penalty depth g/κ.
     np.testing.assert_array_equal(xs[-1][:, [0, 2]], xs[-2][:, [0, 2]])
     kappa = pl.energies.GroundPenalty().stiffness

@@ -12,6 +12,8 @@ from typing import Any
 
 import warp as wp
 
+from ._friction import friction_velocity
+
 
 @wp.func
 def _curved_hessian(P: Any, n: Any, rho: Any):
@@ -104,29 +106,29 @@ def collider_contact(
     mesh: wp.uint64,
     friction: Any,
     restitution: Any,
+    stick_velocity: Any,
+    dt: Any,
     particle_radius: Any,
     x: Any,
     v: Any,
 ):
     """One collider's velocity-level response for one particle: (x, v) → (x', v'), pushed out along n,
-    normal velocity reflected with restitution e, tangential speed cut by at most μ·Δv_n (Coulomb)."""
+    normal velocity reflected with restitution e, tangential velocity through the Coulomb law for the
+    normal change Δv_n (:func:`~pliant.collision._friction.friction_scale`: stopped if |v_t| ≤ μ·Δv_n, cut
+    by μ·Δv_n otherwise, smoothed below the stick velocity ε_v), and x moved by Δt Δv_t (friction acts
+    inside the step, so a sticking particle stays put)."""
     zero = particle_radius * type(particle_radius)(0.0)
     phi, n, H = collider_sdf(kind, pos, aux, rot, radius, mesh, x)
     pen = particle_radius - phi
     x_new = x
     v_new = v
     if pen > zero:
-        x_new = x + pen * n
         vn = wp.dot(v, n)
         vn_new = wp.max(vn, zero)
         if vn < zero:
             vn_new = -restitution * vn
-        dvn = vn_new - vn
         vt = v - vn * n
-        st = wp.length(vt)
-        scale = zero
-        if st > zero:
-            # Coulomb: the tangential impulse is at most μ times the normal one.
-            scale = wp.max(st - friction * dvn, zero) / st
-        v_new = scale * vt + vn_new * n
+        vt_new = friction_velocity(vt, friction * (vn_new - vn), stick_velocity)
+        x_new = x + pen * n + dt * (vt_new - vt)
+        v_new = vt_new + vn_new * n
     return x_new, v_new

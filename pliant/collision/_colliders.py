@@ -5,8 +5,9 @@ normal) and Hessian ∇²φ. Two responses use them:
 
 * :meth:`Colliders.apply`, a velocity-level response after an (explicit) step, like the ground plane:
   particles closer than their radius are pushed out along n, the normal velocity is reflected with
-  restitution e, and Coulomb friction removes at most μ·Δv_n of the tangential speed (so a block sliding on
-  a collider decelerates by μ g);
+  restitution e, and Coulomb friction stops the tangential velocity if it is at most μ·Δv_n and removes
+  μ·Δv_n of it otherwise (so a block sliding on a collider decelerates by μ g, and one resting on a slope
+  inside the friction cone stays put: :mod:`pliant.collision._friction`);
 * :class:`pliant.energies.ColliderPenalty`, E = ½ k Σ max(0, r − φ)², a smooth term with an exact Hessian
   for implicit solvers.
 
@@ -24,6 +25,7 @@ import numpy.typing as npt
 import warp as wp
 
 from .._warp import GradientError, fresh, launch
+from ..model import STICK_VELOCITY
 from ..model._parameters import Found, Getter, Parameter, declares
 from ._collider_sdf import collider_contact, collider_sdf
 
@@ -47,6 +49,8 @@ def collider_response(
     mesh: wp.array(dtype=wp.uint64),
     friction: wp.array(dtype=Any),
     restitution: wp.array(dtype=Any),
+    stick_velocity: Any,
+    dt: Any,
     # Model:
     particle_inv_mass: wp.array(dtype=Any),
     particle_radius: wp.array(dtype=Any),
@@ -69,16 +73,41 @@ def collider_response(
     x = x_in[i]
     v = v_in[i]
     r = particle_radius[i]
+    eps = stick_velocity
     if particle_inv_mass[i] != r * type(r)(0.0):
         if end == first + 1:
             k = first
             x, v = collider_contact(
-                kind[k], pos[k], aux[k], rot[k], radius[k], mesh[k], friction[k], restitution[k], r, x, v
+                kind[k],
+                pos[k],
+                aux[k],
+                rot[k],
+                radius[k],
+                mesh[k],
+                friction[k],
+                restitution[k],
+                eps,
+                dt,
+                r,
+                x,
+                v,
             )
         else:
             for c in range(first, end):
                 x, v = collider_contact(
-                    kind[c], pos[c], aux[c], rot[c], radius[c], mesh[c], friction[c], restitution[c], r, x, v
+                    kind[c],
+                    pos[c],
+                    aux[c],
+                    rot[c],
+                    radius[c],
+                    mesh[c],
+                    friction[c],
+                    restitution[c],
+                    eps,
+                    dt,
+                    r,
+                    x,
+                    v,
                 )
     x_out[i] = x
     v_out[i] = v
@@ -159,6 +188,11 @@ class Colliders:
         colliders.add_box((0, -0.05, 0), (1, 0.05, 1))
         solver = pl.solvers.FastMassSpring(model, collisions=[colliders])
         # or, after any solver's step: colliders.apply(model, state_0, state_1, dt)
+
+    Args:
+        stick_velocity: ε_v [m/s] >= 0 of every collider's smoothed Coulomb friction (a contact loaded
+            inside the friction cone creeps below ε_v; 0: exact Coulomb, with a kink at stick/slip;
+            :mod:`pliant.collision._friction`).
     """
 
     @classmethod
@@ -198,7 +232,10 @@ class Colliders:
             ),
         )
 
-    def __init__(self) -> None:
+    def __init__(self, *, stick_velocity: float = STICK_VELOCITY) -> None:
+        if not (np.isfinite(stick_velocity) and stick_velocity >= 0):
+            raise ValueError(f"Colliders: stick_velocity must be >= 0 m/s, got {stick_velocity}")
+        self.stick_velocity = float(stick_velocity)
         self._rows: list[tuple] = []
         self._meshes: list[tuple[np.ndarray, np.ndarray]] = []
         self._cache: dict = {}
@@ -369,12 +406,16 @@ class Colliders:
         """Velocity-level contact response on ``state_out`` (push out, restitution, Coulomb friction), in
         place: :meth:`apply_out` with ``state_out``'s arrays as input and output."""
         x, v = state_out.particle_q, state_out.particle_qd
-        self.apply_out(model, x, v, x, v)
+        self.apply_out(model, x, v, x, v, dt)
 
     def apply_out(
-        self, model: Model, x_in: wp.array, v_in: wp.array, x_out: wp.array, v_out: wp.array
+        self, model: Model, x_in: wp.array, v_in: wp.array, x_out: wp.array, v_out: wp.array, dt: float
     ) -> None:
-        """The response, collider after collider: reads (x_in, v_in), writes (x_out, v_out).
+        """The response after a step, collider after collider: reads (x_in, v_in), writes (x_out, v_out).
+
+        Friction acts inside the step, so its velocity change Δv_t moves positions by ``dt``·Δv_t: pass
+        ∂x₁/∂v₁ [s] of the step, Δt after x₁ = x₀ + Δt v₁ (explicit steps, backward Euler), Δt/2 after the
+        implicit midpoint rule (what :func:`~pliant.solvers._post.finish_step` passes).
 
         Outputs that are the inputs are updated in place, in one launch (the gradient-free step). Other
         outputs are a recorded (``wp.Tape``) step's: one launch per collider, each but the last into fresh
@@ -403,6 +444,7 @@ class Colliders:
                 collider_response,
                 model.particle_count,
                 [first, end, *self.geometry_inputs(model), a["friction"], a["restitution"]]
+                + [model.s(self.stick_velocity), model.s(dt)]
                 + [model.particle_inv_mass, model.particle_radius, x_in, v_in, xo, vo],
                 device=model.device,
             )

@@ -13,35 +13,42 @@ from typing import TYPE_CHECKING, Any
 import warp as wp
 
 from .._warp import grad_enabled, launch
+from ._friction import friction_scale
 
 if TYPE_CHECKING:
     from ..model import Model
 
 
 @wp.func
-def coulomb_ground(v: Any, dvn: Any, vn_new: Any, friction: Any):
-    """v with normal component vn_new and its tangential part slowed by μ·dvn (stopped if that is more).
+def coulomb_ground(v: Any, dvn: Any, vn_new: Any, friction: Any, stick_velocity: Any):
+    """v with normal component vn_new and its tangential part after Coulomb friction for the normal
+    velocity change dvn [m/s] (:func:`~pliant.collision._friction.friction_scale`: stopped if |v_t| ≤ μ·dvn,
+    slowed by μ·dvn otherwise, smoothed below the stick velocity ε_v).
 
     Coulomb: the tangential impulse is bounded by μ times the normal one, so a block sliding on the ground
     decelerates by exactly μg and stops after v²/(2μg).
     """
     zero = friction * type(friction)(0.0)
-    speed_t = wp.length(type(v)(v[0], zero, v[2]))
-    scale = zero
-    if speed_t > zero:
-        scale = wp.max(speed_t - friction * dvn, zero) / speed_t
+    scale = friction_scale(wp.length(type(v)(v[0], zero, v[2])), friction * dvn, stick_velocity)
     return type(v)(v[0] * scale, vn_new, v[2] * scale)
 
 
 @wp.func
-def ground_velocity(v: Any, friction: Any, restitution: Any):
+def ground_velocity(v: Any, friction: Any, restitution: Any, stick_velocity: Any):
     """Velocity after hitting the ground: normal part reflected (×e) if approaching, Coulomb friction."""
     zero = friction * type(friction)(0.0)
     vn = v[1]
     vn_new = wp.max(vn, zero)
     if vn < zero:
         vn_new = -restitution * vn
-    return coulomb_ground(v, vn_new - vn, vn_new, friction)
+    return coulomb_ground(v, vn_new - vn, vn_new, friction, stick_velocity)
+
+
+@wp.func
+def friction_shift(p: Any, v: Any, v_new: Any, dt: Any):
+    """p moved by Δt times the tangential velocity change v_new − v: friction acts inside the step, whose
+    position p = x + Δt v already used the trial velocity (a sticking particle stays where it was)."""
+    return type(p)(p[0] + dt * (v_new[0] - v[0]), p[1], p[2] + dt * (v_new[2] - v[2]))
 
 
 @wp.kernel
@@ -50,25 +57,30 @@ def ground_contact(
     radius: wp.array(dtype=Any),
     height: Any,
     coefficients: wp.array(dtype=Any),
+    stick_velocity: Any,
+    shift_dt: Any,
     x_in: wp.array(dtype=Any),
     v_in: wp.array(dtype=Any),
     x_out: wp.array(dtype=Any),
     v_out: wp.array(dtype=Any),
 ):
-    """Push particles above y = height + r, reflect the normal velocity (×e), Coulomb friction on v_t.
+    """Push particles above y = height + r, reflect the normal velocity (×e), Coulomb friction on v_t
+    (the position moved by ``shift_dt`` Δv_t too, :func:`friction_shift`; ``shift_dt`` = Δt after
+    x₁ = x₀ + Δt v₁).
 
     ``coefficients`` = [friction μ, restitution e] (an array, so that their gradients can be read). Every
     particle's output is written (the outputs may be the inputs). Differentiable almost everywhere: the
-    contact set, the sign of the normal velocity and the stick/slip switch of Coulomb friction are
-    piecewise, so at a switch the gradient is one-sided (a subgradient).
+    contact set and the sign of the normal velocity are piecewise, so at a switch the gradient is
+    one-sided (a subgradient); friction is C¹ through stick/slip (the stick velocity ε_v smooths it).
     """
     i = wp.tid()
     p = x_in[i]
     v = v_in[i]
     floor = height + radius[i]
     if inv_mass[i] != type(height)(0.0) and p[1] < floor:
-        x_out[i] = type(p)(p[0], floor, p[2])
-        v_out[i] = ground_velocity(v, coefficients[0], coefficients[1])
+        v_new = ground_velocity(v, coefficients[0], coefficients[1], stick_velocity)
+        x_out[i] = friction_shift(type(p)(p[0], floor, p[2]), v, v_new, shift_dt)
+        v_out[i] = v_new
     else:
         x_out[i] = p
         v_out[i] = v
@@ -80,8 +92,12 @@ def ground_penalty_friction(
     radius: wp.array(dtype=Any),
     height: Any,
     coefficients: wp.array(dtype=Any),
+    stick_velocity: Any,
+    shift_dt: Any,
     kappa: Any,
-    dt: Any,
+    impulse_dt: Any,
+    point: Any,
+    x_start: wp.array(dtype=Any),
     x_in: wp.array(dtype=Any),
     v_in: wp.array(dtype=Any),
     x_out: wp.array(dtype=Any),
@@ -91,22 +107,29 @@ def ground_penalty_friction(
 
     Inside the incremental potential the penalty holds a resting particle at the depth d = g/κ where it
     balances the weight; projecting it back to y = height + r after every step (``ground_contact``) would
-    undo that equilibrium and leave Newton a residual of h·g per step. So particles keep their position
-    and the normal velocity the potential gave them, and their tangential speed drops by μ κ d Δt (the
-    impulse bound; ``coefficients`` = [μ, e]). Even a particle that went deep is not moved: moving one
-    vertex of an element after the step's inversion-safe minimisation can invert the element; the penalty
-    pushes it out in the next step. A subgradient where a particle enters or leaves the contact set or
-    friction switches stick/slip.
+    undo that equilibrium and leave Newton a residual of h·g per step. So particles keep their height and
+    the normal velocity the potential gave them. The penalty acted at x_θ = x₁ + (1 − θ)(x₀ − x₁)
+    (θ = ``point``: 1 for backward Euler, ½ for the implicit midpoint rule; x₀ = ``x_start``) over
+    ``impulse_dt``, so the tangential speed drops by at most μ κ d(x_θ) ``impulse_dt`` (the impulse bound;
+    ``coefficients`` = [μ, e]; stopped below it), and the position by ``shift_dt`` times that change
+    (:func:`friction_shift`: it only takes back part of this step's own tangential motion). Even a
+    particle that went deep is not lifted: moving one vertex of an element along the normal after the
+    step's inversion-safe minimisation can invert the element; the penalty pushes it out in the next step.
+    A subgradient where a particle enters or leaves the contact set; friction is C¹ (ε_v).
     """
     i = wp.tid()
     p = x_in[i]
     v = v_in[i]
-    x_out[i] = p
-    d = height + radius[i] - p[1]
+    one = type(height)(1.0)
+    # x₁ + (1 − θ)(x₀ − x₁): exactly x₁ for θ = 1.
+    d = height + radius[i] - (p[1] + (one - point) * (x_start[i][1] - p[1]))
     zero = type(height)(0.0)
     if inv_mass[i] != zero and d > zero:
-        v_out[i] = coulomb_ground(v, kappa * d * dt, v[1], coefficients[0])
+        v_new = coulomb_ground(v, kappa * d * impulse_dt, v[1], coefficients[0], stick_velocity)
+        x_out[i] = friction_shift(p, v, v_new, shift_dt)
+        v_out[i] = v_new
     else:
+        x_out[i] = p
         v_out[i] = v
 
 
@@ -130,6 +153,10 @@ def respond_to_ground(
     v_out: wp.array,
     *,
     penalty: float | None = None,
+    x_start: wp.array | None = None,
+    point: float = 1.0,
+    impulse: float = 1.0,
+    shift: float = 1.0,
 ) -> None:
     """The ground response after a step of ``dt`` [s]: reads (x_in, v_in), writes (x_out, v_out).
 
@@ -143,13 +170,24 @@ def respond_to_ground(
         v_out: velocities [m/s] written (``v_in`` itself for an in-place update).
         penalty: κ [1/s²] of a :class:`~pliant.energies.GroundPenalty` the step already minimised: the
             response is then friction for the penalty's impulse instead of a projection.
+        x_start: positions [m] at the start of the step (needed with a penalty and ``point`` < 1).
+        point: θ [-]: the step's forces act at x₀ + θ(x₁ − x₀) (the integrator's ``contact_point``).
+        impulse: [-]: they act over ``impulse``·Δt (``contact_impulse``).
+        shift: [-]: x₁ moves by ``shift``·Δt per unit change of v₁ (``contact_shift``), and so by
+            ``shift``·Δt·Δv_t for friction's change Δv_t.
     """
     m = model
     if m.ground is None:
         raise ValueError("the model has no ground plane: ModelBuilder.add_ground() first")
-    common = [m.particle_inv_mass, m.particle_radius, m.s(m.ground.height), coefficients]
+    g = m.ground
+    common = [m.particle_inv_mass, m.particle_radius, m.s(g.height), coefficients, m.s(g.stick_velocity)]
+    common.append(m.s(shift * dt))
     if penalty is not None:
-        kernel, args = ground_penalty_friction, [*common, m.s(penalty), m.s(dt)]
+        if point != 1.0 and x_start is None:
+            raise ValueError("respond_to_ground: a penalty with point < 1 needs x_start (the step's x₀)")
+        x0 = x_in if x_start is None else x_start
+        args = [*common, m.s(penalty), m.s(impulse * dt), m.s(point), x0]
+        kernel = ground_penalty_friction
     else:
         kernel, args = ground_contact, common
     launch(kernel, m.particle_count, [*args, x_in, v_in, x_out, v_out], device=m.device)

@@ -376,9 +376,10 @@ class Constraint(abc.ABC):
 
     def end_step(  # noqa: B027
         self, ctx: ProjectionContext, x: wp.array, p: wp.array, v: wp.array, dt: float
-    ) -> wp.array | None:
+    ) -> wp.array | tuple[wp.array, wp.array] | None:
         """Velocity pass (friction, restitution) after v = (p − x)/dt; returns the velocities written (``v``
-        itself in place, a fresh array in a differentiable step), or None (nothing written)."""
+        itself in place, a fresh array in a differentiable step), the pair (positions, velocities) written
+        where the pass moves positions too (friction acting inside the step), or None (nothing written)."""
 
     def evaluate(self, x: wp.array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """C [n], particle indices [n, k] and ∇C [n, k, 3] of every bound constraint at positions ``x``.

@@ -9,8 +9,9 @@ import numpy as np
 import warp as wp
 from numpy.typing import ArrayLike
 
+from ..collision._friction import friction_velocity
 from ..collision._hashgrid import ParticleGrid, TriangleBVH
-from ..model import Model
+from ..model import STICK_VELOCITY, Model
 from ._base import Constraint, ProjectionContext
 from ._contact_math import (
     evaluate_ground,
@@ -59,33 +60,39 @@ def _ground_velocity(
     friction: Any,
     restitution: Any,
     threshold: Any,
-    inv_dt: Any,
+    stick_velocity: Any,
+    dt: Any,
     lam_in: wp.array(dtype=Any),
     v_pre_in: wp.array(dtype=Any),
+    p_in: wp.array(dtype=Any),
     v_in: wp.array(dtype=Any),
+    p_out: wp.array(dtype=Any),
     v_out: wp.array(dtype=Any),
 ):
-    # Every thread writes its particle's v_out: it may be v_in (in place) or a fresh array (recorded step).
+    # Every thread writes its particle's p_out and v_out: they may be the inputs (in place) or fresh arrays
+    # (recorded step).
     i = wp.tid()
     lam = lam_in[i]
     zero = type(lam)(0.0)
     v = v_in[i]
+    p = p_in[i]
     if lam <= zero:
+        p_out[i] = p
         v_out[i] = v
         return
     vn = wp.dot(v, normal)
     vt = v - vn * normal
-    # Coulomb: the tangential velocity change is bounded by μ times the normal one, |Δx_n|/Δt = wλ/Δt.
-    dvn = inv_mass[i] * lam * inv_dt
-    st = wp.length(vt)
-    scale = zero
-    if st > zero:
-        scale = wp.max(st - friction * dvn, zero) / st
+    # Coulomb: the tangential velocity change is bounded by μ times the normal one, |Δx_n|/Δt = wλ/Δt (the
+    # whole push of this step, the part that held the weight included).
+    vt_new = friction_velocity(vt, friction * inv_mass[i] * lam / dt, stick_velocity)
     vn_pre = wp.dot(v_pre_in[i], normal)
     vn_new = wp.max(vn, zero)
     if vn_pre < -threshold:
         vn_new = -restitution * vn_pre
-    v_out[i] = vt * scale + vn_new * normal
+    # Friction acts inside the step: p moves by Δt Δv_t too (v = (p − x)/Δt stays consistent, and a sticking
+    # particle stays at x).
+    p_out[i] = p + dt * (vt_new - vt)
+    v_out[i] = vt_new + vn_new * normal
 
 
 class Ground(Constraint):
@@ -93,13 +100,17 @@ class Ground(Constraint):
 
     Positions are projected onto the plane (Δx = −C n when C < 0); after v = (p − x)/Δt the velocity
     pass of Müller et al. ("Detailed rigid body simulation with XPBD", 2020) limits the tangential
-    velocity change to μ|Δx_n|/Δt and sets v_n = −e ṽ_n from the pre-solve normal velocity ṽ_n.
+    velocity change to μ|Δx_n|/Δt (stopping it below that: static friction, smoothed below the stick
+    velocity ε_v, :mod:`pliant.collision._friction`), moves p by Δt times that change (so that a sticking
+    particle stays where it started the step) and sets v_n = −e ṽ_n from the pre-solve normal velocity ṽ_n.
 
     Args:
         normal: plane normal n (normalised); default +y.
         offset: d [m]; default −height of ``model.ground`` (so the plane is y = height).
         friction: μ; default ``model.ground.friction``.
         restitution: e in [0, 1]; default ``model.ground.restitution``.
+        stick_velocity: ε_v [m/s] >= 0; default ``model.ground.stick_velocity``
+            (:data:`pliant.model.STICK_VELOCITY` without a ground).
     """
 
     uses_deltas = False
@@ -113,13 +124,17 @@ class Ground(Constraint):
         offset: float | None = None,
         friction: float | None = None,
         restitution: float | None = None,
+        stick_velocity: float | None = None,
     ) -> None:
         super().__init__(compliance=0.0)
         n = np.asarray(normal, float).reshape(3)
         if np.linalg.norm(n) == 0:
             raise ValueError("Ground: normal must be non-zero")
+        if stick_velocity is not None and not (math.isfinite(stick_velocity) and stick_velocity >= 0):
+            raise ValueError(f"Ground: stick_velocity must be >= 0 m/s (or omitted), got {stick_velocity}")
         self.normal = n / np.linalg.norm(n)
         self._offset, self._friction, self._restitution = offset, friction, restitution
+        self._stick = stick_velocity
 
     def bind(self, model: Model, coloring: bool) -> None:
         """Resolve plane and material from ``model.ground``; one multiplier per particle."""
@@ -132,6 +147,9 @@ class Ground(Constraint):
         )
         if self.friction < 0 or not 0 <= self.restitution <= 1:
             raise ValueError("Ground: friction must be >= 0 and restitution in [0, 1]")
+        self.stick_velocity = float(
+            self._stick if self._stick is not None else (g.stick_velocity if g else STICK_VELOCITY)
+        )
         self.count = model.particle_count
         self.lam = wp.zeros(self.count, dtype=model.scalar, device=model.device)
 
@@ -170,15 +188,17 @@ class Ground(Constraint):
 
     def end_step(
         self, ctx: ProjectionContext, x: wp.array, p: wp.array, v: wp.array, dt: float
-    ) -> wp.array | None:
-        """Friction and restitution for the particles the plane pushed this step.
+    ) -> tuple[wp.array, wp.array]:
+        """Friction and restitution for the particles the plane pushed this step; friction moves the
+        positions p too (Δt Δv_t). Returns (p, v) written: ``p`` and ``v`` themselves (in place), or fresh
+        arrays in a differentiable step.
 
-        Differentiable as far as smooth: the Coulomb clamp max(|v_t| − μΔv_n, 0) and the restitution
-        switch (approach speed above 2|g|Δt) give one-sided gradients at their kinks.
+        Differentiable as far as smooth: friction is C¹ (the stick velocity ε_v smooths the Coulomb
+        switch); the restitution switch (approach speed above 2|g|Δt) gives one-sided gradients.
         """
         m = self.model
         g = float(np.linalg.norm(m.gravity))
-        v_out = ctx.fresh(v) if ctx.requires_grad else v
+        p_out, v_out = (ctx.fresh(p), ctx.fresh(v)) if ctx.requires_grad else (p, v)
         ctx.launch(
             _ground_velocity,
             self.count,
@@ -188,14 +208,17 @@ class Ground(Constraint):
                 m.s(self.friction),
                 m.s(self.restitution),
                 m.s(2.0 * g * dt),  # below this approach speed a contact rests instead of bouncing
-                m.s(1.0 / dt),
+                m.s(self.stick_velocity),
+                m.s(dt),
                 self.lam,
                 ctx.v_pred,
+                p,
                 v,
+                p_out,
                 v_out,
             ],
         )
-        return v_out
+        return p_out, v_out
 
 
 # ---------------------------------------------------------------------- particle–particle

@@ -79,6 +79,14 @@ class Integrator(abc.ABC):
     symplectic: ClassVar[bool] = False
     #: True when ``step_system`` needs the previous step (multistep methods such as BDF2).
     multistep: ClassVar[bool] = False
+    #: How a step's forces enter x₁ and v₁, for the contact response after it (ground-penalty friction,
+    #: :func:`pliant.collision.respond_to_ground`): the forces act at x₀ + θ(x₁ − x₀) (θ =
+    #: ``contact_point``) over ``contact_impulse``·Δt, and x₁ moves by ``contact_shift``·Δt per unit change
+    #: of v₁ (∂x₁/∂v₁ / Δt), which is how far friction's velocity change moves a particle. Backward Euler's
+    #: (1, 1, 1) stands for the explicit methods too (x₁ ≈ x₀ + Δt v₁).
+    contact_point: ClassVar[float] = 1.0
+    contact_impulse: ClassVar[float] = 1.0
+    contact_shift: ClassVar[float] = 1.0
 
     @property
     def name(self) -> str:

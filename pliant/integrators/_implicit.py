@@ -312,6 +312,9 @@ class ImplicitMidpoint(_ImplicitOptions, Integrator):
     order: ClassVar[int] = 2
     explicit: ClassVar[bool] = False
     symplectic: ClassVar[bool] = True
+    # Forces at x_½ over the whole step; x₁ = x₀ + Δt (v₀ + v₁)/2.
+    contact_point: ClassVar[float] = 0.5
+    contact_shift: ClassVar[float] = 0.5
 
     def step_ode(
         self, problem: ODEProblem | SecondOrderODE, t: float, dt: float, y: np.ndarray
@@ -352,6 +355,10 @@ class BDF2(_ImplicitOptions, Integrator):
     order: ClassVar[int] = 2
     explicit: ClassVar[bool] = False
     multistep: ClassVar[bool] = True
+    # Forces at x₁ over ĥ = 2Δt/3, x₁ = x̂ + ĥ v₁ (the history steps; the first, backward-Euler step is
+    # off by that factor for its contact friction alone).
+    contact_impulse: ClassVar[float] = 2.0 / 3.0
+    contact_shift: ClassVar[float] = 2.0 / 3.0
 
     def __init__(self, **options: Any) -> None:
         super().__init__(**options)

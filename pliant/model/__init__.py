@@ -2,9 +2,10 @@
 
 from ._builder import ModelBuilder
 from ._mass import tet_consistent_mass, tet_lumped_mass, triangle_lumped_mass
-from ._model import Control, Ground, Model, State
+from ._model import STICK_VELOCITY, Control, Ground, Model, State
 
 __all__ = [
+    "STICK_VELOCITY",
     "Control",
     "Ground",
     "Model",

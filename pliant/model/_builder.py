@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -11,7 +12,7 @@ import warp as wp
 
 from .._warp import init, mat33_type, np_dtype, resolve_device, scalar_type, vec3_type
 from ._checks import _as_index_array, _per_item
-from ._model import Ground, Model
+from ._model import STICK_VELOCITY, Ground, Model
 from ._shapes import ShapesMixin
 
 
@@ -315,19 +316,30 @@ class ModelBuilder(ShapesMixin):
         if idx.shape[0]:
             self._bending.append((idx, _per_item(stiffness, idx.shape[0], "bending stiffness", "N m/rad")))
 
-    def add_ground(self, height: float = 0.0, *, friction: float = 0.5, restitution: float = 0.0) -> None:
+    def add_ground(
+        self,
+        height: float = 0.0,
+        *,
+        friction: float = 0.5,
+        restitution: float = 0.0,
+        stick_velocity: float = STICK_VELOCITY,
+    ) -> None:
         """Add the ground plane y = ``height``.
 
         Args:
             height: height of the plane [m].
             friction: Coulomb friction coefficient μ [-], >= 0.
             restitution: normal restitution coefficient [-], in [0, 1].
+            stick_velocity: ε_v [m/s], >= 0: the smoothed Coulomb law's static-friction ramp (a contact
+                loaded inside the friction cone creeps below ε_v; 0: exact Coulomb, with a kink).
         """
         if friction < 0:
             raise ValueError(f"ground friction must be >= 0, got {friction}")
         if not 0 <= restitution <= 1:
             raise ValueError(f"ground restitution must be in [0, 1], got {restitution}")
-        self.ground = Ground(float(height), float(friction), float(restitution))
+        if not (math.isfinite(stick_velocity) and stick_velocity >= 0):
+            raise ValueError(f"ground stick_velocity must be >= 0 m/s, got {stick_velocity}")
+        self.ground = Ground(float(height), float(friction), float(restitution), float(stick_velocity))
 
     # ------------------------------------------------------------------ shapes
     def register_object(self, name: str, kind: str, start: int, **extra: Any) -> None:

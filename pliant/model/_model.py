@@ -13,6 +13,12 @@ from .._warp import mat33_type, np_dtype, scalar_type, vec3_type
 from ._parameters import MODEL_ARRAYS, Parameter, array_home, control_array, declares, solver_array
 from ._worlds import reset_world, set_world_material, set_world_parameter, set_world_state, world_slice
 
+#: Default stick velocity ε_v [m/s] of the smoothed Coulomb friction every contact response applies
+#: (:mod:`pliant.collision._friction`): below it friction is a viscous ramp that holds a contact loaded
+#: inside the friction cone to a creep below ε_v (at most 0.15 mm over 1.5 s, ε_v s/(2b) ≈ 0.04 mm/s on
+#: the incline test's μ = 0.6, tan θ = 0.5); 0 is exact, unsmoothed Coulomb.
+STICK_VELOCITY = 1.0e-4
+
 _GROUND_GRAD = (
     "with ground contact on a requires_grad model (ForceSolver or FastMassSpring with an explicit step and "
     "model.ground set)"
@@ -22,11 +28,13 @@ _GROUND_GRAD = (
 @declares
 @dataclass(frozen=True)
 class Ground:
-    """A ground plane n·x = height with n = +y, Coulomb friction and restitution."""
+    """A ground plane n·x = height with n = +y, Coulomb friction (stick velocity ε_v [m/s]) and
+    restitution."""
 
     height: float = 0.0
     friction: float = 0.5
     restitution: float = 0.0
+    stick_velocity: float = STICK_VELOCITY
 
     @classmethod
     def parameters(cls) -> tuple[Parameter, ...]:

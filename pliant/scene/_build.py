@@ -217,7 +217,9 @@ def _finalize(ctx: BuildContext, device: str | None, dtype: str | None, requires
     cfg = ctx.cfg
     g = cfg.ground
     if g is not None and g.enabled:
-        ctx.builder.add_ground(g.height, friction=g.friction, restitution=g.restitution)
+        ctx.builder.add_ground(
+            g.height, friction=g.friction, restitution=g.restitution, stick_velocity=g.stick_velocity
+        )
     try:
         ctx.model = ctx.builder.finalize(
             device=device or cfg.scene.device, dtype=dtype or cfg.scene.dtype, requires_grad=requires_grad

@@ -255,6 +255,9 @@ class GroundSection(Section):
     height: Coord = 0.0  # [m]
     friction: NonNegFloat = 0.5
     restitution: Fraction = 0.0
+    # ε_v [m/s]: below it Coulomb friction is a smooth viscous ramp; pl.model.STICK_VELOCITY (the schema
+    # imports nothing of pliant; tests/test_friction_incline.py checks they agree)
+    stick_velocity: NonNegFloat = 1.0e-4
     # κ [1/s²] of the ground penalty: implicit integrators always use one (default 1e6); set, it is the
     # explicit integrators' contact too (instead of the projection after each step).
     stiffness: PosFloat | None = None

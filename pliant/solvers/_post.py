@@ -98,7 +98,7 @@ def add_drag_force(
 
 class ContactHandler(Protocol):
     """A post-step contact handler (``pl.collision.Colliders``, ``SelfCollision``, a user's object): corrects
-    ``state_out`` in place; one with ``apply_out(model, x_in, v_in, x_out, v_out)`` too can be recorded
+    ``state_out`` in place; one with ``apply_out(model, x_in, v_in, x_out, v_out, dt)`` too can be recorded
     out of place."""
 
     def apply(self, model: Model, state_in: State, state_out: State, dt: float) -> None: ...
@@ -108,15 +108,17 @@ class ContactHandler(Protocol):
 Stage = Callable[[wp.array, wp.array, wp.array, wp.array], None]
 
 
-def _contact_stage(c: ContactHandler, m: Model, state_in: State, state_out: State, dt: float) -> Stage:
+def _contact_stage(
+    c: ContactHandler, m: Model, state_in: State, state_out: State, dt: float, shift_dt: float
+) -> Stage:
     """A contact handler as a post-step stage ``(x, v, x_out, v_out)``: out of place through its
-    ``apply_out`` when it has one, else in place on ``state_out`` (which is (x, v) on the gradient-free
-    path)."""
+    ``apply_out`` when it has one (given ``shift_dt`` [s], ∂x₁/∂v₁ of the step, the Δt its friction moves
+    positions by), else in place on ``state_out`` (which is (x, v) on the gradient-free path)."""
     apply_out = getattr(c, "apply_out", None)
     if callable(apply_out):
 
         def out_of_place(x: wp.array, v: wp.array, xo: wp.array, vo: wp.array) -> None:
-            apply_out(m, x, v, xo, vo)
+            apply_out(m, x, v, xo, vo, shift_dt)
 
         return out_of_place
 
@@ -137,6 +139,7 @@ def finish_step(
     ground: wp.array | None = None,
     collisions: Sequence[Any] = (),
     ground_penalty: float | None = None,
+    contact: tuple[float, float, float] = (1.0, 1.0, 1.0),
 ) -> None:
     """A force-based step: integrate, then kinematic targets, the ground response, each contact handler.
 
@@ -155,11 +158,15 @@ def finish_step(
         integrate: ``integrate(x_out, v_out)`` writes the integrated positions [m] and velocities [m/s].
         ground: [friction μ, restitution e] of the ground response
             (:func:`pliant.collision.ground_coefficients`); None: no ground contact.
-        collisions: contact handlers, run in order: ``apply_out(model, x_in, v_in, x_out, v_out)`` where
+        collisions: contact handlers, run in order: ``apply_out(model, x_in, v_in, x_out, v_out, dt)`` where
             they have it (:class:`pliant.collision.Colliders`), else ``apply(model, state_in, state_out,
             dt)`` (in place; callers refuse those on recorded steps).
         ground_penalty: κ [1/s²] of a :class:`~pliant.energies.GroundPenalty` the step already minimised;
             the ground response is then friction for the penalty's impulse instead of a projection.
+        contact: (θ, w, β) [-] of the step (an integrator's ``contact_point``, ``contact_impulse``,
+            ``contact_shift``): its forces act at x₀ + θ(x₁ − x₀) over wΔt, and friction's velocity change
+            Δv_t moves a particle by βΔt Δv_t (ground and ``apply_out`` handlers). Backward Euler's
+            (1, 1, 1) stands for the explicit steps too.
     """
     m = model
     stages: list[Stage] = []
@@ -172,11 +179,14 @@ def finish_step(
             launch(apply_kinematic, m.particle_count, args, device=m.device)
 
         stages.append(kinematic)
+    point, impulse, shift = contact
     if ground is not None:
-        kappa = ground_penalty
-        stages.append(lambda x, v, xo, vo: respond_to_ground(m, ground, dt, x, v, xo, vo, penalty=kappa))
+        kw = dict(
+            penalty=ground_penalty, x_start=state_in.particle_q, point=point, impulse=impulse, shift=shift
+        )
+        stages.append(lambda x, v, xo, vo: respond_to_ground(m, ground, dt, x, v, xo, vo, **kw))
     for c in collisions:
-        stages.append(_contact_stage(c, m, state_in, state_out, dt))
+        stages.append(_contact_stage(c, m, state_in, state_out, dt, shift * dt))
     recorded = grad_enabled(m)
 
     def outputs(last: bool) -> tuple[wp.array, wp.array]:

@@ -489,8 +489,18 @@ class FastMassSpring(Solver):
                 for cmd in cmds:
                     cmd.launch()
 
+        # x¹ = x + h(v + θΔv): friction's Δv_t after the step moves a particle by θhΔv_t (hΔv_t explicitly).
+        shift = self.theta if self.method == "implicit" else 1.0
         finish_step(
-            m, control, state_in, state_out, dt, integrate, ground=self._ground, collisions=self.collisions
+            m,
+            control,
+            state_in,
+            state_out,
+            dt,
+            integrate,
+            ground=self._ground,
+            collisions=self.collisions,
+            contact=(1.0, 1.0, shift),
         )
 
     def graph_blocker(self) -> str | None:

@@ -223,7 +223,7 @@ class ForceSolver(Solver):
         One path with or without gradients (:func:`~pliant.solvers._post.finish_step`): on a
         ``requires_grad`` model each stage writes fresh arrays, so that ``wp.Tape`` can replay the step.
         """
-        m = self.model
+        m, integ = self.model, self.integrator
         self._control = control
         if grad_enabled(m):
             self._check_recordable(control)
@@ -239,6 +239,7 @@ class ForceSolver(Solver):
             ground=self.ground_coefficients,
             collisions=self.collisions,
             ground_penalty=self._ground_penalty(),
+            contact=(integ.contact_point, integ.contact_impulse, integ.contact_shift),
         )
 
     def _check_recordable(self, control: Control | None) -> None:

@@ -426,7 +426,10 @@ class XPBD(Solver):
             self.launch(K.apply_deltas_update_velocity, n, args)
         for c in self.constraints:
             out = c.end_step(ctx, x, p, v, dt)
-            v = v if out is None else out
+            if isinstance(out, tuple):  # a velocity pass that moves positions too (ground friction)
+                p, v = out
+            elif out is not None:
+                v = out
         if grad:
             self.launch(K.write_state, n, [p, v, state_out.particle_q, state_out.particle_qd])
 
