@@ -127,6 +127,32 @@ def voxel_tets(centres: ArrayLike, spacing: float, *, dual: bool = False) -> Tet
     return TetMesh(points=points, tets=cells[:, _KUHN].reshape(-1, 4).astype(np.int32))
 
 
+def coarsen_voxels(centres: ArrayLike, spacing: float, factor: int = 2, min_fill: float = 0.5) -> np.ndarray:
+    """A coarser voxel set: cells of ``factor`` voxels a side, kept where at least ``min_fill`` of their
+    ``factor³`` voxels are (a multigrid restriction of the occupancy).
+
+    Args:
+        centres: [M, 3] voxel centres [m] on a grid of pitch ``spacing``.
+        spacing: Voxel side [m].
+        factor: Voxels per coarse cell along each axis (≥ 2).
+        min_fill: Fraction of a coarse cell's voxels that must be present, in (0, 1].
+
+    Returns:
+        [K, 3] centres [m] of the kept coarse cells (pitch ``factor · spacing``).
+    """
+    c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+    if len(c) == 0 or not spacing > 0 or int(factor) < 2 or not 0.0 < min_fill <= 1.0:
+        raise ValueError(
+            f"coarsen_voxels: expected centres [M >= 1, 3], spacing > 0, factor >= 2, min_fill in (0, 1]; "
+            f"got {c.shape}, {spacing}, {factor}, {min_fill}"
+        )
+    lo = c.min(axis=0) - 0.5 * spacing
+    cell = np.floor((c - lo) / (factor * spacing) + 1e-9).astype(np.int64)
+    keys, count = np.unique(cell, axis=0, return_counts=True)
+    keep = keys[count >= min_fill * factor**3]
+    return lo + (keep + 0.5) * factor * spacing
+
+
 def _surface_problems(vertices: np.ndarray, faces: np.ndarray, name: str) -> str | None:
     """Describe why TetGen would reject this surface, or return None if it looks fine."""
     import trimesh
