@@ -43,7 +43,14 @@ def test_the_twin_is_written_and_runs(twin):
     x = pl.scene.build_scene(cfg).simulator().run(3, progress=False).x
     assert np.all(np.isfinite(x))
     assert [s["step"] for s in rep["steps"]] == [
-        "reconstruct", "splats", "model", "observe", "ground", "fixed", "fit", "evaluate"
+        "reconstruct",
+        "splats",
+        "model",
+        "observe",
+        "ground",
+        "fixed",
+        "fit",
+        "evaluate",
     ]
 
 
@@ -53,7 +60,9 @@ def test_the_volume_and_the_clamp_are_found(twin):
     lo, hi = x0.min(axis=0), x0.max(axis=0)
     # The true beam: 0.6 × 0.1 × 0.1 m centred at (0, 0.6, 0); carved to within two voxels on every side.
     s = rep["spacing_m"]
-    assert np.all(np.abs(lo - [-0.3, 0.55, -0.05]) <= 2 * s) and np.all(np.abs(hi - [0.3, 0.65, 0.05]) <= 2 * s)
+    assert np.all(np.abs(lo - [-0.3, 0.55, -0.05]) <= 2 * s) and np.all(
+        np.abs(hi - [0.3, 0.65, 0.05]) <= 2 * s
+    )
     fixed = rep["fixed"]
     assert fixed["fixed_particles"] > 0 and len(fixed["boxes"]) == 1, fixed["reason"]
     assert fixed["boxes"][0]["center"][0] < -0.2  # at the clamped end

@@ -326,3 +326,22 @@ def motion_ratio(particles_x: np.ndarray, truth_x: np.ndarray, tets: np.ndarray,
     f = _frames(frames, np.shape(truth_x)[0])
     m = material_points(particles_x[0], truth_x, tets)[f]  # embedded once for both figures
     return float(np.linalg.norm(particles_x[f] - m, axis=2).mean()) / _static(m)
+
+
+def score_twin(out: str | Path, truth_path: str | Path = BEAM_TRUTH) -> dict[str, float]:
+    """Issue 37's shape and motion figures of a ``pliant twin`` output folder against the beam's truth:
+    ``chamfer_mm`` (:func:`chamfer_to_volume` of the twin's particles at frame 0, mm) and ``motion_ratio``
+    (:func:`motion_ratio` on :func:`heldout_frames`), from the twin's own rollout (``twin_rollout.npz``).
+
+    Args:
+        out: the twin's output folder.
+        truth_path: the truth NPZ.
+    """
+    truth = load_beam_truth(truth_path)
+    with np.load(Path(out) / "twin_rollout.npz", allow_pickle=False) as z:
+        x = z["x"]
+    T = truth["x"].shape[0]
+    return {
+        "chamfer_mm": 1e3 * chamfer_to_volume(x[0], truth["x"][0], truth["tets"]),
+        "motion_ratio": motion_ratio(x, truth["x"], truth["tets"], heldout_frames(T)),
+    }

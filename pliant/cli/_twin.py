@@ -5,8 +5,13 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import CliError, _positive_float, _positive_int, _sub
-from ._common import Subparsers  # noqa: TC001 - used at run time by the annotations' evaluation only
+from ._common import (
+    CliError,
+    Subparsers,  # noqa: TC001 - used at run time by the annotations' evaluation only
+    _positive_float,
+    _positive_int,
+    _sub,
+)
 
 
 def add_parsers(sub: Subparsers) -> None:
@@ -48,12 +53,21 @@ def add_parsers(sub: Subparsers) -> None:
         help="the ground: detected when the object rests on or hits it (auto), none, or a height [m]",
     )
     p.add_argument("--train-fraction", type=_positive_float, default=0.7, help="frames to fit on (0.7)")
-    p.add_argument("--spacing", type=_positive_float, help="voxel spacing [m] (default: 2 pixels at the object)")
+    p.add_argument(
+        "--spacing", type=_positive_float, help="voxel spacing [m] (default: 2 pixels at the object)"
+    )
     p.add_argument("--max-particles", type=_positive_int, default=3000, help="largest particle count (3000)")
     p.add_argument("--density", type=_positive_float, default=1000.0, help="mass density [kg/m³] (1000)")
-    p.add_argument("--generations", type=_positive_int, default=12, help="most CMA-ES generations per model")
+    p.add_argument(
+        "--generations", type=_positive_int, default=8, help="most CMA-ES generations per model (8)"
+    )
     p.add_argument("--splat-iterations", type=_positive_int, default=150, help="Adam steps of the splats")
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice (0)")
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue each model's fit from its checkpoint in OUT/fit/<model>/ (after a kill or Ctrl-C)",
+    )
     p.add_argument("-q", "--quiet", action="store_true", help="print only the summary")
 
 
@@ -91,7 +105,9 @@ def cmd_twin(args: argparse.Namespace) -> int:
         try:
             ground = float(args.ground)
         except ValueError:
-            raise CliError(f"--ground: expected auto, none or a height in metres, got {args.ground!r}") from None
+            raise CliError(
+                f"--ground: expected auto, none or a height in metres, got {args.ground!r}"
+            ) from None
     try:
         obs = Observations.load(args.obs)
         opts = TwinOptions(
@@ -106,15 +122,17 @@ def cmd_twin(args: argparse.Namespace) -> int:
             splat_iterations=args.splat_iterations,
             seed=args.seed,
             progress=not args.quiet,
+            resume=args.resume,
         )
         rep = build_twin(obs, args.out, opts)
     except (ObservationError, TwinError) as exc:
         raise CliError(str(exc)) from None
     m = rep["metrics"]
     print(
-        f"twin: {rep['particles']} particles ({rep['model']}), fixed {rep['fixed']['fixed_particles']}, ground "
-        f"{rep['ground']['height']}; held-out Chamfer {m['chamfer_mm']['test']:.2f} mm (still: "
-        f"{m['chamfer_still_mm']['test']:.2f} mm), IoU {m['iou']['test']:.3f}, PSNR {m['psnr_db']['test']:.1f} dB; "
-        f"{rep['wall_time']:.0f} s\ntwin: wrote {args.out}/twin.toml (pliant run / pliant view it), twin.json"
+        f"twin: {rep['particles']} particles ({rep['model']}), fixed {rep['fixed']['fixed_particles']}, "
+        f"ground {rep['ground']['height']}; held-out Chamfer {m['chamfer_mm']['test']:.2f} mm (still: "
+        f"{m['chamfer_still_mm']['test']:.2f} mm), IoU {m['iou']['test']:.3f}, PSNR "
+        f"{m['psnr_db']['test']:.1f} dB; {rep['wall_time']:.0f} s\n"
+        f"twin: wrote {args.out}/twin.toml (pliant run / pliant view it), twin.json"
     )
     return 0

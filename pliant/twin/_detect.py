@@ -35,6 +35,9 @@ FIXED_NEIGHBOURS = 8
 STATIC_SHARE = 0.5
 #: Depth of a clamp [particle spacings] kept at the end of a still region (:func:`_clamps`).
 CLAMP_DEPTH = 2.0
+#: Most frame-0 surface points whose motion is measured (every k-th of a denser cloud: a pixel's spacing on
+#: a 200 × 150 camera is far below a particle's).
+MAX_QUERY = 5000
 #: Fewest fixed particles that make a clamp (fewer are noise: a stray static pixel).
 MIN_FIXED = 3
 
@@ -97,8 +100,8 @@ class Ground:
 
 
 def surface_motion(clouds: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Frame-0 surface points and, for each, the largest distance [m] to the nearest observed point of any
-    later frame.
+    """Frame-0 surface points (at most :data:`MAX_QUERY`, every k-th) and, for each, the largest distance [m]
+    to the nearest observed point of any later frame.
 
     Args:
         clouds: [T, P, 3] padded per-frame point clouds [m].
@@ -108,6 +111,9 @@ def surface_motion(clouds: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, 
         (points [M, 3] of frame 0, max_motion [M] in metres).
     """
     p0 = np.asarray(clouds[0, : int(counts[0])], dtype=np.float64)
+    p0 = (
+        p0[:: -(-len(p0) // MAX_QUERY)] if len(p0) > MAX_QUERY else p0
+    )  # every k-th: the same points each frame
     worst = np.zeros(len(p0))
     for t in range(1, clouds.shape[0]):  # one KD-tree per frame; every point is queried at once
         n = int(counts[t])
@@ -214,7 +220,11 @@ def detect_fixed(
     fixed = _clamps(particles, fixed, spacing)
     if fixed.sum() < MIN_FIXED:
         return FixedRegions(
-            none, [], frac, motion, "the parts that stay still touch nothing that moves: no clamp holds the object"
+            none,
+            [],
+            frac,
+            motion,
+            "the parts that stay still touch nothing that moves: no clamp holds the object",
         )
     boxes = []
     idx = np.flatnonzero(fixed)

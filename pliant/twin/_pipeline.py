@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from ..io import Observations
+from ..io import Observations, atomic_output, atomic_write_text
 from ._detect import FixedRegions, Ground, detect_fixed, detect_ground
 from ._scene import camera_table, twin_scene, write_mesh
 
@@ -42,6 +42,9 @@ TWIN_MODELS = ("fem", "mass_spring")
 TWIN_PARAMS = {"fem": ["E", "damping_rate"], "mass_spring": ["stiffness", "damping_rate"]}
 
 
+#: Least share of a view's mask that the other views' hull must cover (consistent cameras: 1.0; MuJoCo's
+#: beam and pliant's renders measure 1.0, one camera 5 cm off 0.97, 50 cm off 0.15).
+MIN_AGREEMENT = 0.8
 #: Fewest carved voxels that make an object (fewer: the cameras and the masks disagree).
 MIN_VOXELS = 8
 #: Most points per frame of the clouds the detectors read (all a 200 × 150 camera sees of a small object).
@@ -71,6 +74,9 @@ class TwinOptions:
         splat_iterations: Adam iterations of the first-frame splat training.
         seed: Seed of every random choice.
         progress: Print each step.
+        resume: Continue each model's fit from its checkpoint in ``out/fit/<model>/`` where one exists (the
+            steps before the fit are deterministic and run again); the twin is then the one an uninterrupted
+            run makes.
     """
 
     train_fraction: float = 0.7
@@ -80,10 +86,11 @@ class TwinOptions:
     spacing: float | None = None
     max_particles: int = 3000
     density: float = 1000.0
-    generations: int = 12
+    generations: int = 8
     splat_iterations: int = 60
     seed: int = 0
     progress: bool = True
+    resume: bool = False
 
 
 @dataclass
@@ -112,8 +119,8 @@ def check_observations(obs: Observations) -> None:
         )
     if obs.masks is None:
         raise TwinError(
-            f"{obs.source}: masks: pliant twin needs the object's masks [C, T, H, W] (bool) to carve its volume; "
-            "segment the object in every camera (e.g. with SAM) and add them"
+            f"{obs.source}: masks: pliant twin needs the object's masks [C, T, H, W] (bool) to carve its "
+            "volume; segment the object in every camera (e.g. with SAM) and add them"
         )
 
 
@@ -159,6 +166,16 @@ def reconstruct(obs: Observations, opts: TwinOptions) -> tuple[np.ndarray, float
             lo, hi = hull_bounds(obs.K, obs.world_to_camera, masks)
         except ValueError as exc:
             raise TwinError(f"{obs.source}: masks: {exc}") from None
+    # Each view's mask against the hull the others carve (coarse voxels): a wrong pose, K or mask shows up
+    # here, before it carves the object away or leaves a sliver.
+    agree = view_agreement(obs.K, obs.world_to_camera, masks, lo, hi, float(np.max(hi - lo)) / 40.0)
+    c = int(np.argmin(agree))
+    if agree[c] < MIN_AGREEMENT:
+        raise TwinError(
+            f"{obs.source}: world_to_camera: camera {c} disagrees with the others at frame 0: the hull they "
+            f"carve covers {agree[c]:.0%} of its mask (consistent cameras cover all of it); check its "
+            "world_to_camera and K against its masks"
+        )
     spacing = opts.spacing or 2.0 * _footprint(obs, (lo + hi) / 2.0)
     for _ in range(8):
         pad = 2.0 * spacing
@@ -167,12 +184,9 @@ def reconstruct(obs: Observations, opts: TwinOptions) -> tuple[np.ndarray, float
             break
         spacing *= (len(vox.centres) / opts.max_particles) ** (1.0 / 3.0) * 1.05
     if len(vox.centres) < MIN_VOXELS:
-        agree = view_agreement(obs.K, obs.world_to_camera, masks, lo - pad, hi + pad, spacing)
-        c = int(np.argmin(agree))
         raise TwinError(
-            f"{obs.source}: world_to_camera: only {len(vox.centres)} voxels lie inside every camera's mask at "
-            f"frame 0; camera {c} agrees least with the others ({agree[c]:.0%} of its mask is covered by "
-            "their hull): check its world_to_camera and K against its masks"
+            f"{obs.source}: masks: only {len(vox.centres)} voxels lie inside every camera's mask (and behind "
+            f"its depth) at frame 0 at a spacing of {spacing * 1e3:.1f} mm; give a finer --spacing"
         )
     return vox.centres, spacing, background
 
@@ -184,7 +198,9 @@ def _footprint(obs: Observations, centre: np.ndarray) -> float:
     return float(np.max(z / np.minimum(obs.K[:, 0, 0], obs.K[:, 1, 1])))
 
 
-def observed_clouds(obs: Observations, spacing: float, max_points: int = 3000) -> tuple[np.ndarray, np.ndarray]:
+def observed_clouds(
+    obs: Observations, spacing: float, max_points: int = 3000
+) -> tuple[np.ndarray, np.ndarray]:
     """Every frame's point cloud of the object from the pictures (:func:`pliant.geometry.frame_clouds`:
     masked depth, or the surface of each frame's carved hull at ``spacing`` [m])."""
     from ..geometry import frame_clouds
@@ -227,7 +243,9 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
     check_observations(obs)
     bad = [m for m in opts.models if m not in TWIN_MODELS]
     if bad or not opts.models:
-        raise TwinError(f"--models: the twin builds {', '.join(TWIN_MODELS)}; got {','.join(opts.models) or 'none'}")
+        raise TwinError(
+            f"--models: the twin builds {', '.join(TWIN_MODELS)}; got {','.join(opts.models) or 'none'}"
+        )
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     steps = _Steps(opts.progress)
@@ -238,64 +256,85 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
     centres, spacing, background = steps.run(
         "reconstruct",
         lambda: reconstruct(obs, opts),
-        lambda r: f"{len(r[0])} voxels of {r[1] * 1e3:.1f} mm carved from {C} masks"
-        + (" and depth" if r[2] is not None else ""),
+        lambda r: (
+            f"{len(r[0])} voxels of {r[1] * 1e3:.1f} mm carved from {C} masks"
+            + (" and depth" if r[2] is not None else "")
+        ),
     )
     splat = steps.run("splats", lambda: _splats(obs, centres, spacing, opts, out / "splats.ply"), str)
-    from ..geometry import voxel_tets
+    from ..geometry import coarsen_voxels, voxel_tets
+    from ._fit import refine_on_fine
 
-    tm = steps.run(
+    tm, coarse = steps.run(
         "model",
-        lambda: voxel_tets(splat.particles, spacing, dual=True),
-        lambda m: f"{len(m.points)} particles, {len(m.tets)} tetrahedra",
+        lambda: (
+            voxel_tets(splat.particles, spacing, dual=True),
+            voxel_tets(coarsen_voxels(splat.particles, spacing), 2.0 * spacing, dual=True),
+        ),
+        lambda m: (
+            f"{len(m[0].points)} particles, {len(m[0].tets)} tetrahedra (the fit's coarse stage: "
+            f"{len(m[1].points)} particles)"
+        ),
     )
     write_mesh(out / "twin_mesh.vtu", tm.points, tm.tets)
+    write_mesh(out / "twin_coarse.vtu", coarse.points, coarse.tets)
     # Two samplings of the same clouds: every point, for telling still from moving (a random subset of each
     # frame would put different points there each frame, a few millimetres apart on a still surface), and
     # a subset per frame for the fit's loss.
     (dense, dense_counts), (clouds, counts) = steps.run(
         "observe",
         lambda: (observed_clouds(obs, spacing, DENSE_POINTS), observed_clouds(obs, spacing)),
-        lambda r: f"{int(np.median(r[0][1]))} points per frame (median) over {T} frames, "
-        f"{int(np.median(r[1][1]))} of them for the fit",
+        lambda r: (
+            f"{int(np.median(r[0][1]))} points per frame (median) over {T} frames, "
+            f"{int(np.median(r[1][1]))} of them for the fit"
+        ),
     )
     ground = steps.run(
         "ground", lambda: _ground(opts, dense, dense_counts, spacing, background), lambda g: g.reason
     )
-    fixed = steps.run(
+    fixed, fixed_coarse = steps.run(
         "fixed",
-        lambda: _fixed(opts, tm.points, dense, dense_counts, spacing, ground, background),
-        lambda r: r.reason,
+        lambda: (
+            _fixed(opts, tm.points, dense, dense_counts, spacing, ground, background),
+            _fixed(opts, coarse.points, dense, dense_counts, 2.0 * spacing, ground, background, spacing),
+        ),
+        lambda r: r[0].reason,
     )
     dt = float(np.median(np.diff(obs.t)))
     camera = camera_table(obs.K[0], obs.world_to_camera[0], H, tm.points.mean(axis=0))
-    scenes = {
-        m: twin_scene(
-            mesh_file="twin_mesh.vtu",
+
+    def scene(m: str, mesh: str, boxes: list, h: float) -> dict[str, Any]:
+        return twin_scene(
+            mesh_file=mesh,
             model=m,
-            spacing=spacing,
+            spacing=h,
             density=opts.density,
             frame_dt=dt,
             frames=T - 1,
-            boxes=fixed.boxes,
+            boxes=boxes,
             ground=ground.height,
             splats_file="splats.ply",
             camera=camera,
             background=_background(obs),
         )
-        for m in opts.models
-    }
-    (out / "twin_nominal.toml").write_text(dumps(scenes[opts.models[0]], "pliant twin: before the fit"))
+
+    scenes = {m: scene(m, "twin_mesh.vtu", fixed.boxes, spacing) for m in opts.models}
+    atomic_write_text(out / "twin_nominal.toml", dumps(scenes[opts.models[0]], "pliant twin: before the fit"))
     track_free = Observations.from_arrays(t=obs.t, cloud=clouds, cloud_count=counts, source=obs.source)
 
     def fit_all() -> dict[str, Any]:
         rows = {}
         for m, data in scenes.items():
-            cfg = parse_scene(dumps(data), f"{out / 'twin_nominal.toml'} ({m})", out)
+            small = parse_scene(
+                dumps(scene(m, "twin_coarse.vtu", fixed_coarse.boxes, 2.0 * spacing)),
+                f"{out} (coarse {m})",
+                out,
+            )
             rep = fit(
-                cfg,
+                small,
                 track_free,
                 out / "fit" / m,
+                resume=opts.resume and (out / "fit" / m / "fit_checkpoint.json").exists(),
                 params=TWIN_PARAMS[m],
                 per_element="none",
                 train_fraction=opts.train_fraction,
@@ -304,15 +343,29 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
                 progress=opts.progress,
                 video=False,
             )
-            values = {k: p["value"] for k, p in rep["params"].items()}
-            rows[m] = {"values": values, "cfg": apply_globals(cfg, values), "report": rep}
+            coarse_values = {k: p["value"] for k, p in rep["params"].items()}
+            cfg = parse_scene(dumps(data), f"{out / 'twin_nominal.toml'} ({m})", out)
+            search = refine_on_fine(cfg, track_free, coarse_values, train_fraction=opts.train_fraction)
+            rows[m] = {
+                "values": search.values,
+                "coarse_values": coarse_values,
+                "scale": search.scales,
+                "scale_history": search.history,
+                "cfg": apply_globals(cfg, search.values),
+                "report": rep,
+            }
         return rows
 
     fits = steps.run(
         "fit",
         fit_all,
         lambda r: "; ".join(
-            f"{m}: " + ", ".join(f"{k} {v:.4g}" for k, v in row["values"].items()) for m, row in r.items()
+            f"{m}: "
+            + ", ".join(f"{k} {v:.4g}" for k, v in row["values"].items())
+            + " (coarse x "
+            + ", ".join(f"{v:.3g}" for v in row["scale"].values())
+            + ")"
+            for m, row in r.items()
         ),
     )
     from ._evaluate import evaluate, validation_loss
@@ -323,16 +376,18 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
     cfg = fits[best]["cfg"]
     data = cfg.model_dump(mode="json", exclude_unset=True, exclude_none=True)
     text = dumps(data, f"pliant twin from {obs.source}: model {best}, fitted on frames 0-{n_train - 1}")
-    (out / "twin.toml").write_text(text)
+    atomic_write_text(out / "twin.toml", text)
     metrics = steps.run(
         "evaluate",
         lambda: evaluate(parse_scene(text, str(out / "twin.toml"), out), obs, clouds, counts, n_train),
         lambda r: (
             f"held-out Chamfer {r['chamfer_mm']['test']:.2f} mm (a twin that does not move: "
-            f"{r['chamfer_still_mm']['test']:.2f} mm), IoU {r['iou']['test']:.3f}, PSNR {r['psnr_db']['test']:.1f} dB"
+            f"{r['chamfer_still_mm']['test']:.2f} mm), IoU {r['iou']['test']:.3f}, PSNR "
+            f"{r['psnr_db']['test']:.1f} dB"
         ),
     )
-    np.savez_compressed(out / "twin_rollout.npz", x=metrics.pop("positions"), t=obs.t)
+    with atomic_output(out / "twin_rollout.npz") as tmp:
+        np.savez_compressed(tmp, x=metrics.pop("positions"), t=obs.t)
     from ._pictures import draw_fit, draw_reconstruction
 
     draw_reconstruction(out / "reconstruction.png", obs, tm.points, fixed.fixed)
@@ -351,16 +406,31 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
         "ground": ground.summary(),
         "fixed": fixed.summary(),
         "models": {
-            m: {"values": row["values"], "validation_loss": scores[m], "wall_time": row["report"]["wall_time"]}
+            m: {
+                "values": row["values"],
+                "coarse_values": row["coarse_values"],
+                "fine_scales": row["scale"],
+                "scale_search": row["scale_history"],
+                "validation_loss": scores[m],
+                "coarse_fit_seconds": row["report"]["wall_time"],
+            }
             for m, row in fits.items()
         },
         "model": best,
         "metrics": metrics,
         "steps": steps.rows,
         "wall_time": time.perf_counter() - t_start,
-        "files": ["twin.toml", "twin_mesh.vtu", "splats.ply", "reconstruction.png", "twin_fit.png", "twin_rollout.npz"],
+        "files": [
+            "twin.toml",
+            "twin_mesh.vtu",
+            "twin_coarse.vtu",
+            "splats.ply",
+            "reconstruction.png",
+            "twin_fit.png",
+            "twin_rollout.npz",
+        ],
     }
-    (out / "twin.json").write_text(json.dumps(report, indent=2, default=_json) + "\n")
+    atomic_write_text(out / "twin.json", json.dumps(report, indent=2, default=_json) + "\n")
     return report
 
 
@@ -405,11 +475,13 @@ def _fixed(
     spacing: float,
     ground: Ground,
     background: np.ndarray | None,
+    resolution: float | None = None,
 ) -> FixedRegions:
     n = len(particles)
     if opts.fixed == "auto":
-        # Depth points sit on the surface to within the readings' resolution; carved hulls move in whole voxels.
-        tol = (0.25 if background is not None else 0.5) * spacing
+        # Depth points sit on the surface to within the readings' resolution; carved hulls move in whole
+        # voxels (of the observations' spacing, ``resolution``, which the coarse model does not change).
+        tol = (0.25 if background is not None else 0.5) * (resolution or spacing)
         return detect_fixed(particles, clouds, counts, tol=tol, spacing=spacing, ground=ground.height)
     if opts.fixed == "none":
         return FixedRegions(np.zeros(n, bool), [], 0.0, np.zeros(0), "--fixed none: nothing is held")
@@ -417,7 +489,9 @@ def _fixed(
     inside = np.zeros(n, bool)
     for c, h in boxes:
         inside |= np.all(np.abs(particles - c) <= h, axis=1)
-    return FixedRegions(inside, boxes, 0.0, np.zeros(0), f"--fixed: {int(inside.sum())} particles in the given boxes")
+    return FixedRegions(
+        inside, boxes, 0.0, np.zeros(0), f"--fixed: {int(inside.sum())} particles in the given boxes"
+    )
 
 
 __all__ = ["TWIN_MODELS", "TwinError", "TwinOptions", "build_twin", "check_observations"]
