@@ -33,7 +33,15 @@ from ._p2 import (
 from ._pictures import Voxels, backproject, carve, hull_bounds, project, view_agreement
 from ._shapes import ClothGrid, Rope, cloth_grid, rope
 from ._springs import springs_from_points
-from ._tets import box_tets, coarsen_voxels, cylinder_tets, sphere_tets, tetrahedralize, voxel_tets
+from ._tets import (
+    box_tets,
+    coarsen_voxels,
+    cylinder_tets,
+    largest_piece,
+    sphere_tets,
+    tetrahedralize,
+    voxel_tets,
+)
 from ._topology import bending_pairs, edges_from_tets, edges_from_triangles, surface_from_tets
 
 __all__ = [
@@ -75,6 +83,7 @@ __all__ = [
     "degenerate_triangles",
     "edges_from_tets",
     "edges_from_triangles",
+    "largest_piece",
     "load_mesh",
     "orient_tets",
     "rope",
