@@ -9,6 +9,8 @@ import numpy as np
 
 from ..io import Observations
 
+#: Most particles drawn per camera (every k-th beyond it: the picture stays readable).
+MAX_DOTS = 800
 #: Enlargement of the camera images in ``reconstruction.png`` (small footage stays readable).
 SCALE = 3
 
@@ -40,10 +42,11 @@ def draw_reconstruction(path: Path, obs: Observations, particles: np.ndarray, fi
         draw = ImageDraw.Draw(big)
         uv, z = project(particles, obs.K[c], obs.world_to_camera[c])
         order = np.argsort(-z)  # far first, so near particles are drawn on top
-        for i in order[z[order] > 0]:  # one dot per particle: drawing, not a hot path
+        order = order[:: max(1, len(order) // MAX_DOTS)]
+        for i in order[z[order] > 0]:  # one dot per drawn particle: drawing, not a hot path
             x, y = (uv[i] + 0.5) * SCALE
             colour = (230, 40, 40) if fixed[i] else (40, 200, 60)
-            draw.ellipse((x - 1.5, y - 1.5, x + 1.5, y + 1.5), fill=colour)
+            draw.ellipse((x - 1.0, y - 1.0, x + 1.0, y + 1.0), fill=colour)
         draw.text((4, 2), f"camera {c}", fill=(255, 255, 255))
         tiles.append(np.asarray(big))
     Image.fromarray(np.concatenate(tiles, axis=1)).save(path)
@@ -52,7 +55,9 @@ def draw_reconstruction(path: Path, obs: Observations, particles: np.ndarray, fi
 
 def draw_fit(path: Path, metrics: dict[str, Any], fits: dict[str, Any], n_train: int) -> Path:
     """The per-frame Chamfer distance of the twin and of a twin that does not move, with the train / held-out
-    split, beside each model's CMA-ES loss per generation."""
+    split, beside each model's best training loss: per CMA-ES generation of the coarse stage, then per
+    rollout of the fine stage's searches (``fits``: the pipeline's rows, with ``report`` and
+    ``scale_history``)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -67,11 +72,20 @@ def draw_fit(path: Path, metrics: dict[str, Any], fits: dict[str, Any], n_train:
     a.set_xlabel("frame")
     a.set_ylabel("Chamfer, observed → twin [mm]")
     a.legend()
-    for m, rep in fits.items():
-        hist = rep.get("stages", {}).get("cmaes", {}).get("history") or []
+    for m, row in fits.items():
+        hist = row["report"].get("loss_history", {}).get("cmaes") or []
         if hist:
-            b.semilogy(np.arange(1, len(hist) + 1), hist, marker=".", label=m)
-    b.set_xlabel("CMA-ES generation")
+            b.semilogy(np.arange(1, len(hist) + 1), hist, marker=".", label=f"{m}: coarse, CMA-ES")
+        fine = [v for _, _, v in row["scale_history"]]
+        if fine:
+            n = len(hist)
+            b.semilogy(
+                np.arange(n + 1, n + len(fine) + 1),
+                np.minimum.accumulate(fine),
+                marker=".",
+                label=f"{m}: fine, golden sections",
+            )
+    b.set_xlabel("CMA-ES generation, then fine rollout")
     b.set_ylabel("best training loss")
     if b.get_legend_handles_labels()[0]:
         b.legend()
