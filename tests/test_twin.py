@@ -93,3 +93,23 @@ def test_a_camera_that_disagrees_with_the_masks_is_named(footage, tmp_path):
     with pytest.raises(TwinError, match=r"camera 2") as e:
         build_twin(obs, tmp_path, TwinOptions(progress=False, spacing=0.02))
     assert "\n" not in str(e.value)
+
+
+def test_the_twin_runs_live_with_its_splats_and_can_be_dragged(twin):
+    from pliant.gaussians._scene import scene_splats
+    from pliant.live import LiveSession
+
+    out, _ = twin
+    scene = pl.scene.build_scene(pl.scene.load_scene(out / "twin.toml"), device="cpu")
+    session = LiveSession(scene)
+    splats = scene_splats(scene.config, scene)  # what `pliant view` draws, bound to the particles
+    placed = splats.place(session.x)
+    assert placed.count > 0 and np.all(np.isfinite(placed.means.numpy()))
+    tip = int(np.argmax(session.x[:, 0]))  # the free end, far from the clamp
+    target = session.x[tip] + [0.0, 0.2, 0.0]
+    session.grab(tip, target)
+    for _ in range(10):
+        session.step(1)
+    assert session.x[tip, 1] > target[1] - 0.2 + 0.05  # lifted toward the cursor, not left to sag
+    session.release()
+    assert session.control.drag_index == -1
