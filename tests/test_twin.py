@@ -76,6 +76,17 @@ def test_the_twin_predicts_better_than_standing_still(twin):
     assert m["iou"]["train"] > 0.6
 
 
+def test_the_model_is_chosen_by_validation(footage, tmp_path):
+    opts = TwinOptions(
+        generations=1, splat_iterations=10, max_particles=400, models=("fem", "springs"), progress=False
+    )
+    rep = build_twin(footage, tmp_path, opts)
+    losses = {m: r["validation_loss"] for m, r in rep["models"].items()}
+    assert set(losses) == {"fem", "springs"} and rep["model"] == min(losses, key=losses.__getitem__)
+    cfg = pl.scene.load_scene(tmp_path / "twin.toml")
+    assert cfg.objects[0].kind == ("points" if rep["model"] == "springs" else "mesh")
+
+
 def test_masks_are_required(footage, tmp_path):
     obs = pl.io.Observations.from_arrays(
         t=footage.t, images=footage.images, K=footage.K, world_to_camera=footage.world_to_camera

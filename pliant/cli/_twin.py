@@ -21,7 +21,7 @@ def add_parsers(sub: Subparsers) -> None:
         "twin",
         "build a fitted twin from calibrated pictures (images, masks, optional depth)",
         "pliant twin beam.npz --out twin/                   # twin/twin.toml, twin.json, pictures",
-        "pliant twin beam.npz --out twin/ --models fem,mass_spring --ground none",
+        "pliant twin beam.npz --out twin/ --models fem,springs --ground none",
         "pliant run twin/twin.toml --cameras other_camera.npz   # predict a camera the twin never saw",
         "pliant view twin/twin.toml                           # the twin live; drag it",
     )
@@ -36,7 +36,8 @@ def add_parsers(sub: Subparsers) -> None:
         "--models",
         default="fem",
         metavar="MODEL,...",
-        help="physical models to fit on the carved volume (fem, mass_spring); with several, the lowest "
+        help="physical models to fit on the carved volume (fem: neo-Hookean tets; mass_spring: the tet edges "
+        "as springs; springs: PhysTwin's springs to neighbours within a radius); with several, the lowest "
         "validation loss wins (default fem)",
     )
     p.add_argument(

@@ -36,10 +36,14 @@ from ._detect import FixedRegions, Ground, detect_fixed, detect_ground
 from ._scene import camera_table, twin_scene, write_mesh
 
 #: Models the twin can build on the carved volume (``--models``).
-TWIN_MODELS = ("fem", "mass_spring")
+TWIN_MODELS = ("fem", "mass_spring", "springs")
 #: Global parameters the fit searches per model: the stiffness scale and the damping; ν is not identifiable
 #: from a beam's bending (it trades against E) and the twin keeps 0.3.
-TWIN_PARAMS = {"fem": ["E", "damping_rate"], "mass_spring": ["stiffness", "damping_rate"]}
+TWIN_PARAMS = {
+    "fem": ["E", "damping_rate"],
+    "mass_spring": ["stiffness", "damping_rate"],
+    "springs": ["stiffness", "damping_rate"],
+}
 
 
 #: Least share of a view's mask that the other views' hull must cover (consistent cameras: 1.0; MuJoCo's
@@ -48,6 +52,11 @@ MIN_AGREEMENT = 0.8
 #: How many times ``max_particles`` the raw carved hull may hold before the spacing grows (the splat stage
 #: prunes the excess; MuJoCo's beam from masks alone: 2,206 of 2,970 voxels pruned).
 RAW_VOXELS = 3
+#: The files the twin's scenes name: (tet mesh, particles) of the fine model and of the fit's coarse stage.
+GEOMETRY_FILES = {
+    "fine": ("twin_mesh.vtu", "twin_particles.npy"),
+    "coarse": ("twin_coarse.vtu", "twin_particles_coarse.npy"),
+}
 #: Fewest carved voxels that make an object (fewer: the cameras and the masks disagree).
 MIN_VOXELS = 8
 #: Most points per frame of the clouds the detectors read (all a 200 × 150 camera sees of a small object).
@@ -283,8 +292,9 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
             f"{len(m[1].points)} particles)"
         ),
     )
-    write_mesh(out / "twin_mesh.vtu", tm.points, tm.tets)
-    write_mesh(out / "twin_coarse.vtu", coarse.points, coarse.tets)
+    for key, m in (("fine", tm), ("coarse", coarse)):
+        write_mesh(out / GEOMETRY_FILES[key][0], m.points, m.tets)
+        np.save(out / GEOMETRY_FILES[key][1], m.points)
     # Two samplings of the same clouds: every point, for telling still from moving (a random subset of each
     # frame would put different points there each frame, a few millimetres apart on a still surface), and
     # a subset per frame for the fit's loss.
@@ -310,9 +320,13 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
     dt = float(np.median(np.diff(obs.t)))
     camera = camera_table(obs.K[0], obs.world_to_camera[0], H, tm.points.mean(axis=0))
 
-    def scene(m: str, mesh: str, boxes: list, h: float) -> dict[str, Any]:
+    def scene(m: str, coarse_stage: bool) -> dict[str, Any]:
+        mesh, boxes, h = (
+            (coarse, fixed_coarse.boxes, 2.0 * spacing) if coarse_stage else (tm, fixed.boxes, spacing)
+        )
+        files = GEOMETRY_FILES["coarse" if coarse_stage else "fine"]
         return twin_scene(
-            mesh_file=mesh,
+            geometry_file=files[m == "springs"],
             model=m,
             spacing=h,
             density=opts.density,
@@ -323,9 +337,11 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
             splats_file="splats.ply",
             camera=camera,
             background=_background(obs),
+            centre=mesh.points.mean(axis=0),
+            particles=len(mesh.points),
         )
 
-    scenes = {m: scene(m, "twin_mesh.vtu", fixed.boxes, spacing) for m in opts.models}
+    scenes = {m: scene(m, coarse_stage=False) for m in opts.models}
     atomic_write_text(out / "twin_nominal.toml", dumps(scenes[opts.models[0]], "pliant twin: before the fit"))
     track_free = Observations.from_arrays(t=obs.t, cloud=clouds, cloud_count=counts, source=obs.source)
 
@@ -333,7 +349,7 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
         rows = {}
         for m, data in scenes.items():
             small = parse_scene(
-                dumps(scene(m, "twin_coarse.vtu", fixed_coarse.boxes, 2.0 * spacing)),
+                dumps(scene(m, coarse_stage=True)),
                 f"{out} (coarse {m})",
                 out,
             )

@@ -3,12 +3,13 @@ the ground, and the splats, written as ordinary TOML that ``pliant run`` and ``p
 
 Why these choices:
 
-- **One geometry, two models.** The carved voxels' centres become the nodes of cubes of six tetrahedra
+- **One geometry, three models.** The carved voxels' centres become the nodes of cubes of six tetrahedra
   (:func:`pliant.geometry.voxel_tets` with ``dual=True``: a carved hull is the object plus up to half a
   voxel, so the centres, not the voxels' corners, lie on its surface) in a ``.vtu`` file, loaded by a
-  ``mesh`` object. The same mesh
-  carries each model the fit can choose among (``--models``): tetrahedral FEM (neo-Hookean) or the
-  tet edges as springs (a spring network like PhysTwin's, on the carved volume).
+  ``mesh`` object; PhysTwin's spring network (springs to the neighbours within a radius) takes the same
+  particles as a ``points`` object. The same mesh
+  carries the models the fit can choose among (``--models``): tetrahedral FEM (neo-Hookean) or the tet
+  edges as springs.
 - **An integrator that does not damp.** The twin must predict the held-out frames, so its step must not
   bleed energy numerically: implicit (backward) Euler damps every mode at a rate set by the step — the
   lecture's point about its artificial damping — and a fitted damping would then absorb that error. The
@@ -31,6 +32,9 @@ import numpy as np
 SUBSTEPS = 1
 #: Starting Young's modulus [Pa] of the fit (a soft rubber); CMA-ES searches a decade either side.
 NOMINAL_E = 3e5
+#: Most springs per particle of the ``springs`` model (PhysTwin: 30 within 2 cm; the 26 neighbours of a
+#: cubic lattice within 1.8 spacings).
+NEIGHBOURS = 26
 #: Starting Rayleigh (mass-proportional) damping rate [1/s].
 NOMINAL_DAMPING_RATE = 0.5
 
@@ -45,7 +49,7 @@ def write_mesh(path: Path, points: np.ndarray, tets: np.ndarray) -> Path:
 
 def twin_scene(
     *,
-    mesh_file: str,
+    geometry_file: str,
     model: str,
     spacing: float,
     density: float,
@@ -56,13 +60,17 @@ def twin_scene(
     splats_file: str | None,
     camera: dict[str, Any] | None,
     background: list[float] | None = None,
+    centre: np.ndarray | None = None,
+    particles: int = 0,
     name: str = "twin",
 ) -> dict[str, Any]:
     """The twin's scene as nested dicts (TOML tables), before any fit.
 
     Args:
-        mesh_file: The tet mesh file, relative to the scene file.
-        model: ``"fem"`` (neo-Hookean tets) or ``"mass_spring"`` (the tet edges as springs).
+        geometry_file: The tet mesh file (``fem``, ``mass_spring``) or the particles' ``.npy`` (``springs``),
+            relative to the scene file.
+        model: ``"fem"`` (neo-Hookean tets), ``"mass_spring"`` (the tet edges as springs) or ``"springs"``
+            (PhysTwin's: springs to the neighbours within 1.8 spacings, at most :data:`NEIGHBOURS`).
         spacing: Voxel side [m] (the springs' starting stiffness is E times it).
         density: Mass density [kg/m³] (the object's mass follows from the carved volume).
         frame_dt: Time between observed frames [s].
@@ -72,6 +80,8 @@ def twin_scene(
         splats_file: The splats' PLY, relative to the scene file, or None.
         camera: The ``[camera]`` table (eye, target, fov), or None.
         background: RGB in [0, 1] behind the splats, or None for white.
+        centre: ``springs``: the particles' mean [m] (a points object places its file's mean there).
+        particles: ``springs``: the particle count (the mass is density times a voxel per particle).
         name: The object's name.
 
     Returns:
@@ -79,26 +89,43 @@ def twin_scene(
     """
     if model == "fem":
         material: dict[str, Any] = {"E": NOMINAL_E, "nu": 0.3, "law": "neohookean"}
-    elif model == "mass_spring":
+    elif model in ("mass_spring", "springs"):
         # A spring of a cubic lattice of pitch h carries about E h (pliant.fit's model conversion).
         material = {"stiffness": NOMINAL_E * spacing}
     else:
-        raise ValueError(f"--models: the twin builds 'fem' or 'mass_spring', got {model!r}")
+        raise ValueError(f"--models: the twin builds fem, mass_spring or springs, got {model!r}")
+    if model == "springs":
+        assert centre is not None and particles > 0
+        obj: dict[str, Any] = {
+            "kind": "points",
+            "name": name,
+            "path": geometry_file,
+            "origin": [float(v) for v in centre],
+            "spacing": float(spacing),
+            "mass": float(density * particles * spacing**3),
+            "radius": 1.8 * float(spacing),
+            "max_neighbors": NEIGHBOURS,
+            "material": material,
+        }
+    else:
+        obj = {
+            "kind": "mesh",
+            "name": name,
+            "path": geometry_file,
+            "model": model,
+            "density": float(density),
+            "material": material,
+        }
     data: dict[str, Any] = {
         "scene": {"name": name, "frame_dt": float(frame_dt), "substeps": SUBSTEPS, "frames": int(frames)},
-        "objects": [
-            {
-                "kind": "mesh",
-                "name": name,
-                "path": mesh_file,
-                "model": model,
-                "density": float(density),
-                "material": material,
-            }
-        ],
-        "solver": {"kind": "force", "integrator": "ImplicitMidpoint", "damping_rate": NOMINAL_DAMPING_RATE},
+        "objects": [obj],
+        "solver": {
+            "kind": "force",
+            "integrator": "ImplicitMidpoint",
+            "damping_rate": NOMINAL_DAMPING_RATE,
+            "options": {"minimizer": {"method": "auto"}},
+        },
     }
-    data["solver"]["options"] = {"minimizer": {"method": "auto"}}
     if boxes:
         data["handles"] = [
             {
