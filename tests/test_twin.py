@@ -124,3 +124,12 @@ def test_the_twin_runs_live_with_its_splats_and_can_be_dragged(twin):
     assert session.x[tip, 1] > target[1] - 0.2 + 0.05  # lifted toward the cursor, not left to sag
     session.release()
     assert session.control.drag_index == -1
+
+
+def test_no_clamp_is_invented_on_pictures_of_a_free_fall():
+    cfg = pl.scene.load_scene("cantilever", ["scene.frames=10", "handles=[]", "ground.height=-10.0"])
+    obs = pl.fit.observe_images(pl.scene.build_scene(cfg), cameras=4, image_size=(96, 72), masks=True)
+    h = 0.02
+    clouds, counts = pl.geometry.frame_clouds(obs.K, obs.world_to_camera, obs.masks, spacing=h)
+    found = pl.twin.detect_fixed(clouds[0, : counts[0]], clouds, counts, tol=0.5 * h, spacing=h)
+    assert found.fixed.sum() == 0 and found.boxes == [], found.reason

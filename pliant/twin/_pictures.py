@@ -9,7 +9,8 @@ import numpy as np
 
 from ..io import Observations
 
-#: Most particles drawn per camera (every k-th beyond it: the picture stays readable).
+#: Most free particles drawn per camera (every k-th beyond it: the picture stays readable; held ones are
+#: all drawn).
 MAX_DOTS = 800
 #: Enlargement of the camera images in ``reconstruction.png`` (small footage stays readable).
 SCALE = 3
@@ -41,12 +42,13 @@ def draw_reconstruction(path: Path, obs: Observations, particles: np.ndarray, fi
         big = Image.fromarray(np.repeat(np.repeat(img, SCALE, 0), SCALE, 1))
         draw = ImageDraw.Draw(big)
         uv, z = project(particles, obs.K[c], obs.world_to_camera[c])
-        order = np.argsort(-z)  # far first, so near particles are drawn on top
-        order = order[:: max(1, len(order) // MAX_DOTS)]
+        free = np.flatnonzero(~fixed)
+        shown = np.concatenate([free[:: max(1, len(free) // MAX_DOTS)], np.flatnonzero(fixed)])
+        order = shown[np.argsort(-z[shown])]  # far first, so near particles are drawn on top
         for i in order[z[order] > 0]:  # one dot per drawn particle: drawing, not a hot path
             x, y = (uv[i] + 0.5) * SCALE
-            colour = (230, 40, 40) if fixed[i] else (40, 200, 60)
-            draw.ellipse((x - 1.0, y - 1.0, x + 1.0, y + 1.0), fill=colour)
+            r, colour = (2.5, (230, 40, 40)) if fixed[i] else (1.5, (40, 220, 60))
+            draw.ellipse((x - r, y - r, x + r, y + r), fill=colour)
         draw.text((4, 2), f"camera {c}", fill=(255, 255, 255))
         tiles.append(np.asarray(big))
     Image.fromarray(np.concatenate(tiles, axis=1)).save(path)
