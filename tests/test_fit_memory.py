@@ -5,37 +5,12 @@ unless ``--force``."""
 from __future__ import annotations
 
 import pytest
+from test_fit_photometric import CLOTH  # the same 4×4 cloth the photometric fit tests use
 
 import pliant as pl
 from pliant.cli import main
 from pliant.fit import PhotometricProblem, observe_images
 from pliant.fit._memory import TILES_PER_GAUSSIAN, image_fit_memory, problem_memory
-
-CLOTH = """
-[scene]
-name = "tiny_cloth"
-frame_dt = 0.04
-substeps = 10
-frames = 6
-dtype = "float64"
-device = "cpu"
-[[objects]]
-kind = "cloth"
-model = "mass_spring"
-nx = 4
-ny = 4
-size = 0.4
-origin = [-0.2, 0.5, -0.2]
-plane = "xz"
-mass = 0.1
-pin = "top-corners"
-[objects.material]
-stiffness = 50.0
-[solver]
-kind = "force"
-integrator = "SymplecticEuler"
-damping_rate = 0.5
-"""
 
 
 def test_the_formula_on_a_small_case():

@@ -2,7 +2,7 @@
 :mod:`pliant.scene`."""
 
 from ._camera_file import CameraFile, CameraFileError, load_camera_file
-from ._npz import available_memory, npz_headers, npz_memory_problem
+from ._npz import available_memory, npz_headers, npz_memory_problem, read_npz
 from ._observations import ObservationError, Observations
 from ._trajectory import (
     CheckpointError,
@@ -31,5 +31,6 @@ __all__ = [
     "load_checkpoint",
     "npz_headers",
     "npz_memory_problem",
+    "read_npz",
     "save_checkpoint",
 ]

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._npz import npz_memory_problem
+from ._npz import read_npz
 from ._observation_images import check_cameras, check_image_arrays
 
 #: The arrays a camera file may hold.
@@ -99,14 +99,7 @@ def load_camera_file(path: str | os.PathLike) -> CameraFile:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"camera file not found: {path}")
-    too_big = npz_memory_problem(path, "camera")
-    if too_big:  # from the arrays' headers, before np.load allocates what they declare
-        raise CameraFileError(too_big)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except Exception as exc:  # a truncated, pickled or foreign file: say which and why
-        raise CameraFileError(f"{path}: not a readable camera NPZ ({exc})") from None
+    data = read_npz(path, "camera", CameraFileError)
 
     def fail(array: str, msg: str) -> CameraFileError:
         return CameraFileError(f"{path}: {array}: {msg}")

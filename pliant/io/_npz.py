@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import os
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -116,4 +117,32 @@ def npz_memory_problem(path: str | os.PathLike, what: str) -> str | None:
     )
 
 
-__all__ = ["LOAD_FACTOR", "available_memory", "npz_headers", "npz_memory_problem"]
+def read_npz(
+    path: str | os.PathLike, what: str, fail: Callable[[str], Exception] = ValueError
+) -> dict[str, np.ndarray]:
+    """Every array of a user's NPZ, refused before anything is allocated when the arrays' headers declare
+    more than the memory available (:func:`npz_memory_problem`), and refused in one line when NumPy cannot
+    read it (truncated, pickled or not an NPZ).
+
+    Args:
+        path: The file.
+        what: What the file is, for messages ("observation", "camera", "trajectory").
+        fail: Builds the exception from a one-line message (the caller's error type).
+
+    Returns:
+        Name → array, loaded with ``allow_pickle=False``.
+    """
+    too_big = npz_memory_problem(path, what)
+    if too_big:  # the headers' declared shapes, before np.load allocates them
+        raise fail(too_big)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except Exception as exc:  # a truncated or foreign file: say which and why
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if "pickle" in why:  # NumPy's own text would suggest allow_pickle=True: never for an untrusted file
+            why = "it holds Python objects (pickled data), which pliant never writes or loads"
+        raise fail(f"{path}: not a readable {what} NPZ ({why})") from None
+
+
+__all__ = ["LOAD_FACTOR", "available_memory", "npz_headers", "npz_memory_problem", "read_npz"]

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._npz import npz_memory_problem
+from ._npz import read_npz
 from ._observation_images import IMAGE_ARRAYS, check_image_arrays, depth_metres, to_unit_float
 from ._trajectory import atomic_savez
 
@@ -219,14 +219,7 @@ class Observations:
         path = Path(path)
         if not path.exists():
             raise FileNotFoundError(f"observation file not found: {path}")
-        too_big = npz_memory_problem(path, "observation")
-        if too_big:  # from the arrays' headers, before np.load allocates what they declare
-            raise ObservationError(too_big)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
-        except Exception as exc:  # a truncated, pickled or foreign file: say which and why
-            raise ObservationError(f"{path}: not a readable observation NPZ ({exc})") from None
+        data = read_npz(path, "observation", ObservationError)
         if "t" not in data:
             raise ObservationError(
                 f"{path}: t: missing; an observation file needs t [T] and points [T, K, 3]"

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from ._npz import npz_memory_problem
+from ._npz import read_npz
 
 
 @contextlib.contextmanager
@@ -78,17 +78,7 @@ def _load_npz(
             f"{path}: the {what} NPZ expands to {size / 2**30:.3g} GiB, more than the "
             f"{max_bytes / 2**30:.3g} GiB it can need; it is not a file pliant wrote for this run"
         )
-    too_big = npz_memory_problem(path, what)
-    if too_big:  # the headers' declared shapes, before np.load allocates them
-        raise ValueError(too_big)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except Exception as exc:  # a truncated or foreign file: say which and why
-        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        if "pickle" in why:  # NumPy's own text would suggest allow_pickle=True: never for an untrusted file
-            why = "it holds Python objects (pickled data), which pliant never writes or loads"
-        raise ValueError(f"{path}: not a readable {what} NPZ ({why})") from None
+    data = read_npz(path, what)
     missing = [k for k in required if k not in data]
     if missing:
         raise ValueError(f"{path}: {what} is missing the fields {missing}")

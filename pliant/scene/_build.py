@@ -383,18 +383,11 @@ def _camera(cfg: SceneConfig) -> Camera | None:
 def _apply_parameters(ctx: BuildContext, solver: Solver, parameters: str) -> None:
     """``[scene] parameters``: per-element values (a fit's output, in the file ``parameters`` relative to
     the scene file) replace the built arrays."""
-    from ..io import npz_memory_problem
+    from ..io import read_npz
     from ._files import scene_path
 
     path = scene_path(ctx.cfg, parameters, "scene.parameters")
-    too_big = npz_memory_problem(path, "parameter")
-    if too_big:  # the arrays' headers, before np.load allocates them
-        raise ctx.fail("scene.parameters", too_big)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except Exception as exc:
-        raise ctx.fail("scene.parameters", f"cannot read {path} ({exc})") from None
+    data = read_npz(path, "parameter", lambda msg: ctx.fail("scene.parameters", msg))
     for key, value in data.items():
         parts = key.split(".")
         if parts[0] == "model" and len(parts) == 2:
