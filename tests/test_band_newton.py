@@ -9,7 +9,7 @@ import warp as wp
 
 import pliant as pl
 import pliant.scene
-from pliant.solvers.implicit import _band, _options, _pcg
+from pliant.solvers.implicit import _band, _band_order, _options, _pcg
 from pliant.solvers.implicit._workspace import cache_of
 
 
@@ -32,7 +32,7 @@ def test_auto_takes_the_band_newton_for_a_small_body_and_lbfgs_for_a_larger_one(
     works = []
     for scene in (small, large):
         ws = cache_of(scene.solver).workspace(scene.model, scene.solver.energies)
-        works.append(_band.band_work(scene.model.particle_count, ws.band_order()[1]))
+        works.append(_band_order.band_work(scene.model.particle_count, ws.band_order()[1]))
     assert works[0] <= _options.SMALL_BAND_WORK < works[1]
     mz = small.solver.minimizer
     assert mz.method == "auto" and large.solver.minimizer.method == "auto"

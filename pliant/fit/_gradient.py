@@ -28,11 +28,11 @@ import warp as wp
 
 from ..diff._graph import rollout_graphs
 from ..model import State
-from ._cmaes import StageResult
 from ._losses import acceleration_loss, chamfer_loss, track_loss
 from ._params import FitError, per_element_arrays, per_element_incidence, scene_constraints
 from ._problem import Problem
 from ._resume import Journal, StageHook
+from ._stage import StageResult
 
 if TYPE_CHECKING:
     from ..scene import Scene

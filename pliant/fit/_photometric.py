@@ -35,11 +35,11 @@ import warp as wp
 
 from ..gaussians._surface import GENERATED_BACKGROUND
 from ..io import Observations
-from ._cmaes import StageResult
 from ._gradient import Convergence
 from ._params import GLOBAL, FitError, GlobalParam
 from ._problem import Problem
 from ._resume import Journal, StageHook
+from ._stage import StageResult
 
 if TYPE_CHECKING:
     from ..diff import RolloutResult

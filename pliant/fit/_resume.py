@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -31,7 +32,7 @@ from ._params import FitError
 if TYPE_CHECKING:
     from ..io import Observations
     from ..scene import SceneConfig
-    from ._cmaes import StageResult
+    from ._stage import StageResult
 
 #: The checkpoint file in a fit's output folder.
 CHECKPOINT_FILE = "fit_checkpoint.json"
@@ -60,7 +61,7 @@ def observations_hash(obs: Observations) -> str:
             a = np.ascontiguousarray(a)
             h.update(f"{f.name}:{a.dtype.str}:{a.shape};".encode())
             if a.size:  # (memoryview cannot cast an empty view: a file without tracks has points [T, 0, 3])
-                h.update(memoryview(a).cast("B"))
+                h.update(a.tobytes())
     return h.hexdigest()
 
 
@@ -108,7 +109,7 @@ def result_json(r: StageResult) -> dict:
 
 def result_from_json(d: dict) -> StageResult:
     """The StageResult of :func:`result_json`'s ``d``."""
-    from ._cmaes import StageResult
+    from ._stage import StageResult
 
     return StageResult(
         values=dict(d["values"]),
@@ -189,7 +190,8 @@ class FitCheckpoint:
             raise FitError(f"{path}: the checkpoint is from another scene than {cfg.source}; {again}")
         if data.get("observations") != head["observations"]:
             raise FitError(f"{path}: the checkpoint is from other observations than {obs.source}; {again}")
-        theirs = data.get("options") if isinstance(data.get("options"), dict) else {}
+        saved = data.get("options")
+        theirs: dict = saved if isinstance(saved, dict) else {}
         diff = sorted(
             k for k in set(theirs) | set(head["options"]) if theirs.get(k) != head["options"].get(k)
         )
@@ -264,7 +266,9 @@ class Journal:
         self.replay = len(self.entries)
         self.next = 0
 
-    def __call__(self, fun: Any, theta: np.ndarray) -> tuple[float, np.ndarray]:
+    def __call__(
+        self, fun: Callable[[np.ndarray], tuple[float, np.ndarray]], theta: np.ndarray
+    ) -> tuple[float, np.ndarray]:
         """``fun(theta)``, or the recorded evaluation while replaying."""
         if self.next < self.replay:
             th, value, g = self.entries[self.next]

@@ -10,7 +10,7 @@ needed ~90 iterations per Newton step (two launches each); here a solve is one l
   rows and columns permuted by reverse Cuthill–McKee on the particle graph (a 12×2×2-cell beam's
   half-bandwidth is 10 particles, 32 scalar columns);
 * :func:`_band_factor`: one thread factors H = L D Lᵀ in place (Crout order, no pivoting), N b²/2
-  multiply-adds for N = 3n unknowns and half-bandwidth b (:func:`band_work`);
+  multiply-adds for N = 3n unknowns and half-bandwidth b (``_band_order.band_work``);
 * :func:`_band_solve`: one thread solves L D Lᵀ Δx = −∇Φ, 2 N b multiply-adds.
 
 **Lagging.** On the CPU the Hessian's assembly (the neo-Hookean kernel with its PSD projection: 0.33 ms
@@ -83,33 +83,6 @@ G_START, FACTOR_H, WARM_H = range(3)
 #: (for the next step's warm start), the warm start is taken, the gradient at x̃ is needed after all.
 REFACTOR, FRESH, HAVE, SINGULAR, LAST_ITERATIONS, HAVE_WARM, TAKE_WARM, REDO_GRADIENT = range(8)
 FLAG_SLOTS = 8
-
-
-def band_order(n: int, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, int]:
-    """Reverse Cuthill–McKee order of the n-node graph (``rows``, ``cols``: its edges, both directions) and
-    the half-bandwidth in nodes of the matrix in that order.
-
-    Returns:
-        (perm, width): node ``perm[k]`` goes to position k; max |position(i) − position(j)| over the edges.
-    """
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import reverse_cuthill_mckee
-
-    if n == 0:
-        return np.zeros(0, dtype=np.int64), 0
-    adj = sp.csr_matrix((np.ones(rows.size, dtype=np.int8), (rows, cols)), shape=(n, n))
-    perm = np.asarray(reverse_cuthill_mckee(adj, symmetric_mode=True), dtype=np.int64)
-    inv = np.empty_like(perm)
-    inv[perm] = np.arange(n)
-    width = int(np.abs(inv[rows] - inv[cols]).max()) if rows.size else 0
-    return perm, width
-
-
-def band_work(n: int, width: int) -> int:
-    """Multiply-adds of one banded LDLᵀ factorisation: N (b + 1)² / 2 with N = 3n unknowns and scalar
-    half-bandwidth b = 3·width + 2."""
-    b = 3 * width + 2
-    return 3 * n * (b + 1) * (b + 1) // 2
 
 
 @wp.kernel(enable_backward=False)
@@ -254,22 +227,22 @@ def _band_solve(
     grad: wp.array(dtype=Any),
     band: wp.array(dtype=wp.float64),
     flags: wp.array(dtype=wp.int32),
-    work: wp.array(dtype=wp.float64),
     dx_out: wp.array(dtype=Any),
+    work_io: wp.array(dtype=wp.float64),
 ):
     # One thread: Δx = −H⁻¹ g in the band's order; Δx = 0 after a singular factorisation.
     n = perm.shape[0]
     for p in range(n):
         g = grad[perm[p]]
         for a in range(3):
-            work[3 * p + a] = -wp.float64(g[a])
-    _trisolve(3 * n, b, band, work)
+            work_io[3 * p + a] = -wp.float64(g[a])
+    _trisolve(3 * n, b, band, work_io)
     ok = flags[SINGULAR] == 0
     for p in range(n):
         v = dx_out[p] * type(dx_out[p][0])(0.0)
         if ok:
             for a in range(3):
-                v[a] = type(v[0])(work[3 * p + a])
+                v[a] = type(v[0])(work_io[3 * p + a])
         dx_out[perm[p]] = v
 
 
@@ -510,7 +483,7 @@ class BandLDL:
         launch(
             _band_solve,
             1,
-            [self.perm, self.b, grad, self.band, self.flags, self.work, x_out],
+            [self.perm, self.b, grad, self.band, self.flags, x_out, self.work],
             device=self.model.device,
         )
 

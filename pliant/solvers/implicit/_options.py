@@ -215,7 +215,7 @@ def small_problem(problem: PotentialProblem) -> bool:
     """Whether ``problem``'s Newton system is small enough for the banded LDLᵀ on the CPU: its factorisation
     at most :data:`SMALL_BAND_WORK` multiply-adds (the bandwidth from the Hessian pattern, computed once per
     workspace)."""
-    from ._band import band_work
+    from ._band_order import band_work
     from ._workspace import cache_of
 
     ws = cache_of(problem).workspace(problem.model, problem.energies)

@@ -95,7 +95,7 @@ class _Workspace:
         """The particles' bandwidth-reducing order and its half-bandwidth in particles (computed once; see
         :func:`pliant.solvers.implicit._band.band_order`)."""
         if self._band is None:
-            from ._band import band_order
+            from ._band_order import band_order
 
             n = self.indptr.size - 1
             rows = np.repeat(np.arange(n, dtype=np.int64), np.diff(self.indptr))
