@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
 from .._warp import np_dtype, resolve_device, scalar_type, vec3_type
@@ -229,9 +230,9 @@ def _separation(x: np.ndarray, radius: float) -> float:
 
 
 @wp.kernel
-def _clamp_kernel(a: wp.array(dtype=Any), lo: Any, hi: Any):
+def _clamp_kernel(a_io: wp.array(dtype=Any), lo: Any, hi: Any):
     i = wp.tid()
-    a[i] = wp.clamp(a[i], lo, hi)
+    a_io[i] = wp.clamp(a_io[i], lo, hi)
 
 
 class _View:
@@ -246,7 +247,7 @@ class _View:
         self.v3 = vec3_type(dtype)
         self.nd = np_dtype(dtype)
         self.device = device
-        self.mask_wp = wp.array(mask.astype(self.nd), dtype=scalar_type(dtype), device=device)
+        self.mask_wp: wp.array = wp.array(mask.astype(self.nd), dtype=scalar_type(dtype), device=device)
 
     def target(self, background: np.ndarray) -> wp.array:
         """The observed image with its background pixels replaced by ``background`` (RGB)."""
@@ -255,7 +256,11 @@ class _View:
 
 
 def _check_inputs(
-    points: Any, cameras: Sequence[Camera], images: Sequence[Any], masks: Sequence[Any], radius: float
+    points: npt.ArrayLike,
+    cameras: Sequence[Camera],
+    images: Sequence[Any],
+    masks: Sequence[Any],
+    radius: float,
 ) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
     """Validated float64 points, images [H, W, 3] in [0, 1] (uint8 scaled) and masks [H, W] in [0, 1]."""
     pts = np.asarray(points, dtype=np.float64)

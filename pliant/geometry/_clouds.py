@@ -217,6 +217,7 @@ def frame_clouds(
     clouds: list[np.ndarray] = []
     for t in range(T):
         if depth is None:
+            assert lo is not None and hi is not None and spacing is not None  # set above without depth
             pts = carve(Ks, Ts, m[:, t], lo, hi, spacing).surface(min_views=need)
         else:
             zs = [d[c, t].astype(np.float64) * scale for c in range(C)]
@@ -230,6 +231,7 @@ def frame_clouds(
                 ]
                 r = 4.0 * float(np.median(np.concatenate(foot)))
             if pts.shape[0]:
+                assert r is not None  # found above from the readings whenever there are points
                 pts = _filtered_sample(pts, r, min_neighbors, max_points, np.random.default_rng([seed, t]))
         if pts.shape[0] > max_points:
             pick = np.random.default_rng([seed, t]).choice(pts.shape[0], max_points, replace=False)

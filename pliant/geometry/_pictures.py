@@ -221,7 +221,8 @@ def carve(
     hi = np.asarray(hi, dtype=np.float64)
     if lo.shape != (3,) or hi.shape != (3,) or not np.all(hi > lo):
         raise ValueError(f"carve: expected lo < hi, two [3] corners in metres, got {lo} and {hi}")
-    shape = tuple(int(v) for v in np.maximum(np.ceil((hi - lo) / spacing - 1e-9), 1))
+    nx, ny, nz = (int(v) for v in np.maximum(np.ceil((hi - lo) / spacing - 1e-9), 1))
+    shape = (nx, ny, nz)
     total = shape[0] * shape[1] * shape[2]
     if total > 250_000_000:
         raise ValueError(f"carve: {shape} is {total:.3g} voxels; use a larger spacing or a smaller box")
@@ -393,9 +394,9 @@ def hull_bounds(
         ValueError: fewer than two cameras with distinct viewing directions, a mask without object pixels,
             a centre behind a camera, views whose hulls share nothing, or a hull that never closes.
     """
-    m = object_mask(np.asarray(masks))
+    m: np.ndarray = object_mask(np.asarray(masks))
     if m.ndim == 4:
-        m = m.any(axis=1)
+        m = np.asarray(m.any(axis=1))
     if m.ndim != 3:
         raise ValueError(f"hull_bounds: masks: expected [C, H, W] or [C, T, H, W], got shape {m.shape}")
     C, H, W = m.shape

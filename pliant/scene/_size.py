@@ -182,7 +182,7 @@ def _bounded_counts(cfg: SceneConfig, o: Any, i: int) -> _Counts:
 
     try:
         c = _object_counts(cfg, o, i)
-        counts = (c.particles, c.springs, c.tets, c.triangles, c.bending, c.pairs)
+        counts: tuple[float, ...] = (c.particles, c.springs, c.tets, c.triangles, c.bending, c.pairs)
     except (OverflowError, ZeroDivisionError):  # float ** or / beyond the double range
         counts = (math.inf,)
     worst = max(counts, key=lambda v: v if math.isfinite(v) else math.inf)

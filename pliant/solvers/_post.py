@@ -181,10 +181,22 @@ def finish_step(
         stages.append(kinematic)
     point, impulse, shift = contact
     if ground is not None:
-        kw = dict(
-            penalty=ground_penalty, x_start=state_in.particle_q, point=point, impulse=impulse, shift=shift
+        stages.append(
+            lambda x, v, xo, vo: respond_to_ground(
+                m,
+                ground,
+                dt,
+                x,
+                v,
+                xo,
+                vo,
+                penalty=ground_penalty,
+                x_start=state_in.particle_q,
+                point=point,
+                impulse=impulse,
+                shift=shift,
+            )
         )
-        stages.append(lambda x, v, xo, vo: respond_to_ground(m, ground, dt, x, v, xo, vo, **kw))
     for c in collisions:
         stages.append(_contact_stage(c, m, state_in, state_out, dt, shift * dt))
     recorded = grad_enabled(m)

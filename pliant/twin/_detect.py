@@ -22,12 +22,15 @@ Decisions come with a reason in words, written into ``twin.json``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
+
+if TYPE_CHECKING:
+    from ..geometry import Plane
 
 #: Nearest frame-0 surface points looked at for each particle: the nearest must be static, and at least
 #: :data:`STATIC_SHARE` of them.
@@ -253,7 +256,7 @@ def detect_ground(
     spacing: float,
     background: np.ndarray | None = None,
     margin: float | None = None,
-    plane: Any = None,
+    plane: Plane | None = None,
 ) -> Ground:
     """The ground plane, when the object rests on or hits it.
 

@@ -20,7 +20,7 @@ from scipy.spatial import cKDTree
 from ..io import Observations
 
 if TYPE_CHECKING:
-    from ..scene import SceneConfig
+    from ..scene import Scene, SceneConfig
 
 #: Fraction of the training frames (the last ones) on which the model choice is validated.
 VALIDATION = 0.2
@@ -70,7 +70,7 @@ def _split(v: np.ndarray, n_train: int, scale: float = 1.0) -> dict[str, float]:
 
 
 def render_scores(
-    scene: Any, x: np.ndarray, obs: Observations, frames: range | None = None
+    scene: Scene, x: np.ndarray, obs: Observations, frames: range | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Mask IoU and PSNR [dB] of the scene's splats at positions ``x`` [T, N, 3] in every camera of ``obs``.
 
@@ -91,9 +91,10 @@ def render_scores(
     frames = range(T) if frames is None else frames
     ious = np.full((len(cams), T), np.nan)
     psnrs = np.full((len(cams), T), np.nan)
-    bg = np.asarray(scene.config.gaussians.background, dtype=np.float64)
+    section = getattr(scene.config, "gaussians", None)  # a registered section: not a SceneConfig field
+    bg = np.asarray(section.background if section is not None else (1.0, 1.0, 1.0), dtype=np.float64)
     for f in frames:
-        q = wp.array(np.ascontiguousarray(x[f]), dtype=m.vec3, device=m.device)
+        q: wp.array = wp.array(np.ascontiguousarray(x[f]), dtype=m.vec3, device=m.device)
         for c, cam in enumerate(cams):
             colour, alpha, _ = splats.render(q, cam)
             mask = obs.mask(c, f)

@@ -27,13 +27,18 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
 from ..io import Observations, atomic_output, atomic_write_text
 from ._detect import FixedRegions, Ground, detect_fixed, detect_ground
 from ._scene import camera_table, twin_scene, write_mesh
+
+if TYPE_CHECKING:
+    from ._splats import TwinSplats
+
+_T = TypeVar("_T")
 
 #: Models the twin can build on the carved volume (``--models``).
 TWIN_MODELS = ("fem", "mass_spring", "springs")
@@ -113,7 +118,7 @@ class _Steps:
     progress: bool
     rows: list[dict[str, Any]] = field(default_factory=list)
 
-    def run(self, name: str, fn: Callable[[], Any], say: Callable[[Any], str]) -> Any:
+    def run(self, name: str, fn: Callable[[], _T], say: Callable[[_T], str]) -> _T:
         t0 = time.perf_counter()
         value = fn()
         row = {"step": name, "seconds": time.perf_counter() - t0, "result": say(value)}
@@ -473,7 +478,9 @@ def _json(v: object) -> object:
     return str(v)
 
 
-def _splats(obs: Observations, centres: np.ndarray, spacing: float, opts: TwinOptions, ply: Path) -> Any:
+def _splats(
+    obs: Observations, centres: np.ndarray, spacing: float, opts: TwinOptions, ply: Path
+) -> TwinSplats:
     from ._splats import train_splats
 
     return train_splats(obs, centres, spacing, ply, iterations=opts.splat_iterations, seed=opts.seed)
@@ -508,6 +515,7 @@ def _fixed(
         return detect_fixed(particles, clouds, counts, tol=tol, spacing=spacing, ground=ground.height)
     if opts.fixed == "none":
         return FixedRegions(np.zeros(n, bool), [], 0.0, np.zeros(0), "--fixed none: nothing is held")
+    assert not isinstance(opts.fixed, str)  # "auto" and "none" are handled above
     boxes = [(np.asarray(c, float), np.asarray(h, float)) for c, h in opts.fixed]
     inside = np.zeros(n, bool)
     for c, h in boxes:

@@ -6,11 +6,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..io import Observations
+
+if TYPE_CHECKING:
+    from ..gaussians import SplatInit
 
 
 @dataclass
@@ -24,7 +27,7 @@ class TwinSplats:
     """
 
     particles: np.ndarray
-    init: Any
+    init: SplatInit
     ply: Path
 
     def __str__(self) -> str:
