@@ -174,8 +174,15 @@ def test_builtin_scenes_use_the_new_keys():
 
 def test_io_keeps_only_trajectory_files():
     """pliant.io holds trajectories, checkpoints, observation files (fitting) and camera files (`pliant run
-    --cameras`) only; scene files are pliant.scene."""
+    --cameras`), and how they are written and read (atomically; NPZ headers checked against the memory
+    available before loading) only; scene files are pliant.scene."""
     assert set(pl.io.__all__) == {
+        "atomic_output",
+        "atomic_write_text",
+        "available_memory",
+        "npz_headers",
+        "npz_memory_problem",
+        "read_npz",
         "CameraFile",
         "CameraFileError",
         "load_camera_file",

@@ -119,8 +119,16 @@ def _demo_from_venv(venv: Path, py: Path, tmp_path: Path) -> None:
     work.mkdir()
     probe = json.loads(_run([str(py), "-c", _PROBE], cwd=work, env=env).strip().splitlines()[-1])
     assert Path(probe["file"]).resolve().is_relative_to(venv.resolve()), probe["file"]
-    on_path = [p for p in probe["path"] if p and Path(p).resolve().is_relative_to(ROOT)]
-    assert not on_path, f"the checkout is on the venv's sys.path: {on_path}"
+    # The checkout's source must not be importable: no path entry is the checkout or holds its pliant/. (The
+    # dependencies' site-packages may lie inside the checkout, as make test's .venv does: it is reached by a
+    # path line, which runs none of its .pth files, so its editable pliant stays out of reach.)
+    source = (ROOT / "pliant" / "__init__.py").resolve()
+    on_path = [
+        p
+        for p in probe["path"]
+        if p and (Path(p).resolve() == ROOT or (Path(p) / "pliant" / "__init__.py").resolve() == source)
+    ]
+    assert not on_path, f"the checkout's source is on the venv's sys.path: {on_path}"
     assert probe["checkout"] == "None"
     scenes = sorted(p.stem for p in (ROOT / "pliant" / "scenes").glob("*.toml"))
     assert probe["manifests"] == sorted(json.loads((ROOT / "pliant/scenes/kernels.json").read_text()))
