@@ -63,7 +63,7 @@ def add_parsers(sub: Subparsers) -> None:
         "--generations", type=_positive_int, default=8, help="most CMA-ES generations per model (8)"
     )
     p.add_argument("--splat-iterations", type=_positive_int, default=150, help="Adam steps of the splats")
-    p.add_argument("--seed", type=int, default=0, help="seed of every random choice (0)")
+    p.add_argument("--seed", type=int, default=42, help="seed of every random choice, >= 1 (42)")
     p.add_argument(
         "--resume",
         action="store_true",

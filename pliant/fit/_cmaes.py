@@ -118,7 +118,7 @@ def cmaes(
         sigma: Initial step size in the normalised [0, 1] box (PhysTwin: 1/6).
         popsize: Candidates per generation (None: at least 10, 16 with a topology parameter; cma's own
             default 4 + ⌊3 ln d⌋ when larger).
-        seed: Random seed (PhysTwin: 42).
+        seed: Random seed, >= 1 (PhysTwin: 42; cma would take 0 as a seed from the clock).
         start: Starting values (default: the scene's own).
         callback: ``callback(generation, best_loss)`` after each generation (progress bars).
         batch: Run a generation as one batched simulation when the problem allows it.
@@ -137,6 +137,11 @@ def cmaes(
     bounds = problem.globals
     if not bounds:
         raise FitError("CMA-ES needs global parameters (--params); none were given")
+    if seed == 0 or seed is None:
+        # cma reads 0 (and None) as "seed from the clock": a fit must be reproducible.
+        raise FitError(
+            "--seed: cma takes 0 as 'a random seed from the clock'; give an integer >= 1 (default 42)"
+        )
     start = {**problem.nominal, **(start or {})}
     x0 = [b.param.to_unit(min(max(start[b.name], b.lo), b.hi), b.lo, b.hi) for b in bounds]
     pad = len(x0) == 1

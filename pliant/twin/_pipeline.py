@@ -106,7 +106,7 @@ class TwinOptions:
     density: float = 1000.0
     generations: int = 8
     splat_iterations: int = 60
-    seed: int = 0
+    seed: int = 42
     progress: bool = True
     resume: bool = False
 
