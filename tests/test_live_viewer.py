@@ -237,14 +237,16 @@ def test_sliders_write_the_running_models_arrays():
         while session.parameters["stiffness"].value != 1.2 and time.perf_counter() - t0 < 10:
             time.sleep(0.02)
         np.testing.assert_allclose(session.model.spring_stiffness.numpy(), 1.2 * k0, rtol=1e-6)
-        # Symplectic Euler: the slider stops at the stability bound (Gershgorin on M⁻¹K, h² λ ≤ 4).
+        # Symplectic Euler: the scene's substeps are stable up to Gershgorin's bound on M⁻¹K (h² λ ≤ 4); the
+        # slider goes past it, to the knob's 10x, and a stiffer value adds substeps.
         h = session.sim.frame_dt / session.sim.substeps
         idx = session.model.spring_indices.numpy().reshape(-1, 2)
         ksum = np.bincount(idx.ravel(), weights=np.repeat(k0, 2), minlength=session.model.particle_count)
         free = session._inv_mass > 0
         bound = np.min(2.0 * session._mass[free] / (h * h * ksum[free]))
-        assert session.parameters["stiffness"].hi == pytest.approx(min(max(bound, 1.0), 10.0))
-        assert 1.0 < session.parameters["stiffness"].hi < 10.0
+        stiffness = session.parameters["stiffness"]
+        assert stiffness.stable == pytest.approx(max(bound, 1.0)) and 1.0 < stiffness.stable < 10.0
+        assert stiffness.hi == 10.0 and session.sim.substeps == 40
         write_parameter(session, "damping_rate", 3.0)
         assert session.sim.solver.damping_rate == 3.0
         with pytest.raises(ValueError, match="outside"):
@@ -263,6 +265,32 @@ def test_sliders_write_the_running_models_arrays():
     mu0 = fem.model.tet_mu.numpy().copy()
     write_parameter(fem, "E", 3.0)
     np.testing.assert_allclose(fem.model.tet_mu.numpy(), 3.0 * mu0, rtol=1e-6)
+
+
+def test_a_stiffness_past_the_explicit_limit_adds_substeps():
+    """The cloth under symplectic Euler at 10x its springs' k: n = ⌈n₀ √(10 / stable)⌉ substeps per frame
+    (λ_max ∝ k, h = frame_dt / n) keep it finite and its energy bounded while it is dragged, where the
+    scene's own 40 diverge; back at 1x it steps 40 again."""
+    from pliant.sim import DivergenceError
+
+    session = LiveSession(_cloth())
+    stable = session.parameters["stiffness"].stable
+    session.grab(60, session.x[60] + [0.0, 0.2, 0.0])
+    write_parameter(session, "stiffness", 10.0)
+    n = int(np.ceil(40 * np.sqrt(10.0 / stable)))
+    assert session.sim.substeps == n > 40 and f"{n} substeps" in session.note
+    k, _ = session.grab_spring(60)  # the grab follows the new step
+    assert session.control.drag_stiffness == pytest.approx(k)
+    for _ in range(40):
+        session.step(1)
+    assert np.all(np.isfinite(session.x)) and np.ptp(session.x[:, 1]) < 2.0
+    write_parameter(session, "stiffness", 1.0)
+    assert session.sim.substeps == 40 and session.note == ""
+    forced = LiveSession(_cloth())
+    write_parameter(forced, "stiffness", 10.0)
+    forced.sim.substeps = 40  # what the slider did before: the same k at the scene's step
+    with pytest.raises(DivergenceError):
+        forced.step(40)
 
 
 def test_record_writes_a_trajectory_pliant_view_reads_and_a_video(tmp_path):
@@ -361,7 +389,8 @@ def test_pliant_view_of_a_scene_serves_it_live(tmp_path):
     port = _free_port()
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "pliant.cli", "view", "rope", "--port", str(port), "--out", str(tmp_path)],
+        [sys.executable, "-m", "pliant.cli", "view", "rope", "--port", str(port), "--out", str(tmp_path)]
+        + ["--token", "t0k"],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -373,8 +402,165 @@ def test_pliant_view_of_a_scene_serves_it_live(tmp_path):
         while "pliant view:" not in line and time.perf_counter() - t0 < 180:
             line = proc.stdout.readline()
             assert line or proc.poll() is None, "pliant view exited early"
-        assert "rope live" in line and f":{port}" in line, line
+        assert "rope live" in line and f":{port}" in line and f"ws://127.0.0.1:{port}/?token=t0k" in line, (
+            line
+        )
         assert urllib.request.urlopen(f"http://127.0.0.1:{port}", timeout=10).status == 200
+        from pliant.live._probe import probe
+
+        url = line.split(" at ", 1)[1].split()[0]
+        refused, good = (asyncio.run(probe(u, 1.5)) for u in (f"http://127.0.0.1:{port}", url))
+        assert refused.closed == 1008 and good.closed is None and good.messages > 0
     finally:
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=60)
+
+
+def _wait(cond, seconds: float = 20.0) -> bool:
+    t0 = time.perf_counter()
+    while not cond() and time.perf_counter() - t0 < seconds:
+        time.sleep(0.02)
+    return cond()
+
+
+def test_slider_values_out_of_range_or_not_finite_are_refused():
+    """A page's box (or a client that is no page) can send any number: the server refuses one outside the
+    parameter's [lo, hi], NaN, infinity, and puts every page's slider back on the last accepted value."""
+    from pliant.live._probe import gui_update, probe
+
+    session = LiveSession(_cloth())
+    v = serve_live(session, port=_free_port(), start=False)
+    try:
+        k0 = session.model.spring_stiffness.numpy().copy()
+        stiff, damp, scale = v._gui["param:stiffness"], v._gui["param:damping_rate"], v._gui["time scale"]
+        p = session.parameters["stiffness"]
+        assert (stiff.min, stiff.max) == (p.lo, p.hi)  # the page's slider cannot leave the range
+        send = [
+            (0.2, gui_update(stiff, 1.5)),
+            (0.4, gui_update(stiff, p.hi * 1.01)),
+            (0.6, gui_update(stiff, float("nan"))),
+            (0.8, gui_update(damp, float("inf"))),
+            (1.0, gui_update(damp, -1.0)),
+            (1.2, gui_update(scale, float("nan"))),
+            (1.4, gui_update(scale, 1e6)),
+        ]
+        asyncio.run(probe(v.url, 2.5, send))
+        assert p.value == 1.5 and stiff.value == 1.5  # the one in range went through, the rest bounced
+        np.testing.assert_allclose(session.model.spring_stiffness.numpy(), 1.5 * k0, rtol=1e-6)
+        rate = session.parameters["damping_rate"]
+        assert damp.value == rate.value and np.isfinite(session.sim.solver.damping_rate)
+        assert v.time_scale == 1.0 and scale.value == 1.0 and "time scale" in v.note
+        for bad in (-0.5, 11.0, float("nan"), float("-inf")):  # the same from the server's side
+            stiff.value = bad
+            assert p.value == 1.5 and stiff.value == 1.5 and "refused" in v.note
+            with pytest.raises(ValueError, match="outside"):
+                write_parameter(session, "stiffness", bad)
+        assert v.run_frame() and np.all(np.isfinite(session.x))
+    finally:
+        v.stop()
+
+
+def test_a_client_that_drops_mid_drag_releases_the_grab():
+    """Two tabs: A presses on the cloth and moves, then its connection drops (no drag end); B's moves and
+    release while A holds it do nothing to A's grab. When A is gone the grab is released."""
+    from pliant.live._probe import drag_message, probe
+
+    session = LiveSession(_cloth())
+    v = serve_live(session, port=_free_port(), start=False)
+    try:
+        x = session.x.astype(float)
+        hit, up = x[60] + [0.001, 0.0, 0.0], x[60] + [0.0, 0.2, 0.0]
+
+        async def tabs():
+            a = probe(
+                v.url,
+                3.0,
+                [
+                    (0.3, drag_message("start", "/pliant/cloth", hit, hit)),
+                    (0.5, drag_message("update", "/pliant/cloth", hit, up)),
+                ],
+                close_at=2.0,
+            )
+            far = x[60] + [0.0, -0.5, 0.0]
+            b = probe(
+                v.url,
+                1.6,
+                [
+                    (1.0, drag_message("update", "/pliant/cloth", hit, far)),
+                    (1.2, drag_message("end", "/pliant/cloth", hit, far)),
+                ],
+            )
+
+            async def watch():
+                await asyncio.sleep(1.5)  # A holds it, B has tried to move and release it
+                return session.grabbed, None if session.target is None else session.target.copy()
+
+            return await asyncio.gather(a, b, watch())
+
+        _, _, (held, target) = asyncio.run(tabs())
+        assert held == 60 and np.allclose(target, up)
+        assert _wait(lambda: session.grabbed is None, 10.0)
+        assert session.control.drag_index == -1
+        v.run_frame()
+        assert not v._marker.visible
+    finally:
+        v.stop()
+
+
+def test_a_token_keeps_out_clients_without_it(capsys):
+    """``token=``: a websocket without it, or with another, is closed (1008) before it receives anything;
+    the URL the viewer prints carries it and connects."""
+    from pliant.live._probe import probe
+
+    session = LiveSession(_cloth())
+    v = serve_live(session, port=_free_port(), start=False, token="s3cret-Token")
+    try:
+        assert v.url.endswith("?token=s3cret-Token") and "?websocket=ws://" in v.url
+        base = v.url.split("/?websocket=")[0]
+
+        async def three():
+            return await asyncio.gather(
+                probe(base, 2.0), probe(base + "/?token=wrong", 2.0), probe(v.url, 2.0)
+            )
+
+        none, wrong, good = asyncio.run(three())
+        assert none.closed == 1008 and wrong.closed == 1008 and none.messages == wrong.messages == 0
+        assert good.closed is None and good.messages > 0
+        assert urllib.request.urlopen(base, timeout=10).status == 200  # the page itself is viser's, public
+    finally:
+        v.stop()
+
+
+def test_the_rate_box_says_paused_while_paused():
+    session = LiveSession(_cloth())
+    v = serve_live(session, port=_free_port(), start=False)
+    try:
+        v.start()
+        assert _wait(lambda: session.frame >= 5 and "frames/s" in v._gui["status"].value, 60)
+        v.paused = True
+        assert _wait(lambda: v._gui["status"].value.startswith("paused at frame"), 5)
+        assert v.fps == 0.0 and "frames/s" not in v._gui["status"].value
+        v._single.set()  # the step button
+        f = session.frame
+        assert _wait(lambda: f"frame {f + 1}" in v._gui["status"].value, 10)
+    finally:
+        v.stop()
+
+
+def test_view_beyond_loopback_makes_a_token_and_says_who_can_drive(capsys):
+    """Like Jupyter: ``--host 0.0.0.0`` without ``--token`` gets a random one, and stderr says that whoever
+    reaches the port with it can drive the simulation; ``--token ''`` says ANYONE can; loopback needs none."""
+    from argparse import Namespace
+
+    from pliant.cli._view import view_token
+
+    made = view_token(Namespace(host="0.0.0.0", port=8080, token=None, trajectory="cloth"))
+    err = capsys.readouterr().err
+    assert made and len(made) >= 20 and "can drive the simulation" in err and "0.0.0.0:8080" in err
+    assert made != view_token(Namespace(host="0.0.0.0", port=8080, token=None, trajectory="cloth"))
+    capsys.readouterr()
+    assert view_token(Namespace(host="0.0.0.0", port=1, token="", trajectory="cloth")) is None
+    assert "ANYONE" in capsys.readouterr().err
+    assert view_token(Namespace(host="127.0.0.1", port=1, token=None, trajectory="cloth")) is None
+    assert view_token(Namespace(host="::1", port=1, token="abc", trajectory="x.npz")) == "abc"
+    assert capsys.readouterr().err == ""
