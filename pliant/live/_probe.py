@@ -8,7 +8,7 @@ from __future__ import annotations
 import asyncio
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 
@@ -26,7 +26,6 @@ class ProbeResult:
     messages: int = 0
     bytes: int = 0
     closed: int | None = None
-    log: list[str] = field(default_factory=list)
 
 
 def _encode(message: Any) -> bytes:
@@ -134,7 +133,13 @@ async def probe(
 
 
 async def probes(url: str, clients: int, seconds: float) -> list[ProbeResult]:
-    """``clients`` tabs on ``url`` at once, each receiving for ``seconds``."""
+    """``clients`` tabs on ``url`` at once, each receiving for ``seconds``.
+
+    Args:
+        url: the viewer's address (``LiveViewer.url``).
+        clients: how many tabs.
+        seconds: how long each stays [s].
+    """
     return list(await asyncio.gather(*(probe(url, seconds) for _ in range(clients))))
 
 

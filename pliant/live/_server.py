@@ -222,7 +222,7 @@ def _bind_drag(v: LiveViewer, handle: Any, part: Any) -> None:
                 if not np.all(np.isfinite(hit)):
                     return
                 p = s.pick(cam, hit - cam, hit=hit, among=span)
-            if p is not None and 0 <= p < span[1] and s._inv_mass[p] > 0 and _finite(ev.end_position):
+            if p is not None and span[0] <= p < span[1] and s._inv_mass[p] > 0 and _finite(ev.end_position):
                 s.grab(p, ev.end_position)
                 v._grab_owner = who
         elif s.grabbed is None or v._grab_owner != who:
