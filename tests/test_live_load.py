@@ -251,3 +251,26 @@ def test_eight_tabs_cost_less_than_a_fifth_of_the_frame_rate():
         v.stop()
     print(f"frames/s with 1 tab {np.round(one, 1)}, with 8 {np.round(eight, 1)}")
     assert sum(eight) >= 0.8 * sum(one), (one, eight)
+
+
+def test_the_live_camera_keeps_a_falling_rope_in_view():
+    """A live view starts from one frame: the camera's box reaches down by the objects' size (to the ground
+    at most), so the rope, straight at first and then hanging from its pin, stays in an 800 × 600 view and
+    spans a good part of it."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_viewer import _pixels
+
+    session = LiveSession(pl.scene.build_scene(pl.scene.load_scene("rope"), device="cpu"))
+    v = serve_live(session, port=_free_port(), start=False)
+    try:
+        cam = v.server.initial_camera
+        shots = [session.x.astype(float)]
+        for _ in range(60):
+            v.run_frame()
+        shots.append(session.x.astype(float))
+        for x in shots:
+            px = _pixels(x, cam.position, cam.look_at, cam.fov)
+            assert np.all(px.min(axis=0) >= 0) and np.all(px.max(axis=0) <= [800, 600]), px
+            assert max(np.ptp(px[:, 0]) / 800, np.ptp(px[:, 1]) / 600) > 0.3
+    finally:
+        v.stop()

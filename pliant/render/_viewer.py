@@ -186,8 +186,13 @@ def add_object_nodes(
         )
         nodes["/pliant/ground"] = "ground"
     # pliant is y-up; start the camera in front of and above the objects, looking at them, as close as lets
-    # every position the objects take fill the view.
+    # every position the objects take fill the view. One frame (a live view's start) says nothing of where
+    # they go: they fall, so the box reaches down by its own size, to the ground at most.
     server.scene.set_up_direction("+y")
+    if traj.x.shape[0] == 1:
+        lo = lo.copy()
+        drop = lo[1] - max(float(np.max(hi - lo)), 1e-3)
+        lo[1] = min(max(drop, float(ground)), lo[1]) if ground is not None else drop
     eye, look = fit_camera(lo, hi, fov=float(server.initial_camera.fov))
     server.initial_camera.position = tuple(float(c) for c in eye)
     server.initial_camera.look_at = tuple(float(c) for c in look)
