@@ -237,14 +237,16 @@ def test_sliders_write_the_running_models_arrays():
         while session.parameters["stiffness"].value != 1.2 and time.perf_counter() - t0 < 10:
             time.sleep(0.02)
         np.testing.assert_allclose(session.model.spring_stiffness.numpy(), 1.2 * k0, rtol=1e-6)
-        # Symplectic Euler: the slider stops at the stability bound (Gershgorin on M⁻¹K, h² λ ≤ 4).
+        # Symplectic Euler: the scene's substeps are stable up to Gershgorin's bound on M⁻¹K (h² λ ≤ 4); the
+        # slider goes past it, to the knob's 10x, and a stiffer value adds substeps.
         h = session.sim.frame_dt / session.sim.substeps
         idx = session.model.spring_indices.numpy().reshape(-1, 2)
         ksum = np.bincount(idx.ravel(), weights=np.repeat(k0, 2), minlength=session.model.particle_count)
         free = session._inv_mass > 0
         bound = np.min(2.0 * session._mass[free] / (h * h * ksum[free]))
-        assert session.parameters["stiffness"].hi == pytest.approx(min(max(bound, 1.0), 10.0))
-        assert 1.0 < session.parameters["stiffness"].hi < 10.0
+        stiffness = session.parameters["stiffness"]
+        assert stiffness.stable == pytest.approx(max(bound, 1.0)) and 1.0 < stiffness.stable < 10.0
+        assert stiffness.hi == 10.0 and session.sim.substeps == 40
         write_parameter(session, "damping_rate", 3.0)
         assert session.sim.solver.damping_rate == 3.0
         with pytest.raises(ValueError, match="outside"):
@@ -263,6 +265,32 @@ def test_sliders_write_the_running_models_arrays():
     mu0 = fem.model.tet_mu.numpy().copy()
     write_parameter(fem, "E", 3.0)
     np.testing.assert_allclose(fem.model.tet_mu.numpy(), 3.0 * mu0, rtol=1e-6)
+
+
+def test_a_stiffness_past_the_explicit_limit_adds_substeps():
+    """The cloth under symplectic Euler at 10x its springs' k: n = ⌈n₀ √(10 / stable)⌉ substeps per frame
+    (λ_max ∝ k, h = frame_dt / n) keep it finite and its energy bounded while it is dragged, where the
+    scene's own 40 diverge; back at 1x it steps 40 again."""
+    from pliant.sim import DivergenceError
+
+    session = LiveSession(_cloth())
+    stable = session.parameters["stiffness"].stable
+    session.grab(60, session.x[60] + [0.0, 0.2, 0.0])
+    write_parameter(session, "stiffness", 10.0)
+    n = int(np.ceil(40 * np.sqrt(10.0 / stable)))
+    assert session.sim.substeps == n > 40 and f"{n} substeps" in session.note
+    k, _ = session.grab_spring(60)  # the grab follows the new step
+    assert session.control.drag_stiffness == pytest.approx(k)
+    for _ in range(40):
+        session.step(1)
+    assert np.all(np.isfinite(session.x)) and np.ptp(session.x[:, 1]) < 2.0
+    write_parameter(session, "stiffness", 1.0)
+    assert session.sim.substeps == 40 and session.note == ""
+    forced = LiveSession(_cloth())
+    write_parameter(forced, "stiffness", 10.0)
+    forced.sim.substeps = 40  # what the slider did before: the same k at the scene's step
+    with pytest.raises(DivergenceError):
+        forced.step(40)
 
 
 def test_record_writes_a_trajectory_pliant_view_reads_and_a_video(tmp_path):
@@ -361,7 +389,8 @@ def test_pliant_view_of_a_scene_serves_it_live(tmp_path):
     port = _free_port()
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "pliant.cli", "view", "rope", "--port", str(port), "--out", str(tmp_path)],
+        [sys.executable, "-m", "pliant.cli", "view", "rope", "--port", str(port), "--out", str(tmp_path)]
+        + ["--token", "t0k"],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -373,8 +402,15 @@ def test_pliant_view_of_a_scene_serves_it_live(tmp_path):
         while "pliant view:" not in line and time.perf_counter() - t0 < 180:
             line = proc.stdout.readline()
             assert line or proc.poll() is None, "pliant view exited early"
-        assert "rope live" in line and f":{port}" in line, line
+        assert "rope live" in line and f":{port}" in line and f"ws://127.0.0.1:{port}/?token=t0k" in line, (
+            line
+        )
         assert urllib.request.urlopen(f"http://127.0.0.1:{port}", timeout=10).status == 200
+        from pliant.live._probe import probe
+
+        url = line.split(" at ", 1)[1].split()[0]
+        refused, good = (asyncio.run(probe(u, 1.5)) for u in (f"http://127.0.0.1:{port}", url))
+        assert refused.closed == 1008 and good.closed is None and good.messages > 0
     finally:
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=60)

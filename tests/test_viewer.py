@@ -107,3 +107,45 @@ def test_headless_chromium_screenshot_shows_the_object(tmp_path):
     finally:
         v.stop()
     assert blue.mean() > 0.02, f"cloth colour {(r, g, b)} covers {blue.mean():.3%} of the middle"
+
+
+def _pixels(points: np.ndarray, eye, look, fov: float, width: int = 800, height: int = 600) -> np.ndarray:
+    """Pinhole projection [px] of world points for a y-up camera at ``eye`` looking at ``look``."""
+    w = np.asarray(eye, float) - np.asarray(look, float)
+    w /= np.linalg.norm(w)
+    u = np.cross([0.0, 1.0, 0.0], w)
+    u /= np.linalg.norm(u)
+    v = np.cross(w, u)
+    r = points - np.asarray(eye, float)
+    depth = -(r @ w)
+    assert np.all(depth > 0), "a point behind the camera"
+    f = 0.5 * height / np.tan(0.5 * fov)
+    return np.stack([0.5 * width + f * (r @ u) / depth, 0.5 * height - f * (r @ v) / depth], axis=1)
+
+
+@pytest.mark.parametrize("length", [1.0, 0.05, 12.0])
+def test_playback_frames_the_object(length):
+    """A rope of ``length`` m swinging down a quarter circle about its pinned end (what ``pliant run rope``
+    records): from the start camera every frame lies in an 800 × 600 view and all of them together span
+    most of its width or height (before: a 1 m rope came out ~110 × 70 px, a 5 cm one a few pixels)."""
+    n, frames = 31, 40
+    s = np.linspace(0.0, length, n)
+    angles = np.linspace(0.0, 0.5 * np.pi, frames)
+    pivot = np.array([0.4, 1.0, 0.0]) * length
+    x = np.stack([pivot + np.stack([-s * np.cos(a), -s * np.sin(a), 0 * s], axis=1) for a in angles])
+    meta = {
+        "dt": 1 / 30,
+        "objects": [{"name": "rope", "kind": "rope", "start": 0, "count": n}],
+        "ground": 0.0,
+    }
+    v = serve_viewer(Trajectory(x=x, t=np.arange(frames) / 30, meta=meta), port=_free_port())
+    try:
+        cam = v.server.initial_camera
+        px = _pixels(x.reshape(-1, 3), cam.position, cam.look_at, cam.fov)
+    finally:
+        v.stop()
+    lo, hi = px.min(axis=0), px.max(axis=0)
+    assert np.all(lo >= 0) and np.all(hi <= [800, 600]), (lo, hi)
+    assert max((hi[0] - lo[0]) / 800, (hi[1] - lo[1]) / 600) > 0.7, (lo, hi)
+    first = _pixels(x[0], cam.position, cam.look_at, cam.fov)
+    assert np.ptp(first[:, 0]) > 0.3 * 800  # the rope at rest, straight, a third of the view across

@@ -279,6 +279,11 @@ def build_parser() -> argparse.ArgumentParser:
     vw.add_argument("trajectory", metavar="TRAJ.npz|SCENE")
     vw.add_argument("--host", default="127.0.0.1", help="interface (0.0.0.0: reachable from other machines)")
     vw.add_argument("--port", type=int, default=8080, help="TCP port (default 8080)")
+    vw.add_argument(
+        "--token",
+        help="a secret the page's websocket must carry (in the printed URL); default: a random one when "
+        "--host is not loopback, none on loopback; --token '' lets anyone who reaches the port in",
+    )
     vw.add_argument("--device", help="live: Warp device, e.g. cpu or cuda:0 (default: the scene's)")
     vw.add_argument("--dtype", choices=("float32", "float64"), help="live: precision (default: the scene's)")
     vw.add_argument("--paused", action="store_true", help="live: start paused")

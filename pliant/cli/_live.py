@@ -33,7 +33,14 @@ def start_live(args: argparse.Namespace) -> tuple[Any, str]:
     except DivergenceError as exc:
         raise CliError(str(exc)) from None
     out.mkdir(parents=True, exist_ok=True)
-    viewer = serve_live(session, host=args.host, port=args.port, record_dir=out, start=False)
+    viewer = serve_live(
+        session,
+        host=args.host,
+        port=args.port,
+        record_dir=out,
+        start=False,
+        token=getattr(args, "token", None),
+    )
     viewer.paused = bool(getattr(args, "paused", False))
     viewer.start()
     m = scene.model

@@ -13,8 +13,11 @@ from typing import Any
 
 import numpy as np
 
-from ..render._viewer import _viser, add_object_nodes, move_nodes
+from ..render._viewer import _viser, add_object_nodes, move_nodes, require_token, viewer_url
 from ._session import LiveSession, write_parameter
+
+#: The time scale slider's range (simulated seconds per wall-clock second).
+TIME_SCALE = (0.05, 4.0)
 
 
 @dataclass
@@ -28,8 +31,13 @@ class LiveViewer:
         nodes: scene node names → what they show (as :func:`pliant.render._viewer.add_object_nodes`).
         paused: True while the simulation waits (pause button, or after a divergence).
         time_scale: simulated seconds per wall-clock second the pacing aims at.
-        fps: frames per wall-clock second achieved over the last second.
-        status: the line the panel shows (rate, or the divergence message).
+        fps: frames per wall-clock second achieved over the last second (0 while paused).
+        status: the line the panel shows: the rate while running, "paused at frame n" while paused, or the
+            divergence message.
+        note: the panel's last refusal or adjustment (a slider value out of range, substeps raised for a
+            stiffer material), "" when there is none.
+        token: the secret a client's websocket must carry (``?token=...``), or None when any client may
+            connect.
         record_dir: where the record button writes ``live_<n>.npz`` / ``.mp4``.
         recorded: the files the record button has written.
     """
@@ -42,6 +50,8 @@ class LiveViewer:
     time_scale: float = 1.0
     fps: float = 0.0
     status: str = ""
+    note: str = ""
+    token: str | None = None
     record_dir: Path = Path(".")
     recorded: list[Path] = field(default_factory=list)
     _handles: list[tuple[Any, Any]] = field(default_factory=list)
@@ -53,6 +63,8 @@ class LiveViewer:
     _thread: threading.Thread | None = None
     _times: deque = field(default_factory=lambda: deque(maxlen=240))
     _gui: dict[str, Any] = field(default_factory=dict)
+    _halted: str | None = None  # the divergence message while paused by one
+    _grab_owner: Any = None  # the client whose drag holds the grab (None: a script's grab, or none)
 
     # ------------------------------------------------------------------ the loop
     def show(self, x: np.ndarray) -> None:
@@ -74,7 +86,7 @@ class LiveViewer:
             x = self.session.step(1)
         except DivergenceError as exc:
             self.paused = True
-            self.status = f"paused: {exc} (reset to go on)"
+            self._halted = f"paused: {exc} (reset to go on)"
             self._say()
             return False
         self.show(x)
@@ -92,11 +104,18 @@ class LiveViewer:
         shown = 0.0
         while not self._stop.is_set():
             if self.paused and not self._single.is_set():
+                if self._times:  # the rate of a run that has stopped: gone, so a resume starts afresh
+                    self._times.clear()
+                    self.fps = 0.0
+                    self._say()
                 time.sleep(0.02)
                 due = time.perf_counter()
                 continue
+            single = self._single.is_set()
             self._single.clear()
             self.run_frame()
+            if single:
+                self._say()
             # Frame pacing: each frame is due frame_dt / time_scale after the last; a machine that cannot
             # keep up runs flat out and the panel shows the rate it reaches (no catching up in bursts).
             due += frame_dt / max(self.time_scale, 1e-6)
@@ -110,7 +129,12 @@ class LiveViewer:
                 self._say()
 
     def _say(self) -> None:
-        if not self.paused:
+        """Put the rate (running), "paused at frame n" or the divergence message in the panel's box."""
+        if self.paused:
+            self.status = (
+                self._halted or f"paused at frame {self.session.frame} (t = {self.session.sim.time:.3f} s)"
+            )
+        else:
             frame_dt = self.session.sim.frame_dt
             lat = self.session.latencies[-20:]
             self.status = (
@@ -173,42 +197,89 @@ def splat_arrays(splats: Any, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np
     )
 
 
+def _client_id(ev: Any) -> Any:
+    """The id of the browser tab an event came from (None for a script's event without one)."""
+    cid = getattr(ev, "client_id", None)
+    return cid if cid is not None else getattr(getattr(ev, "client", None), "client_id", None)
+
+
 def _bind_drag(v: LiveViewer, handle: Any, part: Any) -> None:
     """A left-drag on this node grabs the particle under the cursor and drags it in the camera-facing plane
-    (viser projects the pointer onto it: ``end_position``); release lets go."""
+    (viser projects the pointer onto it: ``end_position``); release lets go. The tab that grabbed owns the
+    grab: another tab's moves and releases do not touch it (its own drag start takes the grab over), and
+    the owner's disconnecting lets go (:func:`_release_on_disconnect`)."""
     s = v.session
     span = (part.start, part.start + part.count)
 
     async def on_drag(ev: Any) -> None:  # async: viser runs these in order on its event loop
+        who = _client_id(ev)
         if ev.phase == "start":
             if ev.instance_index is not None and part.kind == "spheres":
                 p = part.start + int(ev.instance_index)
             else:
                 cam = np.asarray(ev.client.camera.position, float)
                 hit = np.asarray(ev.start_position, float)
+                if not np.all(np.isfinite(hit)):
+                    return
                 p = s.pick(cam, hit - cam, hit=hit, among=span)
-            if p is not None and s._inv_mass[p] > 0:
+            if p is not None and span[0] <= p < span[1] and s._inv_mass[p] > 0 and _finite(ev.end_position):
                 s.grab(p, ev.end_position)
+                v._grab_owner = who
+        elif s.grabbed is None or v._grab_owner != who:
+            return  # not this tab's grab
         elif ev.phase == "update":
-            s.move(ev.end_position)
+            if _finite(ev.end_position):
+                s.move(ev.end_position)
         else:
             s.release()
+            v._grab_owner = None
 
     handle.on_drag(on_drag)
+
+
+def _finite(point: Any) -> bool:
+    """Whether a point from the page is three finite numbers."""
+    try:
+        return bool(np.all(np.isfinite(np.asarray(point, float).reshape(3))))
+    except (TypeError, ValueError):
+        return False
+
+
+def _release_on_disconnect(v: LiveViewer) -> None:
+    """A tab that closes (or loses its connection) mid-drag lets go of its grab: the page's drag end never
+    comes."""
+
+    @v.server.on_client_disconnect
+    def _(client: Any) -> None:
+        if v.session.grabbed is not None and v._grab_owner == client.client_id:
+            v.session.release()
+            v._grab_owner = None
+
+
+def _refuse(v: LiveViewer, slider: Any, good: float, why: str) -> None:
+    """Put a slider back on its last accepted value (every page shows it) and say why in the panel."""
+    v.note = why
+    if "note" in v._gui:
+        v._gui["note"].value = why
+    slider.value = good
 
 
 def _panel(v: LiveViewer) -> None:
     gui = v.server.gui
     s = v.session
     v._gui["status"] = gui.add_text("rate", initial_value="starting", disabled=True)
+    v._gui["note"] = gui.add_text("note", initial_value="", disabled=True)
     pause = gui.add_button("pause / run")
     step = gui.add_button("step one frame")
     reset = gui.add_button("reset")
-    scale = gui.add_slider("time scale", min=0.05, max=4.0, step=0.05, initial_value=v.time_scale)
+    lo, hi = TIME_SCALE
+    scale = gui.add_slider("time scale", min=lo, max=hi, step=0.05, initial_value=v.time_scale)
+    v._gui["time scale"] = scale
 
     @pause.on_click
     def _(_: Any) -> None:
         v.paused = not v.paused
+        v._halted = None
         v._say()
 
     @step.on_click
@@ -219,12 +290,18 @@ def _panel(v: LiveViewer) -> None:
     @reset.on_click
     def _(_: Any) -> None:
         s.reset()
+        v._halted, v._grab_owner = None, None
         v.paused = False
         v.show(s.x)
 
     @scale.on_update
     def _(_: Any) -> None:
-        v.time_scale = float(scale.value)
+        # The page's slider stays in [lo, hi]; a value typed in its box, or sent by another client, may not.
+        value = _number(scale.value)
+        if value is None or not lo <= value <= hi:
+            _refuse(v, scale, v.time_scale, f"time scale {scale.value!r} refused: not in [{lo}, {hi}]")
+            return
+        v.time_scale = value
 
     with gui.add_folder("material"):
         for name, p in s.parameters.items():
@@ -233,7 +310,19 @@ def _panel(v: LiveViewer) -> None:
             slider = gui.add_slider(label, min=p.lo, max=p.hi, step=step_, initial_value=p.value, hint=p.doc)
 
             def update(_: Any, name: str = name, slider: Any = slider) -> None:
-                write_parameter(s, name, float(slider.value))
+                param = s.parameters[name]
+                value = _number(slider.value)
+                if value is not None and value == param.value:
+                    return
+                try:
+                    if value is None:
+                        raise ValueError(f"{name}: {slider.value!r} is not a number")
+                    write_parameter(s, name, value)
+                except ValueError as exc:
+                    _refuse(v, slider, param.value, f"refused: {exc}")
+                    return
+                v.note = s.note
+                v._gui["note"].value = v.note
 
             slider.on_update(update)
             v._gui[f"param:{name}"] = slider
@@ -247,6 +336,15 @@ def _panel(v: LiveViewer) -> None:
         v._gui["recorded"].value = ", ".join(str(f) for f in files) if files else "recording..."
 
 
+def _number(value: Any) -> float | None:
+    """``value`` as a finite float, or None (NaN, infinity, not a number)."""
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        return None
+    return x if np.isfinite(x) else None
+
+
 def serve_live(
     session: LiveSession,
     *,
@@ -256,6 +354,7 @@ def serve_live(
     start: bool = True,
     record_dir: str | Path = ".",
     splats: bool = True,
+    token: str | None = None,
 ) -> LiveViewer:
     """Serve ``session`` live in the browser at ``http://host:port``.
 
@@ -267,6 +366,8 @@ def serve_live(
         start: start the stepping thread now (False: the caller steps with ``run_frame``, as tests do).
         record_dir: folder of the record button's ``live_<n>.npz`` / ``.mp4``.
         splats: show the scene's ``[gaussians]`` splats, bound to the simulation, when it has that section.
+        token: a secret every client's websocket must carry (``LiveViewer.url`` has it; others are closed
+            before they see or touch anything), or None to let any client that reaches the port drive it.
 
     Returns:
         The running :class:`LiveViewer` (call ``stop()`` to end it).
@@ -283,12 +384,15 @@ def serve_live(
     meta = {"objects": m.objects, **scene_trajectory_meta(scene)}
     first = Trajectory(x=session.x[None], t=np.zeros(1), faces=faces, tets=tets, meta=meta)
     server = viser.ViserServer(host=host, port=port, verbose=verbose)
+    if token:
+        require_token(server, token)
     radius = float(np.median(m.particle_radius.numpy())) if m.particle_count else 0.01
     handles, nodes = add_object_nodes(server, first, session.x, spheres=min(max(radius, 0.005), 0.05))
     v = LiveViewer(
         server=server,
-        url=f"http://{host}:{server.get_port()}",
+        url=viewer_url(host, server.get_port(), token),
         session=session,
+        token=token or None,
         nodes=nodes,
         record_dir=Path(record_dir),
         _handles=handles,
@@ -310,6 +414,7 @@ def serve_live(
         )
         v.nodes["/pliant/splats"] = "splats"
     _panel(v)
+    _release_on_disconnect(v)
     if start:
         v.start()
     return v

@@ -43,6 +43,8 @@ class LiveParameter:
         value: The factor now (1: the scene's values); for ``damping_rate`` the rate itself [1/s].
         lo: Smallest value a slider offers.
         hi: Largest value a slider offers.
+        stable: The largest value the scene's own substeps take stably (spring stiffness under an explicit
+            step: past it :func:`write_parameter` adds substeps); infinity when any value is.
     """
 
     name: str
@@ -52,6 +54,7 @@ class LiveParameter:
     value: float
     lo: float
     hi: float
+    stable: float = float("inf")
 
 
 def live_parameters(scene: Scene) -> dict[str, LiveParameter]:
@@ -91,7 +94,8 @@ def live_parameters(scene: Scene) -> dict[str, LiveParameter]:
             doc = k.per_element[1].replace("log-scale ", "") if k.per_element else f"factor of the {k.doc}"
             out[name] = LiveParameter(name, doc, arrays, [], 1.0, lo, hi)
     if "stiffness" in out and _explicit_springs(scene.solver):
-        out["stiffness"].hi = max(1.0, min(out["stiffness"].hi, _stable_stiffness_factor(scene)))
+        # Gershgorin's bound is safe, not tight: a scene that runs at 1x is taken as stable there.
+        out["stiffness"].stable = max(1.0, _stable_stiffness_factor(scene))
     for p in out.values():
         p.base = [a.numpy().copy() for a in p.arrays]
     return out
@@ -137,7 +141,10 @@ def write_parameter(session: LiveSession, name: str, value: float) -> None:
     material parameters (a factor on the session's starting arrays, or ``damping_rate`` in 1/s).
 
     The solver is told (``update_parameters`` / ``reset``: FastMassSpring's factorisation, the lagged
-    L-BFGS Hessian), between two frames: the stepping thread holds the session's lock.
+    L-BFGS Hessian), between two frames: the stepping thread holds the session's lock. A stiffness past
+    the parameter's ``stable`` value (an explicit step's limit, λ_max ∝ k, h ∝ 1 / substeps) raises the
+    substeps per frame to ⌈n₀ √(value / stable)⌉ (n₀: the scene's), and a softer one takes them back down;
+    :attr:`LiveSession.note` says so (the frame costs more in proportion).
 
     Args:
         session: the running session.
@@ -165,7 +172,27 @@ def write_parameter(session: LiveSession, name: str, value: float) -> None:
             if arr is not None:
                 arr.fill_(value)
         p.value = value
+        if np.isfinite(p.stable):
+            _stable_substeps(session, value / p.stable)
         session.sim._solver_changed()
+
+
+def _stable_substeps(session: LiveSession, over: float) -> None:
+    """Set the substeps per frame for a stiffness ``over`` times the scene's stable one (≤ 1: the scene's
+    own), re-tune a held grab to the new step, and say so in ``session.note``."""
+    n0 = session.base_substeps
+    n = max(n0, int(np.ceil(n0 * np.sqrt(max(over, 0.0)) - 1e-9)))
+    if n == session.sim.substeps:
+        return
+    session.sim.substeps = n
+    session.note = (
+        f"stiffness past the explicit step's limit: {n} substeps per frame (the scene's {n0}), "
+        f"{n / n0:.2g}x the work per frame"
+        if n > n0
+        else ""
+    )
+    if session.grabbed is not None:  # the grab's spring and cap depend on the step
+        session.control.set_drag(session.grabbed, session.target, *session.grab_spring(session.grabbed))
 
 
 def _object_ranges(model: Model) -> list[tuple[int, int]]:
@@ -194,6 +221,8 @@ class LiveSession:
         last_event: (wall time [s] of a grab/move, wall time when the first frame that read it finished).
         latencies: drag latencies [s]: for each frame that began after a new grab/move, the time from the
             latest such event to the end of that frame (the positions that follow it).
+        base_substeps: the scene's substeps per frame (a stiffness past the explicit limit steps more).
+        note: what the session changed on its own ("" when nothing): substeps added for a stiff material.
     """
 
     def __init__(
@@ -222,6 +251,8 @@ class LiveSession:
         self._measured: float | None = None  # the event whose latency was taken last
         self.latencies: list[float] = []
         self.recording = False
+        self.base_substeps = int(self.sim.substeps)
+        self.note = ""
         self.frame_listeners: list[Callable[[LiveSession], None]] = []
 
     # ------------------------------------------------------------------ stepping

@@ -185,15 +185,123 @@ def add_object_nodes(
             position=(float(centre[0]), float(ground), float(centre[2])),
         )
         nodes["/pliant/ground"] = "ground"
-    # pliant is y-up; start the camera in front of and above the objects, looking at them.
+    # pliant is y-up; start the camera in front of and above the objects, looking at them, as close as lets
+    # every position the objects take fill the view. One frame (a live view's start) says nothing of where
+    # they go: they fall, so the box reaches down by its own size, to the ground at most.
     server.scene.set_up_direction("+y")
-    server.initial_camera.position = tuple(float(c) for c in centre + np.array([0.0, 0.8, 1.8]) * size)
-    server.initial_camera.look_at = tuple(float(c) for c in centre)
+    if traj.x.shape[0] == 1:
+        lo = lo.copy()
+        drop = lo[1] - max(float(np.max(hi - lo)), 1e-3)
+        lo[1] = min(max(drop, float(ground)), lo[1]) if ground is not None else drop
+    eye, look = fit_camera(lo, hi, fov=float(server.initial_camera.fov))
+    server.initial_camera.position = tuple(float(c) for c in eye)
+    server.initial_camera.look_at = tuple(float(c) for c in look)
     return handles, nodes
 
 
+#: The direction from what the camera looks at toward it: in front (+z) and above (+y), about 24° up.
+CAMERA_DIRECTION = (0.0, 0.8, 1.8)
+
+
+def fit_camera(
+    lo: np.ndarray, hi: np.ndarray, *, fov: float, aspect: float = 4.0 / 3.0, margin: float = 1.1
+) -> tuple[np.ndarray, np.ndarray]:
+    """The camera (eye, look-at point) [m] that looks at the box [lo, hi] along :data:`CAMERA_DIRECTION` from
+    the nearest distance at which all of the box fits the view (y up), with ``margin`` to spare.
+
+    Args:
+        lo: the box's low corner [m], (3,).
+        hi: its high corner [m], (3,).
+        fov: the vertical field of view [rad].
+        aspect: the view's width / height (the page's canvas is wider than tall; 4:3 is the narrow end).
+        margin: the distance's factor over the tightest fit (1.1: the box spans about 90 % of the view).
+    """
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    centre = 0.5 * (lo + hi)
+    half = np.maximum(0.5 * (hi - lo), 5e-4)  # a point or a flat object: still a distance to stand at
+    w = np.asarray(CAMERA_DIRECTION, float)
+    w /= np.linalg.norm(w)
+    u = np.cross([0.0, 1.0, 0.0], w)
+    u /= np.linalg.norm(u)
+    v = np.cross(w, u)
+    corners = centre + half * np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)])
+    r = corners - centre
+    ty = np.tan(0.5 * fov)
+    # A corner r is in view at distance d when |r·u| ≤ (d - r·w) tan(fov_x / 2), and the same for v.
+    need = np.maximum(np.abs(r @ u) / (ty * aspect), np.abs(r @ v) / ty) + r @ w
+    d = margin * float(np.max(need))
+    return centre + d * w, centre
+
+
+def is_loopback(host: str) -> bool:
+    """Whether ``host`` (an interface a server binds) is reachable from this machine alone."""
+    import ipaddress
+
+    if host.lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:  # a host name: it may resolve to any interface
+        return False
+
+
+def viewer_url(host: str, port: int, token: str | None) -> str:
+    """The address a browser opens: ``http://host:port``, where a wildcard host (``0.0.0.0``, ``::``) is
+    replaced by this machine's name; with a token, the page is told to open its websocket with the token
+    (viser's page drops the query of its own address, but connects to the ``websocket`` parameter as is)."""
+    import socket
+
+    shown = socket.gethostname() if host in ("0.0.0.0", "::", "") else host
+    if ":" in shown:
+        shown = f"[{shown}]"
+    base = f"http://{shown}:{port}"
+    return base if not token else f"{base}/?websocket=ws://{shown}:{port}/?token={token}"
+
+
+def require_token(server: Any, token: str) -> None:
+    """Refuse every websocket of ``server`` (a ``viser.ViserServer``) that does not carry ``?token=token``,
+    as Jupyter guards its server: the refused client is closed (code 1008) before it receives the scene
+    or can send anything. Any client that connected before this call is closed too (it may reconnect
+    with the token).
+
+    Args:
+        server: the running viser server.
+        token: the secret (non-empty).
+    """
+    import asyncio
+    import hmac
+    from urllib.parse import parse_qs, urlsplit
+
+    if not token:
+        raise ValueError("require_token: the token is empty; pass a secret (secrets.token_urlsafe())")
+    ws = server._websock_server
+    loop = ws._background_event_loop
+
+    async def check(conn: Any) -> None:
+        raw = ws._live_connections.get(conn.client_id)
+        if raw is None:
+            return
+        given = parse_qs(urlsplit(raw.request.path).query).get("token", [""])[0]
+        if not hmac.compare_digest(given.encode(), token.encode()):
+            await raw.close(1008, "pliant view: no or wrong token; open the URL pliant view printed")
+
+    async def install() -> None:
+        # On the event loop: no connection is being set up while the check goes in first, and those that
+        # came before it are closed.
+        ws._client_connect_cb.insert(0, check)
+        for raw in list(ws._live_connections.values()):
+            await raw.close(1008, "pliant view: reconnect with the token")
+
+    asyncio.run_coroutine_threadsafe(install(), loop).result(timeout=30)
+
+
 def serve_viewer(
-    traj: Trajectory, *, host: str = "127.0.0.1", port: int = 8080, verbose: bool = False
+    traj: Trajectory,
+    *,
+    host: str = "127.0.0.1",
+    port: int = 8080,
+    verbose: bool = False,
+    token: str | None = None,
 ) -> Viewer:
     """Serve ``traj`` (a :class:`pliant.io.Trajectory`) in the browser at ``http://host:port``.
 
@@ -202,6 +310,8 @@ def serve_viewer(
         host: interface to listen on (``0.0.0.0`` to reach it from another machine).
         port: TCP port (viser moves to the next free one when it is taken; see ``Viewer.url``).
         verbose: let viser print its banner.
+        token: a secret every client's websocket must carry (:func:`require_token`; ``Viewer.url`` has it),
+            or None to let any client that reaches the port connect.
 
     Returns:
         The running :class:`Viewer` (call ``stop()`` to end it).
@@ -210,10 +320,12 @@ def serve_viewer(
     if traj.frame_count < 1 or not np.all(np.isfinite(traj.x)):
         raise ValueError("the trajectory has no frames or non-finite positions; nothing to show")
     server = viser.ViserServer(host=host, port=port, verbose=verbose)
+    if token:
+        require_token(server, token)
     handles, nodes = add_object_nodes(server, traj, traj.x[0])
     v = Viewer(
         server=server,
-        url=f"http://{host}:{server.get_port()}",
+        url=viewer_url(host, server.get_port(), token),
         traj=traj,
         parts=[p for _, p in handles],
         nodes=nodes,
