@@ -9,7 +9,7 @@ import asyncio
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 
 @dataclass
@@ -51,7 +51,11 @@ def _camera() -> Any:
 
 
 def drag_message(
-    phase: str, node: str, start: Sequence[float], end: Sequence[float], index: int | None = None
+    phase: Literal["start", "update", "end"],
+    node: str,
+    start: Sequence[float],
+    end: Sequence[float],
+    index: int | None = None,
 ):
     """viser's ``SceneNodeDragMessage`` a left-drag on scene node ``node`` sends.
 
@@ -68,16 +72,16 @@ def drag_message(
         phase=phase,
         name=node,
         instance_index=index,
-        start_position=tuple(float(c) for c in start),
+        start_position=(float(start[0]), float(start[1]), float(start[2])),
         start_screen_pos=(0.5, 0.5),
-        end_position=tuple(float(c) for c in end),
+        end_position=(float(end[0]), float(end[1]), float(end[2])),
         end_screen_pos=(0.5, 0.5),
         button="left",
         modifier=None,
     )
 
 
-def gui_update(slider: Any, value: Any):
+def gui_update(slider: Any, value: object):
     """viser's ``GuiUpdateMessage`` that sets GUI element ``slider`` (its handle, e.g.
     ``LiveViewer._gui["param:stiffness"]``, or its uuid) to ``value``, as a page sends what its box holds."""
     from viser import _messages as vm
@@ -104,6 +108,7 @@ async def probe(
     import viser
     import websockets.asyncio.client
     import websockets.exceptions
+    from websockets.typing import Subprotocol
 
     ws_url = url.split("?websocket=", 1)[1] if "?websocket=" in url else url.replace("http://", "ws://", 1)
     out = ProbeResult()
@@ -112,7 +117,10 @@ async def probe(
     queue = list(send)
     try:
         async with websockets.asyncio.client.connect(
-            ws_url, subprotocols=[f"viser-v{viser.__version__}"], max_size=None, open_timeout=30
+            ws_url,
+            subprotocols=[Subprotocol(f"viser-v{viser.__version__}")],
+            max_size=None,
+            open_timeout=30,
         ) as ws:
             await ws.send(_encode(_camera()))
             while (now := time.perf_counter()) < end:

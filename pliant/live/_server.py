@@ -64,7 +64,7 @@ class LiveViewer:
     _times: deque = field(default_factory=lambda: deque(maxlen=240))
     _gui: dict[str, Any] = field(default_factory=dict)
     _halted: str | None = None  # the divergence message while paused by one
-    _grab_owner: Any = None  # the client whose drag holds the grab (None: a script's grab, or none)
+    _grab_owner: int | None = None  # the client whose drag holds the grab (None: a script's grab, or none)
 
     # ------------------------------------------------------------------ the loop
     def show(self, x: np.ndarray) -> None:
@@ -197,7 +197,7 @@ def splat_arrays(splats: Any, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np
     )
 
 
-def _client_id(ev: Any) -> Any:
+def _client_id(ev: object) -> int | None:
     """The id of the browser tab an event came from (None for a script's event without one)."""
     cid = getattr(ev, "client_id", None)
     return cid if cid is not None else getattr(getattr(ev, "client", None), "client_id", None)
@@ -237,7 +237,7 @@ def _bind_drag(v: LiveViewer, handle: Any, part: Any) -> None:
     handle.on_drag(on_drag)
 
 
-def _finite(point: Any) -> bool:
+def _finite(point: object) -> bool:
     """Whether a point from the page is three finite numbers."""
     try:
         return bool(np.all(np.isfinite(np.asarray(point, float).reshape(3))))
@@ -336,10 +336,10 @@ def _panel(v: LiveViewer) -> None:
         v._gui["recorded"].value = ", ".join(str(f) for f in files) if files else "recording..."
 
 
-def _number(value: Any) -> float | None:
+def _number(value: object) -> float | None:
     """``value`` as a finite float, or None (NaN, infinity, not a number)."""
     try:
-        x = float(value)
+        x = float(value)  # type: ignore[arg-type]  # anything the page sent; float() decides
     except (TypeError, ValueError):
         return None
     return x if np.isfinite(x) else None

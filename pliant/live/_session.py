@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
+    from ..integrators import Integrator
     from ..model import Model
     from ..scene import Scene
     from ..solvers import Solver
@@ -191,7 +192,7 @@ def _stable_substeps(session: LiveSession, over: float) -> None:
         if n > n0
         else ""
     )
-    if session.grabbed is not None:  # the grab's spring and cap depend on the step
+    if session.grabbed is not None and session.target is not None:  # the grab's spring and cap depend on h
         session.control.set_drag(session.grabbed, session.target, *session.grab_spring(session.grabbed))
 
 
@@ -215,7 +216,7 @@ def interactive_integrator(solver: Solver) -> str:
     Args:
         solver: The live scene's solver (changed in place).
     """
-    integrator = getattr(solver, "integrator", None)
+    integrator: Integrator | None = getattr(solver, "integrator", None)  # ForceSolver's; others have none
     if integrator is None or integrator.explicit or not getattr(integrator, "symplectic", False):
         return ""
     from dataclasses import fields
@@ -226,7 +227,7 @@ def interactive_integrator(solver: Solver) -> str:
     opts = getattr(integrator, "options", None)
     given = [] if opts is None else [(f.name, getattr(opts, f.name), f.default) for f in fields(opts)]
     changed = {name: value for name, value, default in given if value != default}
-    solver.integrator = BackwardEuler(**changed)
+    setattr(solver, "integrator", BackwardEuler(**changed))  # noqa: B010 - Solver declares no integrator
     return (
         f"live: {integrator.name} keeps stiff modes ringing under a drag; stepping with BackwardEuler "
         "(the scene file is unchanged)"
