@@ -53,7 +53,7 @@ def run(variant: str, out: Path, extra: list[str]) -> dict:
     obs = footage(variant, out.parent)
     t0 = time.perf_counter()
     subprocess.run(
-        [sys.executable, "-m", "pliant", "twin", str(obs), "--out", str(out), "-q", *extra], check=True
+        [sys.executable, "-m", "pliant.cli", "twin", str(obs), "--out", str(out), "-q", *extra], check=True
     )
     wall = time.perf_counter() - t0
     rep = json.loads((out / "twin.json").read_text())
