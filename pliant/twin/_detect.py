@@ -176,6 +176,7 @@ def detect_fixed(
     tol: float,
     spacing: float,
     ground: float | None = None,
+    surface: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> FixedRegions:
     """Particles held still by something the cameras may not see (a clamp), from the observed motion.
 
@@ -189,6 +190,8 @@ def detect_fixed(
             group's box is padded by half a spacing so the handle grabs its particles.
         ground: Height [m] of a ground plane, or None: static points within two spacings of it rest on the
             ground and do not make a clamp.
+        surface: :func:`surface_motion` of ``clouds`` when already computed (it depends on the clouds
+            only, so models of one object share it), or None to compute it here.
 
     Returns:
         The fixed particles, their boxes and the reason.
@@ -198,7 +201,7 @@ def detect_fixed(
     none = np.zeros(n, dtype=bool)
     if clouds.shape[0] < 2 or int(counts[0]) == 0:
         return FixedRegions(none, [], 0.0, np.zeros(0), "too few observed frames to see what stays still")
-    p0, motion = surface_motion(clouds, counts)
+    p0, motion = surface_motion(clouds, counts) if surface is None else surface
     static = motion <= tol
     if ground is not None:
         static &= p0[:, 1] > ground + 2.0 * spacing

@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import numpy as np
 
 from ..io import Observations, atomic_output, atomic_write_text
-from ._detect import FixedRegions, Ground, detect_fixed, detect_ground
+from ._detect import FixedRegions, Ground, detect_fixed, detect_ground, surface_motion
 from ._scene import camera_table, twin_scene, write_mesh
 
 if TYPE_CHECKING:
@@ -315,16 +315,21 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
     ground = steps.run(
         "ground", lambda: _ground(opts, dense, dense_counts, spacing, background), lambda g: g.reason
     )
-    fixed, fixed_coarse = steps.run(
-        "fixed",
-        lambda: (
-            _fixed(opts, tm.points, dense, dense_counts, spacing, ground, background),
-            _fixed(opts, coarse.points, dense, dense_counts, 2.0 * spacing, ground, background, spacing),
-        ),
-        lambda r: r[0].reason,
-    )
+
+    def both_fixed() -> tuple[FixedRegions, FixedRegions]:
+        # The surface's motion depends on the clouds alone: measured once for the fine and the coarse model.
+        surface = surface_motion(dense, dense_counts) if opts.fixed == "auto" else None
+        seen = (dense, dense_counts)
+        return (
+            _fixed(opts, tm.points, *seen, spacing, ground, background, None, surface),
+            _fixed(opts, coarse.points, *seen, 2.0 * spacing, ground, background, spacing, surface),
+        )
+
+    fixed, fixed_coarse = steps.run("fixed", both_fixed, lambda r: r[0].reason)
     dt = float(np.median(np.diff(obs.t)))
     camera = camera_table(obs.K[0], obs.world_to_camera[0], H, tm.points.mean(axis=0))
+
+    footage_background = _background(obs)
 
     def scene(m: str, coarse_stage: bool) -> dict[str, Any]:
         mesh, boxes, h = (
@@ -342,7 +347,7 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
             ground=ground.height,
             splats_file="splats.ply",
             camera=camera,
-            background=_background(obs),
+            background=footage_background,
             centre=mesh.points.mean(axis=0),
             particles=len(mesh.points),
         )
@@ -507,13 +512,16 @@ def _fixed(
     ground: Ground,
     background: np.ndarray | None,
     resolution: float | None = None,
+    surface: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> FixedRegions:
     n = len(particles)
     if opts.fixed == "auto":
         # Depth points sit on the surface to within the readings' resolution; carved hulls move in whole
         # voxels (of the observations' spacing, ``resolution``, which the coarse model does not change).
         tol = (0.25 if background is not None else 0.5) * (resolution or spacing)
-        return detect_fixed(particles, clouds, counts, tol=tol, spacing=spacing, ground=ground.height)
+        return detect_fixed(
+            particles, clouds, counts, tol=tol, spacing=spacing, ground=ground.height, surface=surface
+        )
     if opts.fixed == "none":
         return FixedRegions(np.zeros(n, bool), [], 0.0, np.zeros(0), "--fixed none: nothing is held")
     assert not isinstance(opts.fixed, str)  # "auto" and "none" are handled above
