@@ -15,6 +15,7 @@ exports).
 from __future__ import annotations
 
 import ast
+import re
 import sys
 from pathlib import Path
 
@@ -283,3 +284,17 @@ def test_the_solver_check_sees_private_and_upward_imports(tmp_path, monkeypatch)
     assert "_a.py:1: pliant.solvers.force._a imports pliant.solvers.implicit._newton, private" in text
     assert "_b.py:1: pliant.solvers.xpbd._b imports pliant.solvers.implicit._newton, private" in text
     assert "_c.py:2: pliant.solvers.implicit._c (solvers.implicit) imports pliant.solvers.force" in text
+
+
+def test_design_picture_matches_layers() -> None:
+    """docs/design.md's floor picture names exactly the layers of :data:`LAYERS`, in order (the picture a
+    newcomer reads first cannot drift from the table the test enforces)."""
+    text = (ROOT.parent / "docs" / "design.md").read_text(encoding="utf-8")
+    block = text.split("## Layers", 1)[1].split("```text", 1)[1].split("```", 1)[0]
+    floors: dict[int, tuple[str, ...]] = {}
+    for line in block.strip().splitlines():
+        match = re.match(r"floor\s+(\d+)\s+(.*?)(?:\s{3,}|$)", line)
+        assert match, f"docs/design.md: a floor line reads 'floor N  names   what': {line!r}"
+        names = match.group(2).split()
+        floors[int(match.group(1))] = tuple("" if n == "pliant/__init__.py" else n for n in names)
+    assert [floors[i] for i in sorted(floors)] == LAYERS
