@@ -191,6 +191,23 @@ def _add_objects(ctx: BuildContext) -> None:
                 raise
             raise ctx.fail(f"objects[{i}]", str(exc)) from None
         ctx.ranges.append((start, ctx.builder.particle_count))
+        _distribute_mass(ctx, o, start)
+
+
+def _distribute_mass(ctx: BuildContext, o: Any, start: int) -> None:
+    """Spread object ``o``'s mass (particles ``start`` onwards) as its ``mass_distribution``,
+    ``mass_uniformity`` and ``mass_slope_*`` say; the lumped default leaves the builder's masses untouched
+    (bit for bit)."""
+    from ..model import distribute_mass
+
+    alpha, slope = o.mass_blend(), o.mass_slope()
+    if alpha == 0.0 and not any(slope):
+        return
+    b = ctx.builder
+    lumped = b.particle_masses(start)
+    b.set_particle_masses(
+        start, distribute_mass(lumped, b.positions()[start:], uniformity=alpha, slope=slope)
+    )
 
 
 def _select_handles(ctx: BuildContext) -> tuple[list, list]:
