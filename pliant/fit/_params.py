@@ -98,6 +98,33 @@ PER_ELEMENT_OF = {
 CONTACT = tuple(n for n, k in GLOBAL.items() if k.section == "ground")
 
 
+#: Mass-distribution knobs searched by default when the tracks cover the object (:func:`tracks_cover`); the
+#: density field's ``mass_slope_x/y/z`` are searched only when named (``--params``).
+MASS = ("mass_uniformity",)
+#: The share of the scene's particles the tracks must follow for :data:`MASS` to be searched by default (as
+#: multiple shooting's coverage: pliant.fit._problem.SHOOTING_COVERAGE).
+MASS_COVERAGE = 0.9
+
+
+def tracks_cover(cfg: SceneConfig, obs: Observations | None) -> float | None:
+    """The share of the scene's particles the observed tracks follow when it is at least
+    :data:`MASS_COVERAGE` (the tracks cover the object), else None (no tracks, too few, or a particle count
+    unknown before the mesh is read). Bound tracks (``obs.particle``) count the particles they follow,
+    unbound ones count themselves."""
+    if obs is None or obs.tracks == 0 or not cfg.objects:
+        return None
+    from ..scene import scene_size
+
+    try:
+        n = scene_size(cfg).particles
+    except (ValueError, OSError):
+        return None
+    seen = np.asarray(obs.visible).any(axis=0)
+    tracked = len(np.unique(np.asarray(obs.particle)[seen])) if obs.particle is not None else int(seen.sum())
+    share = tracked / n if n > 0 else 0.0
+    return share if share >= MASS_COVERAGE else None
+
+
 def ground_contact(cfg: SceneConfig, obs: Observations) -> float | None:
     """The lowest visible track height above the scene's ground [m] when the observations come within 5 % of
     their extent of it (they show contact), else None (no ground, no tracks, or motion well above it)."""
@@ -114,8 +141,9 @@ def ground_contact(cfg: SceneConfig, obs: Observations) -> float | None:
 
 def default_params(cfg: SceneConfig, obs: Observations | None = None) -> list[str]:
     """The default parameters of the scene's models (:data:`WHY`: mass-spring k or E·t, damping rate,
-    dashpot γ; FEM: E, ν, damping rate; XPBD: compliance, damping rate), plus the ground's friction and
-    restitution when ``obs`` (Observations) reach the ground (:func:`ground_contact`)."""
+    dashpot γ; FEM: E, ν, damping rate; XPBD: compliance, damping rate), plus the mass distribution
+    (:data:`MASS`) when the tracks of ``obs`` (Observations) cover the object (:func:`tracks_cover`) and the
+    ground's friction and restitution when they reach the ground (:func:`ground_contact`)."""
     return list(default_reasons(cfg, obs))
 
 
@@ -126,6 +154,11 @@ def default_reasons(cfg: SceneConfig, obs: Any = None) -> dict[str, str]:
         for name, why in WHY.get(o.model, ()):
             if name not in out and GLOBAL[name].where(cfg.model_copy(deep=True)):
                 out[name] = why
+    share = tracks_cover(cfg, obs)
+    if share is not None:
+        for name in MASS:
+            if GLOBAL[name].where(cfg.model_copy(deep=True)):
+                out[name] = f"{GLOBAL[name].why} ({share:.0%} of the particles are tracked)"
     gap = ground_contact(cfg, obs)
     if gap is not None:
         for name in CONTACT:
@@ -290,6 +323,8 @@ def _element_parameter(name: str) -> Parameter | None:
 __all__ = [
     "DEFAULTS",
     "GLOBAL",
+    "MASS",
+    "MASS_COVERAGE",
     "PER_ELEMENT",
     "Bound",
     "FitError",
@@ -304,4 +339,5 @@ __all__ = [
     "per_element_incidence",
     "registry_arrays",
     "resolve_globals",
+    "tracks_cover",
 ]
