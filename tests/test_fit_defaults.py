@@ -59,9 +59,7 @@ def test_ground_coefficients_join_when_the_tracks_reach_the_ground():
     assert gap is not None and gap <= 0.05 * np.ptp(obs.points[obs.visible], axis=0).max()
     assert default_params(low, obs)[-2:] == ["ground_friction", "ground_restitution"]
     far = pl.scene.parse_scene(FIT_ROPE + "[ground]\nheight = -5.0\n")
-    assert not {"ground_friction", "ground_restitution"} & set(
-        default_params(far, observe(pl.scene.build_scene(far), tracks=7))
-    )
+    assert default_params(far, observe(pl.scene.build_scene(far), tracks=7))[-1] == "damping"
 
 
 def test_dashpot_bounds_scale_with_the_critical_damping():
@@ -89,8 +87,7 @@ def test_fit_prints_and_records_what_it_searches(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "fit: searching" in out and "damping_rate: [0.05, 5] 1/s (log), scene 0.5" in out
     rep = json.loads((tmp_path / "fit.json").read_text())
-    # every particle tracked: the mass distribution too (issue 38)
-    assert list(rep["params"]) == ["stiffness", "damping_rate", "damping", "mass_uniformity"]
+    assert list(rep["params"]) == ["stiffness", "damping_rate", "damping"]
     assert (
         rep["params"]["damping_rate"]["nominal"] == 0.5
         and "dissipation" in rep["params"]["damping_rate"]["why"]

@@ -11,7 +11,7 @@ from helpers import FIT_ROPE
 
 import pliant as pl
 from pliant.fit import Problem, choose_mass_distribution, cmaes, observe
-from pliant.fit._params import default_params, tracks_cover
+from pliant.fit._params import default_params, lumped_spread, tracks_cover
 from pliant.model import distribute_mass
 from pliant.model._mass import normalised_coordinates
 
@@ -128,8 +128,8 @@ def test_free_fall_is_g_and_pins_hold_for_every_distribution(solver):
 
 
 def test_the_fit_searches_the_mass_only_when_the_tracks_cover_the_object():
-    """All 25 particles tracked: mass_uniformity joins the defaults with its reason; 12 of 25: it does
-    not."""
+    """All 25 particles of the cloth tracked: mass_uniformity joins the defaults with its reason; 12 of 25:
+    it does not; every particle of a rope tracked: it does not either (a rope's masses are even already)."""
     cfg = pl.scene.parse_scene(CLOTH)
     scene = pl.scene.build_scene(cfg)
     full, sparse = observe(scene, tracks=25), observe(scene, tracks=12)
@@ -139,6 +139,10 @@ def test_the_fit_searches_the_mass_only_when_the_tracks_cover_the_object():
     p = Problem(cfg, full, params=None)
     b = next(b for b in p.globals if b.name == "mass_uniformity")
     assert (b.lo, b.hi, b.nominal) == (0.0, 1.0, 0.0) and "cover the object" in b.why
+    assert "differ up to 4×" in b.why and lumped_spread(cfg) == pytest.approx(4.0, rel=1e-12)
+    rope = pl.scene.parse_scene(FIT_ROPE)
+    assert lumped_spread(rope) == 1.0 and tracks_cover(rope, observe(pl.scene.build_scene(rope), tracks=7))
+    assert "mass_uniformity" not in default_params(rope, observe(pl.scene.build_scene(rope), tracks=7))
 
 
 def test_mass_choice_recovers_uniform_masses_of_a_fixture_made_with_them():

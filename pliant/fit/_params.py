@@ -125,6 +125,20 @@ def tracks_cover(cfg: SceneConfig, obs: Observations | None) -> float | None:
     return share if share >= MASS_COVERAGE else None
 
 
+def lumped_spread(cfg: SceneConfig) -> float:
+    """The largest ratio max m / min m of one object's lumped particle masses (1: every object's builder
+    spreads its mass evenly already, as a rope's, a point cloud's and a cluster's do, so ``mass_uniformity``
+    changes nothing); 1 when an object cannot be built here (the fit reports that itself)."""
+    from ..scene import SceneError
+    from ..scene._build import lumped_masses
+
+    try:
+        masses = lumped_masses(cfg)
+    except (SceneError, ValueError, OSError):
+        return 1.0
+    return max((float(m.max() / m.min()) for m in masses if m.size), default=1.0)
+
+
 def ground_contact(cfg: SceneConfig, obs: Observations) -> float | None:
     """The lowest visible track height above the scene's ground [m] when the observations come within 5 % of
     their extent of it (they show contact), else None (no ground, no tracks, or motion well above it)."""
@@ -142,7 +156,8 @@ def ground_contact(cfg: SceneConfig, obs: Observations) -> float | None:
 def default_params(cfg: SceneConfig, obs: Observations | None = None) -> list[str]:
     """The default parameters of the scene's models (:data:`WHY`: mass-spring k or E·t, damping rate,
     dashpot γ; FEM: E, ν, damping rate; XPBD: compliance, damping rate), plus the mass distribution
-    (:data:`MASS`) when the tracks of ``obs`` (Observations) cover the object (:func:`tracks_cover`) and the
+    (:data:`MASS`) when the tracks of ``obs`` (Observations) cover the object (:func:`tracks_cover`) and its
+    lumped masses are uneven (:func:`lumped_spread`: a cloth's or a volume's, not a rope's), and the
     ground's friction and restitution when they reach the ground (:func:`ground_contact`)."""
     return list(default_reasons(cfg, obs))
 
@@ -155,10 +170,14 @@ def default_reasons(cfg: SceneConfig, obs: Any = None) -> dict[str, str]:
             if name not in out and GLOBAL[name].where(cfg.model_copy(deep=True)):
                 out[name] = why
     share = tracks_cover(cfg, obs)
-    if share is not None:
+    spread = lumped_spread(cfg) if share is not None else 1.0
+    if share is not None and spread > 1.0 + 1e-6:
         for name in MASS:
             if GLOBAL[name].where(cfg.model_copy(deep=True)):
-                out[name] = f"{GLOBAL[name].why} ({share:.0%} of the particles are tracked)"
+                out[name] = (
+                    f"{GLOBAL[name].why} ({share:.0%} of the particles are tracked; the lumped masses "
+                    f"differ up to {spread:.3g}×)"
+                )
     gap = ground_contact(cfg, obs)
     if gap is not None:
         for name in CONTACT:
@@ -334,6 +353,7 @@ __all__ = [
     "auto_per_element",
     "default_reasons",
     "ground_contact",
+    "lumped_spread",
     "widen_bounds",
     "per_element_arrays",
     "per_element_incidence",

@@ -210,6 +210,25 @@ def _distribute_mass(ctx: BuildContext, o: Any, start: int) -> None:
     )
 
 
+def lumped_masses(cfg: SceneConfig) -> list[np.ndarray]:
+    """The particle masses [kg] each object of ``cfg`` gets from its builder (its lumped distribution,
+    whatever its ``mass_*`` fields say), one array per object; nothing is built on a device.
+
+    Raises:
+        SceneError: an object that cannot be built.
+    """
+    from ..model import ModelBuilder
+
+    cfg = cfg.model_copy(deep=True)
+    for o in cfg.objects:
+        o.mass_distribution, o.mass_uniformity = "lumped", None
+        o.mass_slope_x = o.mass_slope_y = o.mass_slope_z = 0.0
+    ctx = BuildContext(cfg, ModelBuilder(gravity=cfg.scene.gravity))
+    _add_objects(ctx)
+    m = ctx.builder.particle_masses()
+    return [m[a:b] for a, b in ctx.ranges]
+
+
 def _select_handles(ctx: BuildContext) -> tuple[list, list]:
     """Kinematic handles (marked in the builder before finalize) and spring handles' control points."""
     names = ctx.cfg.object_names()
