@@ -4,6 +4,7 @@ from ._builder import ModelBuilder
 from ._mass import (
     MASS_DISTRIBUTIONS,
     distribute_mass,
+    distribute_mass_grad,
     tet_consistent_mass,
     tet_lumped_mass,
     triangle_lumped_mass,
@@ -19,6 +20,7 @@ __all__ = [
     "ModelBuilder",
     "State",
     "distribute_mass",
+    "distribute_mass_grad",
     "tet_consistent_mass",
     "tet_lumped_mass",
     "triangle_lumped_mass",

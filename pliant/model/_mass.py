@@ -22,6 +22,7 @@ if TYPE_CHECKING:
 __all__ = [
     "MASS_DISTRIBUTIONS",
     "distribute_mass",
+    "distribute_mass_grad",
     "normalised_coordinates",
     "spring_lumped_mass",
     "tet_consistent_mass",
@@ -254,3 +255,51 @@ def distribute_mass(
     elif alpha == 1.0:
         return w
     return w * (total / float(w.sum()))
+
+
+def distribute_mass_grad(
+    lumped: np.ndarray,
+    points: np.ndarray,
+    grad_mass: np.ndarray,
+    *,
+    uniformity: float = 0.0,
+    slope: tuple[float, float, float] | np.ndarray = (0.0, 0.0, 0.0),
+) -> tuple[float, np.ndarray]:
+    """The chain rule through :func:`distribute_mass`: ∂L/∂α and ∂L/∂a from ∂L/∂m (e.g. a rollout's
+    ``grads["particle_mass"]``, which already folds in ∂L/∂(1/m)).
+
+    With S = Σ w and m = M w / S: ∂m_i/∂θ = (M / S) (∂w_i/∂θ − (m_i / M) Σ_j ∂w_j/∂θ), where
+    ∂w_i/∂α = (M/N − m_lumped,i) exp(a · x̂_i) and ∂w_i/∂a_k = w_i x̂_ik.
+
+    Args:
+        lumped: The builder's masses [kg], shape [N].
+        points: Rest positions [m], shape [N, 3].
+        grad_mass: ∂L/∂m [L/kg], shape [N].
+        uniformity: α ∈ [0, 1].
+        slope: a (x, y, z), dimensionless.
+
+    Returns:
+        (∂L/∂α [L], ∂L/∂a [L] shape [3]).
+
+    Raises:
+        ValueError: as :func:`distribute_mass`, or ``grad_mass`` of another shape or not finite.
+    """
+    m = distribute_mass(lumped, points, uniformity=uniformity, slope=slope)  # checks the inputs
+    g = np.asarray(grad_mass, dtype=np.float64)
+    if g.shape != m.shape or not np.all(np.isfinite(g)):
+        raise ValueError(f"grad_mass must be finite with shape {m.shape}, got {g.shape}")
+    m0 = np.asarray(lumped, dtype=np.float64)
+    total, alpha = float(m0.sum()), float(uniformity)
+    xh = normalised_coordinates(points)
+    x = xh @ np.asarray(slope, dtype=np.float64)
+    e = np.exp(x - x.max())
+    w = ((1.0 - alpha) * m0 + alpha * (total / m0.size)) * e
+    scale = total / float(w.sum())
+    gm = float(g @ m) / total
+
+    def project(dw: np.ndarray) -> float:
+        return scale * (float(g @ dw) - gm * float(dw.sum()))
+
+    d_alpha = project((total / m0.size - m0) * e)
+    d_slope = np.array([project(w * xh[:, k]) for k in range(3)])
+    return d_alpha, d_slope
