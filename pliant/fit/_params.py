@@ -106,37 +106,42 @@ MASS = ("mass_uniformity",)
 MASS_COVERAGE = 0.9
 
 
-def tracks_cover(cfg: SceneConfig, obs: Observations | None) -> float | None:
-    """The share of the scene's particles the observed tracks follow when it is at least
-    :data:`MASS_COVERAGE` (the tracks cover the object), else None (no tracks, too few, or a particle count
-    unknown before the mesh is read). Bound tracks (``obs.particle``) count the particles they follow,
-    unbound ones count themselves."""
-    if obs is None or obs.tracks == 0 or not cfg.objects:
-        return None
-    from ..scene import scene_size
+def _lumped(cfg: SceneConfig) -> list[np.ndarray] | None:
+    """Each object's lumped particle masses [kg] (objects built on the host, no device), or None when one
+    cannot be built here (the fit reports that itself when it builds the scene)."""
+    from ..scene import SceneError
+    from ..scene._build import lumped_masses
 
     try:
-        n = scene_size(cfg).particles
-    except (ValueError, OSError):
+        return lumped_masses(cfg)
+    except (SceneError, ValueError, OSError):
         return None
+
+
+def tracks_cover(
+    cfg: SceneConfig, obs: Observations | None, masses: list[np.ndarray] | None = None
+) -> float | None:
+    """The share of the scene's particles the observed tracks follow when it is at least
+    :data:`MASS_COVERAGE` (the tracks cover the object), else None (no tracks, too few, or a scene that
+    cannot be built here). Bound tracks (``obs.particle``) count the particles they follow, unbound ones
+    count themselves. ``masses``: :func:`lumped_masses` of ``cfg`` when the caller has them (their sizes
+    are the particle counts)."""
+    if obs is None or obs.tracks == 0 or not cfg.objects:
+        return None
+    masses = _lumped(cfg) if masses is None else masses
+    n = sum(m.size for m in masses) if masses is not None else 0
     seen = np.asarray(obs.visible).any(axis=0)
     tracked = len(np.unique(np.asarray(obs.particle)[seen])) if obs.particle is not None else int(seen.sum())
     share = tracked / n if n > 0 else 0.0
     return share if share >= MASS_COVERAGE else None
 
 
-def lumped_spread(cfg: SceneConfig) -> float:
+def lumped_spread(cfg: SceneConfig, masses: list[np.ndarray] | None = None) -> float:
     """The largest ratio max m / min m of one object's lumped particle masses (1: every object's builder
     spreads its mass evenly already, as a rope's, a point cloud's and a cluster's do, so ``mass_uniformity``
-    changes nothing); 1 when an object cannot be built here (the fit reports that itself)."""
-    from ..scene import SceneError
-    from ..scene._build import lumped_masses
-
-    try:
-        masses = lumped_masses(cfg)
-    except (SceneError, ValueError, OSError):
-        return 1.0
-    return max((float(m.max() / m.min()) for m in masses if m.size), default=1.0)
+    changes nothing; 1 too when an object cannot be built here). ``masses``: as :func:`tracks_cover`'s."""
+    masses = _lumped(cfg) if masses is None else masses
+    return max((float(m.max() / m.min()) for m in masses or () if m.size), default=1.0)
 
 
 def ground_contact(cfg: SceneConfig, obs: Observations) -> float | None:
@@ -169,8 +174,9 @@ def default_reasons(cfg: SceneConfig, obs: Any = None) -> dict[str, str]:
         for name, why in WHY.get(o.model, ()):
             if name not in out and GLOBAL[name].where(cfg.model_copy(deep=True)):
                 out[name] = why
-    share = tracks_cover(cfg, obs)
-    spread = lumped_spread(cfg) if share is not None else 1.0
+    masses = _lumped(cfg) if obs is not None and obs.tracks else None
+    share = tracks_cover(cfg, obs, masses) if masses is not None else None
+    spread = lumped_spread(cfg, masses) if share is not None else 1.0
     if share is not None and spread > 1.0 + 1e-6:
         for name in MASS:
             if GLOBAL[name].where(cfg.model_copy(deep=True)):
