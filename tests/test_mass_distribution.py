@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import warp as wp
 from helpers import FIT_ROPE
+from test_fit_slow import FEM_BOX
 
 import pliant as pl
 from pliant.fit import Problem, choose_mass_distribution, cmaes, observe
@@ -48,13 +49,19 @@ def _masses(text: str, **fields: object) -> tuple[np.ndarray, np.ndarray, np.nda
     return m.particle_mass.numpy(), m.particle_inv_mass.numpy(), m.particle_q.numpy()
 
 
-@pytest.mark.parametrize("text", [FIT_ROPE, CLOTH], ids=["rope", "cloth"])
+#: A 2 × 2 × 2-cell FEM box, 0.2 m, 500 kg/m³: 4 kg.
+BOX = FEM_BOX.replace("cells = [1, 1, 1]", "cells = [2, 2, 2]")
+
+
+@pytest.mark.parametrize(
+    ("text", "total"), [(FIT_ROPE, 0.05), (CLOTH, 0.05), (BOX, 4.0)], ids=["rope", "cloth", "box"]
+)
 @pytest.mark.parametrize("fields", OPTIONS, ids=lambda f: "-".join(f) or "lumped")
-def test_every_option_keeps_the_total_mass(text, fields):
-    """Σ m equals the object's mass (0.05 kg) to float64 rounding for every distribution, and the masses
-    are positive."""
+def test_every_option_keeps_the_total_mass(text, total, fields):
+    """Σ m equals the object's mass (0.05 kg; the box's ρV = 4 kg) to float64 rounding for every
+    distribution, and the masses are positive."""
     m, _, _ = _masses(text, **fields)
-    assert m.sum() == pytest.approx(0.05, rel=1e-13) and np.all(m > 0)
+    assert m.sum() == pytest.approx(total, rel=1e-13) and np.all(m > 0)
 
 
 def test_uniform_gives_equal_masses_and_the_blend_ends_are_exact():
