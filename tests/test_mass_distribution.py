@@ -178,8 +178,8 @@ def test_the_fit_searches_the_mass_only_when_the_tracks_cover_the_object():
 
 def test_mass_choice_recovers_uniform_masses_of_a_fixture_made_with_them():
     """A cloth recorded with even masses (flexcomp's and PhysTwin's), fitted from the lumped default and a
-    k twice the truth: CMA-ES over k and α finds α ≥ 0.8 and k within 5 %, and the choice by held-out error
-    is "uniform" (10× lower than lumped's); the choice on a lumped recording keeps "lumped"."""
+    k twice the truth: CMA-ES over k and α finds α ≥ 0.8 and k within 5 %, and the choice by validation
+    error is "uniform" (10× lower than lumped's); the choice on a lumped recording keeps "lumped"."""
     cfg = pl.scene.parse_scene(CLOTH.replace("stiffness = 20.0", "stiffness = 40.0"))  # 2× too stiff
     truth = pl.scene.parse_scene(CLOTH)
     truth.objects[0].mass_distribution = "uniform"
