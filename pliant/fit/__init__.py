@@ -28,6 +28,7 @@ from ._cmaes import PENALTY, StageResult, cmaes, evaluate
 from ._explain import FitWarning
 from ._gradient import Smoothness, gradient_stage
 from ._losses import acceleration_loss, chamfer_loss, track_errors, track_loss
+from ._mass import MassChoice, choose_mass_distribution
 from ._models import MODELS, compare_models
 from ._observe import observe
 from ._observe_images import observe_images
@@ -57,6 +58,7 @@ __all__ = [
     "Bound",
     "FitError",
     "GlobalParam",
+    "MassChoice",
     "PhotometricProblem",
     "Problem",
     "Smoothness",
@@ -64,6 +66,7 @@ __all__ = [
     "acceleration_loss",
     "apply_globals",
     "chamfer_loss",
+    "choose_mass_distribution",
     "cmaes",
     "compare_models",
     "default_params",

@@ -98,6 +98,52 @@ PER_ELEMENT_OF = {
 CONTACT = tuple(n for n, k in GLOBAL.items() if k.section == "ground")
 
 
+#: Mass-distribution knobs searched by default when the tracks cover the object (:func:`tracks_cover`); the
+#: density field's ``mass_slope_x/y/z`` are searched only when named (``--params``).
+MASS = ("mass_uniformity",)
+#: The share of the scene's particles the tracks must follow for :data:`MASS` to be searched by default (as
+#: multiple shooting's coverage: pliant.fit._problem.SHOOTING_COVERAGE).
+MASS_COVERAGE = 0.9
+
+
+def _lumped(cfg: SceneConfig) -> list[np.ndarray] | None:
+    """Each object's lumped particle masses [kg] (objects built on the host, no device), or None when one
+    cannot be built here (the fit reports that itself when it builds the scene)."""
+    from ..scene import SceneError
+    from ..scene._build import lumped_masses
+
+    try:
+        return lumped_masses(cfg)
+    except (SceneError, ValueError, OSError):
+        return None
+
+
+def tracks_cover(
+    cfg: SceneConfig, obs: Observations | None, masses: list[np.ndarray] | None = None
+) -> float | None:
+    """The share of the scene's particles the observed tracks follow when it is at least
+    :data:`MASS_COVERAGE` (the tracks cover the object), else None (no tracks, too few, or a scene that
+    cannot be built here). Bound tracks (``obs.particle``) count the particles they follow, unbound ones
+    count themselves. ``masses``: :func:`lumped_masses` of ``cfg`` when the caller has them (their sizes
+    are the particle counts)."""
+    if obs is None or obs.tracks == 0 or not cfg.objects:
+        return None
+    masses = _lumped(cfg) if masses is None else masses
+    n = sum(m.size for m in masses) if masses is not None else 0
+    seen = np.asarray(obs.visible).any(axis=0)
+    tracked = len(np.unique(np.asarray(obs.particle)[seen])) if obs.particle is not None else int(seen.sum())
+    share = tracked / n if n > 0 else 0.0
+    return share if share >= MASS_COVERAGE else None
+
+
+def lumped_spread(cfg: SceneConfig, masses: list[np.ndarray] | None = None) -> float:
+    """The largest ratio max m / min m of one object's lumped particle masses (1: every object's builder
+    spreads its mass evenly already, as a rope's, a point cloud's and a cluster's do, so ``mass_uniformity``
+    changes nothing; 1 too when an object cannot be built here). ``masses``: as :func:`tracks_cover`'s."""
+    masses = _lumped(cfg) if masses is None else masses
+    return max((float(m.max() / m.min()) for m in masses or () if m.size), default=1.0)
+
+
 def ground_contact(cfg: SceneConfig, obs: Observations) -> float | None:
     """The lowest visible track height above the scene's ground [m] when the observations come within 5 % of
     their extent of it (they show contact), else None (no ground, no tracks, or motion well above it)."""
@@ -114,8 +160,10 @@ def ground_contact(cfg: SceneConfig, obs: Observations) -> float | None:
 
 def default_params(cfg: SceneConfig, obs: Observations | None = None) -> list[str]:
     """The default parameters of the scene's models (:data:`WHY`: mass-spring k or E·t, damping rate,
-    dashpot γ; FEM: E, ν, damping rate; XPBD: compliance, damping rate), plus the ground's friction and
-    restitution when ``obs`` (Observations) reach the ground (:func:`ground_contact`)."""
+    dashpot γ; FEM: E, ν, damping rate; XPBD: compliance, damping rate), plus the mass distribution
+    (:data:`MASS`) when the tracks of ``obs`` (Observations) cover the object (:func:`tracks_cover`) and its
+    lumped masses are uneven (:func:`lumped_spread`: a cloth's or a volume's, not a rope's), and the
+    ground's friction and restitution when they reach the ground (:func:`ground_contact`)."""
     return list(default_reasons(cfg, obs))
 
 
@@ -126,6 +174,16 @@ def default_reasons(cfg: SceneConfig, obs: Any = None) -> dict[str, str]:
         for name, why in WHY.get(o.model, ()):
             if name not in out and GLOBAL[name].where(cfg.model_copy(deep=True)):
                 out[name] = why
+    masses = _lumped(cfg) if obs is not None and obs.tracks else None
+    share = tracks_cover(cfg, obs, masses) if masses is not None else None
+    spread = lumped_spread(cfg, masses) if share is not None else 1.0
+    if share is not None and spread > 1.0 + 1e-6:
+        for name in MASS:
+            if GLOBAL[name].where(cfg.model_copy(deep=True)):
+                out[name] = (
+                    f"{GLOBAL[name].why} ({share:.0%} of the particles are tracked; the lumped masses "
+                    f"differ up to {spread:.3g}×)"
+                )
     gap = ground_contact(cfg, obs)
     if gap is not None:
         for name in CONTACT:
@@ -290,6 +348,8 @@ def _element_parameter(name: str) -> Parameter | None:
 __all__ = [
     "DEFAULTS",
     "GLOBAL",
+    "MASS",
+    "MASS_COVERAGE",
     "PER_ELEMENT",
     "Bound",
     "FitError",
@@ -299,9 +359,11 @@ __all__ = [
     "auto_per_element",
     "default_reasons",
     "ground_contact",
+    "lumped_spread",
     "widen_bounds",
     "per_element_arrays",
     "per_element_incidence",
     "registry_arrays",
     "resolve_globals",
+    "tracks_cover",
 ]

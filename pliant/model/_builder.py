@@ -113,6 +113,33 @@ class ModelBuilder(ShapesMixin):
         self._count += n
         return start
 
+    def particle_masses(self, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """A copy of the masses [kg] of particles ``start`` .. ``stop`` − 1 (None: to the last one added)."""
+        if not self._mass:
+            return np.zeros(0)
+        return np.concatenate(self._mass)[start:stop].copy()
+
+    def set_particle_masses(self, start: int, masses: npt.ArrayLike) -> None:
+        """Replace the masses of particles ``start`` .. ``start + len(masses)`` − 1 (e.g. an object's, spread
+        otherwise than its builder lumped them: :func:`pliant.model.distribute_mass`); pins are kept (a pinned
+        particle's inverse mass stays 0 whatever its mass).
+
+        Args:
+            start: Index of the first particle to set.
+            masses: [n] masses [kg], each finite and > 0.
+        """
+        m = np.asarray(masses, dtype=np.float64).reshape(-1)
+        if start < 0 or start + m.size > self._count:
+            raise ValueError(
+                f"set_particle_masses: particles [{start}, {start + m.size}) are not all added "
+                f"(there are {self._count}); add the particles first"
+            )
+        if not np.all(np.isfinite(m) & (m > 0)):
+            raise ValueError("set_particle_masses: masses must be finite and > 0 kg; pin particles instead")
+        whole = np.concatenate(self._mass)
+        whole[start : start + m.size] = m
+        self._mass = [whole]
+
     def _check_range(self, idx: np.ndarray, what: str) -> None:
         if idx.size and (idx.min() < 0 or idx.max() >= self._count):
             bad = np.flatnonzero(np.any((idx < 0) | (idx >= self._count), axis=1))

@@ -191,6 +191,42 @@ def _add_objects(ctx: BuildContext) -> None:
                 raise
             raise ctx.fail(f"objects[{i}]", str(exc)) from None
         ctx.ranges.append((start, ctx.builder.particle_count))
+        _distribute_mass(ctx, o, start)
+
+
+def _distribute_mass(ctx: BuildContext, o: Any, start: int) -> None:
+    """Spread object ``o``'s mass (particles ``start`` onwards) as its ``mass_distribution``,
+    ``mass_uniformity`` and ``mass_slope_*`` say; the lumped default leaves the builder's masses untouched
+    (bit for bit)."""
+    from ..model import distribute_mass
+
+    alpha, slope = o.mass_blend(), o.mass_slope()
+    if alpha == 0.0 and not any(slope):
+        return
+    b = ctx.builder
+    lumped = b.particle_masses(start)
+    b.set_particle_masses(
+        start, distribute_mass(lumped, b.positions()[start:], uniformity=alpha, slope=slope)
+    )
+
+
+def lumped_masses(cfg: SceneConfig) -> list[np.ndarray]:
+    """The particle masses [kg] each object of ``cfg`` gets from its builder (its lumped distribution,
+    whatever its ``mass_*`` fields say), one array per object; nothing is built on a device.
+
+    Raises:
+        SceneError: an object that cannot be built.
+    """
+    from ..model import ModelBuilder
+
+    cfg = cfg.model_copy(deep=True)
+    for o in cfg.objects:
+        o.mass_distribution, o.mass_uniformity = "lumped", None
+        o.mass_slope_x = o.mass_slope_y = o.mass_slope_z = 0.0
+    ctx = BuildContext(cfg, ModelBuilder(gravity=cfg.scene.gravity))
+    _add_objects(ctx)
+    m = ctx.builder.particle_masses()
+    return [m[a:b] for a, b in ctx.ranges]
 
 
 def _select_handles(ctx: BuildContext) -> tuple[list, list]:

@@ -377,6 +377,27 @@ KNOBS: dict[str, Knob] = _table(
             name="neighbours",
         ),
         Knob(
+            "objects[].mass_uniformity",
+            "blend α of every object's particle masses from lumped by length, area or volume (0) to even per "
+            "particle (1), the total kept",
+            default=lambda cfg, o: o.mass_blend(),
+            bounds=(0.0, 1.0),
+            log=False,
+            # Searched when the tracks cover the object (pliant/fit/_params.py: default_reasons), not by
+            # model: a mass distribution shows only in motion recorded across the whole object.
+            why="the tracks cover the object: how its mass is spread (lumped or even per particle)",
+        ),
+        *(
+            Knob(
+                f"objects[].mass_slope_{ax}",
+                f"log-gradient a_{ax} of every object's mass density along its normalised {ax} (density "
+                f"exp(a · x̂) over the rest box, x̂ ∈ [−1, 1], the total kept)",
+                bounds=(-2.0, 2.0),
+                log=False,
+            )
+            for ax in "xyz"
+        ),
+        Knob(
             "objects[].material.shear_stiffness",
             "k of a mass-spring cloth's shear springs [N/m] (default: stiffness)",
             models=_MS,

@@ -51,6 +51,8 @@ Length = Annotated[float, Strict(), Field(ge=MIN_LENGTH, le=MAX_COORD)]
 PosFloat = Annotated[float, Strict(), Field(gt=0, le=MAX_VALUE)]
 NonNegFloat = Annotated[float, Strict(), Field(ge=0, le=MAX_VALUE)]
 Fraction = Annotated[float, Strict(), Field(ge=0, le=1)]
+#: A mass density's log-gradient per normalised axis: exp(2 · 10) end to end is far beyond a real object.
+MassSlope = Annotated[float, Strict(), Field(ge=-10, le=10)]
 PosInt = Annotated[int, Strict(), Field(ge=1, le=2**31 - 1)]
 Vec3 = Annotated[tuple[Coord, Coord, Coord], BeforeValidator(vector(3, "3 numbers [x, y, z]"))]
 Size2 = Annotated[
@@ -141,6 +143,27 @@ class ObjectBase(Section):
     model: Literal["mass_spring", "pbd", "fem"] = "mass_spring"
     material: Material = Field(default_factory=Material)
     particle_radius: Length | None = None  # contact radius [m]
+    # How the object's total mass is spread over its particles (pliant.model.distribute_mass): "lumped"
+    # weights each by its share of length, area or volume; "uniform" gives each M / N (MuJoCo's flexcomp,
+    # PhysTwin). mass_uniformity α, when set, blends them instead, (1 − α) lumped + α uniform (a fit
+    # searches it); the mass_slope_* multiply by a density exp(a · x̂) over the rest box's normalised
+    # coordinates x̂ ∈ [−1, 1]. The total mass is kept in every case.
+    mass_distribution: Literal["lumped", "uniform"] = "lumped"
+    mass_uniformity: Fraction | None = None  # α ∈ [0, 1], overrides mass_distribution
+    mass_slope_x: MassSlope = 0.0  # a_x: density ratio exp(2 a_x) from the box's −x to +x end
+    mass_slope_y: MassSlope = 0.0  # a_y, along y
+    mass_slope_z: MassSlope = 0.0  # a_z, along z
+
+    def mass_blend(self) -> float:
+        """α of :func:`pliant.model.distribute_mass`: ``mass_uniformity``, else 1 for ``uniform``, 0 for
+        ``lumped``."""
+        if self.mass_uniformity is not None:
+            return float(self.mass_uniformity)
+        return 1.0 if self.mass_distribution == "uniform" else 0.0
+
+    def mass_slope(self) -> tuple[float, float, float]:
+        """The density field's log-gradient (a_x, a_y, a_z) over normalised coordinates."""
+        return (float(self.mass_slope_x), float(self.mass_slope_y), float(self.mass_slope_z))
 
 
 class ColliderBase(Section):
