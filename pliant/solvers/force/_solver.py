@@ -64,7 +64,9 @@ class ForceSolver(Solver):
         integrator: any ``pl.integrators`` object (default SymplecticEuler).
         velocity_damping: the lecture's δ, multiplying velocities each step (1 = none). Depends on Δt.
         damping_rate: c [1/s] for the Δt-independent form v ← v·exp(−cΔt); overrides ``velocity_damping``.
-        contact: resolve ground contact after each step (needs ``model.ground``).
+        contact: resolve ground contact after each step (needs ``model.ground``; a compliant ground,
+            ``Ground.stiffness`` set, is a spring–damper: after explicit steps,
+            :func:`pliant.collision.ground_compliant`; inside implicit ones, its GroundPenalty).
         collisions: contact handlers run after ground contact, each with
             ``apply(model, state_in, state_out, dt)`` (``pl.collision.Colliders``, ``SelfCollision``).
         minimizer: how an implicit integrator's steps are minimised: a
