@@ -370,7 +370,7 @@ KNOBS: dict[str, Knob] = _table(
         # depends on κ alone and the rebound on ζ alone, so the two are not traded against each other.
         Knob(
             "ground.stiffness",
-            "normal stiffness κ per unit mass of compliant ground contact [1/s²] (rests g/κ deep)",
+            "normal stiffness κ per unit mass of compliant ground contact, resting g/κ deep [1/s²]",
             default=lambda cfg, g: GROUND_STIFFNESS_START,
             bounds=GROUND_STIFFNESS.bounds,
             # The start (g over the deepest track, :func:`pliant.fit._params.contact_start`) is a lower
