@@ -251,3 +251,23 @@ def test_the_default_fit_explains_the_sink_by_contact_not_by_a_softer_body():
         return float(np.mean(np.linalg.norm(x[test, p] - obs.points[test], axis=-1)))
 
     assert held_out(result.values) < 0.1 * held_out(problem.nominal)
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_a_slide_on_compliant_ground_stops_after_coulombs_distance(family):
+    """Coulomb friction with the spring–damper's normal force: a particle resting g/κ deep and launched
+    sideways at 0.5 m/s decelerates by μ g (μ = 0.5) and stops after v²/(2μg) = 25.5 mm (within 1 %; the
+    stick velocity's viscous ramp adds a creep well below that)."""
+    v0, mu, dt = 0.5, 0.5, 1e-3
+    b = pl.ModelBuilder()
+    b.add_particles([[0.0, -G / KAPPA, 0.0]], 0.3, radius=0.0, velocities=[[v0, 0.0, 0.0]])
+    b.add_ground(0.0, friction=mu, stiffness=KAPPA, damping_ratio=1.0)
+    model = b.finalize(device="cpu", dtype="float64")
+    solver = _solver(family, model)
+    s0, s1 = model.state(), model.state()
+    for _ in range(int(1.5 * v0 / (mu * G) / dt)):
+        solver.step(s0, s1, None, dt)
+        s0, s1 = s1, s0
+    x, v = s0.particle_q.numpy()[0], s0.particle_qd.numpy()[0]
+    assert abs(v[0]) < 1e-3 and x[1] == pytest.approx(-G / KAPPA, rel=1e-3)
+    assert x[0] == pytest.approx(v0**2 / (2 * mu * G), rel=0.01)
