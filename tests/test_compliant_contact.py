@@ -229,6 +229,7 @@ def test_gradients_through_compliant_contact_match_finite_differences(family):
     assert ad == pytest.approx(fd, rel=1e-5)
 
 
+@pytest.mark.slow
 def test_the_default_fit_explains_the_sink_by_contact_not_by_a_softer_body():
     """The issue's failure in small: a cube recorded with soft contact (κ = 2500, ζ = 1, k = 400 N/m, 1 mm
     noise), fitted by default from the hard-contact scene at half its spring stiffness. The sinking tracks
