@@ -109,6 +109,19 @@ def _ground_penalty() -> Example:
     return Example(model, E.GroundPenalty(1e4), model.particle_q_np.copy())
 
 
+def _damped_ground_penalty() -> Example:
+    """Compliant contact's clamped spring–damper: particles in contact at the step's start (y⁰ below the
+    surface) get the damper, moved by up to 2 cm so that some are pushed, some released."""
+    b = pl.ModelBuilder()
+    rng = np.random.default_rng(4)
+    b.add_particles(rng.uniform(-0.05, 0.05, size=(16, 3)), rng.uniform(0.1, 1.0, 16), radius=0.01)
+    b.add_ground(height=0.0, stiffness=1e4, damping_ratio=0.5)
+    model = b.finalize(device="cpu", dtype="float64")
+    x = model.particle_q_np + rng.uniform(-0.02, 0.02, size=(16, 3))
+    v = wp.zeros(16, dtype=wp.vec3d, device="cpu")
+    return Example(model, E.DampedGroundPenalty(1e4, 100.0), x, begin=(model.particle_q, v, 0.01))
+
+
 def _collider_penalty() -> Example:
     cols = pl.collision.Colliders()
     cols.add_sphere((0, 0, 0), 0.4)
@@ -139,6 +152,7 @@ EXAMPLES: dict[type[E.Energy], Callable[[], Example]] = {
     E.Gravity: _gravity,
     E.GravityFromArray: _gravity_from_array,
     E.GroundPenalty: _ground_penalty,
+    E.DampedGroundPenalty: _damped_ground_penalty,
     E.Springs: _springs,
     **{c: _tets(c) for c in (E.TetElasticity, E.LinearElastic, E.StVK, E.Corotated, E.NeoHookean)},
 }

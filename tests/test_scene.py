@@ -465,8 +465,8 @@ def test_volumetric_scene_does_not_blow_up(name):
 
 def test_ground_stiffness_sets_the_ground_penalty():
     """``[ground] stiffness`` is the κ of the GroundPenalty an implicit integrator minimises (the default
-    1e6 otherwise) and, once stated, the explicit integrators' contact too (without it they keep the
-    projection); κ ≤ 0 is an error naming the field."""
+    1e6 otherwise) and, once stated, the model's compliant ground, which explicit integrators meet after
+    each step (no energy; without it they keep the projection); κ ≤ 0 is an error naming the field."""
     body = (
         '[[objects]]\nkind = "soft_box"\nmodel = "fem"\ncells = [1, 1, 1]\nsize = [0.1, 0.1, 0.1]\n'
         "origin = [0.0, 0.2, 0.0]\nmaterial = { E = 1e5, nu = 0.3 }\n\n[ground]\nstiffness = 3e6\n\n"
@@ -478,7 +478,11 @@ def test_ground_stiffness_sets_the_ground_penalty():
         return [e.stiffness for e in scene.solver.energies if isinstance(e, pl.energies.GroundPenalty)]
 
     assert kappas("BackwardEuler") == [3e6]
-    assert kappas("SymplecticEuler") == [3e6]
+    assert kappas("SymplecticEuler") == []
+    explicit = build_scene(
+        parse_scene(_scene(body.replace("{integ}", "SymplecticEuler")), "g.toml"), device="cpu"
+    )
+    assert explicit.model.ground.compliant and explicit.model.ground.stiffness == 3e6
     unset = build_scene(
         parse_scene(
             _scene(body.replace("stiffness = 3e6\n", "").replace("{integ}", "SymplecticEuler")), "g.toml"

@@ -2,7 +2,13 @@
 
 from ._collider_sdf import collider_sdf
 from ._colliders import Colliders
-from ._ground import ground_coefficients, ground_contact, ground_penalty_friction, respond_to_ground
+from ._ground import (
+    ground_coefficients,
+    ground_compliant,
+    ground_contact,
+    ground_penalty_friction,
+    respond_to_ground,
+)
 from ._hashgrid import ParticleGrid, TriangleBVH, triangle_closest_point
 from ._selfcollision import SelfCollision, closest_point_triangle
 
@@ -14,6 +20,7 @@ __all__ = [
     "ParticleGrid",
     "TriangleBVH",
     "ground_coefficients",
+    "ground_compliant",
     "ground_contact",
     "ground_penalty_friction",
     "respond_to_ground",

@@ -1,4 +1,5 @@
-"""Ground-plane contact as a velocity-level response with Coulomb friction and restitution.
+"""Ground-plane contact as a velocity-level response with Coulomb friction and restitution, or (a
+compliant ground, ``Ground.stiffness`` set) a normal spring–damper solved by backward Euler after the step.
 
 One kernel per response serves every step: it reads (x_in, v_in) and writes every particle of (x_out,
 v_out). A gradient-free step passes the same arrays as input and output (an in-place update: each thread
@@ -133,6 +134,96 @@ def ground_penalty_friction(
         v_out[i] = v
 
 
+@wp.kernel
+def ground_damped_penalty_friction(
+    inv_mass: wp.array(dtype=Any),
+    radius: wp.array(dtype=Any),
+    height: Any,
+    coefficients: wp.array(dtype=Any),
+    stick_velocity: Any,
+    shift_dt: Any,
+    kappa: Any,
+    damping: Any,
+    impulse_dt: Any,
+    point: Any,
+    x_start: wp.array(dtype=Any),
+    x_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    x_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+):
+    """:func:`ground_penalty_friction` for a :class:`~pliant.energies.DampedGroundPenalty` (compliant
+    contact's spring–damper): the normal impulse is max(κ d − b v_n, 0) ``impulse_dt`` per unit mass for a
+    particle in contact at the step's start (b = ``damping`` [1/s]; v_n the step's end velocity), κ d
+    ``impulse_dt`` for one entering. A separate kernel, so that the undamped one stays what it was."""
+    i = wp.tid()
+    p = x_in[i]
+    v = v_in[i]
+    one = type(height)(1.0)
+    floor = height + radius[i]
+    d = floor - (p[1] + (one - point) * (x_start[i][1] - p[1]))
+    zero = type(height)(0.0)
+    if inv_mass[i] != zero and d > zero:
+        a = kappa * d
+        if x_start[i][1] < floor:
+            a = wp.max(a - damping * v[1], zero)
+        v_new = coulomb_ground(v, a * impulse_dt, v[1], coefficients[0], stick_velocity)
+        x_out[i] = friction_shift(p, v, v_new, shift_dt)
+        v_out[i] = v_new
+    else:
+        x_out[i] = p
+        v_out[i] = v
+
+
+@wp.kernel
+def ground_compliant(
+    inv_mass: wp.array(dtype=Any),
+    radius: wp.array(dtype=Any),
+    height: Any,
+    coefficients: wp.array(dtype=Any),
+    stick_velocity: Any,
+    shift_dt: Any,
+    kappa: Any,
+    damping: Any,
+    dt: Any,
+    x_start: wp.array(dtype=Any),
+    x_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    x_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+):
+    """Compliant ground contact after a step of Δt = ``dt`` that ignored it: the normal spring–damper
+    a = max(κ d⁺ − b v⁺, 0) [m/s²] per unit mass, by backward Euler on the end-of-step penetration d⁺ and
+    normal velocity v⁺ (stable for any κ, b), then Coulomb friction for its velocity change Δt·a.
+
+    The step's trial (y, v_n) change as v⁺ = v_n + Δt a and y⁺ = y + β Δt·Δt a (β Δt = ``shift_dt``), so
+    a = max(κ d − b v_n, 0) / (1 + κ β Δt² + b Δt) for the trial depth d = height + r − y > 0. A particle
+    resting under gravity g then sits exactly g/κ deep (a = g at v⁺ = 0). The damper b [1/s] acts only on
+    particles in contact at the step's start (``x_start``): one entering is not braked before it touches,
+    and then y⁺ stays below the surface, so the force never pushes a particle out past it nor pulls.
+    Restitution is the damper's (coefficients[1] is unused); friction as :func:`ground_contact`'s.
+    """
+    i = wp.tid()
+    p = x_in[i]
+    v = v_in[i]
+    zero = type(height)(0.0)
+    floor = height + radius[i]
+    d = floor - p[1]
+    if inv_mass[i] != zero and d > zero:
+        num = kappa * d
+        den = type(height)(1.0) + kappa * dt * shift_dt
+        if damping > zero and x_start[i][1] < floor:
+            num = num - damping * v[1]
+            den = den + damping * dt
+        dv = dt * wp.max(num, zero) / den
+        v_new = coulomb_ground(v, dv, v[1] + dv, coefficients[0], stick_velocity)
+        x_out[i] = friction_shift(type(p)(p[0], p[1] + shift_dt * dv, p[2]), v, v_new, shift_dt)
+        v_out[i] = v_new
+    else:
+        x_out[i] = p
+        v_out[i] = v
+
+
 def ground_coefficients(model: Model) -> wp.array:
     """[friction μ, restitution e] of ``model.ground`` as the device array the ground kernels read, with
     ``requires_grad`` on a differentiable model (its ``.grad`` then holds ∂loss/∂μ, ∂loss/∂e)."""
@@ -153,6 +244,7 @@ def respond_to_ground(
     v_out: wp.array,
     *,
     penalty: float | None = None,
+    penalty_damping: float = 0.0,
     x_start: wp.array | None = None,
     point: float = 1.0,
     impulse: float = 1.0,
@@ -169,8 +261,11 @@ def respond_to_ground(
         x_out: positions [m] written (``x_in`` itself for an in-place update).
         v_out: velocities [m/s] written (``v_in`` itself for an in-place update).
         penalty: κ [1/s²] of a :class:`~pliant.energies.GroundPenalty` the step already minimised: the
-            response is then friction for the penalty's impulse instead of a projection.
-        x_start: positions [m] at the start of the step (needed with a penalty and ``point`` < 1).
+            response is then friction for the penalty's impulse instead of a projection. Without one, a
+            compliant ``model.ground`` (``stiffness`` set) gets :func:`ground_compliant`'s spring–damper.
+        penalty_damping: b [1/s] of that penalty's damper (:class:`~pliant.energies.DampedGroundPenalty`).
+        x_start: positions [m] at the start of the step (needed with a penalty and ``point`` < 1, and by
+            compliant contact's damper).
         point: θ [-]: the step's forces act at x₀ + θ(x₁ − x₀) (the integrator's ``contact_point``).
         impulse: [-]: they act over ``impulse``·Δt (``contact_impulse``).
         shift: [-]: x₁ moves by ``shift``·Δt per unit change of v₁ (``contact_shift``), and so by
@@ -188,6 +283,17 @@ def respond_to_ground(
         x0 = x_in if x_start is None else x_start
         args = [*common, m.s(penalty), m.s(impulse * dt), m.s(point), x0]
         kernel = ground_penalty_friction
+        if penalty_damping > 0:
+            args = [*common, m.s(penalty), m.s(penalty_damping), m.s(impulse * dt), m.s(point), x0]
+            kernel = ground_damped_penalty_friction
+    elif g.compliant:
+        if x_start is None and g.damping > 0:
+            raise ValueError(
+                "respond_to_ground: compliant contact with a damper needs x_start (the step's x₀)"
+            )
+        x0 = x_in if x_start is None else x_start
+        args = [*common, m.s(g.stiffness), m.s(g.damping), m.s(dt), x0]
+        kernel = ground_compliant
     else:
         kernel, args = ground_contact, common
     launch(kernel, m.particle_count, [*args, x_in, v_in, x_out, v_out], device=m.device)

@@ -23,6 +23,7 @@ from ._contact_math import (
     point_triangle_c,
     point_triangle_grad,
 )
+from ._ground_compliant import check_compliance, compliant_velocity, project_compliant
 
 
 # ---------------------------------------------------------------------- ground
@@ -104,6 +105,8 @@ class Ground(Constraint):
     velocity ε_v, :mod:`pliant.collision._friction`), moves p by Δt times that change (so that a sticking
     particle stays where it started the step) and sets v_n = −e ṽ_n from the pre-solve normal velocity ṽ_n.
 
+    With ``stiffness`` κ [1/s²] the contact is compliant instead (:mod:`._ground_compliant`).
+
     Args:
         normal: plane normal n (normalised); default +y.
         offset: d [m]; default −height of ``model.ground`` (so the plane is y = height).
@@ -111,6 +114,8 @@ class Ground(Constraint):
         restitution: e in [0, 1]; default ``model.ground.restitution``.
         stick_velocity: ε_v [m/s] >= 0; default ``model.ground.stick_velocity``
             (:data:`pliant.model.STICK_VELOCITY` without a ground).
+        stiffness: κ [1/s²] > 0 of compliant contact; default ``model.ground.stiffness`` (None: hard).
+        damping_ratio: ζ [-] >= 0 of its damper; default ``model.ground.damping_ratio``.
     """
 
     uses_deltas = False
@@ -125,8 +130,12 @@ class Ground(Constraint):
         friction: float | None = None,
         restitution: float | None = None,
         stick_velocity: float | None = None,
+        stiffness: float | None = None,
+        damping_ratio: float | None = None,
     ) -> None:
         super().__init__(compliance=0.0)
+        check_compliance(stiffness, damping_ratio)
+        self._stiffness, self._damping_ratio = stiffness, damping_ratio
         n = np.asarray(normal, float).reshape(3)
         if np.linalg.norm(n) == 0:
             raise ValueError("Ground: normal must be non-zero")
@@ -150,8 +159,17 @@ class Ground(Constraint):
         self.stick_velocity = float(
             self._stick if self._stick is not None else (g.stick_velocity if g else STICK_VELOCITY)
         )
+        self.stiffness = self._stiffness if self._stiffness is not None else (g.stiffness if g else None)
+        zeta = self._damping_ratio if self._damping_ratio is not None else (g.damping_ratio if g else 0.0)
+        self.damping = 2.0 * zeta * self.stiffness**0.5 if self.stiffness is not None else 0.0  # b [1/s]
         self.count = model.particle_count
         self.lam = wp.zeros(self.count, dtype=model.scalar, device=model.device)
+        self._x_start: wp.array | None = None
+
+    def begin_step(self, ctx: ProjectionContext, x: wp.array, p: wp.array, dt: float) -> None:
+        """Reset λ; compliant contact keeps the step's start positions x (its damper's reference)."""
+        super().begin_step(ctx, x, p, dt)
+        self._x_start = x
 
     def evaluate(self, x: wp.array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """C [N], indices [N, 1] and ∇C [N, 1, 3] of every particle's ground constraint at ``x``."""
@@ -169,6 +187,8 @@ class Ground(Constraint):
         p_out, lam_out = (
             (ctx.fresh(p), ctx.fresh(self._multipliers())) if ctx.requires_grad else (p, self.lam)
         )
+        if self.stiffness is not None:
+            return project_compliant(self, ctx, p, dt)
         ctx.launch(
             _project_ground,
             self.count,
@@ -196,6 +216,8 @@ class Ground(Constraint):
         Differentiable as far as smooth: friction is C¹ (the stick velocity ε_v smooths the Coulomb
         switch); the restitution switch (approach speed above 2|g|Δt) gives one-sided gradients.
         """
+        if self.stiffness is not None:
+            return compliant_velocity(self, ctx, p, v, dt)
         m = self.model
         g = float(np.linalg.norm(m.gravity))
         p_out, v_out = (ctx.fresh(p), ctx.fresh(v)) if ctx.requires_grad else (p, v)

@@ -7,7 +7,7 @@ from ._cloth import cloth_spring_stiffness
 from ._colliders import ColliderPenalty
 from ._fem import Corotated, LinearElastic, NeoHookean, StVK, TetElasticity
 from ._gravity import Gravity, GravityFromArray
-from ._ground import GroundPenalty
+from ._ground import DampedGroundPenalty, GroundPenalty, ground_penalty
 from ._handles import ControlPoints
 from ._materials import (
     MATERIAL_MODELS,
@@ -65,6 +65,8 @@ __all__ = [
     "Gravity",
     "GravityFromArray",
     "GroundPenalty",
+    "DampedGroundPenalty",
+    "ground_penalty",
     "Springs",
     "cloth_spring_stiffness",
     "dashpot_force",

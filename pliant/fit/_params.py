@@ -93,9 +93,16 @@ PER_ELEMENT_OF = {
     if any(n in PER_ELEMENT for n in names)
 }
 
-#: Ground coefficients (the knobs of the ``[ground]`` section), searched by default when the observations
-#: reach the ground.
-CONTACT = tuple(n for n, k in GLOBAL.items() if k.section == "ground")
+#: Compliant contact's knobs (``[ground] stiffness``, ``damping_ratio``), searched by default when the tracks
+#: sink into the ground (:func:`sinks_into_ground`).
+COMPLIANT = ("ground_stiffness", "ground_damping_ratio")
+#: Ground coefficients (the other knobs of the ``[ground]`` section), searched by default when the
+#: observations reach the ground.
+CONTACT = tuple(n for n, k in GLOBAL.items() if k.section == "ground" and n not in COMPLIANT)
+#: How far [m] the lowest track must go below the ground before the fit explains it by compliant contact:
+#: beyond the tracks' noise (a tracker's millimetre or two; synthetic tracks have 1 mm), so that a body
+#: resting on a hard ground with noisy tracks does not switch it on.
+SINK_NOISE = 2.0e-3
 
 
 #: Mass-distribution knobs searched by default when the tracks cover the object (:func:`tracks_cover`); the
@@ -158,17 +165,51 @@ def ground_contact(cfg: SceneConfig, obs: Observations) -> float | None:
     return gap if gap <= 0.05 * max(extent, 1e-9) else None
 
 
+def sinks_into_ground(cfg: SceneConfig, obs: Observations | None) -> float | None:
+    """How deep [m] (> 0) the lowest visible track goes below the scene's ground, when deeper than
+    :data:`SINK_NOISE`; else None (no ground, no contact, or within the noise)."""
+    gap = ground_contact(cfg, obs) if obs is not None else None
+    return -gap if gap is not None and gap < -SINK_NOISE else None
+
+
+def contact_start(cfg: SceneConfig, obs: Observations | None) -> float | None:
+    """κ [1/s²] that rests as deep as the tracks sink under the scene's gravity, |g|/d
+    (:func:`sinks_into_ground`), or None when they do not sink. A lower bound of the truth twice over: an
+    impact sinks deeper than the body rests, and a body's lowest particles carry more than their own weight
+    (a 4 × 4 × 4-cell box's bottom layer about 8 times). Starting at the load-corrected g (M/m_c)/d instead
+    fitted worse, on the MuJoCo soft cube and on tests/test_compliant_contact.py's: it puts the truth at the
+    bottom of the search box."""
+    depth = sinks_into_ground(cfg, obs)
+    if depth is None:
+        return None
+    return float(np.linalg.norm(cfg.scene.gravity)) / depth
+
+
+def seed_contact(cfg: SceneConfig, obs: Observations | None, names: list[str]) -> None:
+    """Start compliant contact where the tracks sink: set ``cfg``'s unset ``[ground] stiffness`` (in place)
+    to :func:`contact_start` when ``names`` searches ``ground_stiffness``."""
+    g = getattr(cfg, "ground", None)
+    if "ground_stiffness" not in names or g is None or not g.enabled or g.stiffness is not None:
+        return
+    k = contact_start(cfg, obs)
+    if k is not None:
+        g.stiffness = k
+
+
 def default_params(cfg: SceneConfig, obs: Observations | None = None) -> list[str]:
     """The default parameters of the scene's models (:data:`WHY`: mass-spring k or E·t, damping rate,
     dashpot γ; FEM: E, ν, damping rate; XPBD: compliance, damping rate), plus the mass distribution
     (:data:`MASS`) when the tracks of ``obs`` (Observations) cover the object (:func:`tracks_cover`) and its
-    lumped masses are uneven (:func:`lumped_spread`: a cloth's or a volume's, not a rope's), and the
-    ground's friction and restitution when they reach the ground (:func:`ground_contact`)."""
+    lumped masses are uneven (:func:`lumped_spread`: a cloth's or a volume's, not a rope's), the ground's
+    friction and restitution when they reach the ground (:func:`ground_contact`), and compliant contact's κ
+    and ζ instead of the restitution when they sink into it (:func:`sinks_into_ground`)."""
     return list(default_reasons(cfg, obs))
 
 
 def default_reasons(cfg: SceneConfig, obs: Any = None) -> dict[str, str]:
-    """:func:`default_params` with why each is searched (name → reason)."""
+    """:func:`default_params` with why each is searched (name → reason). Tracks that sink more than
+    :data:`SINK_NOISE` into the ground add compliant contact (:data:`COMPLIANT`, starting from
+    :func:`contact_start`) in place of the restitution, which compliant contact does not use."""
     out: dict[str, str] = {}
     for o in cfg.objects:
         for name, why in WHY.get(o.model, ()):
@@ -188,6 +229,20 @@ def default_reasons(cfg: SceneConfig, obs: Any = None) -> dict[str, str]:
     if gap is not None:
         for name in CONTACT:
             out[name] = f"the observations reach the ground (lowest track {gap * 1e3:.3g} mm above it)"
+    depth = sinks_into_ground(cfg, obs)
+    if depth is not None:
+        out.pop("ground_restitution", None)
+        given = cfg.ground.stiffness
+        start = (
+            f"from the scene's κ = {given:.3g} 1/s²"
+            if given is not None
+            else f"starting at κ = g/d = {contact_start(cfg, obs):.3g} 1/s², which rests that deep"
+        )
+        sink = (
+            f"the tracks sink {depth * 1e3:.3g} mm into the ground (beyond {SINK_NOISE * 1e3:g} mm of noise)"
+        )
+        out["ground_stiffness"] = f"{sink}: compliant contact, {start}"
+        out["ground_damping_ratio"] = f"{sink}: compliant contact's damping ratio (the rebound), from ζ = 1"
     return out
 
 
@@ -360,6 +415,9 @@ __all__ = [
     "default_reasons",
     "ground_contact",
     "lumped_spread",
+    "contact_start",
+    "seed_contact",
+    "sinks_into_ground",
     "widen_bounds",
     "per_element_arrays",
     "per_element_incidence",

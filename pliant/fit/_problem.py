@@ -16,6 +16,7 @@ from ._params import (
     default_reasons,
     per_element_arrays,
     resolve_globals,
+    seed_contact,
     widen_bounds,
 )
 
@@ -119,6 +120,7 @@ class Problem:
         self.cfg = cfg.model_copy(deep=True)
         reasons = default_reasons(self.cfg, obs) if params is None else {}
         names = list(reasons) if params is None else list(params)
+        seed_contact(self.cfg, obs, names)  # compliant contact starts at the depth the tracks sink to
         self.globals: list[Bound] = resolve_globals(self.cfg, names)
         for b in self.globals:
             b.why = reasons.get(b.name, b.why)

@@ -350,6 +350,8 @@ class ModelBuilder(ShapesMixin):
         friction: float = 0.5,
         restitution: float = 0.0,
         stick_velocity: float = STICK_VELOCITY,
+        stiffness: float | None = None,
+        damping_ratio: float = 0.0,
     ) -> None:
         """Add the ground plane y = ``height``.
 
@@ -359,6 +361,9 @@ class ModelBuilder(ShapesMixin):
             restitution: normal restitution coefficient [-], in [0, 1].
             stick_velocity: ε_v [m/s], >= 0: the smoothed Coulomb law's static-friction ramp (a contact
                 loaded inside the friction cone creeps below ε_v; 0: exact Coulomb, with a kink).
+            stiffness: κ [1/s²] > 0 of compliant contact (a normal spring κ d per unit mass; rests g/κ
+                deep); None: hard contact (projection and restitution).
+            damping_ratio: ζ [-] >= 0 of compliant contact's damper b = 2ζ√κ (MuJoCo's dampratio).
         """
         if friction < 0:
             raise ValueError(f"ground friction must be >= 0, got {friction}")
@@ -366,7 +371,23 @@ class ModelBuilder(ShapesMixin):
             raise ValueError(f"ground restitution must be in [0, 1], got {restitution}")
         if not (math.isfinite(stick_velocity) and stick_velocity >= 0):
             raise ValueError(f"ground stick_velocity must be >= 0 m/s, got {stick_velocity}")
-        self.ground = Ground(float(height), float(friction), float(restitution), float(stick_velocity))
+        if stiffness is not None and not (math.isfinite(stiffness) and stiffness > 0):
+            raise ValueError(f"ground stiffness must be > 0 1/s² (or None: hard contact), got {stiffness}")
+        if not (math.isfinite(damping_ratio) and damping_ratio >= 0):
+            raise ValueError(f"ground damping_ratio must be >= 0, got {damping_ratio}")
+        if damping_ratio > 0 and stiffness is None:
+            raise ValueError(
+                "ground damping_ratio needs a stiffness (compliant contact): give stiffness= too"
+            )
+        kappa = None if stiffness is None else float(stiffness)
+        self.ground = Ground(
+            float(height),
+            float(friction),
+            float(restitution),
+            float(stick_velocity),
+            kappa,
+            float(damping_ratio),
+        )
 
     # ------------------------------------------------------------------ shapes
     def register_object(self, name: str, kind: str, start: int, **extra: Any) -> None:

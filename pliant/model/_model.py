@@ -25,21 +25,76 @@ _GROUND_GRAD = (
 )
 
 
+def _set_up_only(m: Any, s: Any, x: Any, c: Any) -> Any:
+    from .._warp import GradientError
+
+    raise GradientError(
+        "the ground's contact stiffness and damping ratio are read at set-up, not differentiated"
+    )
+
+
+#: κ [1/s²] of compliant ground contact: the normal force per unit mass of a particle d below the surface is
+#: κ d (plus the damper); the resting depth under gravity g is g/κ. MuJoCo's solref (timeconst τ, dampratio
+#: ζ) is κ = 1/(τ ζ)² (its default (0.02, 1): 2500 1/s², 3.9 mm at rest).
+GROUND_STIFFNESS = Parameter(
+    "ground_stiffness",
+    "normal stiffness per unit mass of compliant ground contact (read at set-up)",
+    "1/s^2",
+    "global",
+    ("solver.ground_stiffness",),
+    (1.0, 1.0e9),
+    differentiable=False,
+    get=_set_up_only,
+)
+#: ζ [-] of compliant ground contact: the damper b = 2ζ√κ [1/s] (MuJoCo's dampratio; 1: critical).
+GROUND_DAMPING_RATIO = Parameter(
+    "ground_damping_ratio",
+    "damping ratio of compliant ground contact, b = 2 zeta sqrt(kappa) (read at set-up)",
+    "1",
+    "global",
+    ("solver.ground_damping_ratio",),
+    (1.0e-3, 10.0),
+    differentiable=False,
+    get=_set_up_only,
+)
+
+
 @declares
 @dataclass(frozen=True)
 class Ground:
     """A ground plane n·x = height with n = +y, Coulomb friction (stick velocity ε_v [m/s]) and
-    restitution."""
+    restitution; with ``stiffness`` κ [1/s²] set, compliant contact instead of the hard projection.
+
+    Compliant contact is a spring–damper along the normal per unit mass, a = max(κ d − b v_n, 0) for a
+    particle d [m] below the surface (b = 2ζ√κ [1/s], ζ = ``damping_ratio``; the damper acts on particles
+    already in contact at the start of a step, and the force never pulls): it rests g/κ deep and rebounds
+    as a damped oscillator of ω = √κ and damping ratio ζ, so restitution is ignored. Friction is Coulomb
+    with that normal force. MuJoCo's soft contact solref = (τ, ζ) is κ = 1/(τ ζ)², the same ζ.
+    """
 
     height: float = 0.0
     friction: float = 0.5
     restitution: float = 0.0
     stick_velocity: float = STICK_VELOCITY
+    #: κ [1/s²] of compliant contact; None: hard contact (projection, restitution).
+    stiffness: float | None = None
+    #: ζ [-] of compliant contact (0: undamped spring).
+    damping_ratio: float = 0.0
+
+    @property
+    def compliant(self) -> bool:
+        """Whether contact is the spring–damper (``stiffness`` set) rather than the hard projection."""
+        return self.stiffness is not None
+
+    @property
+    def damping(self) -> float:
+        """b = 2ζ√κ [1/s] of compliant contact (0 for hard contact)."""
+        return 2.0 * self.damping_ratio * self.stiffness**0.5 if self.stiffness is not None else 0.0
 
     @classmethod
     def parameters(cls) -> tuple[Parameter, ...]:
         """Coulomb μ and restitution e (the solver's ``ground_coefficients``; a subgradient at stick/slip
-        and contact switches)."""
+        and contact switches), and compliant contact's κ and ζ (read at set-up: derivative-free fits)."""
         return (
             Parameter(
                 "ground_friction",
@@ -61,6 +116,8 @@ class Ground:
                 log=False,
                 get=solver_array("ground_coefficients", _GROUND_GRAD, 1),
             ),
+            GROUND_STIFFNESS,
+            GROUND_DAMPING_RATIO,
         )
 
 

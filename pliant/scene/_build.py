@@ -254,7 +254,12 @@ def _finalize(ctx: BuildContext, device: str | None, dtype: str | None, requires
     g = cfg.ground
     if g is not None and g.enabled:
         ctx.builder.add_ground(
-            g.height, friction=g.friction, restitution=g.restitution, stick_velocity=g.stick_velocity
+            g.height,
+            friction=g.friction,
+            restitution=g.restitution,
+            stick_velocity=g.stick_velocity,
+            stiffness=g.stiffness,
+            damping_ratio=g.damping_ratio or 0.0,
         )
     try:
         ctx.model = ctx.builder.finalize(

@@ -27,6 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from ..model._model import GROUND_DAMPING_RATIO, GROUND_STIFFNESS
 from ..model._parameters import SPRING_STIFFNESS
 
 if TYPE_CHECKING:
@@ -42,24 +43,26 @@ Default = Callable[[Any, Any], float]
 
 @dataclass(frozen=True)
 class Around:
-    """The fit's search box around the scene's value v: [c / factor, c · factor] with c = max(v, floor)
+    """The fit's search box around the scene's value v: [c / factor, c · up] with c = max(v, floor)
     (``floor`` None: c = v, and a v ≤ 0 searches the knob's physical bounds instead).
 
     Attributes:
         factor: How far the box reaches each way (×/÷), > 1.
         floor: The smallest value the box is centred on (a scene value of 0 or below it starts there), in
             the knob's unit; None: no floor.
+        up: How far it reaches up (×), when not ``factor``: for a start known to be a lower bound.
     """
 
     factor: float
     floor: float | None = None
+    up: float | None = None
 
     def __call__(self, v: float, bounds: tuple[float, float]) -> tuple[float, float]:
         """(lo, hi) around ``v`` (``bounds``: the knob's physical ones, used when v ≤ 0 without a floor)."""
         c = v if self.floor is None else max(v, self.floor)
         if c <= 0:
             return bounds
-        return (c / self.factor, c * self.factor)
+        return (c / self.factor, c * (self.factor if self.up is None else self.up))
 
 
 @dataclass(frozen=True)
@@ -219,6 +222,11 @@ class Knob:
         return float(round(v)) if self.integer else v
 
 
+#: κ [1/s²] a compliant ground's search starts from when neither the scene nor the tracks give one: the
+#: stiffness that rests 2 mm deep under 9.81 m/s².
+GROUND_STIFFNESS_START = 9.81 / 2.0e-3
+
+
 def _load_registry() -> None:
     from .. import collision, constraints, energies, solvers  # noqa: F401  (their classes register)
 
@@ -355,6 +363,30 @@ KNOBS: dict[str, Knob] = _table(
             ("ground_restitution",),
             log=False,
             name="ground_restitution",
+        ),
+        # Compliant contact (model.Ground.stiffness, damping_ratio): read when the scene is built, so
+        # CMA-ES searches them (no `drives`); the fit adds them when the tracks sink into the ground
+        # (pliant/fit/_params.py: COMPLIANT). κ and ζ rather than MuJoCo's (τ, ζ): the resting depth g/κ
+        # depends on κ alone and the rebound on ζ alone, so the two are not traded against each other.
+        Knob(
+            "ground.stiffness",
+            "normal stiffness κ per unit mass of compliant ground contact, resting g/κ deep [1/s²]",
+            default=lambda cfg, g: GROUND_STIFFNESS_START,
+            bounds=GROUND_STIFFNESS.bounds,
+            # The start (g over the deepest track, :func:`pliant.fit._params.contact_start`) is a lower
+            # bound: an impact sinks deeper than the body rests, so the box reaches far up (a 10 cm drop
+            # sinking 1 cm is 20 × g/d) and a little down (the tracks' noise).
+            search=Around(3.0, up=300.0),
+            name="ground_stiffness",
+        ),
+        Knob(
+            "ground.damping_ratio",
+            "damping ratio ζ of compliant ground contact's damper b = 2ζ√κ (MuJoCo's dampratio)",
+            when=lambda cfg, g: g.stiffness is not None,
+            default=lambda cfg, g: 1.0,
+            bounds=GROUND_DAMPING_RATIO.bounds,
+            search=Around(10.0, 1e-2),
+            name="ground_damping_ratio",
         ),
         Knob(
             "objects[points].radius",

@@ -281,9 +281,18 @@ class GroundSection(Section):
     # ε_v [m/s]: below it Coulomb friction is a smooth viscous ramp; pl.model.STICK_VELOCITY (the schema
     # imports nothing of pliant; tests/test_friction_incline.py checks they agree)
     stick_velocity: NonNegFloat = 1.0e-4
-    # κ [1/s²] of the ground penalty: implicit integrators always use one (default 1e6); set, it is the
-    # explicit integrators' contact too (instead of the projection after each step).
+    # κ [1/s²] of compliant contact, a normal spring κ d per unit mass (rests g/κ deep; MuJoCo's solref
+    # (τ, ζ) is κ = 1/(τ ζ)²), in every solver instead of the hard projection and restitution; unset: hard
+    # contact (implicit integrators' Newton still sees a ground penalty, κ = 1e6).
     stiffness: PosFloat | None = None
+    # ζ [-] of compliant contact's damper b = 2ζ√κ (MuJoCo's dampratio; 1: critical); unset: 0.
+    damping_ratio: NonNegFloat | None = None
+
+    @model_validator(mode="after")
+    def _damper_needs_spring(self) -> GroundSection:
+        if self.damping_ratio and self.stiffness is None:
+            raise ValueError("damping_ratio needs stiffness (compliant contact): give ground.stiffness too")
+        return self
 
 
 class SolverSection(Section):

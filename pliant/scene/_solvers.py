@@ -246,11 +246,8 @@ def make_force(ctx: BuildContext) -> ForceSolver:
         terms.append(getattr(energies, FEM_LAWS[fem[0].material.law])())
     terms += ctx.terms
     integrator = make_integrator(s.integrator, s.integrator_options, source=cfg.source, text=cfg.text)
-    g = cfg.ground
-    # A stated stiffness sets the implicit steps' penalty (ForceSolver adds the default 1e6 otherwise) and
-    # makes it the explicit steps' contact too: the same physics for both (docs/design.md).
-    if g is not None and g.enabled and g.stiffness is not None:
-        terms.append(energies.GroundPenalty(g.stiffness))
+    # A stated [ground] stiffness reaches the model's ground (compliant contact): ForceSolver then adds its
+    # GroundPenalty, explicit or implicit (docs/design.md).
     return _construct(
         ctx,
         solvers.ForceSolver,

@@ -139,6 +139,7 @@ def finish_step(
     ground: wp.array | None = None,
     collisions: Sequence[Any] = (),
     ground_penalty: float | None = None,
+    ground_damping: float = 0.0,
     contact: tuple[float, float, float] = (1.0, 1.0, 1.0),
 ) -> None:
     """A force-based step: integrate, then kinematic targets, the ground response, each contact handler.
@@ -162,7 +163,10 @@ def finish_step(
             they have it (:class:`pliant.collision.Colliders`), else ``apply(model, state_in, state_out,
             dt)`` (in place; callers refuse those on recorded steps).
         ground_penalty: κ [1/s²] of a :class:`~pliant.energies.GroundPenalty` the step already minimised;
-            the ground response is then friction for the penalty's impulse instead of a projection.
+            the ground response is then friction for the penalty's impulse instead of a projection (without
+            one, a compliant ``model.ground`` is a spring–damper after the step,
+            :func:`pliant.collision.ground_compliant`).
+        ground_damping: b [1/s] of that penalty's damper (compliant contact's).
         contact: (θ, w, β) [-] of the step (an integrator's ``contact_point``, ``contact_impulse``,
             ``contact_shift``): its forces act at x₀ + θ(x₁ − x₀) over wΔt, and friction's velocity change
             Δv_t moves a particle by βΔt Δv_t (ground and ``apply_out`` handlers). Backward Euler's
@@ -191,6 +195,7 @@ def finish_step(
                 xo,
                 vo,
                 penalty=ground_penalty,
+                penalty_damping=ground_damping,
                 x_start=state_in.particle_q,
                 point=point,
                 impulse=impulse,

@@ -11,7 +11,7 @@ import warp as wp
 
 from ..._warp import GradientError, fresh, grad_enabled, launch
 from ...collision import ground_coefficients
-from ...energies import Energy, Gravity, GravityFromArray, GroundPenalty, mass_spring
+from ...energies import Energy, Gravity, GravityFromArray, GroundPenalty, ground_penalty, mass_spring
 from ...energies._base import _axpy
 from ...integrators import ImplicitOptions, Integrator, SymplecticEuler
 from ...model import Control, Model, State
@@ -64,7 +64,9 @@ class ForceSolver(Solver):
         integrator: any ``pl.integrators`` object (default SymplecticEuler).
         velocity_damping: the lecture's δ, multiplying velocities each step (1 = none). Depends on Δt.
         damping_rate: c [1/s] for the Δt-independent form v ← v·exp(−cΔt); overrides ``velocity_damping``.
-        contact: resolve ground contact after each step (needs ``model.ground``).
+        contact: resolve ground contact after each step (needs ``model.ground``; a compliant ground,
+            ``Ground.stiffness`` set, is a spring–damper: after explicit steps,
+            :func:`pliant.collision.ground_compliant`; inside implicit ones, its GroundPenalty).
         collisions: contact handlers run after ground contact, each with
             ``apply(model, state_in, state_out, dt)`` (``pl.collision.Colliders``, ``SelfCollision``).
         minimizer: how an implicit integrator's steps are minimised: a
@@ -114,8 +116,13 @@ class ForceSolver(Solver):
         self.contact = contact and model.ground is not None
         if self.contact and not self.integrator.explicit:
             # Newton must see the ground: projecting after a large implicit step flattens (inverts) elements.
+            # A compliant ground is its own spring–damper; a hard one the default penalty. Explicit steps
+            # get a compliant ground's spring–damper after the step (collision.ground_compliant: stable).
             if not any(isinstance(e, GroundPenalty) for e in self.energies):
-                self.energies.append(GroundPenalty())
+                g = model.ground
+                self.energies.append(
+                    ground_penalty(g.stiffness, g.damping) if g.compliant else GroundPenalty()
+                )
         self.collisions = check_collisions(collisions)
         d = model.device
         self._force = wp.zeros(model.particle_count, dtype=model.vec3, device=d)
@@ -239,6 +246,7 @@ class ForceSolver(Solver):
             ground=self.ground_coefficients,
             collisions=self.collisions,
             ground_penalty=self._ground_penalty(),
+            ground_damping=self._ground_damping(),
             contact=(integ.contact_point, integ.contact_impulse, integ.contact_shift),
         )
 
@@ -291,6 +299,10 @@ class ForceSolver(Solver):
             if isinstance(e, GroundPenalty):
                 return e.stiffness
         return None
+
+    def _ground_damping(self) -> float:
+        """b [1/s] of the GroundPenalty's damper (a :class:`~pliant.energies.DampedGroundPenalty`), else 0."""
+        return next((getattr(e, "damping", 0.0) for e in self.energies if isinstance(e, GroundPenalty)), 0.0)
 
     def energy(self, state: State) -> dict[str, float]:
         """Kinetic and potential energies [J] of ``state`` (host sync: use outside hot loops)."""
