@@ -23,11 +23,12 @@ G = 9.81
 #: name -> (engine prefix, fitted material key of the scene, substeps per frame the engine ran)
 OWN = {
     "mujoco_cloth_own": ("mujoco 4.0", "Et", 20),
-    "mujoco_cube_own": ("mujoco 4.0", "E", 20),
+    "mujoco_cube_own": ("mujoco 4.0", "E", 20),  # dropped from rest (issue 38's cube)
+    "mujoco_cube_own_thrown": ("mujoco 4.0", "E", 20),  # thrown as mujoco_cube
     "newton_cloth_own": ("newton 1.8", "Et", 200),
     "newton_box_own": ("newton 1.8", "E", 100),
 }
-SOLIDS = ("mujoco_cube_own", "newton_box_own")
+SOLIDS = ("mujoco_cube_own", "mujoco_cube_own_thrown", "newton_box_own")
 
 
 def _meta(name: str) -> dict:
@@ -109,7 +110,7 @@ def test_own_fixture_starts_as_a_free_fall(name):
         gap = np.linalg.norm(x[0][:, None] - x[0][still][None], axis=2).min(axis=1)
         use, frames = gap > 0.3 * float(np.ptp(x[0], axis=0).max()), 1
         v0 = np.zeros(3)
-    else:  # thrown solids: every vertex, until the ground (the lowest vertex stays above 2 cm)
+    else:  # dropped or thrown solids: every vertex, while the lowest stays 10 cm above the ground
         use = np.ones(len(x[0]), bool)
         frames = int(np.argmax(x[:, :, 1].min(axis=1) < 0.1)) - 1
         v0 = np.asarray(pliant.scene.load_scene(DATA / meta["scene"]).objects[0].velocity)
@@ -134,7 +135,7 @@ def test_own_solid_sinks_into_the_engines_soft_ground(name):
     low = float(x[..., 1].min())
     assert meta["max_penetration_m"] == pytest.approx(radius - low, abs=1e-6)  # float32 truth
     assert meta["max_penetration_m"] > 5e-3 and low < 0.0
-    assert x[0, :, 1].min() > 0.3  # it starts in the air
+    assert x[0, :, 1].min() > 0.1  # it starts in the air
     # It comes to rest on the ground: the lowest vertex ends within a contact radius of it.
     assert abs(x[-1, :, 1].min()) < radius
     cfg, _ = _scene(name)

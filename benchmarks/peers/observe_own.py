@@ -1,5 +1,6 @@
 """Cross-engine fixtures made each engine's own way (issue 38, item 5): ``mujoco_cloth_own``,
-``mujoco_cube_own``, ``newton_cloth_own`` and ``newton_box_own`` in ``tests/data/foreign/``.
+``mujoco_cube_own`` (dropped; ``mujoco_cube_own_thrown`` thrown as ``mujoco_cube``), ``newton_cloth_own``
+and ``newton_box_own`` in ``tests/data/foreign/``.
 
 The fixtures of ``observe_mujoco.py`` and ``observe_newton.py`` set pliant's lumped masses into the other
 engine, which makes them closer to pliant's model than a real capture is. These keep what each engine does
@@ -17,7 +18,8 @@ converted, made too soft as a fit's starting point. It is not adapted to the eng
 The sidecar JSON records the engine's mass distribution, contact parameters, version and the truth.
 
     cd benchmarks/peers
-    /work/peers-venv/bin/python observe_own.py mujoco_cloth mujoco_cube newton_cloth newton_box
+    /work/peers-venv/bin/python observe_own.py mujoco_cloth mujoco_cube mujoco_cube_thrown newton_cloth \
+        newton_box
 
 SYNTHETIC DATA; needs the peers' venv (README.md); never imported by pliant or its tests.
 """
@@ -51,8 +53,17 @@ from _scene import lumped_mass  # noqa: E402
 
 FRAMES = 60  # frames after frame 0 (61 frames, 2 s at 30 fps)
 GRAVITY = 9.81
-#: The MuJoCo cube: issue 38's (E = 5e4 Pa, its scene starts from 2e4 Pa), thrown as mujoco_cube is.
-MJ_CUBE = dict(**THROWN_BOX, young=5.0e4, poisson=0.3, damping=0.002, nominal_factor=2.5)
+#: The MuJoCo cube: issue 38's (E = 5e4 Pa, its scene starts from 2e4 Pa), dropped from rest with its bottom
+#: 0.15 m above the ground (the vertices sink 15 mm: the issue's case) ...
+MJ_CUBE = dict(
+    **{**THROWN_BOX, "centre": (0.0, 0.25, 0.0), "velocity": (0.0, 0.0, 0.0)},
+    young=5.0e4,
+    poisson=0.3,
+    damping=0.002,
+    nominal_factor=2.5,
+)
+#: ... and thrown as mujoco_cube is (mujoco_cube_own_thrown).
+MJ_CUBE_THROWN = {**MJ_CUBE, "centre": THROWN_BOX["centre"], "velocity": THROWN_BOX["velocity"]}
 #: The Newton box: newton_box's material (Smith tets, E = 4e4 Pa) on Newton's own grid, masses and default
 #: contact; the scene starts 2.5x too soft as the cube's. No tet viscosity (newton_box has 20 Pa s): Newton
 #: 1.8's SolverSemiImplicit damps dJ/dt as dJ/dx_i · v_i over three of the four vertices only
@@ -67,7 +78,7 @@ def _tracks(name: str, x: np.ndarray, candidates: np.ndarray, args, meta: dict, 
     rng = np.random.default_rng(args.seed)
     points, visible, pick, gaps = noisy_tracks(x, candidates, args.tracks, rng)
     t = np.arange(x.shape[0]) / FPS
-    command = f"observe_own.py {name.removesuffix('_own')} --tracks {args.tracks} --seed {args.seed}"
+    command = f"observe_own.py {name.replace('_own', '')} --tracks {args.tracks} --seed {args.seed}"
     head = fixture_meta(name, meta.pop("engine"), t, pick, gaps, args.seed, command)
     written = write_fixture(
         name, dict(t=t, points=points, visible=visible), {**head, **meta}, truth=x, scene=scene
@@ -192,8 +203,7 @@ def mujoco_cloth(args) -> dict:
     return _tracks("mujoco_cloth_own", x, np.setdiff1d(np.arange(len(pts)), pin), args, meta, scene)
 
 
-def _mj_cube_xml(pts: np.ndarray, tets: np.ndarray, mass: float) -> str:
-    c = MJ_CUBE
+def _mj_cube_xml(pts: np.ndarray, tets: np.ndarray, mass: float, c: dict) -> str:
     # Nothing of the contact is set: MuJoCo's defaults (solref 0.02 1, solimp 0.9 0.95 0.001 0.5 2,
     # friction 1, condim 3, flex radius 5 mm, pyramidal cone) for the ground geom and the flex alike.
     return f"""
@@ -211,14 +221,17 @@ def _mj_cube_xml(pts: np.ndarray, tets: np.ndarray, mass: float) -> str:
 """
 
 
-def mujoco_cube(args) -> dict:
-    """A MuJoCo soft cube thrown onto its ground with MuJoCo's default soft contact and even masses."""
+def mujoco_cube(args, thrown: bool = False) -> dict:
+    """A MuJoCo soft cube dropped (or ``thrown``) onto its ground with MuJoCo's default soft contact and
+    even masses: ``mujoco_cube_own`` (``mujoco_cube_own_thrown``)."""
     mujoco = om._mujoco()
-    c = MJ_CUBE
+    c = MJ_CUBE_THROWN if thrown else MJ_CUBE
+    name = "mujoco_cube_own_thrown" if thrown else "mujoco_cube_own"
+    how = "thrown" if thrown else "dropped"
     corner = np.asarray(c["centre"]) - 0.5 * np.asarray(c["size"])
     pts, tets = box_tets(c["cells"], c["size"], corner)
     total = c["density"] * float(np.prod(c["size"]))
-    model = mujoco.MjModel.from_xml_string(_mj_cube_xml(pts, tets, total))
+    model = mujoco.MjModel.from_xml_string(_mj_cube_xml(pts, tets, total, c))
     data = mujoco.MjData(model)
     free, body = om._free_vertex_bodies(model)
     dof = model.jnt_dofadr[model.body_jntadr[body]]
@@ -250,7 +263,7 @@ def mujoco_cube(args) -> dict:
     mu = contact["friction"][0]
     comments = _mj_comments(
         mujoco,
-        "flex soft cube (3D, StVK) thrown onto the ground, MuJoCo's own masses and contact",
+        f"flex soft cube (3D, StVK) {how} onto the ground, MuJoCo's own masses and contact",
         [
             f"Converted: E = {E:g} Pa, nu = {c['poisson']}, law stvk (MuJoCo's 3D flex elasticity is StVK);",
             f"ground friction {mu:g} (MuJoCo's default). MuJoCo spreads {total:g} kg evenly over the",
@@ -279,7 +292,7 @@ law = "stvk"
 height = 0.0
 friction = {mu:g}
 """
-    scene = scene_toml(comments, "mujoco_cube_own", 40, FRAMES, body_toml)
+    scene = scene_toml(comments, name, 40, FRAMES, body_toml)
     mass = np.zeros(len(pts))
     mass[free] = model.body_mass[body]
     meta = {
@@ -327,7 +340,7 @@ friction = {mu:g}
         "max_penetration_m": penetration,
         "penetration": "contact radius minus the lowest vertex height: how deep the vertex spheres sink",
     }
-    return _tracks("mujoco_cube_own", x, np.arange(len(pts)), args, meta, scene)
+    return _tracks(name, x, np.arange(len(pts)), args, meta, scene)
 
 
 def om_vec(v) -> str:
@@ -617,6 +630,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     make = {
         "mujoco_cloth": mujoco_cloth,
         "mujoco_cube": mujoco_cube,
+        "mujoco_cube_thrown": lambda args: mujoco_cube(args, thrown=True),
         "newton_cloth": newton_cloth,
         "newton_box": newton_box,
     }
