@@ -608,7 +608,9 @@ friction = {fr:g}
             "nu": nu,
             "k_damp_Pa_s": c["k_damp"],
             "ground_friction": fr,
-            "E_over_rho_effective": E / (total / float(np.prod(c["size"]))),
+            # The E that moves pliant's box (ρ V, the scene's density) as Newton's heavier grid moves: under
+            # gravity and contact only E / ρ matters.
+            "E_at_scene_density_Pa": E / (total / (c["density"] * float(np.prod(c["size"])))),
         },
         "material_pliant_converted": {"E": E, "nu": nu, "ground_friction": fr},
         "material_pliant_nominal": {
