@@ -11,7 +11,8 @@ the video is not part of the fit), then prints one JSON line with the held-out (
 of the nominal and the fitted scene [mm], their ratio, the fitted values beside the truth in the fixture's
 sidecar, and the wall time with the machine's load (the figures are per core: Warp runs CPU kernels on one
 thread). ``--override KEY=VALUE`` instead replays the scene with changed values (``pliant run --set``-style
-hand tuning is done through :func:`held_out_error`), to record a hand-tuned best beside the fit.
+hand tuning is done through :func:`held_out_error`), to record a hand-tuned best beside the fit;
+``--even-masses`` with it spreads the mass evenly as the engines did (not declarable in a scene yet).
 
 Goals (issue 38): held-out ≤ 0.25× nominal on cloth and ≤ 0.3× on soft solids with ground contact, never
 worse than nominal.
@@ -97,20 +98,36 @@ def fit_row(name: str, extra: list[str]) -> dict:
     }
 
 
-def held_out_error(name: str, overrides: dict[str, float]) -> dict:
+def held_out_error(name: str, overrides: dict[str, float], even_masses: bool = False) -> dict:
     """The scene of fixture ``name`` with ``overrides`` (global fit parameters, e.g. ``{"E": 5e4}``) applied,
-    run open loop: its held-out and training track errors [mm], split as the fit splits them."""
+    run open loop: its held-out and training track errors [mm], split as the fit splits them.
+
+    Args:
+        name: fixture name (``tests/data/foreign/NAME.{toml,npz}``).
+        overrides: global parameter values (pliant.fit's names and units).
+        even_masses: spread the free particles' total mass evenly over them after building (the engines'
+            own distribution, which pliant cannot declare yet: issue 38 item 2), to see what it would buy.
+    """
     import pliant as pl
     from pliant.fit._problem import Problem
 
     cfg = pl.scene.load_scene(DATA / f"{name}.toml")
     obs = pl.io.Observations.load(DATA / f"{name}.npz")
     p = Problem(pl.fit.apply_globals(cfg, overrides), obs, params=sorted(overrides))
-    err = p.split_errors(p.simulate(p.build(p.nominal), p.frames))
+    scene = p.build(p.nominal)
+    if even_masses:
+        m, inv = scene.model.particle_mass.numpy(), scene.model.particle_inv_mass.numpy()
+        free = inv > 0
+        m[free] = m[free].sum() / free.sum()
+        inv[free] = 1.0 / m[free]
+        scene.model.particle_mass.assign(m)
+        scene.model.particle_inv_mass.assign(inv)
+    err = p.split_errors(p.simulate(scene, p.frames))
     return {
         "benchmark": "fit_own_fixtures_hand",
         "fixture": name,
         "overrides": overrides,
+        "even_masses": even_masses,
         "test_mm": round(err["test"] * 1e3, 3),
         "train_mm": round(err["train"] * 1e3, 3),
         "commit": _commit(),
@@ -123,11 +140,13 @@ def main(argv: list[str] | None = None) -> list[dict]:
     ap.add_argument("--json", help="append the rows to this JSONL file")
     ap.add_argument("--extra", default="", help="more `pliant fit` options, one string")
     ap.add_argument("--override", nargs="+", metavar="KEY=VALUE", help="hand-tuned values instead of a fit")
+    ap.add_argument("--even-masses", action="store_true", help="with --override: the engines' even masses")
     args = ap.parse_args(argv)
     rows = []
     for name in args.only:
         if args.override:
-            row = held_out_error(name, {k: float(v) for k, v in (o.split("=", 1) for o in args.override)})
+            values = {k: float(v) for k, v in (o.split("=", 1) for o in args.override)}
+            row = held_out_error(name, values, args.even_masses)
         else:
             row = fit_row(name, args.extra.split())
         print(json.dumps(row), flush=True)
