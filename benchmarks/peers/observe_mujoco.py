@@ -13,6 +13,9 @@ headless: ``MUJOCO_GL=egl`` (Mesa's EGL, Debian ``libegl-mesa0``) or ``osmesa`` 
     /work/peers-venv/bin/python observe_mujoco.py cube
     /work/peers-venv/bin/python observe_mujoco.py rope
 
+These fixtures give MuJoCo pliant's lumped masses; ``observe_own.py`` makes ``mujoco_cloth_own`` and
+``mujoco_cube_own`` MuJoCo's own way (flexcomp's even masses, its default soft contact) from the helpers here.
+
 Axes: MuJoCo runs z-up here (its ground plane and gravity); pliant is y-up. A point (x, y, z) of pliant is
 (z, x, y) in MuJoCo, a cyclic permutation (a rotation, so element orientations are kept); every file is
 written in pliant's axes.

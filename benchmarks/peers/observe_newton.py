@@ -19,6 +19,10 @@ pliant scene whose material is 5x too soft:
 
     /work/peers-venv/bin/python observe_newton.py cloth --fixture
     /work/peers-venv/bin/python observe_newton.py box --fixture
+
+These give Newton pliant's lumped masses (the cloth) and mesh (the box); ``observe_own.py`` makes
+``newton_cloth_own`` and ``newton_box_own`` Newton's own way (``add_cloth_grid``'s even masses,
+``add_soft_grid``'s grid and masses, its default ground contact).
 """
 
 from __future__ import annotations
