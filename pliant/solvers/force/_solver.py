@@ -111,7 +111,10 @@ class ForceSolver(Solver):
             raise ValueError(f"damping_rate must be >= 0 1/s, got {damping_rate}")
         self.velocity_damping_factor = float(velocity_damping)
         self.damping_rate = damping_rate
-        self.contact = contact and model.ground is not None
+        # An energy that is the ground contact itself (barrier contact) replaces the penalty and the
+        # post-step projection: projecting would undo the barrier's intersection-free positions.
+        owned = any(getattr(e, "owns_ground", False) for e in self.energies)
+        self.contact = contact and model.ground is not None and not owned
         if self.contact and not self.integrator.explicit:
             # Newton must see the ground: projecting after a large implicit step flattens (inverts) elements.
             if not any(isinstance(e, GroundPenalty) for e in self.energies):

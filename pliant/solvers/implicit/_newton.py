@@ -38,7 +38,7 @@ import warp as wp
 from ..._warp import launch
 from ._adjoint import differentiable
 from ._assembly import _assemble, _control_terms, _inverse_diagonal
-from ._kernels import _incremental_gradient, _negate, _step_stats, _trial_point
+from ._kernels import _incremental_gradient, _negate, _step_stats, _toward, _trial_point
 from ._options import step_settings
 from ._workspace import (
     _direct_solve,
@@ -131,6 +131,29 @@ def _launch_gradient(
     )
 
 
+def needs_feasible_start(solver: PotentialProblem) -> bool:
+    """Whether an energy of ``solver`` asks to start from the step's start positions (``feasible_start``:
+    barrier contact, infinite where x̃ may intersect) rather than from x̃."""
+    return any(getattr(e, "feasible_start", False) for e in solver.energies)
+
+
+def _feasible_start(
+    solver: PotentialProblem, ws: _Workspace, x_ref: wp.array, x_tilde: wp.array, x: wp.array
+) -> None:
+    """With an energy that needs it, x = x_ref + α(x̃ − x_ref) (free particles; fixed ones at x̃), α ≤ 1 the
+    energies' ``max_step`` from x_ref: the start is then as admissible as x_ref (IPC starts from x_ref)."""
+    if not needs_feasible_start(solver):
+        return
+    m = solver.model
+    n = m.particle_count
+    launch(_toward, n, [m.particle_inv_mass, x_ref, x_tilde, m.s(0.0), 0, ws.dx, x], device=m.device)
+    alpha = 1.0
+    for e in solver.energies:
+        alpha = min(alpha, float(e.max_step(m, x_ref, ws.dx)))
+    if alpha < 1.0:
+        launch(_toward, n, [m.particle_inv_mass, x_ref, x_tilde, m.s(alpha), 1, ws.dx, x], device=m.device)
+
+
 @differentiable
 def minimize_incremental_potential(
     solver: PotentialProblem,
@@ -181,6 +204,7 @@ def minimize_incremental_potential(
             e.begin_step(m, x_ref, v_ref, h)
     wp.copy(x_out, x_tilde)
     x = x_out
+    _feasible_start(solver, ws, x_ref, x_tilde, x)
     h2 = h * h
     g = _gradient(solver, ws, x, x_tilde, h)
     # Round-off floor: positions are known to eps·max|x|; one ulp moves ∇Φ_i/(m_i h) by up to
