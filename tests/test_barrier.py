@@ -1,0 +1,234 @@
+"""Barrier contact (pl.energies.BarrierContact, IPC): the barrier and its derivatives per pair type against
+float64 central differences and the IPC Toolkit's distances, the PSD projection, the continuous collision
+detection's bound on constructed motions (closed forms), and implicit steps at Δt = 0.1 s that never
+intersect (checked by ipctk.has_intersections and the colliders' signed distances)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import warp as wp
+
+import pliant as pl
+from pliant.energies._barrier import barrier_pair_terms
+from tests.helpers import energy_fd_check
+
+ipctk = pytest.importorskip("ipctk")
+
+DHAT = 0.01
+
+
+def b_closed(d: float, dhat: float = DHAT) -> float:
+    """IPC's clamped log barrier, written out."""
+    return -((d - dhat) ** 2) * np.log(d / dhat) if d < dhat else 0.0
+
+
+#: Pairs (name, edge_edge, [4, 3] points) inside d̂, one per closest-point region.
+PAIRS = [
+    ("pt_face", False, [[0.21, 0.32, 0.004], [0, 0, 0], [1, 0.02, 0], [0.01, 1, 0.03]]),
+    ("pt_edge", False, [[0.5, -0.003, 0.004], [0, 0, 0], [1, 0, 0.001], [0, 1, 0]]),
+    ("pt_vertex", False, [[-0.003, -0.002, 0.004], [0, 0, 0], [1, 0, 0], [0, 1, 0.002]]),
+    ("ee_cross", True, [[0, 0, 0.005], [1, 0.1, 0.004], [0.5, -0.5, 0], [0.4, 0.5, 0.001]]),
+    ("ee_end", True, [[0, 0, 0.005], [1, 0.1, 0.004], [1.003, -0.5, 0], [1.004, 0.5, 0.001]]),
+]
+
+
+def _fd(P: np.ndarray, ee: bool, eps: float = 1e-7) -> tuple[np.ndarray, np.ndarray]:
+    """Central differences of the pair's value (gradient) and of its gradient (Hessian)."""
+    x = P.ravel()
+    e = np.eye(12) * eps
+    plus = barrier_pair_terms((x + e).reshape(12, 4, 3), edge_edge=ee, dhat=DHAT)
+    minus = barrier_pair_terms((x - e).reshape(12, 4, 3), edge_edge=ee, dhat=DHAT)
+    return (plus[0] - minus[0]) / (2 * eps), ((plus[1] - minus[1]) / (2 * eps)).T
+
+
+@pytest.mark.parametrize("name,ee,points", PAIRS, ids=[p[0] for p in PAIRS])
+def test_pair_barrier_matches_ipctk_distance_and_finite_differences(name, ee, points):
+    """b(d) at the IPC Toolkit's distance; ∇b and ∇²b equal float64 central differences (1e-6 relative)."""
+    P = np.asarray(points, np.float64)
+    v, g, H = barrier_pair_terms(P[None], edge_edge=ee, dhat=DHAT)
+    d2 = (ipctk.edge_edge_distance if ee else ipctk.point_triangle_distance)(*P)
+    d = float(np.sqrt(d2))
+    assert 0 < d < DHAT
+    assert v[0] == pytest.approx(b_closed(d), rel=1e-10)
+    g_fd, H_fd = _fd(P, ee)
+    assert np.abs(g[0] - g_fd).max() <= 1e-6 * np.abs(g_fd).max()
+    assert np.abs(H[0] - H_fd).max() <= 1e-6 * np.abs(H_fd).max()
+    assert np.abs(H[0] - H[0].T).max() <= 1e-12 * np.abs(H[0]).max()
+
+
+def test_barrier_is_zero_beyond_dhat_and_c2_at_it():
+    """Exactly 0 beyond d̂; at d = d̂(1 − ε), b ≈ d̂²ε³, b′ ≈ −3d̂ε², b″ ≈ 6ε (C² at d̂, leading terms)."""
+    P = np.array([[0.2, 0.2, DHAT * 1.01], [0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    v, g, H = barrier_pair_terms(P[None], edge_edge=False, dhat=DHAT)
+    assert v[0] == 0 and not g.any() and not H.any()
+    for eps in (1e-3, 1e-4):
+        P[0, 2] = DHAT * (1 - eps)
+        v, g, H = barrier_pair_terms(P[None], edge_edge=False, dhat=DHAT)
+        # Face region: ∂d/∂p = n = e_z, so g[2] = b′ and H[2, 2] = b″.
+        assert v[0] == pytest.approx(DHAT**2 * eps**3, rel=3 * eps)
+        assert g[0, 2] == pytest.approx(-3 * DHAT * eps**2, rel=3 * eps)
+        assert H[0, 2, 2] == pytest.approx(6 * eps, rel=3 * eps)
+
+
+@pytest.mark.parametrize("name,ee,points", PAIRS, ids=[p[0] for p in PAIRS])
+def test_psd_projection_clamps_the_negative_eigenvalues(name, ee, points):
+    """The projected Hessian is V max(Λ, 0) Vᵀ of the exact one (numpy's eigh as the reference)."""
+    P = np.asarray(points, np.float64)
+    _, _, H = barrier_pair_terms(P[None], edge_edge=ee, dhat=DHAT)
+    _, _, Hp = barrier_pair_terms(P[None], edge_edge=ee, dhat=DHAT, project=True)
+    lam, V = np.linalg.eigh(H[0])
+    ref = (V * np.maximum(lam, 0)) @ V.T
+    scale = np.abs(H[0]).max()
+    assert lam.min() < -1e-6 * scale, "the example should have a negative eigenvalue to clamp"
+    assert np.abs(Hp[0] - ref).max() <= 1e-9 * scale
+    assert np.linalg.eigvalsh(Hp[0]).min() >= -1e-9 * scale
+
+
+def _particles(points, *, ground: bool = True) -> pl.Model:
+    b = pl.ModelBuilder()
+    b.add_particles(np.asarray(points, float), 0.1, radius=0.001)
+    if ground:
+        b.add_ground(height=0.0)
+    return b.finalize(device="cpu", dtype="float64")
+
+
+def test_point_plane_energy_closed_form_and_derivatives():
+    """Ground: E = κ Σ b(y_i) and its gradient/Hessian against central differences."""
+    ys = [0.004, 0.0021, 0.05]
+    model = _particles([[0.0, y, 0.1 * k] for k, y in enumerate(ys)])
+    e = pl.energies.BarrierContact(dhat=DHAT, kappa=30.0)
+    out = wp.zeros(1, dtype=wp.float64)
+    e.value(model, model.particle_q, out)
+    assert out.numpy()[0] == pytest.approx(30.0 * sum(b_closed(y) for y in ys), rel=1e-12)
+    g, g_fd, H, H_fd = energy_fd_check(model, e, model.particle_q_np.copy(), eps=1e-7)
+    assert np.abs(g - g_fd).max() <= 1e-6 * np.abs(g_fd).max()
+    assert np.abs(H - H_fd).max() <= 1e-6 * np.abs(H_fd).max()
+
+
+def test_self_contact_energy_is_the_pairs_sum_with_diagonal_blocks():
+    """A point over a triangle through the energy: value and gradient equal the pair's; each point's
+    Hessian block is the pair's diagonal block (central differences of the energy's gradient)."""
+    pts = [[0.21, 0.004, 0.32], [0, 0, 0], [1, 0.0, 0.02], [0.01, 0.03, 1], [0.2, 0.5, 0.3], [0.3, 0.5, 0.3]]
+    model = _particles(pts, ground=False)
+    e = pl.energies.BarrierContact(
+        dhat=DHAT, kappa=7.0, ground=False, self_contact=True, triangles=[[0, 4, 5], [1, 2, 3]]
+    )
+    v, gp, Hp = barrier_pair_terms(np.asarray(pts[:4])[None], edge_edge=False, dhat=DHAT)
+    out = wp.zeros(1, dtype=wp.float64)
+    e.value(model, model.particle_q, out)
+    assert out.numpy()[0] == pytest.approx(7.0 * v[0], rel=1e-12)
+    g, g_fd, H, H_fd = energy_fd_check(model, e, np.asarray(pts, float), eps=1e-7)
+    assert np.abs(g[:12] - 7.0 * gp[0]).max() <= 1e-12 * np.abs(g).max()
+    assert np.abs(g - g_fd).max() <= 1e-6 * np.abs(g_fd).max()
+    for k in range(4):
+        blk = slice(3 * k, 3 * k + 3)
+        assert np.abs(H[blk, blk] - H_fd[blk, blk]).max() <= 1e-6 * np.abs(H_fd).max()
+
+
+def _max_step(model, energy, dx) -> float:
+    return energy.max_step(model, model.particle_q, wp.array(np.asarray(dx, float), dtype=wp.vec3d))
+
+
+def test_ccd_point_to_plane_is_080_of_the_time_of_impact():
+    """A point at height y moving by (0, −3y, 0) hits the plane at t = 1/3: the bound is 0.8/3 exactly."""
+    y = 0.02
+    model = _particles([[0.0, y, 0.0], [1.0, 0.5, 0.0]])
+    e = pl.energies.BarrierContact(dhat=DHAT)
+    assert _max_step(model, e, [[0.1, -3 * y, 0.0], [0, -0.1, 0]]) == pytest.approx(0.8 / 3, rel=1e-12)
+    assert _max_step(model, e, [[0.1, 0.01, 0.0], [0, -0.1, 0]]) == 1.0  # moving away or short of it
+
+
+def test_ccd_point_through_triangle_and_edge_through_edge():
+    """A point 2 cm over a triangle moved 4 cm through it (toi 0.5), and an edge moved through a crossing
+    edge (toi 0.5): the bound keeps 20 % of the gap, 0.8 × toi = 0.4, to additive CCD's tolerance."""
+    pts = [[0.2, 0.02, 0.3], [0, 0, 0], [1, 0, 0.0], [0, 0, 1], [0.2, 5, 0.3], [0.3, 5, 0.3]]
+    model = _particles(pts, ground=False)
+    e = pl.energies.BarrierContact(
+        dhat=DHAT, ground=False, self_contact=True, triangles=[[0, 4, 5], [1, 2, 3]]
+    )
+    dx = np.zeros((6, 3))
+    dx[0] = [0.01, -0.04, 0.0]
+    t = _max_step(model, e, dx)
+    assert 0.4 * (1 - 1e-3) <= t <= 0.4
+    edges = [[-0.5, 0.02, 0.5], [0.5, 0.02, 0.5], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0, 5, 0.5], [0, -5, 0.5]]
+    model = _particles(edges, ground=False)
+    e = pl.energies.BarrierContact(
+        dhat=DHAT, ground=False, self_contact=True, triangles=[[0, 1, 4], [2, 3, 5]]
+    )
+    dx = np.zeros((6, 3))
+    dx[:2, 1] = -0.04
+    t = _max_step(model, e, dx)
+    assert 0.4 * (1 - 1e-3) <= t <= 0.4
+    dx[:2, 1] = 0.0
+    dx[:, 0] = 0.3  # a translation of everything changes no distance
+    assert _max_step(model, e, dx) == 1.0
+
+
+def test_ccd_point_into_sphere_collider():
+    """A point 5 cm from a 0.2 m sphere moving radially 10 cm in: 0.8 × toi = 0.4 (conservative advance)."""
+    cols = pl.collision.Colliders()
+    cols.add_sphere((0, 0.5, 0), 0.2)
+    model = _particles([[0.25, 0.5, 0.0]], ground=False)
+    e = pl.energies.BarrierContact(dhat=DHAT, ground=False, colliders=cols)
+    t = _max_step(model, e, [[-0.1, 0.0, 0.0]])
+    assert 0.4 * (1 - 1e-3) <= t <= 0.4
+
+
+def _collision_mesh(model: pl.Model):
+    F = np.ascontiguousarray(model.tri_indices.numpy().reshape(-1, 3).astype(np.int32))
+    E = ipctk.edges(F)
+    return ipctk.CollisionMesh(model.particle_q_np.astype(np.float64), E, F)
+
+
+def test_two_cloths_dropped_at_dt_01_never_intersect():
+    """Two cloths (one over the other) dropped on the ground with backward Euler at Δt = 0.1 s: every frame
+    stays above the ground and free of intersections (ipctk), and the pile comes to rest within d̂."""
+    b = pl.ModelBuilder()
+    b.add_cloth_grid(nx=5, ny=5, size=0.3, mass=0.05, stiffness=100.0, origin=(0, 0.0, 0))
+    b.add_cloth_grid(nx=5, ny=5, size=0.2, mass=0.05, stiffness=100.0, origin=(0.03, 0.15, 0.02), name="top")
+    b.add_ground(height=-0.01)
+    model = b.finalize(device="cpu", dtype="float32")
+    dhat = 2e-3
+    bar = pl.energies.BarrierContact(dhat=dhat, self_contact=True)
+    solver = pl.solvers.ForceSolver(model, [*pl.energies.mass_spring(), bar], pl.integrators.BackwardEuler())
+    assert not solver.contact  # the barrier is the ground contact: no penalty, no projection
+    cm = _collision_mesh(model)
+    s0, s1 = model.state(), model.state()
+    n_bottom = 36
+    for _ in range(8):
+        solver.step(s0, s1, None, 0.1)
+        s0, s1 = s1, s0
+        x = s0.particle_q.numpy().astype(np.float64)
+        assert x[:, 1].min() > -0.01
+        assert not ipctk.has_intersections(cm, x)
+    # At rest: the bottom cloth within d̂ of the ground, the top one within d̂ of the bottom one.
+    assert x[:n_bottom, 1].max() < -0.01 + dhat
+    assert x[n_bottom:, 1].min() > x[:n_bottom, 1].max()
+    assert x[n_bottom:, 1].max() < x[:n_bottom, 1].max() + dhat + 1e-4
+
+
+def test_soft_box_pushed_into_a_sphere_never_penetrates():
+    """A FEM box thrown at 3 m/s against a sphere collider with Δt = 0.1 s (30 cm per step, more than the
+    box): every vertex stays outside the sphere at every frame."""
+    cols = pl.collision.Colliders()
+    center, radius = np.array([0.0, 0.0, 0.0]), 0.3
+    cols.add_sphere(tuple(center), radius)
+    b = pl.ModelBuilder(gravity=(0.0, 0.0, 0.0))
+    b.add_soft_box(
+        cells=(3, 3, 3), size=(0.2, 0.2, 0.2), origin=(-0.5, 0.0, 0.0), density=500.0, E=2e4, nu=0.3,
+        velocity=(3.0, 0.0, 0.0),
+    )  # fmt: skip
+    model = b.finalize(device="cpu", dtype="float32")
+    bar = pl.energies.BarrierContact(dhat=2e-3, ground=False, colliders=cols)
+    solver = pl.solvers.ForceSolver(model, [pl.energies.NeoHookean(), bar], pl.integrators.BackwardEuler())
+    s0, s1 = model.state(), model.state()
+    closest = np.inf
+    for _ in range(6):
+        solver.step(s0, s1, None, 0.1)
+        s0, s1 = s1, s0
+        x = s0.particle_q.numpy().astype(np.float64)
+        phi = np.linalg.norm(x - center, axis=1) - radius
+        assert phi.min() > 0
+        closest = min(closest, phi.min())
+    assert closest < 2e-3  # it did reach the sphere
