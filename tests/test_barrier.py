@@ -232,3 +232,54 @@ def test_soft_box_pushed_into_a_sphere_never_penetrates():
         assert phi.min() > 0
         closest = min(closest, phi.min())
     assert closest < 2e-3  # it did reach the sphere
+
+
+BARRIER_SCENE = """
+[scene]
+name = "barrier_drop"
+frame_dt = 0.1
+substeps = 1
+frames = 3
+device = "cpu"
+[[objects]]
+kind = "cloth"
+nx = 4
+ny = 4
+size = 0.2
+origin = [-0.1, 0.05, -0.1]
+mass = 0.02
+[objects.material]
+stiffness = 50.0
+[[colliders]]
+kind = "sphere"
+center = [0.0, -0.25, 0.0]
+radius = 0.27
+[ground]
+contact = "barrier"
+dhat = 0.002
+[solver]
+kind = "force"
+integrator = "BackwardEuler"
+self_collision = { thickness = 0.002, contact = "barrier" }
+"""
+
+
+def test_scene_barrier_contact_option():
+    """``[ground] contact = "barrier"`` (with the colliders) and ``self_collision.contact = "barrier"`` build
+    two BarrierContact terms and no post-step handlers; an explicit integrator is refused."""
+    cfg = pl.scene.parse_scene(BARRIER_SCENE)
+    scene = pl.scene.build_scene(cfg)
+    bars = [e for e in scene.solver.energies if isinstance(e, pl.energies.BarrierContact)]
+    assert [(b.dhat, b.ground, b.colliders is not None, b.self_contact) for b in bars] == [
+        (0.002, True, True, False),
+        (0.002, False, False, True),
+    ]
+    assert scene.solver.collisions == [] and not scene.solver.contact
+    s0, s1 = scene.model.state(), scene.model.state()
+    for _ in range(3):
+        scene.solver.step(s0, s1, None, 0.1)
+        s0, s1 = s1, s0
+        x = s0.particle_q.numpy()
+        assert (np.linalg.norm(x - [0.0, -0.25, 0.0], axis=1) > 0.27).all()
+    with pytest.raises(pl.scene.SceneError, match="ground.contact.*implicit integrator"):
+        pl.scene.build_scene(pl.scene.parse_scene(BARRIER_SCENE.replace("BackwardEuler", "SymplecticEuler")))

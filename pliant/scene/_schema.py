@@ -202,7 +202,11 @@ class HandleConfig(Section):
 
 
 class SelfCollisionConfig(Section):
-    thickness: Length  # minimum distance between particles / particle and triangle [m]
+    thickness: Length  # minimum distance between particles / particle and triangle [m]; barrier: its d̂
+    #: "projection": the post-step pass (pl.collision.SelfCollision); "barrier": IPC's log barrier within
+    #: d̂ = thickness for point–triangle and edge–edge pairs, intersection-free (implicit ForceSolver only).
+    contact: Literal["projection", "barrier"] = "projection"
+    kappa: PosFloat | None = None  # barrier stiffness κ [N/m]; None: pl.energies.BarrierContact's default
     friction: NonNegFloat = 0.0  # force solver
     iterations: Annotated[int, Strict(), Field(ge=1, le=100)] = 2  # force solver: passes per step
     particles: bool = True  # particle–particle contacts
@@ -261,6 +265,11 @@ class GroundSection(Section):
     # κ [1/s²] of the ground penalty: implicit integrators always use one (default 1e6); set, it is the
     # explicit integrators' contact too (instead of the projection after each step).
     stiffness: PosFloat | None = None
+    #: "penalty" (above); "barrier": IPC's log barrier within ``dhat`` against the ground and the
+    #: colliders, with a CCD-bounded Newton step, intersection-free (implicit ForceSolver only).
+    contact: Literal["penalty", "barrier"] = "penalty"
+    dhat: Length = 1.0e-3  # barrier: the distance d̂ [m] below which it acts
+    kappa: PosFloat | None = None  # barrier stiffness κ [N/m]; None: pl.energies.BarrierContact's default
 
 
 class SolverSection(Section):

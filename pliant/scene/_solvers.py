@@ -251,22 +251,72 @@ def make_force(ctx: BuildContext) -> ForceSolver:
     # makes it the explicit steps' contact too: the same physics for both (docs/design.md).
     if g is not None and g.enabled and g.stiffness is not None:
         terms.append(energies.GroundPenalty(g.stiffness))
+    barriers, handlers, self_collision = _barrier_contact(ctx, integrator)
     return _construct(
         ctx,
         solvers.ForceSolver,
         ctx.model,
-        terms,
+        terms + barriers,
         integrator,
         velocity_damping=s.velocity_damping,
         damping_rate=s.damping_rate,
-        collisions=ctx.handlers + _self_collision(ctx),
+        collisions=handlers + self_collision,
     )
+
+
+def _barrier_contact(ctx: BuildContext, integrator: Any) -> tuple[list, list, list]:
+    """(barrier energies, post-step handlers, self-collision handlers) of ``contact = "barrier"`` on
+    ``[ground]`` (the ground and the colliders) and ``[solver.self_collision]``: barrier contact replaces
+    the post-step response of what it covers."""
+    from .. import energies
+    from ..collision import Colliders
+
+    g, sc = ctx.cfg.ground, ctx.cfg.solver.self_collision
+    on_ground = g is not None and g.contact == "barrier"
+    on_self = sc is not None and sc.contact == "barrier"
+    if not (on_ground or on_self):
+        return [], ctx.handlers, _self_collision(ctx)
+    where = "ground.contact" if on_ground else "solver.self_collision.contact"
+    if integrator.explicit:
+        raise ctx.fail(
+            where, f'"barrier" needs an implicit integrator (e.g. BackwardEuler), not {integrator.name}'
+        )
+    out, handlers = [], list(ctx.handlers)
+    if on_ground:
+        assert g is not None
+        cols = [h for h in handlers if isinstance(h, Colliders)]
+        handlers = [h for h in handlers if not isinstance(h, Colliders)]
+        out.append(
+            energies.BarrierContact(
+                dhat=g.dhat, kappa=g.kappa, ground=g.enabled, colliders=cols[0] if cols else None
+            )
+        )
+    if on_self:
+        assert sc is not None
+        out.append(
+            energies.BarrierContact(dhat=sc.thickness, kappa=sc.kappa, ground=False, self_contact=True)
+        )
+    return out, handlers, [] if on_self else _self_collision(ctx)
+
+
+def _refuse_barrier(ctx: BuildContext, solver: str) -> None:
+    """A SceneError when ``contact = "barrier"`` is asked of a solver that does not minimise a potential."""
+    g, sc = ctx.cfg.ground, ctx.cfg.solver.self_collision
+    for on, where in (
+        (g is not None and g.contact == "barrier", "ground.contact"),
+        (sc is not None and sc.contact == "barrier", "solver.self_collision.contact"),
+    ):
+        if on:
+            raise ctx.fail(
+                where, f'"barrier" contact needs the force solver with an implicit integrator, not {solver}'
+            )
 
 
 def make_fast_mass_spring(ctx: BuildContext) -> FastMassSpring:
     """``pl.solvers.FastMassSpring``: the specialised mass-spring path (``options.method``)."""
     from .. import solvers
 
+    _refuse_barrier(ctx, "FastMassSpring")
     s = ctx.cfg.solver
     return _construct(
         ctx,
@@ -291,6 +341,7 @@ def _xpbd_compliance(cfg: SceneConfig) -> float | None:
 
 def _position_based(ctx: BuildContext, cls: type[XPBD], **kw: Any) -> XPBD:
     """XPBD / PBD with the scene's iterations, damping, contact handlers and extra constraints."""
+    _refuse_barrier(ctx, cls.__name__)
     s = ctx.cfg.solver
     kw = {"iterations": s.iterations, "damping": s.damping_rate, **kw}
     kw = {k: v for k, v in kw.items() if v is not None}
