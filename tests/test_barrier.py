@@ -106,9 +106,10 @@ def test_point_plane_energy_closed_form_and_derivatives():
     assert np.abs(H - H_fd).max() <= 1e-6 * np.abs(H_fd).max()
 
 
-def test_self_contact_energy_is_the_pairs_sum_with_diagonal_blocks():
-    """A point over a triangle through the energy: value and gradient equal the pair's; each point's
-    Hessian block is the pair's diagonal block (central differences of the energy's gradient)."""
+def test_self_contact_energy_is_the_pairs_sum_and_its_hessian_follows_the_pattern():
+    """A point over a triangle through the energy: value and gradient equal the pair's; with the initial
+    (diagonal) pattern each point's Hessian block is the pair's diagonal block, and after
+    ``refresh_pattern`` the whole Hessian equals central differences of the energy's gradient."""
     pts = [[0.21, 0.004, 0.32], [0, 0, 0], [1, 0.0, 0.02], [0.01, 0.03, 1], [0.2, 0.5, 0.3], [0.3, 0.5, 0.3]]
     model = _particles(pts, ground=False)
     e = pl.energies.BarrierContact(
@@ -124,6 +125,12 @@ def test_self_contact_energy_is_the_pairs_sum_with_diagonal_blocks():
     for k in range(4):
         blk = slice(3 * k, 3 * k + 3)
         assert np.abs(H[blk, blk] - H_fd[blk, blk]).max() <= 1e-6 * np.abs(H_fd).max()
+    assert np.abs(H[:12, :12] - H_fd[:12, :12]).max() > 1e-3 * np.abs(H_fd).max()  # coupling left out
+    # Once the pattern holds the pair's points (as the minimisers refresh it each iterate), it is whole.
+    e.refresh_pattern(model, model.particle_q)
+    assert e.pattern_version(model) == 1
+    g, g_fd, H, H_fd = energy_fd_check(model, e, np.asarray(pts, float), eps=1e-7)
+    assert np.abs(H - H_fd).max() <= 1e-6 * np.abs(H_fd).max()
 
 
 def _max_step(model, energy, dx) -> float:

@@ -14,6 +14,7 @@ import warp as wp
 from .._warp import launch
 from ..collision import Colliders
 from ..model import Model
+from . import _barrier_ccd as C
 from . import _barrier_kernels as K
 from ._base import ModalEnergy
 
@@ -86,10 +87,11 @@ class BarrierContact(ModalEnergy):
 
     Hessian: per pair, exact (closest-point envelope formula, :mod:`._barrier_math`) and projected to the
     nearest PSD matrix when ``project_psd`` (12×12 Jacobi for self-contact pairs, 3×3 for obstacles). The
-    solvers' Hessian pattern is fixed per model, so a self-contact pair adds only the 3×3 diagonal blocks of
-    its 12×12 Hessian (one per point); the blocks coupling two points are left out. For obstacles this is
-    the whole Hessian. The resulting Newton matrix stays positive definite (principal blocks of a PSD
-    matrix are PSD), so every direction still descends; self-contact converges in more iterations.
+    pattern follows the pairs: :meth:`refresh_pattern` (called by the Newton minimiser at the start of a
+    step and after each iterate) adds the point pairs of every self-contact pair closer than 2 d̂, and
+    :meth:`pattern_version` tells the minimiser to rebuild its matrix. A pair whose points are not all in
+    the pattern yet adds only its 3×3 diagonal blocks (principal blocks of a PSD matrix are PSD, so the
+    direction still descends).
 
     The barrier acts on the mesh surface itself (particle radii are not used): d̂ must be below the
     smallest distance between non-adjacent primitives at rest (about half an edge on a regular grid).
@@ -131,6 +133,9 @@ class BarrierContact(ModalEnergy):
         self.triangles = None if triangles is None else np.asarray(triangles, np.int32).reshape(-1, 3)
         self._surfaces: dict[int, _Surface] = {}
         self._alpha: dict[int, wp.array] = {}
+        # Per model: the sorted keys i·n + j (i < j) of the point pairs in the Hessian pattern, on the host
+        # and the device, and the pattern's version (bumped when it changes).
+        self._keys: dict[int, tuple[np.ndarray, wp.array, int]] = {}
 
     @property
     def owns_ground(self) -> bool:
@@ -216,23 +221,85 @@ class BarrierContact(ModalEnergy):
             return
         s.refit(model, x, None, self.dhat)
         assert s.tri_bvh is not None and s.edge_bvh is not None
+        keys = [self._pattern(model)[1], model.particle_count]
         launch(
             K.point_triangle_barrier,
             s.points.shape[0],
-            [s.points, s.tris, wp.uint64(s.tri_bvh.id), model.particle_inv_mass, x, *common, *outputs],
+            [s.points, s.tris, wp.uint64(s.tri_bvh.id), model.particle_inv_mass, x, *common, *keys, *outputs],
             device=d,
         )
         launch(
             K.edge_edge_barrier,
             s.edge_count,
-            [s.edges, wp.uint64(s.edge_bvh.id), model.particle_inv_mass, x, *common, *outputs],
+            [s.edges, wp.uint64(s.edge_bvh.id), model.particle_inv_mass, x, *common, *keys, *outputs],
             device=d,
         )
 
+    # ----------------------------------------------------------------------------------- Hessian pattern
+    def _pattern(self, model: Model) -> tuple[np.ndarray, wp.array, int]:
+        p = self._keys.get(id(model))
+        if p is None:
+            p = (np.zeros(0, np.int64), wp.zeros(0, dtype=wp.int64, device=model.device), 0)
+            self._keys[id(model)] = p
+        return p
+
     def hessian_pattern(self, model: Model) -> tuple[np.ndarray, np.ndarray]:
-        """One diagonal block per particle (pairs come and go; the pattern stays fixed)."""
-        i = np.arange(model.particle_count, dtype=np.int32)
-        return i, i.copy()
+        """One diagonal block per particle, then (i, j) and (j, i) for each point pair (i < j) of the
+        self-contact pairs found by the last :meth:`refresh_pattern`."""
+        n = model.particle_count
+        keys = self._pattern(model)[0]
+        i, j = (keys // n).astype(np.int32), (keys % n).astype(np.int32)
+        d = np.arange(n, dtype=np.int32)
+        rows = np.concatenate([d, np.stack([i, j], 1).ravel()])
+        cols = np.concatenate([d, np.stack([j, i], 1).ravel()])
+        return rows, cols
+
+    def pattern_version(self, model: Model) -> int:
+        """Changes whenever :meth:`hessian_pattern` does (the minimisers then rebuild their matrix)."""
+        return self._pattern(model)[2]
+
+    def refresh_pattern(self, model: Model, x: wp.array) -> None:
+        """Put into the pattern every point pair of the self-contact pairs closer than 2 d̂ at x [m] (the
+        minimisers call it at the start of each step). Pairs that come closer only later in the step add
+        their diagonal blocks alone until the next step; the pattern keeps its pairs while it is less than
+        4 times the size that the current ones need."""
+        s = self._surface(model)
+        if s is None:
+            return
+        radius = 2.0 * self.dhat
+        s.refit(model, x, None, radius)
+        assert s.tri_bvh is not None and s.edge_bvh is not None
+        d = model.device
+        count = wp.zeros(1, dtype=wp.int32, device=d)
+        cap = max(64, 4 * s.points.shape[0])
+        while True:
+            out = wp.zeros(cap, dtype=wp.vec4i, device=d)
+            count.zero_()
+            common = [model.particle_inv_mass, x, wp.float64(radius), count, out]
+            launch(
+                K.point_triangle_candidates,
+                s.points.shape[0],
+                [s.points, s.tris, wp.uint64(s.tri_bvh.id), *common],
+                device=d,
+            )
+            launch(
+                K.edge_edge_candidates, s.edge_count, [s.edges, wp.uint64(s.edge_bvh.id), *common], device=d
+            )
+            k = int(count.numpy()[0])
+            if k <= cap:
+                break
+            cap = 2 * k
+        quads = out.numpy()[:k].astype(np.int64)
+        a, b = np.triu_indices(4, 1)
+        lo = np.minimum(quads[:, a], quads[:, b]).ravel()
+        hi = np.maximum(quads[:, a], quads[:, b]).ravel()
+        need = np.unique(lo * model.particle_count + hi)
+        keys, _, version = self._pattern(model)
+        if np.isin(need, keys, assume_unique=True).all():
+            return
+        if keys.size < 4 * max(need.size, 1):
+            need = np.union1d(keys, need)
+        self._keys[id(model)] = (need, wp.array(need, dtype=wp.int64, device=d), version + 1)
 
     # ----------------------------------------------------------------------------------- step bound
     def max_step(self, model: Model, x: wp.array, dx: wp.array) -> float:
@@ -244,9 +311,9 @@ class BarrierContact(ModalEnergy):
             a = wp.zeros(1, dtype=model.scalar, device=d)
             self._alpha[id(model)] = a
         a.fill_(model.s(1.0))
-        keep = wp.float64(K.KEEP_FRACTION)
+        keep = wp.float64(C.KEEP_FRACTION)
         launch(
-            K.obstacle_toi,
+            C.obstacle_toi,
             model.particle_count,
             [*self._obstacles(model), model.particle_inv_mass, x, dx, keep, a],
             device=d,
@@ -256,13 +323,13 @@ class BarrierContact(ModalEnergy):
             s.refit(model, x, dx, 1.0e-6)
             assert s.tri_bvh is not None and s.edge_bvh is not None
             launch(
-                K.point_triangle_toi,
+                C.point_triangle_toi,
                 s.points.shape[0],
                 [s.points, s.tris, wp.uint64(s.tri_bvh.id), model.particle_inv_mass, x, dx, keep, a],
                 device=d,
             )
             launch(
-                K.edge_edge_toi,
+                C.edge_edge_toi,
                 s.edge_count,
                 [s.edges, wp.uint64(s.edge_bvh.id), model.particle_inv_mass, x, dx, keep, a],
                 device=d,

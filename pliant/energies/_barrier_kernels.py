@@ -1,7 +1,7 @@
 """The barrier contact potential's kernels: broad-phase boxes, the barrier of self-contact pairs
 (point–triangle, edge–edge, found by ``wp.Bvh`` box queries) and of obstacles (ground plane, colliders),
-and the continuous collision detection that bounds each Newton step
-(:class:`pliant.energies.BarrierContact`).
+and the candidate pairs of the Hessian pattern (:class:`pliant.energies.BarrierContact`); the continuous
+collision detection is in :mod:`._barrier_ccd`.
 
 Every pair kernel computes in float64 (:mod:`._barrier_math`) and writes in the model's dtype.
 """
@@ -27,10 +27,6 @@ from ._barrier_math import (
 
 wp.set_module_options({"max_unroll": 0})
 
-#: The CCD keeps every pair at least this fraction of its distance at the start of the step (the plane's
-#: exact bound is then 0.8 × its time of impact, as in IPC).
-KEEP_FRACTION = 0.2
-
 
 # ------------------------------------------------------------------------------------------------- output
 @wp.func
@@ -42,12 +38,42 @@ def _vec_out(g: vec12d, k: int, like: Any, s: wp.float64):
 
 
 @wp.func
-def _block_out(H: mat12d, k: int, like: Any, s: wp.float64):
+def _block_out(H: mat12d, k: int, l: int, like: Any, s: wp.float64):
     out = wp.outer(like, like) * type(like[0])(0.0)
     for i in range(3):
         for j in range(3):
-            out[i, j] = type(like[0])(s * H[3 * k + i, 3 * k + j])
+            out[i, j] = type(like[0])(s * H[3 * k + i, 3 * l + j])
     return out
+
+
+@wp.func
+def _find(keys: wp.array(dtype=wp.int64), key: wp.int64):
+    """Index of ``key`` in the sorted ``keys``, or −1."""
+    lo = int(0)  # noqa: UP018
+    hi = keys.shape[0]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if keys[mid] < key:
+            lo = mid + 1
+        else:
+            hi = mid
+    if lo < keys.shape[0]:
+        if keys[lo] == key:
+            return lo
+    return -1
+
+
+@wp.func
+def _pair_slot(
+    pair_keys: wp.array(dtype=wp.int64), n: int, slots_in: wp.array(dtype=wp.int32), i: int, j: int
+):
+    """The value slot of block (i, j), i ≠ j, or −1 when the pattern does not have it."""
+    p = _find(pair_keys, wp.int64(wp.min(i, j)) * wp.int64(n) + wp.int64(wp.max(i, j)))
+    if p < 0:
+        return -1
+    if i < j:
+        return slots_in[n + 2 * p]
+    return slots_in[n + 2 * p + 1]
 
 
 @wp.func
@@ -60,21 +86,37 @@ def _write_pair(
     mode: int,
     scale: wp.float64,
     like: Any,
+    pair_keys: wp.array(dtype=wp.int64),
+    n: int,
     slots_in: wp.array(dtype=wp.int32),
     value_out: wp.array(dtype=Any),
     grad_out: wp.array(dtype=Any),
     hess_out: wp.array(dtype=Any),
 ):
-    # The pattern is one diagonal block per particle: each point gets its 3×3 diagonal block of the pair's
-    # (projected) 12×12 Hessian; the blocks coupling two points are left out (see BarrierContact).
+    # Hessian: the pattern has one diagonal block per particle, then blocks (i, j), (j, i) for each sorted
+    # key i·n + j (i < j) of ``pair_keys``. A pair whose 6 point pairs are all there adds its whole 12×12
+    # Hessian; any other only its 3×3 diagonal blocks (a principal submatrix: still PSD when projected).
+    if val == wp.float64(0.0):
+        return  # farther than d̂: nothing to add
     if mode == 0:
         wp.atomic_add(value_out, 0, type(like[0])(kappa * val))
     elif mode == 1:
         for k in range(4):
             wp.atomic_add(grad_out, idx[k], _vec_out(g, k, like, kappa))
     else:
+        s = kappa * scale
+        full = int(1)  # noqa: UP018
         for k in range(4):
-            wp.atomic_add(hess_out, slots_in[idx[k]], _block_out(H, k, like, kappa * scale))
+            for l in range(k + 1, 4):
+                if _pair_slot(pair_keys, n, slots_in, idx[k], idx[l]) < 0:
+                    full = 0
+        for k in range(4):
+            wp.atomic_add(hess_out, slots_in[idx[k]], _block_out(H, k, k, like, s))
+            if full != 0:
+                for l in range(4):
+                    if l != k:
+                        slot = _pair_slot(pair_keys, n, slots_in, idx[k], idx[l])
+                        wp.atomic_add(hess_out, slot, _block_out(H, k, l, like, s))
 
 
 # ------------------------------------------------------------------------------------------- broad phase
@@ -108,7 +150,7 @@ def prim_bounds(
 
 
 @wp.func
-def _all_fixed(inv_mass: wp.array(dtype=Any), idx: wp.vec4i):
+def all_fixed(inv_mass: wp.array(dtype=Any), idx: wp.vec4i):
     zero = inv_mass[idx[0]] * type(inv_mass[idx[0]])(0.0)
     return (
         inv_mass[idx[0]] == zero
@@ -131,6 +173,8 @@ def point_triangle_barrier(
     mode: int,
     project: int,
     scale: wp.float64,
+    pair_keys: wp.array(dtype=wp.int64),
+    n: int,
     slots_in: wp.array(dtype=wp.int32),
     value_out: wp.array(dtype=Any),
     grad_out: wp.array(dtype=Any),
@@ -147,12 +191,14 @@ def point_triangle_barrier(
         idx = wp.vec4i(i, tris[3 * f], tris[3 * f + 1], tris[3 * f + 2])
         if idx[1] == i or idx[2] == i or idx[3] == i:
             continue
-        if _all_fixed(inv_mass, idx):
+        if all_fixed(inv_mass, idx):
             continue
         val, g, H = pair_barrier(
             to_d(p), to_d(x_in[idx[1]]), to_d(x_in[idx[2]]), to_d(x_in[idx[3]]), 0, dhat, mode, project
         )
-        _write_pair(idx, val, g, H, kappa, mode, scale, p, slots_in, value_out, grad_out, hess_out)
+        _write_pair(
+            idx, val, g, H, kappa, mode, scale, p, pair_keys, n, slots_in, value_out, grad_out, hess_out
+        )
 
 
 @wp.kernel(enable_backward=False)
@@ -166,6 +212,8 @@ def edge_edge_barrier(
     mode: int,
     project: int,
     scale: wp.float64,
+    pair_keys: wp.array(dtype=wp.int64),
+    n: int,
     slots_in: wp.array(dtype=wp.int32),
     value_out: wp.array(dtype=Any),
     grad_out: wp.array(dtype=Any),
@@ -189,12 +237,14 @@ def edge_edge_barrier(
         idx = wp.vec4i(edges[2 * e], edges[2 * e + 1], edges[2 * f], edges[2 * f + 1])
         if idx[0] == idx[2] or idx[0] == idx[3] or idx[1] == idx[2] or idx[1] == idx[3]:
             continue
-        if _all_fixed(inv_mass, idx):
+        if all_fixed(inv_mass, idx):
             continue
         val, g, H = pair_barrier(
             to_d(a), to_d(b), to_d(x_in[idx[2]]), to_d(x_in[idx[3]]), 1, dhat, mode, project
         )
-        _write_pair(idx, val, g, H, kappa, mode, scale, a, slots_in, value_out, grad_out, hess_out)
+        _write_pair(
+            idx, val, g, H, kappa, mode, scale, a, pair_keys, n, slots_in, value_out, grad_out, hess_out
+        )
 
 
 @wp.func
@@ -298,189 +348,73 @@ def pair_terms(
     hess_out[k] = H
 
 
-# -------------------------------------------------------------------------------------------------- CCD
+# ------------------------------------------------------------------------------------------ candidates
 @wp.func
-def _pair_distance(x0: wp.vec3d, x1: wp.vec3d, x2: wp.vec3d, x3: wp.vec3d, edge_edge: int):
-    if edge_edge == 0:
-        return point_triangle_distance(x0, x1, x2, x3)
-    return edge_edge_distance(x0, x1, x2, x3)
-
-
-@wp.func
-def pair_toi(
-    x0: wp.vec3d,
-    x1: wp.vec3d,
-    x2: wp.vec3d,
-    x3: wp.vec3d,
-    u0: wp.vec3d,
-    u1: wp.vec3d,
-    u2: wp.vec3d,
-    u3: wp.vec3d,
-    edge_edge: int,
-    keep: wp.float64,
-):
-    """Largest t ≤ 1 found such that the pair, moved by t·u, stays at least ``keep`` × its distance apart on
-    [0, t]: additive CCD (Li et al., "Codimensional IPC", 2021) — advance by (d − keep·d₀)/l_p, where l_p
-    bounds the rate of change of the distance by the displacements relative to their mean."""
-    ubar = (u0 + u1 + u2 + u3) * wp.float64(0.25)
-    v0 = wp.length(u0 - ubar)
-    v1 = wp.length(u1 - ubar)
-    v2 = wp.length(u2 - ubar)
-    v3 = wp.length(u3 - ubar)
-    lp = v0 + wp.max(v1, wp.max(v2, v3))
-    if edge_edge != 0:
-        lp = wp.max(v0, v1) + wp.max(v2, v3)
-    one = wp.float64(1.0)
-    if lp <= wp.float64(0.0):
-        return one
-    d0 = _pair_distance(x0, x1, x2, x3, edge_edge)
-    if d0 <= wp.float64(0.0):
-        return one  # touching already: nothing this bound can do
-    target = keep * d0
-    if (d0 - target) >= lp:
-        return one  # cannot come closer than keep·d₀ within the whole step
-    t = wp.float64(0.0)
-    d = d0
-    for _ in range(200):
-        t = t + (d - target) / lp
-        if t >= one:
-            return one
-        d = _pair_distance(x0 + t * u0, x1 + t * u1, x2 + t * u2, x3 + t * u3, edge_edge)
-        if d - target <= wp.float64(1.0e-3) * (d0 - target):
-            break
-    return t
+def _push(idx: wp.vec4i, count: wp.array(dtype=wp.int32), out: wp.array(dtype=wp.vec4i)):
+    k = wp.atomic_add(count, 0, 1)
+    if k < out.shape[0]:
+        out[k] = idx
 
 
 @wp.kernel(enable_backward=False)
-def point_triangle_toi(
+def point_triangle_candidates(
     points: wp.array(dtype=wp.int32),
     tris: wp.array(dtype=wp.int32),
     tri_bvh: wp.uint64,
     inv_mass: wp.array(dtype=Any),
     x_in: wp.array(dtype=Any),
-    dx_in: wp.array(dtype=Any),
-    keep: wp.float64,
-    alpha_io: wp.array(dtype=Any),
+    radius: wp.float64,
+    count: wp.array(dtype=wp.int32),
+    out: wp.array(dtype=wp.vec4i),
 ):
-    # One thread per point: its swept box against the triangles' swept boxes.
+    # Point–triangle pairs closer than ``radius`` (the triangles' boxes padded by it), for the pattern.
     t = wp.tid()
     i = points[t]
     p = x_in[i]
-    p1 = p + dx_in[i]
-    lo = wp.vec3f(
-        wp.float32(wp.min(p[0], p1[0])), wp.float32(wp.min(p[1], p1[1])), wp.float32(wp.min(p[2], p1[2]))
-    )
-    hi = wp.vec3f(
-        wp.float32(wp.max(p[0], p1[0])), wp.float32(wp.max(p[1], p1[1])), wp.float32(wp.max(p[2], p1[2]))
-    )
-    q = wp.bvh_query_aabb(tri_bvh, lo, hi)
+    pf = wp.vec3f(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
+    q = wp.bvh_query_aabb(tri_bvh, pf, pf)
     f = int(0)  # noqa: UP018
     while wp.bvh_query_next(q, f):
         idx = wp.vec4i(i, tris[3 * f], tris[3 * f + 1], tris[3 * f + 2])
         if idx[1] == i or idx[2] == i or idx[3] == i:
             continue
-        if _all_fixed(inv_mass, idx):
+        if all_fixed(inv_mass, idx):
             continue
-        toi = pair_toi(
-            to_d(p), to_d(x_in[idx[1]]), to_d(x_in[idx[2]]), to_d(x_in[idx[3]]),
-            to_d(dx_in[i]), to_d(dx_in[idx[1]]), to_d(dx_in[idx[2]]), to_d(dx_in[idx[3]]),
-            0, keep,
-        )  # fmt: skip
-        if toi < wp.float64(1.0):
-            wp.atomic_min(alpha_io, 0, type(p[0])(toi))
+        d = point_triangle_distance(to_d(p), to_d(x_in[idx[1]]), to_d(x_in[idx[2]]), to_d(x_in[idx[3]]))
+        if d < radius:
+            _push(idx, count, out)
 
 
 @wp.kernel(enable_backward=False)
-def edge_edge_toi(
+def edge_edge_candidates(
     edges: wp.array(dtype=wp.int32),
     edge_bvh: wp.uint64,
     inv_mass: wp.array(dtype=Any),
     x_in: wp.array(dtype=Any),
-    dx_in: wp.array(dtype=Any),
-    keep: wp.float64,
-    alpha_io: wp.array(dtype=Any),
+    radius: wp.float64,
+    count: wp.array(dtype=wp.int32),
+    out: wp.array(dtype=wp.vec4i),
 ):
-    # One thread per edge: its swept box against the edges' swept boxes, each pair once.
+    # Edge–edge pairs closer than ``radius`` (the edges' boxes padded by it), each once.
     e = wp.tid()
-    ia = edges[2 * e]
-    ib = edges[2 * e + 1]
-    a0 = x_in[ia]
-    b0 = x_in[ib]
-    a1 = a0 + dx_in[ia]
-    b1 = b0 + dx_in[ib]
-    lo = wp.min(wp.min(a0, b0), wp.min(a1, b1))
-    hi = wp.max(wp.max(a0, b0), wp.max(a1, b1))
-    lof = wp.vec3f(wp.float32(lo[0]), wp.float32(lo[1]), wp.float32(lo[2]))
-    hif = wp.vec3f(wp.float32(hi[0]), wp.float32(hi[1]), wp.float32(hi[2]))
-    q = wp.bvh_query_aabb(edge_bvh, lof, hif)
+    a = x_in[edges[2 * e]]
+    b = x_in[edges[2 * e + 1]]
+    lo = wp.vec3f(
+        wp.float32(wp.min(a[0], b[0])), wp.float32(wp.min(a[1], b[1])), wp.float32(wp.min(a[2], b[2]))
+    )
+    hi = wp.vec3f(
+        wp.float32(wp.max(a[0], b[0])), wp.float32(wp.max(a[1], b[1])), wp.float32(wp.max(a[2], b[2]))
+    )
+    q = wp.bvh_query_aabb(edge_bvh, lo, hi)
     f = int(0)  # noqa: UP018
     while wp.bvh_query_next(q, f):
         if f <= e:
             continue
-        idx = wp.vec4i(ia, ib, edges[2 * f], edges[2 * f + 1])
+        idx = wp.vec4i(edges[2 * e], edges[2 * e + 1], edges[2 * f], edges[2 * f + 1])
         if idx[0] == idx[2] or idx[0] == idx[3] or idx[1] == idx[2] or idx[1] == idx[3]:
             continue
-        if _all_fixed(inv_mass, idx):
+        if all_fixed(inv_mass, idx):
             continue
-        toi = pair_toi(
-            to_d(a0), to_d(b0), to_d(x_in[idx[2]]), to_d(x_in[idx[3]]),
-            to_d(dx_in[ia]), to_d(dx_in[ib]), to_d(dx_in[idx[2]]), to_d(dx_in[idx[3]]),
-            1, keep,
-        )  # fmt: skip
-        if toi < wp.float64(1.0):
-            wp.atomic_min(alpha_io, 0, type(a0[0])(toi))
-
-
-@wp.kernel(enable_backward=False)
-def obstacle_toi(
-    kind: wp.array(dtype=wp.int32),
-    pos: wp.array(dtype=Any),
-    aux: wp.array(dtype=Any),
-    rot: wp.array(dtype=Any),
-    radius: wp.array(dtype=Any),
-    mesh: wp.array(dtype=wp.uint64),
-    n_colliders: int,
-    ground: int,
-    height: wp.float64,
-    inv_mass: wp.array(dtype=Any),
-    x_in: wp.array(dtype=Any),
-    dx_in: wp.array(dtype=Any),
-    keep: wp.float64,
-    alpha_io: wp.array(dtype=Any),
-):
-    # Ground: exact, the plane's distance is linear along the step. Colliders: conservative advancement on
-    # φ, which changes by at most |dx| per unit of t (a signed distance is 1-Lipschitz).
-    i = wp.tid()
-    x = x_in[i]
-    if inv_mass[i] == x[0] * type(x[0])(0.0):
-        return
-    u = dx_in[i]
-    one = wp.float64(1.0)
-    best = one
-    if ground != 0:
-        d0 = wp.float64(x[1]) - height
-        uy = wp.float64(u[1])
-        if d0 > wp.float64(0.0) and uy < wp.float64(0.0):
-            best = wp.min(best, (one - keep) * d0 / (-uy))
-    lp = wp.length(to_d(u))
-    if lp > wp.float64(0.0):
-        for c in range(n_colliders):
-            phi, n, Hphi = collider_sdf(kind[c], pos[c], aux[c], rot[c], radius[c], mesh[c], x)
-            d0 = wp.float64(phi)
-            if d0 > wp.float64(0.0) and d0 - keep * d0 < lp:
-                target = keep * d0
-                t = wp.float64(0.0)
-                d = d0
-                for _ in range(200):
-                    t = t + (d - target) / lp
-                    if t >= one:
-                        t = one
-                        break
-                    xt = x + type(x[0])(t) * u
-                    phi_t, n_t, H_t = collider_sdf(kind[c], pos[c], aux[c], rot[c], radius[c], mesh[c], xt)
-                    d = wp.float64(phi_t)
-                    if d - target <= wp.float64(1.0e-3) * (d0 - target):
-                        break
-                best = wp.min(best, t)
-    if best < one:
-        wp.atomic_min(alpha_io, 0, type(x[0])(best))
+        d = edge_edge_distance(to_d(a), to_d(b), to_d(x_in[idx[2]]), to_d(x_in[idx[3]]))
+        if d < radius:
+            _push(idx, count, out)

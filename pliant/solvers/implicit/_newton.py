@@ -139,11 +139,12 @@ def needs_feasible_start(solver: PotentialProblem) -> bool:
 
 def _feasible_start(
     solver: PotentialProblem, ws: _Workspace, x_ref: wp.array, x_tilde: wp.array, x: wp.array
-) -> None:
+) -> bool:
     """With an energy that needs it, x = x_ref + α(x̃ − x_ref) (free particles; fixed ones at x̃), α ≤ 1 the
-    energies' ``max_step`` from x_ref: the start is then as admissible as x_ref (IPC starts from x_ref)."""
+    energies' ``max_step`` from x_ref: the start is then as admissible as x_ref (IPC starts from x_ref).
+    Returns whether it applied (the energies then refresh their Hessian patterns at this start)."""
     if not needs_feasible_start(solver):
-        return
+        return False
     m = solver.model
     n = m.particle_count
     launch(_toward, n, [m.particle_inv_mass, x_ref, x_tilde, m.s(0.0), 0, ws.dx, x], device=m.device)
@@ -152,6 +153,16 @@ def _feasible_start(
         alpha = min(alpha, float(e.max_step(m, x_ref, ws.dx)))
     if alpha < 1.0:
         launch(_toward, n, [m.particle_inv_mass, x_ref, x_tilde, m.s(alpha), 1, ws.dx, x], device=m.device)
+    return True
+
+
+def _refresh_patterns(solver: PotentialProblem, x: wp.array) -> bool:
+    """Let every energy refresh its Hessian pattern at x; returns whether any changed."""
+    m = solver.model
+    before = [e.pattern_version(m) for e in solver.energies]
+    for e in solver.energies:
+        e.refresh_pattern(m, x)
+    return before != [e.pattern_version(m) for e in solver.energies]
 
 
 @differentiable
@@ -204,7 +215,10 @@ def minimize_incremental_potential(
             e.begin_step(m, x_ref, v_ref, h)
     wp.copy(x_out, x_tilde)
     x = x_out
-    _feasible_start(solver, ws, x_ref, x_tilde, x)
+    # Contact energies' patterns follow their pairs: refreshed at the start and after every iterate.
+    refresh = _feasible_start(solver, ws, x_ref, x_tilde, x)
+    if refresh and _refresh_patterns(solver, x):
+        ws = _workspace(solver)
     h2 = h * h
     g = _gradient(solver, ws, x, x_tilde, h)
     # Round-off floor: positions are known to eps·max|x|; one ulp moves ∇Φ_i/(m_i h) by up to
@@ -294,6 +308,8 @@ def minimize_incremental_potential(
                 continue
             break  # no decrease even for a tiny step: at the round-off floor (or a non-descent direction)
         wp.copy(x, ws.x_trial)
+        if refresh and _refresh_patterns(solver, x):
+            ws = _workspace(solver)
         g = _gradient(solver, ws, x, x_tilde, h)
         stats.residuals.append(float(g[0]))
         if g[0] <= tol:
