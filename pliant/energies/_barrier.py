@@ -13,8 +13,9 @@ import warp as wp
 
 from .._warp import launch
 from ..collision import Colliders
-from ..model import Model
+from ..model import STICK_VELOCITY, Model
 from . import _barrier_ccd as C
+from . import _barrier_friction as F
 from . import _barrier_kernels as K
 from ._base import ModalEnergy
 
@@ -105,6 +106,11 @@ class BarrierContact(ModalEnergy):
         self_contact: point–triangle and edge–edge barrier on the surface (``triangles``, default the
             model's triangles ``model.tri_indices``, else its ``render_faces``).
         triangles: int [T, 3] particle indices of the contact surface, or None.
+        friction: lagged, smoothed Coulomb friction against the ground (μ of ``model.ground``) and the
+            colliders (their μ), :mod:`._barrier_friction`: the normal force and normal are frozen at the
+            step's start (IPC's lagging). Self-contact pairs get no friction.
+        stick_velocity: ε_v [m/s] of the friction: below it friction is a viscous ramp (a creep of at most
+            ε_v where it should stick); None: the ground's ``stick_velocity`` (else 1e-4 m/s).
     """
 
     hessian_changes_each_step = True
@@ -120,11 +126,20 @@ class BarrierContact(ModalEnergy):
         colliders: Colliders | None = None,
         self_contact: bool = False,
         triangles: np.ndarray | None = None,
+        friction: bool = False,
+        stick_velocity: float | None = None,
     ) -> None:
         if not dhat > 0:
             raise ValueError(f"BarrierContact dhat must be > 0 m, got {dhat}")
         if kappa is not None and not kappa > 0:
             raise ValueError(f"BarrierContact kappa must be > 0 N/m (or None for the default), got {kappa}")
+        if stick_velocity is not None and not stick_velocity > 0:
+            raise ValueError(f"BarrierContact stick_velocity must be > 0 m/s (or None), got {stick_velocity}")
+        self.friction = bool(friction)
+        self.stick_velocity = None if stick_velocity is None else float(stick_velocity)
+        #: With friction the term is dissipative: the minimisers call begin_step (the lagged normal forces).
+        self.dissipative = self.friction
+        self._lag: dict[int, tuple] = {}
         self.dhat = float(dhat)
         self.kappa = None if kappa is None else float(kappa)
         self.ground = bool(ground)
@@ -216,6 +231,26 @@ class BarrierContact(ModalEnergy):
             [*self._obstacles(model), model.particle_inv_mass, x, *common, *outputs],
             device=d,
         )
+        lag = self._lag.get(id(model))
+        if lag is not None:
+            mu, lam, normal, x_start, eps = lag
+            launch(
+                F.friction_terms,
+                model.particle_count,
+                [
+                    mu.shape[0],
+                    mu,
+                    lam,
+                    normal,
+                    x_start,
+                    x,
+                    wp.float64(eps),
+                    mode,
+                    wp.float64(scale),
+                    *outputs,
+                ],
+                device=d,
+            )
         s = self._surface(model)
         if s is None:
             return
@@ -232,6 +267,46 @@ class BarrierContact(ModalEnergy):
             K.edge_edge_barrier,
             s.edge_count,
             [s.edges, wp.uint64(s.edge_bvh.id), model.particle_inv_mass, x, *common, *keys, *outputs],
+            device=d,
+        )
+
+    def begin_step(self, model: Model, x: wp.array, v: wp.array, dt: float) -> None:
+        """With ``friction``: freeze the normal forces λ = κ|b′(d)| [N] and normals at the step's start x [m]
+        and the step Δt [s] (ε = ε_v Δt); without, nothing."""
+        if not self.friction:
+            return
+        d = model.device
+        n, c = model.particle_count, (len(self.colliders) if self.colliders is not None else 0)
+        mus = [model.ground.friction if (self.ground and model.ground is not None) else 0.0]
+        if self.colliders is not None:
+            mus += [float(r[5]) for r in self.colliders._rows]
+        lag = self._lag.get(id(model))
+        if lag is None or lag[0].shape[0] != c + 1:
+            lag = (
+                wp.zeros(c + 1, dtype=wp.float64, device=d),
+                wp.zeros(n * (c + 1), dtype=wp.float64, device=d),
+                wp.zeros(n * (c + 1), dtype=wp.vec3d, device=d),
+                wp.zeros(n, dtype=model.vec3, device=d),
+                0.0,
+            )
+        lag[0].assign(np.asarray(mus, np.float64))
+        wp.copy(lag[3], x)
+        ev = self.stick_velocity
+        if ev is None:
+            ev = model.ground.stick_velocity if model.ground is not None else STICK_VELOCITY
+        self._lag[id(model)] = (*lag[:4], max(float(ev) * float(dt), 1e-12))
+        launch(
+            F.friction_lag,
+            n,
+            [
+                *self._obstacles(model),
+                model.particle_inv_mass,
+                x,
+                wp.float64(self.dhat),
+                wp.float64(self.stiffness(model)),
+                lag[1],
+                lag[2],
+            ],
             device=d,
         )
 

@@ -266,7 +266,8 @@ class GroundSection(Section):
     # explicit integrators' contact too (instead of the projection after each step).
     stiffness: PosFloat | None = None
     #: "penalty" (above); "barrier": IPC's log barrier within ``dhat`` against the ground and the
-    #: colliders, with a CCD-bounded Newton step, intersection-free (implicit ForceSolver only).
+    #: colliders, with a CCD-bounded Newton step, intersection-free (implicit ForceSolver only); their
+    #: friction μ then acts as IPC's lagged friction with this stick_velocity.
     contact: Literal["penalty", "barrier"] = "penalty"
     dhat: Length = 1.0e-3  # barrier: the distance d̂ [m] below which it acts
     kappa: PosFloat | None = None  # barrier stiffness κ [N/m]; None: pl.energies.BarrierContact's default

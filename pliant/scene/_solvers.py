@@ -286,9 +286,15 @@ def _barrier_contact(ctx: BuildContext, integrator: Any) -> tuple[list, list, li
         assert g is not None
         cols = [h for h in handlers if isinstance(h, Colliders)]
         handlers = [h for h in handlers if not isinstance(h, Colliders)]
+        mus = [g.friction] + [c.friction for c in ctx.cfg.colliders]
         out.append(
             energies.BarrierContact(
-                dhat=g.dhat, kappa=g.kappa, ground=g.enabled, colliders=cols[0] if cols else None
+                dhat=g.dhat,
+                kappa=g.kappa,
+                ground=g.enabled,
+                colliders=cols[0] if cols else None,
+                friction=max(mus) > 0,
+                stick_velocity=g.stick_velocity if g.stick_velocity > 0 else None,
             )
         )
     if on_self:
