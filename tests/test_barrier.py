@@ -354,3 +354,10 @@ def test_lagged_friction_decelerates_at_mu_g_and_sticks_on_a_slope():
     x0 = s0.particle_q.numpy().copy()
     s0, s1 = _run(solver, s0, s1, 100)
     assert 0 <= (s0.particle_q.numpy() - x0)[:, 0].max() < 1e-4 * 1.0
+
+
+def test_explicit_integrator_is_refused():
+    """Without Newton's CCD-bounded steps the barrier cannot hold: a one-line error naming the fix."""
+    model = _particles([[0.0, 0.1, 0.0]])
+    with pytest.raises(ValueError, match="barrier contact needs an implicit integrator.*BackwardEuler"):
+        pl.solvers.ForceSolver(model, [pl.energies.BarrierContact()], pl.integrators.SymplecticEuler())

@@ -260,13 +260,13 @@ class BarrierContact(ModalEnergy):
         launch(
             K.point_triangle_barrier,
             s.points.shape[0],
-            [s.points, s.tris, wp.uint64(s.tri_bvh.id), model.particle_inv_mass, x, *common, *keys, *outputs],
+            [s.points, s.tris, wp.uint64(s.tri_bvh.id), model.particle_inv_mass, *keys, x, *common, *outputs],
             device=d,
         )
         launch(
             K.edge_edge_barrier,
             s.edge_count,
-            [s.edges, wp.uint64(s.edge_bvh.id), model.particle_inv_mass, x, *common, *keys, *outputs],
+            [s.edges, wp.uint64(s.edge_bvh.id), model.particle_inv_mass, *keys, x, *common, *outputs],
             device=d,
         )
 

@@ -167,14 +167,14 @@ def point_triangle_barrier(
     tris: wp.array(dtype=wp.int32),
     tri_bvh: wp.uint64,
     inv_mass: wp.array(dtype=Any),
+    pair_keys: wp.array(dtype=wp.int64),
+    n: int,
     x_in: wp.array(dtype=Any),
     dhat: wp.float64,
     kappa: wp.float64,
     mode: int,
     project: int,
     scale: wp.float64,
-    pair_keys: wp.array(dtype=wp.int64),
-    n: int,
     slots_in: wp.array(dtype=wp.int32),
     value_out: wp.array(dtype=Any),
     grad_out: wp.array(dtype=Any),
@@ -206,14 +206,14 @@ def edge_edge_barrier(
     edges: wp.array(dtype=wp.int32),
     edge_bvh: wp.uint64,
     inv_mass: wp.array(dtype=Any),
+    pair_keys: wp.array(dtype=wp.int64),
+    n: int,
     x_in: wp.array(dtype=Any),
     dhat: wp.float64,
     kappa: wp.float64,
     mode: int,
     project: int,
     scale: wp.float64,
-    pair_keys: wp.array(dtype=wp.int64),
-    n: int,
     slots_in: wp.array(dtype=wp.int32),
     value_out: wp.array(dtype=Any),
     grad_out: wp.array(dtype=Any),
@@ -350,10 +350,10 @@ def pair_terms(
 
 # ------------------------------------------------------------------------------------------ candidates
 @wp.func
-def _push(idx: wp.vec4i, count: wp.array(dtype=wp.int32), out: wp.array(dtype=wp.vec4i)):
-    k = wp.atomic_add(count, 0, 1)
-    if k < out.shape[0]:
-        out[k] = idx
+def _push(idx: wp.vec4i, count_out: wp.array(dtype=wp.int32), pairs_out: wp.array(dtype=wp.vec4i)):
+    k = wp.atomic_add(count_out, 0, 1)
+    if k < pairs_out.shape[0]:
+        pairs_out[k] = idx
 
 
 @wp.kernel(enable_backward=False)
@@ -364,8 +364,8 @@ def point_triangle_candidates(
     inv_mass: wp.array(dtype=Any),
     x_in: wp.array(dtype=Any),
     radius: wp.float64,
-    count: wp.array(dtype=wp.int32),
-    out: wp.array(dtype=wp.vec4i),
+    count_out: wp.array(dtype=wp.int32),
+    pairs_out: wp.array(dtype=wp.vec4i),
 ):
     # Point–triangle pairs closer than ``radius`` (the triangles' boxes padded by it), for the pattern.
     t = wp.tid()
@@ -382,7 +382,7 @@ def point_triangle_candidates(
             continue
         d = point_triangle_distance(to_d(p), to_d(x_in[idx[1]]), to_d(x_in[idx[2]]), to_d(x_in[idx[3]]))
         if d < radius:
-            _push(idx, count, out)
+            _push(idx, count_out, pairs_out)
 
 
 @wp.kernel(enable_backward=False)
@@ -392,8 +392,8 @@ def edge_edge_candidates(
     inv_mass: wp.array(dtype=Any),
     x_in: wp.array(dtype=Any),
     radius: wp.float64,
-    count: wp.array(dtype=wp.int32),
-    out: wp.array(dtype=wp.vec4i),
+    count_out: wp.array(dtype=wp.int32),
+    pairs_out: wp.array(dtype=wp.vec4i),
 ):
     # Edge–edge pairs closer than ``radius`` (the edges' boxes padded by it), each once.
     e = wp.tid()
@@ -417,4 +417,4 @@ def edge_edge_candidates(
             continue
         d = edge_edge_distance(to_d(a), to_d(b), to_d(x_in[idx[2]]), to_d(x_in[idx[3]]))
         if d < radius:
-            _push(idx, count, out)
+            _push(idx, count_out, pairs_out)
