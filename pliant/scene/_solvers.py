@@ -13,6 +13,7 @@ from ._registry import CONSTRAINT_KINDS, ENERGY_KINDS, SOLVER_KINDS, register_so
 
 if TYPE_CHECKING:
     from ..collision import SelfCollision
+    from ..integrators import Integrator
     from ..solvers import XPBD, FastMassSpring, ForceSolver
     from ._context import BuildContext
     from ._schema import SceneConfig
@@ -264,7 +265,7 @@ def make_force(ctx: BuildContext) -> ForceSolver:
     )
 
 
-def _barrier_contact(ctx: BuildContext, integrator: Any) -> tuple[list, list, list]:
+def _barrier_contact(ctx: BuildContext, integrator: Integrator) -> tuple[list, list, list]:
     """(barrier energies, post-step handlers, self-collision handlers) of ``contact = "barrier"`` on
     ``[ground]`` (the ground and the colliders) and ``[solver.self_collision]``: barrier contact replaces
     the post-step response of what it covers."""
