@@ -108,7 +108,9 @@ class BarrierContact(ModalEnergy):
         triangles: int [T, 3] particle indices of the contact surface, or None.
         friction: lagged, smoothed Coulomb friction against the ground (μ of ``model.ground``) and the
             colliders (their μ), :mod:`._barrier_friction`: the normal force and normal are frozen at the
-            step's start (IPC's lagging). Self-contact pairs get no friction.
+            step's start (IPC's lagging).
+        self_friction: μ [-] of the same lagged friction between self-contact pairs (0: none; with
+            ``self_contact``).
         stick_velocity: ε_v [m/s] of the friction: below it friction is a viscous ramp (a creep of at most
             ε_v where it should stick); None: the ground's ``stick_velocity`` (else 1e-4 m/s).
     """
@@ -128,6 +130,7 @@ class BarrierContact(ModalEnergy):
         triangles: np.ndarray | None = None,
         friction: bool = False,
         stick_velocity: float | None = None,
+        self_friction: float = 0.0,
     ) -> None:
         if not dhat > 0:
             raise ValueError(f"BarrierContact dhat must be > 0 m, got {dhat}")
@@ -135,11 +138,15 @@ class BarrierContact(ModalEnergy):
             raise ValueError(f"BarrierContact kappa must be > 0 N/m (or None for the default), got {kappa}")
         if stick_velocity is not None and not stick_velocity > 0:
             raise ValueError(f"BarrierContact stick_velocity must be > 0 m/s (or None), got {stick_velocity}")
-        self.friction = bool(friction)
+        if not self_friction >= 0:
+            raise ValueError(f"BarrierContact self_friction must be >= 0 (a Coulomb μ), got {self_friction}")
+        self.self_friction = float(self_friction) if self_contact else 0.0
+        self.friction = bool(friction) or self.self_friction > 0
         self.stick_velocity = None if stick_velocity is None else float(stick_velocity)
         #: With friction the term is dissipative: the minimisers call begin_step (the lagged normal forces).
         self.dissipative = self.friction
         self._lag: dict[int, tuple] = {}
+        self._self_lag: dict[int, tuple] = {}
         self.dhat = float(dhat)
         self.kappa = None if kappa is None else float(kappa)
         self.ground = bool(ground)
@@ -269,6 +276,16 @@ class BarrierContact(ModalEnergy):
             [s.edges, wp.uint64(s.edge_bvh.id), model.particle_inv_mass, *keys, x, *common, *outputs],
             device=d,
         )
+        sl = self._self_lag.get(id(model))
+        if sl is not None and sl[0].shape[0] > 0:
+            quads, coef, lam, normal, x_start, eps = sl
+            launch(
+                F.self_friction_terms,
+                quads.shape[0],
+                [quads, coef, lam, normal, *keys, x_start, x, wp.float64(self.self_friction), wp.float64(eps)]
+                + [mode, wp.float64(scale), *outputs],
+                device=d,
+            )
 
     def begin_step(self, model: Model, x: wp.array, v: wp.array, dt: float) -> None:
         """With ``friction``: freeze the normal forces λ = κ|b′(d)| [N] and normals at the step's start x [m]
@@ -309,6 +326,30 @@ class BarrierContact(ModalEnergy):
             ],
             device=d,
         )
+        s = self._surface(model)
+        if s is None or self.self_friction == 0:
+            return
+        pt, ee = self._candidates(model, s, x, self.dhat)
+        quads = np.concatenate([pt, ee]).astype(np.int32).reshape(-1, 4)
+        m = len(quads)
+        flags = np.r_[np.zeros(len(pt), np.int32), np.ones(len(ee), np.int32)]
+        sl = (
+            wp.array(quads, dtype=wp.vec4i, device=d),
+            wp.zeros(m, dtype=wp.vec4d, device=d),
+            wp.zeros(m, dtype=wp.float64, device=d),
+            wp.zeros(m, dtype=wp.vec3d, device=d),
+            lag[3],
+            self._lag[id(model)][4],
+        )
+        if m:
+            launch(
+                F.self_friction_lag,
+                m,
+                [sl[0], wp.array(flags, dtype=wp.int32, device=d), x, wp.float64(self.dhat)]
+                + [wp.float64(self.stiffness(model)), sl[1], sl[2], sl[3]],
+                device=d,
+            )
+        self._self_lag[id(model)] = sl
 
     # ----------------------------------------------------------------------------------- Hessian pattern
     def _pattern(self, model: Model) -> tuple[np.ndarray, wp.array, int]:
@@ -333,6 +374,33 @@ class BarrierContact(ModalEnergy):
         """Changes whenever :meth:`hessian_pattern` does (the minimisers then rebuild their matrix)."""
         return self._pattern(model)[2]
 
+    def _candidates(
+        self, model: Model, s: _Surface, x: wp.array, radius: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(point–triangle, edge–edge) pairs closer than ``radius`` [m] at x: int [K, 4] particle indices."""
+        s.refit(model, x, None, radius)
+        assert s.tri_bvh is not None and s.edge_bvh is not None
+        d = model.device
+        count = wp.zeros(1, dtype=wp.int32, device=d)
+        out = []
+        for kernel, dim, head in (
+            (K.point_triangle_candidates, s.points.shape[0], [s.points, s.tris, wp.uint64(s.tri_bvh.id)]),
+            (K.edge_edge_candidates, s.edge_count, [s.edges, wp.uint64(s.edge_bvh.id)]),
+        ):
+            cap = max(64, 4 * dim)
+            while True:
+                buf = wp.zeros(cap, dtype=wp.vec4i, device=d)
+                count.zero_()
+                launch(
+                    kernel, dim, [*head, model.particle_inv_mass, x, wp.float64(radius), count, buf], device=d
+                )
+                k = int(count.numpy()[0])
+                if k <= cap:
+                    break
+                cap = 2 * k
+            out.append(buf.numpy()[:k].reshape(-1, 4))
+        return out[0], out[1]
+
     def refresh_pattern(self, model: Model, x: wp.array) -> None:
         """Put into the pattern every point pair of the self-contact pairs closer than 2 d̂ at x [m] (the
         minimisers call it at the start of each step). Pairs that come closer only later in the step add
@@ -342,29 +410,8 @@ class BarrierContact(ModalEnergy):
         if s is None:
             return
         radius = 2.0 * self.dhat
-        s.refit(model, x, None, radius)
-        assert s.tri_bvh is not None and s.edge_bvh is not None
-        d = model.device
-        count = wp.zeros(1, dtype=wp.int32, device=d)
-        cap = max(64, 4 * s.points.shape[0])
-        while True:
-            out = wp.zeros(cap, dtype=wp.vec4i, device=d)
-            count.zero_()
-            common = [model.particle_inv_mass, x, wp.float64(radius), count, out]
-            launch(
-                K.point_triangle_candidates,
-                s.points.shape[0],
-                [s.points, s.tris, wp.uint64(s.tri_bvh.id), *common],
-                device=d,
-            )
-            launch(
-                K.edge_edge_candidates, s.edge_count, [s.edges, wp.uint64(s.edge_bvh.id), *common], device=d
-            )
-            k = int(count.numpy()[0])
-            if k <= cap:
-                break
-            cap = 2 * k
-        quads = out.numpy()[:k].astype(np.int64)
+        pt, ee = self._candidates(model, s, x, radius)
+        quads = np.concatenate([pt, ee]).astype(np.int64)
         a, b = np.triu_indices(4, 1)
         lo = np.minimum(quads[:, a], quads[:, b]).ravel()
         hi = np.maximum(quads[:, a], quads[:, b]).ravel()
@@ -374,7 +421,7 @@ class BarrierContact(ModalEnergy):
             return
         if keys.size < 4 * max(need.size, 1):
             need = np.union1d(keys, need)
-        self._keys[id(model)] = (need, wp.array(need, dtype=wp.int64, device=d), version + 1)
+        self._keys[id(model)] = (need, wp.array(need, dtype=wp.int64, device=model.device), version + 1)
 
     # ----------------------------------------------------------------------------------- step bound
     def max_step(self, model: Model, x: wp.array, dx: wp.array) -> float:

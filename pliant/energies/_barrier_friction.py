@@ -9,6 +9,10 @@ tangential displacement u = (I − n nᵀ)(x − x_t) [m] then enters the potent
 so the friction force μλ f₁(|u|) û, f₁ = f₀′ = 2y/ε − y²/ε² below ε and 1 above, is Coulomb's μλ when the
 particle slides faster than the stick velocity ε_v [m/s] and a stiff viscous ramp below it (static friction
 up to a creep of ε_v). The Hessian μλ [f₁′ ûûᵀ + (f₁/y)(P − ûûᵀ)] (P = I − nnᵀ) is PSD (f₁′ ≥ 0).
+
+Self-contact pairs (point–triangle, edge–edge) closer than d̂ at x_t get the same potential with their
+closest-point coefficients c (r = Σ c_k x_k) lagged too: u = (I − nnᵀ) Σ_k c_k (x_k − x_k,t), n = r/|r| at
+x_t, so the gradient on point k is c_k μλ f₁ û and the Hessian c cᵀ ⊗ (the 3×3 above), PSD as well.
 """
 
 from __future__ import annotations
@@ -18,7 +22,8 @@ from typing import Any
 import warp as wp
 
 from ..collision import collider_sdf
-from ._barrier_math import barrier_d1, to_d
+from ._barrier_kernels import write_pair
+from ._barrier_math import barrier_d1, edge_edge_params, mat12d, point_triangle_params, to_d, vec12d
 
 wp.set_module_options({"max_unroll": 0})
 
@@ -123,3 +128,110 @@ def friction_terms(
             for s in range(3):
                 hb[r, s] = type(x[0])(scale * H[r, s])
         wp.atomic_add(hess_out, slots_in[i], hb)
+
+
+@wp.func
+def _friction_3(w: wp.float64, u: wp.vec3d, P: wp.mat33d, eps: wp.float64):
+    """(w f₀(|u|), w f₁(|u|) û, w ∇²f₀) of one contact's tangential displacement u [m]."""
+    y = wp.length(u)
+    if y < eps:
+        f1_y = wp.float64(2.0) / eps - y / (eps * eps)
+        H = f1_y * P
+        if y > wp.float64(0.0):
+            H = H - wp.outer(u, u) / (eps * eps * y)
+        f0 = y * y / eps - y * y * y / (wp.float64(3.0) * eps * eps) + eps / wp.float64(3.0)
+        return w * f0, w * f1_y * u, w * H
+    uh = u / y
+    return w * y, w * uh, (w / y) * (P - wp.outer(uh, uh))
+
+
+@wp.kernel(enable_backward=False)
+def self_friction_lag(
+    quads: wp.array(dtype=wp.vec4i),
+    edge_edge: wp.array(dtype=wp.int32),
+    x_in: wp.array(dtype=Any),
+    dhat: wp.float64,
+    kappa: wp.float64,
+    coef_out: wp.array(dtype=wp.vec4d),
+    lam_out: wp.array(dtype=wp.float64),
+    normal_out: wp.array(dtype=wp.vec3d),
+):
+    # Per self-contact pair at the step's start: closest-point coefficients c, λ = κ|b′(d)|, n = r/|r|.
+    k = wp.tid()
+    q = quads[k]
+    x0 = to_d(x_in[q[0]])
+    x1 = to_d(x_in[q[1]])
+    x2 = to_d(x_in[q[2]])
+    x3 = to_d(x_in[q[3]])
+    if edge_edge[k] == 0:
+        c0, e1, e2, b1, b2, m = point_triangle_params(x0, x1, x2, x3)
+    else:
+        c0, e1, e2, b1, b2, m = edge_edge_params(x0, x1, x2, x3)
+    c = c0 + b1 * e1 + b2 * e2
+    r = c[0] * x0 + c[1] * x1 + c[2] * x2 + c[3] * x3
+    d = wp.length(r)
+    lam_out[k] = wp.float64(0.0)
+    coef_out[k] = c
+    normal_out[k] = wp.vec3d()
+    if d > wp.float64(0.0) and d < dhat:
+        lam_out[k] = -kappa * barrier_d1(d, dhat)
+        normal_out[k] = r / d
+
+
+@wp.kernel(enable_backward=False)
+def self_friction_terms(
+    quads: wp.array(dtype=wp.vec4i),
+    coef: wp.array(dtype=wp.vec4d),
+    lam: wp.array(dtype=wp.float64),
+    normal: wp.array(dtype=wp.vec3d),
+    pair_keys: wp.array(dtype=wp.int64),
+    n_particles: int,
+    x_start_in: wp.array(dtype=Any),
+    x_in: wp.array(dtype=Any),
+    mu: wp.float64,
+    eps: wp.float64,
+    mode: int,
+    scale: wp.float64,
+    slots_in: wp.array(dtype=wp.int32),
+    value_out: wp.array(dtype=Any),
+    grad_out: wp.array(dtype=Any),
+    hess_out: wp.array(dtype=Any),
+):
+    # D_k = μ λ_k f₀(|P Σ c_j (x_j − x_j,t)|) per lagged self-contact pair (module docstring).
+    k = wp.tid()
+    w = mu * lam[k]
+    if w <= wp.float64(0.0):
+        return
+    q = quads[k]
+    c = coef[k]
+    n = normal[k]
+    rel = wp.vec3d()
+    for j in range(4):
+        rel = rel + c[j] * (to_d(x_in[q[j]]) - to_d(x_start_in[q[j]]))
+    P = wp.identity(n=3, dtype=wp.float64) - wp.outer(n, n)
+    val, g3, H3 = _friction_3(w, P * rel, P, eps)
+    g = vec12d()
+    H = mat12d()
+    for a in range(4):
+        for i in range(3):
+            g[3 * a + i] = c[a] * g3[i]
+            for b in range(4):
+                for j in range(3):
+                    H[3 * a + i, 3 * b + j] = c[a] * c[b] * H3[i, j]
+    like = x_in[q[0]]
+    write_pair(
+        q,
+        val,
+        g,
+        H,
+        wp.float64(1.0),
+        mode,
+        scale,
+        like,
+        pair_keys,
+        n_particles,
+        slots_in,
+        value_out,
+        grad_out,
+        hess_out,
+    )

@@ -77,7 +77,7 @@ def _pair_slot(
 
 
 @wp.func
-def _write_pair(
+def write_pair(
     idx: wp.vec4i,
     val: wp.float64,
     g: vec12d,
@@ -196,7 +196,7 @@ def point_triangle_barrier(
         val, g, H = pair_barrier(
             to_d(p), to_d(x_in[idx[1]]), to_d(x_in[idx[2]]), to_d(x_in[idx[3]]), 0, dhat, mode, project
         )
-        _write_pair(
+        write_pair(
             idx, val, g, H, kappa, mode, scale, p, pair_keys, n, slots_in, value_out, grad_out, hess_out
         )
 
@@ -242,7 +242,7 @@ def edge_edge_barrier(
         val, g, H = pair_barrier(
             to_d(a), to_d(b), to_d(x_in[idx[2]]), to_d(x_in[idx[3]]), 1, dhat, mode, project
         )
-        _write_pair(
+        write_pair(
             idx, val, g, H, kappa, mode, scale, a, pair_keys, n, slots_in, value_out, grad_out, hess_out
         )
 

@@ -301,7 +301,9 @@ def _barrier_contact(ctx: BuildContext, integrator: Integrator) -> tuple[list, l
     if on_self:
         assert sc is not None
         out.append(
-            energies.BarrierContact(dhat=sc.thickness, kappa=sc.kappa, ground=False, self_contact=True)
+            energies.BarrierContact(
+                dhat=sc.thickness, kappa=sc.kappa, ground=False, self_contact=True, self_friction=sc.friction
+            )
         )
     return out, handlers, [] if on_self else _self_collision(ctx)
 
