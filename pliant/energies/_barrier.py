@@ -87,9 +87,10 @@ class BarrierContact(ModalEnergy):
     intersection-free configuration with every pair farther apart than 0; then no iterate ever intersects.
 
     Hessian: per pair, exact (closest-point envelope formula, :mod:`._barrier_math`) and projected to the
-    nearest PSD matrix when ``project_psd`` (12×12 Jacobi for self-contact pairs, 3×3 for obstacles). The
-    pattern follows the pairs: :meth:`refresh_pattern` (called by the Newton minimiser at the start of a
-    step and after each iterate) adds the point pairs of every self-contact pair closer than 2 d̂, and
+    nearest PSD matrix when ``project_psd`` (self-contact pairs: Jacobi rotations in the ≤ 5-dimensional
+    subspace that holds the 12×12 Hessian's range; obstacles: 3×3). The pattern follows the pairs:
+    :meth:`refresh_pattern` (called by the Newton minimiser at the start of a step and after each
+    iterate) adds the point pairs of every self-contact pair closer than 2 d̂, and
     :meth:`pattern_version` tells the minimiser to rebuild its matrix. A pair whose points are not all in
     the pattern yet adds only its 3×3 diagonal blocks (principal blocks of a PSD matrix are PSD, so the
     direction still descends).

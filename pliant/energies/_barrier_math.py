@@ -5,7 +5,8 @@
 * the squared distance of a point–triangle or edge–edge pair, with its gradient and exact Hessian over the
   pair's 12 coordinates, from the closest points (envelope theorem, below);
 * the pair's barrier value, gradient and Hessian, and the Hessian's projection to the nearest positive
-  semidefinite matrix (cyclic Jacobi eigen-decomposition, negative eigenvalues clamped to 0);
+  semidefinite matrix (cyclic Jacobi in the ≤ 5-dimensional subspace holding its range, negative
+  eigenvalues clamped to 0);
 * distances alone, for the continuous collision detection of :mod:`._barrier_ccd`.
 
 A pair is four points x₀..x₃ and its closest-point difference r = Σ_k c_k(β) x_k, with c affine in the
@@ -233,20 +234,20 @@ def edge_edge_distance(p1: wp.vec3d, q1: wp.vec3d, p2: wp.vec3d, q2: wp.vec3d):
 
 
 @wp.func
-def project_psd12(A: mat12d):
-    """The nearest PSD matrix to the symmetric A: V max(Λ, 0) Vᵀ by cyclic Jacobi rotations."""
+def _jacobi_psd(A: mat12d, size: int):
+    """V max(Λ, 0) Vᵀ of the symmetric leading ``size`` × ``size`` block of A, by cyclic Jacobi rotations."""
     V = wp.identity(n=12, dtype=wp.float64)
     for _sweep in range(30):
         off = wp.float64(0.0)
         scale = wp.float64(0.0)
-        for p in range(12):
+        for p in range(size):
             scale = scale + A[p, p] * A[p, p]
-            for q in range(p + 1, 12):
+            for q in range(p + 1, size):
                 off = off + A[p, q] * A[p, q]
         if off <= wp.float64(1.0e-30) * scale or off == wp.float64(0.0):
             break
-        for p in range(11):
-            for q in range(p + 1, 12):
+        for p in range(size - 1):
+            for q in range(p + 1, size):
                 apq = A[p, q]
                 if apq != wp.float64(0.0):
                     theta = (A[q, q] - A[p, p]) / (wp.float64(2.0) * apq)
@@ -255,28 +256,85 @@ def project_psd12(A: mat12d):
                         t = -t
                     cs = wp.float64(1.0) / wp.sqrt(t * t + wp.float64(1.0))
                     sn = t * cs
-                    for k in range(12):
+                    for k in range(size):
                         akp = A[k, p]
                         akq = A[k, q]
                         A[k, p] = cs * akp - sn * akq
                         A[k, q] = sn * akp + cs * akq
-                    for k in range(12):
+                    for k in range(size):
                         apk = A[p, k]
                         aqk = A[q, k]
                         A[p, k] = cs * apk - sn * aqk
                         A[q, k] = sn * apk + cs * aqk
-                    for k in range(12):
+                    for k in range(size):
                         vkp = V[k, p]
                         vkq = V[k, q]
                         V[k, p] = cs * vkp - sn * vkq
                         V[k, q] = sn * vkp + cs * vkq
     out = mat12d()
-    for k in range(12):
+    for k in range(size):
         lam = A[k, k]
         if lam > wp.float64(0.0):
-            for i in range(12):
-                for j in range(12):
+            for i in range(size):
+                for j in range(size):
                     out[i, j] = out[i, j] + lam * V[i, k] * V[j, k]
+    return out
+
+
+@wp.func
+def project_psd_pair(H: mat12d, c: wp.vec4d, e1: wp.vec4d, e2: wp.vec4d, r: wp.vec3d):
+    """The nearest PSD matrix to a pair's barrier Hessian H (negative eigenvalues clamped to 0), computed in
+    the ≤ 5-dimensional subspace that holds its range: span{c ⊗ e_i (i = 1..3), e_a ⊗ r} (∇f, ccᵀ ⊗ I
+    and B all lie there), orthonormalised as U; then H⁺ = U (UᵀHU)⁺ Uᵀ exactly, for a 5×5 instead of a
+    12×12 eigenproblem."""
+    U = mat12d()
+    k = int(0)  # noqa: UP018
+    for j in range(5):
+        v = vec12d()
+        for a in range(4):
+            for i in range(3):
+                if j < 3:
+                    if i == j:
+                        v[3 * a + i] = c[a]
+                elif j == 3:
+                    v[3 * a + i] = e1[a] * r[i]
+                else:
+                    v[3 * a + i] = e2[a] * r[i]
+        before = wp.length(v)
+        for t in range(k):
+            proj = wp.float64(0.0)
+            for i in range(12):
+                proj = proj + U[i, t] * v[i]
+            for i in range(12):
+                v[i] = v[i] - proj * U[i, t]
+        nv = wp.length(v)
+        if nv > wp.float64(1.0e-9) * before:
+            for i in range(12):
+                U[i, k] = v[i] / nv
+            k = k + 1
+    HU = mat12d()
+    for b in range(k):
+        for i in range(12):
+            acc = wp.float64(0.0)
+            for j in range(12):
+                acc = acc + H[i, j] * U[j, b]
+            HU[i, b] = acc
+    K = mat12d()
+    for a in range(k):
+        for b in range(k):
+            acc = wp.float64(0.0)
+            for i in range(12):
+                acc = acc + U[i, a] * HU[i, b]
+            K[a, b] = acc
+    Kp = _jacobi_psd(K, k)
+    out = mat12d()
+    for i in range(12):
+        for j in range(12):
+            acc = wp.float64(0.0)
+            for a in range(k):
+                for b in range(k):
+                    acc = acc + U[i, a] * Kp[a, b] * U[j, b]
+            out[i, j] = acc
     return out
 
 
@@ -314,5 +372,6 @@ def pair_barrier(
         H = (ddb / (wp.float64(4.0) * f) - db / (wp.float64(4.0) * f * d)) * wp.outer(gf, gf)
         H = H + db / (wp.float64(2.0) * d) * Hf
         if project != 0:
-            H = project_psd12(H)
+            c = c0 + b1 * e1 + b2 * e2
+            H = project_psd_pair(H, c, e1, e2, _combine(c, x0, x1, x2, x3))
     return barrier(d, dhat), g, H
