@@ -131,6 +131,24 @@ def _collider_penalty() -> Example:
     return Example(model, E.ColliderPenalty(cols, stiffness=1e3), model.particle_q_np.copy())
 
 
+def _barrier_contact() -> Example:
+    # Ground and a sphere, each with particles inside d̂ (self-contact pairs couple points, whose blocks the
+    # fixed diagonal pattern leaves out: their derivatives are checked per pair in tests/test_barrier.py).
+    cols = pl.collision.Colliders()
+    cols.add_sphere((0, 0.5, 0), 0.2)
+    b = pl.ModelBuilder()
+    b.add_particles(
+        [[0.0, 0.004, 0.0], [0.3, 0.0021, 0.1], [0.07, 0.7047, 0.03], [0.9, 0.5, 0.0], [0.0, 0.295, 0.01]],
+        0.1,
+        radius=0.01,
+    )
+    b.add_ground(height=0.0)
+    model = b.finalize(device="cpu", dtype="float64")
+    return Example(
+        model, E.BarrierContact(dhat=0.01, kappa=50.0, colliders=cols), model.particle_q_np.copy(), eps=1e-7
+    )
+
+
 def _tets(cls: type[E.TetElasticity]) -> Callable[[], Example]:
     def make() -> Example:
         b = pl.ModelBuilder()
@@ -146,6 +164,7 @@ def _tets(cls: type[E.TetElasticity]) -> Callable[[], Example]:
 #: A small model for every registered energy class. A new class needs an entry here.
 EXAMPLES: dict[type[E.Energy], Callable[[], Example]] = {
     E.AirDrag: _air_drag,
+    E.BarrierContact: _barrier_contact,
     E.ColliderPenalty: _collider_penalty,
     E.ControlPoints: _control_points,
     E.Dashpots: _dashpots,

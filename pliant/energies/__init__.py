@@ -2,6 +2,7 @@
 
 from .._subclasses import registered_subclasses
 from ._air import AirDrag, air_drag_force
+from ._barrier import BarrierContact
 from ._base import Energy
 from ._cloth import cloth_spring_stiffness
 from ._colliders import ColliderPenalty
@@ -51,6 +52,7 @@ __all__ = [
     "StVK",
     "TetElasticity",
     "AirDrag",
+    "BarrierContact",
     "ColliderPenalty",
     "ControlPoints",
     "air_drag_force",

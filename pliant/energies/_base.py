@@ -60,6 +60,15 @@ class Energy(abc.ABC):
         """(rows, cols) of the 3×3 blocks ``hessian`` writes, in write order; default: none."""
         return np.zeros(0, np.int32), np.zeros(0, np.int32)
 
+    def pattern_version(self, model: Model) -> int:
+        """A number that changes whenever :meth:`hessian_pattern` does (the minimisers rebuild their matrix
+        pattern then); default 0: the pattern is fixed per model."""
+        return 0
+
+    def refresh_pattern(self, model: Model, x: wp.array) -> None:  # noqa: B027
+        """Update the Hessian pattern for a step starting at x [m] (e.g. contact pairs), before the minimiser
+        builds its matrix; default: nothing (a fixed pattern)."""
+
     def hessian(  # noqa: B027
         self,
         model: Model,

@@ -225,8 +225,12 @@ class HandleConfig(Section):
 
 
 class SelfCollisionConfig(Section):
-    thickness: Length  # minimum distance between particles / particle and triangle [m]
-    friction: NonNegFloat = 0.0  # force solver
+    thickness: Length  # minimum distance between particles / particle and triangle [m]; barrier: its d̂
+    #: "projection": the post-step pass (pl.collision.SelfCollision); "barrier": IPC's log barrier within
+    #: d̂ = thickness for point–triangle and edge–edge pairs, intersection-free (implicit ForceSolver only).
+    contact: Literal["projection", "barrier"] = "projection"
+    kappa: PosFloat | None = None  # barrier stiffness κ [N/m]; None: pl.energies.BarrierContact's default
+    friction: NonNegFloat = 0.0  # force solver (barrier: the lagged friction's μ between layers)
     iterations: Annotated[int, Strict(), Field(ge=1, le=100)] = 2  # force solver: passes per step
     particles: bool = True  # particle–particle contacts
     triangles: bool = True  # particle–triangle contacts
@@ -288,10 +292,22 @@ class GroundSection(Section):
     # ζ [-] of compliant contact's damper b = 2ζ√κ (MuJoCo's dampratio; 1: critical); unset: 0.
     damping_ratio: NonNegFloat | None = None
 
+    #: "penalty": the hard projection, or compliant contact with stiffness (above); "barrier": IPC's log
+    #: barrier within ``dhat`` against the ground and the colliders, with a CCD-bounded Newton step,
+    #: intersection-free (implicit ForceSolver only); their friction μ then acts as IPC's lagged friction
+    #: with this stick_velocity.
+    contact: Literal["penalty", "barrier"] = "penalty"
+    dhat: Length = 1.0e-3  # barrier: the distance d̂ [m] below which it acts
+    kappa: PosFloat | None = None  # barrier stiffness κ [N/m]; None: pl.energies.BarrierContact's default
+
     @model_validator(mode="after")
     def _damper_needs_spring(self) -> GroundSection:
         if self.damping_ratio and self.stiffness is None:
             raise ValueError("damping_ratio needs stiffness (compliant contact): give ground.stiffness too")
+        if self.contact == "barrier" and self.stiffness is not None:
+            raise ValueError(
+                'contact = "barrier" and stiffness (compliant contact) are two contact models: give one'
+            )
         return self
 
 

@@ -13,6 +13,7 @@ from ._registry import CONSTRAINT_KINDS, ENERGY_KINDS, SOLVER_KINDS, register_so
 
 if TYPE_CHECKING:
     from ..collision import SelfCollision
+    from ..integrators import Integrator
     from ..solvers import XPBD, FastMassSpring, ForceSolver
     from ._context import BuildContext
     from ._schema import SceneConfig
@@ -248,22 +249,80 @@ def make_force(ctx: BuildContext) -> ForceSolver:
     integrator = make_integrator(s.integrator, s.integrator_options, source=cfg.source, text=cfg.text)
     # A stated [ground] stiffness reaches the model's ground (compliant contact): ForceSolver then adds its
     # GroundPenalty, explicit or implicit (docs/design.md).
+    barriers, handlers, self_collision = _barrier_contact(ctx, integrator)
     return _construct(
         ctx,
         solvers.ForceSolver,
         ctx.model,
-        terms,
+        terms + barriers,
         integrator,
         velocity_damping=s.velocity_damping,
         damping_rate=s.damping_rate,
-        collisions=ctx.handlers + _self_collision(ctx),
+        collisions=handlers + self_collision,
     )
+
+
+def _barrier_contact(ctx: BuildContext, integrator: Integrator) -> tuple[list, list, list]:
+    """(barrier energies, post-step handlers, self-collision handlers) of ``contact = "barrier"`` on
+    ``[ground]`` (the ground and the colliders) and ``[solver.self_collision]``: barrier contact replaces
+    the post-step response of what it covers."""
+    from .. import energies
+    from ..collision import Colliders
+
+    g, sc = ctx.cfg.ground, ctx.cfg.solver.self_collision
+    on_ground = g is not None and g.contact == "barrier"
+    on_self = sc is not None and sc.contact == "barrier"
+    if not (on_ground or on_self):
+        return [], ctx.handlers, _self_collision(ctx)
+    where = "ground.contact" if on_ground else "solver.self_collision.contact"
+    if integrator.explicit:
+        raise ctx.fail(
+            where, f'"barrier" needs an implicit integrator (e.g. BackwardEuler), not {integrator.name}'
+        )
+    out, handlers = [], list(ctx.handlers)
+    if on_ground:
+        assert g is not None
+        cols = [h for h in handlers if isinstance(h, Colliders)]
+        handlers = [h for h in handlers if not isinstance(h, Colliders)]
+        mus = [g.friction] + [c.friction for c in ctx.cfg.colliders]
+        out.append(
+            energies.BarrierContact(
+                dhat=g.dhat,
+                kappa=g.kappa,
+                ground=g.enabled,
+                colliders=cols[0] if cols else None,
+                friction=max(mus) > 0,
+                stick_velocity=g.stick_velocity if g.stick_velocity > 0 else None,
+            )
+        )
+    if on_self:
+        assert sc is not None
+        out.append(
+            energies.BarrierContact(
+                dhat=sc.thickness, kappa=sc.kappa, ground=False, self_contact=True, self_friction=sc.friction
+            )
+        )
+    return out, handlers, [] if on_self else _self_collision(ctx)
+
+
+def _refuse_barrier(ctx: BuildContext, solver: str) -> None:
+    """A SceneError when ``contact = "barrier"`` is asked of a solver that does not minimise a potential."""
+    g, sc = ctx.cfg.ground, ctx.cfg.solver.self_collision
+    for on, where in (
+        (g is not None and g.contact == "barrier", "ground.contact"),
+        (sc is not None and sc.contact == "barrier", "solver.self_collision.contact"),
+    ):
+        if on:
+            raise ctx.fail(
+                where, f'"barrier" contact needs the force solver with an implicit integrator, not {solver}'
+            )
 
 
 def make_fast_mass_spring(ctx: BuildContext) -> FastMassSpring:
     """``pl.solvers.FastMassSpring``: the specialised mass-spring path (``options.method``)."""
     from .. import solvers
 
+    _refuse_barrier(ctx, "FastMassSpring")
     s = ctx.cfg.solver
     return _construct(
         ctx,
@@ -288,6 +347,7 @@ def _xpbd_compliance(cfg: SceneConfig) -> float | None:
 
 def _position_based(ctx: BuildContext, cls: type[XPBD], **kw: Any) -> XPBD:
     """XPBD / PBD with the scene's iterations, damping, contact handlers and extra constraints."""
+    _refuse_barrier(ctx, cls.__name__)
     s = ctx.cfg.solver
     kw = {"iterations": s.iterations, "damping": s.damping_rate, **kw}
     kw = {k: v for k, v in kw.items() if v is not None}

@@ -113,7 +113,15 @@ class ForceSolver(Solver):
             raise ValueError(f"damping_rate must be >= 0 1/s, got {damping_rate}")
         self.velocity_damping_factor = float(velocity_damping)
         self.damping_rate = damping_rate
-        self.contact = contact and model.ground is not None
+        if self.integrator.explicit and any(getattr(e, "feasible_start", False) for e in self.energies):
+            raise ValueError(
+                f"ForceSolver: barrier contact needs an implicit integrator (its CCD bounds Newton's steps), "
+                f"not {self.integrator.name}; use pl.integrators.BackwardEuler()"
+            )
+        # An energy that is the ground contact itself (barrier contact) replaces the penalty and the
+        # post-step projection: projecting would undo the barrier's intersection-free positions.
+        owned = any(getattr(e, "owns_ground", False) for e in self.energies)
+        self.contact = contact and model.ground is not None and not owned
         if self.contact and not self.integrator.explicit:
             # Newton must see the ground: projecting after a large implicit step flattens (inverts) elements.
             # A compliant ground is its own spring–damper; a hard one the default penalty. Explicit steps

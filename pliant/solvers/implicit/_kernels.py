@@ -107,3 +107,22 @@ def _negate(src: wp.array(dtype=Any), out: wp.array(dtype=Any)):
     # The linear solves' right-hand side −∇.
     i = wp.tid()
     out[i] = -src[i]
+
+
+@wp.kernel(enable_backward=False)
+def _toward(
+    inv_mass: wp.array(dtype=Any),
+    x_ref: wp.array(dtype=Any),
+    x_tilde: wp.array(dtype=Any),
+    alpha: Any,
+    mode: int,
+    dx_out: wp.array(dtype=Any),
+    x_out: wp.array(dtype=Any),
+):
+    # mode 0: Δ = x̃ − x_ref; mode 1: x_out = x_ref + αΔ for free particles, x̃ for fixed ones (the start of
+    # a minimisation whose energies bound the step from x_ref, see _newton._feasible_start).
+    i = wp.tid()
+    if mode == 0:
+        dx_out[i] = x_tilde[i] - x_ref[i]
+    elif inv_mass[i] != alpha * type(alpha)(0.0):
+        x_out[i] = x_ref[i] + alpha * dx_out[i]

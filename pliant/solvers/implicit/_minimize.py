@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 import warp as wp
 
 from ..._blas import single_threaded
-from ._newton import NewtonStats, minimize_incremental_potential
+from ._newton import NewtonStats, minimize_incremental_potential, needs_feasible_start
 from ._options import device_newton, resolve_method, step_settings
 from ._pcg import DeviceNewtonStats, minimize_device
 from ._quasi_newton import minimize_quasi_newton
@@ -33,9 +33,16 @@ def minimize(
     on the CPU), else by
     :func:`minimize_incremental_potential` (or its device form, :func:`minimize_device`, with
     ``linear_solver="pcg"``, or "auto" on CUDA; arguments as there), with host BLAS on one thread: many small
-    calls, for which a thread pool's wake-up costs more than it saves."""
+    calls, for which a thread pool's wake-up costs more than it saves. Problems with barrier contact (an
+    energy with ``feasible_start``) always take the host Newton: it starts from the CCD-bounded advance
+    from x_ref and bounds every step by the energies' continuous collision detection."""
     _, mz = step_settings(options, minimizer)
     with single_threaded():
+        # Barrier contact's start and step bound are the host Newton's (see needs_feasible_start).
+        if needs_feasible_start(problem):
+            return minimize_incremental_potential(
+                problem, t, h, x_tilde, x_ref, v_ref, x_out, options, minimizer=mz
+            )
         if resolve_method(mz, problem.model.device, problem) == "lbfgs":
             return minimize_quasi_newton(problem, t, h, x_tilde, x_ref, v_ref, x_out, options, minimizer=mz)
         if device_newton(mz, problem.model.device, problem):

@@ -38,7 +38,7 @@ import warp as wp
 from ..._warp import launch
 from ._adjoint import differentiable
 from ._assembly import _assemble, _control_terms, _inverse_diagonal
-from ._kernels import _incremental_gradient, _negate, _step_stats, _trial_point
+from ._kernels import _incremental_gradient, _negate, _step_stats, _toward, _trial_point
 from ._options import step_settings
 from ._workspace import (
     _direct_solve,
@@ -131,6 +131,40 @@ def _launch_gradient(
     )
 
 
+def needs_feasible_start(solver: PotentialProblem) -> bool:
+    """Whether an energy of ``solver`` asks to start from the step's start positions (``feasible_start``:
+    barrier contact, infinite where x̃ may intersect) rather than from x̃."""
+    return any(getattr(e, "feasible_start", False) for e in solver.energies)
+
+
+def _feasible_start(
+    solver: PotentialProblem, ws: _Workspace, x_ref: wp.array, x_tilde: wp.array, x: wp.array
+) -> bool:
+    """With an energy that needs it, x = x_ref + α(x̃ − x_ref) (free particles; fixed ones at x̃), α ≤ 1 the
+    energies' ``max_step`` from x_ref: the start is then as admissible as x_ref (IPC starts from x_ref).
+    Returns whether it applied (the energies then refresh their Hessian patterns at this start)."""
+    if not needs_feasible_start(solver):
+        return False
+    m = solver.model
+    n = m.particle_count
+    launch(_toward, n, [m.particle_inv_mass, x_ref, x_tilde, m.s(0.0), 0, ws.dx, x], device=m.device)
+    alpha = 1.0
+    for e in solver.energies:
+        alpha = min(alpha, float(e.max_step(m, x_ref, ws.dx)))
+    if alpha < 1.0:
+        launch(_toward, n, [m.particle_inv_mass, x_ref, x_tilde, m.s(alpha), 1, ws.dx, x], device=m.device)
+    return True
+
+
+def _refresh_patterns(solver: PotentialProblem, x: wp.array) -> bool:
+    """Let every energy refresh its Hessian pattern at x; returns whether any changed."""
+    m = solver.model
+    before = [e.pattern_version(m) for e in solver.energies]
+    for e in solver.energies:
+        e.refresh_pattern(m, x)
+    return before != [e.pattern_version(m) for e in solver.energies]
+
+
 @differentiable
 def minimize_incremental_potential(
     solver: PotentialProblem,
@@ -181,6 +215,10 @@ def minimize_incremental_potential(
             e.begin_step(m, x_ref, v_ref, h)
     wp.copy(x_out, x_tilde)
     x = x_out
+    # Contact energies' patterns follow their pairs: refreshed at the start and after every iterate.
+    refresh = _feasible_start(solver, ws, x_ref, x_tilde, x)
+    if refresh and _refresh_patterns(solver, x):
+        ws = _workspace(solver)
     h2 = h * h
     g = _gradient(solver, ws, x, x_tilde, h)
     # Round-off floor: positions are known to eps·max|x|; one ulp moves ∇Φ_i/(m_i h) by up to
@@ -270,6 +308,8 @@ def minimize_incremental_potential(
                 continue
             break  # no decrease even for a tiny step: at the round-off floor (or a non-descent direction)
         wp.copy(x, ws.x_trial)
+        if refresh and _refresh_patterns(solver, x):
+            ws = _workspace(solver)
         g = _gradient(solver, ws, x, x_tilde, h)
         stats.residuals.append(float(g[0]))
         if g[0] <= tol:

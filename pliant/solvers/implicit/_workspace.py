@@ -23,6 +23,12 @@ if TYPE_CHECKING:
     from ._pcg import _DeviceNewton
 
 
+def _key(model: Model, energies: list) -> tuple:
+    """What a workspace is built for: the model, the energies and their patterns' versions."""
+    versions = tuple(e.pattern_version(model) if hasattr(e, "pattern_version") else 0 for e in energies)
+    return (id(model), tuple(id(e) for e in energies), versions)
+
+
 class _Workspace:
     """Everything allocated once per (model, energies): the BSR pattern, slots, Newton vectors, CG state."""
 
@@ -31,7 +37,7 @@ class _Workspace:
 
         n = model.particle_count
         d = model.device
-        self.key = (id(model), tuple(id(e) for e in energies))
+        self.key = _key(model, energies)
         patterns = [e.hessian_pattern(model) for e in energies]
         diag = np.arange(n, dtype=np.int64)
         rows = np.concatenate([diag] + [np.asarray(p[0], np.int64) for p in patterns])
@@ -192,7 +198,7 @@ class MinimizerCache:
 
     def workspace(self, model: Model, energies: list) -> _Workspace:
         """The workspace of (``model``, ``energies``), built on first use and when either changes."""
-        key = (id(model), tuple(id(e) for e in energies))
+        key = _key(model, energies)
         if self.newton is None or self.newton.key != key:
             self.newton = _Workspace(model, energies)
         return self.newton
