@@ -229,11 +229,7 @@ def cmaes(
             cands = es.ask()
             values = [decode(np.asarray(u)) for u in cands]
             tg = time.perf_counter()
-            try:
-                losses = local(values) if pool is None else pool.evaluate(problem, values, local)
-            except BaseException:
-                close_workers(problem)  # a worker may be mid-generation: it cannot serve the next one
-                raise
+            losses = local(values) if pool is None else pool.evaluate(problem, values, local)
             if decide:
                 decide = False
                 n = auto_workers(cpu_cores(), len(values), time.perf_counter() - tg, generations - gen - 1)
@@ -261,8 +257,12 @@ def cmaes(
         else:
             best.stop = "cap"
     except KeyboardInterrupt:
+        close_workers(problem)  # a worker may be mid-generation: it cannot serve the next one
         best.interrupted = True
         best.stop = "interrupted"
+    except BaseException:
+        close_workers(problem)
+        raise
     best.wall_time = time.perf_counter() - t0
     return best
 

@@ -1,0 +1,136 @@
+"""CMA-ES on worker processes (issue 42 item 2, pliant/fit/_workers.py): the same search bit for bit as one
+process, the checkpoint resumable across worker counts, workers that stop with the search, and the rule of
+``workers="auto"``."""
+
+from __future__ import annotations
+
+import copy
+
+import pytest
+
+import pliant as pl
+import pliant.fit
+import pliant.scene
+from pliant.fit._cmaes import batchable, cmaes
+from pliant.fit._workers import (
+    AUTO_HORIZON,
+    WORKER_START_S,
+    auto_workers,
+    close_workers,
+    parse_workers,
+    unsplittable,
+)
+
+# A 2×2×2-cell FEM box thrown onto the ground (explicit steps): 8 frames, a few ms per rollout.
+BOX = """
+[scene]
+name = "box"
+frame_dt = 0.03333333333333333
+substeps = 20
+frames = 8
+dtype = "float64"
+[[objects]]
+kind = "soft_box"
+model = "fem"
+cells = [2, 2, 2]
+size = [0.2, 0.2, 0.2]
+origin = [0.0, 0.12, 0.0]
+density = 500.0
+velocity = [0.5, -0.5, 0.0]
+[objects.material]
+E = 2e4
+nu = 0.35
+[ground]
+height = 0.0
+friction = 0.5
+[solver]
+integrator = "SymplecticEuler"
+damping_rate = 1.0
+"""
+
+
+class _Hook:
+    """A checkpoint stage (``StageHook``'s interface) that keeps every saved state in memory."""
+
+    def __init__(self, state: dict | None = None) -> None:
+        self.state = copy.deepcopy(state)
+        self.saved: list[dict] = []
+
+    def save(self, state: dict, iteration: int) -> None:
+        self.saved.append(copy.deepcopy(state))
+
+
+def _problem(params: list[str]) -> pl.fit.Problem:
+    cfg = pl.scene.parse_scene(BOX, "box")
+    obs = pl.fit.observe(pl.scene.build_scene(cfg, device="cpu"), tracks=8, seed=1)
+    start = pl.fit.apply_globals(cfg, {"E": 4e4, "nu": 0.25, "damping_rate": 3.0})
+    return pl.fit.Problem(start, obs, params=params, device="cpu")
+
+
+@pytest.mark.parametrize("params", [["E", "nu"], ["E", "damping_rate"]], ids=["batched", "one_by_one"])
+def test_two_workers_search_bit_for_bit(params: list[str]) -> None:
+    """Every candidate's loss, the best values and the history: equal (==) on 1 and 2 processes, batched
+    (explicit steps: one copy per candidate) or one rollout per candidate; and a search saved after its
+    first generation by one process and continued on two ends where the one-process search ends."""
+    p = _problem(params)
+    assert batchable(p) == (params == ["E", "nu"])
+    assert unsplittable(p, batchable(p)) is None
+    one, two, resumed = _Hook(), _Hook(), None
+    try:
+        a = cmaes(p, generations=3, checkpoint=one)
+        b = cmaes(p, generations=3, checkpoint=two, workers=2)
+        assert p.__dict__["_worker_pool"].n == 2  # kept on the problem for its next stage
+        resumed = _Hook(one.saved[0])
+        c = cmaes(p, generations=3, checkpoint=resumed, workers=2)
+    finally:
+        close_workers(p)
+    assert [g["losses"] for g in two.saved[-1]["generations"]] == [
+        g["losses"] for g in one.saved[-1]["generations"]
+    ]
+    assert len(one.saved[-1]["generations"]) == 3
+    assert (b.values, b.loss, b.history, b.evaluations) == (a.values, a.loss, a.history, a.evaluations)
+    assert resumed.saved[-1] == one.saved[-1]
+    assert (c.values, c.history) == (a.values, a.history)
+
+
+def test_workers_stop_on_an_error() -> None:
+    """A worker that cannot build its problem: a FitError naming it, and no worker left running; an
+    exception in the search (here its callback) stops the workers too."""
+    p = _problem(["E", "nu"])
+    good = p.recipe
+    p.recipe = (good[0], good[1], {**good[2], "params": ["no_such_parameter"]})
+    with pytest.raises(pl.fit.FitError, match=r"CMA-ES worker 1 of 1 failed: FitError"):
+        cmaes(p, generations=2, workers=2)
+    assert "_worker_pool" not in p.__dict__
+
+    p.recipe = good
+    procs = []
+
+    def boom(gen: int, loss: float) -> None:
+        procs.extend(p.__dict__["_worker_pool"]._procs)
+        raise RuntimeError("stop here")
+
+    with pytest.raises(RuntimeError, match="stop here"):
+        cmaes(p, generations=2, workers=2, callback=boom)
+    assert procs and not any(proc.is_alive() for proc in procs)
+    assert "_worker_pool" not in p.__dict__
+
+
+def test_auto_rule() -> None:
+    """``auto``: all the cores (at most one per candidate) where they save a worker's start over the next
+    generations, else one process; an implicit batched generation stays in one process; bad counts fail."""
+    long_gen = 4.0 * WORKER_START_S / AUTO_HORIZON  # 2 processes save half: 2 × the start
+    short_gen = 1.0 * WORKER_START_S / AUTO_HORIZON  # 2 processes save half: 0.5 × the start
+    assert auto_workers(2, 10, long_gen, 40) == 2
+    assert auto_workers(16, 10, long_gen, 40) == 10
+    assert auto_workers(2, 10, short_gen, 40) == 1
+    assert auto_workers(2, 10, long_gen, 1) == 1  # one generation left: 0.4 × the start
+    assert auto_workers(1, 10, 100.0, 40) == 1
+    assert parse_workers("auto") is None and parse_workers("3") == 3
+    for bad in (0, -1, "many", True, 1.5):
+        with pytest.raises(pl.fit.FitError, match="--workers"):
+            parse_workers(bad)
+    implicit = _problem(["E", "nu"])
+    implicit.cfg.solver.integrator = "BackwardEuler"
+    assert "losses would change" in unsplittable(implicit, True)
+    assert unsplittable(implicit, False) is None
