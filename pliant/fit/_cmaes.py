@@ -138,8 +138,8 @@ def cmaes(
         checkpoint: Saves the search after every generation (:mod:`pliant.fit._resume`), and when it holds
             a saved search, continues it: the saved generations are replayed into ``cma`` (no simulation).
         workers: Processes that evaluate a generation, this one included (1: this one alone). ``"auto"``:
-            1 on a GPU, else the first generation runs here and is timed, then ``min(CPU cores, popsize)``
-            when that saves more than a worker's start over the next generations
+            1 on a GPU, else the first generation runs here and is timed (CPU seconds), then
+            ``min(CPU cores, popsize)`` when that saves more than a worker's start over the next generations
             (:func:`pliant.fit._workers.auto_workers`). Where splitting a generation would change its losses
             (:func:`pliant.fit._workers.unsplittable`) it stays in one process (a log line on
             ``pliant.fit`` says why). The workers stay with ``problem`` for its next CMA-ES stage;
@@ -228,11 +228,11 @@ def cmaes(
             rng = None if checkpoint is None else rng_state()
             cands = es.ask()
             values = [decode(np.asarray(u)) for u in cands]
-            tg = time.perf_counter()
+            tg = time.process_time()
             losses = local(values) if pool is None else pool.evaluate(problem, values, local)
             if decide:
                 decide = False
-                n = auto_workers(cpu_cores(), len(values), time.perf_counter() - tg, generations - gen - 1)
+                n = auto_workers(cpu_cores(), len(values), time.process_time() - tg, generations - gen - 1)
                 if n > 1:
                     pool = pool_for(problem, n, batched, reuse)
             best.evaluations += len(values)

@@ -44,10 +44,11 @@ if TYPE_CHECKING:
 
 _LOG = logging.getLogger("pliant.fit")
 
-#: Wall seconds for a worker to start, import pliant and Warp, load the kernels from Warp's cache and build
-#: its problem (the 117-particle beam, measured by benchmarks/fit_workers.py on the loaded 2-core box: 3-6 s;
-#: workers start side by side). "auto" starts workers only when they save more than this.
-WORKER_START_S = 5.0
+#: CPU seconds for a worker to start: import pliant and Warp, load the kernels from Warp's cache, build its
+#: problem (the 117-particle beam on the 2-core box: 1.6-1.9 s of CPU, 3-8 s of wall time under a load of 7;
+#: benchmarks/fit_workers.py). CPU seconds, as the first generation is timed, so that the rule does not
+#: change with the machine's load. "auto" starts workers only when they save more than this.
+WORKER_START_S = 2.5
 #: Generations "auto" expects a search to run (it usually converges in 15-30; ``generations`` is a cap).
 AUTO_HORIZON = 10
 
@@ -92,14 +93,15 @@ def unsplittable(problem: Problem, batched: bool) -> str | None:
 
 
 def auto_workers(cores: int, popsize: int, generation_s: float, generations_left: int) -> int:
-    """The worker count "auto" takes after a first generation that took ``generation_s`` [s] in one process:
+    """The worker count "auto" takes after a first generation that took ``generation_s`` CPU seconds in one
+    process:
     ``min(cores, popsize)``, or 1 when that saves less than :data:`WORKER_START_S` over the next
     ``min(generations_left, AUTO_HORIZON)`` generations (a generation on n processes takes 1/n of the time).
 
     Args:
         cores: CPU cores available (:func:`cpu_cores`).
         popsize: Candidates per generation.
-        generation_s: Wall seconds of one generation in one process.
+        generation_s: CPU seconds of one generation in one process.
         generations_left: Generations the search may still run.
     """
     n = max(1, min(cores, popsize))
@@ -146,13 +148,14 @@ def _serve(conn: Connection, recipe: tuple, batched: bool, reuse: bool) -> None:
         if msg[0] == "stop":
             return
         _, shooting, values = msg
+        cpu = time.process_time()
         try:
             problem.shooting = shooting
             if batched:
                 losses = evaluate_batch(problem, values, scenes)
             else:
                 losses = [evaluate(problem, v) for v in values]
-            conn.send(("ok", [float(f) for f in losses]))
+            conn.send(("ok", [float(f) for f in losses], time.process_time() - cpu))
         except Exception as exc:  # noqa: BLE001
             conn.send(("error", f"{type(exc).__name__}: {exc}", traceback.format_exc()))
 
@@ -188,6 +191,8 @@ class WorkerPool:
             self._conns.append(parent)
             self._procs.append(p)
         self._ready = False
+        #: Per generation: the CPU seconds each process spent on its share (the parent's first).
+        self.cpu_s: list[list[float]] = []
         self._finalizer = weakref.finalize(self, _stop, self._conns, self._procs)
 
     def _recv(self, i: int) -> Any:
@@ -203,7 +208,7 @@ class WorkerPool:
         msg = conn.recv()
         if msg[0] == "error":
             raise FitError(f"CMA-ES worker {i + 1} of {self.n - 1} failed: {msg[1]}\n{msg[2]}")
-        return msg[1]
+        return msg
 
     def evaluate(self, problem: Problem, values: list[dict[str, float]], local) -> list[float]:
         """Losses of ``values`` (in order): shares 2 … n sent to the workers, share 1 evaluated here by
@@ -211,7 +216,9 @@ class WorkerPool:
         shares = np.array_split(np.arange(len(values)), self.n)
         for i, share in enumerate(shares[1:]):
             self._conns[i].send(("eval", problem.shooting, [values[j] for j in share]))
+        cpu = time.process_time()
         losses = list(local([values[j] for j in shares[0]]))
+        cpus = [time.process_time() - cpu]
         if not self._ready:
             for i in range(self.n - 1):
                 self._recv(i)  # "ready"
@@ -219,7 +226,10 @@ class WorkerPool:
             self.warmup_s = time.perf_counter() - self.started
             _LOG.info("CMA-ES: %d worker processes ready in %.1f s", self.n - 1, self.warmup_s)
         for i in range(self.n - 1):
-            losses.extend(self._recv(i))
+            _, part, c = self._recv(i)
+            losses.extend(part)
+            cpus.append(c)
+        self.cpu_s.append(cpus)
         return losses
 
     def close(self) -> None:
