@@ -1,6 +1,6 @@
 """A CMA-ES generation on several CPU cores (issue 42 item 2): worker processes, each holding its own copy of
-the fitting problem, evaluate contiguous shares of the generation's candidates; the parent evaluates the first
-share itself and gathers the losses in candidate order.
+the fitting problem, evaluate the generation's candidates beside the parent, which deals them out one at a
+time (a batched generation: one contiguous share per process) and gathers the losses in candidate order.
 
 Warp runs a CPU kernel on one thread, so one process evaluates one candidate at a time. A candidate's loss
 does not depend on which process evaluates it (a rollout of a scene built for it alone, or one copy in a
@@ -30,6 +30,7 @@ import os
 import time
 import traceback
 import weakref
+from collections import deque
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -190,7 +191,7 @@ class WorkerPool:
             child.close()
             self._conns.append(parent)
             self._procs.append(p)
-        self._ready = False
+        self._ready: set[int] = set()
         #: Per generation: the CPU seconds each process spent on its share (the parent's first).
         self.cpu_s: list[list[float]] = []
         self._finalizer = weakref.finalize(self, _stop, self._conns, self._procs)
@@ -210,25 +211,61 @@ class WorkerPool:
             raise FitError(f"CMA-ES worker {i + 1} of {self.n - 1} failed: {msg[1]}\n{msg[2]}")
         return msg
 
-    def evaluate(self, problem: Problem, values: list[dict[str, float]], local) -> list[float]:
-        """Losses of ``values`` (in order): shares 2 … n sent to the workers, share 1 evaluated here by
-        ``local(share) -> losses`` meanwhile."""
-        shares = np.array_split(np.arange(len(values)), self.n)
-        for i, share in enumerate(shares[1:]):
-            self._conns[i].send(("eval", problem.shooting, [values[j] for j in share]))
-        cpu = time.process_time()
-        losses = list(local([values[j] for j in shares[0]]))
-        cpus = [time.process_time() - cpu]
-        if not self._ready:
-            for i in range(self.n - 1):
-                self._recv(i)  # "ready"
-            self._ready = True
+    def _ready_now(self, i: int) -> None:
+        self._ready.add(i)
+        if len(self._ready) == self.n - 1:
             self.warmup_s = time.perf_counter() - self.started
             _LOG.info("CMA-ES: %d worker processes ready in %.1f s", self.n - 1, self.warmup_s)
+
+    def evaluate(self, problem: Problem, values: list[dict[str, float]], local) -> list[float]:
+        """Losses of ``values`` (in order), evaluated here by ``local(values) -> losses`` and by the workers.
+
+        One candidate at a time, each worker kept two ahead, this process taking the next one between its
+        look-ups of the workers' answers: a process slowed by the machine's other work (or a worker still
+        starting) takes fewer. A batched problem's generation is cut into one contiguous share per process
+        instead (a batch per process), the workers' shares sent first.
+        """
+        if self.batched:
+            shares = [list(s) for s in np.array_split(np.arange(len(values)), self.n)]
+            tasks, depth = shares[1:] + shares[:1], 1
+        else:
+            tasks, depth = [[j] for j in range(len(values))], 2
+        losses: list[float] = [0.0] * len(values)
+        cpus = [0.0] * self.n
+        pending: list[deque[list[int]]] = [deque() for _ in range(self.n - 1)]
+        nxt = 0
+
+        def feed(i: int) -> None:
+            nonlocal nxt
+            while nxt < len(tasks) and len(pending[i]) < depth:
+                self._conns[i].send(("eval", problem.shooting, [values[j] for j in tasks[nxt]]))
+                pending[i].append(tasks[nxt])
+                nxt += 1
+
+        def take(i: int, block: bool) -> None:
+            while pending[i] and (block or self._conns[i].poll()):
+                msg = self._recv(i)
+                if msg[0] == "ready":
+                    self._ready_now(i)
+                    continue
+                for j, f in zip(pending[i].popleft(), msg[1], strict=True):
+                    losses[j] = f
+                cpus[i + 1] += msg[2]
+                feed(i)
+
         for i in range(self.n - 1):
-            _, part, c = self._recv(i)
-            losses.extend(part)
-            cpus.append(c)
+            feed(i)
+        while nxt < len(tasks):
+            task = tasks[nxt]
+            nxt += 1
+            cpu = time.process_time()
+            for j, f in zip(task, local([values[j] for j in task]), strict=True):
+                losses[j] = f
+            cpus[0] += time.process_time() - cpu
+            for i in range(self.n - 1):
+                take(i, block=False)
+        for i in range(self.n - 1):
+            take(i, block=True)
         self.cpu_s.append(cpus)
         return losses
 
