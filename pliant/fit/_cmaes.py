@@ -109,7 +109,7 @@ def cmaes(
     """Minimise the training loss over ``problem.globals`` with CMA-ES (the ``cma`` package).
 
     When :func:`batchable`, a generation's candidates run as one simulation (``batch=True``, the default),
-    else one after another; with ``workers`` > 1, split over that many processes
+    else one after another; with ``workers`` > 1, dealt out to that many worker processes
     (:mod:`pliant.fit._workers`) with the same losses bit for bit. A one-parameter problem gets a second,
     ignored coordinate, since ``cma`` needs at least two dimensions. Ctrl-C stops the search and returns the
     best candidate so far (``interrupted=True``).
@@ -137,7 +137,7 @@ def cmaes(
         patience: Generations over which the improvement is measured.
         checkpoint: Saves the search after every generation (:mod:`pliant.fit._resume`), and when it holds
             a saved search, continues it: the saved generations are replayed into ``cma`` (no simulation).
-        workers: Processes that evaluate a generation, this one included (1: this one alone). ``"auto"``:
+        workers: Worker processes that evaluate each generation (1: none, this process alone). ``"auto"``:
             1 on a GPU, else the first generation runs here and is timed (CPU seconds), then
             ``min(CPU cores, popsize)`` when that saves more than a worker's start over the next generations
             (:func:`pliant.fit._workers.auto_workers`). Where splitting a generation would change its losses
@@ -229,7 +229,7 @@ def cmaes(
             cands = es.ask()
             values = [decode(np.asarray(u)) for u in cands]
             tg = time.process_time()
-            losses = local(values) if pool is None else pool.evaluate(problem, values, local)
+            losses = local(values) if pool is None else pool.evaluate(problem, values)
             if decide:
                 decide = False
                 n = auto_workers(cpu_cores(), len(values), time.process_time() - tg, generations - gen - 1)

@@ -1,6 +1,7 @@
 """A CMA-ES generation on several CPU cores (issue 42 item 2): worker processes, each holding its own copy of
-the fitting problem, evaluate the generation's candidates beside the parent, which deals them out one at a
-time (a batched generation: one contiguous share per process) and gathers the losses in candidate order.
+the fitting problem, evaluate the generation's candidates; the parent deals them out one at a time to
+whichever worker is free (a batched generation: one contiguous share per worker) and gathers the losses in
+candidate order.
 
 Warp runs a CPU kernel on one thread, so one process evaluates one candidate at a time. A candidate's loss
 does not depend on which process evaluates it (a rollout of a scene built for it alone, or one copy in a
@@ -30,7 +31,6 @@ import os
 import time
 import traceback
 import weakref
-from collections import deque
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -162,11 +162,12 @@ def _serve(conn: Connection, recipe: tuple, batched: bool, reuse: bool) -> None:
 
 
 class WorkerPool:
-    """``n − 1`` worker processes beside the parent for a problem's CMA-ES generations (see the module).
+    """``n`` worker processes for a problem's CMA-ES generations (see the module); this process deals the
+    candidates and waits (it uses no CPU meanwhile).
 
     Args:
         problem: The fitting problem (a :class:`~pliant.fit.Problem` with its ``recipe``).
-        n: Processes evaluating a generation, the parent included (>= 2).
+        n: Worker processes (>= 2).
         batched: Workers evaluate their share as one batched simulation (``pliant.fit._cmaes.batchable``).
         reuse: Their batched scenes are reused across generations (``BatchScenes``).
     """
@@ -181,7 +182,7 @@ class WorkerPool:
         ctx = mp.get_context("spawn")
         self._conns: list[Connection] = []
         self._procs: list[BaseProcess] = []
-        for i in range(n - 1):
+        for i in range(n):
             parent, child = ctx.Pipe()
             p = ctx.Process(
                 target=_serve, args=(child, problem.recipe, batched, reuse), name=f"pliant-fit-{i + 1}"
@@ -192,80 +193,69 @@ class WorkerPool:
             self._conns.append(parent)
             self._procs.append(p)
         self._ready: set[int] = set()
-        #: Per generation: the CPU seconds each process spent on its share (the parent's first).
+        #: Per generation: the CPU seconds each worker spent on it.
         self.cpu_s: list[list[float]] = []
         self._finalizer = weakref.finalize(self, _stop, self._conns, self._procs)
 
     def _recv(self, i: int) -> Any:
-        from multiprocessing.connection import wait
-
+        """Worker ``i``'s next message (FitError when it failed or died); call when its pipe or process is
+        ready (``multiprocessing.connection.wait``)."""
         conn, proc = self._conns[i], self._procs[i]
-        wait([conn, proc.sentinel])
         if not conn.poll():
+            proc.join(1.0)
             raise FitError(
-                f"CMA-ES worker {i + 1} of {self.n - 1} exited (code {proc.exitcode}) before answering; run "
-                "with workers=1 to see the error in this process"
+                f"CMA-ES worker {i + 1} of {self.n} exited (code {proc.exitcode}) before answering; run with "
+                "workers=1 to see the error in this process"
             )
         msg = conn.recv()
         if msg[0] == "error":
-            raise FitError(f"CMA-ES worker {i + 1} of {self.n - 1} failed: {msg[1]}\n{msg[2]}")
+            raise FitError(f"CMA-ES worker {i + 1} of {self.n} failed: {msg[1]}\n{msg[2]}")
+        if msg[0] == "ready":
+            self._ready.add(i)
+            if len(self._ready) == self.n:
+                self.warmup_s = time.perf_counter() - self.started
+                _LOG.info("CMA-ES: %d worker processes ready in %.1f s", self.n, self.warmup_s)
         return msg
 
-    def _ready_now(self, i: int) -> None:
-        self._ready.add(i)
-        if len(self._ready) == self.n - 1:
-            self.warmup_s = time.perf_counter() - self.started
-            _LOG.info("CMA-ES: %d worker processes ready in %.1f s", self.n - 1, self.warmup_s)
+    def evaluate(self, problem: Problem, values: list[dict[str, float]]) -> list[float]:
+        """Losses of ``values``, in order: one candidate at a time to whichever worker is free (a slower or
+        busier process takes fewer); a batched problem's generation in one contiguous share per worker
+        (a batch each)."""
+        from multiprocessing.connection import wait
 
-    def evaluate(self, problem: Problem, values: list[dict[str, float]], local) -> list[float]:
-        """Losses of ``values`` (in order), evaluated here by ``local(values) -> losses`` and by the workers.
-
-        One candidate at a time, each worker kept two ahead, this process taking the next one between its
-        look-ups of the workers' answers: a process slowed by the machine's other work (or a worker still
-        starting) takes fewer. A batched problem's generation is cut into one contiguous share per process
-        instead (a batch per process), the workers' shares sent first.
-        """
         if self.batched:
-            shares = [list(s) for s in np.array_split(np.arange(len(values)), self.n)]
-            tasks, depth = shares[1:] + shares[:1], 1
+            tasks = [list(s) for s in np.array_split(np.arange(len(values)), self.n) if s.size]
         else:
-            tasks, depth = [[j] for j in range(len(values))], 2
+            tasks = [[j] for j in range(len(values))]
         losses: list[float] = [0.0] * len(values)
         cpus = [0.0] * self.n
-        pending: list[deque[list[int]]] = [deque() for _ in range(self.n - 1)]
+        busy: dict[int, list[int]] = {}
         nxt = 0
 
         def feed(i: int) -> None:
             nonlocal nxt
-            while nxt < len(tasks) and len(pending[i]) < depth:
+            if nxt < len(tasks):
                 self._conns[i].send(("eval", problem.shooting, [values[j] for j in tasks[nxt]]))
-                pending[i].append(tasks[nxt])
+                busy[i] = tasks[nxt]
                 nxt += 1
 
-        def take(i: int, block: bool) -> None:
-            while pending[i] and (block or self._conns[i].poll()):
-                msg = self._recv(i)
-                if msg[0] == "ready":
-                    self._ready_now(i)
-                    continue
-                for j, f in zip(pending[i].popleft(), msg[1], strict=True):
-                    losses[j] = f
-                cpus[i + 1] += msg[2]
-                feed(i)
-
-        for i in range(self.n - 1):
+        for i in range(self.n):
             feed(i)
-        while nxt < len(tasks):
-            task = tasks[nxt]
-            nxt += 1
-            cpu = time.process_time()
-            for j, f in zip(task, local([values[j] for j in task]), strict=True):
-                losses[j] = f
-            cpus[0] += time.process_time() - cpu
-            for i in range(self.n - 1):
-                take(i, block=False)
-        for i in range(self.n - 1):
-            take(i, block=True)
+        by_pipe = {id(c): i for i, c in enumerate(self._conns)}
+        by_sentinel = {p.sentinel: i for i, p in enumerate(self._procs)}
+        while busy:
+            watched = [self._conns[i] for i in busy] + [self._procs[i].sentinel for i in busy]
+            for ready in wait(watched):
+                i = by_sentinel[ready] if isinstance(ready, int) else by_pipe[id(ready)]
+                if i not in busy:
+                    continue  # its pipe and its sentinel both fired: answered already
+                msg = self._recv(i)
+                if msg[0] != "ok":
+                    continue  # "ready"
+                for j, f in zip(busy.pop(i), msg[1], strict=True):
+                    losses[j] = f
+                cpus[i] += msg[2]
+                feed(i)
         self.cpu_s.append(cpus)
         return losses
 
