@@ -5,6 +5,11 @@ process, the checkpoint resumable across worker counts, workers that stop with t
 from __future__ import annotations
 
 import copy
+import os
+import signal
+import subprocess
+import sys
+import time
 
 import pytest
 
@@ -114,6 +119,47 @@ def test_workers_stop_on_an_error() -> None:
         cmaes(p, generations=2, workers=2, callback=boom)
     assert procs and not any(proc.is_alive() for proc in procs)
     assert "_worker_pool" not in p.__dict__
+
+
+_KILLED_PARENT = """
+import sys, time
+sys.path.insert(0, {tests!r})
+from test_fit_workers import _problem
+from pliant.fit._workers import pool_for
+
+if __name__ == "__main__":
+    p = _problem(["E", "damping_rate"])
+    pool = pool_for(p, 2, False, True)
+    pool.evaluate(p, [p.nominal] * 2)
+    print(*[q.pid for q in pool._procs], flush=True)
+    time.sleep(600)
+"""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    with open(f"/proc/{pid}/stat") as f:  # a zombie is dead (its parent is gone too: reaped by init)
+        return f.read().split(")")[-1].split()[0] != "Z"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG and /proc: Linux")
+def test_workers_die_with_a_killed_parent() -> None:
+    """A parent killed outright (SIGKILL: no cleanup runs) takes its workers with it within seconds."""
+    code = _KILLED_PARENT.format(tests=os.path.dirname(__file__))
+    parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        pids = [int(w) for w in parent.stdout.readline().split()]
+        assert len(pids) == 2 and all(_alive(pid) for pid in pids)
+    finally:
+        parent.send_signal(signal.SIGKILL)
+        parent.wait()
+    deadline = time.monotonic() + 10.0
+    while any(_alive(pid) for pid in pids) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(_alive(pid) for pid in pids)
 
 
 def test_auto_rule() -> None:
