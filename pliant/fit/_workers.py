@@ -46,7 +46,7 @@ if TYPE_CHECKING:
 _LOG = logging.getLogger("pliant.fit")
 
 #: CPU seconds for a worker to start: import pliant and Warp, load the kernels from Warp's cache, build its
-#: problem (the 117-particle beam on the 2-core box: 1.6-1.9 s of CPU, 3-8 s of wall time under a load of 7;
+#: problem (the 117-particle beam on the 2-core box: 1.6-1.9 s of CPU, 3-10 s of wall time under a load of 7;
 #: benchmarks/fit_workers.py). CPU seconds, as the first generation is timed, so that the rule does not
 #: change with the machine's load. "auto" starts workers only when they save more than this.
 WORKER_START_S = 2.5
@@ -79,11 +79,12 @@ def unsplittable(problem: Problem, batched: bool) -> str | None:
 
     if type(problem) is not Problem:
         return f"a {type(problem).__name__} cannot be rebuilt in a worker (its appearance stage changes it)"
-    device = problem.device or str(problem.build(problem.nominal).model.device)
+    scene = problem.build(problem.nominal)
+    device = problem.device or str(scene.model.device)
     if not device.startswith("cpu"):
         return f"the problem runs on {device}"
     if batched:
-        solver = problem.build(problem.nominal).solver
+        solver = scene.solver
         integrator = getattr(solver, "integrator", None)
         if type(solver).__name__ != "ForceSolver" or not getattr(integrator, "explicit", False):
             return (
@@ -95,9 +96,8 @@ def unsplittable(problem: Problem, batched: bool) -> str | None:
 
 def auto_workers(cores: int, popsize: int, generation_s: float, generations_left: int) -> int:
     """The worker count "auto" takes after a first generation that took ``generation_s`` CPU seconds in one
-    process:
-    ``min(cores, popsize)``, or 1 when that saves less than :data:`WORKER_START_S` over the next
-    ``min(generations_left, AUTO_HORIZON)`` generations (a generation on n processes takes 1/n of the time).
+    process: ``min(cores, popsize)``, or 1 when that saves less than :data:`WORKER_START_S` over the next
+    ``min(generations_left, AUTO_HORIZON)`` generations (a generation on n workers takes 1/n of the time).
 
     Args:
         cores: CPU cores available (:func:`cpu_cores`).
