@@ -26,14 +26,14 @@ PEERS = Path(__file__).resolve().parent
 CONFIGS = {
     64: [
         ("pliant FastMassSpring symplectic, 80 substeps", "cloth_drape_64_symplectic", None, 0, 0),
-        ("pliant XPBD colouring, 100 x 1", "xpbd_cloth_drape_64_coloring", None, 0, 0),
+        ("pliant XPBD colouring, 50 x 1, omega 1.6", "xpbd_cloth_drape_64_coloring", None, 0, 0),
         ("pliant Baraff-Witkin, 32 steps, CG 1e-2", "cloth_drape_64_implicit", None, 0, 0),
         ("newton SemiImplicit, 80 substeps", None, "semi", 80, 1),
         ("newton XPBD, 100 x 1", None, "xpbd", 100, 1),
     ],
     128: [
         ("pliant FastMassSpring symplectic, 160 substeps", "cloth_drape_128_symplectic", None, 0, 0),
-        ("pliant XPBD colouring, 250 x 1", "xpbd_cloth_drape_128_coloring", None, 0, 0),
+        ("pliant XPBD colouring, 100 x 1, omega 1.6", "xpbd_cloth_drape_128_coloring", None, 0, 0),
         ("newton SemiImplicit, 160 substeps", None, "semi", 160, 1),
         ("newton XPBD, 250 x 1", None, "xpbd", 250, 1),
     ],
