@@ -70,6 +70,10 @@ def check_cameras(
     Returns:
         (K, world_to_camera) as float64.
     """
+    for name, a in (("K", K), ("world_to_camera", world_to_camera)):
+        # Complex entries would lose their imaginary part in the cast below, strings raise NumPy's words.
+        if np.asarray(a).dtype.kind not in "fiu":
+            raise fail(name, f"expected real numbers, got {np.asarray(a).dtype}")
     K = np.asarray(K, dtype=np.float64)
     if K.shape != (C, 3, 3):
         raise fail("K", f"expected [C={C}, 3, 3] intrinsic matrices (one per camera), got shape {K.shape}")
@@ -106,9 +110,10 @@ def check_cameras(
                 "world_to_camera", f"camera {c}: the last row must be [0, 0, 0, 1], got {t[3].tolist()}"
             )
         R = t[:3, :3]
-        ortho = float(np.abs(R @ R.T - np.eye(3)).max())
-        det = float(np.linalg.det(R))
-        if ortho > RIGID_TOL or det < 0.0:
+        with np.errstate(over="ignore", invalid="ignore"):  # huge entries: inf or NaN, refused just below
+            ortho = float(np.abs(R @ R.T - np.eye(3)).max())
+            det = float(np.linalg.det(R))
+        if not ortho <= RIGID_TOL or not det >= 0.0:
             raise fail(
                 "world_to_camera",
                 f"camera {c}: not a rigid transform (|R Rᵀ − I| = {ortho:.3g}, det R = {det:.6g}); its 3x3 "
