@@ -173,7 +173,15 @@ def reconstruct(obs: Observations, opts: TwinOptions) -> tuple[np.ndarray, float
                 "depth where the object is, or leave depth out"
             )
         # Flying pixels at silhouettes would stretch the box; the carving removes what the box has too much.
-        keep = remove_outliers(pts, radius=4.0 * _footprint(obs, pts.mean(axis=0)), min_neighbors=8)
+        with np.errstate(over="ignore", invalid="ignore"):  # readings near 1e308 m: refused just below
+            radius = 4.0 * _footprint(obs, pts.mean(axis=0))
+        keep = remove_outliers(pts, radius, 8) if np.isfinite(radius) else np.zeros(len(pts), bool)
+        if keep.sum() < MIN_VOXELS:
+            raise TwinError(
+                f"{obs.source}: depth: fewer than {MIN_VOXELS} readings inside the masks at frame 0 lie near "
+                "each other (within four pixels' footprint); depth is metres along each camera's optical "
+                "axis (or uint16 millimetres): check its units and the masks"
+            )
         lo, hi = pts[keep].min(axis=0), pts[keep].max(axis=0)
         bg = np.concatenate(
             [backproject(depth[c], obs.K[c], obs.world_to_camera[c], ~masks[c]) for c in range(C)]
