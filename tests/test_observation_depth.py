@@ -154,3 +154,14 @@ def test_cameras_of_complex_strings_or_overflowing_entries_are_refused_without_w
             with pytest.raises(ObservationError) as info:
                 _load(tmp_path, **change)
             assert str(info.value).startswith(f"{tmp_path / 'o.npz'}: {words}"), str(info.value)
+
+
+def test_float64_depth_beyond_float32_is_refused(tmp_path):
+    """Found by tests/test_fuzz_observations.py: float64 depth of 1e300 m passed the check and became inf in
+    depth_m (float32), with an overflow warning."""
+    d = _arrays()["depth"].astype(np.float64)
+    d[1, 2, 3, 4] = 1e300
+    with pytest.raises(ObservationError, match=r"o\.npz: depth: 1 values exceed float32's range"):
+        _load(tmp_path, depth=d)
+    d[1, 2, 3, 4] = 3e38  # within float32: read back finite
+    assert np.isfinite(_load(tmp_path, depth=d).depth_m(1, 2)).all()

@@ -213,6 +213,13 @@ def _check_depth(
             f"{int(bad.sum())} values are NaN or inf (first at camera {idx[0]}, frame {idx[1]}, pixel "
             f"y={idx[2]} x={idx[3]}); use 0 for no reading",
         )
+    big = np.abs(depth) > np.finfo(np.float32).max  # depth_m reads float32: these would become inf
+    if big.any():
+        raise fail(
+            "depth",
+            f"{int(big.sum())} values exceed float32's range (3.4e38 m), which depth is read in; depth is "
+            "metres along the optical axis, 0 for no reading",
+        )
     neg = depth < 0.0
     if neg.any():
         idx = tuple(int(i) for i in np.argwhere(neg)[0])
