@@ -143,10 +143,13 @@ def test_cameras_of_complex_strings_or_overflowing_entries_are_refused_without_w
     a = _arrays()
     huge = a["world_to_camera"].copy()
     huge[1, 0, 1] = -1e308
+    subnormal = a["K"].copy()
+    subnormal[0, 0, 0] = 5e-324  # its pixel footprint 1 / fx overflowed in the twin's back-projection
     cases = [
         ({"K": a["K"].astype(complex)}, "K: expected real numbers, got complex128"),
         ({"world_to_camera": np.full((C, 4, 4), "1")}, "world_to_camera: expected real numbers, got <U1"),
         ({"world_to_camera": huge}, "world_to_camera: camera 1: not a rigid transform"),
+        ({"K": subnormal}, "K: camera 0: focal lengths must be positive pixels, got fx=4.94066e-324"),
     ]
     with warnings.catch_warnings():
         warnings.simplefilter("error")

@@ -86,7 +86,8 @@ def check_cameras(
         k = K[c]
         if not np.all(np.isfinite(k)):
             raise fail("K", f"camera {c}: non-finite entries")
-        if k[0, 0] <= 0.0 or k[1, 1] <= 0.0:
+        # A subnormal focal length (5e-324) is "positive" but its inverse, the pixel footprint, overflows.
+        if not min(k[0, 0], k[1, 1]) >= np.finfo(np.float64).tiny:
             raise fail(
                 "K",
                 f"camera {c}: focal lengths must be positive pixels, got fx={k[0, 0]:.6g}, fy={k[1, 1]:.6g}; "
