@@ -5,6 +5,8 @@ reaches the same ``fitted.toml``, byte for byte on the CPU, as the uninterrupted
 The file holds no pickles (plain JSON; floats as Python's repr, which reads back exactly):
 
 - ``format``, ``fit_version`` and ``pliant``: refused when any differs from this build's;
+- ``digest``: SHA-256 of everything else, so that an edited or corrupted checkpoint whose JSON still parses
+  (a flipped bit in a saved loss or candidate) is refused rather than continued into other values;
 - ``scene``, ``observations``: SHA-256 of the scene's validated fields and of the observation arrays;
   ``options``: the fit's options (seed, generations, ...); each refused with one line naming what differs;
 - ``stages``: the stages that finished (their :class:`~pliant.fit._cmaes.StageResult`), returned as they were;
@@ -36,8 +38,8 @@ if TYPE_CHECKING:
 
 #: The checkpoint file in a fit's output folder.
 CHECKPOINT_FILE = "fit_checkpoint.json"
-#: The checkpoint's layout.
-FORMAT = 1
+#: The checkpoint's layout (2: with ``digest``).
+FORMAT = 2
 #: The fit's arithmetic: bump when a stage's sequence of evaluations changes, so that an older checkpoint
 #: (whose replay would diverge) is refused rather than continued.
 FIT_VERSION = 1
@@ -80,6 +82,12 @@ def set_rng_state(s: list) -> None:
     """Restore :func:`rng_state`'s ``s``."""
     keys = np.frombuffer(bytes.fromhex(s[1]), "<u4").astype(np.uint32)
     np.random.set_state((s[0], keys, int(s[2]), int(s[3]), float(s[4])))  # noqa: NPY002
+
+
+def _digest(data: dict) -> str:
+    """SHA-256 of a checkpoint's contents but its ``digest`` (key order and float text fixed by ``json``)."""
+    body = {k: v for k, v in data.items() if k != "digest"}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, allow_nan=True).encode()).hexdigest()
 
 
 def _array(a: np.ndarray) -> dict:
@@ -186,6 +194,10 @@ class FitCheckpoint:
                 raise FitError(
                     f"{path}: written by {what} ({data.get(key)!r}, this one {head[key]!r}); {again}"
                 )
+        if data.get("digest") != _digest(data):  # an edit or a flipped bit that still parses as JSON
+            raise FitError(
+                f"{path}: the checkpoint's contents do not match its digest (edited or corrupted); {again}"
+            )
         if data.get("scene") != head["scene"]:
             raise FitError(f"{path}: the checkpoint is from another scene than {cfg.source}; {again}")
         if data.get("observations") != head["observations"]:
@@ -235,6 +247,7 @@ class FitCheckpoint:
         """Called after each write (``iteration`` -1: the stage finished); nothing by default."""
 
     def _write(self) -> None:
+        self.data["digest"] = _digest(self.data)
         atomic_write_text(self.path, json.dumps(self.data, allow_nan=True) + "\n")
         self.writes += 1
 
