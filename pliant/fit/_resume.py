@@ -133,6 +133,37 @@ def result_from_json(d: dict) -> StageResult:
     )
 
 
+def read_checkpoint(path: Path) -> dict:
+    """A fit checkpoint's contents, refused unless readable, of this format, fit and pliant version, and
+    matching its digest (what can be checked without the scene and the observations: ``pliant twin
+    --resume`` checks its models' checkpoints so before any work).
+
+    Raises:
+        FitError: one line naming ``path`` and what is wrong.
+    """
+    again = "run without --resume to start over"
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        if not isinstance(data, dict) or not isinstance(data.get("stages"), dict):
+            raise ValueError("not a fit checkpoint's layout")
+    except (OSError, ValueError, UnicodeDecodeError) as exc:
+        why = str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
+        raise FitError(f"{path}: not a readable fit checkpoint ({why}); {again}") from None
+    this = {"format": FORMAT, "fit_version": FIT_VERSION, "pliant": _pliant_version()}
+    for key, what in (
+        ("format", "another checkpoint format"),
+        ("fit_version", "another version of the fit"),
+        ("pliant", "another version of pliant"),
+    ):
+        if data.get(key) != this[key]:
+            raise FitError(f"{path}: written by {what} ({data.get(key)!r}, this one {this[key]!r}); {again}")
+    if data.get("digest") != _digest(data):  # an edit or a flipped bit that still parses as JSON
+        raise FitError(
+            f"{path}: the checkpoint's contents do not match its digest (edited or corrupted); {again}"
+        )
+    return data
+
+
 class FitCheckpoint:
     """The checkpoint of one fit (see the module docstring); :meth:`open` reads or starts it.
 
@@ -177,27 +208,8 @@ class FitCheckpoint:
             return cls(path, head)
         if not path.exists():
             raise FitError(f"--resume: no fit checkpoint at {path}; run once without --resume first")
+        data = read_checkpoint(path)
         again = "run without --resume to start over"
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-            if not isinstance(data, dict) or not isinstance(data.get("stages"), dict):
-                raise ValueError("not a fit checkpoint's layout")
-        except (OSError, ValueError, UnicodeDecodeError) as exc:
-            why = str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
-            raise FitError(f"{path}: not a readable fit checkpoint ({why}); {again}") from None
-        for key, what in (
-            ("format", "another checkpoint format"),
-            ("fit_version", "another version of the fit"),
-            ("pliant", "another version of pliant"),
-        ):
-            if data.get(key) != head[key]:
-                raise FitError(
-                    f"{path}: written by {what} ({data.get(key)!r}, this one {head[key]!r}); {again}"
-                )
-        if data.get("digest") != _digest(data):  # an edit or a flipped bit that still parses as JSON
-            raise FitError(
-                f"{path}: the checkpoint's contents do not match its digest (edited or corrupted); {again}"
-            )
         if data.get("scene") != head["scene"]:
             raise FitError(f"{path}: the checkpoint is from another scene than {cfg.source}; {again}")
         if data.get("observations") != head["observations"]:
@@ -310,6 +322,7 @@ __all__ = [
     "Journal",
     "StageHook",
     "observations_hash",
+    "read_checkpoint",
     "rng_state",
     "scene_hash",
     "set_rng_state",

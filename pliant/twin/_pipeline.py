@@ -262,6 +262,8 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
 
     Raises:
         TwinError: observations without images or masks, masks the cameras cannot explain.
+        FitError: with ``resume``, a model's fit checkpoint that is unreadable, edited or of another format
+            or version (before any work), or from another scene or options (at that model's fit).
     """
     from ..fit._params import apply_globals
     from ..fit._run import fit
@@ -277,6 +279,12 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
             f"--models: the twin builds {', '.join(TWIN_MODELS)}; got {','.join(opts.models) or 'none'}"
         )
     out = Path(out)
+    if opts.resume:  # a truncated or edited checkpoint is refused now, not after the splats are trained
+        from ..fit._resume import CHECKPOINT_FILE, read_checkpoint
+
+        for m in opts.models:
+            if (out / "fit" / m / CHECKPOINT_FILE).exists():
+                read_checkpoint(out / "fit" / m / CHECKPOINT_FILE)
     out.mkdir(parents=True, exist_ok=True)
     steps = _Steps(opts.progress)
     assert obs.K is not None and obs.world_to_camera is not None and obs.images is not None
