@@ -258,13 +258,15 @@ def _cli(args: list[str]) -> tuple[int, list[str]]:
     return rc, [line for line in text.splitlines() if line.startswith("pliant: error:")]
 
 
-RUN_CASES = ["truncated", "garbage", "bytes", "other_scene", "empty"]
+RUN_CASES = ["truncated", "garbage", "bytes", "other_scene", "empty", "other_stiffness", "other_substeps"]
 
 
 @pytest.mark.parametrize("case", RUN_CASES)
 def test_run_resume_refuses_bad_checkpoints_in_one_line(tmp_path, case):
-    """``pliant run --resume`` on a truncated, overwritten, empty or foreign checkpoint: exit 1, one line
-    naming the checkpoint, and the trajectory is not written."""
+    """``pliant run --resume`` on a truncated, overwritten, empty or foreign checkpoint, or with other
+    physics (found by this fuzz: a rope resumed with another stiffness or substep count continued silently,
+    the checkpoint's spring stiffness overriding the new one): exit 1, one line naming the checkpoint, and
+    the trajectory is not written."""
     out = tmp_path / "out"
     args = ["run", "rope", "--frames", "3", "--no-video", "-q", "--device", "cpu", "--out", str(out)]
     assert _cli([*args, "--checkpoint-every", "1"])[0] == 0
@@ -282,9 +284,11 @@ def test_run_resume_refuses_bad_checkpoints_in_one_line(tmp_path, case):
             "bytes": blob[: len(blob) // 2] + b"\xff" * 16 + blob[len(blob) // 2 + 16 :],  # in x's data
             "other_scene": blob,
             "empty": b"",
-        }[case]
+        }.get(case, blob)
     )
-    rc, errors = _cli([*args, "--resume"])
+    change = {"other_stiffness": "objects[0].material.stiffness=5", "other_substeps": "scene.substeps=3"}
+    extra = ["--set", change[case]] if case in change else []
+    rc, errors = _cli([*args, "--resume", *extra])
     assert rc == 1 and len(errors) == 1 and str(ck) in errors[0], (rc, errors)
     assert not (out / "rope.npz").exists()
 
