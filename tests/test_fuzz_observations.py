@@ -415,9 +415,15 @@ def run_case(kind: str, blob: bytes, monkeypatch: pytest.MonkeyPatch) -> str:
 
     monkeypatch.setattr(_explain, "before_physics", reached)
     monkeypatch.setattr(_pipeline, "_splats", reached)
+    cwd = os.getcwd()
+    os.chdir(root)  # a file written to the working folder shows up below
     try:
-        return _run_case(path, cfg, root)
+        outcome = _run_case(path, cfg, root)
+        written = [p for p in root.rglob("*") if p.is_file() and p != path]
+        assert not written, f"files written before the first expensive stage: {written}"
+        return outcome
     finally:
+        os.chdir(cwd)
         import shutil
 
         shutil.rmtree(root, ignore_errors=True)
