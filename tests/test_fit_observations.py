@@ -58,6 +58,11 @@ def test_visible_defaults_to_finite_points(tmp_path):
         ({"cloud_count": np.array([5, 4, 3, 9])}, r"cloud_count: counts must lie in \[0, P=5\]"),
         ({"controls": np.zeros((3, 2, 3))}, r"controls: expected \[T=4, C, 3\]"),
         ({"extra": np.zeros(3)}, r"extra: unknown array"),
+        # found by tests/test_fuzz_observations.py: complex values were cast to real with a ComplexWarning,
+        # strings raised NumPy's ValueError without the file
+        ({"t": np.arange(4) * 0.1 + 0j}, r"o\.npz: t: expected times \[T\] in seconds .*complex128"),
+        ({"controls": np.full((4, 2, 3), "abc")}, r"o\.npz: controls: expected real numbers, got <U3"),
+        ({"cloud": np.zeros((4, 5, 3), complex)}, r"o\.npz: cloud: expected real numbers, got complex128"),
     ],
 )
 def test_bad_files_name_the_file_and_the_array(tmp_path, change, match):
@@ -120,3 +125,18 @@ def test_given_particles_beyond_the_scene_are_an_error():
     obs = Observations.from_arrays(**{**a, "particle": np.array([0, 1, 7])})
     with pytest.raises(ObservationError, match=r"particle: index 7 but the scene has 3 particles"):
         obs.bind(np.zeros((3, 3)))
+
+
+def test_an_empty_particle_array_beside_no_tracks_loads(tmp_path):
+    """Clouds without tracks and ``particle`` [0] (found by the fuzz: ``min()`` of a zero-size array)."""
+    a = _arrays()
+    np.savez(
+        tmp_path / "o.npz",
+        t=a["t"],
+        points=np.zeros((4, 0, 3)),
+        particle=np.zeros(0, int),
+        cloud=a["cloud"],
+        cloud_count=a["cloud_count"],
+    )
+    obs = Observations.load(tmp_path / "o.npz")
+    assert obs.tracks == 0 and obs.particle.shape == (0,)

@@ -165,6 +165,23 @@ def test_checkpoints_of_another_fit_are_refused_in_one_line(rope, reference, tmp
         pl.fit.fit(wrong, obs, tmp_path, resume=True, **KW)
 
 
+def test_an_edited_or_bit_flipped_checkpoint_is_refused_by_its_digest(rope, reference, tmp_path):
+    """Found by tests/test_fuzz_checkpoints.py: a checkpoint whose header was intact but whose body had one
+    bit flipped (a saved loss, a best value) resumed into other values, or crashed deep in a stage
+    (KeyError, TypeError); its digest now refuses it in one line."""
+    wrong, obs = rope
+    data = json.loads((reference / CHECKPOINT_FILE).read_text())
+    loss = data["stages"]["cmaes"]["loss"]
+    data["stages"]["cmaes"]["loss"] = np.nextafter(loss, np.inf).item()  # the last bit of one float
+    path = tmp_path / CHECKPOINT_FILE
+    path.write_text(json.dumps(data))
+    with pytest.raises(FitError) as info:
+        pl.fit.fit(wrong, obs, tmp_path, resume=True, **KW)
+    msg = str(info.value)
+    assert msg.startswith(f"{path}: the checkpoint's contents do not match its digest"), msg
+    assert sorted(p.name for p in tmp_path.iterdir()) == [CHECKPOINT_FILE]  # nothing written
+
+
 @pytest.mark.slow
 def test_kill_9_at_random_points_then_resume(rope, reference, tmp_path):
     """`pliant fit` in a subprocess, killed with SIGKILL once its checkpoint reaches a random generation or

@@ -336,3 +336,20 @@ def test_bad_input_fails_in_one_line_naming_the_argument(call, match):
     with pytest.raises(ValueError, match=match) as e:
         call(*_stack(FAR), masks)
     assert "\n" not in str(e.value)
+
+
+def test_a_huge_focal_length_projects_outside_without_warnings():
+    """Found by tests/test_fuzz_observations.py: fy = 1e308 px overflowed in the projection (a
+    RuntimeWarning on every carve); its pixels lie far outside the image: that view carves nothing."""
+    import warnings
+
+    K, T = _stack(FAR)
+    masks, _ = _box_pictures(FAR)
+    K[0, 1, 1] = 1e308
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        uv, _ = project([CENTRE + 0.1], K[0], T[0])
+        vox = carve(K, T, masks, BLO - 0.05, BHI + 0.05, 0.02)
+    assert abs(uv[0, 1]) > 1e300 and 0 <= uv[0, 0] < W
+    others = carve(K[1:], T[1:], masks[1:], BLO - 0.05, BHI + 0.05, 0.02)
+    np.testing.assert_array_equal(vox.occupied, others.occupied)

@@ -111,3 +111,42 @@ def test_trajectories_and_checkpoints_are_bounded_from_their_headers(tmp_path, m
     ck = _npz(tmp_path / "ck.npz", members)
     with pytest.raises(CheckpointError, match=r"ck.npz: x: the header declares .* GiB is available"):
         load_checkpoint(ck)
+
+
+def test_files_that_are_not_zips_or_that_zipfile_cannot_read_are_refused_in_one_line(tmp_path):
+    """Found by tests/test_fuzz_observations.py: a file that is not a ZIP was said to hold pickled data (NumPy
+    tries it as a pickle), a ZIP whose version zipfile does not implement escaped the header check as
+    NotImplementedError without the file's name, and a truncated ZIP left np.load's file handle open."""
+    import gc
+    import sys
+    import warnings
+
+    good = io.BytesIO()
+    np.savez(good, t=np.linspace(0.0, 1.0, 5), points=np.zeros((5, 1, 3)))
+    blob = good.getvalue()
+    unsupported = bytearray(blob)
+    at = blob.rfind(b"PK\x01\x02")  # the last member's central directory entry: needs version 99.9
+    unsupported[at + 6 : at + 8] = (999).to_bytes(2, "little")
+    cases = {
+        "text.npz": (b'{"t": [0, 1]}', "it is not a ZIP archive of .npy arrays"),
+        "empty.npz": (b"", "it is not a ZIP archive of .npy arrays"),
+        "version.npz": (bytes(unsupported), "not a readable observation NPZ"),
+        "truncated.npz": (blob[: len(blob) // 2], "not a readable observation NPZ"),
+    }
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for name, (content, words) in cases.items():
+            path = tmp_path / name
+            path.write_bytes(content)
+            with pytest.raises(ObservationError) as info:
+                Observations.load(path)
+            msg = str(info.value)
+            assert msg.startswith(f"{path}: ") and words in msg and "pickle" not in msg, msg
+            assert len(msg.splitlines()) == 1
+        unraisable = []
+        hook, sys.unraisablehook = sys.unraisablehook, unraisable.append
+        try:
+            gc.collect()  # an open handle left behind is reported here, as a ResourceWarning
+        finally:
+            sys.unraisablehook = hook
+    assert not unraisable, [str(u.exc_value) for u in unraisable]

@@ -133,3 +133,38 @@ def test_bad_masks_and_depth_name_the_file_the_array_and_the_fix(tmp_path, chang
     with pytest.raises(ObservationError, match=r"o\.npz: " + match) as e:
         _load(tmp_path, **change(a))
     assert "\n" not in str(e.value)
+
+
+def test_cameras_of_complex_strings_or_overflowing_entries_are_refused_without_warnings(tmp_path):
+    """Found by tests/test_fuzz_observations.py: complex K was cast to real (a ComplexWarning), string K
+    raised NumPy's ValueError without the file, and a pose with 1e308 entries warned of an overflow."""
+    import warnings
+
+    a = _arrays()
+    huge = a["world_to_camera"].copy()
+    huge[1, 0, 1] = -1e308
+    subnormal = a["K"].copy()
+    subnormal[0, 0, 0] = 5e-324  # its pixel footprint 1 / fx overflowed in the twin's back-projection
+    cases = [
+        ({"K": a["K"].astype(complex)}, "K: expected real numbers, got complex128"),
+        ({"world_to_camera": np.full((C, 4, 4), "1")}, "world_to_camera: expected real numbers, got <U1"),
+        ({"world_to_camera": huge}, "world_to_camera: camera 1: not a rigid transform"),
+        ({"K": subnormal}, "K: camera 0: focal lengths must be positive pixels, got fx=4.94066e-324"),
+    ]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for change, words in cases:
+            with pytest.raises(ObservationError) as info:
+                _load(tmp_path, **change)
+            assert str(info.value).startswith(f"{tmp_path / 'o.npz'}: {words}"), str(info.value)
+
+
+def test_float64_depth_beyond_float32_is_refused(tmp_path):
+    """Found by tests/test_fuzz_observations.py: float64 depth of 1e300 m passed the check and became inf in
+    depth_m (float32), with an overflow warning."""
+    d = _arrays()["depth"].astype(np.float64)
+    d[1, 2, 3, 4] = 1e300
+    with pytest.raises(ObservationError, match=r"o\.npz: depth: 1 values exceed float32's range"):
+        _load(tmp_path, depth=d)
+    d[1, 2, 3, 4] = 3e38  # within float32: read back finite
+    assert np.isfinite(_load(tmp_path, depth=d).depth_m(1, 2)).all()

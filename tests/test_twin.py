@@ -106,6 +106,29 @@ def test_a_camera_that_disagrees_with_the_masks_is_named(footage, tmp_path):
     assert "\n" not in str(e.value)
 
 
+@pytest.mark.parametrize("metres", [1e30, 3e38])
+def test_depth_in_absurd_units_is_named(footage, tmp_path, metres):
+    """Found by tests/test_fuzz_observations.py: depth readings of 1e30 m left no reading after the outlier
+    filter, and NumPy's 'zero-size array' escaped (3e38 m: the filter's radius overflows)."""
+    import warnings
+
+    depth = np.where(np.stack([footage.depth[c] for c in range(footage.cameras)]) > 0, metres, 0.0)
+    obs = pl.io.Observations.from_arrays(
+        t=footage.t,
+        images=footage.images,
+        K=footage.K,
+        world_to_camera=footage.world_to_camera,
+        masks=footage.masks,
+        depth=depth,
+        source="beam.npz",
+    )
+    with warnings.catch_warnings(), pytest.raises(TwinError) as e:
+        warnings.simplefilter("error")
+        build_twin(obs, tmp_path, TwinOptions(progress=False))
+    assert str(e.value).startswith("beam.npz: depth: fewer than 8 readings inside the masks at frame 0 lie")
+    assert not list(tmp_path.iterdir())
+
+
 def test_the_twin_runs_live_with_its_splats_and_can_be_dragged(twin):
     from pliant.gaussians._scene import scene_splats
     from pliant.live import LiveSession

@@ -12,6 +12,7 @@ import numpy as np
 import warp as wp
 
 from ..io import Observations
+from ..io._npz import available_memory
 
 if TYPE_CHECKING:
     from ..scene import Scene
@@ -71,6 +72,15 @@ def observe_images(
     frames = scene.frames + 1 if frames is None else frames
     if frames < 2:
         raise ValueError(f"--frames: observations need at least 2 frames, got {frames}")
+    # Colour, alpha and depth in float32, and about as much again for the noise and the file: before
+    # np.empty of an absurd size raises MemoryError (a traceback) or, below the memory, thrashes.
+    need, have = 2.0 * 4.0 * 5.0 * cameras * frames * float(height) * float(width), available_memory()
+    if have is not None and need > have:
+        raise ValueError(
+            f"--image-size: {cameras} camera videos of {frames} frames at {width}x{height} px need about "
+            f"{need / 2**30:.3g} GiB and {have / 2**30:.3g} GiB is available; use fewer cameras or frames, "
+            "or a smaller --image-size"
+        )
     splats = scene_gaussians(scene, per_triangle=per_triangle)  # before simulating: fail early
     x = scene.simulator().run(frames - 1, progress=progress).x
     m = scene.model

@@ -5,6 +5,8 @@ reaches the same ``fitted.toml``, byte for byte on the CPU, as the uninterrupted
 The file holds no pickles (plain JSON; floats as Python's repr, which reads back exactly):
 
 - ``format``, ``fit_version`` and ``pliant``: refused when any differs from this build's;
+- ``digest``: SHA-256 of everything else, so that an edited or corrupted checkpoint whose JSON still parses
+  (a flipped bit in a saved loss or candidate) is refused rather than continued into other values;
 - ``scene``, ``observations``: SHA-256 of the scene's validated fields and of the observation arrays;
   ``options``: the fit's options (seed, generations, ...); each refused with one line naming what differs;
 - ``stages``: the stages that finished (their :class:`~pliant.fit._cmaes.StageResult`), returned as they were;
@@ -36,8 +38,8 @@ if TYPE_CHECKING:
 
 #: The checkpoint file in a fit's output folder.
 CHECKPOINT_FILE = "fit_checkpoint.json"
-#: The checkpoint's layout.
-FORMAT = 1
+#: The checkpoint's layout (2: with ``digest``).
+FORMAT = 2
 #: The fit's arithmetic: bump when a stage's sequence of evaluations changes, so that an older checkpoint
 #: (whose replay would diverge) is refused rather than continued.
 FIT_VERSION = 1
@@ -82,6 +84,12 @@ def set_rng_state(s: list) -> None:
     np.random.set_state((s[0], keys, int(s[2]), int(s[3]), float(s[4])))  # noqa: NPY002
 
 
+def _digest(data: dict) -> str:
+    """SHA-256 of a checkpoint's contents but its ``digest`` (key order and float text fixed by ``json``)."""
+    body = {k: v for k, v in data.items() if k != "digest"}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, allow_nan=True).encode()).hexdigest()
+
+
 def _array(a: np.ndarray) -> dict:
     a = np.asarray(a)
     return {"dtype": a.dtype.str, "shape": list(a.shape), "data": a.ravel().tolist()}
@@ -123,6 +131,37 @@ def result_from_json(d: dict) -> StageResult:
         validation=d["validation"],
         stop=str(d["stop"]),
     )
+
+
+def read_checkpoint(path: Path) -> dict:
+    """A fit checkpoint's contents, refused unless readable, of this format, fit and pliant version, and
+    matching its digest (what can be checked without the scene and the observations: ``pliant twin
+    --resume`` checks its models' checkpoints so before any work).
+
+    Raises:
+        FitError: one line naming ``path`` and what is wrong.
+    """
+    again = "run without --resume to start over"
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        if not isinstance(data, dict) or not isinstance(data.get("stages"), dict):
+            raise ValueError("not a fit checkpoint's layout")
+    except (OSError, ValueError, UnicodeDecodeError) as exc:
+        why = str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
+        raise FitError(f"{path}: not a readable fit checkpoint ({why}); {again}") from None
+    this = {"format": FORMAT, "fit_version": FIT_VERSION, "pliant": _pliant_version()}
+    for key, what in (
+        ("format", "another checkpoint format"),
+        ("fit_version", "another version of the fit"),
+        ("pliant", "another version of pliant"),
+    ):
+        if data.get(key) != this[key]:
+            raise FitError(f"{path}: written by {what} ({data.get(key)!r}, this one {this[key]!r}); {again}")
+    if data.get("digest") != _digest(data):  # an edit or a flipped bit that still parses as JSON
+        raise FitError(
+            f"{path}: the checkpoint's contents do not match its digest (edited or corrupted); {again}"
+        )
+    return data
 
 
 class FitCheckpoint:
@@ -169,23 +208,8 @@ class FitCheckpoint:
             return cls(path, head)
         if not path.exists():
             raise FitError(f"--resume: no fit checkpoint at {path}; run once without --resume first")
+        data = read_checkpoint(path)
         again = "run without --resume to start over"
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-            if not isinstance(data, dict) or not isinstance(data.get("stages"), dict):
-                raise ValueError("not a fit checkpoint's layout")
-        except (OSError, ValueError, UnicodeDecodeError) as exc:
-            why = str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
-            raise FitError(f"{path}: not a readable fit checkpoint ({why}); {again}") from None
-        for key, what in (
-            ("format", "another checkpoint format"),
-            ("fit_version", "another version of the fit"),
-            ("pliant", "another version of pliant"),
-        ):
-            if data.get(key) != head[key]:
-                raise FitError(
-                    f"{path}: written by {what} ({data.get(key)!r}, this one {head[key]!r}); {again}"
-                )
         if data.get("scene") != head["scene"]:
             raise FitError(f"{path}: the checkpoint is from another scene than {cfg.source}; {again}")
         if data.get("observations") != head["observations"]:
@@ -235,6 +259,7 @@ class FitCheckpoint:
         """Called after each write (``iteration`` -1: the stage finished); nothing by default."""
 
     def _write(self) -> None:
+        self.data["digest"] = _digest(self.data)
         atomic_write_text(self.path, json.dumps(self.data, allow_nan=True) + "\n")
         self.writes += 1
 
@@ -297,6 +322,7 @@ __all__ = [
     "Journal",
     "StageHook",
     "observations_hash",
+    "read_checkpoint",
     "rng_state",
     "scene_hash",
     "set_rng_state",

@@ -133,17 +133,18 @@ def _project_xyz(
     qz = np.broadcast_to(qz, np.broadcast_shapes(np.shape(qx), np.shape(qy), np.shape(qz)))
     with np.errstate(divide="ignore", invalid="ignore"):
         iz = np.where(qz > 0.0, 1.0 / qz, np.nan)
-    return K[0, 0] * qx * iz + K[0, 2], K[1, 1] * qy * iz + K[1, 2], np.array(qz)
+    with np.errstate(over="ignore", invalid="ignore"):  # a huge focal length: ±inf, outside as NaN is
+        return K[0, 0] * qx * iz + K[0, 2], K[1, 1] * qy * iz + K[1, 2], np.array(qz)
 
 
 def _pixel(u: np.ndarray, v: np.ndarray, H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
     """(flat pixel index row · W + column, inside) of the pixels that points (u, v) fall in; NaN (behind the
     camera) is outside, and its index 0."""
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore", over="ignore"):  # rows far outside (a huge focal length): index 0
         col = np.floor(u + 0.5)
         row = np.floor(v + 0.5)
         inside = (col >= 0) & (col < W) & (row >= 0) & (row < H)
-    return np.where(inside, row * W + col, 0).astype(np.intp), inside
+        return np.where(inside, row * W + col, 0).astype(np.intp), inside
 
 
 def carve(

@@ -61,7 +61,7 @@ def npz_headers(path: str | os.PathLike) -> list[tuple[str, tuple[int, ...], np.
     out: list[tuple[str, tuple[int, ...], np.dtype]] = []
     try:
         zf = zipfile.ZipFile(path)
-    except (OSError, zipfile.BadZipFile, ValueError):
+    except Exception:  # noqa: BLE001 - not a ZIP, or one zipfile cannot read: np.load then says what
         return out
     with zf:
         for info in zf.infolist():
@@ -136,8 +136,13 @@ def read_npz(
     if too_big:  # the headers' declared shapes, before np.load allocates them
         raise fail(too_big)
     try:
-        with np.load(path, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
+        # Opened here, not by np.load, which leaves its own handle open when the ZIP is truncated.
+        with open(path, "rb") as f:
+            if f.read(2) != b"PK":  # np.load would try it as a pickle and say that it holds pickled data
+                raise ValueError("it is not a ZIP archive of .npy arrays")
+            f.seek(0)
+            with np.load(f, allow_pickle=False) as z:
+                return {k: z[k] for k in z.files}
     except Exception as exc:  # a truncated or foreign file: say which and why
         why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         if "pickle" in why:  # NumPy's own text would suggest allow_pickle=True: never for an untrusted file

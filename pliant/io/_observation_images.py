@@ -70,6 +70,10 @@ def check_cameras(
     Returns:
         (K, world_to_camera) as float64.
     """
+    for name, a in (("K", K), ("world_to_camera", world_to_camera)):
+        # Complex entries would lose their imaginary part in the cast below, strings raise NumPy's words.
+        if np.asarray(a).dtype.kind not in "fiu":
+            raise fail(name, f"expected real numbers, got {np.asarray(a).dtype}")
     K = np.asarray(K, dtype=np.float64)
     if K.shape != (C, 3, 3):
         raise fail("K", f"expected [C={C}, 3, 3] intrinsic matrices (one per camera), got shape {K.shape}")
@@ -82,7 +86,8 @@ def check_cameras(
         k = K[c]
         if not np.all(np.isfinite(k)):
             raise fail("K", f"camera {c}: non-finite entries")
-        if k[0, 0] <= 0.0 or k[1, 1] <= 0.0:
+        # A subnormal focal length (5e-324) is "positive" but its inverse, the pixel footprint, overflows.
+        if not min(k[0, 0], k[1, 1]) >= np.finfo(np.float64).tiny:
             raise fail(
                 "K",
                 f"camera {c}: focal lengths must be positive pixels, got fx={k[0, 0]:.6g}, fy={k[1, 1]:.6g}; "
@@ -106,9 +111,10 @@ def check_cameras(
                 "world_to_camera", f"camera {c}: the last row must be [0, 0, 0, 1], got {t[3].tolist()}"
             )
         R = t[:3, :3]
-        ortho = float(np.abs(R @ R.T - np.eye(3)).max())
-        det = float(np.linalg.det(R))
-        if ortho > RIGID_TOL or det < 0.0:
+        with np.errstate(over="ignore", invalid="ignore"):  # huge entries: inf or NaN, refused just below
+            ortho = float(np.abs(R @ R.T - np.eye(3)).max())
+            det = float(np.linalg.det(R))
+        if not ortho <= RIGID_TOL or not det >= 0.0:
             raise fail(
                 "world_to_camera",
                 f"camera {c}: not a rigid transform (|R Rᵀ − I| = {ortho:.3g}, det R = {det:.6g}); its 3x3 "
@@ -207,6 +213,13 @@ def _check_depth(
             "depth",
             f"{int(bad.sum())} values are NaN or inf (first at camera {idx[0]}, frame {idx[1]}, pixel "
             f"y={idx[2]} x={idx[3]}); use 0 for no reading",
+        )
+    big = np.abs(depth) > np.finfo(np.float32).max  # depth_m reads float32: these would become inf
+    if big.any():
+        raise fail(
+            "depth",
+            f"{int(big.sum())} values exceed float32's range (3.4e38 m), which depth is read in; depth is "
+            "metres along the optical axis, 0 for no reading",
         )
     neg = depth < 0.0
     if neg.any():

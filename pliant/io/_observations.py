@@ -108,8 +108,15 @@ class Observations:
         def fail(array: str, msg: str) -> ObservationError:
             return ObservationError(f"{source}: {array}: {msg}")
 
+        def real(array: str, a: np.ndarray) -> np.ndarray:
+            # Complex values would lose their imaginary part in astype(float), strings raise NumPy's words.
+            a = np.asarray(a)
+            if a.dtype.kind not in "fiu":
+                raise fail(array, f"expected real numbers, got {a.dtype}")
+            return a.astype(float)
+
         t = np.asarray(t)
-        if t.ndim != 1 or t.shape[0] < 2 or not np.issubdtype(t.dtype, np.number):
+        if t.ndim != 1 or t.shape[0] < 2 or t.dtype.kind not in "fiu":
             raise fail("t", f"expected times [T] in seconds with T >= 2, got shape {t.shape} ({t.dtype})")
         if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
             raise fail("t", "times must be finite and strictly increasing (one per frame, in seconds)")
@@ -164,14 +171,14 @@ class Observations:
             if (
                 particle.shape != (n_tracks,)
                 or not np.issubdtype(particle.dtype, np.integer)
-                or particle.min() < 0
+                or (particle.size and particle.min() < 0)
             ):
                 raise fail(
                     "particle", f"expected K={n_tracks} particle indices >= 0 (int), got {particle.shape}"
                 )
             particle = particle.astype(np.int64)
         if controls is not None:
-            controls = np.asarray(controls, dtype=float)
+            controls = real("controls", controls)
             if controls.ndim != 3 or controls.shape[0] != T or controls.shape[2] != 3:
                 raise fail("controls", f"expected [T={T}, C, 3] positions in metres, got {controls.shape}")
             if not np.all(np.isfinite(controls)):
@@ -179,7 +186,7 @@ class Observations:
         if (cloud is None) != (cloud_count is None):
             raise fail("cloud", "give both cloud [T, P, 3] and cloud_count [T], or neither")
         if cloud is not None:
-            cloud = np.asarray(cloud, dtype=float)
+            cloud = real("cloud", cloud)
             cloud_count = np.asarray(cloud_count)
             if cloud.ndim != 3 or cloud.shape[0] != T or cloud.shape[2] != 3:
                 raise fail("cloud", f"expected padded clouds [T={T}, P, 3] in metres, got {cloud.shape}")

@@ -109,6 +109,18 @@ def _camera_file(cfg: SceneConfig, cameras: str | os.PathLike | None) -> CameraF
         raise RunError(f"--cameras: {exc}") from None
 
 
+def run_tag(cfg: SceneConfig) -> str:
+    """SHA-256 of what a run simulates: the scene but its frame count, device, divergence bound, camera and
+    outputs (a resume may ask for more frames, on another device, with other outputs)."""
+    import hashlib
+    import json
+
+    data = cfg.model_dump(mode="json", exclude={"camera", "output"})
+    for k in ("frames", "device", "max_speed"):
+        data["scene"].pop(k, None)
+    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
+
+
 def run_scene(
     cfg: SceneConfig,
     out: str | os.PathLike,
@@ -200,6 +212,7 @@ def run_scene(
     except SplatSceneError as exc:
         raise RunError(str(exc)) from None
     sim = scene.simulator()
+    sim.checkpoint_tag = run_tag(cfg)  # a checkpoint of another scene or other physics is refused
     info = sim.solver.describe()
     counts = f"{m.particle_count} particles, {m.spring_count} springs" + (
         f", {m.tet_count} tets" if m.tet_count else ""

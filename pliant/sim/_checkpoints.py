@@ -46,6 +46,9 @@ class Checkpoints:
     _per_world: bool
     diverged_worlds: dict[int, dict]
     world_resets: list[tuple[int, int]]
+    #: What the run that writes a checkpoint is (``pl.run_scene``: a hash of its scene but the frame count
+    #: and outputs), stored in the checkpoint's meta; a resume whose tag differs is refused. None: untagged.
+    checkpoint_tag: str | None = None
 
     if TYPE_CHECKING:  # the Simulator's methods these call
 
@@ -76,7 +79,7 @@ class Checkpoints:
             traj_x=traj.x,
             traj_t=traj.t,
             traj_v=traj.v,
-            meta=traj.meta,
+            meta={**traj.meta, "run": self.checkpoint_tag} if self.checkpoint_tag else traj.meta,
             solver_state=self._solver_state,
         )
 
@@ -97,6 +100,13 @@ class Checkpoints:
             max_frame=max_frame,
         )
         ck = load_checkpoint(path, spec)
+        tag = ck["meta"].get("run")
+        if self.checkpoint_tag and tag is not None and tag != self.checkpoint_tag:
+            raise CheckpointError(
+                f"{path}: the checkpoint is from another scene or other settings (objects, materials, "
+                "solver, substeps, ...) than this run; resume with the ones that wrote it, or delete it to "
+                "start over"
+            )
         if not np.isclose(ck["time"], ck["frame"] * self.frame_dt, rtol=1e-9, atol=0.0):
             raise CheckpointError(
                 f"{path}: time: {ck['time']} s at frame {ck['frame']} is not frame x frame_dt = "

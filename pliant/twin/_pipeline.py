@@ -176,7 +176,15 @@ def reconstruct(obs: Observations, opts: TwinOptions) -> tuple[np.ndarray, float
                 "depth where the object is, or leave depth out"
             )
         # Flying pixels at silhouettes would stretch the box; the carving removes what the box has too much.
-        keep = remove_outliers(pts, radius=4.0 * _footprint(obs, pts.mean(axis=0)), min_neighbors=8)
+        with np.errstate(over="ignore", invalid="ignore"):  # readings near 1e308 m: refused just below
+            radius = 4.0 * _footprint(obs, pts.mean(axis=0))
+        keep = remove_outliers(pts, radius, 8) if np.isfinite(radius) else np.zeros(len(pts), bool)
+        if keep.sum() < MIN_VOXELS:
+            raise TwinError(
+                f"{obs.source}: depth: fewer than {MIN_VOXELS} readings inside the masks at frame 0 lie near "
+                "each other (within four pixels' footprint); depth is metres along each camera's optical "
+                "axis (or uint16 millimetres): check its units and the masks"
+            )
         lo, hi = pts[keep].min(axis=0), pts[keep].max(axis=0)
         bg = np.concatenate(
             [backproject(depth[c], obs.K[c], obs.world_to_camera[c], ~masks[c]) for c in range(C)]
@@ -257,6 +265,8 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
 
     Raises:
         TwinError: observations without images or masks, masks the cameras cannot explain.
+        FitError: with ``resume``, a model's fit checkpoint that is unreadable, edited or of another format
+            or version (before any work), or from another scene or options (at that model's fit).
     """
     from ..fit._params import apply_globals
     from ..fit._run import fit
@@ -272,6 +282,12 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
             f"--models: the twin builds {', '.join(TWIN_MODELS)}; got {','.join(opts.models) or 'none'}"
         )
     out = Path(out)
+    if opts.resume:  # a truncated or edited checkpoint is refused now, not after the splats are trained
+        from ..fit._resume import CHECKPOINT_FILE, read_checkpoint
+
+        for m in opts.models:
+            if (out / "fit" / m / CHECKPOINT_FILE).exists():
+                read_checkpoint(out / "fit" / m / CHECKPOINT_FILE)
     out.mkdir(parents=True, exist_ok=True)
     steps = _Steps(opts.progress)
     assert obs.K is not None and obs.world_to_camera is not None and obs.images is not None
