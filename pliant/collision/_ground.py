@@ -292,6 +292,7 @@ def respond_to_ground(
                 "respond_to_ground: compliant contact with a damper needs x_start (the step's x₀)"
             )
         x0 = x_in if x_start is None else x_start
+        assert g.stiffness is not None  # g.compliant
         args = [*common, m.s(g.stiffness), m.s(g.damping), m.s(dt), x0]
         kernel = ground_compliant
     else:

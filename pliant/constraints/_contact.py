@@ -159,9 +159,11 @@ class Ground(Constraint):
         self.stick_velocity = float(
             self._stick if self._stick is not None else (g.stick_velocity if g else STICK_VELOCITY)
         )
-        self.stiffness = self._stiffness if self._stiffness is not None else (g.stiffness if g else None)
+        # κ [1/s²] of compliant contact, not the PBD stiffness k in [0, 1] every Constraint has
+        kappa = self._stiffness if self._stiffness is not None else (g.stiffness if g else None)
+        self.contact_stiffness: float | None = kappa
         zeta = self._damping_ratio if self._damping_ratio is not None else (g.damping_ratio if g else 0.0)
-        self.damping = 2.0 * zeta * self.stiffness**0.5 if self.stiffness is not None else 0.0  # b [1/s]
+        self.damping = 2.0 * zeta * kappa**0.5 if kappa is not None else 0.0  # b [1/s]
         self.count = model.particle_count
         self.lam = wp.zeros(self.count, dtype=model.scalar, device=model.device)
         self._x_start: wp.array | None = None
@@ -187,7 +189,7 @@ class Ground(Constraint):
         p_out, lam_out = (
             (ctx.fresh(p), ctx.fresh(self._multipliers())) if ctx.requires_grad else (p, self.lam)
         )
-        if self.stiffness is not None:
+        if self.contact_stiffness is not None:
             return project_compliant(self, ctx, p, dt)
         ctx.launch(
             _project_ground,
@@ -216,7 +218,7 @@ class Ground(Constraint):
         Differentiable as far as smooth: friction is C¹ (the stick velocity ε_v smooths the Coulomb
         switch); the restitution switch (approach speed above 2|g|Δt) gives one-sided gradients.
         """
-        if self.stiffness is not None:
+        if self.contact_stiffness is not None:
             return compliant_velocity(self, ctx, p, v, dt)
         m = self.model
         g = float(np.linalg.norm(m.gravity))

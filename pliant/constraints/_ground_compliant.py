@@ -1,4 +1,4 @@
-"""Compliant ground contact for XPBD's ``Ground`` constraint (``Ground.stiffness`` set).
+"""Compliant ground contact for XPBD's ``Ground`` constraint (``Ground.contact_stiffness`` set).
 
 The normal spring κ [1/s²] per unit mass is XPBD compliance α = 1/(κ m_i) = w_i/κ, so that a particle
 resting under gravity g sits g/κ deep once the iterations converge (α̃λ = −C with λ/Δt² = m g). The damper
@@ -109,6 +109,8 @@ def project_compliant(ground: Ground, ctx: ProjectionContext, p: wp.array, dt: f
         (ctx.fresh(p), ctx.fresh(ground._multipliers())) if ctx.requires_grad else (p, ground.lam)
     )
     x0 = p if ground._x_start is None else ground._x_start
+    kappa = ground.contact_stiffness
+    assert kappa is not None  # called only for a compliant ground
     ctx.launch(
         _project_ground_compliant,
         ground.count,
@@ -117,8 +119,8 @@ def project_compliant(ground: Ground, ctx: ProjectionContext, p: wp.array, dt: f
             m.particle_radius,
             m.vec3(*ground.normal),
             m.s(ground.offset),
-            m.s(1.0 / (ground.stiffness * dt * dt)),
-            m.s(ground.damping / (ground.stiffness * dt)),
+            m.s(1.0 / (kappa * dt * dt)),
+            m.s(ground.damping / (kappa * dt)),
             x0,
             p,
             ground.lam,

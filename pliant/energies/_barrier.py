@@ -36,9 +36,9 @@ class _Surface:
         tris = np.asarray(tris, np.int32).reshape(-1, 3)
         edges = surface_edges(tris)
         self.tri_count, self.edge_count = len(tris), len(edges)
-        self.tris = wp.array(tris.ravel(), dtype=wp.int32, device=d)
-        self.edges = wp.array(edges.ravel(), dtype=wp.int32, device=d)
-        self.points = wp.array(np.unique(tris).astype(np.int32), dtype=wp.int32, device=d)
+        self.tris: wp.array = wp.array(tris.ravel(), dtype=wp.int32, device=d)
+        self.edges: wp.array = wp.array(edges.ravel(), dtype=wp.int32, device=d)
+        self.points: wp.array = wp.array(np.unique(tris).astype(np.int32), dtype=wp.int32, device=d)
         self.tri_lo = wp.zeros(len(tris), dtype=wp.vec3f, device=d)
         self.tri_hi = wp.zeros(len(tris), dtype=wp.vec3f, device=d)
         self.edge_lo = wp.zeros(len(edges), dtype=wp.vec3f, device=d)
@@ -201,12 +201,14 @@ class BarrierContact(ModalEnergy):
     def _obstacles(self, model: Model) -> list:
         """(collider inputs..., count, ground flag, ground height) for the obstacle kernels."""
         if self.colliders is not None:
-            geo = self.colliders.geometry_inputs(model)
+            geo: list = self.colliders.geometry_inputs(model)
             count = len(self.colliders)
         else:
             key = ("_dummy_colliders", model.dtype, str(model.device))
-            geo = getattr(self, "_dummy", {}).get(key)
-            if geo is None:
+            cached = getattr(self, "_dummy", {}).get(key)
+            if cached is not None:
+                geo = cached
+            else:
                 d = model.device
                 geo = [
                     wp.zeros(1, dtype=wp.int32, device=d),
@@ -218,8 +220,9 @@ class BarrierContact(ModalEnergy):
                 ]
                 self._dummy = {**getattr(self, "_dummy", {}), key: geo}
             count = 0
-        on = self.ground and model.ground is not None
-        height = float(model.ground.height) if on else 0.0
+        ground = model.ground if self.ground else None
+        on = ground is not None
+        height = float(ground.height) if ground is not None else 0.0
         return [*geo, count, int(on), wp.float64(height)]
 
     # -------------------------------------------------------------------------------------- energy
@@ -334,7 +337,7 @@ class BarrierContact(ModalEnergy):
         quads = np.concatenate([pt, ee]).astype(np.int32).reshape(-1, 4)
         m = len(quads)
         flags = np.r_[np.zeros(len(pt), np.int32), np.ones(len(ee), np.int32)]
-        sl = (
+        sl: tuple = (
             wp.array(quads, dtype=wp.vec4i, device=d),
             wp.zeros(m, dtype=wp.vec4d, device=d),
             wp.zeros(m, dtype=wp.float64, device=d),
@@ -477,7 +480,7 @@ def barrier_pair_terms(
     """
     p = np.asarray(points, np.float64).reshape(-1, 4, 3)
     k = len(p)
-    x = wp.array(p.reshape(-1, 3), dtype=wp.vec3d, device="cpu")
+    x: wp.array = wp.array(p.reshape(-1, 3), dtype=wp.vec3d, device="cpu")
     v = wp.zeros(k, dtype=wp.float64, device="cpu")
     g = wp.zeros(k, dtype=K.vec12d, device="cpu")
     H = wp.zeros(k, dtype=K.mat12d, device="cpu")

@@ -194,6 +194,7 @@ class DampedGroundPenalty(GroundPenalty):
 
     def _head(self, model: Model) -> list:
         g = model.ground
+        assert g is not None  # bound only to a model with a ground
         return [
             model.particle_mass,
             model.particle_inv_mass,

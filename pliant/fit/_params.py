@@ -232,6 +232,7 @@ def default_reasons(cfg: SceneConfig, obs: Any = None) -> dict[str, str]:
     depth = sinks_into_ground(cfg, obs)
     if depth is not None:
         out.pop("ground_restitution", None)
+        assert cfg.ground is not None  # sinks_into_ground found it
         given = cfg.ground.stiffness
         start = (
             f"from the scene's κ = {given:.3g} 1/s²"

@@ -31,7 +31,7 @@ import os
 import time
 import traceback
 import weakref
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -130,7 +130,7 @@ def _serve(conn: Connection, recipe: tuple, batched: bool, reuse: bool) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it stops the workers
     _die_with_parent()
     try:
-        from ._cmaes import evaluate, evaluate_batch
+        from ._evaluate import evaluate, evaluate_batch
         from ._problem import Problem
         from ._reuse import BatchScenes
 
@@ -197,7 +197,7 @@ class WorkerPool:
         self.cpu_s: list[list[float]] = []
         self._finalizer = weakref.finalize(self, _stop, self._conns, self._procs)
 
-    def _recv(self, i: int) -> Any:
+    def _recv(self, i: int) -> tuple:
         """Worker ``i``'s next message (FitError when it failed or died); call when its pipe or process is
         ready (``multiprocessing.connection.wait``)."""
         conn, proc = self._conns[i], self._procs[i]

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 import numpy.typing as npt
@@ -25,7 +25,7 @@ _GROUND_GRAD = (
 )
 
 
-def _set_up_only(m: Any, s: Any, x: Any, c: Any) -> Any:
+def _set_up_only(m: object, s: object, x: object, c: object) -> NoReturn:
     from .._warp import GradientError
 
     raise GradientError(

@@ -24,7 +24,7 @@ from ._registry import (
     handle_mode,
 )
 from ._replicate import replicate_scene
-from ._schema import OutputSection, SceneConfig
+from ._schema import ObjectBase, OutputSection, SceneConfig
 
 if TYPE_CHECKING:
     from ..collision import Colliders
@@ -194,7 +194,7 @@ def _add_objects(ctx: BuildContext) -> None:
         _distribute_mass(ctx, o, start)
 
 
-def _distribute_mass(ctx: BuildContext, o: Any, start: int) -> None:
+def _distribute_mass(ctx: BuildContext, o: ObjectBase, start: int) -> None:
     """Spread object ``o``'s mass (particles ``start`` onwards) as its ``mass_distribution``,
     ``mass_uniformity`` and ``mass_slope_*`` say; the lumped default leaves the builder's masses untouched
     (bit for bit)."""

@@ -317,9 +317,9 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
             f"{len(m[1].points)} particles)"
         ),
     )
-    for key, m in (("fine", tm), ("coarse", coarse)):
-        write_mesh(out / GEOMETRY_FILES[key][0], m.points, m.tets)
-        np.save(out / GEOMETRY_FILES[key][1], m.points)
+    for key, mesh in (("fine", tm), ("coarse", coarse)):
+        write_mesh(out / GEOMETRY_FILES[key][0], mesh.points, mesh.tets)
+        np.save(out / GEOMETRY_FILES[key][1], mesh.points)
     # Two samplings of the same clouds: every point, for telling still from moving (a random subset of each
     # frame would put different points there each frame, a few millimetres apart on a still surface), and
     # a subset per frame for the fit's loss.

@@ -128,8 +128,11 @@ class ForceSolver(Solver):
             # get a compliant ground's spring–damper after the step (collision.ground_compliant: stable).
             if not any(isinstance(e, GroundPenalty) for e in self.energies):
                 g = model.ground
+                assert g is not None  # self.contact: the model has a ground
                 self.energies.append(
-                    ground_penalty(g.stiffness, g.damping) if g.compliant else GroundPenalty()
+                    ground_penalty(g.stiffness, g.damping)
+                    if g.compliant and g.stiffness is not None
+                    else GroundPenalty()
                 )
         self.collisions = check_collisions(collisions)
         d = model.device
