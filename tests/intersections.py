@@ -32,9 +32,7 @@ class Part:
             raise ValueError(f"tests/intersections.py: positions must be [F, V, 3] or [V, 3], got {x.shape}")
         n = x.shape[-2]
         if tri.size and (tri.min() < 0 or tri.max() >= n):
-            raise ValueError(
-                f"tests/intersections.py: triangles index outside the {n} vertices; fix the mesh"
-            )
+            raise ValueError(f"tests/intersections.py: triangles index past the {n} vertices; fix the mesh")
         self.triangles = tri
         self.positions = x
 
