@@ -5,10 +5,12 @@ from ._colliders import Colliders
 from ._ground import ground_coefficients, ground_contact, ground_penalty_friction, respond_to_ground
 from ._hashgrid import ParticleGrid, TriangleBVH, triangle_closest_point
 from ._selfcollision import SelfCollision, closest_point_triangle
+from ._step_bound import StepBound
 
 __all__ = [
     "Colliders",
     "SelfCollision",
+    "StepBound",
     "closest_point_triangle",
     "collider_sdf",
     "ParticleGrid",

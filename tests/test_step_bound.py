@@ -1,0 +1,85 @@
+"""The per-vertex step bound (pl.collision.StepBound): a sheet thrown through another in one step is
+stopped at the bound's closed form and never intersects (judged by ipctk, tests/intersections.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import pliant as pl
+
+pytest.importorskip("ipctk")
+
+from intersections import Part, intersecting_frames  # noqa: E402
+
+GAP, DT, SPEED = 0.01, 1e-3, 20.0  # [m], [s], [m/s]
+
+
+def _two_sheets(dtype: str = "float32"):
+    """A fixed sheet at y = 0 and a free one GAP above, with v_y = −SPEED (x + ½): a step tilts it through."""
+    b = pl.ModelBuilder(gravity=(0.0, 0.0, 0.0))
+    for y, pin in ((0.0, "all"), (GAP, "none")):
+        kw = {"pin": list(range(25))} if pin == "all" else {}
+        b.add_cloth_grid(nx=4, ny=4, size=1.0, mass=0.1, stiffness=10.0, origin=(-0.5, y, -0.5), **kw)
+    model = b.finalize(device="cpu", dtype=dtype)
+    state = model.state()
+    x = model.particle_q.numpy()
+    v = np.zeros_like(x)
+    top = np.arange(25, 50)
+    v[top, 1] = -SPEED * (x[top, 0] + 0.5)
+    state.particle_qd.assign(v)
+    return model, state, top
+
+
+def _run(model, state, handlers, steps):
+    solver = pl.solvers.ForceSolver(
+        model, pl.energies.mass_spring(), pl.integrators.SymplecticEuler(), collisions=handlers
+    )
+    tris = model.tri_indices.numpy().reshape(-1, 3)
+    frames = [state.particle_q.numpy().copy()]
+    s0, s1 = state, model.state()
+    for _ in range(steps):
+        solver.step(s0, s1, None, DT)
+        s0, s1 = s1, s0
+        frames.append(s0.particle_q.numpy().copy())
+    return np.array(frames), s0, tris
+
+
+def test_without_a_bound_the_sheet_passes_through():
+    model, state, _ = _two_sheets()
+    frames, _, tris = _run(model, state, [], 1)
+    assert intersecting_frames([Part(tris, frames)]) == [1]
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_the_bound_stops_each_vertex_at_gamma_times_its_distance(dtype):
+    model, state, top = _two_sheets(dtype)
+    x0 = state.particle_q.numpy()[top]
+    bound = pl.collision.StepBound(model, fraction=0.4, reach=0.1)
+    frames, last, tris = _run(model, state, [bound], 1)
+    dx = frames[1][top] - x0
+    free = SPEED * (x0[:, 0] + 0.5) * DT  # the unbounded drop of each vertex [m]
+    # Each top vertex's nearest other primitive is the lower sheet, GAP below (its own sheet's non-adjacent
+    # triangles and edges are a cell, 0.25 m, away; the reach 0.1 m is farther than GAP): b = 0.4 GAP.
+    expected = np.minimum(free, 0.4 * GAP)
+    np.testing.assert_allclose(-dx[:, 1], expected, rtol=0, atol=1e-7)
+    assert np.abs(dx[:, [0, 2]]).max() < 1e-9
+    v = last.particle_qd.numpy()[top, 1]
+    np.testing.assert_allclose(-v, expected / DT, rtol=1e-5, atol=1e-4)
+
+
+def test_the_bound_keeps_every_frame_free_of_intersections():
+    model, state, top = _two_sheets()
+    bound = pl.collision.StepBound(model, fraction=0.4, reach=0.1)
+    frames, _, tris = _run(model, state, [bound], 30)
+    assert intersecting_frames([Part(tris, frames)]) == []
+    # The gap closes geometrically (at most 1 − 2γ of it per step could go): it stays positive.
+    assert frames[:, top, 1].min() > 0.0
+
+
+def test_bad_arguments_are_refused():
+    model, _, _ = _two_sheets()
+    with pytest.raises(ValueError, match="fraction must be in"):
+        pl.collision.StepBound(model, fraction=0.5, reach=0.1)
+    with pytest.raises(ValueError, match="reach must be"):
+        pl.collision.StepBound(model, reach=0.0)
