@@ -83,3 +83,21 @@ def test_bad_arguments_are_refused():
         pl.collision.StepBound(model, fraction=0.5, reach=0.1)
     with pytest.raises(ValueError, match="reach must be"):
         pl.collision.StepBound(model, reach=0.0)
+
+
+def test_a_scene_turns_the_bound_on_for_every_solver_family():
+    from pathlib import Path
+
+    from pliant.scene import SceneError, build_scene, parse_scene
+
+    root = Path(pl.__file__).parent / "scenes"
+    for name, kind in (("cloth_sphere", "SelfCollision"), ("xpbd_cloth_sphere", "StepBound")):
+        text = (root / f"{name}.toml").read_text(encoding="utf-8")
+        on = text.replace("self_collision = { thickness", "self_collision = { bound = 0.4, thickness")
+        handlers = build_scene(parse_scene(on, overrides=["scene.frames=1"])).solver.collisions
+        bound = [h for h in handlers if type(h).__name__ == kind]
+        assert len(bound) == 1
+        b = bound[0] if kind == "StepBound" else bound[0]._bound
+        assert (b.fraction, b.reach) == (0.4, 0.012)
+    with pytest.raises(SceneError, match="bound"):
+        parse_scene(text.replace("self_collision = { thickness", "self_collision = { bound = 0.5, thickness"))
