@@ -60,8 +60,8 @@ def test_the_bound_stops_each_vertex_at_gamma_times_its_distance(dtype):
     dx = frames[1][top] - x0
     free = SPEED * (x0[:, 0] + 0.5) * DT  # the unbounded drop of each vertex [m]
     # Each top vertex's nearest other primitive is the lower sheet, GAP below (its own sheet's non-adjacent
-    # triangles and edges are a cell, 0.25 m, away; the reach 0.1 m is farther than GAP): b = 0.4 GAP.
-    expected = np.minimum(free, 0.4 * GAP)
+    # triangles and edges are a cell, 0.25 m, away; the reach 0.1 m is farther than GAP): b = 0.4 (GAP − δ).
+    expected = np.minimum(free, 0.4 * (GAP - bound.floor))
     np.testing.assert_allclose(-dx[:, 1], expected, rtol=0, atol=1e-7)
     assert np.abs(dx[:, [0, 2]]).max() < 1e-9
     v = last.particle_qd.numpy()[top, 1]
@@ -73,8 +73,8 @@ def test_the_bound_keeps_every_frame_free_of_intersections():
     bound = pl.collision.StepBound(model, fraction=0.4, reach=0.1)
     frames, _, tris = _run(model, state, [bound], 30)
     assert intersecting_frames([Part(tris, frames)]) == []
-    # The gap closes geometrically (at most 1 − 2γ of it per step could go): it stays positive.
-    assert frames[:, top, 1].min() > 0.0
+    # The gap closes geometrically (at most 2γ of what exceeds the floor δ per step): never below δ.
+    assert frames[:, top, 1].min() >= bound.floor * (1 - 1e-3)
 
 
 def test_bad_arguments_are_refused():
@@ -101,3 +101,18 @@ def test_a_scene_turns_the_bound_on_for_every_solver_family():
         assert (b.fraction, b.reach) == (0.4, 0.012)
     with pytest.raises(SceneError, match="bound"):
         parse_scene(text.replace("self_collision = { thickness", "self_collision = { bound = 0.5, thickness"))
+
+
+def test_edges_pressed_together_are_pushed_apart_within_the_bound():
+    # Two triangles whose edges cross 1 mm apart (x axis at y = 0; z axis at y = d), everything at rest.
+    d, h = 1e-3, 5e-3
+    b = pl.ModelBuilder(gravity=(0.0, 0.0, 0.0))
+    pts = [(-0.5, 0, 0), (0.5, 0, 0), (0, 0, -1), (0, d, -0.5), (0, d, 0.5), (0, 1, 0)]
+    b.add_particles(pts, 0.01)
+    b.add_triangles([[0, 1, 2], [3, 4, 5]])
+    model = b.finalize(device="cpu")
+    bound = pl.collision.StepBound(model, fraction=0.4, reach=0.01, separation=h)
+    frames, _, _ = _run(model, model.state(), [bound], 1)
+    gap = frames[1][3:5, 1].mean() - frames[1][0:2, 1].mean()
+    # Pushed apart, but by at most 2γ (d − δ): the bound holds for the push too.
+    assert d < gap <= d + 2 * 0.4 * (d - bound.floor) + 1e-9

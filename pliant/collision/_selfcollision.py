@@ -229,8 +229,8 @@ class SelfCollision:
         triangles: resolve particle–triangle contacts (needs triangles in the model).
         bound: γ [-] in (0, 0.5), or None (the default: off): after the passes, truncate each particle's
             displacement to γ times its distance to the nearest other primitive at the step's start
-            (:class:`pliant.collision.StepBound`, reach = ``thickness``), so that no vertex–triangle or
-            edge–edge pair crosses within a step however fast it moves.
+            (:class:`pliant.collision.StepBound`, reach and edge separation = ``thickness``), so that no
+            vertex–triangle or edge–edge pair crosses within a step however fast it moves.
     """
 
     def __init__(
@@ -258,7 +258,7 @@ class SelfCollision:
         if bound is not None:
             from ._step_bound import StepBound
 
-            self._bound = StepBound(model, fraction=bound, reach=self.thickness)
+            self._bound = StepBound(model, fraction=bound, reach=self.thickness, separation=self.thickness)
         d = model.device
         n = model.particle_count
         self._x = wp.zeros(n, dtype=model.vec3, device=d)

@@ -236,7 +236,7 @@ def _step_bound(ctx: BuildContext) -> list[StepBound]:
     if sc is None or sc.bound is None:
         return []
     try:
-        return [StepBound(ctx.finalized, fraction=sc.bound, reach=sc.thickness)]
+        return [StepBound(ctx.finalized, fraction=sc.bound, reach=sc.thickness, separation=sc.thickness)]
     except ValueError as exc:
         raise ctx.fail("solver.self_collision.bound", str(exc)) from None
 
