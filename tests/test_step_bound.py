@@ -116,3 +116,20 @@ def test_edges_pressed_together_are_pushed_apart_within_the_bound():
     gap = frames[1][3:5, 1].mean() - frames[1][0:2, 1].mean()
     # Pushed apart, but by at most 2γ (d − δ): the bound holds for the push too.
     assert d < gap <= d + 2 * 0.4 * (d - bound.floor) + 1e-9
+
+
+def test_a_triangle_moves_away_from_a_pinned_vertex_by_the_bound():
+    # A free triangle 1 mm under a pinned vertex above its centroid: SelfCollision would move only the
+    # vertex (it cannot); the triangle push moves the triangle by the gap to h, which the bound truncates
+    # to γ (d − δ), straight down.
+    d, h = 1e-3, 5e-3
+    b = pl.ModelBuilder(gravity=(0.0, 0.0, 0.0))
+    b.add_particles([(0, 0, 0), (0.1, 0, 0), (0, 0, 0.1), (0.1 / 3, d, 0.1 / 3)], 0.01)
+    b.add_triangles([[0, 1, 2]])
+    b.pin([3])
+    model = b.finalize(device="cpu")
+    bound = pl.collision.StepBound(model, fraction=0.4, reach=0.01, separation=h)
+    frames, _, _ = _run(model, model.state(), [bound], 1)
+    dy = frames[1][:3] - frames[0][:3]
+    np.testing.assert_allclose(dy[:, 1], -0.4 * (d - bound.floor), rtol=1e-4)
+    assert np.abs(dy[:, [0, 2]]).max() < 1e-8

@@ -262,6 +262,70 @@ def _edge_push(
 
 
 @wp.kernel
+def _triangle_push(
+    particle_inv_mass: wp.array(dtype=Any),
+    tris: wp.array(dtype=wp.int32),
+    adj_start: wp.array(dtype=wp.int32),
+    adj: wp.array(dtype=wp.int32),
+    points: wp.uint64,
+    xf: wp.array(dtype=wp.vec3f),
+    vf: wp.array(dtype=wp.vec3f),
+    h: wp.float32,
+    x_io: wp.array(dtype=Any),
+    v_io: wp.array(dtype=Any),
+):
+    # The triangle side of vertex–triangle contact (SelfCollision moves only the vertex): a triangle of
+    # particle i closer than h to a vertex not in it moves away from it, by the whole gap to h when the
+    # vertex is kinematic or pinned (it will not move), half of it otherwise; i takes its barycentric share.
+    i = wp.tid()
+    zero = particle_inv_mass[i] * type(particle_inv_mass[i])(0.0)
+    if particle_inv_mass[i] == zero:
+        return
+    dx = wp.vec3f(0.0, 0.0, 0.0)
+    dv = wp.vec3f(0.0, 0.0, 0.0)
+    count = int(0)  # noqa: UP018 (a mutable Warp variable)
+    r = wp.vec3f(h, h, h)
+    for k in range(adj_start[i], adj_start[i + 1]):
+        t = adj[k]
+        ia = tris[3 * t]
+        ib = tris[3 * t + 1]
+        ic = tris[3 * t + 2]
+        a = xf[ia]
+        b = xf[ib]
+        c = xf[ic]
+        q = wp.bvh_query_aabb(points, wp.min(wp.min(a, b), c) - r, wp.max(wp.max(a, b), c) + r)
+        j = int(0)  # noqa: UP018
+        while wp.bvh_query_next(q, j):
+            if j != ia and j != ib and j != ic:
+                p = xf[j]
+                cp, bary = closest_point_triangle(p, a, b, c)
+                d = wp.length(p - cp)
+                if d < h and d > 0.0:
+                    n = (p - cp) / d
+                    wi = bary[0]
+                    if i == ib:
+                        wi = bary[1]
+                    elif i == ic:
+                        wi = bary[2]
+                    part = 0.5
+                    if particle_inv_mass[j] == zero:
+                        part = 1.0
+                    share = part * wi / wp.dot(bary, bary)
+                    dx -= (share * (h - d)) * n
+                    vrel = vf[j] - (bary[0] * vf[ia] + bary[1] * vf[ib] + bary[2] * vf[ic])
+                    vn = wp.dot(vrel, n)
+                    if vn < 0.0:
+                        dv += (share * vn) * n
+                    count += 1
+    if count > 0:
+        inv = 1.0 / wp.sqrt(wp.float32(count))
+        x = x_io[i]
+        v = v_io[i]
+        x_io[i] = x + type(x)(type(zero)(dx[0] * inv), type(zero)(dx[1] * inv), type(zero)(dx[2] * inv))
+        v_io[i] = v + type(v)(type(zero)(dv[0] * inv), type(zero)(dv[1] * inv), type(zero)(dv[2] * inv))
+
+
+@wp.kernel
 def _truncate(
     particle_inv_mass: wp.array(dtype=Any),
     bound: wp.array(dtype=wp.float32),
@@ -301,9 +365,10 @@ class StepBound:
             move in one step (VBD uses 0.4).
         reach: R [m] > 0: how far to look for primitives; it also caps every step's displacement at γR.
             Take it a few times the largest displacement a step makes freely (speed × Δt).
-        separation: h [m] ≤ R, or None (off): before truncating, push apart edges closer than h (the
-            edge–edge contact :class:`SelfCollision` lacks; without it the bound lets two edges pressed
-            together approach until float32 rounding crosses them).
+        separation: h [m] ≤ R, or None (off): before truncating, push apart edges closer than h, and
+            triangles from vertices closer than h (the edge–edge contact and the triangle side of
+            vertex–triangle contact that :class:`SelfCollision` lacks: without them layers pressed
+            together close up to the floor, and a kinematic vertex pokes through a triangle).
         floor: δ [m] ≥ 0: the bound is γ (d − δ)⁺, so no two primitives come closer than δ; keep it above
             the rounding of the positions (float32: 6e-8 × the largest coordinate), or rounding can cross
             a pair the bound let approach within it.
@@ -355,8 +420,14 @@ class StepBound:
         start = np.searchsorted(edges.reshape(-1)[order], np.arange(n + 1)).astype(np.int32)
         self._adj_start = wp.array(start, dtype=wp.int32, device=d)
         self._adj = wp.array((order // 2).astype(np.int32), dtype=wp.int32, device=d)
+        order = np.argsort(tris.reshape(-1), kind="stable")
+        start = np.searchsorted(tris.reshape(-1)[order], np.arange(n + 1)).astype(np.int32)
+        self._tadj_start = wp.array(start, dtype=wp.int32, device=d)
+        self._tadj = wp.array((order // 3).astype(np.int32), dtype=wp.int32, device=d)
         self._xp = wp.zeros(n, dtype=wp.vec3f, device=d)
         self._vp = wp.zeros(n, dtype=wp.vec3f, device=d)
+        self._xp.assign(model.particle_q_np.astype(np.float32))
+        self._points = wp.Bvh(self._xp, self._xp)  # the vertices as point boxes
 
     def graph_blocker(self) -> str | None:
         """None where Warp records a BVH refit in a graph (Warp ≥ 1.19); older Warps say why not."""
@@ -389,7 +460,8 @@ class StepBound:
         return self.bound
 
     def push(self, model: Model, state_out: State) -> None:
-        """Push apart the edges of ``state_out`` closer than the separation (in place)."""
+        """Push apart the edges of ``state_out`` closer than the separation, then its triangles from the
+        vertices closer than it (in place)."""
         d, x, v = model.device, state_out.particle_q, state_out.particle_qd
         wp.launch(_snapshot, model.particle_count, [x, v, self._xp, self._vp], device=d)
         lo, hi = self._edge
@@ -409,6 +481,21 @@ class StepBound:
             v,
         ]
         wp.launch(_edge_push, model.particle_count, args, device=d)
+        wp.launch(_snapshot, model.particle_count, [x, v, self._xp, self._vp], device=d)
+        self._points.refit()
+        args = [
+            model.particle_inv_mass,
+            self._tris,
+            self._tadj_start,
+            self._tadj,
+            wp.uint64(self._points.id),
+            self._xp,
+            self._vp,
+            wp.float32(self.separation),
+            x,
+            v,
+        ]
+        wp.launch(_triangle_push, model.particle_count, args, device=d)
 
     def apply(self, model: Model, state_in: State, state_out: State, dt: float) -> None:
         """Push edges apart (with a separation), then truncate ``state_out``'s displacements from
