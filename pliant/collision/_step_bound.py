@@ -29,10 +29,20 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import warp as wp
 
-from ._selfcollision import _CAPTURABLE, closest_point_triangle
+from ._hashgrid import triangle_closest_point
 
 if TYPE_CHECKING:
     from ..model import Model, State
+
+#: Whether this Warp replays a Bvh refit recorded in a graph (as ``_selfcollision._CAPTURABLE``).
+_CAPTURABLE = tuple(int(p) for p in wp.__version__.split(".")[:2]) >= (1, 19)
+
+
+@wp.func
+def closest_point_triangle(p: wp.vec3f, a: wp.vec3f, b: wp.vec3f, c: wp.vec3f):
+    """The point of triangle abc closest to p, and its barycentric weights."""
+    w = triangle_closest_point(p, a, b, c)
+    return w[0] * a + w[1] * b + w[2] * c, w
 
 
 @wp.func
