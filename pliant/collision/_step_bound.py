@@ -382,6 +382,8 @@ class StepBound:
         floor: δ [m] ≥ 0: the bound is γ (d − δ)⁺, so no two primitives come closer than δ; keep it above
             the rounding of the positions (float32: 6e-8 × the largest coordinate), or rounding can cross
             a pair the bound let approach within it.
+        passes: Jacobi passes of the separation push per step (each costs about twice the bound
+            itself; more keep pressed layers nearer h, the bound keeps them apart either way).
     """
 
     def __init__(
@@ -392,11 +394,14 @@ class StepBound:
         reach: float,
         separation: float | None = None,
         floor: float = 1.0e-6,
+        passes: int = 1,
     ) -> None:
         if not 0.0 < fraction < 0.5:
             raise ValueError(f"StepBound: fraction must be in (0, 0.5) (no pair can cross), got {fraction}")
         if not reach > 0.0:
             raise ValueError(f"StepBound: reach must be > 0 m, got {reach}")
+        if passes < 1:
+            raise ValueError(f"StepBound: passes must be >= 1, got {passes}")
         if not 0.0 <= floor < reach:
             raise ValueError(f"StepBound: floor must be in [0, reach = {reach}) m, got {floor}")
         if separation is not None and not 0.0 < separation <= reach:
@@ -409,7 +414,7 @@ class StepBound:
         self.reach = float(reach)
         self.separation = None if separation is None else float(separation)
         self.floor = float(floor)
-        self.passes = 3
+        self.passes = int(passes)
         d = model.device
         n = model.particle_count
         tris = model.tri_indices.numpy().reshape(-1, 3).astype(np.int32)
