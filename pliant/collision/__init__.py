@@ -11,10 +11,12 @@ from ._ground import (
 )
 from ._hashgrid import ParticleGrid, TriangleBVH, triangle_closest_point
 from ._selfcollision import SelfCollision, closest_point_triangle
+from ._step_bound import StepBound
 
 __all__ = [
     "Colliders",
     "SelfCollision",
+    "StepBound",
     "closest_point_triangle",
     "collider_sdf",
     "ParticleGrid",

@@ -227,6 +227,10 @@ class SelfCollision:
         iterations: Jacobi passes per step (each pass resolves the contacts found in it).
         particles: resolve particle–particle contacts.
         triangles: resolve particle–triangle contacts (needs triangles in the model).
+        bound: γ [-] in (0, 0.5), or None (the default: off): after the passes, truncate each particle's
+            displacement to γ times its distance to the nearest other primitive at the step's start
+            (:class:`pliant.collision.StepBound`, reach and edge separation = ``thickness``), so that no
+            vertex–triangle or edge–edge pair crosses within a step however fast it moves.
     """
 
     def __init__(
@@ -238,6 +242,7 @@ class SelfCollision:
         iterations: int = 2,
         particles: bool = True,
         triangles: bool = True,
+        bound: float | None = None,
     ) -> None:
         if thickness <= 0:
             raise ValueError(f"thickness must be > 0 m, got {thickness}")
@@ -248,6 +253,12 @@ class SelfCollision:
         self.iterations = int(iterations)
         self.use_particles = bool(particles)
         self.use_triangles = bool(triangles) and model.tri_count > 0
+        # The step bound (opt-in: it changes trajectories, so the default keeps the goldens).
+        self._bound = None
+        if bound is not None:
+            from ._step_bound import StepBound
+
+            self._bound = StepBound(model, fraction=bound, reach=self.thickness, separation=self.thickness)
         d = model.device
         n = model.particle_count
         self._x = wp.zeros(n, dtype=model.vec3, device=d)
@@ -328,3 +339,5 @@ class SelfCollision:
                 ],
                 device=model.device,
             )
+        if self._bound is not None:
+            self._bound.apply(model, state_in, state_out, dt)

@@ -234,6 +234,9 @@ class SelfCollisionConfig(Section):
     iterations: Annotated[int, Strict(), Field(ge=1, le=100)] = 2  # force solver: passes per step
     particles: bool = True  # particle–particle contacts
     triangles: bool = True  # particle–triangle contacts
+    #: γ in (0, 0.5): truncate each step's displacements to γ × the distance to the nearest other primitive
+    #: (pl.collision.StepBound, reach = thickness): no tunnelling; off by default
+    bound: Annotated[float, Strict(), Field(gt=0, lt=0.5)] | None = None
 
 
 class SceneSection(Section):

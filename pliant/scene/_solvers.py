@@ -12,7 +12,7 @@ from ._errors import SceneError, line_of
 from ._registry import CONSTRAINT_KINDS, ENERGY_KINDS, SOLVER_KINDS, register_solver
 
 if TYPE_CHECKING:
-    from ..collision import SelfCollision
+    from ..collision import SelfCollision, StepBound
     from ..integrators import Integrator
     from ..solvers import XPBD, FastMassSpring, ForceSolver
     from ._context import BuildContext
@@ -222,10 +222,24 @@ def _self_collision(ctx: BuildContext) -> list[SelfCollision]:
                 iterations=sc.iterations,
                 particles=sc.particles,
                 triangles=sc.triangles,
+                bound=sc.bound,
             )
         ]
     except ValueError as exc:
         raise ctx.fail("solver.self_collision", str(exc)) from None
+
+
+def _step_bound(ctx: BuildContext) -> list[StepBound]:
+    """XPBD / PBD's step bound of ``[solver] self_collision.bound`` (their self-contact is constraints)."""
+    from ..collision import StepBound
+
+    sc = ctx.cfg.solver.self_collision
+    if sc is None or sc.bound is None:
+        return []
+    try:
+        return [StepBound(ctx.finalized, fraction=sc.bound, reach=sc.thickness, separation=sc.thickness)]
+    except ValueError as exc:
+        raise ctx.fail("solver.self_collision.bound", str(exc)) from None
 
 
 def _construct(ctx: BuildContext, cls: type[S], *args: Any, **kwargs: Any) -> S:
@@ -351,7 +365,7 @@ def _position_based(ctx: BuildContext, cls: type[XPBD], **kw: Any) -> XPBD:
     s = ctx.cfg.solver
     kw = {"iterations": s.iterations, "damping": s.damping_rate, **kw}
     kw = {k: v for k, v in kw.items() if v is not None}
-    solver = _construct(ctx, cls, ctx.model, collisions=ctx.handlers, **kw)
+    solver = _construct(ctx, cls, ctx.model, collisions=ctx.handlers + _step_bound(ctx), **kw)
     if ctx.constraints:
         _insert(solver, ctx)
     return solver
