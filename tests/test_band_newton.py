@@ -9,8 +9,8 @@ import warp as wp
 
 import pliant as pl
 import pliant.scene
-from pliant.solvers.implicit import _band, _band_order, _options, _pcg
-from pliant.solvers.implicit._workspace import cache_of
+from pliant.solvers.minimizers import _band, _band_order, _options, _pcg
+from pliant.solvers.minimizers._workspace import cache_of
 
 
 def _beam(cells=(12, 2, 2), dtype="float64", minimizer=None, newton_tol=None, substeps=4):

@@ -27,7 +27,7 @@ def test_single_threaded_limits_blas_inside_and_restores_it_after():
 
 def test_implicit_step_minimises_with_one_blas_thread(monkeypatch):
     """ForceSolver's implicit step calls its minimiser inside the limit (L-BFGS here)."""
-    import pliant.solvers.implicit._minimize as mz
+    import pliant.solvers.minimizers._minimize as mz
 
     if not _blas_threads():
         pytest.skip("no BLAS library reports its threads here")

@@ -11,7 +11,7 @@ import warp as wp
 from warp.sparse import bsr_from_triplets
 
 import pliant as pl
-from pliant.solvers.implicit import DeviceCG, _pcg
+from pliant.solvers.minimizers import DeviceCG, _pcg
 
 NEWTON_TOL = 1e-7  # m/s
 
@@ -274,7 +274,7 @@ def test_auto_is_the_device_newton_on_cuda_and_the_direct_solve_on_the_cpu(
     """The default ``linear_solver="auto"``: the host's sparse LU on the CPU, the device Newton on CUDA (so a
     Simulator replays implicit FEM frames there by default); L-BFGS is never the device Newton. On a machine
     without a GPU the CUDA branch is checked with a stand-in device."""
-    from pliant.solvers.implicit import _options
+    from pliant.solvers.minimizers import _options
 
     auto, pcg, lbfgs = (
         pl.solvers.MinimizerOptions(**k) for k in ({}, {"linear_solver": "pcg"}, {"method": "lbfgs"})
@@ -309,7 +309,7 @@ def test_fem_scenes_take_the_device_newton_a_gpu_gives_them(name: str) -> None:
     runs is run here on the CPU (method "newton", linear solver "pcg"): the scene's energies, contacts and
     handles are all device-Newton steps (its frames replay as graphs), and 3 frames land within 1e-4 m of
     L-BFGS's (both stop at the scene's tolerance)."""
-    from pliant.solvers.implicit._options import resolve_method
+    from pliant.solvers.minimizers._options import resolve_method
 
     runs = {}
     for mz in ({"method": "auto"}, {"method": "newton", "linear_solver": "pcg"}):

@@ -7,10 +7,10 @@ import pytest
 import warp as wp
 
 import pliant as pl
-from pliant.solvers.implicit import minimize_incremental_potential
-from pliant.solvers.implicit._assembly import _assemble
-from pliant.solvers.implicit._newton import _gradient
-from pliant.solvers.implicit._workspace import _workspace
+from pliant.solvers.minimizers import minimize_incremental_potential
+from pliant.solvers.minimizers._assembly import _assemble
+from pliant.solvers.minimizers._newton import _gradient
+from pliant.solvers.minimizers._workspace import _workspace
 from tests.helpers import run_steps
 
 I = pl.integrators
@@ -266,7 +266,7 @@ def test_scipy_cg_matches_direct_on_a_soft_step():
 def test_minimizers_read_only_the_declared_problem(method):
     """Newton and L-BFGS need only PotentialProblem's model, energies and control (no ForceSolver fields):
     a plain object gives bit-for-bit the ForceSolver's minimiser, the Control's force included."""
-    from pliant.solvers.implicit import minimize_quasi_newton
+    from pliant.solvers.minimizers import minimize_quasi_newton
 
     fn = minimize_quasi_newton if method == "lbfgs" else minimize_incremental_potential
     model = _cloth(3)

@@ -190,7 +190,7 @@ class _ImplicitOptions:
     """The implicit integrators' settings: an :class:`ImplicitOptions` handed to ``system.minimize``."""
 
     #: Gradients through the physical path: the adjoint of each step's minimisation
-    #: (``pliant.solvers.implicit._adjoint``), recorded on an active ``wp.Tape``.
+    #: (``pliant.solvers.minimizers._adjoint``), recorded on an active ``wp.Tape``.
     differentiable: ClassVar[bool] = True
     #: The keyword options ``__init__(**options)`` accepts: the fields of this dataclass (scene files check
     #: ``integrator_options`` against them).

@@ -8,10 +8,10 @@ pieces here (``_base``: the Solver interface; ``_post``: the post-step stages; `
 from ._base import Solver
 from ._errors import SingularSystemError
 from ._frame import FrameStep
-from ._rigid import RigidBodySolver
 from .fast_mass_spring import FastMassSpring
 from .force import ForceSolver
-from .implicit import MinimizerOptions, StaticStats, solve_static
+from .minimizers import MinimizerOptions, StaticStats, solve_static
+from .rigid import RigidBodySolver
 from .xpbd import PBD, XPBD
 
 __all__ = [

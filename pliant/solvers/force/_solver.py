@@ -18,7 +18,7 @@ from ...model import Control, Model, State
 from ...model._parameters import Parameter, declares
 from .._base import DAMPING_RATE, Solver
 from .._post import add_drag_force, check_collisions, finish_step
-from ..implicit import (
+from ..minimizers import (
     DeviceNewtonStats,
     MinimizerCache,
     MinimizerOptions,

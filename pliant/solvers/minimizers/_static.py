@@ -1,6 +1,6 @@
 """Static equilibrium: Newton with line search on E(x) − f·x, with Dirichlet (fixed) vertices.
 
-Reuses the implicit solver's machinery (:mod:`pliant.solvers.implicit`): the fixed BSR(3×3) pattern built
+Reuses the implicit solver's machinery (:mod:`pliant.solvers.minimizers`): the fixed BSR(3×3) pattern built
 from the energies' ``hessian_pattern``, the atomic block assembly, the projection of fixed rows and columns,
 and the linear solvers (SciPy sparse LU on the host, or Jacobi-preconditioned ``warp.optim.linear.cg``).
 Only the objective differs: there is no inertia term, so the Hessian is Σ H_e alone, which is singular

@@ -1,6 +1,6 @@
 """L-BFGS on the incremental potential with a prefactored, lagged Hessian (Liu, Bouaziz, Kavan 2017).
 
-Same problem as :mod:`pliant.solvers.implicit._newton` — one implicit step minimises
+Same problem as :mod:`pliant.solvers.minimizers._newton` — one implicit step minimises
 
     Φ(x) = ½ ‖x − x̃‖²_M + h² Σ_e E_e(x)
 
@@ -339,7 +339,7 @@ def minimize_quasi_newton(
 ) -> NewtonStats:
     """x_out = argmin_x ½‖x − x̃‖²_M + h² Σ E(x) by L-BFGS with a lagged, prefactored Hessian.
 
-    Arguments as :func:`pliant.solvers.implicit.minimize_incremental_potential`; ``minimizer`` also names
+    Arguments as :func:`pliant.solvers.minimizers.minimize_incremental_potential`; ``minimizer`` also names
     ``lbfgs_history`` (curvature pairs kept, default 8), ``lbfgs_max_iterations`` (default 200),
     ``lbfgs_refresh`` (re-assemble the lagged Hessian after a step that took more iterations than this,
     default 40) and ``lbfgs_warm_start`` (start from x̃ plus the correction x − x̃ extrapolated from the

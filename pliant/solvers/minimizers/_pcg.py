@@ -1,7 +1,7 @@
 """Newton's method with every decision on the device (``MinimizerOptions(linear_solver="pcg")``): a step is
 a fixed program of launches, replayable as a CUDA (or Warp CPU) graph, with no host read inside it.
 
-The iteration is :func:`pliant.solvers.implicit.minimize_incremental_potential`'s (same gradient, assembly,
+The iteration is :func:`pliant.solvers.minimizers.minimize_incremental_potential`'s (same gradient, assembly,
 round-off floor of the tolerance, step bound, Armijo line search and stopping rules), with three changes
 that keep the host out of the loop:
 
@@ -364,7 +364,7 @@ def _device_newton(
 
 
 class DeviceNewtonStats:
-    """:class:`~pliant.solvers.implicit.NewtonStats` of the latest device-Newton step, read from the device
+    """:class:`~pliant.solvers.minimizers.NewtonStats` of the latest device-Newton step, read from the device
     when an attribute is asked for (one host read each; a replayed graph updates them too)."""
 
     def __init__(self, dn: _DeviceNewton, projected: bool) -> None:
@@ -463,7 +463,7 @@ def minimize_device(
 ) -> DeviceNewtonStats:
     """x_out = argmin Φ by Newton with device-side PCG, line search and stopping tests (see the module).
 
-    Arguments as :func:`~pliant.solvers.implicit.minimize_incremental_potential`; the minimiser's
+    Arguments as :func:`~pliant.solvers.minimizers.minimize_incremental_potential`; the minimiser's
     ``cg_tol`` and ``cg_max_iterations`` set the CG. Returns (and stores in ``solver.last_stats``) a
     :class:`DeviceNewtonStats`, which reads the device only when asked.
     """

@@ -2,7 +2,7 @@
 the linear solves on it, and :class:`MinimizerCache`, the declared object that keeps them (and L-BFGS's
 state) from one step to the next.
 
-Who owns what: a problem (``ForceSolver``, see :class:`pliant.solvers.implicit.PotentialProblem`) declares a
+Who owns what: a problem (``ForceSolver``, see :class:`pliant.solvers.minimizers.PotentialProblem`) declares a
 ``minimizer_cache`` attribute; Newton, L-BFGS and the step adjoint read and fill it through
 :func:`cache_of`, and nothing else is stored on the problem. ``ForceSolver.reset`` and its checkpoints call
 the cache's :meth:`MinimizerCache.reset` and L-BFGS's checkpoint functions on it.
@@ -99,7 +99,7 @@ class _Workspace:
 
     def band_order(self) -> tuple[np.ndarray, int]:
         """The particles' bandwidth-reducing order and its half-bandwidth in particles (computed once; see
-        :func:`pliant.solvers.implicit._band.band_order`)."""
+        :func:`pliant.solvers.minimizers._band.band_order`)."""
         if self._band is None:
             from ._band_order import band_order
 
@@ -185,7 +185,7 @@ class MinimizerCache:
         newton: the :class:`_Workspace` (BSR pattern, slots, Newton and CG vectors) of the last
             (model, energies) it was built for, or None before the first implicit step.
         lbfgs: L-BFGS's state for that workspace, ``(workspace, lagged H₀, curvature history, warm-start
-            memo)`` (see :mod:`pliant.solvers.implicit._quasi_newton`), or None before its first step.
+            memo)`` (see :mod:`pliant.solvers.minimizers._quasi_newton`), or None before its first step.
     """
 
     def __init__(self) -> None:

@@ -126,7 +126,7 @@ class PotentialProblem(Protocol):
     energies: list
     last_stats: NewtonStats | DeviceNewtonStats | None
     #: Optional: where the minimisers keep their workspace and L-BFGS's state between steps
-    #: (:class:`~pliant.solvers.implicit.MinimizerCache`); without it nothing is reused.
+    #: (:class:`~pliant.solvers.minimizers.MinimizerCache`); without it nothing is reused.
     minimizer_cache: MinimizerCache
 
     @property

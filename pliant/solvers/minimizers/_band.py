@@ -1,6 +1,6 @@
 """Newton's linear solve for small problems, on the device: banded LDLᵀ in a bandwidth-reducing order,
 factorised again only when convergence slows (``MinimizerOptions(linear_solver="band")``; what
-``method="auto"`` takes on the CPU for small bodies, :func:`pliant.solvers.implicit._options.small_problem`).
+``method="auto"`` takes on the CPU for small bodies, :func:`._options.small_problem`).
 
 The device Newton (:mod:`._pcg`) keeps every decision on the device, so a Simulator replays its frames as
 graphs, on the CPU too (Warp's CPU graphs): no Python per step. On a 117-particle beam its block-Jacobi CG

@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 #: The linear solvers of Newton's steps.
 LINEAR_SOLVERS = ("cg", "scipy-cg", "direct", "auto", "pcg", "band")
 
-#: The largest banded LDLᵀ factorisation (multiply-adds, :func:`pliant.solvers.implicit._band.band_work`) for
+#: The largest banded LDLᵀ factorisation (multiply-adds, :func:`._band_order.band_work`) for
 #: which ``method="auto"`` takes the device Newton with the band solve on the CPU rather than L-BFGS.
 #: Measured (float32 beams 0.6 x 0.1 x 0.1 m of c0 x c1 x c1 cells, 4 substeps of 1/120 s, ms per substep
 #: over frames 3-22 (10 from 12x5x5), band / L-BFGS, one core): 12x2x2 (191k multiply-adds) 0.50 / 1.12,
@@ -53,9 +53,9 @@ class MinimizerOptions:
             CG, block-Jacobi, host; falls back to the direct solve when a step stalls), "direct" (SciPy
             sparse LU, host), "pcg" (Newton with every decision on the device: block-Jacobi CG, line search
             and stopping tests; no host read inside a step, so a Simulator replays its frames as graphs;
-            :mod:`pliant.solvers.implicit._pcg`), "band" (the same device Newton with a banded LDLᵀ
+            :mod:`pliant.solvers.minimizers._pcg`), "band" (the same device Newton with a banded LDLᵀ
             direct solve, refactorised only when convergence slows: for small bodies, whose steps it
-            replays as graphs on the CPU too; :mod:`pliant.solvers.implicit._band`) or "auto": the direct
+            replays as graphs on the CPU too; :mod:`pliant.solvers.minimizers._band`) or "auto": the direct
             solve on the CPU ("band" with ``method="auto"`` on a small body), "pcg" on a GPU (32x one CPU
             core at 30³ cells on an H100, where Warp's CG with host decisions was slower than one core;
             :func:`device_newton`).
