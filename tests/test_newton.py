@@ -8,9 +8,9 @@ import warp as wp
 
 import pliant as pl
 from pliant.solvers.minimizers import minimize_incremental_potential
-from pliant.solvers.minimizers._assembly import _assemble
-from pliant.solvers.minimizers._newton import _gradient
-from pliant.solvers.minimizers._workspace import _workspace
+from pliant.solvers.minimizers._assembly import assemble
+from pliant.solvers.minimizers._newton import gradient
+from pliant.solvers.minimizers._problem import workspace_of
 from tests.helpers import run_steps
 
 I = pl.integrators
@@ -117,8 +117,8 @@ def test_assembled_hessian_matches_finite_differences():
     x = wp.array(1.2 * model.particle_q.numpy(), dtype=model.vec3, device="cpu")  # all springs stretched
     for e in solver.energies:
         e.begin_step(model, x_ref, model.particle_qd, h)
-    ws = _workspace(solver)
-    _assemble(solver, ws, x, h, True)
+    ws = workspace_of(solver)
+    assemble(solver, ws, x, h, True)
     vals = ws.values.numpy()[: ws.nnz]
     H = sp.bsr_matrix((vals, ws.indices, ws.indptr), shape=(3 * n, 3 * n)).toarray()
     x_tilde = wp.clone(x_ref)
@@ -130,7 +130,7 @@ def test_assembled_hessian_matches_finite_differences():
         for sgn in (1, -1):
             xp = x0.copy()
             xp[c] += sgn * eps
-            _gradient(solver, ws, wp.array(xp.reshape(n, 3), dtype=model.vec3, device="cpu"), x_tilde, h)
+            gradient(solver, ws, wp.array(xp.reshape(n, 3), dtype=model.vec3, device="cpu"), x_tilde, h)
             gs.append(ws.grad.numpy().reshape(-1).copy())
         fd[:, c] = (gs[0] - gs[1]) / (2 * eps)
     np.testing.assert_allclose(H, fd, rtol=1e-6, atol=1e-6 * np.abs(H).max())

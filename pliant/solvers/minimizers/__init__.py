@@ -1,22 +1,24 @@
-"""Implicit steps and static equilibria: minimisers of the incremental potential (Newton, L-BFGS), their
-settings, workspace and assembly, the adjoint of a converged step, and the static solve.
+"""The minimisers of an implicit step's incremental potential (host Newton, device Newton, L-BFGS), their
+settings, problem and workspace types, Hessian assembly, the adjoint of a converged step, and the static
+solve. A library the solvers call (``ForceSolver``), not a solver itself.
 
-Modules, bottom to top: ``_options`` (the minimiser's settings) and ``_workspace`` (the BSR pattern, linear
-solvers, the per-problem cache) → ``_assembly`` (Hessian assembly, the Control's terms) → ``_adjoint``
-(gradients through a step) → ``_newton`` → ``_pcg_kernels``, ``_slots`` and ``_band`` (its banded LDLᵀ
-solve for small bodies) / ``_pcg`` (Newton on the device) →
-``_quasi_newton`` → ``_minimize`` / ``_static``. Other solver families use the names below, never these
-modules.
+Modules, bottom to top: ``_problem`` (the problem, workspace, cache and statistics types; below it only the
+leaves ``_slots``, ``_pcg_kernels``, ``_band_order``) → ``_options`` (the minimiser's settings) and
+``_kernels`` → ``_assembly`` (Hessian assembly, the gradient, the Control's terms) → ``_adjoint`` (gradients
+through a step) → one file per minimiser: ``_newton`` (host Newton), ``_pcg`` (device Newton, with
+``_band``'s banded LDLᵀ), ``_quasi_newton`` (L-BFGS) → ``_minimize`` (their dispatch) / ``_static``.
+No minimiser imports another. Other solver families use the names below, never these modules.
 """
 
 from ._adjoint import differentiable
-from ._assembly import PotentialProblem, control_of
+from ._assembly import control_of
 from ._band import band_checkpoint_state, band_restore_checkpoint_state
 from ._minimize import minimize
-from ._newton import NewtonStats, minimize_incremental_potential
+from ._newton import minimize_incremental_potential
 from ._options import MinimizerOptions, device_newton, resolve_method, step_settings
-from ._pcg import DeviceCG, DeviceNewtonStats, minimize_device
+from ._pcg import DeviceCG, minimize_device
 from ._pcg import graph_blocker as device_newton_blocker
+from ._problem import DeviceNewtonStats, MinimizerCache, NewtonStats, PotentialProblem, cache_of
 from ._quasi_newton import (
     lbfgs_checkpoint_state,
     lbfgs_restore_checkpoint_state,
@@ -24,7 +26,6 @@ from ._quasi_newton import (
     nested_dissection,
 )
 from ._static import StaticStats, solve_static
-from ._workspace import MinimizerCache, cache_of
 
 __all__ = [
     "DeviceCG",

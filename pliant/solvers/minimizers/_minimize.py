@@ -7,15 +7,16 @@ from typing import TYPE_CHECKING
 import warp as wp
 
 from ..._blas import single_threaded
-from ._newton import NewtonStats, minimize_incremental_potential, needs_feasible_start
+from ._newton import minimize_incremental_potential
 from ._options import device_newton, resolve_method, step_settings
-from ._pcg import DeviceNewtonStats, minimize_device
+from ._pcg import minimize_device
+from ._problem import needs_feasible_start
 from ._quasi_newton import minimize_quasi_newton
 
 if TYPE_CHECKING:
     from ...integrators._implicit import ImplicitOptionsLike
-    from ._assembly import PotentialProblem
     from ._options import MinimizerLike
+    from ._problem import DeviceNewtonStats, NewtonStats, PotentialProblem
 
 
 def minimize(

@@ -16,9 +16,11 @@ import numpy as np
 import warp as wp
 
 from ...integrators._implicit import MINIMIZER_SETTINGS, ImplicitOptions, ImplicitOptionsLike
+from ._band_order import band_work
+from ._problem import cache_of
 
 if TYPE_CHECKING:
-    from ._assembly import PotentialProblem
+    from ._problem import PotentialProblem
 
 #: The linear solvers of Newton's steps.
 LINEAR_SOLVERS = ("cg", "scipy-cg", "direct", "auto", "pcg", "band")
@@ -215,9 +217,6 @@ def small_problem(problem: PotentialProblem) -> bool:
     """Whether ``problem``'s Newton system is small enough for the banded LDLᵀ on the CPU: its factorisation
     at most :data:`SMALL_BAND_WORK` multiply-adds (the bandwidth from the Hessian pattern, computed once per
     workspace)."""
-    from ._band_order import band_work
-    from ._workspace import cache_of
-
     ws = cache_of(problem).workspace(problem.model, problem.energies)
     _, width = ws.band_order()
     return band_work(problem.model.particle_count, width) <= SMALL_BAND_WORK
