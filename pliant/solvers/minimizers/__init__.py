@@ -13,7 +13,7 @@ No minimiser imports another. Other solver families use the names below, never t
 from ._adjoint import differentiable
 from ._assembly import control_of
 from ._band import band_checkpoint_state, band_restore_checkpoint_state
-from ._minimize import minimize
+from ._minimize import MINIMIZERS, Minimizer, choose, minimize
 from ._newton import minimize_incremental_potential
 from ._options import MinimizerOptions, device_newton, resolve_method, step_settings
 from ._pcg import DeviceCG, minimize_device
@@ -28,6 +28,9 @@ from ._quasi_newton import (
 from ._static import StaticStats, solve_static
 
 __all__ = [
+    "MINIMIZERS",
+    "Minimizer",
+    "choose",
     "DeviceCG",
     "DeviceNewtonStats",
     "MinimizerCache",
