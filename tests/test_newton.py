@@ -217,13 +217,13 @@ def test_options_validated():
         ):
             cls(newton_tolerance=1e-6)
     integ = I.BDF2(newton_tol=1e-7)
-    assert integ.newton_tol == integ.options.newton_tol == 1e-7 and integ.lbfgs_history is None
+    assert integ.newton_tol == integ.options.newton_tol == 1e-7 and not hasattr(integ, "lbfgs_history")
     model = _cloth(3)
     solver = pl.solvers.ForceSolver(model, integrator=I.BackwardEuler())
     x = model.particle_q
-    with pytest.raises(ValueError, match="linear_solver"):
+    with pytest.raises(ValueError, match="linear_solver must be"):
         minimize_incremental_potential(
-            solver, 0.0, 0.01, x, x, model.particle_qd, wp.clone(x), {"linear_solver": "qr"}
+            solver, 0.0, 0.01, x, x, model.particle_qd, wp.clone(x), None, minimizer={"linear_solver": "qr"}
         )
 
 

@@ -3,8 +3,8 @@
 The integrator decides what a step solves and how accurately (:class:`pliant.integrators.ImplicitOptions`:
 ``newton_tol``, ``max_newton_iterations``, ``project_psd``, ``max_line_search``); the solver decides how
 (:class:`MinimizerOptions`: Newton or L-BFGS, the linear solver, L-BFGS's history and initial Hessian).
-The minimiser settings used to be integrator keywords (``BackwardEuler(method="lbfgs")``); that spelling
-still works, with a DeprecationWarning, and :func:`step_settings` merges it here.
+The minimiser settings used to be integrator keywords (``BackwardEuler(method="lbfgs")``); that spelling is
+an error now that says where they went (:meth:`pliant.integrators.ImplicitOptions.moved`).
 """
 
 from __future__ import annotations
@@ -15,11 +15,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import warp as wp
 
-from ...integrators._implicit import MINIMIZER_SETTINGS, ImplicitOptions, ImplicitOptionsLike
+from ...integrators import ImplicitOptions
 from ._band_order import band_work
 from ._problem import cache_of
 
 if TYPE_CHECKING:
+    from ...integrators._implicit import ImplicitOptionsLike
     from ._problem import PotentialProblem
 
 #: The linear solvers of Newton's steps.
@@ -139,7 +140,6 @@ _DEFAULT = MinimizerOptions()
 
 #: What :meth:`MinimizerOptions.coerce` accepts: None (the defaults), the options, or a dict of some settings.
 MinimizerLike = MinimizerOptions | dict[str, Any] | None
-assert {f.name for f in fields(MinimizerOptions)} == set(MINIMIZER_SETTINGS), "one list of names"
 
 
 def step_settings(
@@ -149,30 +149,13 @@ def step_settings(
 
     Args:
         options: None, an :class:`~pliant.integrators.ImplicitOptions`, an implicit integrator, or a dict of
-            settings of either kind (the minimisers' direct callers).
+            its settings (the minimisers' direct callers).
         minimizer: None, a :class:`MinimizerOptions` or a dict of its settings.
 
     Raises:
-        ValueError: minimiser settings given through ``options`` (the deprecated integrator keywords) that
-            ``minimizer`` contradicts, or invalid values.
+        ValueError: invalid values, or minimiser settings in ``options`` (they go in ``minimizer``).
     """
-    if isinstance(options, dict):
-        own = {k: v for k, v in options.items() if k not in MINIMIZER_SETTINGS}
-        legacy = {k: v for k, v in options.items() if k in MINIMIZER_SETTINGS}
-        step = ImplicitOptions.create("minimize", **own) if own else ImplicitOptions.coerce(None)
-    else:
-        step = ImplicitOptions.coerce(options)
-        legacy = step.minimizer_settings()
-    if minimizer is None:
-        return step, MinimizerOptions.create("minimize", **legacy)
-    mz = MinimizerOptions.coerce(minimizer)
-    clash = sorted(k for k, v in legacy.items() if getattr(mz, k) != v)
-    if clash:
-        raise ValueError(
-            f"minimizer settings {clash} given twice, differently: as integrator keywords (deprecated) and "
-            "in minimizer=; give them in minimizer= only"
-        )
-    return step, mz
+    return ImplicitOptions.coerce(options), MinimizerOptions.coerce(minimizer)
 
 
 def device_newton(
