@@ -17,7 +17,6 @@ from typing import TYPE_CHECKING, Any
 import warp as wp
 
 from ..._blas import single_threaded
-from ._dense_newton import minimize_dense_newton
 from ._newton import minimize_incremental_potential
 from ._options import MinimizerOptions, device_newton, resolve_method, step_settings
 from ._pcg import minimize_device
@@ -72,7 +71,6 @@ MINIMIZERS: dict[str, Minimizer] = {
         lambda p, mz: _method(p, mz) == "newton" and not _on_device(p, mz),
         barrier=True,
     ),
-    "dense_newton": Minimizer(minimize_dense_newton, lambda p, mz: False),
 }
 
 
