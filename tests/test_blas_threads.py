@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import scipy.sparse.linalg  # noqa: F401  (both BLAS libraries loaded before the counts)
@@ -32,13 +34,13 @@ def test_implicit_step_minimises_with_one_blas_thread(monkeypatch):
     if not _blas_threads():
         pytest.skip("no BLAS library reports its threads here")
     seen = []
-    original = mz.minimize_quasi_newton
+    original = mz.MINIMIZERS["lbfgs"].minimize
 
     def spy(*args, **kwargs):
         seen.append(_blas_threads())
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(mz, "minimize_quasi_newton", spy)
+    monkeypatch.setitem(mz.MINIMIZERS, "lbfgs", dataclasses.replace(mz.MINIMIZERS["lbfgs"], minimize=spy))
     b = pl.ModelBuilder()
     b.add_soft_box(cells=(2, 2, 2), size=(0.2, 0.2, 0.2), origin=(0.0, 0.5, 0.0), density=500.0, E=1e4)
     m = b.finalize(device="cpu", dtype="float64")

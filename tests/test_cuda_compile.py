@@ -21,7 +21,6 @@ MUST_COMPILE = {
     "pliant.solvers.xpbd._kernels",
     "pliant.solvers.xpbd._tolerance",
     "pliant.solvers.minimizers._assembly",
-    "pliant.solvers.minimizers._newton",
     "pliant.solvers.minimizers._pcg",
     "pliant.solvers.minimizers._pcg_kernels",
     "pliant.solvers.minimizers._band",
