@@ -8,8 +8,7 @@ import warp as wp
 
 import pliant as pl
 from pliant.solvers.minimizers import minimize_incremental_potential
-from pliant.solvers.minimizers._assembly import assemble
-from pliant.solvers.minimizers._newton import gradient
+from pliant.solvers.minimizers._assembly import assemble, gradient
 from pliant.solvers.minimizers._problem import workspace_of
 from tests.helpers import run_steps
 
