@@ -1,5 +1,5 @@
 """The device Newton (``linear_solver="pcg"``) on the soft box drop, CG's dot products reduced by per-thread
-atomics against block sums (``pliant.solvers.implicit._pcg.REDUCTION``), side by side in one process.
+atomics against block sums (``pliant.solvers.minimizers._pcg.REDUCTION``), side by side in one process.
 
 Rows: the soft box drop of :mod:`pliant.bench._fem` (ImplicitMidpoint, 10 substeps per frame, float64,
 Newton tolerance 1e-4 m/s per frame, the 24 judged frames, frames replayed as graphs) at each size, for
@@ -23,7 +23,7 @@ import statistics
 import time
 
 from pliant.bench._fem import BENCHMARKS, FRAMES_30, IMPLICIT_DTYPE, IMPLICIT_SUBSTEPS, soft_box_drop
-from pliant.solvers.implicit import _pcg
+from pliant.solvers.minimizers import _pcg
 
 
 def pcg_row(n: int, device: str, reduction: str, frames: int) -> dict:

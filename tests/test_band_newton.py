@@ -9,8 +9,8 @@ import warp as wp
 
 import pliant as pl
 import pliant.scene
-from pliant.solvers.implicit import _band, _band_order, _options, _pcg
-from pliant.solvers.implicit._workspace import cache_of
+from pliant.solvers.minimizers import DeviceNewtonStats, _band, _band_order, _options
+from pliant.solvers.minimizers._problem import cache_of
 
 
 def _beam(cells=(12, 2, 2), dtype="float64", minimizer=None, newton_tol=None, substeps=4):
@@ -150,7 +150,7 @@ def test_band_solver_name_is_validated():
         pl.solvers.MinimizerOptions(linear_solver="bands")
     assert _options.band_solve(pl.solvers.MinimizerOptions(linear_solver="band"), "cpu")
     assert not _options.band_solve(pl.solvers.MinimizerOptions(linear_solver="pcg"), "cpu")
-    assert wp.get_device("cpu").is_cpu and _pcg.DeviceNewtonStats is not None
+    assert wp.get_device("cpu").is_cpu and DeviceNewtonStats is not None
 
 
 def test_restart_runs_as_a_new_simulator_bit_for_bit():

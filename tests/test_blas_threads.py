@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import scipy.sparse.linalg  # noqa: F401  (both BLAS libraries loaded before the counts)
@@ -27,18 +29,18 @@ def test_single_threaded_limits_blas_inside_and_restores_it_after():
 
 def test_implicit_step_minimises_with_one_blas_thread(monkeypatch):
     """ForceSolver's implicit step calls its minimiser inside the limit (L-BFGS here)."""
-    import pliant.solvers.implicit._minimize as mz
+    import pliant.solvers.minimizers._minimize as mz
 
     if not _blas_threads():
         pytest.skip("no BLAS library reports its threads here")
     seen = []
-    original = mz.minimize_quasi_newton
+    original = mz.MINIMIZERS["lbfgs"].minimize
 
     def spy(*args, **kwargs):
         seen.append(_blas_threads())
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(mz, "minimize_quasi_newton", spy)
+    monkeypatch.setitem(mz.MINIMIZERS, "lbfgs", dataclasses.replace(mz.MINIMIZERS["lbfgs"], minimize=spy))
     b = pl.ModelBuilder()
     b.add_soft_box(cells=(2, 2, 2), size=(0.2, 0.2, 0.2), origin=(0.0, 0.5, 0.0), density=500.0, E=1e4)
     m = b.finalize(device="cpu", dtype="float64")

@@ -11,7 +11,7 @@ import warp as wp
 from warp.sparse import bsr_from_triplets
 
 import pliant as pl
-from pliant.solvers.implicit import DeviceCG, _pcg
+from pliant.solvers.minimizers import DeviceCG, DeviceNewtonStats, _pcg
 
 NEWTON_TOL = 1e-7  # m/s
 
@@ -274,7 +274,7 @@ def test_auto_is_the_device_newton_on_cuda_and_the_direct_solve_on_the_cpu(
     """The default ``linear_solver="auto"``: the host's sparse LU on the CPU, the device Newton on CUDA (so a
     Simulator replays implicit FEM frames there by default); L-BFGS is never the device Newton. On a machine
     without a GPU the CUDA branch is checked with a stand-in device."""
-    from pliant.solvers.implicit import _options
+    from pliant.solvers.minimizers import _options
 
     auto, pcg, lbfgs = (
         pl.solvers.MinimizerOptions(**k) for k in ({}, {"linear_solver": "pcg"}, {"method": "lbfgs"})
@@ -289,7 +289,7 @@ def test_auto_is_the_device_newton_on_cuda_and_the_direct_solve_on_the_cpu(
     s0, s1 = m.state(), m.state()
     solver.step(s0, s1, None, 1 / 120)
     cuda = wp.get_device(device).is_cuda
-    assert isinstance(solver.last_stats, _pcg.DeviceNewtonStats) == cuda
+    assert isinstance(solver.last_stats, DeviceNewtonStats) == cuda
     assert (solver.graph_blocker() is None) == cuda
     monkeypatch.setattr(_options.wp, "get_device", lambda d=None: types.SimpleNamespace(is_cuda=True))
     assert _options.device_newton(auto, "cuda:0") and not _options.device_newton(lbfgs, "cuda:0")
@@ -309,7 +309,7 @@ def test_fem_scenes_take_the_device_newton_a_gpu_gives_them(name: str) -> None:
     runs is run here on the CPU (method "newton", linear solver "pcg"): the scene's energies, contacts and
     handles are all device-Newton steps (its frames replay as graphs), and 3 frames land within 1e-4 m of
     L-BFGS's (both stop at the scene's tolerance)."""
-    from pliant.solvers.implicit._options import resolve_method
+    from pliant.solvers.minimizers._options import resolve_method
 
     runs = {}
     for mz in ({"method": "auto"}, {"method": "newton", "linear_solver": "pcg"}):
@@ -323,7 +323,7 @@ def test_fem_scenes_take_the_device_newton_a_gpu_gives_them(name: str) -> None:
     auto, device = runs["auto"], runs["newton"]
     assert resolve_method(auto.solver.minimizer, "cpu") == "lbfgs"
     assert auto.solver.last_stats.linear_solver == "lbfgs"
-    assert isinstance(device.solver.last_stats, _pcg.DeviceNewtonStats) and device.graph_reason is None
+    assert isinstance(device.solver.last_stats, DeviceNewtonStats) and device.graph_reason is None
     x_auto, x_dev = auto.state_0.particle_q.numpy(), device.state_0.particle_q.numpy()
     assert np.abs(x_dev - x_auto).max() < 1e-4
     assert np.abs(x_auto - pl.scene.build_scene(pl.scene.load_scene(name)).model.particle_q_np).max() > 1e-3

@@ -189,8 +189,13 @@ def test_no_source_file_over_the_size_limit():
 
 
 #: Layers inside pliant/solvers (docs/design.md, "solvers/"), bottom to top. "" is the shared modules at the
-#: package's top level (_base, _errors, _post, _frame, _rigid); the package's __init__ sits above them all.
-SOLVER_LAYERS: list[tuple[str, ...]] = [("",), ("implicit", "xpbd"), ("force",), ("fast_mass_spring",)]
+#: package's top level (_base, _errors, _post, _frame); the package's __init__ sits above them all.
+SOLVER_LAYERS: list[tuple[str, ...]] = [
+    ("",),
+    ("minimizers", "xpbd", "rigid"),
+    ("force",),
+    ("fast_mass_spring",),
+]
 SOLVER_LEVEL = {name: i for i, names in enumerate(SOLVER_LAYERS) for name in names}
 SOLVERS = ROOT / "solvers"
 
@@ -208,7 +213,7 @@ def _solver_part(module: str) -> str | None:
 
 def _import_candidates(path: Path) -> list[tuple[int, str]]:
     """(line, module) of every pliant import in ``path``, with ``from P import name`` also as ``P.name``
-    (so that ``from .implicit import _newton`` names the module it loads)."""
+    (so that ``from .minimizers import _newton`` names the module it loads)."""
     out = []
     for line, target in _imports(path):
         out.append((line, target))
@@ -268,22 +273,22 @@ def test_the_solver_check_sees_private_and_upward_imports(tmp_path, monkeypatch)
     """The solvers check is not vacuous: a private import across sub-packages (relative, ``from . import``
     form too) and an import of a higher sub-package are each reported."""
     fake = tmp_path / "pliant"
-    for sub in ("solvers", "solvers/implicit", "solvers/force", "solvers/xpbd", "solvers/fast_mass_spring"):
+    for sub in ("solvers", "solvers/minimizers", "solvers/force", "solvers/xpbd", "solvers/fast_mass_spring"):
         (fake / sub).mkdir(parents=True)
         (fake / sub / "__init__.py").write_text("")
     (fake / "__init__.py").write_text("")
-    ok = "from ..implicit import minimize\nfrom .._post import f\n"
+    ok = "from ..minimizers import minimize\nfrom .._post import f\n"
     (fake / "solvers" / "force" / "_ok.py").write_text(ok)
-    (fake / "solvers" / "force" / "_a.py").write_text("from ..implicit._newton import minimize\n")
-    (fake / "solvers" / "xpbd" / "_b.py").write_text("from ..implicit import _newton\n")
-    (fake / "solvers" / "implicit" / "_c.py").write_text("def f():\n    from ..force import ForceSolver\n")
+    (fake / "solvers" / "force" / "_a.py").write_text("from ..minimizers._newton import minimize\n")
+    (fake / "solvers" / "xpbd" / "_b.py").write_text("from ..minimizers import _newton\n")
+    (fake / "solvers" / "minimizers" / "_c.py").write_text("def f():\n    from ..force import ForceSolver\n")
     monkeypatch.setattr(sys.modules[__name__], "ROOT", fake)
     bad = solver_layer_violations()
     text = "\n".join(bad)
     assert len(bad) == 3, text
-    assert "_a.py:1: pliant.solvers.force._a imports pliant.solvers.implicit._newton, private" in text
-    assert "_b.py:1: pliant.solvers.xpbd._b imports pliant.solvers.implicit._newton, private" in text
-    assert "_c.py:2: pliant.solvers.implicit._c (solvers.implicit) imports pliant.solvers.force" in text
+    assert "_a.py:1: pliant.solvers.force._a imports pliant.solvers.minimizers._newton, private" in text
+    assert "_b.py:1: pliant.solvers.xpbd._b imports pliant.solvers.minimizers._newton, private" in text
+    assert "_c.py:2: pliant.solvers.minimizers._c (solvers.minimizers) imports pliant.solvers.force" in text
 
 
 def test_design_picture_matches_layers() -> None:

@@ -1,10 +1,11 @@
 """The minimiser's settings belong to the implicit solver (``pl.solvers.MinimizerOptions``,
 ``ForceSolver(minimizer=...)``, ``[solver] options = { minimizer = {...} }``); the old integrator keywords
-(``BackwardEuler(method="lbfgs")``, ``integrator_options = { method = "lbfgs" }``) still work, with a
-DeprecationWarning, and reach the minimiser unchanged."""
+(``BackwardEuler(method="lbfgs")``, ``integrator_options = { method = "lbfgs" }``), deprecated since, are
+removed: giving one is an error that says where it went."""
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import numpy as np
@@ -64,39 +65,29 @@ def test_minimizer_options_are_validated_with_the_allowed_values_named():
 
 
 @pytest.mark.parametrize("integrator", [I.BackwardEuler, I.ImplicitMidpoint, I.BDF2])
-def test_the_old_integrator_keywords_warn_validate_and_give_the_same_steps(integrator):
-    """``BackwardEuler(method="lbfgs", lbfgs_history=4)`` warns, names the new spelling, is validated when
-    the solver is built, and steps bit for bit like ``minimizer=MinimizerOptions(...)``."""
-    with pytest.warns(DeprecationWarning, match=r"minimizer=pl.solvers.MinimizerOptions\(method='lbfgs'"):
-        old = integrator(method="lbfgs", lbfgs_history=4, newton_tol=1e-6)
-    assert old.options.minimizer_settings() == {"method": "lbfgs", "lbfgs_history": 4}
+def test_the_old_integrator_keywords_are_an_error_naming_the_new_spelling(integrator):
+    """``BackwardEuler(method="lbfgs", lbfgs_history=4)``, and the same in an options dict handed to a
+    minimiser, raise a ValueError naming both settings and ``minimizer=pl.solvers.MinimizerOptions``."""
+    with pytest.raises(ValueError, match=r"method, lbfgs_history: the implicit solver's settings") as info:
+        integrator(method="lbfgs", lbfgs_history=4, newton_tol=1e-6)
+    assert "minimizer=pl.solvers.MinimizerOptions(method=..., lbfgs_history=...)" in str(info.value)
+    assert integrator.__name__ in str(info.value)
     m = _box()
-    energies = [pl.energies.NeoHookean(), pl.energies.Gravity()]
-    s_old = pl.solvers.ForceSolver(m, energies, old)
-    assert s_old.minimizer == pl.solvers.MinimizerOptions(method="lbfgs", lbfgs_history=4)
-    x_old = _steps(s_old, m)
-    assert s_old.last_stats.linear_solver == "lbfgs"
-    with warnings.catch_warnings():
-        warnings.simplefilter("error", DeprecationWarning)
-        new = pl.solvers.ForceSolver(
-            m, energies, integrator(newton_tol=1e-6), minimizer={"method": "lbfgs", "lbfgs_history": 4}
+    x = m.particle_q
+    with pytest.raises(ValueError, match="linear_solver: the implicit solver's settings"):
+        pl.solvers.minimizers.minimize(
+            pl.solvers.ForceSolver(m, [pl.energies.NeoHookean()], integrator()),
+            0.0,
+            0.01,
+            x,
+            x,
+            m.particle_qd,
+            x,
+            {"linear_solver": "pcg"},
         )
-        x_new = _steps(new, m)
-    np.testing.assert_array_equal(x_old, x_new)
-    # Old keywords with bad values fail when the solver is built, before any step.
-    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="lbfgs_h0 must be 'lu' or 'amg'"):
-        pl.solvers.ForceSolver(m, energies, integrator(lbfgs_h0="cholesky"))
-
-
-def test_both_spellings_must_agree():
-    """The same setting given as an integrator keyword and in minimizer=: equal is fine, different refused."""
-    m = _box()
-    with pytest.warns(DeprecationWarning):
-        integ = I.BackwardEuler(method="lbfgs")
-    s = pl.solvers.ForceSolver(m, [pl.energies.NeoHookean()], integ, minimizer={"method": "lbfgs"})
-    assert s.minimizer.method == "lbfgs"
-    with pytest.raises(ValueError, match=r"\['method'\] given twice, differently"):
-        pl.solvers.ForceSolver(m, [pl.energies.NeoHookean()], integ, minimizer={"method": "newton"})
+    assert set(I._implicit.MINIMIZER_SETTINGS) == {
+        f.name for f in dataclasses.fields(pl.solvers.MinimizerOptions)
+    }, "the error names every minimiser setting"
 
 
 def _build(solver_line: str):
@@ -105,15 +96,17 @@ def _build(solver_line: str):
 
 def test_scene_files_old_and_new_spelling():
     """``[solver] options = { minimizer = {...} }`` builds an L-BFGS solver silently; the old
-    ``integrator_options = { method = "lbfgs" }`` still loads (DeprecationWarning) to the same settings; a bad
-    minimiser value is a scene error naming ``solver.options`` before any step."""
+    ``integrator_options = { method = "lbfgs" }`` is a scene error at ``solver.integrator_options.method``
+    that gives the new spelling; a bad minimiser value is a scene error naming ``solver.options`` before any
+    step."""
     with warnings.catch_warnings():
         warnings.simplefilter("error", DeprecationWarning)
         new = _build('options = { minimizer = { method = "lbfgs" } }')
     assert new.solver.minimizer == pl.solvers.MinimizerOptions(method="lbfgs")
-    with pytest.warns(DeprecationWarning, match="integrator_options"):
-        old = _build('integrator_options = { method = "lbfgs" }')
-    assert old.solver.minimizer == new.solver.minimizer
+    with pytest.raises(SceneError) as info:
+        _build('integrator_options = { method = "lbfgs" }')
+    text = str(info.value)
+    assert "solver.integrator_options.method" in text and "[solver] options = { minimizer = { ... } }" in text
     with pytest.raises(SceneError) as info:
         _build('options = { minimizer = { method = "lbgfs" } }')
     assert "solver.options" in str(info.value) and "method must be 'newton', 'lbfgs' or 'auto'" in str(

@@ -509,7 +509,7 @@ def test_nested_dissection_is_a_permutation_with_less_fill_than_minimum_degree()
     import scipy.sparse as sp
     from scipy.sparse.linalg import splu
 
-    from pliant.solvers.implicit import nested_dissection
+    from pliant.solvers.minimizers import nested_dissection
 
     b = pl.ModelBuilder()
     b.add_soft_box(cells=(10, 10, 10), size=(0.5, 0.5, 0.5), E=1e5, nu=0.3)

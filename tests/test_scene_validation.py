@@ -54,9 +54,9 @@ def test_scene_name_is_one_safe_file_name(name, why):
         ),
         ('integrator = "BackwardEuler"\nintegrator_options = { newton_tol = nan }', "newton_tol", "finite"),
         (
-            'integrator = "BackwardEuler"\nintegrator_options = { metod = "lbfgs" }',
-            "solver.integrator_options.metod",
-            "did you mean 'method'",
+            'integrator = "BackwardEuler"\nintegrator_options = { max_newton_iteration = 5 }',
+            "solver.integrator_options.max_newton_iteration",
+            "did you mean 'max_newton_iterations'",
         ),
         ("iterations = 5", "solver.iterations", "does not apply to solver kind 'force'"),
     ],

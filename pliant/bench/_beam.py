@@ -6,7 +6,7 @@ particles, 288 tets), 4 substeps per 1/30 s frame, 90 frames, in the scene's flo
 
 One run times, side by side after a warm-up run each (kernel builds, graph captures): ``method="auto"``
 (on the CPU for this size: the device Newton with the banded LDLᵀ, frames replayed as CPU graphs; see
-:mod:`pliant.solvers.implicit._band`) and ``method="lbfgs"`` (what "auto" took before). Each reports ms per
+:mod:`pliant.solvers.minimizers._band`) and ``method="lbfgs"`` (what "auto" took before). Each reports ms per
 substep, wall and process CPU time (on a loaded machine the CPU time is the steadier figure), and its
 ``trajectory_error``: max over frames and particles of |x − x_ref| [m] against a converged reference (the
 same scene in float64, host Newton with SciPy's sparse LU, ``newton_tol`` 1e-9 m/s), beside the largest tip

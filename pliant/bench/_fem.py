@@ -143,7 +143,7 @@ def _peak_mem_mb(device: str) -> float:
 def _device_iterations(solver: ForceSolver) -> np.ndarray:
     """(Newton, CG) iterations the device minimiser counted over ``solver``'s life (graph replays
     included)."""
-    from ..solvers.implicit import DeviceNewtonStats
+    from ..solvers.minimizers import DeviceNewtonStats
 
     stats = solver.last_stats
     if not isinstance(stats, DeviceNewtonStats):  # only linear_solver="pcg" steps are replayed as graphs

@@ -5,7 +5,7 @@ Scene: the soft box of :mod:`pliant.bench._fem` (0.5 m cube, ρ = 1000 kg/m³, n
 rows' tolerance), ground as the penalty inside the potential (no post-step friction), ``frames`` steps of
 1/60 s recorded on a ``wp.Tape`` with one State per frame. The loss is the final centre-of-mass height;
 ``tape.backward`` gives its gradient w.r.t. the per-tet μ, λ and the initial state through one adjoint
-solve per step (:mod:`pliant.solvers.implicit._adjoint`).
+solve per step (:mod:`pliant.solvers.minimizers._adjoint`).
 
 Figures: ``forward_s`` (recorded forward, the minimisations with the tape paused), ``plain_forward_s``
 (the same rollout without a tape, ``requires_grad=False``), ``backward_s``, ``ratio`` = backward / forward,

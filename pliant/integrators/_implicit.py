@@ -17,8 +17,7 @@ from __future__ import annotations
 
 import functools
 import inspect
-import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, Any, ClassVar, Union
 
@@ -74,8 +73,8 @@ def _theta_stage(problem: ODEProblem, t: float, c: float, y_base: np.ndarray) ->
 
 
 #: The implicit solver's own settings (``pl.solvers.MinimizerOptions``, ``ForceSolver(minimizer=...)``), which
-#: the implicit integrators still accept as keywords, deprecated: they choose how a step is minimised, not
-#: what the step is.
+#: the implicit integrators took as keywords until issue 40 removed them (they choose how a step is
+#: minimised, not what the step is): named here only so that giving one says where it went.
 MINIMIZER_SETTINGS = (
     "linear_solver",
     "cg_tol",
@@ -92,12 +91,9 @@ MINIMIZER_SETTINGS = (
 @dataclass(frozen=True)
 class ImplicitOptions:
     """What an implicit step solves to and how accurately, defined and validated once (integrators and
-    minimisers). How it is minimised is the solver's (``pl.solvers.MinimizerOptions``).
-
-    The minimiser's settings (``linear_solver``, ``cg_tol``, ``cg_max_iterations``, ``method`` and the
-    ``lbfgs_*`` ones) are fields here too, deprecated, None when not given: pass them to the solver
-    (``ForceSolver(minimizer=...)``; in a scene file ``[solver] options = { minimizer = { ... } }``). Given
-    here they still apply, with a DeprecationWarning, and the solver validates them.
+    minimisers). How it is minimised is the solver's (``pl.solvers.MinimizerOptions``): its settings
+    (``method``, ``linear_solver``, ``cg_*``, ``lbfgs_*``) given here are an error saying so
+    (:meth:`moved`).
 
     Attributes:
         newton_tol: tolerance [m/s] on ‖Δx‖∞/h and on max_i |∇Φ_i|/(m_i h) (> 0): a velocity error per
@@ -110,17 +106,8 @@ class ImplicitOptions:
 
     newton_tol: float = 1e-5
     max_newton_iterations: int = 20
-    linear_solver: str | None = None
-    cg_tol: float | None = None
-    cg_max_iterations: int | None = None
     project_psd: bool | str = True
     max_line_search: int = 20
-    method: str | None = None
-    lbfgs_history: int | None = None
-    lbfgs_max_iterations: int | None = None
-    lbfgs_refresh: int | None = None
-    lbfgs_warm_start: bool | None = None
-    lbfgs_h0: str | None = None
 
     def __post_init__(self) -> None:
         def positive(name: str, unit: str = "") -> None:
@@ -138,24 +125,27 @@ class ImplicitOptions:
         count("max_line_search", 0)
         if not (self.project_psd is True or self.project_psd is False or self.project_psd == "auto"):
             raise ValueError(f"project_psd must be True, False or 'auto', got {self.project_psd!r}")
-        given = self.minimizer_settings()
-        if given:
-            spelled = ", ".join(f"{k}={v!r}" for k, v in given.items())
-            warnings.warn(
-                f"{', '.join(given)} are the implicit solver's settings now, not the integrator's: pass "
-                f"ForceSolver(..., minimizer=pl.solvers.MinimizerOptions({spelled})) (in a scene file, "
-                f"[solver] options = {{ minimizer = {{ ... }} }} instead of integrator_options)",
-                DeprecationWarning,
-                stacklevel=5,
-            )
 
-    def minimizer_settings(self) -> dict[str, Any]:
-        """The (deprecated) minimiser settings given here: name → value, those left None omitted."""
-        return {k: getattr(self, k) for k in MINIMIZER_SETTINGS if getattr(self, k) is not None}
+    @staticmethod
+    def moved(names: Iterable[str]) -> str | None:
+        """Where the minimiser settings among ``names`` went (the error for giving them to an integrator),
+        or None when there are none."""
+        gone = [k for k in names if k in MINIMIZER_SETTINGS]
+        if not gone:
+            return None
+        spelled = ", ".join(f"{k}=..." for k in gone)
+        return (
+            f"{', '.join(gone)}: the implicit solver's settings, not the integrator's; pass "
+            f"ForceSolver(..., minimizer=pl.solvers.MinimizerOptions({spelled})) (in a scene file, "
+            "[solver] options = { minimizer = { ... } }, not integrator_options)"
+        )
 
     @classmethod
     def create(cls, owner: str = "the implicit step", **options: Any) -> ImplicitOptions:
         """Options from keyword arguments; an unknown name is a ValueError listing the known ones."""
+        moved = cls.moved(options)
+        if moved:
+            raise ValueError(f"{owner}: {moved}")
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(options) - known)
         if unknown:
@@ -190,7 +180,7 @@ class _ImplicitOptions:
     """The implicit integrators' settings: an :class:`ImplicitOptions` handed to ``system.minimize``."""
 
     #: Gradients through the physical path: the adjoint of each step's minimisation
-    #: (``pliant.solvers.implicit._adjoint``), recorded on an active ``wp.Tape``.
+    #: (``pliant.solvers.minimizers._adjoint``), recorded on an active ``wp.Tape``.
     differentiable: ClassVar[bool] = True
     #: The keyword options ``__init__(**options)`` accepts: the fields of this dataclass (scene files check
     #: ``integrator_options`` against them).
@@ -252,8 +242,8 @@ class BackwardEuler(_ImplicitOptions, Integrator):
             about half the iterations on a falling cloth, but it can stall unconverged on FEM contact).
         max_line_search: step halvings allowed per iteration.
 
-    The minimiser's settings (``method``, ``linear_solver``, ``lbfgs_*``, ...) are still accepted here,
-    deprecated; they are the solver's: ``ForceSolver(..., minimizer=pl.solvers.MinimizerOptions(...))``.
+    The minimiser's settings (``method``, ``linear_solver``, ``lbfgs_*``, ...) are the solver's:
+    ``ForceSolver(..., minimizer=pl.solvers.MinimizerOptions(...))``; given here they are an error.
 
     Example::
 

@@ -128,6 +128,13 @@ def _type_problem(p: inspect.Parameter, value: object) -> str | None:
     return None
 
 
+def _moved(target: Any, key: str) -> str | None:
+    """Where option ``key`` of ``target`` went, when its options dataclass says (``options_type.moved``:
+    the implicit integrators' former minimiser settings), else None."""
+    moved = getattr(getattr(target, "options_type", None), "moved", None)
+    return moved([key]) if moved is not None else None
+
+
 def check_options(
     options: dict[str, Any], target: Any, at: str, what: str, reserved: tuple[str, ...] = ()
 ) -> list[tuple[str, str]]:
@@ -138,6 +145,8 @@ def check_options(
     for key, value in options.items():
         if key in reserved or key == "model":
             out.append((f"{at}.{key}", f"{key!r} is set by the scene itself, not through {at}; remove it"))
+        elif key not in accepted and _moved(target, key):
+            out.append((f"{at}.{key}", str(_moved(target, key))))
         elif key not in accepted:
             near = difflib.get_close_matches(str(key), allowed, n=1)
             hint = f"did you mean {near[0]!r}? " if near else ""

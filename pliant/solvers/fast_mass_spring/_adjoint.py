@@ -4,7 +4,7 @@ The step solves A(p) Δv = b(p) with A = M + hD + h²K and b = h(f(xⁿ, vⁿ) �
 v₁ = δ(vⁿ + Δv), x₁ = xⁿ + h v₁ (``_solver``). With the residual R(p, Δv) = b(p) − A(p) Δv = 0,
 dΔv/dp = A⁻¹ ∂R/∂p, so for an upstream cotangent Δv̄ the inputs get p̄ = λᵀ ∂R/∂p with A λ = Δv̄ (A is
 symmetric): one extra linear solve per step, as for the implicit integrators
-(:mod:`pliant.solvers.implicit._adjoint`), not a differentiation of the CG iterations. λᵀ ∂R/∂p is Warp's
+(:mod:`pliant.solvers.minimizers._adjoint`), not a differentiation of the CG iterations. λᵀ ∂R/∂p is Warp's
 autodiff of the residual kernels below, launched under a local tape at the step's Δv and back-propagated
 with the seed λ. The parameters p are the
 step's input state, the springs' rest length, stiffness and dashpot γ, the masses, gravity and

@@ -1,5 +1,5 @@
 """The generic force-based solver: every energy term and any integrator, explicit or implicit (an implicit
-step's minimisation is :mod:`pliant.solvers.implicit`'s)."""
+step's minimisation is :mod:`pliant.solvers.minimizers`'s)."""
 
 from ._solver import ForceSolver
 

@@ -13,12 +13,12 @@ from ..._warp import GradientError, fresh, grad_enabled, launch
 from ...collision import ground_coefficients
 from ...energies import Energy, Gravity, GravityFromArray, GroundPenalty, ground_penalty, mass_spring
 from ...energies._base import _axpy
-from ...integrators import ImplicitOptions, Integrator, SymplecticEuler
+from ...integrators import Integrator, SymplecticEuler
 from ...model import Control, Model, State
 from ...model._parameters import Parameter, declares
 from .._base import DAMPING_RATE, Solver
 from .._post import add_drag_force, check_collisions, finish_step
-from ..implicit import (
+from ..minimizers import (
     DeviceNewtonStats,
     MinimizerCache,
     MinimizerOptions,
@@ -31,7 +31,6 @@ from ..implicit import (
     lbfgs_restore_checkpoint_state,
     minimize,
     resolve_method,
-    step_settings,
 )
 
 
@@ -71,7 +70,7 @@ class ForceSolver(Solver):
             ``apply(model, state_in, state_out, dt)`` (``pl.collision.Colliders``, ``SelfCollision``).
         minimizer: how an implicit integrator's steps are minimised: a
             :class:`pliant.solvers.MinimizerOptions` or a dict of its settings (``{"method": "lbfgs"}``);
-            None: the defaults (Newton), or the minimiser keywords the integrator was given (deprecated).
+            None: the defaults (Newton).
 
     Example::
 
@@ -159,11 +158,8 @@ class ForceSolver(Solver):
         self.last_stats: NewtonStats | DeviceNewtonStats | None = None
         #: What the implicit minimisers keep between steps (Hessian pattern, L-BFGS pairs and warm start).
         self.minimizer_cache = MinimizerCache()
-        implicit = getattr(self.integrator, "options", None)
-        implicit = implicit if isinstance(implicit, ImplicitOptions) else None
-        #: How implicit steps are minimised (:class:`MinimizerOptions`): ``minimizer``, merged with the
-        #: minimiser keywords of the integrator (deprecated; validated here, before any step).
-        self.minimizer = step_settings(implicit, minimizer)[1]
+        #: How implicit steps are minimised (:class:`MinimizerOptions`; validated here, before any step).
+        self.minimizer = MinimizerOptions.coerce(minimizer)
 
     # ------------------------------------------------------------------ System interface
     @property

@@ -39,13 +39,12 @@ import warp as wp
 from ..._blas import single_threaded
 from ..._warp import GradientError, _tape_active, active_tape, launch, tape_paused
 from .._post import drag_force
-from ._assembly import _assemble, _inverse_diagonal, control_of
-from ._workspace import _workspace
+from ._assembly import _inverse_diagonal, assemble, control_of
+from ._problem import workspace_of
 
 if TYPE_CHECKING:
     from ...model import Model
-    from ._assembly import PotentialProblem
-    from ._workspace import _Workspace
+    from ._problem import PotentialProblem, Workspace
 
 
 def _recording(model: Model) -> wp.Tape | None:
@@ -161,8 +160,8 @@ class _StepAdjoint:
                 if e.dissipative:
                     e.begin_step(m, self.x_ref, self.v_ref, self.h)
         with tape_paused():
-            ws = _workspace(self.problem)
-            _assemble(self.problem, ws, self.x_out, self.h, False, control=self.drag is not None)
+            ws = workspace_of(self.problem)
+            assemble(self.problem, ws, self.x_out, self.h, False, control=self.drag is not None)
             rhs = np.where(free[:, None], xbar, 0.0)
             w = self._solve(ws, rhs)
             x_c = wp.clone(self.x_out, requires_grad=True)
@@ -194,7 +193,7 @@ class _StepAdjoint:
             g[fixed] += (xbar[fixed] + x_c.grad.numpy()[fixed].astype(np.float64)).astype(g.dtype)
             self.x_tilde.grad.assign(g)
 
-    def _solve(self, ws: _Workspace, rhs: np.ndarray) -> np.ndarray:
+    def _solve(self, ws: Workspace, rhs: np.ndarray) -> np.ndarray:
         """w = H⁻¹ rhs with the exact Hessian in ``ws`` (SciPy sparse LU on the CPU, Warp CG on a GPU)."""
         m = self.model
         n = m.particle_count

@@ -1,26 +1,34 @@
-"""The implicit minimisers' per-problem storage: the Hessian pattern and Newton vectors (:class:`_Workspace`),
-the linear solves on it, and :class:`MinimizerCache`, the declared object that keeps them (and L-BFGS's
-state) from one step to the next.
+"""The minimisers' bottom module: the types every other module of the package reads, and none it imports.
 
-Who owns what: a problem (``ForceSolver``, see :class:`pliant.solvers.implicit.PotentialProblem`) declares a
-``minimizer_cache`` attribute; Newton, L-BFGS and the step adjoint read and fill it through
-:func:`cache_of`, and nothing else is stored on the problem. ``ForceSolver.reset`` and its checkpoints call
-the cache's :meth:`MinimizerCache.reset` and L-BFGS's checkpoint functions on it.
+* :class:`PotentialProblem`: what a minimiser reads from the solver that owns the step (model, energies,
+  control) and writes (``last_stats``);
+* :class:`Workspace`: the per-problem storage (the Hessian's BSR pattern, Newton and CG vectors) and the
+  host linear solves on it; :class:`MinimizerCache`, the declared object that keeps it (and L-BFGS's and
+  the device Newton's state) from one step to the next;
+* :class:`NewtonStats` and :class:`DeviceNewtonStats`: what one minimisation did.
+
+Who owns what: a problem (``ForceSolver``) declares a ``minimizer_cache`` attribute; the minimisers and the
+step adjoint read and fill it through :func:`cache_of`, and nothing else is stored on the problem.
+``ForceSolver.reset`` and its checkpoints call the cache's :meth:`MinimizerCache.reset` and the
+minimisers' checkpoint functions on it. Below it are only leaves: ``_slots`` (the device Newton's state
+slots), ``_pcg_kernels`` (its CG counters) and ``_band_order``.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import warp as wp
 
+from ._pcg_kernels import TOTAL as CG_TOTAL
+from ._slots import BACKTRACKS, CONVERGED, GNORM, ITER, RESIDUALS, STEP_NORM, STEPS, TOL, TOTAL
+
 if TYPE_CHECKING:
     from warp.optim.linear import CG
 
-    from ...model import Model
-    from ._assembly import PotentialProblem
-    from ._pcg import _DeviceNewton
+    from ...model import Control, Model
 
 
 def _key(model: Model, energies: list) -> tuple:
@@ -29,7 +37,7 @@ def _key(model: Model, energies: list) -> tuple:
     return (id(model), tuple(id(e) for e in energies), versions)
 
 
-class _Workspace:
+class Workspace:
     """Everything allocated once per (model, energies): the BSR pattern, slots, Newton vectors, CG state."""
 
     def __init__(self, model: Model, energies: list) -> None:
@@ -99,7 +107,7 @@ class _Workspace:
 
     def band_order(self) -> tuple[np.ndarray, int]:
         """The particles' bandwidth-reducing order and its half-bandwidth in particles (computed once; see
-        :func:`pliant.solvers.implicit._band.band_order`)."""
+        :func:`pliant.solvers.minimizers._band.band_order`)."""
         if self._band is None:
             from ._band_order import band_order
 
@@ -129,7 +137,7 @@ class _Workspace:
         return self._cg
 
 
-def _resolve_linear_solver(name: str, model: Model) -> str:
+def resolve_linear_solver(name: str, model: Model) -> str:
     if name == "auto":
         # The sparse LU stays the CPU default: "scipy-cg" (block-Jacobi CG on the host) is ~3x faster per
         # step on a 4k-DOF FEM box (12 ms vs 72 ms per solve) but its inexact directions stalled Newton just
@@ -138,7 +146,7 @@ def _resolve_linear_solver(name: str, model: Model) -> str:
     return name
 
 
-def _direct_solve(ws: _Workspace, model: Model) -> None:
+def direct_solve(ws: Workspace, model: Model) -> None:
     """Δx = −H⁻¹∇Φ by a SciPy sparse LU (float64 on the host; one copy each way)."""
     import scipy.sparse as sp
     from scipy.sparse.linalg import splu
@@ -153,7 +161,7 @@ def _direct_solve(ws: _Workspace, model: Model) -> None:
     ws.dx.assign(dx.reshape(n, 3).astype(ws.np_dtype))
 
 
-def _host_cg_solve(ws: _Workspace, model: Model, rtol: float, maxiter: int) -> int:
+def host_cg_solve(ws: Workspace, model: Model, rtol: float, maxiter: int) -> int:
     """Δx = −H⁻¹∇Φ by SciPy CG with a 3×3 block-Jacobi preconditioner (float64, host); returns iterations."""
     import scipy.sparse as sp
     from scipy.sparse.linalg import LinearOperator, cg
@@ -178,29 +186,43 @@ def _host_cg_solve(ws: _Workspace, model: Model, rtol: float, maxiter: int) -> i
     return count[0]
 
 
+class DeviceNewtonBuffers(Protocol):
+    """What the cache and :class:`DeviceNewtonStats` read of the device Newton's buffers (``_pcg``'s
+    ``_DeviceNewton``): its key, linear solver, float64 scalars, int32 counters and residuals."""
+
+    key: tuple
+    band: bool
+    cg: Any
+    state: wp.array
+    counts: wp.array
+    residuals: wp.array
+
+    def reset(self) -> None: ...
+
+
 class MinimizerCache:
     """What Newton and L-BFGS keep between the steps of one problem.
 
     Attributes:
-        newton: the :class:`_Workspace` (BSR pattern, slots, Newton and CG vectors) of the last
+        newton: the :class:`Workspace` (BSR pattern, slots, Newton and CG vectors) of the last
             (model, energies) it was built for, or None before the first implicit step.
         lbfgs: L-BFGS's state for that workspace, ``(workspace, lagged H₀, curvature history, warm-start
-            memo)`` (see :mod:`pliant.solvers.implicit._quasi_newton`), or None before its first step.
+            memo)`` (see :mod:`pliant.solvers.minimizers._quasi_newton`), or None before its first step.
     """
 
     def __init__(self) -> None:
-        self.newton: _Workspace | None = None
+        self.newton: Workspace | None = None
         self.lbfgs: tuple[Any, Any, Any, dict] | None = None
         #: The device Newton's buffers (``linear_solver="pcg"``, :mod:`._pcg`), or None before its first step.
-        self.pcg: _DeviceNewton | None = None
+        self.pcg: DeviceNewtonBuffers | None = None
         #: A checkpoint's band-Newton state not yet taken by a band Newton (:mod:`._band`), or None.
         self.band_state: dict[str, np.ndarray] | None = None
 
-    def workspace(self, model: Model, energies: list) -> _Workspace:
+    def workspace(self, model: Model, energies: list) -> Workspace:
         """The workspace of (``model``, ``energies``), built on first use and when either changes."""
         key = _key(model, energies)
         if self.newton is None or self.newton.key != key:
-            self.newton = _Workspace(model, energies)
+            self.newton = Workspace(model, energies)
         return self.newton
 
     def reset(self) -> None:
@@ -222,6 +244,125 @@ def cache_of(problem: object) -> MinimizerCache:
     return cache if cache is not None else MinimizerCache()
 
 
-def _workspace(problem: PotentialProblem) -> _Workspace:
+def workspace_of(problem: PotentialProblem) -> Workspace:
     """The Newton workspace of ``problem``'s model and energies (kept in its cache)."""
     return cache_of(problem).workspace(problem.model, problem.energies)
+
+
+class PotentialProblem(Protocol):
+    """What the minimisers (Newton, L-BFGS) and the step adjoint read from the solver that owns the step.
+
+    ``model`` (masses, device, dtype), ``energies`` (the terms of Φ; their ``dissipative`` ones get
+    ``begin_step``) and ``control`` (the step's Control: external forces as −f·x, the drag handle as
+    ½k|x − target|², or None). Results go to ``last_stats``.
+    """
+
+    model: Model
+    energies: list
+    last_stats: NewtonStats | DeviceNewtonStats | None
+    #: Optional: where the minimisers keep their workspace and L-BFGS's state between steps
+    #: (:class:`~pliant.solvers.minimizers.MinimizerCache`); without it nothing is reused.
+    minimizer_cache: MinimizerCache
+
+    @property
+    def control(self) -> Control | None: ...
+
+
+def needs_feasible_start(problem: PotentialProblem) -> bool:
+    """Whether an energy of ``problem`` asks to start from the step's start positions (``feasible_start``:
+    barrier contact, infinite where x̃ may intersect) rather than from x̃."""
+    return any(getattr(e, "feasible_start", False) for e in problem.energies)
+
+
+@dataclass
+class NewtonStats:
+    """What one minimisation did (``solver.last_stats`` after an implicit step).
+
+    Attributes:
+        iterations: Newton iterations (linear solves) performed.
+        converged: whether the step (or the gradient) fell below ``newton_tol``.
+        step_norm: ‖Δx‖∞/h of the last Newton step [m/s] (0 when none was taken).
+        gradient_norm: max_i |∇Φ_i|/(m_i h) at the returned positions [m/s] (free particles).
+        residuals: ``gradient_norm`` at the start of every iteration and at the end [m/s].
+        line_search_backtracks: total step halvings in the Armijo line search.
+        linear_iterations: total CG iterations (0 for the direct solver; for L-BFGS, the steps that
+            refactorised its initial Hessian).
+        linear_solver: "cg" or "direct".
+        tolerance: the tolerance used [m/s] (``newton_tol``, raised to the round-off floor of the dtype).
+        projected: whether PSD-projected Hessians were used (always with ``project_psd=True``; with "auto"
+            after an exact Hessian failed to give a descent direction).
+    """
+
+    iterations: int = 0
+    converged: bool = False
+    step_norm: float = 0.0
+    gradient_norm: float = float("nan")
+    residuals: list[float] = field(default_factory=list)
+    line_search_backtracks: int = 0
+    linear_iterations: int = 0
+    linear_solver: str = ""
+    tolerance: float = 0.0
+    projected: bool = False
+    warm_started: bool = False
+
+
+class DeviceNewtonStats:
+    """:class:`~pliant.solvers.minimizers.NewtonStats` of the latest device-Newton step, read from the device
+    when an attribute is asked for (one host read each; a replayed graph updates them too)."""
+
+    def __init__(self, dn: DeviceNewtonBuffers, projected: bool) -> None:
+        self._dn = dn
+        self.projected = projected
+        self.warm_started = False
+        #: "pcg" (block-Jacobi CG) or "band" (the banded LDLᵀ of :mod:`._band`).
+        self.linear_solver = "band" if dn.band else "pcg"
+
+    def _counts(self) -> np.ndarray:
+        return self._dn.counts.numpy()
+
+    def totals(self) -> tuple[int, int, int]:
+        """(steps, Newton iterations, CG iterations) over the solver's life, replayed steps included (two
+        host reads)."""
+        c = self._counts()
+        return int(c[STEPS]), int(c[TOTAL]), int(self._dn.cg.counts.numpy()[CG_TOTAL])
+
+    @property
+    def iterations(self) -> int:
+        """Newton iterations (linear solves) of the step."""
+        return int(self._counts()[ITER])
+
+    @property
+    def converged(self) -> bool:
+        """Whether the gradient fell below the tolerance."""
+        return bool(self._counts()[CONVERGED])
+
+    @property
+    def line_search_backtracks(self) -> int:
+        """Total step halvings of the line search."""
+        return int(self._counts()[BACKTRACKS])
+
+    @property
+    def linear_iterations(self) -> int:
+        """Total CG iterations of the step (0 for the direct band solve)."""
+        return self._dn.cg.iterations()
+
+    @property
+    def residuals(self) -> list[float]:
+        """max_i |∇Φ_i|/(m_i h) at the start and after every accepted iteration [m/s]."""
+        count = int(self._counts()[RESIDUALS])
+        return [float(v) for v in self._dn.residuals.numpy()[:count]]
+
+    @property
+    def tolerance(self) -> float:
+        """The tolerance used [m/s] (``newton_tol`` raised to the round-off floor)."""
+        return float(self._dn.state.numpy()[TOL])
+
+    @property
+    def step_norm(self) -> float:
+        """‖Δx‖∞/h of the last Newton step [m/s]."""
+        return float(self._dn.state.numpy()[STEP_NORM])
+
+    @property
+    def gradient_norm(self) -> float:
+        """max_i |∇Φ_i|/(m_i h) at the returned positions [m/s]."""
+        return float(self._dn.state.numpy()[GNORM])

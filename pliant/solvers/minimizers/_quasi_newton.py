@@ -1,6 +1,6 @@
 """L-BFGS on the incremental potential with a prefactored, lagged Hessian (Liu, Bouaziz, Kavan 2017).
 
-Same problem as :mod:`pliant.solvers.implicit._newton` — one implicit step minimises
+Same problem as :mod:`pliant.solvers.minimizers._newton` — one implicit step minimises
 
     Φ(x) = ½ ‖x − x̃‖²_M + h² Σ_e E_e(x)
 
@@ -40,11 +40,10 @@ import warp as wp
 from ..._warp import launch
 from .._errors import SingularSystemError
 from ._adjoint import differentiable
-from ._assembly import _assemble, _control_terms
+from ._assembly import assemble, control_terms, gradient
 from ._kernels import _trial_point
-from ._newton import NewtonStats, _gradient
 from ._options import step_settings
-from ._workspace import MinimizerCache, _Workspace, cache_of
+from ._problem import MinimizerCache, NewtonStats, Workspace, cache_of
 
 if TYPE_CHECKING:
     import scipy.sparse
@@ -52,8 +51,8 @@ if TYPE_CHECKING:
 
     from ...integrators._implicit import ImplicitOptionsLike
     from ...model import Model
-    from ._assembly import PotentialProblem
     from ._options import MinimizerLike
+    from ._problem import PotentialProblem
 
 
 def nested_dissection(points: np.ndarray, rows: np.ndarray, cols: np.ndarray, leaf: int = 32) -> np.ndarray:
@@ -101,7 +100,7 @@ def nested_dissection(points: np.ndarray, rows: np.ndarray, cols: np.ndarray, le
 class _LaggedHessian:
     """H₀ per axis: lagged energy Hessians + per-step contact terms, factorised by SciPy's SuperLU."""
 
-    def __init__(self, ws: _Workspace, model: Model, energies: list) -> None:
+    def __init__(self, ws: Workspace, model: Model, energies: list) -> None:
         n = model.particle_count
         self.n = n
         self.rows = np.repeat(np.arange(n, dtype=np.int32), np.diff(ws.indptr))
@@ -138,10 +137,10 @@ class _LaggedHessian:
         self.factorizations = 0
         self._ratio: float | None = None
 
-    def refresh(self, solver: PotentialProblem, ws: _Workspace, x: wp.array, h: float) -> None:
+    def refresh(self, solver: PotentialProblem, ws: Workspace, x: wp.array, h: float) -> None:
         """Assemble M + h² Σ_lagged H_e at x (PSD-projected, fixed rows m_i·I) and keep its axis values."""
         # The drag handle, like contact, switches on and off: L-BFGS learns it rather than H₀ lagging it.
-        _assemble(solver, ws, x, h, True, skip=frozenset(k for k, _ in self.volatile), control=False)
+        assemble(solver, ws, x, h, True, skip=frozenset(k for k, _ in self.volatile), control=False)
         vals = ws.values.numpy()[: ws.nnz]
         self.base = np.stack([vals[:, d, d].astype(np.float64) for d in range(3)])
         self.h = h
@@ -149,7 +148,7 @@ class _LaggedHessian:
         self.values = [None, None, None]  # the next update factorises every axis afresh
         self.lu = [None, None, None]
 
-    def update(self, solver: PotentialProblem, ws: _Workspace, x: wp.array, h: float) -> int:
+    def update(self, solver: PotentialProblem, ws: Workspace, x: wp.array, h: float) -> int:
         """Add the contact terms at x; refactorise an axis when its contact stiffness is not covered.
 
         Returns the number of factorisations. An axis keeps its factor while no entry of the new H₀ exceeds
@@ -302,7 +301,7 @@ class _History:
         return -r
 
 
-def _state(cache: MinimizerCache, ws: _Workspace, model: Model, energies: list):
+def _state(cache: MinimizerCache, ws: Workspace, model: Model, energies: list):
     """L-BFGS's (lagged H₀, history, warm-start memo) in ``cache``, new when the workspace changed."""
     st = cache.lbfgs
     if st is None or st[0] is not ws:
@@ -311,13 +310,13 @@ def _state(cache: MinimizerCache, ws: _Workspace, model: Model, energies: list):
     return st[1], st[2], st[3]
 
 
-def _energy(solver: PotentialProblem, ws: _Workspace, x: wp.array) -> float:
+def _energy(solver: PotentialProblem, ws: Workspace, x: wp.array) -> float:
     """Σ E(x) [J] with the Control's potentials (one host read)."""
     m = solver.model
     ws.tstats.zero_()
     for e in solver.energies:
         e.value(m, x, ws.tstats_e)
-    _control_terms(solver, ws, x, ws.egrad_scratch, ws.tstats_e)
+    control_terms(solver, ws, x, ws.egrad_scratch, ws.tstats_e)
     return float(ws.tstats.numpy()[1])
 
 
@@ -339,7 +338,7 @@ def minimize_quasi_newton(
 ) -> NewtonStats:
     """x_out = argmin_x ½‖x − x̃‖²_M + h² Σ E(x) by L-BFGS with a lagged, prefactored Hessian.
 
-    Arguments as :func:`pliant.solvers.implicit.minimize_incremental_potential`; ``minimizer`` also names
+    Arguments as :func:`pliant.solvers.minimizers.minimize_incremental_potential`; ``minimizer`` also names
     ``lbfgs_history`` (curvature pairs kept, default 8), ``lbfgs_max_iterations`` (default 200),
     ``lbfgs_refresh`` (re-assemble the lagged Hessian after a step that took more iterations than this,
     default 40) and ``lbfgs_warm_start`` (start from x̃ plus the correction x − x̃ extrapolated from the
@@ -376,14 +375,14 @@ def minimize_quasi_newton(
         # Φ(x̃) = h² E(x̃) needs no gradient; the warm start is kept when it lowers Φ.
         phi_tilde = h2 * _energy(solver, ws, x)
         ws.x_trial.assign((x.numpy() + correction).astype(ws.np_dtype, copy=False))
-        g = _gradient(solver, ws, ws.x_trial, x_tilde, h)
+        g = gradient(solver, ws, ws.x_trial, x_tilde, h)
         if _phi(g, h2) < phi_tilde:
             wp.copy(x, ws.x_trial)
             stats.warm_started = True
         else:
-            g = _gradient(solver, ws, x, x_tilde, h)
+            g = gradient(solver, ws, x, x_tilde, h)
     else:
-        g = _gradient(solver, ws, x, x_tilde, h)
+        g = gradient(solver, ws, x, x_tilde, h)
     stats.residuals.append(float(g[0]))
     if g[0] <= tol_opt:
         return _finish(solver, stats, memo, x, x_tilde, g, h)
@@ -427,7 +426,7 @@ def minimize_quasi_newton(
                 [m.particle_inv_mass, m.particle_mass, x, ws.dx, x_tilde, m.s(alpha), ws.x_trial, ws.tstats],
                 device=m.device,
             )
-            g_new = _gradient(solver, ws, ws.x_trial, x_tilde, h)
+            g_new = gradient(solver, ws, ws.x_trial, x_tilde, h)
             phi = _phi(g_new, h2)
             size = abs(g_new[2]) + h2 * abs(g_new[3]) + abs(phi0)
             if phi <= phi0 + 1e-4 * alpha * gdx + 64.0 * eps * size:
@@ -443,7 +442,7 @@ def minimize_quasi_newton(
             stats.line_search_backtracks += 1
         if not accepted:
             # ws.grad holds a rejected trial's gradient: recompute it at x before trying again.
-            g = _gradient(solver, ws, x, x_tilde, h)
+            g = gradient(solver, ws, x, x_tilde, h)
             grad = ws.grad.numpy().astype(np.float64).reshape(n, 3)
             if restarted or not hist.s:
                 break  # no decrease along H₀'s own direction: at the round-off floor

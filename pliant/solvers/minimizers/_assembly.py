@@ -1,7 +1,7 @@
 """The incremental potential's Hessian assembly and the step's Control terms, shared by the minimisers
 (Newton, L-BFGS, the static solve) and the step adjoint.
 
-H = M + h² Σ H_e on the fixed BSR(3×3) pattern of :mod:`._workspace` (every energy's blocks atomically added
+H = M + h² Σ H_e on the fixed BSR(3×3) pattern of :mod:`.workspace_of` (every energy's blocks atomically added
 into their value slots), the drag handle's spring, and fixed particles projected out (m_i·I on their
 diagonal, zero elsewhere). The Control's external forces f enter Φ as the potential −f·x and its drag handle
 as ½k|x − target|². Here, below both the minimisers and the adjoint, so that each imports it at module top
@@ -10,18 +10,19 @@ and neither imports the other.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
+import numpy as np
 import warp as wp
 
 from ..._warp import launch
 from .._post import drag_force, drag_hessian
-from ._workspace import MinimizerCache, _Workspace
+from ._kernels import _incremental_gradient
+from ._problem import Workspace
 
 if TYPE_CHECKING:
-    from ...model import Control, Model
-    from ._newton import NewtonStats
-    from ._pcg import DeviceNewtonStats
+    from ...model import Control
+    from ._problem import PotentialProblem
 
 
 @wp.kernel(enable_backward=False)
@@ -114,23 +115,19 @@ def _drag_terms(
         values_out[s] = values_out[s] + scale * drag_hessian(target, stiffness, max_force, x)
 
 
-class PotentialProblem(Protocol):
-    """What the minimisers (Newton, L-BFGS) and the step adjoint read from the solver that owns the step.
-
-    ``model`` (masses, device, dtype), ``energies`` (the terms of Φ; their ``dissipative`` ones get
-    ``begin_step``) and ``control`` (the step's Control: external forces as −f·x, the drag handle as
-    ½k|x − target|², or None). Results go to ``last_stats``.
-    """
-
-    model: Model
-    energies: list
-    last_stats: NewtonStats | DeviceNewtonStats | None
-    #: Optional: where the minimisers keep their workspace and L-BFGS's state between steps
-    #: (:class:`~pliant.solvers.implicit.MinimizerCache`); without it nothing is reused.
-    minimizer_cache: MinimizerCache
-
-    @property
-    def control(self) -> Control | None: ...
+@wp.kernel(enable_backward=False)
+def stiffness_ratio(
+    inv_mass: wp.array(dtype=Any),
+    diag_slots: wp.array(dtype=wp.int32),
+    values: wp.array(dtype=Any),
+    ratio_out: wp.array(dtype=Any),
+):
+    # max_i trace(H_ii)/(3 m_i) = 1 + h² K_ii/m_i: how much one ulp of position moves the scaled gradient.
+    i = wp.tid()
+    if inv_mass[i] == type(inv_mass[i])(0.0):
+        return
+    b = values[diag_slots[i]]
+    wp.atomic_max(ratio_out, 0, (b[0, 0] + b[1, 1] + b[2, 2]) * inv_mass[i] / type(inv_mass[i])(3.0))
 
 
 def control_of(problem: PotentialProblem) -> Control | None:
@@ -138,8 +135,8 @@ def control_of(problem: PotentialProblem) -> Control | None:
     return problem.control
 
 
-def _control_terms(
-    solver: PotentialProblem, ws: _Workspace, x: wp.array, grad: wp.array, value: wp.array
+def control_terms(
+    solver: PotentialProblem, ws: Workspace, x: wp.array, grad: wp.array, value: wp.array
 ) -> None:
     """Add the Control's external forces and drag handle (as potentials) into ``grad`` and ``value``."""
     c = control_of(solver)
@@ -168,9 +165,9 @@ def _control_terms(
         )
 
 
-def _assemble(
+def assemble(
     solver: PotentialProblem,
-    ws: _Workspace,
+    ws: Workspace,
     x: wp.array,
     h: float,
     project_psd: bool,
@@ -213,5 +210,31 @@ def _assemble(
         _project_fixed,
         ws.nnz,
         [m.particle_inv_mass, m.particle_mass, ws.block_rows, ws.block_cols, ws.values],
+        device=m.device,
+    )
+
+
+def gradient(solver: PotentialProblem, ws: Workspace, x: wp.array, x_tilde: wp.array, h: float) -> np.ndarray:
+    """∇Φ(x) into ws.grad (fixed rows zeroed); returns [max|g|/(m h), max|x|, inertia, E] (one host read)."""
+    launch_gradient(solver, ws, x, x_tilde, h)
+    return ws.gstats.numpy().astype(np.float64)
+
+
+def launch_gradient(
+    solver: PotentialProblem, ws: Workspace, x: wp.array, x_tilde: wp.array, h: float
+) -> None:
+    """∇Φ(x) into ws.grad (fixed rows zeroed) and [max|g|/(m h), max|x|, inertia, E] into ws.gstats."""
+    m = solver.model
+    n = m.particle_count
+    ws.egrad.zero_()
+    ws.gstats.zero_()
+    for e in solver.energies:
+        e.value_and_gradient(m, x, ws.gstats_e, ws.egrad)
+    control_terms(solver, ws, x, ws.egrad, ws.gstats_e)
+    launch(
+        _incremental_gradient,
+        n,
+        [m.particle_mass, m.particle_inv_mass, x, x_tilde, ws.egrad, m.s(h * h), m.s(1.0 / h), ws.grad]
+        + [ws.gstats],
         device=m.device,
     )

@@ -1,7 +1,7 @@
 """Newton's method with every decision on the device (``MinimizerOptions(linear_solver="pcg")``): a step is
 a fixed program of launches, replayable as a CUDA (or Warp CPU) graph, with no host read inside it.
 
-The iteration is :func:`pliant.solvers.implicit.minimize_incremental_potential`'s (same gradient, assembly,
+The iteration is :func:`pliant.solvers.minimizers.minimize_incremental_potential`'s (same gradient, assembly,
 round-off floor of the tolerance, step bound, Armijo line search and stopping rules), with three changes
 that keep the host out of the loop:
 
@@ -31,11 +31,11 @@ import warp as wp
 from ..._warp import launch
 from . import _pcg_kernels as K
 from ._adjoint import differentiable
-from ._assembly import _assemble, _control_terms
+from ._assembly import assemble, control_terms, launch_gradient, stiffness_ratio
 from ._band import BandLDL
 from ._kernels import _step_stats, trial_point
-from ._newton import _launch_gradient, _stiffness_ratio
 from ._options import band_solve, step_settings
+from ._problem import DeviceNewtonStats, Workspace, cache_of, workspace_of
 from ._slots import (
     ACCEPTED,
     ALPHA,
@@ -51,14 +51,13 @@ from ._slots import (
     TOTAL,
     TRIALS,
 )
-from ._workspace import _Workspace, _workspace, cache_of
 
 if TYPE_CHECKING:
     from ...energies import Energy
     from ...integrators._implicit import ImplicitOptionsLike
     from ...model import Model
-    from ._assembly import PotentialProblem
     from ._options import MinimizerLike
+    from ._problem import PotentialProblem
 
 #: CG iterations per chunk (even: the two search-direction buffers alternate and a chunk ends where it
 #: began). A chunk's iterations past convergence are frozen launches; launched directly, each chunk costs one
@@ -259,7 +258,7 @@ class DeviceCG:
         reduction: how the dot products reduce, one of :data:`REDUCTIONS` (None: :data:`REDUCTION`).
     """
 
-    def __init__(self, model: Model, ws: _Workspace, reduction: str | None = None) -> None:
+    def __init__(self, model: Model, ws: Workspace, reduction: str | None = None) -> None:
         n, d, v3 = model.particle_count, model.device, model.vec3
         reduction = REDUCTION if reduction is None else reduction
         if reduction not in REDUCTIONS:
@@ -333,10 +332,12 @@ class _DeviceNewton:
     """The device Newton's buffers for one workspace: the linear solver (CG, or the banded LDLᵀ with
     ``band``), flags, float64 scalars, counters, residuals."""
 
-    def __init__(self, model: Model, ws: _Workspace, max_iterations: int, band: bool = False) -> None:
+    def __init__(self, model: Model, ws: Workspace, max_iterations: int, band: bool = False) -> None:
         d = model.device
         self.ws = ws
         self.key = (id(ws), max_iterations, band)
+        #: The banded LDLᵀ (True) or block-Jacobi CG (False).
+        self.band = band
         self.cg: DeviceCG | BandLDL = BandLDL(model, ws) if band else DeviceCG(model, ws)
         self.state = wp.zeros(5, dtype=wp.float64, device=d)
         self.counts = wp.zeros(8, dtype=wp.int32, device=d)
@@ -352,77 +353,16 @@ class _DeviceNewton:
 
 
 def _device_newton(
-    problem: PotentialProblem, ws: _Workspace, max_iterations: int, band: bool = False
+    problem: PotentialProblem, ws: Workspace, max_iterations: int, band: bool = False
 ) -> _DeviceNewton:
     cache = cache_of(problem)
     dn = cache.pcg
-    if dn is None or dn.key != (id(ws), max_iterations, band):
-        dn = cache.pcg = _DeviceNewton(problem.model, ws, max_iterations, band)
+    if not isinstance(dn, _DeviceNewton) or dn.key != (id(ws), max_iterations, band):
+        dn = _DeviceNewton(problem.model, ws, max_iterations, band)
+        cache.pcg = dn
     if isinstance(dn.cg, BandLDL):
         dn.cg.take_state(cache)  # a checkpoint's, restored before this first step
     return dn
-
-
-class DeviceNewtonStats:
-    """:class:`~pliant.solvers.implicit.NewtonStats` of the latest device-Newton step, read from the device
-    when an attribute is asked for (one host read each; a replayed graph updates them too)."""
-
-    def __init__(self, dn: _DeviceNewton, projected: bool) -> None:
-        self._dn = dn
-        self.projected = projected
-        self.warm_started = False
-        #: "pcg" (block-Jacobi CG) or "band" (the banded LDLᵀ of :mod:`._band`).
-        self.linear_solver = "band" if isinstance(dn.cg, BandLDL) else "pcg"
-
-    def _counts(self) -> np.ndarray:
-        return self._dn.counts.numpy()
-
-    def totals(self) -> tuple[int, int, int]:
-        """(steps, Newton iterations, CG iterations) over the solver's life, replayed steps included (two
-        host reads)."""
-        c = self._counts()
-        return int(c[STEPS]), int(c[TOTAL]), int(self._dn.cg.counts.numpy()[K.TOTAL])
-
-    @property
-    def iterations(self) -> int:
-        """Newton iterations (linear solves) of the step."""
-        return int(self._counts()[ITER])
-
-    @property
-    def converged(self) -> bool:
-        """Whether the gradient fell below the tolerance."""
-        return bool(self._counts()[CONVERGED])
-
-    @property
-    def line_search_backtracks(self) -> int:
-        """Total step halvings of the line search."""
-        return int(self._counts()[BACKTRACKS])
-
-    @property
-    def linear_iterations(self) -> int:
-        """Total CG iterations of the step (0 for the direct band solve)."""
-        return self._dn.cg.iterations()
-
-    @property
-    def residuals(self) -> list[float]:
-        """max_i |∇Φ_i|/(m_i h) at the start and after every accepted iteration [m/s]."""
-        count = int(self._counts()[RESIDUALS])
-        return [float(v) for v in self._dn.residuals.numpy()[:count]]
-
-    @property
-    def tolerance(self) -> float:
-        """The tolerance used [m/s] (``newton_tol`` raised to the round-off floor)."""
-        return float(self._dn.state.numpy()[TOL])
-
-    @property
-    def step_norm(self) -> float:
-        """‖Δx‖∞/h of the last Newton step [m/s]."""
-        return float(self._dn.state.numpy()[STEP_NORM])
-
-    @property
-    def gradient_norm(self) -> float:
-        """max_i |∇Φ_i|/(m_i h) at the returned positions [m/s]."""
-        return float(self._dn.state.numpy()[GNORM])
 
 
 def host_bound_energies(energies: list, model: Model, x: wp.array, dx: wp.array, bound: wp.array) -> list:
@@ -463,13 +403,13 @@ def minimize_device(
 ) -> DeviceNewtonStats:
     """x_out = argmin Φ by Newton with device-side PCG, line search and stopping tests (see the module).
 
-    Arguments as :func:`~pliant.solvers.implicit.minimize_incremental_potential`; the minimiser's
+    Arguments as :func:`~pliant.solvers.minimizers.minimize_incremental_potential`; the minimiser's
     ``cg_tol`` and ``cg_max_iterations`` set the CG. Returns (and stores in ``solver.last_stats``) a
     :class:`DeviceNewtonStats`, which reads the device only when asked.
     """
     m = solver.model
     n, d = m.particle_count, m.device
-    ws = _workspace(solver)
+    ws = workspace_of(solver)
     opts, mz = step_settings(options, minimizer)
     max_it = int(opts.max_newton_iterations)
     dn = _device_newton(solver, ws, max_it, band_solve(mz, d))
@@ -486,9 +426,9 @@ def minimize_device(
     x = x_out
     band = dn.cg if isinstance(dn.cg, BandLDL) else None
     if band is None:
-        _launch_gradient(solver, ws, x, x_tilde, h)
+        launch_gradient(solver, ws, x, x_tilde, h)
     else:
-        band.warm_start(solver, x_tilde, x, h, lambda at: _launch_gradient(solver, ws, at, x_tilde, h))
+        band.warm_start(solver, x_tilde, x, h, lambda at: launch_gradient(solver, ws, at, x_tilde, h))
     launch(
         _newton_begin,
         1,
@@ -506,7 +446,7 @@ def minimize_device(
         )
         for e in solver.energies:
             e.value(m, ws.x_trial, ws.tstats_e)
-        _control_terms(solver, ws, ws.x_trial, ws.egrad_scratch, ws.tstats_e)
+        control_terms(solver, ws, ws.x_trial, ws.egrad_scratch, ws.tstats_e)
         launch(
             _search_check,
             1,
@@ -514,21 +454,21 @@ def minimize_device(
             device=d,
         )
 
-    def assemble() -> None:
-        _assemble(solver, ws, x, h, project)
-        launch(_stiffness_ratio, n, [m.particle_inv_mass, ws.diag_slots, ws.values, ws.hstats], device=d)
+    def reassemble() -> None:
+        assemble(solver, ws, x, h, project)
+        launch(stiffness_ratio, n, [m.particle_inv_mass, ws.diag_slots, ws.values, ws.hstats], device=d)
 
     def factor() -> None:
         # The band solve's factorisation, when its lagging rule asks (the ratio: the factor's Hessian's).
         assert band is not None  # launched only on the band solve's branch
         ws.hstats.zero_()
-        assemble()
+        reassemble()
         band.factor(h)
 
     def iteration() -> None:
         if band is None:
             launch(_newton_iteration, 1, [f64(h2), ws.gstats, dn.state, ws.hstats], device=d)
-            assemble()
+            reassemble()
         else:
             launch(_newton_iteration, 1, [f64(h2), ws.gstats, dn.state, band.ratio_scratch], device=d)
             band.iteration_begin(dn.state)
@@ -543,7 +483,7 @@ def minimize_device(
         launch(_search_begin, 1, [dn.bound, dn.state, dn.counts, ws.tstats, dn.go_search], device=d)
         wp.capture_while(dn.go_search, trial)
         launch(_take_step, n, [dn.counts, ws.x_trial, x], device=d)
-        _launch_gradient(solver, ws, x, x_tilde, h)
+        launch_gradient(solver, ws, x, x_tilde, h)
         launch(
             _newton_check,
             1,

@@ -29,116 +29,34 @@ Reference: D. Baraff, A. Witkin, "Large steps in cloth simulation", SIGGRAPH 199
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
 
 from ..._warp import launch
 from ._adjoint import differentiable
-from ._assembly import _assemble, _control_terms, _inverse_diagonal
-from ._kernels import _incremental_gradient, _negate, _step_stats, _toward, _trial_point
+from ._assembly import _inverse_diagonal, assemble, control_terms, gradient, stiffness_ratio
+from ._kernels import _negate, _step_stats, _toward, _trial_point
 from ._options import step_settings
-from ._workspace import (
-    _direct_solve,
-    _host_cg_solve,
-    _resolve_linear_solver,
-    _Workspace,
-    _workspace,
+from ._problem import (
+    NewtonStats,
+    Workspace,
+    direct_solve,
+    host_cg_solve,
+    needs_feasible_start,
+    resolve_linear_solver,
+    workspace_of,
 )
 
 if TYPE_CHECKING:
     from ...integrators._implicit import ImplicitOptionsLike
-    from ._assembly import PotentialProblem
     from ._options import MinimizerLike
-
-
-@dataclass
-class NewtonStats:
-    """What one minimisation did (``solver.last_stats`` after an implicit step).
-
-    Attributes:
-        iterations: Newton iterations (linear solves) performed.
-        converged: whether the step (or the gradient) fell below ``newton_tol``.
-        step_norm: ‖Δx‖∞/h of the last Newton step [m/s] (0 when none was taken).
-        gradient_norm: max_i |∇Φ_i|/(m_i h) at the returned positions [m/s] (free particles).
-        residuals: ``gradient_norm`` at the start of every iteration and at the end [m/s].
-        line_search_backtracks: total step halvings in the Armijo line search.
-        linear_iterations: total CG iterations (0 for the direct solver; for L-BFGS, the steps that
-            refactorised its initial Hessian).
-        linear_solver: "cg" or "direct".
-        tolerance: the tolerance used [m/s] (``newton_tol``, raised to the round-off floor of the dtype).
-        projected: whether PSD-projected Hessians were used (always with ``project_psd=True``; with "auto"
-            after an exact Hessian failed to give a descent direction).
-    """
-
-    iterations: int = 0
-    converged: bool = False
-    step_norm: float = 0.0
-    gradient_norm: float = float("nan")
-    residuals: list[float] = field(default_factory=list)
-    line_search_backtracks: int = 0
-    linear_iterations: int = 0
-    linear_solver: str = ""
-    tolerance: float = 0.0
-    projected: bool = False
-    warm_started: bool = False
-
-
-# ----------------------------------------------------------------------------------------------- kernels
-@wp.kernel(enable_backward=False)
-def _stiffness_ratio(
-    inv_mass: wp.array(dtype=Any),
-    diag_slots: wp.array(dtype=wp.int32),
-    values: wp.array(dtype=Any),
-    ratio_out: wp.array(dtype=Any),
-):
-    # max_i trace(H_ii)/(3 m_i) = 1 + h² K_ii/m_i: how much one ulp of position moves the scaled gradient.
-    i = wp.tid()
-    if inv_mass[i] == type(inv_mass[i])(0.0):
-        return
-    b = values[diag_slots[i]]
-    wp.atomic_max(ratio_out, 0, (b[0, 0] + b[1, 1] + b[2, 2]) * inv_mass[i] / type(inv_mass[i])(3.0))
-
-
-# ----------------------------------------------------------------------------------------------- Newton
-def _gradient(
-    solver: PotentialProblem, ws: _Workspace, x: wp.array, x_tilde: wp.array, h: float
-) -> np.ndarray:
-    """∇Φ(x) into ws.grad (fixed rows zeroed); returns [max|g|/(m h), max|x|, inertia, E] (one host read)."""
-    _launch_gradient(solver, ws, x, x_tilde, h)
-    return ws.gstats.numpy().astype(np.float64)
-
-
-def _launch_gradient(
-    solver: PotentialProblem, ws: _Workspace, x: wp.array, x_tilde: wp.array, h: float
-) -> None:
-    """∇Φ(x) into ws.grad (fixed rows zeroed) and [max|g|/(m h), max|x|, inertia, E] into ws.gstats."""
-    m = solver.model
-    n = m.particle_count
-    ws.egrad.zero_()
-    ws.gstats.zero_()
-    for e in solver.energies:
-        e.value_and_gradient(m, x, ws.gstats_e, ws.egrad)
-    _control_terms(solver, ws, x, ws.egrad, ws.gstats_e)
-    launch(
-        _incremental_gradient,
-        n,
-        [m.particle_mass, m.particle_inv_mass, x, x_tilde, ws.egrad, m.s(h * h), m.s(1.0 / h), ws.grad]
-        + [ws.gstats],
-        device=m.device,
-    )
-
-
-def needs_feasible_start(solver: PotentialProblem) -> bool:
-    """Whether an energy of ``solver`` asks to start from the step's start positions (``feasible_start``:
-    barrier contact, infinite where x̃ may intersect) rather than from x̃."""
-    return any(getattr(e, "feasible_start", False) for e in solver.energies)
+    from ._problem import PotentialProblem
 
 
 def _feasible_start(
-    solver: PotentialProblem, ws: _Workspace, x_ref: wp.array, x_tilde: wp.array, x: wp.array
+    solver: PotentialProblem, ws: Workspace, x_ref: wp.array, x_tilde: wp.array, x: wp.array
 ) -> bool:
     """With an energy that needs it, x = x_ref + α(x̃ − x_ref) (free particles; fixed ones at x̃), α ≤ 1 the
     energies' ``max_step`` from x_ref: the start is then as admissible as x_ref (IPC starts from x_ref).
@@ -198,11 +116,11 @@ def minimize_incremental_potential(
     """
     m = solver.model
     n = m.particle_count
-    ws = _workspace(solver)
+    ws = workspace_of(solver)
     opts, mz = step_settings(options, minimizer)
     tol_opt = float(opts.newton_tol)
     max_it = int(opts.max_newton_iterations)
-    lin = _resolve_linear_solver(mz.linear_solver, m)
+    lin = resolve_linear_solver(mz.linear_solver, m)
     cg_tol = max(float(mz.cg_tol), 30.0 * float(np.finfo(ws.np_dtype).eps))
     cg_max = int(mz.cg_max_iterations)
     project_psd = "project" if opts.project_psd is True else opts.project_psd
@@ -218,9 +136,9 @@ def minimize_incremental_potential(
     # Contact energies' patterns follow their pairs: refreshed at the start and after every iterate.
     refresh = _feasible_start(solver, ws, x_ref, x_tilde, x)
     if refresh and _refresh_patterns(solver, x):
-        ws = _workspace(solver)
+        ws = workspace_of(solver)
     h2 = h * h
-    g = _gradient(solver, ws, x, x_tilde, h)
+    g = gradient(solver, ws, x, x_tilde, h)
     # Round-off floor: positions are known to eps·max|x|; one ulp moves ∇Φ_i/(m_i h) by up to
     # eps·max|x|·max_i(H_ii/m_i)/h (the stiffness term dominates in float32). Known after the first assembly.
     tol = max(tol_opt, 8.0 * eps * max(g[1], 1.0) / h)
@@ -238,12 +156,12 @@ def minimize_incremental_potential(
             stats.converged = True
             break
         phi0 = g[2] + h2 * g[3]
-        _assemble(solver, ws, x, h, project)
+        assemble(solver, ws, x, h, project)
         if first:
             first = False
             ws.hstats.zero_()
             launch(
-                _stiffness_ratio,
+                stiffness_ratio,
                 n,
                 [m.particle_inv_mass, ws.diag_slots, ws.values, ws.hstats],
                 device=m.device,
@@ -252,9 +170,9 @@ def minimize_incremental_potential(
             tol = max(tol, eps * max(g[1], 1.0) * ratio / h)
             stats.tolerance = tol
         if lin == "direct":
-            _direct_solve(ws, m)
+            direct_solve(ws, m)
         elif lin == "scipy-cg":
-            stats.linear_iterations += _host_cg_solve(ws, m, cg_tol, cg_max)
+            stats.linear_iterations += host_cg_solve(ws, m, cg_tol, cg_max)
         else:
             launch(_inverse_diagonal, n, [ws.diag_slots, ws.values, ws.inv_diag], device=m.device)
             launch(_negate, n, [ws.grad, ws.rhs], device=m.device)
@@ -282,7 +200,7 @@ def minimize_incremental_potential(
             )
             for e in solver.energies:
                 e.value(m, ws.x_trial, ws.tstats_e)
-            _control_terms(solver, ws, ws.x_trial, ws.egrad_scratch, ws.tstats_e)
+            control_terms(solver, ws, ws.x_trial, ws.egrad_scratch, ws.tstats_e)
             s = ws.tstats.numpy().astype(np.float64)
             dx_max, gdx = s[2], s[3]
             descent = bool(np.isfinite(gdx) and gdx < 0.0)
@@ -309,8 +227,8 @@ def minimize_incremental_potential(
             break  # no decrease even for a tiny step: at the round-off floor (or a non-descent direction)
         wp.copy(x, ws.x_trial)
         if refresh and _refresh_patterns(solver, x):
-            ws = _workspace(solver)
-        g = _gradient(solver, ws, x, x_tilde, h)
+            ws = workspace_of(solver)
+        g = gradient(solver, ws, x, x_tilde, h)
         stats.residuals.append(float(g[0]))
         if g[0] <= tol:
             stats.converged = True

@@ -1,6 +1,6 @@
 """Newton's linear solve for small problems, on the device: banded LDLᵀ in a bandwidth-reducing order,
 factorised again only when convergence slows (``MinimizerOptions(linear_solver="band")``; what
-``method="auto"`` takes on the CPU for small bodies, :func:`pliant.solvers.implicit._options.small_problem`).
+``method="auto"`` takes on the CPU for small bodies, :func:`._options.small_problem`).
 
 The device Newton (:mod:`._pcg`) keeps every decision on the device, so a Simulator replays its frames as
 graphs, on the CPU too (Warp's CPU graphs): no Python per step. On a 117-particle beam its block-Jacobi CG
@@ -58,8 +58,7 @@ from ._slots import CONVERGED, GNORM, ITER
 
 if TYPE_CHECKING:
     from ...model import Model
-    from ._assembly import PotentialProblem
-    from ._workspace import MinimizerCache, _Workspace
+    from ._problem import MinimizerCache, PotentialProblem, Workspace
 
 #: ``counts`` slot of :class:`BandLDL`: factorisations that met a zero or non-finite pivot.
 FAILURES = COUNT_SLOTS
@@ -366,7 +365,7 @@ class BandLDL:
         ws: the Newton workspace whose BSR values ``ws.values`` are factorised.
     """
 
-    def __init__(self, model: Model, ws: _Workspace) -> None:
+    def __init__(self, model: Model, ws: Workspace) -> None:
         n, d = model.particle_count, model.device
         self.model, self.ws = model, ws
         perm, width = ws.band_order()
@@ -414,7 +413,7 @@ class BandLDL:
     ) -> None:
         """Start the step at x̃ + the kept correction when that lowers Φ (:data:`WARM_START`), else at x̃
         (``x`` holds x̃): ``x`` and ``gradient(at)``'s ∇Φ and statistics at the start, on the device."""
-        from ._assembly import _control_terms
+        from ._assembly import control_terms
 
         m, ws, d = self.model, self.ws, self.model.device
         if not WARM_START:
@@ -424,7 +423,7 @@ class BandLDL:
         ws.tstats.zero_()
         for e in problem.energies:
             e.value(m, x, ws.tstats_e)
-        _control_terms(problem, ws, x, ws.egrad_scratch, ws.tstats_e)
+        control_terms(problem, ws, x, ws.egrad_scratch, ws.tstats_e)
         args = [m.particle_inv_mass, x_tilde, self.correction, f64(h), self.lag, self.flags, ws.x_trial]
         launch(_warm_point, m.particle_count, args, device=d)
         gradient(ws.x_trial)

@@ -1,6 +1,6 @@
 """The banded solve's particle order and its cost: plain NumPy/SciPy on the Hessian's pattern, below the
 workspace (which caches the order) and the minimiser options (which choose the band solve by its cost), so
-neither imports the solve itself (:mod:`pliant.solvers.implicit._band`)."""
+neither imports the solve itself (:mod:`pliant.solvers.minimizers._band`)."""
 
 from __future__ import annotations
 

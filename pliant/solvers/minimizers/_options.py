@@ -3,8 +3,8 @@
 The integrator decides what a step solves and how accurately (:class:`pliant.integrators.ImplicitOptions`:
 ``newton_tol``, ``max_newton_iterations``, ``project_psd``, ``max_line_search``); the solver decides how
 (:class:`MinimizerOptions`: Newton or L-BFGS, the linear solver, L-BFGS's history and initial Hessian).
-The minimiser settings used to be integrator keywords (``BackwardEuler(method="lbfgs")``); that spelling
-still works, with a DeprecationWarning, and :func:`step_settings` merges it here.
+The minimiser settings used to be integrator keywords (``BackwardEuler(method="lbfgs")``); that spelling is
+an error now that says where they went (:meth:`pliant.integrators.ImplicitOptions.moved`).
 """
 
 from __future__ import annotations
@@ -15,15 +15,18 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import warp as wp
 
-from ...integrators._implicit import MINIMIZER_SETTINGS, ImplicitOptions, ImplicitOptionsLike
+from ...integrators import ImplicitOptions
+from ._band_order import band_work
+from ._problem import cache_of
 
 if TYPE_CHECKING:
-    from ._assembly import PotentialProblem
+    from ...integrators._implicit import ImplicitOptionsLike
+    from ._problem import PotentialProblem
 
 #: The linear solvers of Newton's steps.
 LINEAR_SOLVERS = ("cg", "scipy-cg", "direct", "auto", "pcg", "band")
 
-#: The largest banded LDLᵀ factorisation (multiply-adds, :func:`pliant.solvers.implicit._band.band_work`) for
+#: The largest banded LDLᵀ factorisation (multiply-adds, :func:`._band_order.band_work`) for
 #: which ``method="auto"`` takes the device Newton with the band solve on the CPU rather than L-BFGS.
 #: Measured (float32 beams 0.6 x 0.1 x 0.1 m of c0 x c1 x c1 cells, 4 substeps of 1/120 s, ms per substep
 #: over frames 3-22 (10 from 12x5x5), band / L-BFGS, one core): 12x2x2 (191k multiply-adds) 0.50 / 1.12,
@@ -53,9 +56,9 @@ class MinimizerOptions:
             CG, block-Jacobi, host; falls back to the direct solve when a step stalls), "direct" (SciPy
             sparse LU, host), "pcg" (Newton with every decision on the device: block-Jacobi CG, line search
             and stopping tests; no host read inside a step, so a Simulator replays its frames as graphs;
-            :mod:`pliant.solvers.implicit._pcg`), "band" (the same device Newton with a banded LDLᵀ
+            :mod:`pliant.solvers.minimizers._pcg`), "band" (the same device Newton with a banded LDLᵀ
             direct solve, refactorised only when convergence slows: for small bodies, whose steps it
-            replays as graphs on the CPU too; :mod:`pliant.solvers.implicit._band`) or "auto": the direct
+            replays as graphs on the CPU too; :mod:`pliant.solvers.minimizers._band`) or "auto": the direct
             solve on the CPU ("band" with ``method="auto"`` on a small body), "pcg" on a GPU (32x one CPU
             core at 30³ cells on an H100, where Warp's CG with host decisions was slower than one core;
             :func:`device_newton`).
@@ -137,7 +140,6 @@ _DEFAULT = MinimizerOptions()
 
 #: What :meth:`MinimizerOptions.coerce` accepts: None (the defaults), the options, or a dict of some settings.
 MinimizerLike = MinimizerOptions | dict[str, Any] | None
-assert {f.name for f in fields(MinimizerOptions)} == set(MINIMIZER_SETTINGS), "one list of names"
 
 
 def step_settings(
@@ -147,30 +149,13 @@ def step_settings(
 
     Args:
         options: None, an :class:`~pliant.integrators.ImplicitOptions`, an implicit integrator, or a dict of
-            settings of either kind (the minimisers' direct callers).
+            its settings (the minimisers' direct callers).
         minimizer: None, a :class:`MinimizerOptions` or a dict of its settings.
 
     Raises:
-        ValueError: minimiser settings given through ``options`` (the deprecated integrator keywords) that
-            ``minimizer`` contradicts, or invalid values.
+        ValueError: invalid values, or minimiser settings in ``options`` (they go in ``minimizer``).
     """
-    if isinstance(options, dict):
-        own = {k: v for k, v in options.items() if k not in MINIMIZER_SETTINGS}
-        legacy = {k: v for k, v in options.items() if k in MINIMIZER_SETTINGS}
-        step = ImplicitOptions.create("minimize", **own) if own else ImplicitOptions.coerce(None)
-    else:
-        step = ImplicitOptions.coerce(options)
-        legacy = step.minimizer_settings()
-    if minimizer is None:
-        return step, MinimizerOptions.create("minimize", **legacy)
-    mz = MinimizerOptions.coerce(minimizer)
-    clash = sorted(k for k, v in legacy.items() if getattr(mz, k) != v)
-    if clash:
-        raise ValueError(
-            f"minimizer settings {clash} given twice, differently: as integrator keywords (deprecated) and "
-            "in minimizer=; give them in minimizer= only"
-        )
-    return step, mz
+    return ImplicitOptions.coerce(options), MinimizerOptions.coerce(minimizer)
 
 
 def device_newton(
@@ -215,9 +200,6 @@ def small_problem(problem: PotentialProblem) -> bool:
     """Whether ``problem``'s Newton system is small enough for the banded LDLᵀ on the CPU: its factorisation
     at most :data:`SMALL_BAND_WORK` multiply-adds (the bandwidth from the Hessian pattern, computed once per
     workspace)."""
-    from ._band_order import band_work
-    from ._workspace import cache_of
-
     ws = cache_of(problem).workspace(problem.model, problem.energies)
     _, width = ws.band_order()
     return band_work(problem.model.particle_count, width) <= SMALL_BAND_WORK

@@ -1,6 +1,6 @@
 """Static equilibrium: Newton with line search on E(x) − f·x, with Dirichlet (fixed) vertices.
 
-Reuses the implicit solver's machinery (:mod:`pliant.solvers.implicit`): the fixed BSR(3×3) pattern built
+Reuses the implicit solver's machinery (:mod:`pliant.solvers.minimizers`): the fixed BSR(3×3) pattern built
 from the energies' ``hessian_pattern``, the atomic block assembly, the projection of fixed rows and columns,
 and the linear solvers (SciPy sparse LU on the host, or Jacobi-preconditioned ``warp.optim.linear.cg``).
 Only the objective differs: there is no inertia term, so the Hessian is Σ H_e alone, which is singular
@@ -28,7 +28,7 @@ from ...model import Model
 from .._errors import SingularSystemError
 from ._assembly import _inverse_diagonal
 from ._kernels import _negate, add_step_stats, max_abs
-from ._workspace import _Workspace
+from ._problem import Workspace
 
 
 @dataclass
@@ -216,7 +216,7 @@ def _fixed_mask(model: Model, fixed: npt.ArrayLike | None) -> np.ndarray:
     return mask
 
 
-def _regularized_direct_solve(ws: _Workspace, model: Model, free_np: np.ndarray, stats: StaticStats) -> bool:
+def _regularized_direct_solve(ws: Workspace, model: Model, free_np: np.ndarray, stats: StaticStats) -> bool:
     """Δx = −H⁻¹∇ by SciPy's sparse LU; on a singular H, the smallest Levenberg–Marquardt shift
     H + μI (μ = 1e-8 · 100^k · max diag H, on free components) that factors. Returns False when none does.
     """
@@ -224,7 +224,7 @@ def _regularized_direct_solve(ws: _Workspace, model: Model, free_np: np.ndarray,
         return _direct_solve(ws, model, free_np, stats)
 
 
-def _direct_solve(ws: _Workspace, model: Model, free_np: np.ndarray, stats: StaticStats) -> bool:
+def _direct_solve(ws: Workspace, model: Model, free_np: np.ndarray, stats: StaticStats) -> bool:
     import scipy.sparse as sp
     from scipy.sparse.linalg import splu
 
@@ -390,7 +390,7 @@ def solve_static(
     size = float(np.max(np.ptp(x_np, axis=0))) if n > 1 else 1.0
     eps = float(np.finfo(np_dtype).eps)
 
-    ws = _Workspace(model, terms)
+    ws = Workspace(model, terms)
     stats = StaticStats(
         linear_solver=lin, fixed_count=int(mask.any(axis=1).sum()), fixed_dofs=int(mask.sum())
     )

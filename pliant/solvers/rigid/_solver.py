@@ -8,9 +8,9 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from ..constraints import polar_rotation
-from ..model import Control, Model, State
-from ._base import Solver
+from ...constraints import polar_rotation
+from ...model import Control, Model, State
+from .._base import Solver
 
 
 @wp.func
