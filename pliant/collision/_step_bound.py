@@ -419,8 +419,8 @@ class StepBound:
         n = model.particle_count
         tris = model.tri_indices.numpy().reshape(-1, 3).astype(np.int32)
         edges = edges_from_triangles(tris).astype(np.int32)
-        self._tris = wp.array(tris.reshape(-1), dtype=wp.int32, device=d)
-        self._edges = wp.array(edges.reshape(-1), dtype=wp.int32, device=d)
+        self._tris: wp.array = wp.array(tris.reshape(-1), dtype=wp.int32, device=d)
+        self._edges: wp.array = wp.array(edges.reshape(-1), dtype=wp.int32, device=d)
         self._xf = wp.zeros(n, dtype=wp.vec3f, device=d)
         self.bound = wp.zeros(n, dtype=wp.float32, device=d)
         self._tri = [wp.zeros(len(tris), dtype=wp.vec3f, device=d) for _ in range(2)]
@@ -428,17 +428,17 @@ class StepBound:
         self._tri_dist = wp.zeros(len(tris), dtype=wp.float32, device=d)
         self._edge_dist = wp.zeros(len(edges), dtype=wp.float32, device=d)
         self._boxes(model.particle_q)
-        self._tri_bvh = wp.Bvh(*self._tri)
-        self._edge_bvh = wp.Bvh(*self._edge)
+        self._tri_bvh = wp.Bvh(self._tri[0], self._tri[1])
+        self._edge_bvh = wp.Bvh(self._edge[0], self._edge[1])
         # Each particle's edges (CSR), for the edge push; the predicted state's float32 snapshot.
         order = np.argsort(edges.reshape(-1), kind="stable")
         start = np.searchsorted(edges.reshape(-1)[order], np.arange(n + 1)).astype(np.int32)
-        self._adj_start = wp.array(start, dtype=wp.int32, device=d)
-        self._adj = wp.array((order // 2).astype(np.int32), dtype=wp.int32, device=d)
+        self._adj_start: wp.array = wp.array(start, dtype=wp.int32, device=d)
+        self._adj: wp.array = wp.array((order // 2).astype(np.int32), dtype=wp.int32, device=d)
         order = np.argsort(tris.reshape(-1), kind="stable")
         start = np.searchsorted(tris.reshape(-1)[order], np.arange(n + 1)).astype(np.int32)
-        self._tadj_start = wp.array(start, dtype=wp.int32, device=d)
-        self._tadj = wp.array((order // 3).astype(np.int32), dtype=wp.int32, device=d)
+        self._tadj_start: wp.array = wp.array(start, dtype=wp.int32, device=d)
+        self._tadj: wp.array = wp.array((order // 3).astype(np.int32), dtype=wp.int32, device=d)
         self._xp = wp.zeros(n, dtype=wp.vec3f, device=d)
         self._vp = wp.zeros(n, dtype=wp.vec3f, device=d)
         self._xp.assign(model.particle_q_np.astype(np.float32))
@@ -478,6 +478,8 @@ class StepBound:
         """Push apart the edges of ``state_out`` closer than the separation, then its triangles from the
         vertices closer than it (in place)."""
         d, x, v = model.device, state_out.particle_q, state_out.particle_qd
+        assert self.separation is not None  # called only with a separation
+        h = wp.float32(self.separation)
         wp.launch(_snapshot, model.particle_count, [x, v, self._xp, self._vp], device=d)
         lo, hi = self._edge
         args = [self._edges, 2, self._xp, wp.float32(self.reach), lo, hi, self._edge_dist]
@@ -491,7 +493,7 @@ class StepBound:
             wp.uint64(self._edge_bvh.id),
             self._xp,
             self._vp,
-            wp.float32(self.separation),
+            h,
             x,
             v,
         ]
@@ -506,7 +508,7 @@ class StepBound:
             wp.uint64(self._points.id),
             self._xp,
             self._vp,
-            wp.float32(self.separation),
+            h,
             x,
             v,
         ]

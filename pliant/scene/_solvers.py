@@ -128,7 +128,7 @@ def _type_problem(p: inspect.Parameter, value: object) -> str | None:
     return None
 
 
-def _moved(target: Any, key: str) -> str | None:
+def _moved(target: object, key: str) -> str | None:
     """Where option ``key`` of ``target`` went, when its options dataclass says (``options_type.moved``:
     the implicit integrators' former minimiser settings), else None."""
     moved = getattr(getattr(target, "options_type", None), "moved", None)

@@ -186,13 +186,25 @@ def host_cg_solve(ws: Workspace, model: Model, rtol: float, maxiter: int) -> int
     return count[0]
 
 
+class LinearSolve(Protocol):
+    """What the stats read of the device Newton's linear solver (a CG or the band LDLᵀ)."""
+
+    counts: wp.array
+
+    def iterations(self) -> int: ...
+
+
 class DeviceNewtonBuffers(Protocol):
     """What the cache and :class:`DeviceNewtonStats` read of the device Newton's buffers (``_pcg``'s
     ``_DeviceNewton``): its key, linear solver, float64 scalars, int32 counters and residuals."""
 
     key: tuple
     band: bool
-    cg: Any
+
+    @property
+    def cg(self) -> LinearSolve:  # the linear solver: a BandLDL (band) or the device CG
+        ...
+
     state: wp.array
     counts: wp.array
     residuals: wp.array
