@@ -10,8 +10,7 @@ import numpy as np
 import warp as wp
 
 from .._warp import GradientError
-from ..model import Control, Model, State
-from ..model._parameters import Parameter, RegistryView, registry
+from ..model import Control, Model, Parameter, RegistryView, State, registry
 from ..solvers import FrameStep
 from . import _graph
 
@@ -114,8 +113,7 @@ def check_rollout(
             gradient), the quantity and the stability advice.
         ValueError: a non-finite loss from finite states (``loss_fn`` reads a NaN or divides by zero).
     """
-    from ..sim import DivergenceError
-    from ..sim._divergence import stability_advice
+    from ..sim import DivergenceError, stability_advice
 
     advice = stability_advice(solver, dt, substeps)
     health = _state_health(final, max_speed)

@@ -308,7 +308,7 @@ class ModelBuilder(ShapesMixin):
             E: [E] or scalar Young's modulus [Pa], > 0.
             nu: [E] or scalar Poisson ratio [-], in (-1, 0.5).
         """
-        from ..geometry._p2 import P2_EDGES
+        from ..geometry import P2_EDGES
         from ._materials import lame_parameters
 
         idx = _as_index_array(indices, 10, "quadratic tetrahedron")
@@ -496,7 +496,7 @@ class ModelBuilder(ShapesMixin):
 
         p2 = {}
         if self._tets10:
-            from ..geometry._p2 import p2_subtets
+            from ..geometry import p2_subtets
 
             t10 = np.concatenate([t[0] for t in self._tets10])
             x0 = q[t10[:, 0]]

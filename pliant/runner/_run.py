@@ -79,7 +79,7 @@ class RunReport:
 def _outputs(out: Path, name: str, cameras: int) -> tuple[list[Path], list[Path]]:
     """The run's output paths (trajectory, video, checkpoint, render mesh) and the camera videos, each one
     file directly in ``out`` (links followed); ``out`` is created and checked writable."""
-    from ..io._paths import OutputPathError, check_file_stem, check_writable_dir, confined
+    from ..io import OutputPathError, check_file_stem, check_writable_dir, confined
 
     try:
         check_file_stem(name, "scene name")
@@ -95,7 +95,7 @@ def _camera_file(cfg: SceneConfig, cameras: str | os.PathLike | None) -> CameraF
     """The validated camera file (None without one); the scene must have splats to draw."""
     if cameras is None:
         return None
-    from ..gaussians._scene import gaussians_section
+    from ..gaussians import gaussians_section
     from ..io import CameraFileError, load_camera_file
 
     if gaussians_section(cfg) is None:
