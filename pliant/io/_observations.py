@@ -26,6 +26,7 @@ three. Files without images read and write exactly as before.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -170,27 +171,8 @@ class Observations:
                     "particle", f"expected K={n_tracks} particle indices >= 0 (int), got {particle.shape}"
                 )
             particle = particle.astype(np.int64)
-        if controls is not None:
-            controls = np.asarray(controls, dtype=float)
-            if controls.ndim != 3 or controls.shape[0] != T or controls.shape[2] != 3:
-                raise fail("controls", f"expected [T={T}, C, 3] positions in metres, got {controls.shape}")
-            if not np.all(np.isfinite(controls)):
-                raise fail("controls", "control-point positions must all be finite")
-        if (cloud is None) != (cloud_count is None):
-            raise fail("cloud", "give both cloud [T, P, 3] and cloud_count [T], or neither")
-        if cloud is not None:
-            cloud = np.asarray(cloud, dtype=float)
-            cloud_count = np.asarray(cloud_count)
-            if cloud.ndim != 3 or cloud.shape[0] != T or cloud.shape[2] != 3:
-                raise fail("cloud", f"expected padded clouds [T={T}, P, 3] in metres, got {cloud.shape}")
-            if cloud_count.shape != (T,) or not np.issubdtype(cloud_count.dtype, np.integer):
-                raise fail("cloud_count", f"expected [T={T}] integer counts, got {cloud_count.shape}")
-            if cloud_count.min() < 0 or cloud_count.max() > cloud.shape[1]:
-                raise fail("cloud_count", f"counts must lie in [0, P={cloud.shape[1]}]")
-            used = np.arange(cloud.shape[1])[None, :] < cloud_count[:, None]
-            if not np.all(np.isfinite(cloud[used])):
-                raise fail("cloud", "the first cloud_count[t] points of each frame must be finite")
-            cloud_count = cloud_count.astype(np.int64)
+        controls = _check_controls(T, controls, fail)
+        cloud, cloud_count = _check_cloud(T, cloud, cloud_count, fail)
         return cls(
             t=t.astype(float),
             points=np.where(visible[..., None], points, np.nan).astype(float),
@@ -354,6 +336,42 @@ class Observations:
             masks=None if self.masks is None else self.masks[:, sl],
             depth=None if self.depth is None else self.depth[:, sl],
         )
+
+
+def _check_controls(
+    T: int, controls: np.ndarray | None, fail: Callable[[str, str], Exception]
+) -> np.ndarray | None:
+    """Control-point positions [T, C, 3] (m) as floats, checked for shape and finiteness; None passes."""
+    if controls is not None:
+        controls = np.asarray(controls, dtype=float)
+        if controls.ndim != 3 or controls.shape[0] != T or controls.shape[2] != 3:
+            raise fail("controls", f"expected [T={T}, C, 3] positions in metres, got {controls.shape}")
+        if not np.all(np.isfinite(controls)):
+            raise fail("controls", "control-point positions must all be finite")
+    return controls
+
+
+def _check_cloud(
+    T: int, cloud: np.ndarray | None, cloud_count: np.ndarray | None, fail: Callable[[str, str], Exception]
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Padded point clouds [T, P, 3] (m) and their counts [T], checked together (both or neither); the
+    first ``cloud_count[t]`` points of each frame must be finite."""
+    if (cloud is None) != (cloud_count is None):
+        raise fail("cloud", "give both cloud [T, P, 3] and cloud_count [T], or neither")
+    if cloud is not None:
+        cloud = np.asarray(cloud, dtype=float)
+        cloud_count = np.asarray(cloud_count)
+        if cloud.ndim != 3 or cloud.shape[0] != T or cloud.shape[2] != 3:
+            raise fail("cloud", f"expected padded clouds [T={T}, P, 3] in metres, got {cloud.shape}")
+        if cloud_count.shape != (T,) or not np.issubdtype(cloud_count.dtype, np.integer):
+            raise fail("cloud_count", f"expected [T={T}] integer counts, got {cloud_count.shape}")
+        if cloud_count.min() < 0 or cloud_count.max() > cloud.shape[1]:
+            raise fail("cloud_count", f"counts must lie in [0, P={cloud.shape[1]}]")
+        used = np.arange(cloud.shape[1])[None, :] < cloud_count[:, None]
+        if not np.all(np.isfinite(cloud[used])):
+            raise fail("cloud", "the first cloud_count[t] points of each frame must be finite")
+        cloud_count = cloud_count.astype(np.int64)
+    return cloud, cloud_count
 
 
 __all__ = ["ObservationError", "Observations"]
