@@ -49,6 +49,25 @@ def _positive_int(text: str) -> int:
     return v
 
 
+def _workers(text: str) -> int | str:
+    """``--workers``: ``auto`` or a number of processes >= 1."""
+    if text == "auto":
+        return text
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected auto or a number of processes, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected auto or a number of processes >= 1, got {v}")
+    return v
+
+
+WORKERS_HELP = (
+    "processes evaluating each CMA-ES generation on the CPU (auto: the cores, where the fit is long enough "
+    "to pay their few seconds' start; 1 on a GPU); the same results whatever the count"
+)
+
+
 def _positive_float(text: str) -> float:
     try:
         v = float(text)

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ._common import CliError, _positive_float, _positive_int, _sub, add_force
+from ._common import WORKERS_HELP, CliError, _positive_float, _positive_int, _sub, _workers, add_force
 from ._run import _load
 
 if TYPE_CHECKING:
@@ -94,6 +94,7 @@ def _add_fit_parser(sub: Subparsers) -> None:
         help="last fraction of the training frames that decides whether per-element values are kept (0.2)",
     )
     f.add_argument("--seed", type=int, default=42, help="CMA-ES seed (42)")
+    f.add_argument("--workers", type=_workers, default="auto", help=WORKERS_HELP + " (auto)")
     f.add_argument("--device", help="cpu or cuda:N (default: the scene's)")
     f.add_argument("--dtype", choices=("float32", "float64"), help="override [scene] dtype")
     f.add_argument("--no-video", action="store_true", help="skip fit.mp4")
@@ -271,6 +272,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
             video=not args.no_video,
             force=args.force,
             resume=args.resume,
+            workers=args.workers,
         )
     except FitError as exc:
         raise CliError(str(exc)) from None
@@ -350,6 +352,7 @@ def _fit_models(
             video=not args.no_video,
             force=args.force,
             resume=args.resume,
+            workers=args.workers,
         )
     except FitError as exc:
         raise CliError(str(exc)) from None

@@ -6,11 +6,13 @@ from __future__ import annotations
 import argparse
 
 from ._common import (
+    WORKERS_HELP,
     CliError,
     Subparsers,  # noqa: TC001 - used at run time by the annotations' evaluation only
     _positive_float,
     _positive_int,
     _sub,
+    _workers,
 )
 
 
@@ -64,6 +66,7 @@ def add_parsers(sub: Subparsers) -> None:
     )
     p.add_argument("--splat-iterations", type=_positive_int, default=150, help="Adam steps of the splats")
     p.add_argument("--seed", type=int, default=42, help="seed of every random choice, >= 1 (42)")
+    p.add_argument("--workers", type=_workers, default="auto", help=WORKERS_HELP + " (auto)")
     p.add_argument(
         "--resume",
         action="store_true",
@@ -124,6 +127,7 @@ def cmd_twin(args: argparse.Namespace) -> int:
             seed=args.seed,
             progress=not args.quiet,
             resume=args.resume,
+            workers=args.workers,
         )
         rep = build_twin(obs, args.out, opts)
     except (ObservationError, TwinError) as exc:

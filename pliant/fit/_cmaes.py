@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable
 from typing import Any
@@ -14,6 +15,9 @@ from ._problem import Problem
 from ._resume import StageHook, rng_state, set_rng_state
 from ._reuse import BatchScenes, build_batch
 from ._stage import StageResult
+from ._workers import auto_workers, close_workers, cpu_cores, parse_workers, pool_for, unsplittable
+
+_LOG = logging.getLogger("pliant.fit")
 
 #: Loss given to a candidate whose simulation diverges or cannot be built (CMA-ES needs a finite number).
 PENALTY = 1.0e6
@@ -100,13 +104,15 @@ def cmaes(
     rtol: float = 1e-3,
     patience: int = 5,
     checkpoint: StageHook | None = None,
+    workers: int | str = 1,
 ) -> StageResult:
     """Minimise the training loss over ``problem.globals`` with CMA-ES (the ``cma`` package).
 
     When :func:`batchable`, a generation's candidates run as one simulation (``batch=True``, the default),
-    else one after another. A one-parameter problem gets a second, ignored coordinate, since ``cma`` needs
-    at least two dimensions. Ctrl-C stops the search and
-    returns the best candidate so far (``interrupted=True``).
+    else one after another; with ``workers`` > 1, dealt out to that many worker processes
+    (:mod:`pliant.fit._workers`) with the same losses bit for bit. A one-parameter problem gets a second,
+    ignored coordinate, since ``cma`` needs at least two dimensions. Ctrl-C stops the search and returns the
+    best candidate so far (``interrupted=True``).
 
     Stopping: by convergence, when the best loss improved by less than ``rtol`` (relative) over the last
     ``patience`` generations (``stop="converged"``), or when the search's step in the unit box is below
@@ -131,6 +137,13 @@ def cmaes(
         patience: Generations over which the improvement is measured.
         checkpoint: Saves the search after every generation (:mod:`pliant.fit._resume`), and when it holds
             a saved search, continues it: the saved generations are replayed into ``cma`` (no simulation).
+        workers: Worker processes that evaluate each generation (1: none, this process alone). ``"auto"``:
+            1 on a GPU, else the first generation runs here and is timed (CPU seconds), then
+            ``min(CPU cores, popsize)`` when that saves more than a worker's start over the next generations
+            (:func:`pliant.fit._workers.auto_workers`). Where splitting a generation would change its losses
+            (:func:`pliant.fit._workers.unsplittable`) it stays in one process (a log line on
+            ``pliant.fit`` says why). The workers stay with ``problem`` for its next CMA-ES stage;
+            ``pliant.fit._workers.close_workers(problem)`` stops them (garbage collection does too).
     """
     import cma
 
@@ -182,6 +195,25 @@ def cmaes(
     t0 = time.perf_counter()
     batched = batch and batchable(problem)
     scenes = BatchScenes(reuse) if batched else None
+    asked = parse_workers(workers)  # None: "auto"
+    if asked is not None:
+        asked = min(asked, popsize or asked)  # no more processes than candidates
+    why = None if asked == 1 else unsplittable(problem, batched)
+    if why is not None:
+        _LOG.info("CMA-ES: one process (workers=%s asked): %s", workers, why)
+    pool = None
+    if why is None and asked is not None and asked > 1:
+        pool = pool_for(problem, asked, batched, reuse)
+    elif why is None and asked is None:  # "auto": a pool a previous stage of this problem started
+        held = problem.__dict__.get("_worker_pool")
+        pool = held if held is not None and (held.batched, held.reuse) == (batched, reuse) else None
+    decide = why is None and asked is None and pool is None
+
+    def local(vals: list[dict[str, float]]) -> list[float]:
+        if batched:
+            return evaluate_batch(problem, vals, scenes)
+        return [evaluate(problem, v) for v in vals]
+
     es = cma.CMAEvolutionStrategy(x0, sigma, opts)
     saved = None if checkpoint is None else checkpoint.state
     if saved is None:
@@ -196,10 +228,13 @@ def cmaes(
             rng = None if checkpoint is None else rng_state()
             cands = es.ask()
             values = [decode(np.asarray(u)) for u in cands]
-            if batched:
-                losses = evaluate_batch(problem, values, scenes)
-            else:
-                losses = [evaluate(problem, v) for v in values]
+            tg = time.process_time()
+            losses = local(values) if pool is None else pool.evaluate(problem, values)
+            if decide:
+                decide = False
+                n = auto_workers(cpu_cores(), len(values), time.process_time() - tg, generations - gen - 1)
+                if n > 1:
+                    pool = pool_for(problem, n, batched, reuse)
             best.evaluations += len(values)
             for v, f in zip(values, losses, strict=True):
                 if f < best.loss:
@@ -222,8 +257,12 @@ def cmaes(
         else:
             best.stop = "cap"
     except KeyboardInterrupt:
+        close_workers(problem)  # a worker may be mid-generation: it cannot serve the next one
         best.interrupted = True
         best.stop = "interrupted"
+    except BaseException:
+        close_workers(problem)
+        raise
     best.wall_time = time.perf_counter() - t0
     return best
 
@@ -264,4 +303,13 @@ def _replay(es: Any, saved: dict) -> StageResult:
     )
 
 
-__all__ = ["OBJECT_PARAMS", "PENALTY", "StageResult", "batchable", "cmaes", "evaluate", "evaluate_batch"]
+__all__ = [
+    "OBJECT_PARAMS",
+    "PENALTY",
+    "StageResult",
+    "batchable",
+    "close_workers",
+    "cmaes",
+    "evaluate",
+    "evaluate_batch",
+]

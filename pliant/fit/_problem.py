@@ -118,6 +118,23 @@ class Problem:
         shooting: int | None = None,
     ) -> None:
         self.cfg = cfg.model_copy(deep=True)
+        #: The constructor's arguments: a worker process rebuilds this problem from them (fit/_workers.py).
+        self.recipe = (
+            self.cfg,
+            obs,
+            {
+                "params": params,
+                "per_element": per_element,
+                "train_fraction": train_fraction,
+                "device": device,
+                "dtype": dtype,
+                "track_weight": track_weight,
+                "chamfer_weight": chamfer_weight,
+                "acceleration_weight": acceleration_weight,
+                "beta": beta,
+                "shooting": shooting,
+            },
+        )
         reasons = default_reasons(self.cfg, obs) if params is None else {}
         names = list(reasons) if params is None else list(params)
         seed_contact(self.cfg, obs, names)  # compliant contact starts at the depth the tracks sink to

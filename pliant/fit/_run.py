@@ -17,7 +17,7 @@ import numpy as np
 from ..io import Observations, atomic_output, atomic_savez, atomic_write_text
 from ..scene._size import format_bytes
 from . import _explain
-from ._cmaes import StageResult, cmaes
+from ._cmaes import StageResult, close_workers, cmaes
 from ._gradient import gradient_stage
 from ._memory import device_memory, memory_problem, problem_memory
 from ._params import FitError, auto_per_element, scene_constraints
@@ -111,6 +111,7 @@ def fit(
     appearance: bool | None = None,
     force: bool = False,
     resume: bool = False,
+    workers: int | str = "auto",
 ) -> dict[str, Any]:
     """Fit a scene to observations and write the outputs into ``out``.
 
@@ -156,6 +157,8 @@ def fit(
             generation and gradient iteration (:mod:`pliant.fit._resume`): the same outputs as a fit that was
             never stopped (on the CPU, ``fitted.toml`` byte for byte). Its scene, observations, options and
             fit version must be this fit's.
+        workers: Processes that evaluate a CMA-ES generation (``pl.fit.cmaes``; "auto": the CPU's cores
+            where that pays); the same outputs whatever the count.
         force: From images: go on when the fit's memory estimate (:mod:`pliant.fit._memory`) exceeds the
             memory available on its device.
 
@@ -240,7 +243,12 @@ def fit(
             stages["cmaes"] = staged(
                 "cmaes",
                 lambda hook: cmaes(
-                    problem, generations=generations, seed=seed, callback=tick, checkpoint=hook
+                    problem,
+                    generations=generations,
+                    seed=seed,
+                    callback=tick,
+                    checkpoint=hook,
+                    workers=workers,
                 ),
             )
         values = stages["cmaes"].values
@@ -263,12 +271,14 @@ def fit(
                             sigma=SIGMA_OPEN_LOOP,
                             callback=tick,
                             checkpoint=hook,
+                            workers=workers,
                         ),
                     )
             finally:
                 problem.shooting = window
             values = stages["cmaes_open_loop"].values
             interrupted = stages["cmaes_open_loop"].interrupted
+        close_workers(problem)
     if isinstance(problem, PhotometricProblem) and epochs > 0 and not interrupted and refinable(problem):
         # From images, stage 2 refines the global values with image gradients through the rollout.
         with _stage_progress(progress, epochs, f"fit: {optimizer} (image gradients)") as tick:

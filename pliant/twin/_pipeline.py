@@ -95,6 +95,8 @@ class TwinOptions:
         resume: Continue each model's fit from its checkpoint in ``out/fit/<model>/`` where one exists (the
             steps before the fit are deterministic and run again); the twin is then the one an uninterrupted
             run makes.
+        workers: Processes evaluating each CMA-ES generation of the coarse fit (``pl.fit.fit``'s
+            ``workers``; the same twin whatever the count).
     """
 
     train_fraction: float = 0.7
@@ -109,6 +111,7 @@ class TwinOptions:
     seed: int = 42
     progress: bool = True
     resume: bool = False
+    workers: int | str = "auto"
 
 
 @dataclass
@@ -376,6 +379,7 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
                 seed=opts.seed,
                 progress=opts.progress,
                 video=False,
+                workers=opts.workers,
             )
             coarse_values = {k: p["value"] for k, p in rep["params"].items()}
             cfg = parse_scene(dumps(data), f"{out / 'twin_nominal.toml'} ({m})", out)
