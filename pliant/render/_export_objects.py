@@ -231,7 +231,7 @@ def export_usd_objects(
     return path
 
 
-def _add_static_meshes(stage: Any, traj: Trajectory, finite: np.ndarray) -> None:
+def _add_static_meshes(stage: object, traj: Trajectory, finite: np.ndarray) -> None:
     """Static ``Mesh`` prims on ``stage``: the colliders of ``traj.meta["colliders"]`` under
     ``/pliant/colliders`` and, when ``traj.meta["ground"]`` (a height, m) is set, a ground quad
     ``/pliant/ground`` around the finite positions ``finite`` [M, 3] (m)."""
