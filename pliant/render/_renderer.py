@@ -340,7 +340,7 @@ class Renderer:
         self,
         n: int,
         wp_screen: wp.array,
-        wp_world: wp.array,
+        wp_world: wp.array | None,
         wp_colors: wp.array,
         wp_tri: wp.array,
         per_vertex: bool,
