@@ -172,6 +172,364 @@ def test_allowed_exceptions_are_still_needed():
     assert seen == ALLOWED, f"no longer needed: {ALLOWED - seen}"
 
 
+#: Imports of another sub-package's private names (issue 40, item 5): ``from pliant.<other>._x import a``
+#: (a ``_x`` module below the package) or ``from pliant.<other> import _a``, each as (importer module, the
+#: imported name spelled from its defining module) with the reason it is tolerated. A package used from
+#: outside exports what it lends from its ``__init__`` (and ``__all__``). "to do" entries sit in packages
+#: that were being edited on other branches when the rest was fixed; the integrator finishes them.
+PRIVATE_ALLOWED: dict[tuple[str, str], str] = {
+    (
+        "pliant.cli._fit",
+        "pliant.fit._models.models_table",
+    ): "to do (issue 40): export from pliant.fit after the fit merge",
+    (
+        "pliant.collision._colliders",
+        "pliant.model._parameters.Found",
+    ): "to do (issue 40): pliant.model exports it; fix after the merge",
+    (
+        "pliant.collision._colliders",
+        "pliant.model._parameters.Getter",
+    ): "to do (issue 40): pliant.model exports it; fix after the merge",
+    (
+        "pliant.collision._colliders",
+        "pliant.model._parameters.Parameter",
+    ): "to do (issue 40): pliant.model exports it; fix after the merge",
+    (
+        "pliant.collision._colliders",
+        "pliant.model._parameters.declares",
+    ): "to do (issue 40): pliant.model exports it; fix after the merge",
+    (
+        "pliant.constraints._contact",
+        "pliant.collision._friction.friction_velocity",
+    ): "to do (issue 40): export from pliant.collision after the contact merge",
+    (
+        "pliant.constraints._contact",
+        "pliant.collision._hashgrid.ParticleGrid",
+    ): "to do (issue 40): export from pliant.collision after the contact merge",
+    (
+        "pliant.constraints._contact",
+        "pliant.collision._hashgrid.TriangleBVH",
+    ): "to do (issue 40): export from pliant.collision after the contact merge",
+    (
+        "pliant.constraints._distance",
+        "pliant.model._parameters.Parameter",
+    ): "to do (issue 40): pliant.model exports it; fix after the merge",
+    (
+        "pliant.constraints._distance",
+        "pliant.model._parameters.constraint_array",
+    ): "to do (issue 40): pliant.model exports it; fix after the merge",
+    (
+        "pliant.constraints._distance",
+        "pliant.model._parameters.declares",
+    ): "to do (issue 40): pliant.model exports it; fix after the merge",
+    (
+        "pliant.constraints._four",
+        "pliant.model._parameters.BENDING_STIFFNESS",
+    ): "to do (issue 40): pliant.model exports it; fix after the merge",
+    (
+        "pliant.constraints._four",
+        "pliant.model._parameters.Parameter",
+    ): "to do (issue 40): pliant.model exports it; fix after the merge",
+    (
+        "pliant.constraints._four",
+        "pliant.model._parameters.constraint_array",
+    ): "to do (issue 40): pliant.model exports it; fix after the merge",
+    (
+        "pliant.constraints._four",
+        "pliant.model._parameters.declares",
+    ): "to do (issue 40): pliant.model exports it; fix after the merge",
+    (
+        "pliant.constraints._ground_compliant",
+        "pliant.collision._friction.friction_velocity",
+    ): "to do (issue 40): export from pliant.collision after the contact merge",
+    (
+        "pliant.fit._cmaes",
+        "pliant.scene._replicate.coupled",
+    ): "to do (issue 40): pliant.scene exports it; fix after the merge",
+    (
+        "pliant.fit._explain",
+        "pliant.gaussians._appearance.AppearanceResult",
+    ): "to do (issue 40): pliant.gaussians exports it; fix after the merge",
+    (
+        "pliant.fit._explain",
+        "pliant.gaussians._appearance.fit_splat_appearance",
+    ): "to do (issue 40): pliant.gaussians exports it; fix after the merge",
+    (
+        "pliant.fit._explain",
+        "pliant.scene._gaussians.GaussiansSection",
+    ): "to do (issue 40): pliant.scene exports it; fix after the merge",
+    (
+        "pliant.fit._gradient",
+        "pliant.diff._graph.rollout_graphs",
+    ): "to do (issue 40): pliant.diff exports it; fix after the merge",
+    (
+        "pliant.fit._memory",
+        "pliant.scene._size.format_bytes",
+    ): "to do (issue 40): pliant.scene exports it; fix after the merge",
+    (
+        "pliant.fit._observe_images",
+        "pliant.gaussians._scene.scene_gaussians",
+    ): "to do (issue 40): pliant.gaussians exports it; fix after the merge",
+    (
+        "pliant.fit._observe_images",
+        "pliant.gaussians._surface.ring_cameras",
+    ): "to do (issue 40): pliant.gaussians exports it; fix after the merge",
+    (
+        "pliant.fit._params",
+        "pliant.model._parameters.Parameter",
+    ): "to do (issue 40): pliant.model exports it; fix after the merge",
+    (
+        "pliant.fit._params",
+        "pliant.scene._build.lumped_masses",
+    ): "to do (issue 40): pliant.scene exports it; fix after the merge",
+    (
+        "pliant.fit._photometric",
+        "pliant.gaussians._scene.SplatSceneError",
+    ): "to do (issue 40): pliant.gaussians exports it; fix after the merge",
+    (
+        "pliant.fit._photometric",
+        "pliant.gaussians._scene.scene_gaussians",
+    ): "to do (issue 40): pliant.gaussians exports it; fix after the merge",
+    (
+        "pliant.fit._photometric",
+        "pliant.gaussians._surface.GENERATED_BACKGROUND",
+    ): "to do (issue 40): pliant.gaussians exports it; fix after the merge",
+    (
+        "pliant.fit._photometric",
+        "pliant.scene._gaussians.GaussiansSection",
+    ): "to do (issue 40): pliant.scene exports it; fix after the merge",
+    (
+        "pliant.fit._problem",
+        "pliant.scene._build.Scene",
+    ): "to do (issue 40): pliant.scene exports it; fix after the merge",
+    (
+        "pliant.fit._run",
+        "pliant.render._video.link_beads",
+    ): "to do (issue 40): pliant.render exports it; fix after the merge",
+    (
+        "pliant.fit._run",
+        "pliant.scene._size.format_bytes",
+    ): "to do (issue 40): pliant.scene exports it; fix after the merge",
+    (
+        "pliant.solvers._base",
+        "pliant.model._parameters.Parameter",
+    ): "to do (issue 40): pliant.model exports it; fix after the merge",
+    (
+        "pliant.solvers._base",
+        "pliant.model._parameters.solver_array",
+    ): "to do (issue 40): pliant.model exports it; fix after the merge",
+    (
+        "pliant.solvers.fast_mass_spring._adjoint",
+        "pliant.energies._spring.dashpot_force_axis",
+    ): "to do (issue 40): pliant.energies exports it; fix after the merge",
+    (
+        "pliant.solvers.fast_mass_spring._adjoint",
+        "pliant.energies._spring.spring_gradient_axis",
+    ): "to do (issue 40): pliant.energies exports it; fix after the merge",
+    (
+        "pliant.solvers.fast_mass_spring._adjoint",
+        "pliant.integrators._explicit.scale_velocity",
+    ): "to do (issue 40): pliant.integrators exports it; fix after the merge",
+    (
+        "pliant.solvers.fast_mass_spring._adjoint",
+        "pliant.integrators._ops.lincomb",
+    ): "to do (issue 40): pliant.integrators exports it; fix after the merge",
+    (
+        "pliant.solvers.fast_mass_spring._explicit",
+        "pliant.energies._spring.dashpot_force_axis",
+    ): "to do (issue 40): pliant.energies exports it; fix after the merge",
+    (
+        "pliant.solvers.fast_mass_spring._explicit",
+        "pliant.energies._spring.spring_gradient_axis",
+    ): "to do (issue 40): pliant.energies exports it; fix after the merge",
+    (
+        "pliant.solvers.fast_mass_spring._explicit",
+        "pliant.integrators._symplectic.symplectic_particle",
+    ): "to do (issue 40): pliant.integrators exports it; fix after the merge",
+    (
+        "pliant.solvers.fast_mass_spring._solver",
+        "pliant.model._parameters.Parameter",
+    ): "to do (issue 40): pliant.model exports it; fix after the merge",
+    (
+        "pliant.solvers.fast_mass_spring._solver",
+        "pliant.model._parameters.declares",
+    ): "to do (issue 40): pliant.model exports it; fix after the merge",
+    (
+        "pliant.solvers.fast_mass_spring._system",
+        "pliant.energies._spring.dashpot_force_axis",
+    ): "to do (issue 40): pliant.energies exports it; fix after the merge",
+    (
+        "pliant.solvers.fast_mass_spring._system",
+        "pliant.energies._spring.spring_gradient_axis",
+    ): "to do (issue 40): pliant.energies exports it; fix after the merge",
+    (
+        "pliant.solvers.fast_mass_spring._system",
+        "pliant.energies._spring.spring_hessian",
+    ): "to do (issue 40): pliant.energies exports it; fix after the merge",
+    (
+        "pliant.solvers.force._solver",
+        "pliant.energies._base._axpy",
+    ): "to do (issue 40): a private kernel helper; make it public",
+    (
+        "pliant.solvers.force._solver",
+        "pliant.model._parameters.Parameter",
+    ): "to do (issue 40): pliant.model exports it; fix after the merge",
+    (
+        "pliant.solvers.force._solver",
+        "pliant.model._parameters.declares",
+    ): "to do (issue 40): pliant.model exports it; fix after the merge",
+    (
+        "pliant.solvers.implicit._minimize",
+        "pliant.integrators._implicit.ImplicitOptionsLike",
+    ): "to do (issue 40): goes with the deprecated minimiser settings",
+    (
+        "pliant.solvers.implicit._newton",
+        "pliant.integrators._implicit.ImplicitOptionsLike",
+    ): "to do (issue 40): goes with the deprecated minimiser settings",
+    (
+        "pliant.solvers.implicit._options",
+        "pliant.integrators._implicit.ImplicitOptions",
+    ): "to do (issue 40): goes with the deprecated minimiser settings",
+    (
+        "pliant.solvers.implicit._options",
+        "pliant.integrators._implicit.ImplicitOptionsLike",
+    ): "to do (issue 40): goes with the deprecated minimiser settings",
+    (
+        "pliant.solvers.implicit._options",
+        "pliant.integrators._implicit.MINIMIZER_SETTINGS",
+    ): "to do (issue 40): goes with the deprecated minimiser settings",
+    (
+        "pliant.solvers.implicit._pcg",
+        "pliant.integrators._implicit.ImplicitOptionsLike",
+    ): "to do (issue 40): goes with the deprecated minimiser settings",
+    (
+        "pliant.solvers.implicit._quasi_newton",
+        "pliant.integrators._implicit.ImplicitOptionsLike",
+    ): "to do (issue 40): goes with the deprecated minimiser settings",
+    (
+        "pliant.twin._pipeline",
+        "pliant.fit._params.apply_globals",
+    ): "to do (issue 40): export from pliant.fit after the fit merge",
+    (
+        "pliant.twin._pipeline",
+        "pliant.fit._run.fit",
+    ): "to do (issue 40): export from pliant.fit after the fit merge",
+    (
+        "pliant.twin._pipeline",
+        "pliant.fit._toml.dumps",
+    ): "to do (issue 40): export from pliant.fit after the fit merge",
+}
+
+#: The figure issue 40 asks for: at most this many tolerated private cross-package imports once the "to do"
+#: entries above are done.
+PRIVATE_TARGET = 10
+
+
+def private_cross_imports(root: Path | None = None) -> list[tuple[str, str, str]]:
+    """(importer module, imported name as ``module.name``, ``file:line``) of every import of another
+    top-level sub-package's private module or private name, function-level ones included. The base modules
+    (``pliant._warp``, ``pliant._blas``, ...) are shared by every layer and are not counted."""
+    root = ROOT if root is None else root
+    out = []
+    for path in sorted(root.rglob("*.py")):
+        me = ".".join(path.relative_to(root.parent).with_suffix("").parts).removesuffix(".__init__")
+        package = me if path.name == "__init__.py" else me.rsplit(".", 1)[0]
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if not isinstance(node, ast.ImportFrom):
+                continue
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            parts = target.split(".")
+            if parts[0] != "pliant" or len(parts) < 2 or parts[1].startswith("_") or parts[1] == _top(me):
+                continue
+            private_module = any(p.startswith("_") for p in parts[2:])
+            if private_module or any(a.name.startswith("_") for a in node.names):
+                out += [(me, f"{target}.{a.name}", f"{path}:{node.lineno}") for a in node.names]
+    return out
+
+
+def test_private_cross_package_imports_are_listed():
+    """No module imports another sub-package's private module or name unless :data:`PRIVATE_ALLOWED` lists
+    it with a reason; every listed one still exists (a stale entry would hide a new one)."""
+    found = private_cross_imports()
+    seen = {(me, name) for me, name, _ in found}
+    new = [f"{where}: {me} imports {name}" for me, name, where in found if (me, name) not in PRIVATE_ALLOWED]
+    assert not new, "private cross-package imports (export the name from its package):\n" + "\n".join(new)
+    assert not set(PRIVATE_ALLOWED) - seen, f"no longer needed: {sorted(set(PRIVATE_ALLOWED) - seen)}"
+    settled = [k for k, why in PRIVATE_ALLOWED.items() if not why.startswith("to do")]
+    assert len(settled) <= PRIVATE_TARGET, f"{len(settled)} tolerated private imports; issue 40 allows 10"
+
+
+def test_the_private_import_check_sees_modules_and_names(tmp_path):
+    """The private-import walk is not vacuous: a private module, a private name and a relative form are each
+    found; an import of a package's public name, or of the package's own private module, is not."""
+    fake = tmp_path / "pliant"
+    for sub in ("model", "sim"):
+        (fake / sub).mkdir(parents=True)
+        (fake / sub / "__init__.py").write_text("")
+    (fake / "__init__.py").write_text("")
+    (fake / "sim" / "_a.py").write_text(
+        "from pliant.model._p import P\nfrom ..model import _q, Model\n"
+        "from ._b import c\nfrom ..model import M\ndef f():\n    from ..model._p import R\n"
+    )
+    found = sorted((me, name) for me, name, _ in private_cross_imports(fake))
+    assert found == [
+        ("pliant.sim._a", "pliant.model.Model"),
+        ("pliant.sim._a", "pliant.model._p.P"),
+        ("pliant.sim._a", "pliant.model._p.R"),
+        ("pliant.sim._a", "pliant.model._q"),
+    ], found
+
+
+#: Functions over :data:`LONG_FUNCTION` lines (docstrings included) still in pliant/ (issue 40, item 5: a
+#: long function is several named steps). Lower it as they are split; it may never rise. Left (on other
+#: branches when the rest were split): fit/_run.py:fit, fit/_gradient.py:gradient_stage, fit/_cmaes.py:cmaes,
+#: fit/_photometric.py:refine_globals, solvers/implicit/_static.py:solve_static,
+#: solvers/implicit/_newton.py:minimize_incremental_potential, solvers/implicit/_quasi_newton.py:
+#: minimize_quasi_newton. Issue 40 asks for at most 3.
+MAX_LONG_FUNCTIONS = 7
+LONG_FUNCTION = 120
+
+
+def long_functions(root: Path | None = None) -> list[str]:
+    """``file:line:name (N lines)`` of every function or method in ``root`` longer than
+    :data:`LONG_FUNCTION` lines, from its ``def`` line to its last line (decorators left out)."""
+    root = ROOT if root is None else root
+    out = []
+    for path in sorted(root.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                n = (node.end_lineno or node.lineno) - node.lineno + 1
+                if n > LONG_FUNCTION:
+                    out.append(f"{path.relative_to(root.parent)}:{node.lineno}:{node.name} ({n} lines)")
+    return out
+
+
+def test_long_functions_only_go_down():
+    """At most :data:`MAX_LONG_FUNCTIONS` functions over 120 lines in pliant/, and exactly that many (lower
+    the figure when one is split, so that it cannot creep back up)."""
+    long = long_functions()
+    assert len(long) <= MAX_LONG_FUNCTIONS, "split into named steps:\n" + "\n".join(long)
+    assert len(long) == MAX_LONG_FUNCTIONS, f"{len(long)} long functions now: lower MAX_LONG_FUNCTIONS"
+
+
+def test_the_long_function_count_sees_methods_and_nested_functions(tmp_path):
+    """The count is not vacuous: a long method and a long nested function are found, a 120-line one not."""
+    fake = tmp_path / "pliant"
+    fake.mkdir()
+    body = "    x = 1\n" * 119
+    (fake / "a.py").write_text(
+        f"class C:\n    def m(self):\n    {body.replace(chr(10), chr(10) + '    ')}    return 1\n"
+        f"def ok():\n{body}\ndef outer():\n    def inner():\n    {body.replace(chr(10), chr(10) + '    ')}"
+        "    return 1\n    return inner\n"
+    )
+    found = long_functions(fake)
+    assert sorted(f.split(":")[2].split(" ")[0] for f in found) == ["inner", "m", "outer"], found
+
+
 @pytest.mark.parametrize("sub", sorted(p.name for p in ROOT.iterdir() if (p / "__init__.py").exists()))
 def test_every_subpackage_has_a_layer(sub):
     """Every subpackage of pliant is placed in a layer."""

@@ -174,8 +174,9 @@ def test_builtin_scenes_use_the_new_keys():
 
 def test_io_keeps_only_trajectory_files():
     """pliant.io holds trajectories, checkpoints, observation files (fitting) and camera files (`pliant run
-    --cameras`), and how they are written and read (atomically; NPZ headers checked against the memory
-    available before loading) only; scene files are pliant.scene."""
+    --cameras`), and how they are written and read (atomically, to checked output paths; NPZ headers checked
+    against the memory available before loading; observed images as unit floats) only; scene files are
+    pliant.scene."""
     assert set(pl.io.__all__) == {
         "atomic_output",
         "atomic_write_text",
@@ -194,6 +195,12 @@ def test_io_keeps_only_trajectory_files():
         "save_checkpoint",
         "ObservationError",
         "Observations",
+        "OutputPathError",
+        "check_file_stem",
+        "check_out_dir",
+        "check_writable_dir",
+        "confined",
+        "to_unit_float",
     }
     assert pl.scene.load_scene is load_scene
 

@@ -210,7 +210,7 @@ def soft_box_drop(
     if method == "implicit" and minimizer == "pcg":
         # The device Newton's frames replay as graphs (as the Simulator runs them): the frame run directly
         # and the captured one happen here, and the states go back to rest in the same arrays.
-        from ..sim._graph import FrameGraphs
+        from ..sim import FrameGraphs
 
         graphs, rest = FrameGraphs(device), model.state()
         for _ in range(2):

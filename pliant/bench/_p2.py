@@ -55,7 +55,7 @@ def _corner_faces(model: Model) -> tuple[np.ndarray, np.ndarray | None]:
 
     if model.tet10_count == 0:
         return surface_from_tets(model.tet_indices.numpy()), None
-    from ..geometry._p2 import P2_EDGES
+    from ..geometry import P2_EDGES
 
     if model.tet10_indices is None:
         raise ValueError(f"the model has {model.tet10_count} quadratic tets but no tet10_indices")

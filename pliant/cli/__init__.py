@@ -27,6 +27,7 @@ from ._common import (  # noqa: F401 - EXIT_OK is re-exported
     EXIT_OK,
     EXIT_USER,
     CliError,
+    Subparsers,
     _examples,
     _positive_float,
     _positive_int,
@@ -107,7 +108,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"pliant {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
+    _add_run_parsers(sub)  # demo, run
+    _add_tool_parsers(sub)  # scenes, info, bench, study, export
+    _add_sweep_view_parsers(sub)  # sweep, view
+    from ._fit import add_parsers as _fit_parsers
 
+    _fit_parsers(sub)  # fit, observe
+    from ._twin import add_parsers as _twin_parsers
+
+    _twin_parsers(sub)
+    return p
+
+
+def _add_run_parsers(sub: Subparsers) -> None:
+    """``pliant demo`` and ``pliant run``'s options."""
     d = _sub(
         sub,
         "demo",
@@ -170,6 +184,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     add_force(r)
 
+
+def _add_tool_parsers(sub: Subparsers) -> None:
+    """``pliant scenes``, ``info``, ``bench``, ``study`` and ``export``'s options."""
     sc = _sub(
         sub,
         "scenes",
@@ -238,6 +255,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--out", required=True, help="a folder (ply/obj/vtu sequences) or a file (usd, xdmf, or --frame)"
     )
     e.add_argument("--frame", type=int, help="export only this frame (ply/obj; negative counts from the end)")
+
+
+def _add_sweep_view_parsers(sub: Subparsers) -> None:
+    """``pliant sweep`` and ``pliant view``'s options."""
     sw = _sub(
         sub,
         "sweep",
@@ -288,13 +309,6 @@ def build_parser() -> argparse.ArgumentParser:
     vw.add_argument("--dtype", choices=("float32", "float64"), help="live: precision (default: the scene's)")
     vw.add_argument("--paused", action="store_true", help="live: start paused")
     vw.add_argument("--out", default=".", help="live: folder of the record button's live_<n>.npz/.mp4")
-    from ._fit import add_parsers as _fit_parsers
-
-    _fit_parsers(sub)  # fit, observe
-    from ._twin import add_parsers as _twin_parsers
-
-    _twin_parsers(sub)
-    return p
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -17,6 +17,12 @@ if TYPE_CHECKING:
 
 def add_parsers(sub: Subparsers) -> None:
     """Register ``fit`` and ``observe`` on the ``pliant`` sub-parsers."""
+    _add_fit_parser(sub)
+    _add_observe_parser(sub)
+
+
+def _add_fit_parser(sub: Subparsers) -> None:
+    """``pliant fit``'s options."""
     f = _sub(
         sub,
         "fit",
@@ -110,6 +116,9 @@ def add_parsers(sub: Subparsers) -> None:
         "as a fit never stopped",
     )
 
+
+def _add_observe_parser(sub: Subparsers) -> None:
+    """``pliant observe``'s options."""
     o = _sub(
         sub,
         "observe",

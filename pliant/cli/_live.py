@@ -15,12 +15,12 @@ def start_live(args: argparse.Namespace) -> tuple[Any, str]:
     import numpy as np
 
     from ..live import LiveSession, serve_live
-    from ..render._viewer import _viser
+    from ..render import load_viser
     from ..scene import build_scene
     from ..sim import DivergenceError
     from ._run import _load
 
-    _viser()  # the install advice before a scene is built
+    load_viser()  # the install advice before a scene is built
     cfg = _load(args.trajectory)
     out = Path(getattr(args, "out", ".") or ".")
     if out.exists() and not out.is_dir():

@@ -58,8 +58,7 @@ def cmd_info(args: argparse.Namespace) -> int:
 def _scene_info(args: argparse.Namespace) -> int:
     """``pliant info SCENE``: what the scene will allocate, estimated before building, against the memory
     available (the check ``pliant run`` makes; ``--force`` skips it)."""
-    from ..scene import available_memory, scene_size
-    from ..scene._size import format_bytes
+    from ..scene import available_memory, format_bytes, scene_size
     from ._run import _load
 
     cfg = _load(args.scene, args.overrides, force=True)
@@ -152,8 +151,7 @@ def cmd_study(args: argparse.Namespace) -> int:
 def cmd_export(args: argparse.Namespace) -> int:
     """``pliant export TRAJ.npz --format ply|obj|usd --out PATH``."""
     from .. import render
-    from ..io import Trajectory
-    from ..io._paths import OutputPathError, check_file_stem, check_out_dir
+    from ..io import OutputPathError, Trajectory, check_file_stem, check_out_dir
 
     out = Path(args.out)
     try:  # before reading anything: a folder name no file system takes, a file name with a separator
@@ -183,7 +181,7 @@ def cmd_export(args: argparse.Namespace) -> int:
             paths = render.export_vtu_series(out, traj)
             print(f"wrote {len(paths)} VTU files and {out / 'frame_series.pvd'} (open the .pvd in ParaView)")
         return EXIT_OK
-    from ..render._export_objects import curve_segments
+    from ..render import curve_segments
 
     # OBJ has polylines (`l`): a rope is written as its links; PLY keeps its vertices only.
     lines = curve_segments(traj) if fmt == "obj" else None

@@ -14,7 +14,7 @@ def view_token(args: argparse.Namespace) -> str | None:
     import secrets
     import sys
 
-    from ..render._viewer import is_loopback
+    from ..render import is_loopback
 
     token = getattr(args, "token", None)
     open_to_all = not is_loopback(args.host)
@@ -42,7 +42,7 @@ def cmd_view(args: argparse.Namespace) -> int:
         viewer, what = start_live(args)
     else:
         from ..io import Trajectory
-        from ..render._viewer import serve_viewer
+        from ..render import serve_viewer
 
         try:
             traj = Trajectory.load(args.trajectory)

@@ -17,10 +17,12 @@ units, element kinds and default search ranges, and :data:`PARAMETERS` is its di
 """
 
 from .._warp import GradientError
+from ._graph import rollout_graphs
 from ._rollout import PARAMETERS, RolloutResult, check_rollout, parameters, rollout
 from ._torch import torch_rollout
 
 __all__ = [
+    "rollout_graphs",
     "PARAMETERS",
     "GradientError",
     "RolloutResult",

@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any, Protocol, TypeVar, cast
 
 import warp as wp
 
-from ..sim._graph import fingerprint
+from ..sim import fingerprint
 
 if TYPE_CHECKING:
     from ..model import Control, State

@@ -10,8 +10,7 @@ import numpy as np
 import warp as wp
 
 from .._warp import GradientError
-from ..model import Control, Model, State
-from ..model._parameters import Parameter, RegistryView, registry
+from ..model import Control, Model, Parameter, RegistryView, State, registry
 from ..solvers import FrameStep
 from . import _graph
 
@@ -114,8 +113,7 @@ def check_rollout(
             gradient), the quantity and the stability advice.
         ValueError: a non-finite loss from finite states (``loss_fn`` reads a NaN or divides by zero).
     """
-    from ..sim import DivergenceError
-    from ..sim._divergence import stability_advice
+    from ..sim import DivergenceError, stability_advice
 
     advice = stability_advice(solver, dt, substeps)
     health = _state_health(final, max_speed)
@@ -208,6 +206,189 @@ def _copy_state(state: State) -> State:
     )
 
 
+def _check_differentiable(
+    model: Model,
+    solver: Solver,
+    frames: int,
+    substeps: int,
+    checkpoint_every: int,
+    loss_fn: Callable[[State], wp.array] | None,
+    frame_loss: Callable[[int, State, wp.array], None] | None,
+) -> None:
+    """:func:`rollout`'s checks before any work: a model with gradients, counts >= 1, differentiable contact
+    handlers, a multistep integrator on one segment, and a loss."""
+    if not model.requires_grad:
+        raise GradientError("rollout needs a model finalised with requires_grad=True")
+    if frames < 1 or substeps < 1 or checkpoint_every < 1:
+        raise ValueError(
+            "frames, substeps and checkpoint_every must be >= 1, "
+            f"got {frames}, {substeps}, {checkpoint_every}"
+        )
+    records = getattr(solver, "records_contact_handlers", False)
+    for c in getattr(solver, "collisions", None) or ():
+        if not (callable(getattr(c, "apply_out", None)) and records):
+            # The handler would correct the state in place on the tape (a wrong gradient).
+            raise GradientError(
+                f"the contact handler {type(c).__name__} (collisions=) of {type(solver).__name__} is not "
+                "differentiable: use ForceSolver with pl.collision.Colliders (spheres, boxes, capsules), "
+                "the ground plane (model.ground), or finalize with requires_grad=False"
+            )
+    integrator = getattr(solver, "integrator", None)
+    if integrator is not None and getattr(integrator, "multistep", False) and checkpoint_every < frames:
+        raise GradientError(
+            f"{integrator.name} is a multistep method: its history cannot cross a checkpoint boundary; "
+            f"pass checkpoint_every={frames} (one segment, the whole rollout on one tape)"
+        )
+    if loss_fn is None and frame_loss is None:
+        raise ValueError("rollout: give loss_fn (a loss of the final state) and/or frame_loss")
+
+
+#: One frame range's run: ``run(state, f0, f1, acc)`` steps frames f0..f1 from ``state``, adding each
+#: frame's loss into ``acc`` when given, and returns the end state.
+_Run = Callable[..., State]
+
+
+def _device_pass(
+    model: Model,
+    solver: Solver,
+    params: Sequence[str],
+    state0: State | None,
+    control: Control | None,
+    bounds: list[int],
+    run: _Run,
+    loss_fn: Callable[[State], wp.array] | None,
+    frame_loss: Callable[[int, State, wp.array], None] | None,
+) -> _Pass:
+    """The forward pass (checkpoints at ``bounds``, no tape) and the backward pass segment by segment, last
+    first, each re-run from its checkpoint under a tape: device work only (no host read), so that it can be
+    captured as one graph (:mod:`pliant.diff._graph`)."""
+    # Device work only (no host read), so that it can be captured as one graph (pliant.diff._graph).
+    start = _copy_state(model.state() if state0 is None else state0)
+    entries = {
+        name: e if isinstance(e, tuple) else (e, None)
+        for name, e in _resolve(params, model, solver, start, control).items()
+    }
+    # Arrays whose gradients accumulate over segments (the initial state's come from the adjoint).
+    initial = (id(start.particle_q), id(start.particle_qd))
+    arrays = {id(a): a for a, _ in entries.values() if id(a) not in initial}
+    if "particle_mass" in entries:
+        # Built without gradients (constant in most rollouts): switch them on for this one.
+        model.particle_mass.requires_grad = True
+        model.particle_inv_mass.requires_grad = True
+        arrays[id(model.particle_inv_mass)] = model.particle_inv_mass
+    for a in arrays.values():
+        if a.grad is None:
+            raise GradientError(
+                "a requested parameter array does not require grad: finalize(requires_grad=True)"
+            )
+        a.grad.zero_()
+    out = _Pass(entries, arrays, [start])
+    # Forward without a tape, keeping the checkpoints; the last segment is run once, under the tape below.
+    for a, b in zip(bounds[:-2], bounds[1:-1], strict=True):
+        out.checkpoints.append(run(out.checkpoints[-1], a, b))
+    adj: tuple[wp.array, wp.array] | None = None
+    for seg in range(len(bounds) - 2, -1, -1):
+        first = out.checkpoints[seg] if seg == 0 else _copy_state(out.checkpoints[seg])
+        for a in (first.particle_q, first.particle_qd):
+            a.grad.zero_()
+        tape = wp.Tape()
+        acc = None
+        if frame_loss is not None:
+            acc = wp.zeros(1, dtype=model.scalar, device=model.device, requires_grad=True)
+        with tape:
+            last = run(first, bounds[seg], bounds[seg + 1], acc)
+            loss = loss_fn(last) if adj is None and loss_fn is not None else None
+        # Seeds: 1 for this segment's losses, the adjoint of its last state from the segment after it.
+        seeds = {} if acc is None else {acc: wp.ones_like(acc)}
+        if loss is not None:
+            seeds[loss] = wp.ones_like(loss)
+        out.losses += [x for x in (loss, acc) if x is not None]  # read in this order after the pass
+        if adj is None:
+            out.final = last
+        else:
+            seeds[last.particle_q], seeds[last.particle_qd] = adj
+        tape.backward(grads=seeds)
+        adj = (wp.clone(first.particle_q.grad), wp.clone(first.particle_qd.grad))
+        out.segment_grads.append({k: wp.clone(a.grad) for k, a in arrays.items()})
+        for a in arrays.values():
+            a.grad.zero_()
+        out.callbacks += _graph.tape_callbacks(tape)
+        tape.reset()
+    assert adj is not None
+    out.adj = adj
+    return out
+
+
+def _frame_states(
+    checkpoints: list[State], bounds: list[int], frames: int, max_speed: float, run: _Run
+) -> Iterable[tuple[int, State]]:
+    """(frame, state) after each frame from the last healthy checkpoint on: for the message of a rollout
+    whose end blew up (only then)."""
+    # Only when the end blew up: the checkpoints, then frame by frame from the last good one.
+    good = 0
+    for seg in range(1, len(bounds) - 1):
+        if _state_health(checkpoints[seg], max_speed) is not None:
+            break
+        good = seg
+    state = _copy_state(checkpoints[good])
+    for k in range(bounds[good] + 1, frames + 1):
+        state = run(state, k - 1, k)
+        yield k, state
+
+
+def _passes(
+    model: Model,
+    solver: Solver,
+    control: Control | None,
+    state0: State | None,
+    callbacks: tuple,
+    settings: tuple,
+    graph: bool | None,
+    device_pass: Callable[[], _Pass],
+) -> tuple[_Pass, bool, str | None]:
+    """Run ``device_pass`` as a captured graph (replayed when the rollout repeats: same solver, control,
+    start, ``callbacks`` and ``settings``) or directly; (its result, whether it was a replay, why no graph
+    was used or None)."""
+    key = _graph.rollout_key(solver, control, state0, callbacks, settings)
+    why = _graph.tape_graph_blocker(solver) if _graph.graphs_enabled(graph) else "graph=False"
+    graphs = _graph.rollout_graphs(solver)
+    if why is None:
+        done = graphs.run(
+            key,
+            callbacks,
+            device_pass,
+            lambda a, b: _Pass.same(a, b, model),
+            model.device,
+        )
+        why, replayed = graphs.reason, graphs.last_replayed
+    else:
+        if why != "graph=False":
+            _graph.report_once(f"{type(solver).__name__}: {why}", model.device)
+        done, replayed = device_pass(), False
+    return done, replayed, why
+
+
+def _frames_runner(
+    frame_step: FrameStep,
+    control: Control | None,
+    control_fn: Callable[[int, Control], None] | None,
+    frame_loss: Callable[[int, State, wp.array], None] | None,
+    first_frame: int,
+) -> _Run:
+    """The rollout's :data:`_Run`: ``control_fn`` before each frame, ``frame_loss`` into ``acc`` after it."""
+
+    def run(state: State, f0: int, f1: int, acc: wp.array | None = None) -> State:
+        for f in range(f0, f1):
+            if control_fn is not None and control is not None:  # control is made above for a control_fn
+                control_fn(first_frame + f, control)
+            state, _ = frame_step(state, control)
+            if acc is not None and frame_loss is not None:  # acc is only passed with a frame_loss
+                frame_loss(first_frame + f + 1, state, acc)
+        return state
+
+    return run
+
+
 def rollout(
     model: Model,
     solver: Solver,
@@ -287,143 +468,29 @@ def rollout(
                               params=["spring_stiffness", "v0"])
         res.grads["spring_stiffness"]  # ∂loss/∂k per spring
     """
-    if not model.requires_grad:
-        raise GradientError("rollout needs a model finalised with requires_grad=True")
-    if frames < 1 or substeps < 1 or checkpoint_every < 1:
-        raise ValueError(
-            "frames, substeps and checkpoint_every must be >= 1, "
-            f"got {frames}, {substeps}, {checkpoint_every}"
-        )
-    records = getattr(solver, "records_contact_handlers", False)
-    for c in getattr(solver, "collisions", None) or ():
-        if not (callable(getattr(c, "apply_out", None)) and records):
-            # The handler would correct the state in place on the tape (a wrong gradient).
-            raise GradientError(
-                f"the contact handler {type(c).__name__} (collisions=) of {type(solver).__name__} is not "
-                "differentiable: use ForceSolver with pl.collision.Colliders (spheres, boxes, capsules), "
-                "the ground plane (model.ground), or finalize with requires_grad=False"
-            )
-    integrator = getattr(solver, "integrator", None)
-    if integrator is not None and getattr(integrator, "multistep", False) and checkpoint_every < frames:
-        raise GradientError(
-            f"{integrator.name} is a multistep method: its history cannot cross a checkpoint boundary; "
-            f"pass checkpoint_every={frames} (one segment, the whole rollout on one tape)"
-        )
-    if loss_fn is None and frame_loss is None:
-        raise ValueError("rollout: give loss_fn (a loss of the final state) and/or frame_loss")
+    _check_differentiable(model, solver, frames, substeps, checkpoint_every, loss_fn, frame_loss)
     if control_fn is not None and control is None:
         control = model.control()
     if reset and hasattr(solver, "reset"):
         solver.reset()  # no L-BFGS pairs or BDF2 history from an earlier run
     frame_step = FrameStep(solver, dt, substeps, fresh=True)  # one frame's substeps, fresh states
 
-    def run(state: State, f0: int, f1: int, acc: wp.array | None = None) -> State:
-        for f in range(f0, f1):
-            if control_fn is not None and control is not None:  # control is made above for a control_fn
-                control_fn(first_frame + f, control)
-            state, _ = frame_step(state, control)
-            if acc is not None and frame_loss is not None:  # acc is only passed with a frame_loss
-                frame_loss(first_frame + f + 1, state, acc)
-        return state
-
+    run = _frames_runner(frame_step, control, control_fn, frame_loss, first_frame)
     bounds = list(range(0, frames, checkpoint_every)) + [frames]
 
     def device_pass() -> _Pass:
-        # Device work only (no host read), so that it can be captured as one graph (pliant.diff._graph).
-        start = _copy_state(model.state() if state0 is None else state0)
-        entries = {
-            name: e if isinstance(e, tuple) else (e, None)
-            for name, e in _resolve(params, model, solver, start, control).items()
-        }
-        # Arrays whose gradients accumulate over segments (the initial state's come from the adjoint).
-        initial = (id(start.particle_q), id(start.particle_qd))
-        arrays = {id(a): a for a, _ in entries.values() if id(a) not in initial}
-        if "particle_mass" in entries:
-            # Built without gradients (constant in most rollouts): switch them on for this one.
-            model.particle_mass.requires_grad = True
-            model.particle_inv_mass.requires_grad = True
-            arrays[id(model.particle_inv_mass)] = model.particle_inv_mass
-        for a in arrays.values():
-            if a.grad is None:
-                raise GradientError(
-                    "a requested parameter array does not require grad: finalize(requires_grad=True)"
-                )
-            a.grad.zero_()
-        out = _Pass(entries, arrays, [start])
-        # Forward without a tape, keeping the checkpoints; the last segment is run once, under the tape below.
-        for a, b in zip(bounds[:-2], bounds[1:-1], strict=True):
-            out.checkpoints.append(run(out.checkpoints[-1], a, b))
-        adj: tuple[wp.array, wp.array] | None = None
-        for seg in range(len(bounds) - 2, -1, -1):
-            first = out.checkpoints[seg] if seg == 0 else _copy_state(out.checkpoints[seg])
-            for a in (first.particle_q, first.particle_qd):
-                a.grad.zero_()
-            tape = wp.Tape()
-            acc = None
-            if frame_loss is not None:
-                acc = wp.zeros(1, dtype=model.scalar, device=model.device, requires_grad=True)
-            with tape:
-                last = run(first, bounds[seg], bounds[seg + 1], acc)
-                loss = loss_fn(last) if adj is None and loss_fn is not None else None
-            # Seeds: 1 for this segment's losses, the adjoint of its last state from the segment after it.
-            seeds = {} if acc is None else {acc: wp.ones_like(acc)}
-            if loss is not None:
-                seeds[loss] = wp.ones_like(loss)
-            out.losses += [x for x in (loss, acc) if x is not None]  # read in this order after the pass
-            if adj is None:
-                out.final = last
-            else:
-                seeds[last.particle_q], seeds[last.particle_qd] = adj
-            tape.backward(grads=seeds)
-            adj = (wp.clone(first.particle_q.grad), wp.clone(first.particle_qd.grad))
-            out.segment_grads.append({k: wp.clone(a.grad) for k, a in arrays.items()})
-            for a in arrays.values():
-                a.grad.zero_()
-            out.callbacks += _graph.tape_callbacks(tape)
-            tape.reset()
-        assert adj is not None
-        out.adj = adj
-        return out
+        return _device_pass(model, solver, params, state0, control, bounds, run, loss_fn, frame_loss)
 
     callbacks = (loss_fn, frame_loss, control_fn)
-    key = _graph.rollout_key(
-        solver,
-        control,
-        state0,
-        callbacks,
-        (id(model), frames, dt, substeps, tuple(params), checkpoint_every, first_frame, reset),
-    )
-    why = _graph.tape_graph_blocker(solver) if _graph.graphs_enabled(graph) else "graph=False"
-    graphs = _graph.rollout_graphs(solver)
-    if why is None:
-        done = graphs.run(
-            key,
-            callbacks,
-            device_pass,
-            lambda a, b: _Pass.same(a, b, model),
-            model.device,
-        )
-        why, replayed = graphs.reason, graphs.last_replayed
-    else:
-        if why != "graph=False":
-            _graph.report_once(f"{type(solver).__name__}: {why}", model.device)
-        done, replayed = device_pass(), False
+    settings = (id(model), frames, dt, substeps, tuple(params), checkpoint_every, first_frame, reset)
+    done, replayed, why = _passes(model, solver, control, state0, callbacks, settings, graph, device_pass)
     loss_value, grads = done.collect(model)
     # A replay's arrays are rewritten by the next replay: the caller gets its own copy of the end state.
     final = _copy_state(done.final) if replayed else done.final
     checkpoints = done.checkpoints
 
     def frame_states() -> Iterable[tuple[int, State]]:
-        # Only when the end blew up: the checkpoints, then frame by frame from the last good one.
-        good = 0
-        for seg in range(1, len(bounds) - 1):
-            if _state_health(checkpoints[seg], max_speed) is not None:
-                break
-            good = seg
-        state = _copy_state(checkpoints[good])
-        for k in range(bounds[good] + 1, frames + 1):
-            state = run(state, k - 1, k)
-            yield k, state
+        return _frame_states(checkpoints, bounds, frames, max_speed, run)
 
     check_rollout(
         loss_value,

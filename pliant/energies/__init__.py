@@ -18,7 +18,16 @@ from ._materials import (
     lame_parameters,
     young_poisson,
 )
-from ._spring import Dashpots, Springs, dashpot_force, spring_energy, spring_gradient, spring_hessian
+from ._spring import (
+    Dashpots,
+    Springs,
+    dashpot_force,
+    dashpot_force_axis,
+    spring_energy,
+    spring_gradient,
+    spring_gradient_axis,
+    spring_hessian,
+)
 
 
 def mass_spring(*, dashpots: bool = True, gravity: bool = True) -> list[Energy]:
@@ -45,6 +54,8 @@ def registered_energies() -> tuple[type[Energy], ...]:
 ALL_ENERGIES: tuple[type[Energy], ...] = registered_energies()
 
 __all__ = [
+    "dashpot_force_axis",
+    "spring_gradient_axis",
     "ALL_ENERGIES",
     "Corotated",
     "LinearElastic",

@@ -3,6 +3,6 @@
 
 from __future__ import annotations
 
-from ..model._materials import cloth_spring_stiffness
+from ..model import cloth_spring_stiffness
 
 __all__ = ["cloth_spring_stiffness"]

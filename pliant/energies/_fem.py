@@ -15,8 +15,7 @@ import numpy as np
 import warp as wp
 
 from .._warp import launch
-from ..model import Model
-from ..model._parameters import TET_LAM, TET_MU, Parameter, declares
+from ..model import TET_LAM, TET_MU, Model, Parameter, declares
 from . import _fem_math as fm
 from . import _fem_p2 as p2
 from ._base import Energy
@@ -269,7 +268,7 @@ class TetElasticity(Energy):
             else:
                 c["mu"], c["lam"] = model.tet_mu, model.tet_lam
             if model.tet10_count:
-                from ..geometry._p2 import tet_quadrature
+                from ..geometry import tet_quadrature
 
                 bary, w = tet_quadrature(self.quadrature)
                 c["qp_bary"] = wp.array(

@@ -7,8 +7,7 @@ from typing import Any
 import warp as wp
 
 from .._warp import launch
-from ..model import Model
-from ..model._parameters import Parameter, declares, solver_array
+from ..model import Model, Parameter, declares, solver_array
 from ._base import Energy
 
 

@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from ..model._materials import lame_parameters, young_poisson
+from ..model import lame_parameters, young_poisson
 from . import _fem_math as fm
 
 __all__ = [

@@ -8,8 +8,7 @@ import numpy as np
 import warp as wp
 
 from .._warp import launch
-from ..model import Model
-from ..model._parameters import SPRING_DAMPING, SPRING_REST_LENGTH, SPRING_STIFFNESS, Parameter, declares
+from ..model import SPRING_DAMPING, SPRING_REST_LENGTH, SPRING_STIFFNESS, Model, Parameter, declares
 from ._base import Energy, ModalEnergy
 
 

@@ -18,15 +18,22 @@ from ._bind import Binding, bind
 from ._camera import Camera
 from ._correct import VisualCorrector
 from ._fit import DEFAULT_LRS, fit_appearance
-from ._gaussians import SH_C0, Gaussians
+from ._gaussians import SH_C0, Gaussians, quat_matrices
 from ._init import INIT_LRS, SplatInit, separate_particles, splats_from_particles
 from ._optim import Adam, iou, photometric_loss, psnr
 from ._ply import PlyError, load_ply, save_ply
 from ._render import RenderOutput, render
-from ._scene import SceneSplats, SplatSceneError
+from ._scene import SceneSplats, SplatSceneError, gaussians_section, scene_gaussians, scene_splats
 from ._session import RENDERERS, SplatSession, splat_session
+from ._surface import GENERATED_BACKGROUND, ring_cameras
 
 __all__ = [
+    "GENERATED_BACKGROUND",
+    "ring_cameras",
+    "quat_matrices",
+    "gaussians_section",
+    "scene_gaussians",
+    "scene_splats",
     "DEFAULT_LRS",
     "INIT_LRS",
     "SH_C0",

@@ -181,28 +181,8 @@ def fit_splat_appearance(
     # Starting values: observed colours under the splats, the uncovered pixels' median as background.
     first = [np.asarray(im, dtype=np.float64) for im in images[0]]
     rgb = sample_colours(placed[0].means.numpy(), cameras, first)
-    uncovered = [
-        im[render(placed[0], cam).alpha.numpy() < 0.01] for cam, im in zip(cameras, first, strict=True)
-    ]
-    pool = (
-        np.concatenate(uncovered)
-        if sum(len(u) for u in uncovered)
-        else np.concatenate([im[[0, -1]].reshape(-1, 3) for im in first])
-    )
-    bg0 = np.median(pool, axis=0)
-    p = g0.numpy()
-    sh = np.zeros((g0.count, (degree + 1) ** 2, 3))
-    sh[:, 0] = (np.clip(rgb, 0.02, 0.98) - 0.5) / SH_C0
-    g = Gaussians(
-        p["means"],
-        p["quats"],
-        p["log_scales"],
-        p["opacity_logits"],
-        sh,
-        dtype=dtype,
-        device=dev,
-        requires_grad=True,
-    )
+    bg0 = _uncovered_median(placed[0], cameras, first)
+    g = _coloured(g0, rgb, degree)
     b.gaussians = g
     placed = [splats.place(x) for x in positions]
     background: wp.array = wp.array([bg0], dtype=vec3_type(dtype), device=dev, requires_grad=True)
@@ -210,40 +190,11 @@ def fit_splat_appearance(
     names = ["sh", "opacity_logits", "log_scales", "background"]
     light: wp.array | None = None
     if shading:
-        # Unlit at the start (shade ≈ 1, the sampled colours already carry the light), with a small light
-        # towards the cameras so that max(0, n·L) has a slope.
-        centre = placed[0].means.numpy().mean(axis=0)
-        towards = np.mean([cam.position for cam in cameras], axis=0) - centre
-        towards /= max(np.linalg.norm(towards), 1e-12)
-        light = wp.array(
-            [[0.98, *(0.01 * towards)], [0.01, 0.0, 0.0, 0.0]],
-            dtype=vec4_type(dtype),
-            device=dev,
-            requires_grad=True,
-        )
+        light = _starting_light(placed[0], cameras)
         params.append(light)
         names.append("light")
     opt = Adam(params, [rates[n] for n in names])
-    history: list[float] = []
-    for _ in range(iterations):
-        for a in params:
-            a.grad.zero_()
-        total = 0.0
-        for f, cam, img, mk in views:
-            tape = wp.Tape()
-            with tape:
-                colour, alpha, _ = render(placed[f], cam, background, light=light)
-            loss, gc, ga = photometric_loss(colour, alpha, img, mk, mask_weight=mask_weight)
-            tape.backward(grads={colour: gc, alpha: ga})
-            total += loss / len(views)
-        for a in params:
-            ga = a.grad.numpy()
-            if not np.all(np.isfinite(ga)):
-                raise FloatingPointError("appearance: a non-finite gradient (check the images and cameras)")
-        history.append(total)
-        opt.step()
-        if len(history) > patience and history[-1 - patience] - history[-1] < rtol * history[-1 - patience]:
-            break
+    history = _descend(opt, params, views, placed, background, light, iterations, rtol, patience, mask_weight)
     bg_r, bg_g, bg_b = (float(v) for v in background.numpy().reshape(3))
     bg = (bg_r, bg_g, bg_b)
     lt = None
@@ -273,6 +224,88 @@ def fit_splat_appearance(
         iterations=len(history),
         wall_time=time.perf_counter() - t0,
     )
+
+
+def _uncovered_median(placed: Gaussians, cameras: Sequence[Camera], first: list[np.ndarray]) -> np.ndarray:
+    """The starting background RGB [3]: the median colour of the pixels of the first frame's images
+    ``first`` that no splat covers (alpha < 0.01), else of the images' top and bottom rows."""
+    uncovered = [im[render(placed, cam).alpha.numpy() < 0.01] for cam, im in zip(cameras, first, strict=True)]
+    pool = (
+        np.concatenate(uncovered)
+        if sum(len(u) for u in uncovered)
+        else np.concatenate([im[[0, -1]].reshape(-1, 3) for im in first])
+    )
+    return np.median(pool, axis=0)
+
+
+def _coloured(g0: Gaussians, rgb: np.ndarray, degree: int) -> Gaussians:
+    """A copy of ``g0`` that records gradients, with SH colours of ``degree`` whose constant term is the
+    sampled colour ``rgb`` [G, 3] (clipped to [0.02, 0.98]) and higher terms zero."""
+    p = g0.numpy()
+    sh = np.zeros((g0.count, (degree + 1) ** 2, 3))
+    sh[:, 0] = (np.clip(rgb, 0.02, 0.98) - 0.5) / SH_C0
+    return Gaussians(
+        p["means"],
+        p["quats"],
+        p["log_scales"],
+        p["opacity_logits"],
+        sh,
+        dtype=g0.dtype,
+        device=g0.device,
+        requires_grad=True,
+    )
+
+
+def _starting_light(placed: Gaussians, cameras: Sequence[Camera]) -> wp.array:
+    """The light to fit, as two vec4 ((ambient, L), (headlight, 0, 0, 0)) that record gradients."""
+    # Unlit at the start (shade ≈ 1, the sampled colours already carry the light), with a small light
+    # towards the cameras so that max(0, n·L) has a slope.
+    centre = placed.means.numpy().mean(axis=0)
+    towards = np.mean([cam.position for cam in cameras], axis=0) - centre
+    towards /= max(np.linalg.norm(towards), 1e-12)
+    return wp.array(
+        [[0.98, *(0.01 * towards)], [0.01, 0.0, 0.0, 0.0]],
+        dtype=vec4_type(placed.dtype),
+        device=placed.device,
+        requires_grad=True,
+    )
+
+
+def _descend(
+    opt: Adam,
+    params: list[wp.array],
+    views: list[tuple[int, Camera, wp.array, wp.array | None]],
+    placed: list[Gaussians],
+    background: wp.array,
+    light: wp.array | None,
+    iterations: int,
+    rtol: float,
+    patience: int,
+    mask_weight: float,
+) -> list[float]:
+    """Adam steps on the photometric loss over ``views`` (frame, camera, image, mask) until ``iterations``
+    or a relative improvement below ``rtol`` over ``patience`` steps; the loss history."""
+    history: list[float] = []
+    for _ in range(iterations):
+        for a in params:
+            a.grad.zero_()
+        total = 0.0
+        for f, cam, img, mk in views:
+            tape = wp.Tape()
+            with tape:
+                colour, alpha, _ = render(placed[f], cam, background, light=light)
+            loss, gc, ga = photometric_loss(colour, alpha, img, mk, mask_weight=mask_weight)
+            tape.backward(grads={colour: gc, alpha: ga})
+            total += loss / len(views)
+        for a in params:
+            ga = a.grad.numpy()
+            if not np.all(np.isfinite(ga)):
+                raise FloatingPointError("appearance: a non-finite gradient (check the images and cameras)")
+        history.append(total)
+        opt.step()
+        if len(history) > patience and history[-1 - patience] - history[-1] < rtol * history[-1 - patience]:
+            break
+    return history
 
 
 def _mean_psnr(values: Sequence[float]) -> float:

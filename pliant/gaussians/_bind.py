@@ -347,52 +347,13 @@ def bind(
         raise ValueError(f"rest_positions must have shape [P, 3] with P > 0, got {X.shape}")
     P = len(X)
     dtype, dev = gaussians.dtype, gaussians.device
-    nd, s, v3, m33 = np_dtype(dtype), scalar_type(dtype), vec3_type(dtype), mat33_type(dtype)
+    nd, s, v3 = np_dtype(dtype), scalar_type(dtype), vec3_type(dtype)
     mu = gaussians.means.numpy().astype(np.float64)
     b = Binding(gaussians, method, P)
     if method == "barycentric":
-        if tets is None:
-            raise ValueError('bind(method="barycentric") needs tets [E, 4]')
-        from ..geometry import locate_points
-
-        tets = np.asarray(tets, dtype=np.int64)
-        tet_ids, bary, _inside = locate_points(mu, X, tets)
-        Dm = np.stack([X[tets[:, i]] - X[tets[:, 0]] for i in (1, 2, 3)], axis=2)
-        det = np.linalg.det(Dm)
-        if np.any(np.abs(det) < 1e-300):
-            raise ValueError(f"bind: {int(np.sum(np.abs(det) < 1e-300))} rest tets are degenerate")
-        b.tets = wp.array(tets.astype(np.int32), dtype=wp.int32, device=dev)
-        b.gauss_tet = wp.array(tet_ids.astype(np.int32), dtype=wp.int32, device=dev)
-        b.bary = wp.array(bary.astype(nd), dtype=s, device=dev)
-        b.rest_inv = wp.array(np.linalg.inv(Dm).astype(nd), dtype=m33, device=dev)
-        return b
+        return _bind_barycentric(b, mu, X, tets, dtype, dev)
     if method == "triangles":
-        if triangles is None:
-            raise ValueError('bind(method="triangles") needs triangles [T, 3]')
-        tris = np.asarray(triangles, dtype=np.int64)
-        if tris.ndim != 2 or tris.shape[1] != 3 or len(tris) == 0 or tris.min() < 0 or tris.max() >= P:
-            raise ValueError(f"triangles must have shape [T, 3] indexing {P} particles, got {tris.shape}")
-        E1, E2 = X[tris[:, 1]] - X[tris[:, 0]], X[tris[:, 2]] - X[tris[:, 0]]
-        N = np.cross(E1, E2)
-        area2 = np.linalg.norm(N, axis=1)
-        if np.any(area2 < 1e-300):
-            raise ValueError(f"bind: {int(np.sum(area2 < 1e-300))} rest triangles are degenerate")
-        N /= area2[:, None]
-        # nearest triangle: among the 8 nearest centroids, the smallest distance to the clamped projection
-        kc = int(min(8, len(tris)))
-        _, cand = cKDTree(X[tris].mean(axis=1)).query(mu, k=kc)
-        cand = np.asarray(cand).reshape(len(mu), kc)
-        frames = np.linalg.inv(np.stack([E1, E2, N], axis=2))  # [T, 3, 3]: (a, b, c) of a point - X0
-        abc = np.einsum("gkij,gkj->gki", frames[cand], mu[:, None, :] - X[tris[cand, 0]])
-        w = np.stack([1.0 - abc[..., 0] - abc[..., 1], abc[..., 0], abc[..., 1]], axis=-1).clip(0.0, None)
-        w /= np.maximum(w.sum(axis=-1, keepdims=True), 1e-300)
-        foot = np.einsum("gki,gkij->gkj", w, X[tris[cand]])
-        best = cand[np.arange(len(mu)), np.argmin(np.linalg.norm(foot - mu[:, None, :], axis=2), axis=1)]
-        b.tris = wp.array(tris.astype(np.int32), dtype=wp.int32, device=dev)
-        b.gauss_tri = wp.array(best.astype(np.int32), dtype=wp.int32, device=dev)
-        b.local = wp.array((mu - X[tris[best, 0]]).astype(nd), dtype=v3, device=dev)
-        b.rest_inv = wp.array(frames.astype(nd), dtype=m33, device=dev)
-        return b
+        return _bind_triangles(b, mu, X, triangles, dtype, dev)
     if method == "lbs":
         kb = int(min(max(neighbours, 1), P))
         _, nbr = cKDTree(X).query(X, k=kb)
@@ -442,4 +403,65 @@ def bind(
     b.link_group = wp.array(link_group.astype(np.int32), dtype=wp.int32, device=dev)
     b.link_weight = wp.array(link_weight.astype(nd), dtype=s, device=dev)
     b.link_offset = wp.array((mu[link_gauss] - C[link_group]).astype(nd), dtype=v3, device=dev)
+    return b
+
+
+def _bind_barycentric(
+    b: Binding, mu: np.ndarray, X: np.ndarray, tets: np.ndarray | None, dtype: str, dev: str
+) -> Binding:
+    """Fill ``b`` for ``method="barycentric"``: each Gaussian centre ``mu`` [G, 3] (m) in the rest tet
+    [E, 4] that holds it (or the nearest), with its barycentric weights and the tets' inverse rest edge
+    matrices (1/m) at rest positions ``X`` [P, 3] (m)."""
+    nd, s, m33 = np_dtype(dtype), scalar_type(dtype), mat33_type(dtype)
+    if tets is None:
+        raise ValueError('bind(method="barycentric") needs tets [E, 4]')
+    from ..geometry import locate_points
+
+    tets = np.asarray(tets, dtype=np.int64)
+    tet_ids, bary, _inside = locate_points(mu, X, tets)
+    Dm = np.stack([X[tets[:, i]] - X[tets[:, 0]] for i in (1, 2, 3)], axis=2)
+    det = np.linalg.det(Dm)
+    if np.any(np.abs(det) < 1e-300):
+        raise ValueError(f"bind: {int(np.sum(np.abs(det) < 1e-300))} rest tets are degenerate")
+    b.tets = wp.array(tets.astype(np.int32), dtype=wp.int32, device=dev)
+    b.gauss_tet = wp.array(tet_ids.astype(np.int32), dtype=wp.int32, device=dev)
+    b.bary = wp.array(bary.astype(nd), dtype=s, device=dev)
+    b.rest_inv = wp.array(np.linalg.inv(Dm).astype(nd), dtype=m33, device=dev)
+    return b
+
+
+def _bind_triangles(
+    b: Binding, mu: np.ndarray, X: np.ndarray, triangles: np.ndarray | None, dtype: str, dev: str
+) -> Binding:
+    """Fill ``b`` for ``method="triangles"``: each Gaussian centre ``mu`` [G, 3] (m) in the frame (edge 1,
+    edge 2, unit normal) of its nearest rest triangle [T, 3] at rest positions ``X`` [P, 3] (m)."""
+    from scipy.spatial import cKDTree
+
+    P = len(X)
+    nd, v3, m33 = np_dtype(dtype), vec3_type(dtype), mat33_type(dtype)
+    if triangles is None:
+        raise ValueError('bind(method="triangles") needs triangles [T, 3]')
+    tris = np.asarray(triangles, dtype=np.int64)
+    if tris.ndim != 2 or tris.shape[1] != 3 or len(tris) == 0 or tris.min() < 0 or tris.max() >= P:
+        raise ValueError(f"triangles must have shape [T, 3] indexing {P} particles, got {tris.shape}")
+    E1, E2 = X[tris[:, 1]] - X[tris[:, 0]], X[tris[:, 2]] - X[tris[:, 0]]
+    N = np.cross(E1, E2)
+    area2 = np.linalg.norm(N, axis=1)
+    if np.any(area2 < 1e-300):
+        raise ValueError(f"bind: {int(np.sum(area2 < 1e-300))} rest triangles are degenerate")
+    N /= area2[:, None]
+    # nearest triangle: among the 8 nearest centroids, the smallest distance to the clamped projection
+    kc = int(min(8, len(tris)))
+    _, cand = cKDTree(X[tris].mean(axis=1)).query(mu, k=kc)
+    cand = np.asarray(cand).reshape(len(mu), kc)
+    frames = np.linalg.inv(np.stack([E1, E2, N], axis=2))  # [T, 3, 3]: (a, b, c) of a point - X0
+    abc = np.einsum("gkij,gkj->gki", frames[cand], mu[:, None, :] - X[tris[cand, 0]])
+    w = np.stack([1.0 - abc[..., 0] - abc[..., 1], abc[..., 0], abc[..., 1]], axis=-1).clip(0.0, None)
+    w /= np.maximum(w.sum(axis=-1, keepdims=True), 1e-300)
+    foot = np.einsum("gki,gkij->gkj", w, X[tris[cand]])
+    best = cand[np.arange(len(mu)), np.argmin(np.linalg.norm(foot - mu[:, None, :], axis=2), axis=1)]
+    b.tris = wp.array(tris.astype(np.int32), dtype=wp.int32, device=dev)
+    b.gauss_tri = wp.array(best.astype(np.int32), dtype=wp.int32, device=dev)
+    b.local = wp.array((mu - X[tris[best, 0]]).astype(nd), dtype=v3, device=dev)
+    b.rest_inv = wp.array(frames.astype(nd), dtype=m33, device=dev)
     return b

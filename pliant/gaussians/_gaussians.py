@@ -271,7 +271,7 @@ class Gaussians:
         if A is None:
             return self.copy()
         q = p["quats"] / np.linalg.norm(p["quats"], axis=1, keepdims=True)
-        M = A @ _quat_matrices(q) * np.exp(p["log_scales"])[:, None, :]
+        M = A @ quat_matrices(q) * np.exp(p["log_scales"])[:, None, :]
         evals, evecs = np.linalg.eigh(M @ M.transpose(0, 2, 1))
         evecs[np.linalg.det(evecs) < 0, :, 0] *= -1.0  # a proper rotation
         p["quats"] = _matrix_quats(evecs)
@@ -290,7 +290,7 @@ def _finite(a: np.ndarray, name: str) -> None:
         raise ValueError(f"{name} holds non-finite values (NaN or inf)")
 
 
-def _quat_matrices(q: np.ndarray) -> np.ndarray:
+def quat_matrices(q: np.ndarray) -> np.ndarray:
     """Rotation matrices [N, 3, 3] of unit quaternions w, x, y, z [N, 4]."""
     w, x, y, z = q.T
     return np.stack(

@@ -31,22 +31,22 @@ from __future__ import annotations
 import math
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 import warp as wp
 
-from .._warp import np_dtype, resolve_device, scalar_type, vec3_type
-from ._appearance import _mean_psnr, sample_colours
+from .._warp import np_dtype, resolve_device, scalar_type
+from ._appearance import sample_colours
 from ._bind import Binding, bind
 from ._camera import Camera
 from ._gaussians import SH_C0, Gaussians
-from ._optim import Adam, _flat, photometric_loss, psnr
+from ._optim import _flat
 from ._ply import save_ply
 from ._render import render
+from ._splat_training import _check_inputs, _clamp_kernel, _scores, _train, _View
 
 #: Adam's learning rates of both stages. ``means`` is per unit of the points' bounding-box diagonal [m/step
 #: per m] (Embodied Gaussians' 1e-4 for a scene of about 1 m, ×3 as this stage takes fewer steps);
@@ -229,70 +229,6 @@ def _separation(x: np.ndarray, radius: float) -> float:
     return float(np.min(cKDTree(x).query(x, k=2)[0][:, 1]) / (2.0 * radius))
 
 
-@wp.kernel
-def _clamp_kernel(a_io: wp.array(dtype=Any), lo: Any, hi: Any):
-    i = wp.tid()
-    a_io[i] = wp.clamp(a_io[i], lo, hi)
-
-
-class _View:
-    """One training view: its camera, the observed object pixels (image × mask), the background weight
-    (1 − mask) and the mask, as NumPy and on the device."""
-
-    def __init__(self, cam: Camera, image: np.ndarray, mask: np.ndarray, dtype: str, device: str) -> None:
-        self.cam = cam
-        self.obj = image * mask[..., None]
-        self.empty = 1.0 - mask
-        self.mask = mask
-        self.v3 = vec3_type(dtype)
-        self.nd = np_dtype(dtype)
-        self.device = device
-        self.mask_wp: wp.array = wp.array(mask.astype(self.nd), dtype=scalar_type(dtype), device=device)
-
-    def target(self, background: np.ndarray) -> wp.array:
-        """The observed image with its background pixels replaced by ``background`` (RGB)."""
-        t = self.obj + self.empty[..., None] * background
-        return wp.array(t.astype(self.nd), dtype=self.v3, device=self.device)
-
-
-def _check_inputs(
-    points: npt.ArrayLike,
-    cameras: Sequence[Camera],
-    images: Sequence[Any],
-    masks: Sequence[Any],
-    radius: float,
-) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
-    """Validated float64 points, images [H, W, 3] in [0, 1] (uint8 scaled) and masks [H, W] in [0, 1]."""
-    pts = np.asarray(points, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
-        raise ValueError(f"splats_from_particles: points must have shape [N, 3] with N > 0, got {pts.shape}")
-    if not np.all(np.isfinite(pts)):
-        raise ValueError("splats_from_particles: points hold NaN or inf; drop those rows")
-    if not (isinstance(radius, int | float) and radius > 0.0 and math.isfinite(radius)):
-        raise ValueError(f"splats_from_particles: radius must be a positive length [m], got {radius!r}")
-    if not len(cameras) or len(images) != len(cameras) or len(masks) != len(cameras):
-        raise ValueError(
-            f"splats_from_particles: {len(cameras)} cameras, {len(images)} images and {len(masks)} masks; "
-            "give one image and one mask per camera (at least one camera)"
-        )
-    imgs, mks = [], []
-    for c, cam in enumerate(cameras):
-        if not isinstance(cam, Camera):
-            raise TypeError(f"splats_from_particles: cameras[{c}] must be a pliant.gaussians.Camera")
-        raw = np.asarray(images[c])
-        img = cam.check_image(raw / 255.0 if raw.dtype == np.uint8 else raw, f"images[{c}]")
-        if img.ndim != 3:
-            raise ValueError(f"splats_from_particles: images[{c}] must have shape [H, W, 3], got {img.shape}")
-        m = cam.check_image(np.asarray(masks[c], dtype=np.float64), f"masks[{c}]")
-        if m.ndim != 2:
-            raise ValueError(f"splats_from_particles: masks[{c}] must have shape [H, W], got {m.shape}")
-        if not np.any(m > 0.5):
-            raise ValueError(f"splats_from_particles: masks[{c}] is empty; drop camera {c} or fix its mask")
-        imgs.append(np.clip(img, 0.0, 1.0))
-        mks.append(np.clip(m, 0.0, 1.0))
-    return pts, imgs, mks
-
-
 def hidden_points(
     points: np.ndarray,
     occluders: np.ndarray,
@@ -339,50 +275,6 @@ def hidden_points(
         behind[ok] = (a[vi, ui] > 0.5) & (z[ok] > d[vi, ui] + 2.0 * radius)
         hidden &= behind
     return hidden
-
-
-def _scores(g: Gaussians, views: Sequence[_View]) -> tuple[float, float]:
-    """(PSNR [dB] of the object pixels over all views, mean mask IoU) of ``g``."""
-    ps, ious = [], []
-    for v in views:
-        colour, alpha, _ = render(g, v.cam, (0.0, 0.0, 0.0))
-        ps.append(psnr(colour, v.obj))
-        a, m = alpha.numpy() > 0.5, v.mask > 0.5
-        ious.append(float(np.sum(a & m)) / max(float(np.sum(a | m)), 1.0))
-    return _mean_psnr(ps), float(np.mean(ious))
-
-
-def _train(
-    g: Gaussians,
-    params: list[wp.array],
-    rates: list[float],
-    views: Sequence[_View],
-    iterations: int,
-    rng: np.random.Generator,
-    mask_weight: float,
-    after_step,
-) -> list[float]:
-    """Adam on ``params`` of ``g`` against ``views`` over a random background per step; ``after_step()``
-    runs after each update (collision projection, scale clamping). Returns the loss before each step."""
-    opt = Adam(params, rates)
-    history: list[float] = []
-    for _ in range(iterations):
-        for p in g.parameters():
-            p.grad.zero_()
-        bg = rng.uniform(0.0, 1.0, 3)
-        total = 0.0
-        for v in views:
-            target = v.target(bg)
-            tape = wp.Tape()
-            with tape:
-                colour, alpha, _ = render(g, v.cam, (float(bg[0]), float(bg[1]), float(bg[2])))
-            loss, gc, ga = photometric_loss(colour, alpha, target, v.mask_wp, mask_weight=mask_weight)
-            tape.backward(grads={colour: gc, alpha: ga})
-            total += loss / len(views)
-        history.append(total)
-        opt.step()
-        after_step()
-    return history
 
 
 def splats_from_particles(
@@ -444,6 +336,78 @@ def splats_from_particles(
     """
     t0, c0 = time.perf_counter(), time.process_time()
     pts, imgs, mks = _check_inputs(points, cameras, images, masks, radius)
+    _check_options(sigma, sh_degree, iterations, visual_iterations, projections, lrs)
+    rates = dict(INIT_LRS, **(lrs or {}))
+    dev = resolve_device(device)
+    r = float(radius)
+    views = [_View(cam, im, m, dtype, dev) for cam, im, m in zip(cameras, imgs, mks, strict=True)]
+    rng = np.random.default_rng(seed)
+    extent = max(float(np.linalg.norm(np.ptp(pts, axis=0))), 2.0 * r)
+    lr_sh = rates["colours"] / SH_C0
+
+    # Step 3: isotropic splats at the points, coloured by what the cameras see there.
+    rgb = sample_colours(pts, cameras, imgs, mks)
+    g, quats = _starting_splats(pts, rgb, sh_degree, sigma * r, dtype, dev)
+    psnr_before, iou_before = _scores(g, views)
+
+    # Step 4: Adam on means, opacities and colours; the particles kept apart after every step.
+    t1 = time.perf_counter()
+    lr = [rates["means"] * extent, rates["opacity_logits"], lr_sh]
+    project = _separation_hook(g, r, projections, relaxation, dtype)
+    history = _train(
+        g, [g.means, g.opacity_logits, g.sh], lr, views, int(iterations), rng, mask_weight, project
+    )
+    # Step 5: prune by opacity; the survivors, separated to 2r within a tolerance, are the particles.
+    p = g.numpy()
+    opaque, kept, particles = _prune(p, opacity_threshold, r, cameras, relaxation, dev, dtype)
+    colours = np.clip(p["sh"][kept, 0] * SH_C0 + 0.5, 0.0, 1.0)
+    p["means"][kept] = particles
+    solid = _splat_set(p, quats, dtype, dev, kept)  # the particles' own splats (their means: particles)
+    t2 = time.perf_counter()
+
+    # Step 6: the visual set, from the trained first set, with means, rotations and scales free.
+    v = _splat_set(p, quats, dtype, dev, requires_grad=True)
+    lr = [rates["means"] * extent, rates["quats"], rates["log_scales"], rates["opacity_logits"], lr_sh]
+    hook = _scale_clamp(v, r, dtype, dev)
+    visual_history = _train(v, v.parameters(), lr, views, int(visual_iterations), rng, mask_weight, hook)
+    visual, keep_v = _attached(v, particles, attach * r, min_opacity, dtype, dev)
+    t3 = time.perf_counter()
+    psnr_particles, iou_particles = _scores(solid, views)
+    psnr_after, iou_after = _scores(visual, views)
+    t4 = time.perf_counter()
+    return SplatInit(
+        particles=particles,
+        particle_colours=colours,
+        kept=kept,
+        gaussians=visual,
+        radius=r,
+        separation=_separation(particles, r),
+        pruned=int(len(pts) - kept.sum()),
+        buried=int(np.sum(kept & ~opaque)),
+        visual_dropped=int(len(pts) - keep_v.sum()),
+        psnr_before=psnr_before,
+        psnr_particles=psnr_particles,
+        psnr_after=psnr_after,
+        iou_before=iou_before,
+        iou_particles=iou_particles,
+        iou_after=iou_after,
+        history=history,
+        visual_history=visual_history,
+        wall_time=t4 - t0,
+        cpu_time=time.process_time() - c0,
+        timings={"particles": t2 - t1, "visual": t3 - t2, "metrics": (t1 - t0) + (t4 - t3)},
+    )
+
+
+def _check_options(
+    sigma: float,
+    sh_degree: int,
+    iterations: int,
+    visual_iterations: int,
+    projections: int,
+    lrs: dict[str, float] | None,
+) -> None:
+    """``splats_from_particles``' numeric options: σ > 0, an SH degree 0–3, counts >= 0, known rates."""
     unknown = set(lrs or {}) - set(INIT_LRS)
     if not (sigma > 0.0 and math.isfinite(sigma)) or sh_degree not in (0, 1, 2, 3):
         raise ValueError(
@@ -453,17 +417,13 @@ def splats_from_particles(
         raise ValueError("splats_from_particles: iterations, visual_iterations and projections must be >= 0")
     if unknown:
         raise ValueError(f"splats_from_particles: unknown lrs {sorted(unknown)}; known: {sorted(INIT_LRS)}")
-    rates = dict(INIT_LRS, **(lrs or {}))
-    dev = resolve_device(device)
-    r = float(radius)
-    nd, s = np_dtype(dtype), scalar_type(dtype)
-    views = [_View(cam, im, m, dtype, dev) for cam, im, m in zip(cameras, imgs, mks, strict=True)]
-    rng = np.random.default_rng(seed)
-    extent = max(float(np.linalg.norm(np.ptp(pts, axis=0))), 2.0 * r)
-    lr_sh = rates["colours"] / SH_C0
 
-    # Step 3: isotropic splats at the points, coloured by what the cameras see there.
-    rgb = sample_colours(pts, cameras, imgs, mks)
+
+def _starting_splats(
+    pts: np.ndarray, rgb: np.ndarray, sh_degree: int, sigma: float, dtype: str, dev: str
+) -> tuple[Gaussians, np.ndarray]:
+    """Step 3: isotropic splats of σ ``sigma`` [m] at ``pts`` [N, 3] [m], opacity ½, SH colours of
+    ``sh_degree`` whose constant term is ``rgb`` [N, 3]; with their (identity) quaternions [N, 4]."""
     n = len(pts)
     sh = np.zeros((n, (sh_degree + 1) ** 2, 3))
     sh[:, 0] = (np.clip(rgb, 0.02, 0.98) - 0.5) / SH_C0
@@ -471,33 +431,27 @@ def splats_from_particles(
     g = Gaussians(
         pts,
         quats,
-        np.full((n, 3), math.log(sigma * r)),
+        np.full((n, 3), math.log(sigma)),
         np.zeros(n),
         sh,
         dtype=dtype,
         device=dev,
         requires_grad=True,
     )
-    psnr_before, iou_before = _scores(g, views)
+    return g, quats
 
-    # Step 4: Adam on means, opacities and colours; the particles kept apart after every step.
-    def project() -> None:
-        x = separate_particles(g.means.numpy(), r, iterations=projections, relaxation=relaxation)
-        g.means.assign(x.astype(nd))
 
-    t1 = time.perf_counter()
-    history = _train(
-        g,
-        [g.means, g.opacity_logits, g.sh],
-        [rates["means"] * extent, rates["opacity_logits"], lr_sh],
-        views,
-        int(iterations),
-        rng,
-        mask_weight,
-        project,
-    )
-    # Step 5: prune by opacity; the survivors, separated to 2r within a tolerance, are the particles.
-    p = g.numpy()
+def _prune(
+    p: dict[str, np.ndarray],
+    opacity_threshold: float,
+    r: float,
+    cameras: Sequence[Camera],
+    relaxation: float,
+    dev: str,
+    dtype: str,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Step 5: (opaque [N], kept [N], the kept particles separated to 2 ``r`` [K, 3] [m]) of the trained
+    splats' values ``p``; a buried splat (every camera sees it only through opaque ones) is kept too."""
     opaque = 1.0 / (1.0 + np.exp(-p["opacity_logits"])) > opacity_threshold
     # The photometric loss cannot judge a particle that every camera sees only through the kept ones (it
     # would rather hollow the object out: a buried splat only blurs the colours of the surface in front);
@@ -514,50 +468,67 @@ def splats_from_particles(
     particles = separate_particles(
         p["means"][kept], r, iterations=2000, relaxation=relaxation, tolerance=1e-3
     )
-    colours = np.clip(p["sh"][kept, 0] * SH_C0 + 0.5, 0.0, 1.0)
-    p["means"][kept] = particles
-    solid = Gaussians(
-        particles,
-        quats[kept],
-        p["log_scales"][kept],
-        p["opacity_logits"][kept],
-        p["sh"][kept],
-        dtype=dtype,
-        device=dev,
-    )
-    t2 = time.perf_counter()
+    return opaque, kept, particles
 
-    # Step 6: the visual set, from the trained first set, with means, rotations and scales free.
-    v = Gaussians(
-        p["means"],
-        quats,
-        p["log_scales"],
-        p["opacity_logits"],
-        p["sh"],
+
+def _splat_set(
+    p: dict[str, np.ndarray],
+    quats: np.ndarray,
+    dtype: str,
+    dev: str,
+    keep: np.ndarray | None = None,
+    requires_grad: bool = False,
+) -> Gaussians:
+    """The Gaussians of the values ``p`` (``Gaussians.numpy()``) with rotations ``quats`` [N, 4], those of
+    ``keep`` [N] (bool) only when given."""
+    sel = slice(None) if keep is None else keep
+    return Gaussians(
+        p["means"][sel],
+        quats[sel],
+        p["log_scales"][sel],
+        p["opacity_logits"][sel],
+        p["sh"][sel],
         dtype=dtype,
         device=dev,
-        requires_grad=True,
+        requires_grad=requires_grad,
     )
+
+
+def _separation_hook(
+    g: Gaussians, r: float, projections: int, relaxation: float, dtype: str
+) -> Callable[[], None]:
+    """Step 4's step hook: ``projections`` Jacobi projections (``relaxation``) push apart the splats'
+    means closer than 2 ``r`` [m]."""
+    nd = np_dtype(dtype)
+
+    def project() -> None:
+        x = separate_particles(g.means.numpy(), r, iterations=projections, relaxation=relaxation)
+        g.means.assign(x.astype(nd))
+
+    return project
+
+
+def _scale_clamp(v: Gaussians, r: float, dtype: str, dev: str) -> Callable[[], None]:
+    """Step 6's step hook: clamp the visual splats' scales to [r/2, 2r] [m]."""
+    s = scalar_type(dtype)
     lo, hi = s(math.log(0.5 * r)), s(math.log(2.0 * r))
     flat_scales = _flat(v.log_scales)
 
     def clamp() -> None:
         wp.launch(_clamp_kernel, dim=flat_scales.shape[0], inputs=[flat_scales, lo, hi], device=dev)
 
-    visual_history = _train(
-        v,
-        v.parameters(),
-        [rates["means"] * extent, rates["quats"], rates["log_scales"], rates["opacity_logits"], lr_sh],
-        views,
-        int(visual_iterations),
-        rng,
-        mask_weight,
-        clamp,
-    )
+    return clamp
+
+
+def _attached(
+    v: Gaussians, particles: np.ndarray, reach: float, min_opacity: float, dtype: str, dev: str
+) -> tuple[Gaussians, np.ndarray]:
+    """Step 6's survivors: the visual splats within ``reach`` [m] of a particle and above ``min_opacity``,
+    with unit quaternions; and the mask [N] of those kept."""
     from scipy.spatial import cKDTree
 
     q = v.numpy()
-    near = np.asarray(cKDTree(particles).query(q["means"], k=1)[0]) <= attach * r
+    near = np.asarray(cKDTree(particles).query(q["means"], k=1)[0]) <= reach
     keep_v = near & (1.0 / (1.0 + np.exp(-q["opacity_logits"])) > min_opacity)
     q["quats"] /= np.linalg.norm(q["quats"], axis=1, keepdims=True)
     visual = Gaussians(
@@ -569,32 +540,7 @@ def splats_from_particles(
         dtype=dtype,
         device=dev,
     )
-    t3 = time.perf_counter()
-    psnr_particles, iou_particles = _scores(solid, views)
-    psnr_after, iou_after = _scores(visual, views)
-    t4 = time.perf_counter()
-    return SplatInit(
-        particles=particles,
-        particle_colours=colours,
-        kept=kept,
-        gaussians=visual,
-        radius=r,
-        separation=_separation(particles, r),
-        pruned=int(n - kept.sum()),
-        buried=int(np.sum(kept & ~opaque)),
-        visual_dropped=int(n - keep_v.sum()),
-        psnr_before=psnr_before,
-        psnr_particles=psnr_particles,
-        psnr_after=psnr_after,
-        iou_before=iou_before,
-        iou_particles=iou_particles,
-        iou_after=iou_after,
-        history=history,
-        visual_history=visual_history,
-        wall_time=t4 - t0,
-        cpu_time=time.process_time() - c0,
-        timings={"particles": t2 - t1, "visual": t3 - t2, "metrics": (t1 - t0) + (t4 - t3)},
-    )
+    return visual, keep_v
 
 
 __all__ = ["INIT_LRS", "SplatInit", "hidden_points", "separate_particles", "splats_from_particles"]

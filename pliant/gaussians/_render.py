@@ -94,15 +94,7 @@ def render(
     dev, dtype = gaussians.device, gaussians.dtype
     s, v2, v3, v4 = scalar_type(dtype), vec2_type(dtype), vec3_type(dtype), vec4_type(dtype)
     m33 = mat33_type(dtype)
-    bg_array = background if isinstance(background, wp.array) else None
-    if bg_array is not None:
-        if bg_array.shape != (1,) or bg_array.dtype != v3:
-            raise ValueError(f"background as a Warp array must hold one {v3.__name__}, got {bg_array}")
-        bg = bg_array.numpy().reshape(3).astype(np.float64)
-    else:
-        bg = np.asarray(background, dtype=np.float64)
-    if bg.shape != (3,) or not np.all(np.isfinite(bg)):
-        raise ValueError(f"background must be 3 finite numbers, got {background!r}")
+    bg_array, bg = _background(background, v3)
     light_array = _light_array(light, v4, dev)
     n = gaussians.count
     H, W = camera.height, camera.width
@@ -181,51 +173,82 @@ def render(
         record_tape=False,
     )
     if grad and tape is not None:  # grad implies a tape; the second test tells mypy so
+        _record_backward(tape, f, out_colour, out_alpha, out_depth, bg_array, dev)
+    return RenderOutput(out_colour, out_alpha, out_depth)
 
-        def backward() -> None:
+
+def _background(
+    background: tuple[float, float, float] | wp.array, v3: type
+) -> tuple[wp.array | None, np.ndarray]:
+    """The background as (its Warp array when it is one, else None; its RGB [3] in [0, 1] as float64),
+    checked: a Warp array holds one ``v3``, and the colour is 3 finite numbers."""
+    bg_array = background if isinstance(background, wp.array) else None
+    if bg_array is not None:
+        if bg_array.shape != (1,) or bg_array.dtype != v3:
+            raise ValueError(f"background as a Warp array must hold one {v3.__name__}, got {bg_array}")
+        bg = bg_array.numpy().reshape(3).astype(np.float64)
+    else:
+        bg = np.asarray(background, dtype=np.float64)
+    if bg.shape != (3,) or not np.all(np.isfinite(bg)):
+        raise ValueError(f"background must be 3 finite numbers, got {background!r}")
+    return bg_array, bg
+
+
+def _record_backward(
+    tape: wp.Tape,
+    f: _Frame,
+    out_colour: wp.array,
+    out_alpha: wp.array,
+    out_depth: wp.array,
+    bg_array: wp.array | None,
+    dev: str,
+) -> None:
+    """Record the composite's adjoint on ``tape``: from the image gradients [H, W] to the splats'
+    projected quantities in ``f`` (and to ``bg_array`` when it records gradients)."""
+
+    def backward() -> None:
+        wp.launch(
+            composite_backward_kernel,
+            dim=out_alpha.shape,
+            inputs=[
+                f.ranges,
+                f.vals,
+                f.mean2d,
+                f.conic,
+                f.opacity,
+                f.colour,
+                f.depth,
+                f.background,
+                f.tiles_x,
+                f.T,
+                f.C,
+                f.D,
+                f.last,
+                out_colour.grad,
+                out_alpha.grad,
+                out_depth.grad,
+                f.mean2d.grad,
+                f.conic.grad,
+                f.opacity.grad,
+                f.colour.grad,
+                f.depth.grad,
+            ],
+            device=dev,
+            record_tape=False,
+        )
+        if bg_array is not None and bg_array.requires_grad:
             wp.launch(
-                composite_backward_kernel,
-                dim=(H, W),
-                inputs=[
-                    f.ranges,
-                    f.vals,
-                    f.mean2d,
-                    f.conic,
-                    f.opacity,
-                    f.colour,
-                    f.depth,
-                    f.background,
-                    f.tiles_x,
-                    f.T,
-                    f.C,
-                    f.D,
-                    f.last,
-                    out_colour.grad,
-                    out_alpha.grad,
-                    out_depth.grad,
-                    f.mean2d.grad,
-                    f.conic.grad,
-                    f.opacity.grad,
-                    f.colour.grad,
-                    f.depth.grad,
-                ],
+                background_adjoint_kernel,
+                dim=out_alpha.shape,
+                inputs=[out_colour.grad, f.T, bg_array.grad],
                 device=dev,
                 record_tape=False,
             )
-            if bg_array is not None and bg_array.requires_grad:
-                wp.launch(
-                    background_adjoint_kernel,
-                    dim=(H, W),
-                    inputs=[out_colour.grad, f.T, bg_array.grad],
-                    device=dev,
-                    record_tape=False,
-                )
 
-        tape.record_func(
-            backward=backward,
-            arrays=[out_colour, out_alpha, out_depth, f.mean2d, f.conic, f.opacity, f.colour, f.depth],
-        )
-    return RenderOutput(out_colour, out_alpha, out_depth)
+    tape.record_func(
+        backward=backward,
+        arrays=[out_colour, out_alpha, out_depth, f.mean2d, f.conic, f.opacity, f.colour, f.depth],
+    )
 
 
 def _light_array(light: wp.array | Sequence[float] | None, v4: type, dev: str) -> wp.array:

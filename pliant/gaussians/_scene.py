@@ -26,8 +26,7 @@ from ._surface import (
 
 if TYPE_CHECKING:
     from ..model import Model
-    from ..scene import Scene, SceneConfig
-    from ..scene._gaussians import GaussiansSection
+    from ..scene import GaussiansSection, Scene, SceneConfig
 
 
 class SplatSceneError(ValueError):
@@ -127,7 +126,7 @@ def scene_splats(cfg: SceneConfig, scene: Scene) -> SceneSplats:
         SplatSceneError: the PLY cannot be read or lacks properties, or the binding does not fit the
             object (no triangles, no tets); the message names the scene file and the field.
     """
-    from ..scene._gaussians import object_index
+    from ..scene import object_index
 
     spec = gaussians_section(cfg)
     if spec is None:
@@ -145,7 +144,7 @@ def scene_splats(cfg: SceneConfig, scene: Scene) -> SceneSplats:
     tets = tets[np.all((tets >= lo) & (tets < hi), axis=1)] - lo
     dtype, device = model.dtype, model.device
     if spec.ply is not None:
-        from ..scene._files import scene_path
+        from ..scene import scene_path
 
         path = scene_path(cfg, spec.ply, "gaussians.ply")
         try:

@@ -20,8 +20,7 @@ from ._scene import SplatSceneError, gaussians_section, scene_splats
 from ._surface import ring_cameras
 
 if TYPE_CHECKING:
-    from ..scene import Scene, SceneConfig
-    from ..scene._gaussians import GaussianCorrectionSection
+    from ..scene import GaussianCorrectionSection, Scene, SceneConfig
     from ..sim import Simulator
 
 #: How a run's video is drawn: "auto" (splats when the scene has a [gaussians] section), "mesh", "splats".

@@ -205,16 +205,7 @@ def carve(
     if C > 255:
         raise ValueError(f"carve: {C} cameras; at most 255 are supported")
     obj = object_mask(m)
-    d = None
-    if depth is not None:
-        d = np.asarray(depth, dtype=np.float64)
-        if d.shape != (C, H, W):
-            raise ValueError(f"carve: depth: expected [C={C}, H={H}, W={W}] like masks, got {d.shape}")
-        # Depth counts at object pixels only: the silhouettes already carve along background rays, and
-        # a floor's readings there would cut into the footprint test's margin. (Eroding the masks against
-        # silhouette pixels that mix object and background was tried: it leaves the visual hull's bulges,
-        # whose voxels project near silhouettes, uncarved.)
-        d = np.where(np.isfinite(d) & obj, d, 0.0)
+    d = None if depth is None else _object_depth(depth, obj)
     if not spacing > 0.0:
         raise ValueError(f"carve: spacing: expected a voxel edge > 0 m, got {spacing}")
     tol = 0.5 * spacing if depth_tol is None else float(depth_tol)
@@ -252,16 +243,7 @@ def carve(
             if sat is None:
                 out = inside & ~obj_flat[c, pix]
             else:
-                # the footprint's square [u ± r] × [v ± r], clipped to the image: a view judges what it saw
-                with np.errstate(invalid="ignore", divide="ignore"):
-                    r = max(K[c, 0, 0], K[c, 1, 1]) * half_diag / z
-                    c0, c1 = np.floor(u - r + 0.5).clip(0, W - 1), np.floor(u + r + 0.5).clip(0, W - 1)
-                    r0, r1 = np.floor(v - r + 0.5).clip(0, H - 1), np.floor(v + r + 0.5).clip(0, H - 1)
-                    seen = inside & (z > half_diag)
-                c0, c1, r0, r1 = (np.where(seen, a, 0).astype(np.intp) for a in (c0, c1, r0, r1))
-                s = sat[c]
-                count = s[r1 + 1, c1 + 1] - s[r0, c1 + 1] - s[r1 + 1, c0] + s[r0, c0]
-                out = seen & (count == 0)
+                out = _footprint_empty(u, v, z, inside, K[c], half_diag, sat[c])
             if d_flat is not None:
                 dc = d_flat[c, pix]
                 out |= inside & (dc > 0.0) & (z < dc - tol)
@@ -279,6 +261,45 @@ def carve(
         seen_by=seen_by.reshape(shape),
         sole=sole.astype(np.int64),
     )
+
+
+def _object_depth(depth: ArrayLike, obj: np.ndarray) -> np.ndarray:
+    """Depth readings [C, H, W] (m) kept at the object pixels of ``obj`` [C, H, W] (bool), 0 elsewhere and
+    where not finite."""
+    C, H, W = obj.shape
+    d = np.asarray(depth, dtype=np.float64)
+    if d.shape != (C, H, W):
+        raise ValueError(f"carve: depth: expected [C={C}, H={H}, W={W}] like masks, got {d.shape}")
+    # Depth counts at object pixels only: the silhouettes already carve along background rays, and
+    # a floor's readings there would cut into the footprint test's margin. (Eroding the masks against
+    # silhouette pixels that mix object and background was tried: it leaves the visual hull's bulges,
+    # whose voxels project near silhouettes, uncarved.)
+    d = np.where(np.isfinite(d) & obj, d, 0.0)
+    return d
+
+
+def _footprint_empty(
+    u: np.ndarray,
+    v: np.ndarray,
+    z: np.ndarray,
+    inside: np.ndarray,
+    Kc: np.ndarray,
+    half_diag: float,
+    sat_c: np.ndarray,
+) -> np.ndarray:
+    """Voxels whose projected footprint holds no object pixel in one view: centres projected to pixel
+    coordinates ``u``, ``v`` (px) at camera depth ``z`` (m), ``inside`` the image, intrinsics ``Kc`` [3, 3]
+    (px), circumscribed radius ``half_diag`` (m), ``sat_c`` [H + 1, W + 1] the view's summed-area table."""
+    H, W = sat_c.shape[0] - 1, sat_c.shape[1] - 1
+    # the footprint's square [u ± r] × [v ± r], clipped to the image: a view judges what it saw
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = max(Kc[0, 0], Kc[1, 1]) * half_diag / z
+        c0, c1 = np.floor(u - r + 0.5).clip(0, W - 1), np.floor(u + r + 0.5).clip(0, W - 1)
+        r0, r1 = np.floor(v - r + 0.5).clip(0, H - 1), np.floor(v + r + 0.5).clip(0, H - 1)
+        seen = inside & (z > half_diag)
+    c0, c1, r0, r1 = (np.where(seen, a, 0).astype(np.intp) for a in (c0, c1, r0, r1))
+    count = sat_c[r1 + 1, c1 + 1] - sat_c[r0, c1 + 1] - sat_c[r1 + 1, c0] + sat_c[r0, c0]
+    return seen & (count == 0)
 
 
 def _footprints(

@@ -3,10 +3,11 @@
 from .._subclasses import registered_subclasses
 from ._base import Integrator, Solution, System
 from ._dopri import DormandPrince
-from ._explicit import RK2, RK4, ExplicitRK, ForwardEuler, Heun, Midpoint
+from ._explicit import RK2, RK4, ExplicitRK, ForwardEuler, Heun, Midpoint, scale_velocity
 from ._implicit import BDF2, BackwardEuler, ImplicitMidpoint, ImplicitOptions
+from ._ops import lincomb
 from ._problems import ODEProblem, SecondOrderODE, harmonic_oscillator, lecture_oscillator
-from ._symplectic import SymplecticEuler
+from ._symplectic import SymplecticEuler, symplectic_particle
 from ._verlet import Leapfrog, VelocityVerlet
 
 
@@ -32,6 +33,9 @@ def registered_integrators() -> tuple[type[Integrator], ...]:
 ALL_INTEGRATORS: tuple[type[Integrator], ...] = registered_integrators()
 
 __all__ = [
+    "scale_velocity",
+    "lincomb",
+    "symplectic_particle",
     "ALL_INTEGRATORS",
     "BDF2",
     "RK2",

@@ -3,7 +3,9 @@
 
 from ._camera_file import CameraFile, CameraFileError, load_camera_file
 from ._npz import available_memory, npz_headers, npz_memory_problem, read_npz
+from ._observation_images import to_unit_float
 from ._observations import ObservationError, Observations
+from ._paths import OutputPathError, check_file_stem, check_out_dir, check_writable_dir, confined
 from ._trajectory import (
     CheckpointError,
     CheckpointSpec,
@@ -16,6 +18,12 @@ from ._trajectory import (
 )
 
 __all__ = [
+    "to_unit_float",
+    "OutputPathError",
+    "check_file_stem",
+    "check_out_dir",
+    "check_writable_dir",
+    "confined",
     "CameraFile",
     "CameraFileError",
     "CheckpointError",

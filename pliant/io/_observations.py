@@ -26,6 +26,7 @@ three. Files without images read and write exactly as before.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -108,13 +109,6 @@ class Observations:
         def fail(array: str, msg: str) -> ObservationError:
             return ObservationError(f"{source}: {array}: {msg}")
 
-        def real(array: str, a: np.ndarray) -> np.ndarray:
-            # Complex values would lose their imaginary part in astype(float), strings raise NumPy's words.
-            a = np.asarray(a)
-            if a.dtype.kind not in "fiu":
-                raise fail(array, f"expected real numbers, got {a.dtype}")
-            return a.astype(float)
-
         t = np.asarray(t)
         if t.ndim != 1 or t.shape[0] < 2 or t.dtype.kind not in "fiu":
             raise fail("t", f"expected times [T] in seconds with T >= 2, got shape {t.shape} ({t.dtype})")
@@ -177,27 +171,8 @@ class Observations:
                     "particle", f"expected K={n_tracks} particle indices >= 0 (int), got {particle.shape}"
                 )
             particle = particle.astype(np.int64)
-        if controls is not None:
-            controls = real("controls", controls)
-            if controls.ndim != 3 or controls.shape[0] != T or controls.shape[2] != 3:
-                raise fail("controls", f"expected [T={T}, C, 3] positions in metres, got {controls.shape}")
-            if not np.all(np.isfinite(controls)):
-                raise fail("controls", "control-point positions must all be finite")
-        if (cloud is None) != (cloud_count is None):
-            raise fail("cloud", "give both cloud [T, P, 3] and cloud_count [T], or neither")
-        if cloud is not None:
-            cloud = real("cloud", cloud)
-            cloud_count = np.asarray(cloud_count)
-            if cloud.ndim != 3 or cloud.shape[0] != T or cloud.shape[2] != 3:
-                raise fail("cloud", f"expected padded clouds [T={T}, P, 3] in metres, got {cloud.shape}")
-            if cloud_count.shape != (T,) or not np.issubdtype(cloud_count.dtype, np.integer):
-                raise fail("cloud_count", f"expected [T={T}] integer counts, got {cloud_count.shape}")
-            if cloud_count.min() < 0 or cloud_count.max() > cloud.shape[1]:
-                raise fail("cloud_count", f"counts must lie in [0, P={cloud.shape[1]}]")
-            used = np.arange(cloud.shape[1])[None, :] < cloud_count[:, None]
-            if not np.all(np.isfinite(cloud[used])):
-                raise fail("cloud", "the first cloud_count[t] points of each frame must be finite")
-            cloud_count = cloud_count.astype(np.int64)
+        controls = _check_controls(T, controls, fail)
+        cloud, cloud_count = _check_cloud(T, cloud, cloud_count, fail)
         return cls(
             t=t.astype(float),
             points=np.where(visible[..., None], points, np.nan).astype(float),
@@ -361,6 +336,51 @@ class Observations:
             masks=None if self.masks is None else self.masks[:, sl],
             depth=None if self.depth is None else self.depth[:, sl],
         )
+
+
+def _real(array: str, a: np.ndarray, fail: Callable[[str, str], Exception]) -> np.ndarray:
+    """``a`` as floats, or ``fail(array, ...)`` unless it holds real numbers (complex values would lose their
+    imaginary part in astype(float); strings would raise NumPy's words, not the file's)."""
+    a = np.asarray(a)
+    if a.dtype.kind not in "fiu":
+        raise fail(array, f"expected real numbers, got {a.dtype}")
+    return a.astype(float)
+
+
+def _check_controls(
+    T: int, controls: np.ndarray | None, fail: Callable[[str, str], Exception]
+) -> np.ndarray | None:
+    """Control-point positions [T, C, 3] (m) as floats, checked for shape and finiteness; None passes."""
+    if controls is not None:
+        controls = _real("controls", controls, fail)
+        if controls.ndim != 3 or controls.shape[0] != T or controls.shape[2] != 3:
+            raise fail("controls", f"expected [T={T}, C, 3] positions in metres, got {controls.shape}")
+        if not np.all(np.isfinite(controls)):
+            raise fail("controls", "control-point positions must all be finite")
+    return controls
+
+
+def _check_cloud(
+    T: int, cloud: np.ndarray | None, cloud_count: np.ndarray | None, fail: Callable[[str, str], Exception]
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Padded point clouds [T, P, 3] (m) and their counts [T], checked together (both or neither); the
+    first ``cloud_count[t]`` points of each frame must be finite."""
+    if (cloud is None) != (cloud_count is None):
+        raise fail("cloud", "give both cloud [T, P, 3] and cloud_count [T], or neither")
+    if cloud is not None:
+        cloud = _real("cloud", cloud, fail)
+        cloud_count = np.asarray(cloud_count)
+        if cloud.ndim != 3 or cloud.shape[0] != T or cloud.shape[2] != 3:
+            raise fail("cloud", f"expected padded clouds [T={T}, P, 3] in metres, got {cloud.shape}")
+        if cloud_count.shape != (T,) or not np.issubdtype(cloud_count.dtype, np.integer):
+            raise fail("cloud_count", f"expected [T={T}] integer counts, got {cloud_count.shape}")
+        if cloud_count.min() < 0 or cloud_count.max() > cloud.shape[1]:
+            raise fail("cloud_count", f"counts must lie in [0, P={cloud.shape[1]}]")
+        used = np.arange(cloud.shape[1])[None, :] < cloud_count[:, None]
+        if not np.all(np.isfinite(cloud[used])):
+            raise fail("cloud", "the first cloud_count[t] points of each frame must be finite")
+        cloud_count = cloud_count.astype(np.int64)
+    return cloud, cloud_count
 
 
 __all__ = ["ObservationError", "Observations"]

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from ..render._viewer import _viser, add_object_nodes, move_nodes, require_token, viewer_url
+from ..render import add_object_nodes, load_viser, move_nodes, require_token, viewer_url
 from ._session import LiveSession, write_parameter
 
 #: The time scale slider's range (simulated seconds per wall-clock second).
@@ -179,11 +179,11 @@ def splat_arrays(splats: Any, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np
         splats: the scene's bound splats (:func:`pliant.gaussians._scene.scene_splats`).
         x: model positions [m], [N, 3].
     """
-    from ..gaussians._gaussians import _quat_matrices
+    from ..gaussians import quat_matrices
 
     g = splats.place(np.asarray(x)).numpy()
     q = g["quats"] / np.linalg.norm(g["quats"], axis=1, keepdims=True)
-    M = _quat_matrices(q) * np.exp(g["log_scales"])[:, None, :]
+    M = quat_matrices(q) * np.exp(g["log_scales"])[:, None, :]
     if "transforms" in g:
         M = g["transforms"] @ M
     cov = M @ M.transpose(0, 2, 1)
@@ -372,7 +372,7 @@ def serve_live(
     Returns:
         The running :class:`LiveViewer` (call ``stop()`` to end it).
     """
-    viser = _viser()
+    viser = load_viser()
     from ..io import Trajectory
 
     scene = session.scene
@@ -405,7 +405,7 @@ def serve_live(
         if part.kind in ("surface", "solid", "spheres"):
             _bind_drag(v, h, part)
     if splats and getattr(scene.config, "gaussians", None) is not None:
-        from ..gaussians._scene import scene_splats
+        from ..gaussians import scene_splats
 
         v._splats = scene_splats(scene.config, scene)
         c, cov, rgb, op = splat_arrays(v._splats, session.x)

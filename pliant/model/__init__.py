@@ -9,9 +9,51 @@ from ._mass import (
     tet_lumped_mass,
     triangle_lumped_mass,
 )
-from ._model import STICK_VELOCITY, Control, Ground, Model, State
+from ._materials import cloth_spring_stiffness, lame_parameters, young_poisson
+from ._model import GROUND_DAMPING_RATIO, GROUND_STIFFNESS, STICK_VELOCITY, Control, Ground, Model, State
+from ._parameters import (
+    BENDING_STIFFNESS,
+    SPRING_DAMPING,
+    SPRING_REST_LENGTH,
+    SPRING_STIFFNESS,
+    TET_LAM,
+    TET_MU,
+    Found,
+    Getter,
+    Parameter,
+    RegistryView,
+    constraint_array,
+    declares,
+    parameter,
+    registry,
+    solver_array,
+)
+from ._worlds import PARAMETERS as WORLD_PARAMETERS
+from ._worlds import write_range
 
 __all__ = [
+    "cloth_spring_stiffness",
+    "lame_parameters",
+    "young_poisson",
+    "GROUND_DAMPING_RATIO",
+    "GROUND_STIFFNESS",
+    "BENDING_STIFFNESS",
+    "SPRING_DAMPING",
+    "SPRING_REST_LENGTH",
+    "SPRING_STIFFNESS",
+    "TET_LAM",
+    "TET_MU",
+    "Found",
+    "Getter",
+    "Parameter",
+    "RegistryView",
+    "constraint_array",
+    "declares",
+    "parameter",
+    "registry",
+    "solver_array",
+    "WORLD_PARAMETERS",
+    "write_range",
     "MASS_DISTRIBUTIONS",
     "STICK_VELOCITY",
     "Control",

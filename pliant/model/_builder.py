@@ -308,7 +308,7 @@ class ModelBuilder(ShapesMixin):
             E: [E] or scalar Young's modulus [Pa], > 0.
             nu: [E] or scalar Poisson ratio [-], in (-1, 0.5).
         """
-        from ..geometry._p2 import P2_EDGES
+        from ..geometry import P2_EDGES
         from ._materials import lame_parameters
 
         idx = _as_index_array(indices, 10, "quadratic tetrahedron")
@@ -427,6 +427,51 @@ class ModelBuilder(ShapesMixin):
 
         replicate(self, n, spacing)
 
+    def _host_springs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Springs as host arrays (indices [S, 2], rest length m, stiffness N/m, damping N s/m); a particle
+        pair with two springs is an error."""
+        if self._springs:
+            s_idx = np.concatenate([s[0] for s in self._springs])
+            s_rest, s_k, s_g = (np.concatenate([s[i] for s in self._springs]) for i in (1, 2, 3))
+            key = np.sort(s_idx, axis=1)
+            _, first_seen, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
+            if np.any(counts > 1):
+                dup = key[first_seen[np.flatnonzero(counts > 1)[0]]]
+                raise ValueError(
+                    f"{int(np.sum(counts > 1))} duplicate springs (first between particles {dup.tolist()}); "
+                    "each particle pair may have one spring: merge their stiffnesses into one spring"
+                )
+        else:
+            s_idx, s_rest, s_k, s_g = np.zeros((0, 2), np.int32), np.zeros(0), np.zeros(0), np.zeros(0)
+        return s_idx, s_rest, s_k, s_g
+
+    def _host_tets(self, q: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Linear tets as host arrays: indices [T, 4], Lamé μ and λ (Pa), rest volume (m³) and inverse rest
+        edge matrix [T, 3, 3] (1/m) at positions ``q`` [N, 3]."""
+        if self._tets:
+            t_idx = np.concatenate([t[0] for t in self._tets])
+            t_mu = np.concatenate([t[1] for t in self._tets])
+            t_lam = np.concatenate([t[2] for t in self._tets])
+            x0 = q[t_idx[:, 0]]
+            dm = np.stack([q[t_idx[:, 1]] - x0, q[t_idx[:, 2]] - x0, q[t_idx[:, 3]] - x0], axis=2)
+            t_vol = np.linalg.det(dm) / 6.0
+            t_inv = np.linalg.inv(dm)
+        else:
+            t_idx, t_mu, t_lam = np.zeros((0, 4), np.int32), np.zeros(0), np.zeros(0)
+            t_vol, t_inv = np.zeros(0), np.zeros((0, 3, 3))
+        return t_idx, t_mu, t_lam, t_vol, t_inv
+
+    def _host_bending(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Bending elements as host arrays: indices [B, 4], stiffness and rest dihedral angle (rad) at
+        positions ``q`` [N, 3]."""
+        if self._bending:
+            b_idx = np.concatenate([b[0] for b in self._bending])
+            b_k = np.concatenate([b[1] for b in self._bending])
+            b_rest = _dihedral_angles(q, b_idx)
+        else:
+            b_idx, b_k, b_rest = np.zeros((0, 4), np.int32), np.zeros(0), np.zeros(0)
+        return b_idx, b_k, b_rest
+
     # ------------------------------------------------------------------ finalize
     def finalize(
         self, device: str | None = None, dtype: str = "float32", requires_grad: bool = False
@@ -456,37 +501,10 @@ class ModelBuilder(ShapesMixin):
         inv_mass[fixed] = 0.0
         qd[fixed] = 0.0
 
-        if self._springs:
-            s_idx = np.concatenate([s[0] for s in self._springs])
-            s_rest, s_k, s_g = (np.concatenate([s[i] for s in self._springs]) for i in (1, 2, 3))
-            key = np.sort(s_idx, axis=1)
-            _, first_seen, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
-            if np.any(counts > 1):
-                dup = key[first_seen[np.flatnonzero(counts > 1)[0]]]
-                raise ValueError(
-                    f"{int(np.sum(counts > 1))} duplicate springs (first between particles {dup.tolist()}); "
-                    "each particle pair may have one spring: merge their stiffnesses into one spring"
-                )
-        else:
-            s_idx, s_rest, s_k, s_g = np.zeros((0, 2), np.int32), np.zeros(0), np.zeros(0), np.zeros(0)
+        s_idx, s_rest, s_k, s_g = self._host_springs()
         tris = np.concatenate(self._tris) if self._tris else np.zeros((0, 3), np.int32)
-        if self._tets:
-            t_idx = np.concatenate([t[0] for t in self._tets])
-            t_mu = np.concatenate([t[1] for t in self._tets])
-            t_lam = np.concatenate([t[2] for t in self._tets])
-            x0 = q[t_idx[:, 0]]
-            dm = np.stack([q[t_idx[:, 1]] - x0, q[t_idx[:, 2]] - x0, q[t_idx[:, 3]] - x0], axis=2)
-            t_vol = np.linalg.det(dm) / 6.0
-            t_inv = np.linalg.inv(dm)
-        else:
-            t_idx, t_mu, t_lam = np.zeros((0, 4), np.int32), np.zeros(0), np.zeros(0)
-            t_vol, t_inv = np.zeros(0), np.zeros((0, 3, 3))
-        if self._bending:
-            b_idx = np.concatenate([b[0] for b in self._bending])
-            b_k = np.concatenate([b[1] for b in self._bending])
-            b_rest = _dihedral_angles(q, b_idx)
-        else:
-            b_idx, b_k, b_rest = np.zeros((0, 4), np.int32), np.zeros(0), np.zeros(0)
+        t_idx, t_mu, t_lam, t_vol, t_inv = self._host_tets(q)
+        b_idx, b_k, b_rest = self._host_bending(q)
 
         def arr(a: np.ndarray, wp_type: type, rg: bool = False) -> wp.array:
             return wp.array(a, dtype=wp_type, device=device, requires_grad=rg)
@@ -496,7 +514,7 @@ class ModelBuilder(ShapesMixin):
 
         p2 = {}
         if self._tets10:
-            from ..geometry._p2 import p2_subtets
+            from ..geometry import p2_subtets
 
             t10 = np.concatenate([t[0] for t in self._tets10])
             x0 = q[t10[:, 0]]

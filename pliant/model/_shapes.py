@@ -301,8 +301,7 @@ class ShapesMixin:
         return first
 
     def _add_p2_mesh(self, pts, tets, density, stiffness, E, nu, velocity, radius, name, kind) -> int:
-        from ..geometry import surface_from_tets
-        from ..geometry._p2 import p2_lumped_masses, p2_subtets, promote_tets_p2
+        from ..geometry import p2_lumped_masses, p2_subtets, promote_tets_p2, surface_from_tets
 
         if stiffness is not None or E is None:
             raise ValueError(

@@ -16,6 +16,7 @@ from ._camera import Camera
 from ._export import export_obj, export_obj_sequence, export_ply, export_ply_sequence, export_usd
 from ._export_objects import (
     ObjectPart,
+    curve_segments,
     export_usd_objects,
     export_vtu_series,
     export_xdmf,
@@ -23,10 +24,37 @@ from ._export_objects import (
 )
 from ._plots import fit_order, plot_error_vs_dt, plot_phase_portrait, plot_series
 from ._renderer import Renderer
-from ._video import VideoError, VideoWriter, check_fps, realtime_indices, render_video, video, write_video
-from ._viewer import Viewer, ViewerError, serve_viewer
+from ._video import (
+    VideoError,
+    VideoWriter,
+    check_fps,
+    link_beads,
+    realtime_indices,
+    render_video,
+    video,
+    write_video,
+)
+from ._viewer import (
+    Viewer,
+    ViewerError,
+    add_object_nodes,
+    is_loopback,
+    load_viser,
+    move_nodes,
+    require_token,
+    serve_viewer,
+    viewer_url,
+)
 
 __all__ = [
+    "link_beads",
+    "curve_segments",
+    "add_object_nodes",
+    "is_loopback",
+    "load_viser",
+    "move_nodes",
+    "require_token",
+    "viewer_url",
     "Viewer",
     "ViewerError",
     "serve_viewer",

@@ -112,7 +112,7 @@ def export_obj(
 
 
 def _sequence_paths(folder: str | os.PathLike, prefix: str, n: int, ext: str) -> list[Path]:
-    from ..io._paths import check_file_stem
+    from ..io import check_file_stem
 
     if prefix:  # the files must land in `folder`: the prefix is part of one file name, never a path
         check_file_stem(prefix, "prefix")

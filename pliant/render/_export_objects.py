@@ -226,6 +226,17 @@ def export_usd_objects(
             if box is not None:
                 extent_attr.Set(Vt.Vec3fArray([Gf.Vec3f(*map(float, b)) for b in box]), code)
 
+    _add_static_meshes(stage, traj, finite)
+    stage.GetRootLayer().Save()
+    return path
+
+
+def _add_static_meshes(stage: object, traj: Trajectory, finite: np.ndarray) -> None:
+    """Static ``Mesh`` prims on ``stage``: the colliders of ``traj.meta["colliders"]`` under
+    ``/pliant/colliders`` and, when ``traj.meta["ground"]`` (a height, m) is set, a ground quad
+    ``/pliant/ground`` around the finite positions ``finite`` [M, 3] (m)."""
+    from pxr import Gf, UsdGeom, Vt
+
     static = [(f"/pliant/colliders/collider{i}", c) for i, c in enumerate(traj.meta.get("colliders") or [])]
     if static:
         UsdGeom.Scope.Define(stage, "/pliant/colliders")
@@ -242,14 +253,12 @@ def export_usd_objects(
         geom = UsdGeom.Mesh.Define(stage, at)
         geom.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(pts)))
         geom.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(tris), 3, np.int32)))
-        geom.CreateFaceVertexIndicesAttr(vec3i(tris))
+        geom.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(tris.ravel(), np.int32)))
         geom.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
         geom.CreateDisplayColorAttr(Vt.Vec3fArray([Gf.Vec3f(0.6, 0.6, 0.6)]))
         box = _extent(pts)
         if box is not None:
             geom.CreateExtentAttr(Vt.Vec3fArray([Gf.Vec3f(*map(float, b)) for b in box]))
-    stage.GetRootLayer().Save()
-    return path
 
 
 def _cells(traj: Trajectory, lines: bool = True) -> list[tuple[str, np.ndarray]]:

@@ -252,73 +252,16 @@ class Renderer:
         wp_depth = _wrap(depth, float)
         wp_image = _wrap(image, wp.vec3)
         ground_args = self._ground_inputs(has_ground, focal, Hs, Ws)
-        # The unshadowed ground only depends on the camera and settings: compute it once and
-        # copy it per frame; then re-shade just the screen rectangle the shadow can fall in.
-        key = (
-            tuple(cam.eye),
-            tuple(cam.target),
-            tuple(cam.up),
-            cam.fov_y,
-            Hs,
-            Ws,
-            has_ground,
-            g,
-            self.ground_tile,
-            tuple(self.background),
-            tuple(self.light_dir),
-            self.ambient,
+        self._draw_ground(
+            image, depth, wp_image, wp_depth, ground_args, shadow_args, has_ground, focal, Hs, Ws
         )
-        if self._ground_cache is None or self._ground_cache[0] != key:
-            wp.launch(K.ground_kernel, dim=(Hs, Ws), inputs=[*ground_args, wp_depth, wp_image], device=DEVICE)
-            self._ground_cache = (key, image.copy(), depth.copy())
-        else:
-            np.copyto(image, self._ground_cache[1])
-            np.copyto(depth, self._ground_cache[2])
-        if shadow_args is not None:
-            rect = self._shadow_rect(shadow_args, focal, Hs, Ws)
-            if rect is not None:
-                i0, i1, j0, j1 = rect
-                wp.launch(
-                    K.ground_shadow_kernel,
-                    dim=(i1 - i0, j1 - j0),
-                    inputs=[i0, j0, *ground_args[1:], self._shadow_level(), *shadow_args, wp_image],
-                    device=DEVICE,
-                )
 
         if has_geometry:
             wp_screen = _wrap(screen, wp.vec3)
             wp_colors = _wrap(table, wp.vec3)
             if wp_tri is not None:
-                normals = np.zeros((n, 3), np.float32)
-                wp_normals = _wrap(normals, wp.vec3)
-                smooth = self.shading == "smooth"
-                if smooth:
-                    wp.launch(
-                        K.vertex_normals_kernel,
-                        dim=wp_tri.shape[0],
-                        inputs=[wp_world, wp_tri, wp_normals],
-                        device=DEVICE,
-                    )
-                wp.launch(
-                    K.raster_triangles_kernel,
-                    dim=wp_tri.shape[0],
-                    inputs=[
-                        wp_screen,
-                        wp_world,
-                        wp_normals,
-                        wp_colors,
-                        wp_tri,
-                        int(smooth),
-                        int(per_vertex),
-                        0.5 * ss if self.edges else 0.0,
-                        wp.vec3(*cam.eye),
-                        wp.vec3(*self.light_dir),
-                        self.ambient,
-                        float(near),
-                        wp_depth,
-                        wp_image,
-                    ],
-                    device=DEVICE,
+                self._draw_triangles(
+                    n, wp_screen, wp_world, wp_colors, wp_tri, per_vertex, wp_depth, wp_image
                 )
             elif tri is None:
                 assert radius_px is not None and radius_m is not None  # set above for points without faces
@@ -344,6 +287,99 @@ class Renderer:
         out = np.empty((H, W, 3), np.uint8)
         wp.launch(K.resolve_kernel, dim=(H, W), inputs=[wp_image, ss, _wrap(out, wp.uint8)], device=DEVICE)
         return out
+
+    def _draw_ground(
+        self,
+        image: np.ndarray,
+        depth: np.ndarray,
+        wp_image: wp.array,
+        wp_depth: wp.array,
+        ground_args: list,
+        shadow_args: list | None,
+        has_ground: bool,
+        focal: float,
+        Hs: int,
+        Ws: int,
+    ) -> None:
+        """Fill ``image`` / ``depth`` [Hs, Ws] with the ground and background (cached per camera and setting),
+        then darken the screen rectangle the objects' shadow can fall in (``shadow_args``, if any)."""
+        # The unshadowed ground only depends on the camera and settings: compute it once and
+        # copy it per frame; then re-shade just the screen rectangle the shadow can fall in.
+        key = (
+            tuple(self.camera.eye),
+            tuple(self.camera.target),
+            tuple(self.camera.up),
+            self.camera.fov_y,
+            Hs,
+            Ws,
+            has_ground,
+            self.ground_height,
+            self.ground_tile,
+            tuple(self.background),
+            tuple(self.light_dir),
+            self.ambient,
+        )
+        if self._ground_cache is None or self._ground_cache[0] != key:
+            wp.launch(K.ground_kernel, dim=(Hs, Ws), inputs=[*ground_args, wp_depth, wp_image], device=DEVICE)
+            self._ground_cache = (key, image.copy(), depth.copy())
+        else:
+            np.copyto(image, self._ground_cache[1])
+            np.copyto(depth, self._ground_cache[2])
+        if shadow_args is not None:
+            rect = self._shadow_rect(shadow_args, focal, Hs, Ws)
+            if rect is not None:
+                i0, i1, j0, j1 = rect
+                wp.launch(
+                    K.ground_shadow_kernel,
+                    dim=(i1 - i0, j1 - j0),
+                    inputs=[i0, j0, *ground_args[1:], self._shadow_level(), *shadow_args, wp_image],
+                    device=DEVICE,
+                )
+
+    def _draw_triangles(
+        self,
+        n: int,
+        wp_screen: wp.array,
+        wp_world: wp.array | None,
+        wp_colors: wp.array,
+        wp_tri: wp.array,
+        per_vertex: bool,
+        wp_depth: wp.array,
+        wp_image: wp.array,
+    ) -> None:
+        """Rasterise the triangles ``wp_tri`` over ``n`` vertices (screen and world positions, colours) into
+        ``wp_depth`` / ``wp_image``, with smooth (per-vertex) normals when ``shading`` is "smooth"."""
+        normals = np.zeros((n, 3), np.float32)
+        wp_normals = _wrap(normals, wp.vec3)
+        smooth = self.shading == "smooth"
+        if smooth:
+            wp.launch(
+                K.vertex_normals_kernel,
+                dim=wp_tri.shape[0],
+                inputs=[wp_world, wp_tri, wp_normals],
+                device=DEVICE,
+            )
+        wp.launch(
+            K.raster_triangles_kernel,
+            dim=wp_tri.shape[0],
+            inputs=[
+                wp_screen,
+                wp_world,
+                wp_normals,
+                wp_colors,
+                wp_tri,
+                int(smooth),
+                int(per_vertex),
+                0.5 * self.supersample if self.edges else 0.0,
+                wp.vec3(*self.camera.eye),
+                wp.vec3(*self.light_dir),
+                self.ambient,
+                float(self.camera.near_plane),
+                wp_depth,
+                wp_image,
+            ],
+            device=DEVICE,
+        )
 
     # ------------------------------------------------------------------------------------------
     def _particle_radii(

@@ -30,7 +30,9 @@ class ViewerError(ImportError):
     """viser is missing (install the ``viewer`` extra)."""
 
 
-def _viser() -> Any:
+def load_viser() -> Any:
+    """The ``viser`` module, imported on first use; :class:`ViewerError` with the install line when the
+    ``viewer`` extra is missing (callers check before building a scene)."""
     try:
         import viser
     except ImportError:
@@ -316,7 +318,7 @@ def serve_viewer(
     Returns:
         The running :class:`Viewer` (call ``stop()`` to end it).
     """
-    viser = _viser()
+    viser = load_viser()
     if traj.frame_count < 1 or not np.all(np.isfinite(traj.x)):
         raise ValueError("the trajectory has no frames or non-finite positions; nothing to show")
     server = viser.ViserServer(host=host, port=port, verbose=verbose)

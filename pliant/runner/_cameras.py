@@ -79,7 +79,7 @@ def _frames(
 ) -> Iterator[np.ndarray]:
     """Camera ``c``'s RGB frames of the run ``x``, appending the first ``n`` frames' PSNR and IoU."""
     from ..gaussians import iou, psnr
-    from ..io._observation_images import to_unit_float
+    from ..io import to_unit_float
 
     for i, xf in enumerate(x):
         out = session.render(xf, cam)

@@ -17,6 +17,7 @@ if TYPE_CHECKING:
     from ..gaussians import SplatSession
     from ..io import CameraFile, Trajectory
     from ..scene import Scene, SceneConfig
+    from ..sim import Simulator
 
 #: Where :func:`run_scene` sends its summary lines.
 Log = Callable[[str], None]
@@ -79,7 +80,7 @@ class RunReport:
 def _outputs(out: Path, name: str, cameras: int) -> tuple[list[Path], list[Path]]:
     """The run's output paths (trajectory, video, checkpoint, render mesh) and the camera videos, each one
     file directly in ``out`` (links followed); ``out`` is created and checked writable."""
-    from ..io._paths import OutputPathError, check_file_stem, check_writable_dir, confined
+    from ..io import OutputPathError, check_file_stem, check_writable_dir, confined
 
     try:
         check_file_stem(name, "scene name")
@@ -95,7 +96,7 @@ def _camera_file(cfg: SceneConfig, cameras: str | os.PathLike | None) -> CameraF
     """The validated camera file (None without one); the scene must have splats to draw."""
     if cameras is None:
         return None
-    from ..gaussians._scene import gaussians_section
+    from ..gaussians import gaussians_section
     from ..io import CameraFileError, load_camera_file
 
     if gaussians_section(cfg) is None:
@@ -168,7 +169,6 @@ def run_scene(
         SceneError: the scene cannot be built (naming the field).
         DivergenceError: the correction twin diverged (nothing written).
     """
-    from ..gaussians import SplatSceneError, SplatSession, splat_session
     from ..scene import build_scene
     from ..sim import DivergenceError
     from ..solvers import SingularSystemError
@@ -180,14 +180,7 @@ def run_scene(
     (traj_path, video_path, ckpt, render_path), camera_videos = _outputs(out, name, cams.count if cams else 0)
     want_video = video and cfg.output.video
     if want_video:
-        from ..render import check_fps
-
-        fps = getattr(cfg.output, "fps", None)
-        if fps is not None:
-            try:
-                check_fps(fps)
-            except ValueError as exc:
-                raise RunError(f"output.fps: {exc}") from None
+        _check_output_fps(cfg)
     # A value that overflows the model's dtype (origin 1e39 in float32) is reported by the frame-0 check
     # below, not as NumPy's RuntimeWarning.
     with np.errstate(over="ignore", invalid="ignore"):
@@ -195,34 +188,13 @@ def run_scene(
     scene.prebuild_kernels()  # the first frames' kernels compile on both cores while the splats are made
     m = scene.model
     if want_video or cams is not None:
-        from ..render import check_fps
-
-        try:
-            check_fps(scene.fps)
-        except ValueError as exc:
-            fix = "or use --no-video" if want_video else "needed by the --cameras videos"
-            raise RunError(f"video frame rate (output.fps, default 1/frame_dt): {exc}; {fix}") from None
+        _check_scene_fps(scene, want_video)
     if resume and not ckpt.exists():
         raise RunError(f"--resume: no checkpoint at {ckpt}; run once without --resume first")
-    try:  # [gaussians]: splats, twin, corrector
-        splats = splat_session(cfg, scene, renderer, log=log if progress else None)
-        if cams is not None and splats is None:  # renderer "mesh": the cameras still draw splats
-            splats = SplatSession(cfg, scene, log=log if progress else None)
-            splats.draw = False
-    except SplatSceneError as exc:
-        raise RunError(str(exc)) from None
+    splats = _splats(cfg, scene, renderer, cams is not None, log if progress else None)
     sim = scene.simulator()
     sim.checkpoint_tag = run_tag(cfg)  # a checkpoint of another scene or other physics is refused
-    info = sim.solver.describe()
-    counts = f"{m.particle_count} particles, {m.spring_count} springs" + (
-        f", {m.tet_count} tets" if m.tet_count else ""
-    )
-    solver = f"{info.get('solver', type(sim.solver).__name__)}/{info.get('integrator', '-')}"
-    say(
-        f"{name}: {counts}; {scene.frames} frames x {scene.substeps} substeps "
-        f"(frame_dt {scene.frame_dt:.4g} s), "
-        f"{solver} on {m.device} {m.dtype}"
-    )
+    say(_header(name, scene, sim))
     report = RunReport(name, frames_requested=scene.frames)
     t0 = time.perf_counter()
     if not resume:
@@ -251,16 +223,7 @@ def run_scene(
     report.trajectory, report.frames = traj, max(traj.frame_count - 1, 0)
     steps = report.frames * scene.substeps
     if cfg.output.trajectory:
-        # What `pliant export` draws beside the objects: the drawn colliders (static meshes) and the ground.
-        traj.meta.update(scene.trajectory_meta())
-        report.written.append(Path(traj.save(traj_path)))
-        if scene.embeddings and traj.frame_count > 0:
-            # What the video draws (particles, the fine embedded surface, colliders) as <name>.render.npz.
-            from ..io import Trajectory
-
-            xf, ff, _ = scene.render_mesh(traj.x, traj.faces)
-            fine = Trajectory(x=xf, t=traj.t, faces=ff, meta={**traj.meta, "render_mesh": True})
-            report.written.append(Path(fine.save(render_path)))
+        _write_trajectory(report, scene, traj, traj_path, render_path)
     report.checkpoint = ckpt if ckpt.exists() else None
     rate = ""
     if wall > 0 and steps:
@@ -275,6 +238,79 @@ def run_scene(
     if cams is not None and traj.frame_count > 0 and splats is not None:
         _cameras(report, cams, splats, traj, camera_videos, scene.fps, progress, say)
     return report
+
+
+def _check_output_fps(cfg: SceneConfig) -> None:
+    """``[output] fps``, when set, is a frame rate the video writer takes (:class:`RunError` if not)."""
+    from ..render import check_fps
+
+    fps = getattr(cfg.output, "fps", None)
+    if fps is not None:
+        try:
+            check_fps(fps)
+        except ValueError as exc:
+            raise RunError(f"output.fps: {exc}") from None
+
+
+def _check_scene_fps(scene: Scene, want_video: bool) -> None:
+    """The scene's video frame rate (``output.fps``, default 1 / frame_dt) is one the video writer takes
+    (:class:`RunError` naming the fix if not); ``want_video``: the run's own video asked for it."""
+    from ..render import check_fps
+
+    try:
+        check_fps(scene.fps)
+    except ValueError as exc:
+        fix = "or use --no-video" if want_video else "needed by the --cameras videos"
+        raise RunError(f"video frame rate (output.fps, default 1/frame_dt): {exc}; {fix}") from None
+
+
+def _splats(
+    cfg: SceneConfig, scene: Scene, renderer: str, cameras: bool, log: Callable[[str], None] | None
+) -> SplatSession | None:
+    """The scene's splat session (splats, correction twin, corrector) for ``renderer``; with ``cameras``, one
+    that draws no video when the renderer is "mesh" (the camera videos still draw splats)."""
+    from ..gaussians import SplatSceneError, SplatSession, splat_session
+
+    try:  # [gaussians]: splats, twin, corrector
+        splats = splat_session(cfg, scene, renderer, log=log)
+        if cameras and splats is None:  # renderer "mesh": the cameras still draw splats
+            splats = SplatSession(cfg, scene, log=log)
+            splats.draw = False
+    except SplatSceneError as exc:
+        raise RunError(str(exc)) from None
+    return splats
+
+
+def _header(name: str, scene: Scene, sim: Simulator) -> str:
+    """The run's first summary line: sizes, frames, substeps, frame duration (s), solver, device, dtype."""
+    m = scene.model
+    info = sim.solver.describe()
+    counts = f"{m.particle_count} particles, {m.spring_count} springs" + (
+        f", {m.tet_count} tets" if m.tet_count else ""
+    )
+    solver = f"{info.get('solver', type(sim.solver).__name__)}/{info.get('integrator', '-')}"
+    return (
+        f"{name}: {counts}; {scene.frames} frames x {scene.substeps} substeps "
+        f"(frame_dt {scene.frame_dt:.4g} s), "
+        f"{solver} on {m.device} {m.dtype}"
+    )
+
+
+def _write_trajectory(
+    report: RunReport, scene: Scene, traj: Trajectory, traj_path: Path, render_path: Path
+) -> None:
+    """Write ``<name>.npz`` (with the colliders and ground ``pliant export`` draws) and, for a scene with
+    embedded render meshes, ``<name>.render.npz`` (what the video draws); both go in ``report.written``."""
+    # What `pliant export` draws beside the objects: the drawn colliders (static meshes) and the ground.
+    traj.meta.update(scene.trajectory_meta())
+    report.written.append(Path(traj.save(traj_path)))
+    if scene.embeddings and traj.frame_count > 0:
+        # What the video draws (particles, the fine embedded surface, colliders) as <name>.render.npz.
+        from ..io import Trajectory
+
+        xf, ff, _ = scene.render_mesh(traj.x, traj.faces)
+        fine = Trajectory(x=xf, t=traj.t, faces=ff, meta={**traj.meta, "render_mesh": True})
+        report.written.append(Path(fine.save(render_path)))
 
 
 def _video(

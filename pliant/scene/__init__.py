@@ -11,10 +11,12 @@ constraints are registries (``register_*``): a new kind is one registered functi
 from __future__ import annotations
 
 from . import _contacts, _gaussians, _objects  # noqa: F401 - register the built-in kinds and sections
-from ._build import Embedding, Scene, build_scene
+from ._build import Embedding, Scene, build_scene, lumped_masses
 from ._context import BuildContext
 from ._errors import SceneError
+from ._files import scene_path
 from ._from_mesh import MeshScene, from_mesh, mesh_scene_toml, mesh_scene_values
+from ._gaussians import GaussianCorrectionSection, GaussiansSection, object_index
 from ._knobs import KNOBS, Around, Knob, UpTo, knob, knob_arrays, registry_arrays
 from ._load import builtin_scenes, load_scene, parse_scene
 from ._registry import (
@@ -26,15 +28,25 @@ from ._registry import (
     register_section,
     register_solver,
 )
+from ._replicate import coupled, worlds_unsupported
 from ._schema import ColliderBase, Material, ObjectBase, SceneConfig
-from ._size import SceneSize, available_memory, scene_size
+from ._size import SceneSize, available_memory, format_bytes, scene_size
 from ._solvers import integrator_names, make_integrator
 from ._terms import register_builtin_terms
-from ._worlds import build_worlds
+from ._worlds import build_worlds, material_only
 
 register_builtin_terms()
 
 __all__ = [
+    "lumped_masses",
+    "scene_path",
+    "GaussianCorrectionSection",
+    "GaussiansSection",
+    "object_index",
+    "coupled",
+    "worlds_unsupported",
+    "format_bytes",
+    "material_only",
     "KNOBS",
     "Around",
     "BuildContext",

@@ -27,11 +27,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from ..model._model import GROUND_DAMPING_RATIO, GROUND_STIFFNESS
-from ..model._parameters import SPRING_STIFFNESS
+from ..model import GROUND_DAMPING_RATIO, GROUND_STIFFNESS, SPRING_STIFFNESS
 
 if TYPE_CHECKING:
-    from ..model._parameters import Parameter
+    from ..model import Parameter
     from ._build import Scene
     from ._schema import SceneConfig
 
@@ -154,7 +153,7 @@ class Knob:
         Raises:
             ParameterError: a driven name the registry does not declare.
         """
-        from ..model._parameters import parameter
+        from ..model import parameter
 
         _load_registry()
         return [parameter(n) for n in self.drives]
@@ -456,7 +455,7 @@ def registry_arrays(scene: Scene, names: tuple[str, ...]) -> dict[str, Any]:
     ``model.<array>`` for model arrays (when the model has such elements) and
     ``constraints.<i>.<array>`` for every constraint set of the solver (XPBD / PBD) whose class declares
     the name."""
-    from ..model._parameters import registry
+    from ..model import registry
 
     _load_registry()
     reg = registry()

@@ -10,8 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..model import ModelBuilder
-from ..model._worlds import PARAMETERS
+from ..model import WORLD_PARAMETERS, ModelBuilder
 from ._build import _add_objects, _finalize, _select_handles, build_scene
 from ._context import BuildContext
 from ._errors import scene_error
@@ -24,7 +23,7 @@ if TYPE_CHECKING:
     from ._schema import SceneConfig
 
 #: Model arrays a world may have of its own (set with ``Model.set_world_parameter``).
-WORLD_ARRAYS = tuple(PARAMETERS)
+WORLD_ARRAYS = tuple(WORLD_PARAMETERS)
 #: Model arrays every world must share exactly (topology, rest shape, initial state, contact radii).
 _SHARED = (
     "particle_q",

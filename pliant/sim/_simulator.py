@@ -13,8 +13,7 @@ import warp as wp
 
 from .._time import substep_dt
 from ..io import Trajectory
-from ..model import Control, Model, State
-from ..model._worlds import write_range
+from ..model import Control, Model, State, write_range
 from ..solvers import FrameStep, Solver
 from ._checkpoints import Checkpoints
 from ._divergence import DivergenceError, stability_advice

@@ -105,9 +105,7 @@ def run_chunk(
     one simulation when they change only object sections, else (or when that fails) one by one. A run
     whose world diverges is run again alone, so its row is the one it has alone. ``force`` skips the scene
     size checks (``--force``). Returns one result dict per run."""
-    from ..scene import load_scene
-    from ..scene._replicate import coupled, worlds_unsupported
-    from ..scene._worlds import material_only
+    from ..scene import coupled, load_scene, material_only, worlds_unsupported
 
     t0 = time.perf_counter()
     base = load_scene(scene, force=force)

@@ -79,8 +79,7 @@ def render_scores(
     """
     import warp as wp
 
-    from ..gaussians import Camera, iou, psnr
-    from ..gaussians._scene import scene_gaussians
+    from ..gaussians import Camera, iou, psnr, scene_gaussians
 
     assert obs.K is not None and obs.world_to_camera is not None and obs.images is not None
     splats = scene_gaussians(scene)

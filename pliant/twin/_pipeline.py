@@ -36,6 +36,7 @@ from ._detect import FixedRegions, Ground, detect_fixed, detect_ground, surface_
 from ._scene import camera_table, twin_scene, write_mesh
 
 if TYPE_CHECKING:
+    from ..geometry import TetMesh
     from ._splats import TwinSplats
 
 _T = TypeVar("_T")
@@ -268,19 +269,13 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
         FitError: with ``resume``, a model's fit checkpoint that is unreadable, edited or of another format
             or version (before any work), or from another scene or options (at that model's fit).
     """
-    from ..fit._params import apply_globals
-    from ..fit._run import fit
     from ..fit._toml import dumps
     from ..scene import parse_scene
 
     opts = options or TwinOptions()
     t_start = time.perf_counter()
     check_observations(obs)
-    bad = [m for m in opts.models if m not in TWIN_MODELS]
-    if bad or not opts.models:
-        raise TwinError(
-            f"--models: the twin builds {', '.join(TWIN_MODELS)}; got {','.join(opts.models) or 'none'}"
-        )
+    _check_models(opts.models)
     out = Path(out)
     if opts.resume:  # a truncated or edited checkpoint is refused now, not after the splats are trained
         from ..fit._resume import CHECKPOINT_FILE, read_checkpoint
@@ -294,32 +289,7 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
     C, T = obs.cameras, obs.frames
     H, W = obs.images.shape[2:4]
 
-    centres, spacing, background = steps.run(
-        "reconstruct",
-        lambda: reconstruct(obs, opts),
-        lambda r: (
-            f"{len(r[0])} voxels of {r[1] * 1e3:.1f} mm carved from {C} masks"
-            + (" and depth" if r[2] is not None else "")
-        ),
-    )
-    splat = steps.run("splats", lambda: _splats(obs, centres, spacing, opts, out / "splats.ply"), str)
-    from ..geometry import coarsen_voxels, largest_piece, voxel_tets
-    from ._fit import refine_on_fine
-
-    tm, coarse = steps.run(
-        "model",
-        lambda: (
-            largest_piece(voxel_tets(splat.particles, spacing, dual=True)),
-            largest_piece(voxel_tets(coarsen_voxels(splat.particles, spacing), 2.0 * spacing, dual=True)),
-        ),
-        lambda m: (
-            f"{len(m[0].points)} particles, {len(m[0].tets)} tetrahedra (the fit's coarse stage: "
-            f"{len(m[1].points)} particles)"
-        ),
-    )
-    for key, mesh in (("fine", tm), ("coarse", coarse)):
-        write_mesh(out / GEOMETRY_FILES[key][0], mesh.points, mesh.tets)
-        np.save(out / GEOMETRY_FILES[key][1], mesh.points)
+    spacing, background, splat, tm, coarse = _geometry(steps, obs, opts, out)
     # Two samplings of the same clouds: every point, for telling still from moving (a random subset of each
     # frame would put different points there each frame, a few millimetres apart on a still surface), and
     # a subset per frame for the fit's loss.
@@ -334,94 +304,29 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
     ground = steps.run(
         "ground", lambda: _ground(opts, dense, dense_counts, spacing, background), lambda g: g.reason
     )
-
-    def both_fixed() -> tuple[FixedRegions, FixedRegions]:
-        # The surface's motion depends on the clouds alone: measured once for the fine and the coarse model.
-        surface = surface_motion(dense, dense_counts) if opts.fixed == "auto" else None
-        seen = (dense, dense_counts)
-        return (
-            _fixed(opts, tm.points, *seen, spacing, ground, background, None, surface),
-            _fixed(opts, coarse.points, *seen, 2.0 * spacing, ground, background, spacing, surface),
-        )
-
-    fixed, fixed_coarse = steps.run("fixed", both_fixed, lambda r: r[0].reason)
-    dt = float(np.median(np.diff(obs.t)))
-    camera = camera_table(obs.K[0], obs.world_to_camera[0], H, tm.points.mean(axis=0))
-
-    footage_background = _background(obs)
+    fixed, fixed_coarse = steps.run(
+        "fixed",
+        lambda: _both_fixed(opts, tm, coarse, dense, dense_counts, spacing, ground, background),
+        lambda r: r[0].reason,
+    )
+    common: dict[str, Any] = dict(
+        density=opts.density,
+        frame_dt=float(np.median(np.diff(obs.t))),
+        frames=T - 1,
+        ground=ground.height,
+        splats_file="splats.ply",
+        camera=camera_table(obs.K[0], obs.world_to_camera[0], H, tm.points.mean(axis=0)),
+        background=_background(obs),
+    )
+    meshes = {"fine": (tm, fixed.boxes, spacing), "coarse": (coarse, fixed_coarse.boxes, 2.0 * spacing)}
 
     def scene(m: str, coarse_stage: bool) -> dict[str, Any]:
-        mesh, boxes, h = (
-            (coarse, fixed_coarse.boxes, 2.0 * spacing) if coarse_stage else (tm, fixed.boxes, spacing)
-        )
-        files = GEOMETRY_FILES["coarse" if coarse_stage else "fine"]
-        return twin_scene(
-            geometry_file=files[m == "springs"],
-            model=m,
-            spacing=h,
-            density=opts.density,
-            frame_dt=dt,
-            frames=T - 1,
-            boxes=boxes,
-            ground=ground.height,
-            splats_file="splats.ply",
-            camera=camera,
-            background=footage_background,
-            centre=mesh.points.mean(axis=0),
-            particles=len(mesh.points),
-        )
+        return _model_scene(m, "coarse" if coarse_stage else "fine", meshes, common)
 
     scenes = {m: scene(m, coarse_stage=False) for m in opts.models}
     atomic_write_text(out / "twin_nominal.toml", dumps(scenes[opts.models[0]], "pliant twin: before the fit"))
     track_free = Observations.from_arrays(t=obs.t, cloud=clouds, cloud_count=counts, source=obs.source)
-
-    def fit_all() -> dict[str, Any]:
-        rows = {}
-        for m, data in scenes.items():
-            small = parse_scene(
-                dumps(scene(m, coarse_stage=True)),
-                f"{out} (coarse {m})",
-                out,
-            )
-            rep = fit(
-                small,
-                track_free,
-                out / "fit" / m,
-                resume=opts.resume and (out / "fit" / m / "fit_checkpoint.json").exists(),
-                params=TWIN_PARAMS[m],
-                per_element="none",
-                train_fraction=opts.train_fraction,
-                generations=opts.generations,
-                seed=opts.seed,
-                progress=opts.progress,
-                video=False,
-                workers=opts.workers,
-            )
-            coarse_values = {k: p["value"] for k, p in rep["params"].items()}
-            cfg = parse_scene(dumps(data), f"{out / 'twin_nominal.toml'} ({m})", out)
-            search = refine_on_fine(cfg, track_free, coarse_values, train_fraction=opts.train_fraction)
-            rows[m] = {
-                "values": search.values,
-                "coarse_values": coarse_values,
-                "scale": search.scales,
-                "scale_history": search.history,
-                "cfg": apply_globals(cfg, search.values),
-                "report": rep,
-            }
-        return rows
-
-    fits = steps.run(
-        "fit",
-        fit_all,
-        lambda r: "; ".join(
-            f"{m}: "
-            + ", ".join(f"{k} {v:.4g}" for k, v in row["values"].items())
-            + " (coarse x "
-            + ", ".join(f"{v:.3g}" for v in row["scale"].values())
-            + ")"
-            for m, row in r.items()
-        ),
-    )
+    fits = steps.run("fit", lambda: _fit_models(scenes, scene, track_free, out, opts), _fit_summary)
     from ._evaluate import evaluate, validation_loss
 
     n_train = min(max(2, int(round(opts.train_fraction * T))), T)
@@ -459,33 +364,187 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
         "splats": splat.summary(),
         "ground": ground.summary(),
         "fixed": fixed.summary(),
-        "models": {
-            m: {
-                "values": row["values"],
-                "coarse_values": row["coarse_values"],
-                "fine_scales": row["scale"],
-                "scale_search": row["scale_history"],
-                "validation_loss": scores[m],
-                "coarse_fit_seconds": row["report"]["wall_time"],
-            }
-            for m, row in fits.items()
-        },
+        "models": _model_rows(fits, scores),
         "model": best,
         "metrics": metrics,
         "steps": steps.rows,
         "wall_time": time.perf_counter() - t_start,
-        "files": [
-            "twin.toml",
-            "twin_mesh.vtu",
-            "twin_coarse.vtu",
-            "splats.ply",
-            "reconstruction.png",
-            "twin_fit.png",
-            "twin_rollout.npz",
-        ],
+        "files": list(TWIN_FILES),
     }
     atomic_write_text(out / "twin.json", json.dumps(report, indent=2, default=_json) + "\n")
     return report
+
+
+def _check_models(models: Sequence[str]) -> None:
+    """The twin builds the models of :data:`TWIN_MODELS` (at least one)."""
+    bad = [m for m in models if m not in TWIN_MODELS]
+    if bad or not models:
+        raise TwinError(
+            f"--models: the twin builds {', '.join(TWIN_MODELS)}; got {','.join(models) or 'none'}"
+        )
+
+
+#: The files a twin's folder holds besides twin.json, as twin.json lists them.
+TWIN_FILES = (
+    "twin.toml",
+    "twin_mesh.vtu",
+    "twin_coarse.vtu",
+    "splats.ply",
+    "reconstruction.png",
+    "twin_fit.png",
+    "twin_rollout.npz",
+)
+
+
+def _geometry(
+    steps: _Steps, obs: Observations, opts: TwinOptions, out: Path
+) -> tuple[float, np.ndarray | None, TwinSplats, TetMesh, TetMesh]:
+    """Steps "reconstruct", "splats" and "model": (voxel spacing [m], frame 0's background points [B, 3]
+    from depth or None, the splats, the fine and the coarse tet mesh), the meshes written into ``out``."""
+    from ..geometry import coarsen_voxels, largest_piece, voxel_tets
+
+    C = obs.cameras
+    centres, spacing, background = steps.run(
+        "reconstruct",
+        lambda: reconstruct(obs, opts),
+        lambda r: (
+            f"{len(r[0])} voxels of {r[1] * 1e3:.1f} mm carved from {C} masks"
+            + (" and depth" if r[2] is not None else "")
+        ),
+    )
+    splat = steps.run("splats", lambda: _splats(obs, centres, spacing, opts, out / "splats.ply"), str)
+    tm, coarse = steps.run(
+        "model",
+        lambda: (
+            largest_piece(voxel_tets(splat.particles, spacing, dual=True)),
+            largest_piece(voxel_tets(coarsen_voxels(splat.particles, spacing), 2.0 * spacing, dual=True)),
+        ),
+        lambda m: (
+            f"{len(m[0].points)} particles, {len(m[0].tets)} tetrahedra (the fit's coarse stage: "
+            f"{len(m[1].points)} particles)"
+        ),
+    )
+    for key, m in (("fine", tm), ("coarse", coarse)):
+        write_mesh(out / GEOMETRY_FILES[key][0], m.points, m.tets)
+        np.save(out / GEOMETRY_FILES[key][1], m.points)
+    return spacing, background, splat, tm, coarse
+
+
+def _both_fixed(
+    opts: TwinOptions,
+    tm: TetMesh,
+    coarse: TetMesh,
+    dense: np.ndarray,
+    dense_counts: np.ndarray,
+    spacing: float,
+    ground: Ground,
+    background: np.ndarray | None,
+) -> tuple[FixedRegions, FixedRegions]:
+    """Step "fixed": the fixed regions of the fine and of the coarse model (spacing 2 · ``spacing`` [m])."""
+    # The surface's motion depends on the clouds alone: measured once for the fine and the coarse model.
+    surface = surface_motion(dense, dense_counts) if opts.fixed == "auto" else None
+    seen = (dense, dense_counts)
+    return (
+        _fixed(opts, tm.points, *seen, spacing, ground, background, None, surface),
+        _fixed(opts, coarse.points, *seen, 2.0 * spacing, ground, background, spacing, surface),
+    )
+
+
+def _model_scene(
+    m: str,
+    key: str,
+    meshes: dict[str, tuple[TetMesh, list[tuple[np.ndarray, np.ndarray]], float]],
+    common: dict[str, Any],
+) -> dict[str, Any]:
+    """The scene table of model ``m`` on the ``key`` ("fine" or "coarse") mesh of ``meshes`` (mesh, fixed
+    boxes, spacing [m]), with the settings ``common`` to every model."""
+    mesh, boxes, h = meshes[key]
+    return twin_scene(
+        geometry_file=GEOMETRY_FILES[key][m == "springs"],
+        model=m,
+        spacing=h,
+        boxes=boxes,
+        centre=mesh.points.mean(axis=0),
+        particles=len(mesh.points),
+        **common,
+    )
+
+
+def _fit_models(
+    scenes: dict[str, dict[str, Any]],
+    scene: Callable[[str, bool], dict[str, Any]],
+    track_free: Observations,
+    out: Path,
+    opts: TwinOptions,
+) -> dict[str, dict[str, Any]]:
+    """Step "fit": each model fitted on its coarse scene, then its values refined on the fine one; per
+    model its values, the coarse ones, the fine scales and their search, the fitted config and the report."""
+    from ..fit._params import apply_globals
+    from ..fit._run import fit
+    from ..fit._toml import dumps
+    from ..scene import parse_scene
+    from ._fit import refine_on_fine
+
+    rows = {}
+    for m, data in scenes.items():
+        small = parse_scene(
+            dumps(scene(m, True)),
+            f"{out} (coarse {m})",
+            out,
+        )
+        rep = fit(
+            small,
+            track_free,
+            out / "fit" / m,
+            resume=opts.resume and (out / "fit" / m / "fit_checkpoint.json").exists(),
+            params=TWIN_PARAMS[m],
+            per_element="none",
+            train_fraction=opts.train_fraction,
+            generations=opts.generations,
+            seed=opts.seed,
+            progress=opts.progress,
+            video=False,
+            workers=opts.workers,
+        )
+        coarse_values = {k: p["value"] for k, p in rep["params"].items()}
+        cfg = parse_scene(dumps(data), f"{out / 'twin_nominal.toml'} ({m})", out)
+        search = refine_on_fine(cfg, track_free, coarse_values, train_fraction=opts.train_fraction)
+        rows[m] = {
+            "values": search.values,
+            "coarse_values": coarse_values,
+            "scale": search.scales,
+            "scale_history": search.history,
+            "cfg": apply_globals(cfg, search.values),
+            "report": rep,
+        }
+    return rows
+
+
+def _fit_summary(fits: dict[str, dict[str, Any]]) -> str:
+    """The fit step's line: each model's values and the fine scales of its coarse values."""
+    return "; ".join(
+        f"{m}: "
+        + ", ".join(f"{k} {v:.4g}" for k, v in row["values"].items())
+        + " (coarse x "
+        + ", ".join(f"{v:.3g}" for v in row["scale"].values())
+        + ")"
+        for m, row in fits.items()
+    )
+
+
+def _model_rows(fits: dict[str, dict[str, Any]], scores: dict[str, float]) -> dict[str, dict[str, Any]]:
+    """twin.json's ``models``: each model's values, search and validation loss."""
+    return {
+        m: {
+            "values": row["values"],
+            "coarse_values": row["coarse_values"],
+            "fine_scales": row["scale"],
+            "scale_search": row["scale_history"],
+            "validation_loss": scores[m],
+            "coarse_fit_seconds": row["report"]["wall_time"],
+        }
+        for m, row in fits.items()
+    }
 
 
 def _background(obs: Observations) -> list[float]:
