@@ -18,6 +18,7 @@ from ..io import Observations, atomic_output, atomic_savez, atomic_write_text
 from ..scene._size import format_bytes
 from . import _explain
 from ._cmaes import StageResult, cmaes
+from ._gate import fit_window, gate, held_back
 from ._gradient import gradient_stage
 from ._memory import device_memory, memory_problem, problem_memory
 from ._params import FitError, auto_per_element, scene_constraints
@@ -116,8 +117,9 @@ def fit(
 
     Stage 1 (CMA-ES, forward runs only) fits the global parameters ``params`` (default: the scene model's
     material); stage 2 (Adam or L-BFGS on tape gradients) fits the per-element parameter ``per_element``
-    when one is named (its values are kept only if they lower the open-loop training loss). Both train on
-    the first ``train_fraction`` of the frames; the rest is the test. A Ctrl-C during a stage keeps the
+    when one is named. Both train on the first ``train_fraction`` of the frames less their last
+    ``validation`` fraction, and each stage's values are kept only if they predict those validation frames
+    better; the frames after ``train_fraction`` are the test. A Ctrl-C during a stage keeps the
     best values found so far, writes the outputs and re-raises.
 
     Args:
@@ -137,10 +139,12 @@ def fit(
         lr: Adam step size (log-scale units; one step per frame with the default horizon).
         smoothness: Weight of the total-variation prior over neighbouring elements in the gradient stage
             (``pl.fit.Smoothness``; 0: none; 1e-4 separates a two-material cloth, see docs/fitting.md).
-        validation: Fraction of the training frames (the last ones) the gradient stage does not train on;
-            its per-element values are kept only if they lower the open-loop loss on these frames (a
-            prediction, like the test) without raising it on the whole training window. 0: train on all
-            and keep on the training loss alone.
+        validation: Fraction of the training frames (the last ones) no stage trains on. The global values
+            are kept only if their open-loop rollout predicts these frames better than the scene's own
+            (:func:`pliant.fit._gate.gate`, which also puts back the parameters the data do not constrain
+            where that is a tie: ``global_validation`` and ``identifiability`` in fit.json); the
+            per-element values only if they lower that loss by PER_ELEMENT_MARGIN without raising it on the
+            whole training window. 0: train on all and decide on the training loss alone.
         tol: The gradient stages stop when an epoch improves the loss by less than this fraction (five in a
             row; L-BFGS: its ftol); ``epochs`` is the cap.
         shooting: Multiple-shooting window of the training runs [frames] (:class:`pliant.fit.Problem`;
@@ -233,8 +237,94 @@ def fit(
     # images: the appearance stage, and whether the splats can explain the images at all (warns if not)
     explained = _explain.before_physics(problem, out, appearance=appearance)
     stages: dict[str, StageResult] = {}
-    values, arrays = problem.nominal, {}
-    interrupted = False
+    arrays: dict[str, np.ndarray] = {}
+    n = problem.n_train
+    n_fit = fit_window(n, validation)  # the global and per-element stages train on 1 ... n_fit - 1
+    with held_back(problem, n_fit):
+        values, interrupted = _global_stages(
+            problem,
+            staged,
+            stages,
+            generations=generations,
+            epochs=epochs,
+            optimizer=optimizer,
+            lr=lr,
+            tol=tol,
+            seed=seed,
+            progress=progress,
+        )
+    validated = identified = None
+    if stages and not interrupted and problem.globals:
+        # never worse than the scene as given on frames the search did not see, without saying so
+        values, validated, identified = gate(problem, values, n_fit)
+    if per_element is not None and epochs > 0 and not interrupted:
+        with _stage_progress(progress, epochs, f"fit: {optimizer} ({per_element})") as tick:
+            stages["gradient"] = staged(
+                "gradient",
+                lambda hook: gradient_stage(
+                    problem,
+                    values,
+                    iterations=epochs,
+                    lr=lr,
+                    horizon=horizon,
+                    optimizer=optimizer,
+                    smoothness=smoothness,
+                    frames=n_fit,
+                    tol=tol,
+                    callback=tick,
+                    checkpoint=hook,
+                ),
+            )
+        arrays = stages["gradient"].per_element
+        interrupted = stages["gradient"].interrupted
+        # The one-frame-horizon losses are not the open-loop rollout's, and many per-element values can fit
+        # the training frames and predict worse (over-fitting): keep them only if the open-loop rollout
+        # predicts the held-back validation frames clearly better than the global stage's (by
+        # PER_ELEMENT_MARGIN: hundreds of free values buy a few per cent on a short window by chance), and
+        # the whole training window no worse.
+        x0 = problem.simulate(problem.build(values), n, forced=False)
+        x1 = problem.simulate(fitted_scene(problem, values, arrays), n, forced=False)
+        before, after = problem.loss(x0), problem.loss(x1)
+        stages["gradient"].loss = after
+        if n_fit < n:
+            v0, v1 = problem.loss(x0, n_fit, n), problem.loss(x1, n_fit, n)
+            stages["gradient"].validation = {"frames": [n_fit, n], "before": v0, "after": v1}
+            keep = v1 < (1.0 - PER_ELEMENT_MARGIN) * v0 and after <= before
+        else:
+            keep = after < before
+        if not keep:
+            stages["gradient"].kept = False
+            arrays = {}
+    report = write_outputs(problem, out, values, arrays, stages, video=video, progress=progress)
+    checks = _explain.after_physics(problem, values)
+    report.update(explained, warnings=explained.get("warnings", []) + checks.pop("warnings"), **checks)
+    report["global_validation"], report["identifiability"] = validated, identified
+    report["shooting"] = problem.shooting
+    report["wall_time"] = time.perf_counter() - t0
+    report["interrupted"] = interrupted
+    atomic_write_text(out / "fit.json", json.dumps(report, indent=2, default=_json_default) + "\n")
+    if interrupted:
+        raise KeyboardInterrupt
+    return report
+
+
+def _global_stages(
+    problem: Problem,
+    staged: Callable[[str, Callable[[StageHook], StageResult]], StageResult],
+    stages: dict[str, StageResult],
+    *,
+    generations: int,
+    epochs: int,
+    optimizer: str,
+    lr: float,
+    tol: float,
+    seed: int,
+    progress: bool,
+) -> tuple[dict[str, float], bool]:
+    """The global stages of :func:`fit` (CMA-ES, its open-loop pass after multiple shooting, and from images
+    the image-gradient stage), each through ``staged`` (the checkpoint) and recorded in ``stages``; returns
+    (the global values, interrupted)."""
+    values, interrupted = problem.nominal, False
     if problem.globals and generations > 0:
         with _stage_progress(progress, generations, "fit: CMA-ES") as tick:
             stages["cmaes"] = staged(
@@ -286,57 +376,7 @@ def fit(
                 ),
             )
         values, interrupted = stages["gradient"].values, stages["gradient"].interrupted
-    if per_element is not None and epochs > 0 and not interrupted:
-        n = problem.n_train
-        n_fit = n - int(round(validation * (n - 1))) if n >= 6 else n
-        n_fit = min(max(n_fit, 2), n)
-        with _stage_progress(progress, epochs, f"fit: {optimizer} ({per_element})") as tick:
-            stages["gradient"] = staged(
-                "gradient",
-                lambda hook: gradient_stage(
-                    problem,
-                    values,
-                    iterations=epochs,
-                    lr=lr,
-                    horizon=horizon,
-                    optimizer=optimizer,
-                    smoothness=smoothness,
-                    frames=n_fit,
-                    tol=tol,
-                    callback=tick,
-                    checkpoint=hook,
-                ),
-            )
-        arrays = stages["gradient"].per_element
-        interrupted = stages["gradient"].interrupted
-        # The one-frame-horizon losses are not the open-loop rollout's, and many per-element values can fit
-        # the training frames and predict worse (over-fitting): keep them only if the open-loop rollout
-        # predicts the held-back validation frames clearly better than the global stage's (by
-        # PER_ELEMENT_MARGIN: hundreds of free values buy a few per cent on a short window by chance), and
-        # the whole training window no worse.
-        x0 = problem.simulate(problem.build(values), n, forced=False)
-        x1 = problem.simulate(fitted_scene(problem, values, arrays), n, forced=False)
-        before, after = problem.loss(x0), problem.loss(x1)
-        stages["gradient"].loss = after
-        if n_fit < n:
-            v0, v1 = problem.loss(x0, n_fit, n), problem.loss(x1, n_fit, n)
-            stages["gradient"].validation = {"frames": [n_fit, n], "before": v0, "after": v1}
-            keep = v1 < (1.0 - PER_ELEMENT_MARGIN) * v0 and after <= before
-        else:
-            keep = after < before
-        if not keep:
-            stages["gradient"].kept = False
-            arrays = {}
-    report = write_outputs(problem, out, values, arrays, stages, video=video, progress=progress)
-    checks = _explain.after_physics(problem, values)
-    report.update(explained, warnings=explained.get("warnings", []) + checks.pop("warnings"), **checks)
-    report["shooting"] = problem.shooting
-    report["wall_time"] = time.perf_counter() - t0
-    report["interrupted"] = interrupted
-    atomic_write_text(out / "fit.json", json.dumps(report, indent=2, default=_json_default) + "\n")
-    if interrupted:
-        raise KeyboardInterrupt
-    return report
+    return values, interrupted
 
 
 def stages_of(problem: Problem, b: Bound) -> list[str]:
@@ -484,9 +524,14 @@ def _plot(
     if any(s.history for s in stages.values()):  # a run stopped before its first iteration has none
         a.legend()
     t = np.arange(len(err)) * frame_dt
-    b.plot(t[:n_train], scale * err[:n_train], color="C0", label="fitted (train)")
-    b.plot(t[n_train - 1 :], scale * err[n_train - 1 :], color="C3", label="fitted (test)")
-    b.plot(t, scale * err_nom, color="0.6", ls="--", label="nominal")
+
+    def means(e: np.ndarray) -> str:  # the summary's train and held-out means, beside each curve
+        m = [scale * np.nanmean(p) if np.isfinite(p).any() else np.nan for p in (e[1:n_train], e[n_train:])]
+        return f"train {m[0]:.3g}, test {m[1]:.3g}"
+
+    b.plot(t[:n_train], scale * err[:n_train], color="C0", label=f"fitted: {means(err)}")
+    b.plot(t[n_train - 1 :], scale * err[n_train - 1 :], color="C3", label="fitted (test frames)")
+    b.plot(t, scale * err_nom, color="0.6", ls="--", label=f"nominal: {means(err_nom)}")
     b.axvline((n_train - 1) * frame_dt, color="k", lw=0.8)
     b.set_xlabel("time [s]")
     b.set_ylabel(ylabel)
