@@ -21,7 +21,7 @@ from helpers import FIT_ROPE
 import pliant as pl
 from pliant.cli import main
 from pliant.fit import FitError, observe
-from pliant.fit._resume import CHECKPOINT_FILE, FitCheckpoint
+from pliant.fit._resume import CHECKPOINT_FILE, FIT_VERSION, FitCheckpoint
 
 KW = dict(per_element="stiffness", generations=6, epochs=4, progress=False, video=False)
 
@@ -156,7 +156,7 @@ def test_checkpoints_of_another_fit_are_refused_in_one_line(rope, reference, tmp
     refused("other options (generations 6, now 8)", generations=8)
     data = json.loads(path.read_text())
     path.write_text(json.dumps({**data, "fit_version": 0}))
-    refused("written by another version of the fit (0, this one 1)")
+    refused(f"written by another version of the fit (0, this one {FIT_VERSION})")
     text = (reference / CHECKPOINT_FILE).read_text()
     path.write_text(text[: len(text) // 2])
     refused("not a readable fit checkpoint")
