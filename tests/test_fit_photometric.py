@@ -393,10 +393,6 @@ def test_stiffness_and_dashpot_damping_from_three_videos(tmp_path):
         generations=5,
         epochs=15,
         optimizer="lbfgs",
-        # the image gradients on all 7 training frames: with the last one held back for validation, 6 frames
-        # of a 4×4 cloth leave L-BFGS a local minimum at γ = 0.017 (loss 1e-7; tests/test_fit_gate.py
-        # covers the gate)
-        validation=0.0,
         progress=False,
         video=False,
     )

@@ -4,11 +4,10 @@ per-element parameters, then the outputs: ``fitted.toml`` (+ ``fitted_params.npz
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -17,19 +16,18 @@ import numpy as np
 from ..io import Observations, atomic_output, atomic_savez, atomic_write_text
 from ..scene._size import format_bytes
 from . import _explain
-from ._cmaes import StageResult, cmaes
-from ._gate import fit_window, gate, held_back
+from ._cmaes import StageResult
+from ._gate import fit_window
+from ._global import global_stages, stage_progress
 from ._gradient import gradient_stage
 from ._memory import device_memory, memory_problem, problem_memory
 from ._params import FitError, auto_per_element, scene_constraints
-from ._photometric import PhotometricProblem, gradient_capable, problem_for, refinable, refine_globals
+from ._photometric import PhotometricProblem, gradient_capable, problem_for, refinable
 from ._problem import Problem
 from ._resume import FitCheckpoint, StageHook
 from ._toml import scene_toml
 
 if TYPE_CHECKING:
-    from tqdm.auto import tqdm
-
     from ..scene import Scene, SceneConfig
     from ._params import Bound
 
@@ -39,38 +37,6 @@ PARAMS_FILE = "fitted_params.npz"
 #: and raised the held-out error from 30 to 40 mm; where the per-element values are real (two materials,
 #: the beam) they lower it by far more.
 PER_ELEMENT_MARGIN = 0.1
-#: CMA-ES's initial step in the unit box for the open-loop search that follows multiple shooting (half the
-#: first stage's 1/6: it starts near the answer).
-SIGMA_OPEN_LOOP = 1.0 / 12.0
-
-
-def _bar(progress: bool, total: int, desc: str) -> tqdm | None:
-    if not progress:
-        return None
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc=desc, unit="it", leave=False, dynamic_ncols=True)
-
-
-def _tick(bar: tqdm | None) -> Callable[[int, float], None]:
-    def cb(it: int, loss: float) -> None:
-        if bar is not None:
-            bar.update(1)
-            bar.set_postfix_str(f"loss {loss:.4g}")
-
-    return cb
-
-
-@contextlib.contextmanager
-def _stage_progress(progress: bool, total: int, desc: str) -> Iterator[Callable[[int, float], None]]:
-    """A stage's progress bar (none without ``progress``) as the stage's ``callback``, closed however the
-    stage ends (Ctrl-C included)."""
-    bar = _bar(progress, total, desc)
-    try:
-        yield _tick(bar)
-    finally:
-        if bar is not None:
-            bar.close()
 
 
 def fitted_scene(problem: Problem, values: dict[str, float], per_element: dict[str, np.ndarray]) -> Scene:
@@ -119,8 +85,9 @@ def fit(
     material); stage 2 (Adam or L-BFGS on tape gradients) fits the per-element parameter ``per_element``
     when one is named. Both train on the first ``train_fraction`` of the frames less their last
     ``validation`` fraction, and each stage's values are kept only if they predict those validation frames
-    better; the frames after ``train_fraction`` are the test. A Ctrl-C during a stage keeps the
-    best values found so far, writes the outputs and re-raises.
+    better (the global search, once it passes, runs again on all the training frames:
+    :mod:`pliant.fit._global`); the frames after ``train_fraction`` are the test. A Ctrl-C during a stage
+    keeps the best values found so far, writes the outputs and re-raises.
 
     Args:
         cfg: The scene (``pl.scene.load_scene``).
@@ -240,25 +207,21 @@ def fit(
     arrays: dict[str, np.ndarray] = {}
     n = problem.n_train
     n_fit = fit_window(n, validation)  # the global and per-element stages train on 1 ... n_fit - 1
-    with held_back(problem, n_fit):
-        values, interrupted = _global_stages(
-            problem,
-            staged,
-            stages,
-            generations=generations,
-            epochs=epochs,
-            optimizer=optimizer,
-            lr=lr,
-            tol=tol,
-            seed=seed,
-            progress=progress,
-        )
-    validated = identified = None
-    if stages and not interrupted and problem.globals:
-        # never worse than the scene as given on frames the search did not see, without saying so
-        values, validated, identified = gate(problem, values, n_fit)
+    values, interrupted, validated, identified = global_stages(
+        problem,
+        staged,
+        stages,
+        n_fit,
+        generations=generations,
+        epochs=epochs,
+        optimizer=optimizer,
+        lr=lr,
+        tol=tol,
+        seed=seed,
+        progress=progress,
+    )
     if per_element is not None and epochs > 0 and not interrupted:
-        with _stage_progress(progress, epochs, f"fit: {optimizer} ({per_element})") as tick:
+        with stage_progress(progress, epochs, f"fit: {optimizer} ({per_element})") as tick:
             stages["gradient"] = staged(
                 "gradient",
                 lambda hook: gradient_stage(
@@ -306,77 +269,6 @@ def fit(
     if interrupted:
         raise KeyboardInterrupt
     return report
-
-
-def _global_stages(
-    problem: Problem,
-    staged: Callable[[str, Callable[[StageHook], StageResult]], StageResult],
-    stages: dict[str, StageResult],
-    *,
-    generations: int,
-    epochs: int,
-    optimizer: str,
-    lr: float,
-    tol: float,
-    seed: int,
-    progress: bool,
-) -> tuple[dict[str, float], bool]:
-    """The global stages of :func:`fit` (CMA-ES, its open-loop pass after multiple shooting, and from images
-    the image-gradient stage), each through ``staged`` (the checkpoint) and recorded in ``stages``; returns
-    (the global values, interrupted)."""
-    values, interrupted = problem.nominal, False
-    if problem.globals and generations > 0:
-        with _stage_progress(progress, generations, "fit: CMA-ES") as tick:
-            stages["cmaes"] = staged(
-                "cmaes",
-                lambda hook: cmaes(
-                    problem, generations=generations, seed=seed, callback=tick, checkpoint=hook
-                ),
-            )
-        values = stages["cmaes"].values
-        interrupted = stages["cmaes"].interrupted
-        if problem.shooting > 0 and not interrupted:
-            # Multiple shooting finds the basin of a long motion; what the fit must do is predict it open
-            # loop (the held-out frames are): CMA-ES again, open loop, from there with half the step. Its
-            # first evaluation is that start, so the open-loop training loss cannot get worse. On MuJoCo's
-            # rope the windows' values alone predicted the held-out frames 1.3x worse than the nominal's.
-            window, problem.shooting = problem.shooting, 0
-            try:
-                with _stage_progress(progress, generations, "fit: CMA-ES (open loop)") as tick:
-                    stages["cmaes_open_loop"] = staged(
-                        "cmaes_open_loop",
-                        lambda hook: cmaes(
-                            problem,
-                            generations=generations,
-                            seed=seed,
-                            start=values,
-                            sigma=SIGMA_OPEN_LOOP,
-                            callback=tick,
-                            checkpoint=hook,
-                        ),
-                    )
-            finally:
-                problem.shooting = window
-            values = stages["cmaes_open_loop"].values
-            interrupted = stages["cmaes_open_loop"].interrupted
-    if isinstance(problem, PhotometricProblem) and epochs > 0 and not interrupted and refinable(problem):
-        # From images, stage 2 refines the global values with image gradients through the rollout.
-        with _stage_progress(progress, epochs, f"fit: {optimizer} (image gradients)") as tick:
-            stages["gradient"] = staged(
-                "image_gradient",
-                lambda hook: refine_globals(
-                    problem,
-                    values,
-                    iterations=epochs,
-                    optimizer=optimizer,
-                    lr=lr,
-                    tol=tol,
-                    callback=tick,
-                    checkpoint=hook,
-                ),
-            )
-        values, interrupted = stages["gradient"].values, stages["gradient"].interrupted
-    return values, interrupted
 
 
 def stages_of(problem: Problem, b: Bound) -> list[str]:
