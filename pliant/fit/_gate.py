@@ -92,7 +92,9 @@ def gate(
     v_fit, v_nom = open_loop_loss(problem, fitted, lo, hi), open_loop_loss(problem, nominal, lo, hi)
     values, v, reset = dict(fitted), v_fit, {}
     if frames < n and ident is not None and "params" in ident:
-        loose = [k for k, p in ident["params"].items() if not p["constrained"] and fitted[k] != nominal[k]]
+        loose = [
+            k for k, p in ident["params"].items() if p["constrained"] is False and fitted[k] != nominal[k]
+        ]
         for name in sorted(loose, key=lambda k: -ident["params"][k]["sigma_unit"]):
             trial = {**values, name: nominal[name]}
             v_trial = open_loop_loss(problem, trial, lo, hi)

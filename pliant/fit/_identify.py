@@ -15,7 +15,8 @@ direction along which a whole unit of the box raises the loss by less than ΔL (
 2 ΔL, or below :data:`FLAT` of the largest, which is the finite differences' noise) is flat: it gets the
 whole box as its band. A parameter is *constrained* when its band (the others re-adjusting: √C_ii) is
 narrower than :data:`CONSTRAINED` of the box; two parameters *trade against each other* when
-|C_ij| / √(C_ii C_jj) > :data:`TRADE`.
+|C_ij| / √(C_ii C_jj) > :data:`TRADE`. Where H has a direction along which the loss falls by more than ΔL
+per unit, the point is no minimum at the step's scale (a rugged loss) and nothing is said.
 """
 
 from __future__ import annotations
@@ -99,11 +100,17 @@ def summarise(
         ``sigma_unit`` the 1σ band's half-width in the unit box with the others re-adjusting,
         ``sigma_alone_unit`` with the others held, ``band`` the values 1σ either side (clamped to the search
         box), ``relative`` its half-width relative to the value (the factor − 1 on a log scale; None at 0).
+        ``minimum`` False where H has a direction of negative curvature beyond 2ΔL (the point is no
+        minimum at the step's scale): then ``constrained`` is None and ``trade`` empty.
     """
     d = len(bounds)
     dl = rise * max(float(loss), 1e-300)
     Hs = 0.5 * (H + H.T)
     w, V = np.linalg.eigh(Hs)
+    # a direction along which a unit of the box lowers the loss by more than ΔL: not a minimum at the
+    # step's scale (a rugged loss, e.g. a cloth that folds, whose loss changes by 20 % with a dashpot of
+    # 2e-5 N s/m; or a search stopped early): no band can be read from it
+    minimum = bool(w.min(initial=0.0) >= -2.0 * dl)
     floor = max(2.0 * dl, FLAT * max(float(w.max(initial=0.0)), 0.0))
     w = np.where(w > floor, w, 2.0 * dl)  # flat: the whole box (unit) raises the loss by ΔL
     C = (V * (2.0 * dl / w)) @ V.T
@@ -126,7 +133,7 @@ def summarise(
             "sigma_alone_unit": float(alone[k]),
             "band": band,
             "relative": rel,
-            "constrained": bool(s < CONSTRAINED),
+            "constrained": bool(s < CONSTRAINED) if minimum else None,
         }
     i, j = np.triu_indices(d, 1)
     pick = np.abs(corr[i, j]) > TRADE
@@ -135,8 +142,9 @@ def summarise(
         for a, b in zip(i[pick], j[pick], strict=True)
     ]
     return {
+        "minimum": minimum,
         "params": params,
-        "trade": trade,
+        "trade": trade if minimum else [],
         "correlation": corr.tolist(),
         "loss": float(loss),
         "rise": rise,
@@ -219,6 +227,11 @@ def describe(rep: dict[str, Any]) -> list[str]:
     """The CLI's lines for an identifiability report (one per parameter, one per trading pair)."""
     if "skipped" in rep:
         return [f"identifiability: not measured ({rep['skipped']})"]
+    if not rep["minimum"]:
+        return [
+            "identifiability: not measured: the training loss is no minimum at the finite-difference step "
+            "(rugged, or the search stopped early)"
+        ]
     lines = [f"identifiability (1 sigma for a {100 * rep['rise']:g} % rise of the training loss):"]
     for name, p in rep["params"].items():
         lo, hi = p["band"]
