@@ -169,7 +169,8 @@ def identify(
     """The identifiability report (:func:`summarise`) of ``problem``'s global parameters at ``values``: the
     open-loop training loss over frames 1 … ``frames`` − 1 differentiated twice on :func:`stencil`.
 
-    Whole-number parameters (a neighbour count: the loss is flat between integers) are left out.
+    Whole-number and topology parameters (a neighbour count, a spring radius: the loss is piecewise
+    constant in them) are left out.
 
     Args:
         problem: The fitting problem.
@@ -183,8 +184,9 @@ def identify(
         :func:`summarise`'s report with ``method``, ``frames`` [1, frames], ``evaluations`` and ``left_out``
         (the whole-number parameters); or ``{"skipped": why}`` when a point of the stencil diverged.
     """
-    bounds = [b for b in problem.globals if not b.param.integer]
-    left_out = [b.name for b in problem.globals if b.param.integer]
+    # piecewise constant in whole numbers and topology (a spring appears when the radius passes a distance)
+    bounds = [b for b in problem.globals if not (b.param.integer or b.param.topology)]
+    left_out = [b.name for b in problem.globals if b.param.integer or b.param.topology]
     if not bounds:
         return {"skipped": "no continuous global parameter", "left_out": left_out}
     u0 = np.array([b.param.to_unit(min(max(values[b.name], b.lo), b.hi), b.lo, b.hi) for b in bounds])
@@ -249,7 +251,7 @@ def describe(rep: dict[str, Any]) -> list[str]:
         a, b = t["params"]
         lines.append(f"  {a} and {b} trade against each other (correlation {t['correlation']:+.2f})")
     for name in rep.get("left_out", []):
-        lines.append(f"  {name}: not measured (a whole number)")
+        lines.append(f"  {name}: not measured (a whole number or the springs' topology)")
     return lines
 
 
