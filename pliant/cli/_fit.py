@@ -285,6 +285,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
         raise
     for name, p in report["params"].items():
         print(f"{name}: {p['value']:.6g} (nominal {p['nominal']:.6g})")
+    for line in _gate_lines(report):
+        print(line)
     if "appearance" in report:
         a = report["appearance"]
         print(f"appearance (frame 0): PSNR {a['psnr_before_db']:.1f} -> {a['psnr_after_db']:.1f} dB")
@@ -324,6 +326,24 @@ def cmd_fit(args: argparse.Namespace) -> int:
     print(f"wrote {out / 'fitted.toml'}, fit.json, fit.png" + ("" if args.no_video else ", fit.mp4"))
     print(f"fitted in {report['wall_time']:.1f} s")
     return 0
+
+
+def _gate_lines(report: dict) -> list[str]:
+    """The summary's lines on the global stage's validation gate and identifiability (fit.json's
+    ``global_validation`` and ``identifiability``; none when there was no global stage)."""
+    from ..fit._identify import describe
+
+    gv, ident = report.get("global_validation"), report.get("identifiability")
+    lines = []
+    if gv is not None:
+        what = "fitted values kept" if gv["kept"] else "KEPT THE SCENE'S VALUES"
+        lines.append(f"global stage: {what}: {gv['why']}")
+    if ident is not None:
+        lines += describe(ident)
+    mass = report.get("mass_distribution")
+    if mass is not None:
+        lines.append(f"mass distribution: {mass['name']}: {mass['reason']}")
+    return lines
 
 
 def _fit_models(

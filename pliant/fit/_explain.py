@@ -182,6 +182,8 @@ def after_physics(problem: Problem, values: dict[str, float]) -> dict[str, Any]:
         if b.name in MASS:  # α = 0 and 1 are lumped and uniform: answers, not a search pushed out of range
             continue
         v = values[b.name]
+        if v == b.scene_value:  # the scene's own value (the validation gate kept it): not pushed there
+            continue
         u = b.param.to_unit(min(max(v, b.lo), b.hi), b.lo, b.hi)
         if u < AT_BOUND or u > 1.0 - AT_BOUND:
             side = "lower" if u < AT_BOUND else "upper"

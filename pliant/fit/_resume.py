@@ -42,7 +42,7 @@ CHECKPOINT_FILE = "fit_checkpoint.json"
 FORMAT = 2
 #: The fit's arithmetic: bump when a stage's sequence of evaluations changes, so that an older checkpoint
 #: (whose replay would diverge) is refused rather than continued.
-FIT_VERSION = 1
+FIT_VERSION = 2  # 2: the global stages train without the validation frames (issue 38)
 
 
 def _pliant_version() -> str:

@@ -4,11 +4,10 @@ per-element parameters, then the outputs: ``fitted.toml`` (+ ``fitted_params.npz
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -17,18 +16,19 @@ import numpy as np
 from ..io import Observations, atomic_output, atomic_savez, atomic_write_text
 from ..scene._size import format_bytes
 from . import _explain
-from ._cmaes import StageResult, close_workers, cmaes
+from ._cmaes import StageResult, close_workers
+from ._gate import fit_window
+from ._mass import choose_mass_distribution
+from ._global import global_stages, stage_progress
 from ._gradient import gradient_stage
 from ._memory import device_memory, memory_problem, problem_memory
 from ._params import FitError, auto_per_element, scene_constraints
-from ._photometric import PhotometricProblem, gradient_capable, problem_for, refinable, refine_globals
+from ._photometric import PhotometricProblem, gradient_capable, problem_for, refinable
 from ._problem import Problem
 from ._resume import FitCheckpoint, StageHook
 from ._toml import scene_toml
 
 if TYPE_CHECKING:
-    from tqdm.auto import tqdm
-
     from ..scene import Scene, SceneConfig
     from ._params import Bound
 
@@ -38,38 +38,6 @@ PARAMS_FILE = "fitted_params.npz"
 #: and raised the held-out error from 30 to 40 mm; where the per-element values are real (two materials,
 #: the beam) they lower it by far more.
 PER_ELEMENT_MARGIN = 0.1
-#: CMA-ES's initial step in the unit box for the open-loop search that follows multiple shooting (half the
-#: first stage's 1/6: it starts near the answer).
-SIGMA_OPEN_LOOP = 1.0 / 12.0
-
-
-def _bar(progress: bool, total: int, desc: str) -> tqdm | None:
-    if not progress:
-        return None
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc=desc, unit="it", leave=False, dynamic_ncols=True)
-
-
-def _tick(bar: tqdm | None) -> Callable[[int, float], None]:
-    def cb(it: int, loss: float) -> None:
-        if bar is not None:
-            bar.update(1)
-            bar.set_postfix_str(f"loss {loss:.4g}")
-
-    return cb
-
-
-@contextlib.contextmanager
-def _stage_progress(progress: bool, total: int, desc: str) -> Iterator[Callable[[int, float], None]]:
-    """A stage's progress bar (none without ``progress``) as the stage's ``callback``, closed however the
-    stage ends (Ctrl-C included)."""
-    bar = _bar(progress, total, desc)
-    try:
-        yield _tick(bar)
-    finally:
-        if bar is not None:
-            bar.close()
 
 
 def fitted_scene(problem: Problem, values: dict[str, float], per_element: dict[str, np.ndarray]) -> Scene:
@@ -117,9 +85,11 @@ def fit(
 
     Stage 1 (CMA-ES, forward runs only) fits the global parameters ``params`` (default: the scene model's
     material); stage 2 (Adam or L-BFGS on tape gradients) fits the per-element parameter ``per_element``
-    when one is named (its values are kept only if they lower the open-loop training loss). Both train on
-    the first ``train_fraction`` of the frames; the rest is the test. A Ctrl-C during a stage keeps the
-    best values found so far, writes the outputs and re-raises.
+    when one is named. Both train on the first ``train_fraction`` of the frames less their last
+    ``validation`` fraction, and each stage's values are kept only if they predict those validation frames
+    better (the global search, once it passes, runs again on all the training frames:
+    :mod:`pliant.fit._global`); the frames after ``train_fraction`` are the test. A Ctrl-C during a stage
+    keeps the best values found so far, writes the outputs and re-raises.
 
     Args:
         cfg: The scene (``pl.scene.load_scene``).
@@ -138,10 +108,12 @@ def fit(
         lr: Adam step size (log-scale units; one step per frame with the default horizon).
         smoothness: Weight of the total-variation prior over neighbouring elements in the gradient stage
             (``pl.fit.Smoothness``; 0: none; 1e-4 separates a two-material cloth, see docs/fitting.md).
-        validation: Fraction of the training frames (the last ones) the gradient stage does not train on;
-            its per-element values are kept only if they lower the open-loop loss on these frames (a
-            prediction, like the test) without raising it on the whole training window. 0: train on all
-            and keep on the training loss alone.
+        validation: Fraction of the training frames (the last ones) no stage trains on. The global values
+            are kept only if their open-loop rollout predicts these frames better than the scene's own
+            (:func:`pliant.fit._gate.gate`, which also puts back the parameters the data do not constrain
+            where that is a tie: ``global_validation`` and ``identifiability`` in fit.json); the
+            per-element values only if they lower that loss by PER_ELEMENT_MARGIN without raising it on the
+            whole training window. 0: train on all and decide on the training loss alone.
         tol: The gradient stages stop when an epoch improves the loss by less than this fraction (five in a
             row; L-BFGS: its ftol); ``epochs`` is the cap.
         shooting: Multiple-shooting window of the training runs [frames] (:class:`pliant.fit.Problem`;
@@ -236,71 +208,31 @@ def fit(
     # images: the appearance stage, and whether the splats can explain the images at all (warns if not)
     explained = _explain.before_physics(problem, out, appearance=appearance)
     stages: dict[str, StageResult] = {}
-    values, arrays = problem.nominal, {}
-    interrupted = False
-    if problem.globals and generations > 0:
-        with _stage_progress(progress, generations, "fit: CMA-ES") as tick:
-            stages["cmaes"] = staged(
-                "cmaes",
-                lambda hook: cmaes(
-                    problem,
-                    generations=generations,
-                    seed=seed,
-                    callback=tick,
-                    checkpoint=hook,
-                    workers=workers,
-                ),
-            )
-        values = stages["cmaes"].values
-        interrupted = stages["cmaes"].interrupted
-        if problem.shooting > 0 and not interrupted:
-            # Multiple shooting finds the basin of a long motion; what the fit must do is predict it open
-            # loop (the held-out frames are): CMA-ES again, open loop, from there with half the step. Its
-            # first evaluation is that start, so the open-loop training loss cannot get worse. On MuJoCo's
-            # rope the windows' values alone predicted the held-out frames 1.3x worse than the nominal's.
-            window, problem.shooting = problem.shooting, 0
-            try:
-                with _stage_progress(progress, generations, "fit: CMA-ES (open loop)") as tick:
-                    stages["cmaes_open_loop"] = staged(
-                        "cmaes_open_loop",
-                        lambda hook: cmaes(
-                            problem,
-                            generations=generations,
-                            seed=seed,
-                            start=values,
-                            sigma=SIGMA_OPEN_LOOP,
-                            callback=tick,
-                            checkpoint=hook,
-                            workers=workers,
-                        ),
-                    )
-            finally:
-                problem.shooting = window
-            values = stages["cmaes_open_loop"].values
-            interrupted = stages["cmaes_open_loop"].interrupted
-        close_workers(problem)
-    if isinstance(problem, PhotometricProblem) and epochs > 0 and not interrupted and refinable(problem):
-        # From images, stage 2 refines the global values with image gradients through the rollout.
-        with _stage_progress(progress, epochs, f"fit: {optimizer} (image gradients)") as tick:
-            stages["gradient"] = staged(
-                "image_gradient",
-                lambda hook: refine_globals(
-                    problem,
-                    values,
-                    iterations=epochs,
-                    optimizer=optimizer,
-                    lr=lr,
-                    tol=tol,
-                    callback=tick,
-                    checkpoint=hook,
-                ),
-            )
-        values, interrupted = stages["gradient"].values, stages["gradient"].interrupted
+    arrays: dict[str, np.ndarray] = {}
+    n = problem.n_train
+    n_fit = fit_window(n, validation)  # the global and per-element stages train on 1 ... n_fit - 1
+    values, interrupted, validated, identified = global_stages(
+        problem,
+        staged,
+        stages,
+        n_fit,
+        generations=generations,
+        epochs=epochs,
+        optimizer=optimizer,
+        lr=lr,
+        tol=tol,
+        seed=seed,
+        progress=progress,
+        workers=workers,
+    )
+    close_workers(problem)
+    mass = None
+    if not interrupted and any(b.name == "mass_uniformity" for b in problem.globals) and n_fit < n:
+        # lumped, uniform or the fitted blend, by the validation frames (the simpler one on a tie)
+        mass = choose_mass_distribution(problem, values, frames=(n_fit, n))
+        values = {**values, "mass_uniformity": mass.uniformity}
     if per_element is not None and epochs > 0 and not interrupted:
-        n = problem.n_train
-        n_fit = n - int(round(validation * (n - 1))) if n >= 6 else n
-        n_fit = min(max(n_fit, 2), n)
-        with _stage_progress(progress, epochs, f"fit: {optimizer} ({per_element})") as tick:
+        with stage_progress(progress, epochs, f"fit: {optimizer} ({per_element})") as tick:
             stages["gradient"] = staged(
                 "gradient",
                 lambda hook: gradient_stage(
@@ -340,6 +272,17 @@ def fit(
     report = write_outputs(problem, out, values, arrays, stages, video=video, progress=progress)
     checks = _explain.after_physics(problem, values)
     report.update(explained, warnings=explained.get("warnings", []) + checks.pop("warnings"), **checks)
+    report["global_validation"], report["identifiability"] = validated, identified
+    report["mass_distribution"] = (
+        None
+        if mass is None
+        else {
+            "name": mass.name,
+            "uniformity": mass.uniformity,
+            "errors": {k: _finite(v) for k, v in mass.errors.items()},  # [m]; None: diverged
+            "reason": mass.reason,
+        }
+    )
     report["shooting"] = problem.shooting
     report["wall_time"] = time.perf_counter() - t0
     report["interrupted"] = interrupted
@@ -494,9 +437,14 @@ def _plot(
     if any(s.history for s in stages.values()):  # a run stopped before its first iteration has none
         a.legend()
     t = np.arange(len(err)) * frame_dt
-    b.plot(t[:n_train], scale * err[:n_train], color="C0", label="fitted (train)")
-    b.plot(t[n_train - 1 :], scale * err[n_train - 1 :], color="C3", label="fitted (test)")
-    b.plot(t, scale * err_nom, color="0.6", ls="--", label="nominal")
+
+    def means(e: np.ndarray) -> str:  # the summary's train and held-out means, beside each curve
+        m = [scale * np.nanmean(p) if np.isfinite(p).any() else np.nan for p in (e[1:n_train], e[n_train:])]
+        return f"train {m[0]:.3g}, test {m[1]:.3g}"
+
+    b.plot(t[:n_train], scale * err[:n_train], color="C0", label=f"fitted: {means(err)}")
+    b.plot(t[n_train - 1 :], scale * err[n_train - 1 :], color="C3", label="fitted (test frames)")
+    b.plot(t, scale * err_nom, color="0.6", ls="--", label=f"nominal: {means(err_nom)}")
     b.axvline((n_train - 1) * frame_dt, color="k", lw=0.8)
     b.set_xlabel("time [s]")
     b.set_ylabel(ylabel)

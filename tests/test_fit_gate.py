@@ -1,0 +1,141 @@
+"""Issue 38, items 1 and 4: the global stage is gated by validation (a fit is never worse than the scene as
+given on the frames it held back without saying so), and the report says which parameters the data
+constrain and which trade against each other."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import tomllib
+from helpers import FIT_ROPE
+
+import pliant as pl
+from pliant.cli._fit import _gate_lines
+from pliant.fit import observe
+from pliant.fit._gate import TIE, fit_window
+from pliant.fit._identify import CONSTRAINED, hessian, stencil, summarise
+from pliant.fit._params import resolve_globals
+
+#: The tiny rope over 20 steps (21 observed frames): 15 training frames, of which 12-14 validate.
+ROPE = FIT_ROPE.replace("frames = 10", "frames = 20")
+KW = dict(per_element=None, generations=12, progress=False, video=False)
+
+
+def _observed(text: str, **values: float):
+    cfg = pl.scene.parse_scene(text)
+    return observe(pl.scene.build_scene(pl.fit.apply_globals(cfg, values)), tracks=7)
+
+
+def _fitted(out) -> dict:
+    return tomllib.loads((out / "fitted.toml").read_text())
+
+
+def test_the_fitted_values_are_dropped_when_they_predict_the_validation_frames_worse(tmp_path):
+    """A recording whose rope is stiffer (80 N/m) over the first 12 frames and then moves as the scene says
+    (50 N/m): CMA-ES, trained on frames 1-11, fits the stiff start, which predicts the validation frames
+    12-14 worse than the scene's own value (which predicts them exactly). The gate keeps 50 N/m and says
+    why, in fit.json and in the CLI's summary."""
+    cfg = pl.scene.parse_scene(ROPE)
+    stiff, own = _observed(ROPE, stiffness=80.0), _observed(ROPE)
+    n_fit = fit_window(round(0.7 * stiff.frames), 0.2)
+    assert n_fit == 12
+    stiff.points[n_fit:] = own.points[n_fit:]  # the object changes after the frames the search sees
+    rep = pl.fit.fit(cfg, stiff, tmp_path, params=["stiffness"], **KW)
+    gv = rep["global_validation"]
+    assert gv["frames"] == [12, 15]
+    assert gv["fitted_values"]["stiffness"] > 65.0  # the search did fit the stiff start ...
+    assert gv["fitted"] > gv["nominal"]  # ... which predicts the validation frames worse
+    assert gv["kept"] is False and "no better than the scene's own" in gv["why"]
+    assert _fitted(tmp_path)["objects"][0]["material"]["stiffness"] == 50.0
+    assert rep["params"]["stiffness"]["value"] == 50.0
+    assert rep["error"] == rep["error_nominal"]  # the scene as given: its errors, train and test
+    lines = _gate_lines(rep)
+    assert lines[0].startswith("global stage: KEPT THE SCENE'S VALUES: the fitted values predict")
+
+
+def test_a_fit_that_predicts_better_is_kept_and_a_parameter_without_effect_is_reset(tmp_path):
+    """The rope observed at 50 N/m, fitted from 80 N/m with the ground's restitution, which never acts (the
+    ground is 5 m below): the stiffness is constrained (a band of a few per cent around 50 N/m), the
+    restitution is flagged as not constrained (its band is the whole box) and, a tie on validation, put
+    back to the scene's 0.3; the fitted stiffness predicts the validation frames better and is kept."""
+    text = ROPE + "[ground]\nheight = -5.0\nrestitution = 0.3\n"
+    obs = _observed(text)
+    cfg = pl.fit.apply_globals(pl.scene.parse_scene(text), {"stiffness": 80.0})
+    rep = pl.fit.fit(cfg, obs, tmp_path, params=["stiffness", "ground_restitution"], **KW)
+    gv, ident = rep["global_validation"], rep["identifiability"]
+    assert gv["kept"] is True and gv["simplified"] < gv["nominal"]
+    assert gv["simplified"] <= (1.0 + TIE) * gv["fitted"]
+    k, e = ident["params"]["stiffness"], ident["params"]["ground_restitution"]
+    assert k["constrained"] and k["sigma_unit"] < 0.2 * CONSTRAINED
+    assert k["band"][0] < rep["params"]["stiffness"]["value"] < k["band"][1]
+    assert 40.0 < k["band"][0] and k["band"][1] < 60.0
+    assert not e["constrained"] and e["sigma_unit"] == pytest.approx(1.0, abs=1e-6)
+    assert e["band"] == [0.0, 1.0] and ident["trade"] == []
+    assert list(gv["reset"]) == ["ground_restitution"] and gv["reset"]["ground_restitution"] != 0.3
+    assert _fitted(tmp_path)["ground"]["restitution"] == 0.3
+    assert rep["params"]["stiffness"]["value"] == pytest.approx(50.0, rel=0.03)
+    assert rep["error"]["test"] < 0.5 * rep["error_nominal"]["test"]
+    lines = "\n".join(_gate_lines(rep))
+    assert "ground_restitution: NOT constrained by the data" in lines
+    assert "stiffness: constrained by the data" in lines and "back to the scene's value" in lines
+
+
+def test_the_hessian_stencil_recovers_a_quadratic_exactly():
+    """Central differences are exact on a quadratic (plus an odd cubic term, which they cancel), also
+    beside a bound, where the stencil's centre moves inside the box."""
+    A = np.array([[2.0, 0.5, 0.1], [0.5, 1.0, -0.3], [0.1, -0.3, 3.0]])
+    g = np.array([0.1, -0.2, 0.3])
+    pts, c = stencil(np.array([0.5, 0.3, 1.0]), 0.02)
+    assert pts.shape == (19, 3) and c[2] == pytest.approx(0.98)
+    dx = pts - c
+    f = dx @ g + 0.5 * np.einsum("pi,ij,pj->p", dx, A, dx) + dx[:, 0] ** 3
+    assert np.allclose(hessian(f, 3, 0.02), A, atol=1e-9)
+
+
+def test_two_parameters_that_enter_only_as_a_product_trade_against_each_other():
+    """Two log-scaled parameters whose product alone sets the loss (a stiffness and a mass), same box: in the
+    unit box L depends on u₁ + u₂ only, H = a [[1, 1], [1, 1]]. The direction u₁ − u₂ is flat (the whole
+    box), the other gets 2ΔL / 2a, so each parameter's band is √((1 + ΔL/a) / 2) of the box, not
+    constrained, and their correlation is −(1 − ΔL/a) / (1 + ΔL/a). A well-determined diagonal H gives
+    √(2ΔL / H_ii), constrained, uncorrelated."""
+    cfg = pl.scene.parse_scene(FIT_ROPE)
+    bounds = resolve_globals(cfg, ["stiffness", "damping_rate"])
+    values = {"stiffness": 50.0, "damping_rate": 0.5}
+    loss, a = 2.0, 1e3
+    dl = 0.1 * loss
+    rep = summarise(a * np.ones((2, 2)), loss, bounds, values)
+    s = math.sqrt(0.5 * (1.0 + dl / a))
+    for p in rep["params"].values():
+        assert p["sigma_unit"] == pytest.approx(s, rel=1e-9) and not p["constrained"]
+    (pair,) = rep["trade"]
+    assert pair["params"] == ["stiffness", "damping_rate"]
+    assert pair["correlation"] == pytest.approx(-(1 - dl / a) / (1 + dl / a), rel=1e-9)
+    rep = summarise(np.diag([4e3, 1e4]), loss, bounds, values)
+    k = rep["params"]["stiffness"]
+    assert k["sigma_unit"] == pytest.approx(math.sqrt(2 * dl / 4e3), rel=1e-9) and k["constrained"]
+    b = bounds[0]
+    factor = math.exp(k["sigma_unit"] * math.log(b.hi / b.lo))
+    assert k["band"] == pytest.approx([50.0 / factor, 50.0 * factor], rel=1e-12)
+    assert k["relative"] == pytest.approx(factor - 1.0, rel=1e-12)
+    assert rep["trade"] == [] and abs(rep["correlation"][0][1]) < 1e-12
+
+
+def test_no_band_is_read_where_the_loss_is_no_minimum():
+    """A Hessian with a direction along which a unit of the box lowers the loss by more than ΔL, and more
+    steeply than a tenth of its strongest upward curvature (a rugged loss, or a search stopped early):
+    nothing is said about the parameters (constrained None, no pairs), and the CLI says why; weaker negative
+    curvature (|λ| < 2ΔL, or < 10 % of the largest eigenvalue) is noise, and flat."""
+    cfg = pl.scene.parse_scene(FIT_ROPE)
+    bounds = resolve_globals(cfg, ["stiffness", "damping_rate"])
+    values = {"stiffness": 50.0, "damping_rate": 0.5}
+    loss = 2.0  # ΔL = 0.2
+    rep = summarise(np.array([[1.0, 0.0], [0.0, -0.5]]), loss, bounds, values)
+    assert rep["minimum"] is False and rep["trade"] == []
+    assert all(p["constrained"] is None for p in rep["params"].values())
+    assert "not measured" in _gate_lines({"identifiability": rep})[0]
+    for neg in (-0.3, -50.0):  # beyond 2ΔL but 5 % of the largest: noise
+        rep = summarise(np.array([[1e3, 0.0], [0.0, neg]]), loss, bounds, values)
+        assert rep["minimum"] is True and rep["params"]["damping_rate"]["sigma_unit"] == pytest.approx(1.0)
+        assert rep["params"]["stiffness"]["constrained"] and not rep["params"]["damping_rate"]["constrained"]
