@@ -18,9 +18,9 @@ from ..scene._size import format_bytes
 from . import _explain
 from ._cmaes import StageResult, close_workers
 from ._gate import fit_window
-from ._mass import choose_mass_distribution
 from ._global import global_stages, stage_progress
 from ._gradient import gradient_stage
+from ._mass import choose_mass_distribution
 from ._memory import device_memory, memory_problem, problem_memory
 from ._params import FitError, auto_per_element, scene_constraints
 from ._photometric import PhotometricProblem, gradient_capable, problem_for, refinable
