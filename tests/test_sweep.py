@@ -1,5 +1,5 @@
 """pl.sweep / pliant sweep: the grid, batched copies equal to runs alone, divergence recorded per run,
-resume, and Ray's local cluster producing the same table."""
+resume (and a folder of another sweep refused), and Ray's local cluster producing the same table."""
 
 from __future__ import annotations
 
@@ -52,6 +52,27 @@ def test_rerun_skips_finished_runs(tmp_path, monkeypatch):
     monkeypatch.setattr(sw, "run_chunk", fail)
     again = run_sweep("rope", [STIFF], tmp_path, frames=5)
     assert [{k: r[k] for k in FIGURES} for r in again] == [{k: r[k] for k in FIGURES} for r in first]
+
+
+def test_a_folder_of_another_sweep_is_refused_before_any_work(tmp_path, monkeypatch):
+    """Resuming into a folder whose rows came from another scene or frame count would mix two sweeps'
+    results under one table (rows are keyed by their overrides alone): refused with the fix, nothing run."""
+    run_sweep("rope", [STIFF], tmp_path, frames=5)
+    before = (tmp_path / "results.csv").read_bytes()
+    import pliant.sweep._sweep as sw
+
+    def fail(*a, **k):
+        raise AssertionError("ran before refusing")
+
+    monkeypatch.setattr(sw, "run_chunk", fail)
+    with pytest.raises(SweepError, match="another scene or frame count.*another --out"):
+        run_sweep("rope", [STIFF], tmp_path, frames=6)
+    with pytest.raises(SweepError, match="another scene"):
+        run_sweep("cloth", ["objects[0].material.stiffness=100"], tmp_path, frames=5)
+    (tmp_path / "sweep.json").write_text("{truncated")
+    with pytest.raises(SweepError, match="sweep.json: not a sweep record"):
+        run_sweep("rope", [STIFF], tmp_path, frames=5)
+    assert (tmp_path / "results.csv").read_bytes() == before  # the earlier results are kept
 
 
 def test_cli_sweep_writes_the_table_and_rejects_bad_input(tmp_path):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import itertools
+import json
 import os
 import time
 import warnings
@@ -12,6 +13,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from ..io import atomic_write_text
 
 if TYPE_CHECKING:
     from ..scene import Scene, SceneConfig
@@ -269,6 +272,37 @@ def _done(path: Path) -> dict[str, dict]:
     return rows
 
 
+#: The folder's record of which sweep its results.csv holds (the scene's text and the frame count, hashed).
+SWEEP_FILE = "sweep.json"
+
+
+def _scene_tag(text: str, frames: int | None) -> str:
+    """The identity of a sweep's runs apart from their overrides: the scene file's text (or the built-in
+    scene's) and the frame count asked for."""
+    import hashlib
+
+    return hashlib.sha256(f"pliant sweep 1\n{frames}\n{text}".encode()).hexdigest()
+
+
+def _check_folder(out: Path, tag: str) -> None:
+    """SweepError when ``out`` holds the results of another sweep (another scene or frame count), or a
+    record that cannot be read; a folder without a record (a sweep written before records) is taken."""
+    record = out / SWEEP_FILE
+    if not record.exists():
+        return
+    try:
+        saved = json.loads(record.read_text(encoding="utf-8"))["scene"]
+    except (OSError, ValueError, KeyError, TypeError):
+        raise SweepError(
+            f"{record}: not a sweep record; use another --out, or delete it and results.csv to start again"
+        ) from None
+    if saved != tag:
+        raise SweepError(
+            f"{out}: holds the results of a sweep of another scene or frame count ({SWEEP_FILE}); use "
+            f"another --out, or delete {SWEEP_FILE} and results.csv there to start again"
+        )
+
+
 def run_sweep(
     scene: str,
     sets: Sequence[str],
@@ -305,9 +339,12 @@ def run_sweep(
     if worlds < 1:
         raise SweepError(f"--worlds: expected at least 1, got {worlds}")
     runs = grid(sets)
-    load_scene(scene, runs[0], force=force)  # a bad scene, path or size fails here, before any work
+    cfg = load_scene(scene, runs[0], force=force)  # a bad scene, path or size fails here, before any work
     out = Path(out)
+    tag = _scene_tag(cfg.text or str(scene), frames)
+    _check_folder(out, tag)  # rows of another scene are not this sweep's results: refused before any work
     out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / SWEEP_FILE, json.dumps({"scene": tag}) + "\n")
     traj_dir = str(out / "trajectories") if save_trajectories else None
     if traj_dir:
         Path(traj_dir).mkdir(exist_ok=True)
