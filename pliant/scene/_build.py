@@ -217,6 +217,16 @@ def lumped_masses(cfg: SceneConfig) -> list[np.ndarray]:
     Raises:
         SceneError: an object that cannot be built.
     """
+    return [m for m, _ in lumped_particles(cfg)]
+
+
+def lumped_particles(cfg: SceneConfig) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(lumped masses [kg] [n], rest positions [m] [n, 3]) of each object of ``cfg``, as
+    :func:`lumped_masses` builds them (on the host, no device).
+
+    Raises:
+        SceneError: an object that cannot be built.
+    """
     from ..model import ModelBuilder
 
     cfg = cfg.model_copy(deep=True)
@@ -225,8 +235,8 @@ def lumped_masses(cfg: SceneConfig) -> list[np.ndarray]:
         o.mass_slope_x = o.mass_slope_y = o.mass_slope_z = 0.0
     ctx = BuildContext(cfg, ModelBuilder(gravity=cfg.scene.gravity))
     _add_objects(ctx)
-    m = ctx.builder.particle_masses()
-    return [m[a:b] for a, b in ctx.ranges]
+    m, q = ctx.builder.particle_masses(), ctx.builder.positions()
+    return [(m[a:b], q[a:b]) for a, b in ctx.ranges]
 
 
 def _select_handles(ctx: BuildContext) -> tuple[list, list]:
