@@ -272,3 +272,30 @@ def test_a_slide_on_compliant_ground_stops_after_coulombs_distance(family):
     x, v = s0.particle_q.numpy()[0], s0.particle_qd.numpy()[0]
     assert abs(v[0]) < 1e-3 and x[1] == pytest.approx(-G / KAPPA, rel=1e-3)
     assert x[0] == pytest.approx(v0**2 / (2 * mu * G), rel=0.01)
+
+
+def test_the_gate_compares_with_the_scene_as_given_and_goes_back_to_it():
+    """Where the fit seeds compliant contact (a hard ground made compliant at κ = g/d), "nominal" is still
+    the scene the user gave: the gate compares fitted values with its hard-ground run, and when they
+    predict the validation frames worse (here an absurdly soft ground, κ = 1 1/s²) it goes back to that
+    scene — the hard ground, not the seeded compliant one."""
+    soft_text = CUBE.replace("friction = 0.5", f"friction = 0.5\nstiffness = {KAPPA}\ndamping_ratio = 1.0")
+    obs = pl.fit.observe(pl.scene.build_scene(pl.scene.parse_scene(soft_text)), tracks=8)
+    hard = pl.scene.parse_scene(CUBE)
+    problem = pl.fit.Problem(hard, obs, params=["ground_stiffness", "ground_damping_ratio"])
+    assert problem.seeded and problem.given.ground.stiffness is None
+    from pliant.fit._gate import gate, open_loop_loss
+
+    n = problem.n_train
+    given = open_loop_loss(problem, None, 1, n)
+    seeded = open_loop_loss(problem, problem.nominal, 1, n)
+    assert given != seeded  # two different scenes: the hard one and the seeded compliant one
+    # values that predict the sink worse than the hard ground: an absurdly soft ground
+    worse = {"ground_stiffness": 1.0, "ground_damping_ratio": 1.0}
+    assert open_loop_loss(problem, worse, n // 2, n) > open_loop_loss(problem, None, n // 2, n)
+    values, report, _ = gate(problem, worse, n // 2, identifiability=False)
+    assert report["kept"] is False and report["nominal"] == pytest.approx(
+        open_loop_loss(problem, None, n // 2, n), rel=1e-12
+    )
+    assert values == {} and not problem.seeded  # back to the hard ground: nothing left to set
+    assert problem.config(values).ground.stiffness is None

@@ -55,12 +55,14 @@ def scene_values(problem: Problem) -> dict[str, float]:
     return {b.name: b.nominal if b.scene_value is None else float(b.scene_value) for b in problem.globals}
 
 
-def open_loop_loss(problem: Problem, values: dict[str, float], lo: int, hi: int) -> float:
-    """The open-loop loss of global ``values`` on frames ``lo … hi − 1`` (inf when the run diverges)."""
+def open_loop_loss(problem: Problem, values: dict[str, float] | None, lo: int, hi: int) -> float:
+    """The open-loop loss of global ``values`` on frames ``lo … hi − 1`` (inf when the run diverges); None:
+    the scene as given (``problem.build_given``)."""
     from ..sim import DivergenceError
 
     try:
-        x = problem.simulate(problem.build(values), hi, forced=False)
+        scene = problem.build_given() if values is None else problem.build(values)
+        x = problem.simulate(scene, hi, forced=False)
     except DivergenceError:
         return float("inf")
     v = problem.loss(x, lo, hi)
@@ -89,11 +91,18 @@ def gate(
     nominal = scene_values(problem)
     ident = identify(problem, fitted, frames) if identifiability else None
     lo, hi = (frames, n) if frames < n else (1, n)
-    v_fit, v_nom = open_loop_loss(problem, fitted, lo, hi), open_loop_loss(problem, nominal, lo, hi)
+    # against the scene as given, also where the search's scene differs from it (a seeded compliant ground)
+    v_fit, v_nom = open_loop_loss(problem, fitted, lo, hi), open_loop_loss(problem, None, lo, hi)
     values, v, reset = dict(fitted), v_fit, {}
     if frames < n and ident is not None and "params" in ident:
+        # The simpler explanation is the mechanism the scene leaves off (a damping, a restitution, the even
+        # masses of a blend at 0: a scene value of 0 or none), not the user's guess of a material constant:
+        # an E the data cannot pin down is still fitted, not put back.
+        off = {b.name for b in problem.globals if not b.scene_value}
         loose = [
-            k for k, p in ident["params"].items() if p["constrained"] is False and fitted[k] != nominal[k]
+            k
+            for k, p in ident["params"].items()
+            if p["constrained"] is False and fitted[k] != nominal[k] and k in off
         ]
         for name in sorted(loose, key=lambda k: -ident["params"][k]["sigma_unit"]):
             trial = {**values, name: nominal[name]}
@@ -111,7 +120,8 @@ def gate(
             f"the fitted values predict the {where} no better than the scene's own (loss {v:.4g} >= "
             f"{v_nom:.4g}): kept the scene's values"
         )
-        values, reset = dict(nominal), {}
+        problem.unseed()  # back to the scene as given (its hard ground, where the fit had made it compliant)
+        values, reset = scene_values(problem), {}
     if reset:
         why += (
             f"; {', '.join(reset)} not constrained by the data and a tie on validation (within "

@@ -212,15 +212,18 @@ def contact_start(cfg: SceneConfig, obs: Observations | None) -> float | None:
     return float(np.linalg.norm(cfg.scene.gravity)) / depth
 
 
-def seed_contact(cfg: SceneConfig, obs: Observations | None, names: list[str]) -> None:
+def seed_contact(cfg: SceneConfig, obs: Observations | None, names: list[str]) -> bool:
     """Start compliant contact where the tracks sink: set ``cfg``'s unset ``[ground] stiffness`` (in place)
-    to :func:`contact_start` when ``names`` searches ``ground_stiffness``."""
+    to :func:`contact_start` when ``names`` searches ``ground_stiffness``; whether it did (the scene then
+    differs from the one given: its hard ground became a compliant one)."""
     g = getattr(cfg, "ground", None)
     if "ground_stiffness" not in names or g is None or not g.enabled or g.stiffness is not None:
-        return
+        return False
     k = contact_start(cfg, obs)
-    if k is not None:
-        g.stiffness = k
+    if k is None:
+        return False
+    g.stiffness = k
+    return True
 
 
 def default_params(cfg: SceneConfig, obs: Observations | None = None) -> list[str]:

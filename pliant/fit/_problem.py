@@ -10,6 +10,7 @@ import warp as wp
 from ..io import ObservationError, Observations
 from ._losses import chamfer_loss, track_errors, track_loss
 from ._params import (
+    COMPLIANT,
     Bound,
     FitError,
     apply_globals,
@@ -137,7 +138,11 @@ class Problem:
         )
         reasons = default_reasons(self.cfg, obs) if params is None else {}
         names = list(reasons) if params is None else list(params)
-        seed_contact(self.cfg, obs, names)  # compliant contact starts at the depth the tracks sink to
+        #: The scene as the user gave it: what ``error_nominal`` and the validation gate compare with (the
+        #: searched scene may differ: a hard ground made compliant where the tracks sink into it).
+        self.given = self.cfg.model_copy(deep=True)
+        # compliant contact starts at the depth the tracks sink to
+        self.seeded = seed_contact(self.cfg, obs, names)
         self.globals: list[Bound] = resolve_globals(self.cfg, names)
         for b in self.globals:
             b.why = reasons.get(b.name, b.why)
@@ -176,6 +181,21 @@ class Problem:
     def config(self, values: dict[str, float]) -> SceneConfig:
         """The scene config with global parameter ``values`` (name → value) set."""
         return apply_globals(self.cfg, values)
+
+    def build_given(self) -> Scene:
+        """The scene as the user gave it (:attr:`given`), none of the search's values or seeds applied."""
+        from ..scene import build_scene
+
+        return build_scene(self.given, device=self.device, dtype=self.dtype)
+
+    def unseed(self) -> None:
+        """Go back to the scene as given where the fit had seeded compliant contact (:attr:`seeded`): its
+        ground is hard again and the compliant-contact parameters leave the search."""
+        if not self.seeded:
+            return
+        self.cfg = self.given.model_copy(deep=True)
+        self.globals = [b for b in self.globals if b.name not in COMPLIANT]
+        self.seeded = False
 
     def build(self, values: dict[str, float], requires_grad: bool = False) -> Scene:
         """Build the scene with global parameter ``values``."""

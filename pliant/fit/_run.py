@@ -351,7 +351,7 @@ def write_outputs(
         # a registered section (scene._registry.register_section): a field of the rebuilt model only
         cfg = cfg.model_copy(update={"gaussians": problem.appearance_section})
     scene_toml(cfg, out / "fitted.toml", comment=f"Fitted by `pliant fit` from {problem.cfg.source}")
-    x_nom = problem.simulate(problem.build({}), problem.frames)  # the scene as given
+    x_nom = problem.simulate(problem.build_given(), problem.frames)  # the scene as given
     scene = fitted_scene(problem, values, per_element)
     x = problem.simulate(scene, problem.frames)
     err, err_nom = problem.errors(x), problem.errors(x_nom)
