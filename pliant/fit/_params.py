@@ -24,7 +24,7 @@ from ..scene import KNOBS, Knob, registry_arrays
 
 if TYPE_CHECKING:
     from ..io import Observations
-    from ..model._parameters import Parameter
+    from ..model import Parameter
     from ..scene import Scene, SceneConfig
 
 
@@ -116,8 +116,7 @@ MASS_COVERAGE = 0.9
 def _lumped(cfg: SceneConfig) -> list[np.ndarray] | None:
     """Each object's lumped particle masses [kg] (objects built on the host, no device), or None when one
     cannot be built here (the fit reports that itself when it builds the scene)."""
-    from ..scene import SceneError
-    from ..scene._build import lumped_masses
+    from ..scene import SceneError, lumped_masses
 
     try:
         return lumped_masses(cfg)

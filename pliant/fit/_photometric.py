@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import warp as wp
 
-from ..gaussians._surface import GENERATED_BACKGROUND
+from ..gaussians import GENERATED_BACKGROUND
 from ..io import Observations
 from ._gradient import Convergence
 from ._params import GLOBAL, FitError, GlobalParam
@@ -44,8 +44,7 @@ from ._stage import StageResult
 if TYPE_CHECKING:
     from ..diff import RolloutResult
     from ..gaussians import RenderOutput
-    from ..scene import Scene, SceneConfig
-    from ..scene._gaussians import GaussiansSection
+    from ..scene import GaussiansSection, Scene, SceneConfig
 
 #: Background colour behind generated Gaussians in observed and rendered images (RGB in [0, 1]); a scene's
 #: ``[gaussians]`` section sets its own.
@@ -106,8 +105,7 @@ class PhotometricProblem(Problem):
         per_triangle: int = 1,
         **kwargs: Any,
     ) -> None:
-        from ..gaussians import Camera
-        from ..gaussians._scene import SplatSceneError, scene_gaussians
+        from ..gaussians import Camera, SplatSceneError, scene_gaussians
 
         if obs.images is None:
             raise FitError(f"{obs.source}: images: a photometric fit needs camera images in the observations")

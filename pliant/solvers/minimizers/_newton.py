@@ -50,7 +50,7 @@ from ._problem import (
 )
 
 if TYPE_CHECKING:
-    from ...integrators._implicit import ImplicitOptionsLike
+    from ...integrators import ImplicitOptionsLike
     from ._options import MinimizerLike
     from ._problem import PotentialProblem
 

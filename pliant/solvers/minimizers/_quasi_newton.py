@@ -49,7 +49,7 @@ if TYPE_CHECKING:
     import scipy.sparse
     from scipy.sparse.linalg import SuperLU
 
-    from ...integrators._implicit import ImplicitOptionsLike
+    from ...integrators import ImplicitOptionsLike
     from ...model import Model
     from ._options import MinimizerLike
     from ._problem import PotentialProblem
