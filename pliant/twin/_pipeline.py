@@ -277,12 +277,7 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
     check_observations(obs)
     _check_models(opts.models)
     out = Path(out)
-    if opts.resume:  # a truncated or edited checkpoint is refused now, not after the splats are trained
-        from ..fit import CHECKPOINT_FILE, read_checkpoint
-
-        for m in opts.models:
-            if (out / "fit" / m / CHECKPOINT_FILE).exists():
-                read_checkpoint(out / "fit" / m / CHECKPOINT_FILE)
+    _check_checkpoints(out, opts)  # a truncated or edited checkpoint is refused now, not after the splats
     out.mkdir(parents=True, exist_ok=True)
     steps = _Steps(opts.progress)
     assert obs.K is not None and obs.world_to_camera is not None and obs.images is not None
@@ -373,6 +368,15 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
     }
     atomic_write_text(out / "twin.json", json.dumps(report, indent=2, default=_json) + "\n")
     return report
+
+
+def _check_checkpoints(out: Path, opts: TwinOptions) -> None:
+    """With ``resume``, read each existing checkpoint ``out/fit/<model>/``: a bad one raises FitError."""
+    from ..fit import CHECKPOINT_FILE, read_checkpoint
+
+    for m in opts.models if opts.resume else ():
+        if (out / "fit" / m / CHECKPOINT_FILE).exists():
+            read_checkpoint(out / "fit" / m / CHECKPOINT_FILE)
 
 
 def _check_models(models: Sequence[str]) -> None:
