@@ -7,7 +7,7 @@ import logging
 import time
 from collections.abc import Callable
 from functools import partial
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -18,6 +18,9 @@ from ._resume import StageHook, rng_state, set_rng_state
 from ._reuse import BatchScenes
 from ._stage import StageResult
 from ._workers import auto_workers, close_workers, cpu_cores, parse_workers, pool_for, unsplittable
+
+if TYPE_CHECKING:
+    import cma
 
 _LOG = logging.getLogger("pliant.fit")
 
@@ -206,7 +209,7 @@ def _local(
     return [evaluate(problem, v) for v in vals]
 
 
-def _stop(h: list[float], es: Any, patience: int, rtol: float) -> str:
+def _stop(h: list[float], es: cma.CMAEvolutionStrategy, patience: int, rtol: float) -> str:
     """Why the search stops after this generation (best losses ``h`` so far): "converged", "step" or ""."""
     if len(h) > patience and h[-1 - patience] - h[-1] <= rtol * abs(h[-1 - patience]):
         return "converged"
