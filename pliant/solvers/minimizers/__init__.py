@@ -6,7 +6,8 @@ Modules, bottom to top: ``_problem`` (the problem, workspace, cache and statisti
 leaves ``_slots``, ``_pcg_kernels``, ``_band_order``) → ``_options`` (the minimiser's settings) and
 ``_kernels`` → ``_assembly`` (Hessian assembly, the gradient, the Control's terms) → ``_adjoint`` (gradients
 through a step) → one file per minimiser: ``_newton`` (host Newton), ``_pcg`` (device Newton, with
-``_band``'s banded LDLᵀ), ``_quasi_newton`` (L-BFGS) → ``_minimize`` (their dispatch) / ``_static``.
+``_band``'s banded LDLᵀ), ``_quasi_newton`` (L-BFGS, its LU order from the leaf ``_dissection``) →
+``_minimize`` (their dispatch) / ``_static``.
 No minimiser imports another. Other solver families use the names below, never these modules.
 """
 
