@@ -91,19 +91,19 @@ def test_three_particle_area_constraint_holds_in_xpbd():
         assert pc.TriangleArea.kernels.jacobi is not pc.Volume.kernels.jacobi
         s = pl.solvers.XPBD(m, iterations=100, schedule=schedule, constraints=[area], contact=False)
         tris = m.tri_indices.numpy()
-        rest = pc._three.triangle_areas_np(m.particle_q_np, tris)
+        rest = pc._area.triangle_areas_np(m.particle_q_np, tris)
         rng = np.random.default_rng(0)
         s0, s1 = m.state(), m.state()
         s0.particle_q.assign(
             m.particle_q_np * np.array([0.8, 1.0, 0.9]) + 0.01 * rng.normal(size=(m.particle_count, 3))
         )
-        squashed = pc._three.triangle_areas_np(s0.particle_q.numpy(), tris)
+        squashed = pc._area.triangle_areas_np(s0.particle_q.numpy(), tris)
         assert np.abs(squashed - rest).max() > 0.2 * rest.min()
         for _ in range(20):
             s.step(s0, s1, None, 1 / 240)
             s0, s1 = s1, s0
         x, v = s0.particle_q.numpy(), s0.particle_qd.numpy()
-        err = np.abs(pc._three.triangle_areas_np(x, tris) / rest - 1.0).max()
+        err = np.abs(pc._area.triangle_areas_np(x, tris) / rest - 1.0).max()
         # Jacobi's mass-split averaging converges more slowly than Gauss–Seidel (measured 2.5e-5 and 6e-3).
         assert err < (1e-4 if schedule == "coloring" else 1e-2), f"{schedule}: relative area error {err:.2e}"
         p = (m.particle_mass_np[:, None] * v).sum(axis=0)

@@ -331,7 +331,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 def _gate_lines(report: dict) -> list[str]:
     """The summary's lines on the global stage's validation gate and identifiability (fit.json's
     ``global_validation`` and ``identifiability``; none when there was no global stage)."""
-    from ..fit._identify import describe
+    from ..fit import describe_identifiability as describe
 
     gv, ident = report.get("global_validation"), report.get("identifiability")
     lines = []
@@ -350,8 +350,7 @@ def _fit_models(
     args: argparse.Namespace, cfg: SceneConfig, obs: Observations, params: list[str] | None, out: Path
 ) -> int:
     """``pliant fit --models a,b``: each candidate model fitted, held-out errors side by side."""
-    from ..fit import FitError, compare_models
-    from ..fit._models import models_table
+    from ..fit import FitError, compare_models, models_table
 
     n = args.iterations
     try:

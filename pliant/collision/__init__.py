@@ -2,6 +2,7 @@
 
 from ._collider_sdf import collider_sdf
 from ._colliders import Colliders
+from ._friction import friction_velocity
 from ._ground import (
     ground_coefficients,
     ground_compliant,
@@ -15,6 +16,7 @@ from ._step_bound import StepBound
 
 __all__ = [
     "Colliders",
+    "friction_velocity",
     "SelfCollision",
     "StepBound",
     "closest_point_triangle",

@@ -25,8 +25,7 @@ import numpy.typing as npt
 import warp as wp
 
 from .._warp import GradientError, fresh, launch
-from ..model import STICK_VELOCITY
-from ..model._parameters import Found, Getter, Parameter, declares
+from ..model import STICK_VELOCITY, Found, Getter, Parameter, declares
 from ._collider_sdf import collider_contact, collider_sdf
 
 if TYPE_CHECKING:

@@ -7,6 +7,7 @@ Every constraint object is a set of one kind (``Distance``, ``DihedralBending``,
 """
 
 from .._subclasses import registered_subclasses
+from ._area import TriangleArea, triangle_area, triangle_area_c, triangle_area_grad
 from ._base import (
     Constraint,
     ProjectionContext,
@@ -17,27 +18,23 @@ from ._base import (
     pbd_iteration_stiffness,
     xpbd_delta_lambda,
 )
-from ._contact import Ground, ParticleCollision, PointTriangleCollision
-from ._contact_math import ground_c, ground_grad, particle_collision_c, point_triangle_c, point_triangle_grad
-from ._distance import Attachment, Distance, distance_c, distance_grad
-from ._factory import FixedArityConstraint, ProjectionKernels, projection_kernels
-from ._four import (
+from ._bending import (
     DihedralBending,
     IsometricBending,
-    Volume,
     dihedral_angle,
     dihedral_c,
     dihedral_grad,
     isometric_bending_c,
     isometric_bending_grad,
     isometric_bending_weights,
-    tet_volume,
-    volume_c,
-    volume_grad,
 )
+from ._contact import Ground, ParticleCollision, PointTriangleCollision
+from ._contact_math import ground_c, ground_grad, particle_collision_c, point_triangle_c, point_triangle_grad
+from ._distance import Attachment, Distance, distance_c, distance_grad
+from ._factory import FixedArityConstraint, ProjectionKernels, projection_kernels
 from ._generic import GenericConstraint
 from ._shape import ShapeMatching, oriented_moment, polar_rotation, shape_matching_goal
-from ._three import TriangleArea, triangle_area, triangle_area_c, triangle_area_grad
+from ._volume import Volume, tet_volume, volume_c, volume_grad
 
 
 def registered_constraints() -> tuple[type[Constraint], ...]:

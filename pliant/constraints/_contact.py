@@ -9,8 +9,7 @@ import numpy as np
 import warp as wp
 from numpy.typing import ArrayLike
 
-from ..collision._friction import friction_velocity
-from ..collision._hashgrid import ParticleGrid, TriangleBVH
+from ..collision import ParticleGrid, TriangleBVH, friction_velocity
 from ..model import STICK_VELOCITY, Model
 from ._base import Constraint, ProjectionContext
 from ._contact_math import (

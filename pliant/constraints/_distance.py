@@ -8,8 +8,7 @@ import numpy as np
 import warp as wp
 from numpy.typing import ArrayLike
 
-from ..model import Model
-from ..model._parameters import Parameter, constraint_array, declares
+from ..model import Model, Parameter, constraint_array, declares
 from ._base import Constraint, ProjectionContext, constraint_delta_lambda
 from ._factory import FixedArityConstraint, projection_kernels
 

@@ -24,7 +24,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import warp as wp
+from numpy.typing import ArrayLike
 
+from ..model import Model
 from ._base import Constraint, ProjectionContext, constraint_delta_lambda
 
 
@@ -300,3 +302,48 @@ class FixedArityConstraint(Constraint):
         self.split: wp.array = wp.array(self._split_counts(idx), dtype=wp.int32, device=d)
         self.unit_split: wp.array = wp.ones(m.particle_count, dtype=wp.int32, device=d)
         self.order = order
+
+
+class _FourPoint(FixedArityConstraint):
+    """A set of four-particle constraints (dihedral bending, tet volume): indices [N, 4], a rest value and a
+    compliance per constraint; a subclass gives ``_defaults`` (the model's own set) and ``_rest_of``. Private:
+    the constraint registry lists the concrete subclasses only."""
+
+    _name = ""
+
+    def __init__(
+        self, indices: ArrayLike | None, rest: ArrayLike | None, compliance: Any, stiffness: float
+    ) -> None:
+        super().__init__(
+            compliance=None if compliance is None or np.ndim(compliance) else float(compliance),
+            stiffness=stiffness,
+        )
+        self._indices = None if indices is None else np.asarray(indices, np.int64).reshape(-1, 4)
+        self._rest = rest
+        self._compliance_arg = compliance
+
+    def _defaults(self, model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        raise NotImplementedError
+
+    def _rest_of(self, q: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def bind(self, model: Model, coloring: bool) -> None:
+        """Resolve defaults from ``model`` and copy the colour-sorted constraints to its device."""
+        self.model = model
+        rest: ArrayLike  # per constraint, or one value broadcast below
+        comp: ArrayLike
+        if self._indices is None:
+            idx, rest, comp = self._defaults(model)
+        else:
+            idx = self._indices
+            if idx.size and (idx.min() < 0 or idx.max() >= model.particle_count):
+                raise ValueError(f"{self._name}: indices out of range [0, {model.particle_count})")
+            rest = self._rest_of(model.particle_q_np, idx) if self._rest is None else self._rest
+            comp = 0.0 if self._compliance_arg is None else self._compliance_arg
+        n = idx.shape[0]
+        rest = np.broadcast_to(np.asarray(rest, np.float64), (n,))
+        comp = np.broadcast_to(np.asarray(comp, np.float64), (n,))
+        if np.any(comp < 0):
+            raise ValueError(f"{self._name}: compliance must be >= 0")
+        self._device_arrays(np.asarray(idx).reshape(-1, 4), rest, comp, coloring)

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import warp as wp
 
-from ..collision._friction import friction_velocity
+from ..collision import friction_velocity
 from ._base import ProjectionContext
 from ._contact_math import ground_c, ground_grad
 

@@ -3,7 +3,7 @@
 from .._subclasses import registered_subclasses
 from ._air import AirDrag, air_drag_force
 from ._barrier import BarrierContact
-from ._base import Energy
+from ._base import Energy, axpy
 from ._cloth import cloth_spring_stiffness
 from ._colliders import ColliderPenalty
 from ._fem import Corotated, LinearElastic, NeoHookean, StVK, TetElasticity
@@ -75,6 +75,7 @@ __all__ = [
     "young_poisson",
     "Dashpots",
     "Energy",
+    "axpy",
     "Gravity",
     "GravityFromArray",
     "GroundPenalty",

@@ -108,7 +108,7 @@ class Energy(abc.ABC):
             tmp = self._scratch(model)
             tmp.zero_()
         self.gradient(model, x, tmp)
-        _axpy(out, tmp, -1.0, model)
+        axpy(out, tmp, -1.0, model)
 
     def _scratch(self, model: Model) -> wp.array:
         buf = getattr(self, "_scratch_buf", None)
@@ -187,5 +187,5 @@ def _axpy_kernel(x: wp.array(dtype=Any), a: Any, out: wp.array(dtype=Any)):
     wp.atomic_add(out, i, a * x[i])
 
 
-def _axpy(out: wp.array, x: wp.array, a: float, model: Model) -> None:
+def axpy(out: wp.array, x: wp.array, a: float, model: Model) -> None:
     launch(_axpy_kernel, dim=out.shape[0], inputs=[x, model.s(a), out], device=model.device)

@@ -27,9 +27,10 @@ from __future__ import annotations
 from ._cmaes import PENALTY, StageResult, cmaes, evaluate
 from ._explain import FitWarning
 from ._gradient import Smoothness, gradient_stage
+from ._identify import describe as describe_identifiability
 from ._losses import acceleration_loss, chamfer_loss, track_errors, track_loss
 from ._mass import MassChoice, choose_mass_distribution
-from ._models import MODELS, compare_models
+from ._models import MODELS, compare_models, models_table
 from ._observe import observe
 from ._observe_images import observe_images
 from ._params import (
@@ -44,10 +45,13 @@ from ._params import (
 )
 from ._photometric import PhotometricProblem, refine_globals
 from ._problem import Problem
+from ._resume import CHECKPOINT_FILE, read_checkpoint
 from ._run import PARAMS_FILE, fit, fitted_scene
+from ._toml import dumps as toml_dumps
 from ._toml import scene_toml
 
 __all__ = [
+    "CHECKPOINT_FILE",
     "FitWarning",
     "DEFAULTS",
     "GLOBAL",
@@ -70,14 +74,18 @@ __all__ = [
     "cmaes",
     "compare_models",
     "default_params",
+    "describe_identifiability",
     "evaluate",
     "fit",
     "fitted_scene",
+    "models_table",
     "gradient_stage",
     "observe",
     "observe_images",
+    "read_checkpoint",
     "refine_globals",
     "scene_toml",
+    "toml_dumps",
     "track_errors",
     "track_loss",
 ]

@@ -6,7 +6,8 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from typing import Any
+from functools import partial
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -17,6 +18,9 @@ from ._resume import StageHook, rng_state, set_rng_state
 from ._reuse import BatchScenes
 from ._stage import StageResult
 from ._workers import auto_workers, close_workers, cpu_cores, parse_workers, pool_for, unsplittable
+
+if TYPE_CHECKING:
+    import cma
 
 _LOG = logging.getLogger("pliant.fit")
 
@@ -78,6 +82,71 @@ def cmaes(
     """
     import cma
 
+    bounds = _check_inputs(problem, seed)
+    start = {**problem.nominal, **(start or {})}
+    x0 = [b.param.to_unit(min(max(start[b.name], b.lo), b.hi), b.lo, b.hi) for b in bounds]
+    pad = len(x0) == 1
+    if pad:
+        x0.append(0.5)
+    opts, popsize = _cma_options(problem, x0, pad, seed, generations, popsize)
+    decode = partial(_decode, bounds)
+    t0 = time.perf_counter()
+    batched = batch and batchable(problem)
+    scenes = BatchScenes(reuse) if batched else None
+    pool, decide = _pool(problem, workers, popsize, batched, reuse)
+    es = cma.CMAEvolutionStrategy(x0, sigma, opts)
+    saved = None if checkpoint is None else checkpoint.state
+    if saved is None:
+        best = StageResult(values=dict(start), loss=evaluate(problem, start), evaluations=1)
+    else:
+        best = _replay(es, saved)
+    gens: list[dict] = [] if saved is None else saved["generations"]
+    try:
+        for gen in range(len(gens), generations):
+            if best.stop:  # the saved search had stopped at its last generation
+                break
+            rng = None if checkpoint is None else rng_state()
+            cands = es.ask()
+            values = [decode(np.asarray(u)) for u in cands]
+            tg = time.process_time()
+            losses = (
+                _local(problem, values, batched, scenes) if pool is None else pool.evaluate(problem, values)
+            )
+            if decide:
+                decide = False
+                n = auto_workers(cpu_cores(), len(values), time.process_time() - tg, generations - gen - 1)
+                if n > 1:
+                    pool = pool_for(problem, n, batched, reuse)
+            best.evaluations += len(values)
+            for v, f in zip(values, losses, strict=True):
+                if f < best.loss:
+                    best.values, best.loss = v, f
+            es.tell(cands, losses)
+            best.history.append(best.loss)
+            best.stop = _stop(best.history, es, patience, rtol)
+            if checkpoint is not None:
+                cand = [np.asarray(u).tolist() for u in cands]
+                gens.append({"rng": rng, "candidates": cand, "losses": [float(f) for f in losses]})
+                checkpoint.save({"generations": gens, "best": _best_json(best), "rng": rng_state()}, gen + 1)
+            if callback is not None:
+                callback(gen + 1, best.loss)
+            if best.stop:
+                break
+        else:
+            best.stop = "cap"
+    except KeyboardInterrupt:
+        close_workers(problem)  # a worker may be mid-generation: it cannot serve the next one
+        best.interrupted = True
+        best.stop = "interrupted"
+    except BaseException:
+        close_workers(problem)
+        raise
+    best.wall_time = time.perf_counter() - t0
+    return best
+
+
+def _check_inputs(problem: Problem, seed: int) -> list:
+    """``problem.globals``; FitError when there is none or ``seed`` would let cma seed from the clock."""
     bounds = problem.globals
     if not bounds:
         raise FitError("CMA-ES needs global parameters (--params); none were given")
@@ -86,11 +155,15 @@ def cmaes(
         raise FitError(
             "--seed: cma takes 0 as 'a random seed from the clock'; give an integer >= 1 (default 42)"
         )
-    start = {**problem.nominal, **(start or {})}
-    x0 = [b.param.to_unit(min(max(start[b.name], b.lo), b.hi), b.lo, b.hi) for b in bounds]
-    pad = len(x0) == 1
-    if pad:
-        x0.append(0.5)
+    return bounds
+
+
+def _cma_options(
+    problem: Problem, x0: list[float], pad: bool, seed: int, generations: int, popsize: int | None
+) -> tuple[dict[str, Any], int]:
+    """cma's options for a search from ``x0`` in the unit box (``pad``: a second, ignored coordinate), and
+    the population size (``popsize``, or the default below when None)."""
+    bounds = problem.globals
     # The losses of a good fit are tiny (mm² / β): cma's absolute tolerances on f (1e-11) would stop it
     # long before the parameters settle, so it stops on the step size in the unit box only (tolx).
     opts = {
@@ -119,13 +192,35 @@ def cmaes(
     ints = [0.3 / max(b.hi - b.lo, 1.0) if b.param.integer else 0.0 for b in bounds] + ([0.0] if pad else [])
     if any(ints):
         opts["minstd"] = ints
+    return opts, popsize
 
-    def decode(u: np.ndarray) -> dict[str, float]:
-        return {b.name: b.param.from_unit(u[i], b.lo, b.hi) for i, b in enumerate(bounds)}
 
-    t0 = time.perf_counter()
-    batched = batch and batchable(problem)
-    scenes = BatchScenes(reuse) if batched else None
+def _decode(bounds: list, u: np.ndarray) -> dict[str, float]:
+    """The parameter values at the point ``u`` of the unit box (a padded last coordinate ignored)."""
+    return {b.name: b.param.from_unit(u[i], b.lo, b.hi) for i, b in enumerate(bounds)}
+
+
+def _local(
+    problem: Problem, vals: list[dict[str, float]], batched: bool, scenes: BatchScenes | None
+) -> list[float]:
+    """The training losses of ``vals`` in this process: one batched run, or one run each."""
+    if batched:
+        return evaluate_batch(problem, vals, scenes)
+    return [evaluate(problem, v) for v in vals]
+
+
+def _stop(h: list[float], es: cma.CMAEvolutionStrategy, patience: int, rtol: float) -> str:
+    """Why the search stops after this generation (best losses ``h`` so far): "converged", "step" or ""."""
+    if len(h) > patience and h[-1 - patience] - h[-1] <= rtol * abs(h[-1 - patience]):
+        return "converged"
+    if es.stop() and "maxiter" not in es.stop():
+        return "step"
+    return ""
+
+
+def _pool(problem: Problem, workers: int | str, popsize: int, batched: bool, reuse: bool) -> tuple[Any, bool]:
+    """The worker pool that evaluates the generations (None: this process) and whether the first generation
+    is to be timed to decide (``workers="auto"``)."""
     asked = parse_workers(workers)  # None: "auto"
     if asked is not None:
         asked = min(asked, popsize or asked)  # no more processes than candidates
@@ -139,63 +234,7 @@ def cmaes(
         held = problem.__dict__.get("_worker_pool")
         pool = held if held is not None and (held.batched, held.reuse) == (batched, reuse) else None
     decide = why is None and asked is None and pool is None
-
-    def local(vals: list[dict[str, float]]) -> list[float]:
-        if batched:
-            return evaluate_batch(problem, vals, scenes)
-        return [evaluate(problem, v) for v in vals]
-
-    es = cma.CMAEvolutionStrategy(x0, sigma, opts)
-    saved = None if checkpoint is None else checkpoint.state
-    if saved is None:
-        best = StageResult(values=dict(start), loss=evaluate(problem, start), evaluations=1)
-    else:
-        best = _replay(es, saved)
-    gens: list[dict] = [] if saved is None else saved["generations"]
-    try:
-        for gen in range(len(gens), generations):
-            if best.stop:  # the saved search had stopped at its last generation
-                break
-            rng = None if checkpoint is None else rng_state()
-            cands = es.ask()
-            values = [decode(np.asarray(u)) for u in cands]
-            tg = time.process_time()
-            losses = local(values) if pool is None else pool.evaluate(problem, values)
-            if decide:
-                decide = False
-                n = auto_workers(cpu_cores(), len(values), time.process_time() - tg, generations - gen - 1)
-                if n > 1:
-                    pool = pool_for(problem, n, batched, reuse)
-            best.evaluations += len(values)
-            for v, f in zip(values, losses, strict=True):
-                if f < best.loss:
-                    best.values, best.loss = v, f
-            es.tell(cands, losses)
-            best.history.append(best.loss)
-            h = best.history
-            if len(h) > patience and h[-1 - patience] - h[-1] <= rtol * abs(h[-1 - patience]):
-                best.stop = "converged"
-            elif es.stop() and "maxiter" not in es.stop():
-                best.stop = "step"
-            if checkpoint is not None:
-                cand = [np.asarray(u).tolist() for u in cands]
-                gens.append({"rng": rng, "candidates": cand, "losses": [float(f) for f in losses]})
-                checkpoint.save({"generations": gens, "best": _best_json(best), "rng": rng_state()}, gen + 1)
-            if callback is not None:
-                callback(gen + 1, best.loss)
-            if best.stop:
-                break
-        else:
-            best.stop = "cap"
-    except KeyboardInterrupt:
-        close_workers(problem)  # a worker may be mid-generation: it cannot serve the next one
-        best.interrupted = True
-        best.stop = "interrupted"
-    except BaseException:
-        close_workers(problem)
-        raise
-    best.wall_time = time.perf_counter() - t0
-    return best
+    return pool, decide
 
 
 def _best_json(best: StageResult) -> dict:

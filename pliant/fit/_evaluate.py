@@ -39,7 +39,7 @@ def batchable(problem: Problem) -> bool:
     one object) and no self-collision (it would couple the copies). Copies share the ground and colliders,
     which act per particle, so each copy moves as it would alone (explicit steps: the same arithmetic;
     implicit steps: one Newton solve whose block-diagonal Hessian is converged for every copy at once)."""
-    from ..scene._replicate import coupled
+    from ..scene import coupled
 
     cfg = problem.cfg
     return (

@@ -18,8 +18,8 @@ import numpy as np
 from ._params import MASS
 
 if TYPE_CHECKING:
-    from ..gaussians._appearance import AppearanceResult
-    from ..scene._gaussians import GaussiansSection
+    from ..gaussians import AppearanceResult
+    from ..scene import GaussiansSection
     from ._photometric import PhotometricProblem
     from ._problem import Problem
 
@@ -76,7 +76,7 @@ def before_physics(
 
     if not isinstance(problem, PhotometricProblem):
         return {}
-    from ..gaussians._appearance import fit_splat_appearance
+    from ..gaussians import fit_splat_appearance
 
     obs, cams = problem.obs, problem.cameras
     has_section = getattr(problem.cfg, "gaussians", None) is not None
@@ -137,7 +137,7 @@ def _section(problem: PhotometricProblem, out: Path, res: AppearanceResult) -> G
     section cannot describe the splats (several objects: generated splats span the whole model)."""
     from ..gaussians import save_ply
     from ..io import atomic_output
-    from ..scene._gaussians import GaussiansSection
+    from ..scene import GaussiansSection
 
     own = getattr(problem.cfg, "gaussians", None)
     if own is None and len(problem.cfg.objects) != 1:

@@ -203,7 +203,8 @@ def global_stages(
         return values, interrupted, validated, identified
     # the search again, on all the training frames; the parameters put back on a tie stay at the scene's
     # values (the scene the candidates are built on)
-    searched, again = problem.globals, {}
+    searched = problem.globals
+    again: dict[str, StageResult] = {}
     problem.globals = [b for b in searched if b.name not in validated["reset"]]
     try:
         if problem.globals:

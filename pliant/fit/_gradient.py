@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import warp as wp
 
-from ..diff._graph import rollout_graphs
+from ..diff import rollout_graphs
 from ..model import State
 from ._losses import acceleration_loss, chamfer_loss, track_loss
 from ._params import FitError, per_element_arrays, per_element_incidence, scene_constraints

@@ -130,6 +130,7 @@ def summarise(
     for k, b in enumerate(bounds):
         v = float(values[b.name])
         s = float(sigma[k])
+        rel: float | None  # None: no relative width about a value of 0
         if b.param.log:
             factor = math.exp(s * math.log(b.hi / b.lo))
             band, rel = [max(v / factor, b.lo), min(v * factor, b.hi)], factor - 1.0

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from ..io import available_memory
-from ..scene._size import format_bytes
+from ..scene import format_bytes
 
 if TYPE_CHECKING:
     from ._problem import Problem

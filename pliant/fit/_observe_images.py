@@ -11,8 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import warp as wp
 
-from ..io import Observations
-from ..io._npz import available_memory
+from ..io import Observations, available_memory
 
 if TYPE_CHECKING:
     from ..scene import Scene
@@ -61,8 +60,7 @@ def observe_images(
         ValueError: a bad size, noise or frame count, or a ``[gaussians]`` section that cannot be built
             (:class:`pliant.gaussians._scene.SplatSceneError`, naming the scene file and the field).
     """
-    from ..gaussians._scene import scene_gaussians
-    from ..gaussians._surface import ring_cameras
+    from ..gaussians import ring_cameras, scene_gaussians
 
     width, height = (int(v) for v in image_size)
     if width < 1 or height < 1:

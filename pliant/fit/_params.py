@@ -24,7 +24,7 @@ from ..scene import KNOBS, Knob, registry_arrays
 
 if TYPE_CHECKING:
     from ..io import Observations
-    from ..model._parameters import Parameter
+    from ..model import Parameter
     from ..scene import Scene, SceneConfig
 
 
@@ -125,8 +125,7 @@ def _lumped(cfg: SceneConfig) -> list[np.ndarray] | None:
 
 def _rest(cfg: SceneConfig) -> list[tuple[np.ndarray, np.ndarray]] | None:
     """Each object's (lumped masses [kg], rest positions [m]), or None when one cannot be built here."""
-    from ..scene import SceneError
-    from ..scene._build import lumped_particles
+    from ..scene import SceneError, lumped_particles
 
     try:
         return lumped_particles(cfg)

@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import warp as wp
 
-from ..gaussians._surface import GENERATED_BACKGROUND
+from ..gaussians import GENERATED_BACKGROUND
 from ..io import Observations
 from ._gradient import Convergence
 from ._params import GLOBAL, FitError, GlobalParam
@@ -44,8 +44,7 @@ from ._stage import StageResult
 if TYPE_CHECKING:
     from ..diff import RolloutResult
     from ..gaussians import RenderOutput
-    from ..scene import Scene, SceneConfig
-    from ..scene._gaussians import GaussiansSection
+    from ..scene import GaussiansSection, Scene, SceneConfig
 
 #: Background colour behind generated Gaussians in observed and rendered images (RGB in [0, 1]); a scene's
 #: ``[gaussians]`` section sets its own.
@@ -106,8 +105,7 @@ class PhotometricProblem(Problem):
         per_triangle: int = 1,
         **kwargs: Any,
     ) -> None:
-        from ..gaussians import Camera
-        from ..gaussians._scene import SplatSceneError, scene_gaussians
+        from ..gaussians import Camera, SplatSceneError, scene_gaussians
 
         if obs.images is None:
             raise FitError(f"{obs.source}: images: a photometric fit needs camera images in the observations")
@@ -368,6 +366,30 @@ def refinable(problem: Problem) -> list[str]:
     return [b.name for b in problem.globals if gradient_capable(b.param)]
 
 
+def _check_refinable(problem: Problem, optimizer: str) -> list[str]:
+    """The names :func:`refine_globals` refines; FitError when there is none or ``optimizer`` is unknown."""
+    names = refinable(problem)
+    if not names:
+        capable = [n for n, p in GLOBAL.items() if gradient_capable(p)]
+        raise FitError(
+            f"the image-gradient stage refines {', '.join(capable)}; none of them is fitted here (the others "
+            "are fitted by CMA-ES alone)"
+        )
+    if optimizer not in ("adam", "lbfgs"):
+        raise FitError(f"optimizer: expected 'adam' or 'lbfgs', got {optimizer!r}")
+    return names
+
+
+def _evaluate_or_inf(gg: _GlobalGradient, theta: np.ndarray) -> tuple[float, np.ndarray]:
+    """The loss and gradient at ``theta``; (inf, zeros) for a rollout that diverged."""
+    from ..sim import DivergenceError
+
+    try:
+        return gg.evaluate(theta)
+    except DivergenceError:  # pl.diff refuses a rollout that blew up: a failed trial, not an error
+        return math.inf, np.zeros_like(theta)
+
+
 def refine_globals(
     problem: PhotometricProblem,
     values: dict[str, float],
@@ -405,15 +427,7 @@ def refine_globals(
         FitError: no differentiable global parameter, an unknown optimiser, or a gradient that is exactly
             zero or not finite.
     """
-    names = refinable(problem)
-    if not names:
-        capable = [n for n, p in GLOBAL.items() if gradient_capable(p)]
-        raise FitError(
-            f"the image-gradient stage refines {', '.join(capable)}; none of them is fitted here (the others "
-            "are fitted by CMA-ES alone)"
-        )
-    if optimizer not in ("adam", "lbfgs"):
-        raise FitError(f"optimizer: expected 'adam' or 'lbfgs', got {optimizer!r}")
+    names = _check_refinable(problem, optimizer)
     t0 = time.perf_counter()
     gg = _GlobalGradient(problem, values, names)
     bounds = {b.name: b for b in problem.globals}
@@ -428,12 +442,7 @@ def refine_globals(
     journal = Journal(None if checkpoint is None or checkpoint.state is None else checkpoint.state["journal"])
 
     def evaluate(theta: np.ndarray) -> tuple[float, np.ndarray]:
-        from ..sim import DivergenceError
-
-        try:
-            return gg.evaluate(theta)
-        except DivergenceError:  # pl.diff refuses a rollout that blew up: a failed trial, not an error
-            return math.inf, np.zeros_like(theta)
+        return _evaluate_or_inf(gg, theta)
 
     def save() -> None:
         if checkpoint is not None and not journal.replaying:

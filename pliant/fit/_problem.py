@@ -25,8 +25,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
     from ..model import Control, Model
-    from ..scene import SceneConfig
-    from ..scene._build import Scene
+    from ..scene import Scene, SceneConfig
     from ..sim import Simulator
 
 #: Multiple shooting by default (:class:`Problem` ``shooting=None``): its window [frames], the share of the

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..io import Observations, atomic_output, atomic_savez, atomic_write_text
-from ..scene._size import format_bytes
+from ..scene import format_bytes
 from . import _explain
 from ._cmaes import StageResult, close_workers
 from ._gate import fit_window
@@ -498,7 +498,7 @@ def _video(path: Path, scene: Scene, x: np.ndarray, problem: Problem, progress: 
 def _with_rope_beads(scene: Scene, x: np.ndarray, pts, colors, radius, r: float):
     """Ropes drawn as lines: beads of the particles' colour and radius ``r`` along every link, spaced at
     most ``r`` apart, put before the observed points (drawn over them)."""
-    from ..render._video import link_beads
+    from ..render import link_beads
 
     n = x.shape[1]
     segs = [

@@ -4,7 +4,7 @@ from .._subclasses import registered_subclasses
 from ._base import Integrator, Solution, System
 from ._dopri import DormandPrince
 from ._explicit import RK2, RK4, ExplicitRK, ForwardEuler, Heun, Midpoint, scale_velocity
-from ._implicit import BDF2, BackwardEuler, ImplicitMidpoint, ImplicitOptions
+from ._implicit import BDF2, BackwardEuler, ImplicitMidpoint, ImplicitOptions, ImplicitOptionsLike
 from ._ops import lincomb
 from ._problems import ODEProblem, SecondOrderODE, harmonic_oscillator, lecture_oscillator
 from ._symplectic import SymplecticEuler, symplectic_particle
@@ -47,6 +47,7 @@ __all__ = [
     "Heun",
     "ImplicitMidpoint",
     "ImplicitOptions",
+    "ImplicitOptionsLike",
     "Integrator",
     "Leapfrog",
     "Midpoint",

@@ -11,7 +11,7 @@ constraints are registries (``register_*``): a new kind is one registered functi
 from __future__ import annotations
 
 from . import _contacts, _gaussians, _objects  # noqa: F401 - register the built-in kinds and sections
-from ._build import Embedding, Scene, build_scene, lumped_masses
+from ._build import Embedding, Scene, build_scene, lumped_masses, lumped_particles
 from ._context import BuildContext
 from ._errors import SceneError
 from ._files import scene_path
@@ -39,6 +39,7 @@ register_builtin_terms()
 
 __all__ = [
     "lumped_masses",
+    "lumped_particles",
     "scene_path",
     "GaussianCorrectionSection",
     "GaussiansSection",

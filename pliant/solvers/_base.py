@@ -9,8 +9,7 @@ from typing import Any
 import numpy as np
 
 from .._warp import GradientError, _tape_active, grad_enabled
-from ..model import Control, Model, State
-from ..model._parameters import Parameter, solver_array
+from ..model import Control, Model, Parameter, State, solver_array
 from ._post import check_collisions
 
 #: The velocity damping rate c of v ← v·exp(−cΔt), declared by the solvers that hold it as an array.

@@ -269,7 +269,7 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
         FitError: with ``resume``, a model's fit checkpoint that is unreadable, edited or of another format
             or version (before any work), or from another scene or options (at that model's fit).
     """
-    from ..fit._toml import dumps
+    from ..fit import toml_dumps as dumps
     from ..scene import parse_scene
 
     opts = options or TwinOptions()
@@ -277,12 +277,7 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
     check_observations(obs)
     _check_models(opts.models)
     out = Path(out)
-    if opts.resume:  # a truncated or edited checkpoint is refused now, not after the splats are trained
-        from ..fit._resume import CHECKPOINT_FILE, read_checkpoint
-
-        for m in opts.models:
-            if (out / "fit" / m / CHECKPOINT_FILE).exists():
-                read_checkpoint(out / "fit" / m / CHECKPOINT_FILE)
+    _check_checkpoints(out, opts)  # a truncated or edited checkpoint is refused now, not after the splats
     out.mkdir(parents=True, exist_ok=True)
     steps = _Steps(opts.progress)
     assert obs.K is not None and obs.world_to_camera is not None and obs.images is not None
@@ -373,6 +368,15 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
     }
     atomic_write_text(out / "twin.json", json.dumps(report, indent=2, default=_json) + "\n")
     return report
+
+
+def _check_checkpoints(out: Path, opts: TwinOptions) -> None:
+    """With ``resume``, read each existing checkpoint ``out/fit/<model>/``: a bad one raises FitError."""
+    from ..fit import CHECKPOINT_FILE, read_checkpoint
+
+    for m in opts.models if opts.resume else ():
+        if (out / "fit" / m / CHECKPOINT_FILE).exists():
+            read_checkpoint(out / "fit" / m / CHECKPOINT_FILE)
 
 
 def _check_models(models: Sequence[str]) -> None:
@@ -479,9 +483,8 @@ def _fit_models(
 ) -> dict[str, dict[str, Any]]:
     """Step "fit": each model fitted on its coarse scene, then its values refined on the fine one; per
     model its values, the coarse ones, the fine scales and their search, the fitted config and the report."""
-    from ..fit._params import apply_globals
-    from ..fit._run import fit
-    from ..fit._toml import dumps
+    from ..fit import apply_globals, fit
+    from ..fit import toml_dumps as dumps
     from ..scene import parse_scene
     from ._fit import refine_on_fine
 

@@ -85,7 +85,7 @@ def twin_scene(
         name: The object's name.
 
     Returns:
-        The scene as dicts (:func:`pliant.fit._toml.dumps` writes it).
+        The scene as dicts (:func:`pliant.fit.toml_dumps` writes it).
     """
     if model == "fem":
         material: dict[str, Any] = {"E": NOMINAL_E, "nu": 0.3, "law": "neohookean"}

@@ -23,10 +23,8 @@ import numpy as np
 import warp as wp
 
 from ..._warp import GradientError, active_tape, capturing, fresh, graph_safe, launch, untaped_in_place
-from ...energies._spring import dashpot_force_axis, spring_gradient_axis
-from ...integrators import Integrator
-from ...integrators._explicit import scale_velocity
-from ...integrators._ops import lincomb
+from ...energies import dashpot_force_axis, spring_gradient_axis
+from ...integrators import Integrator, lincomb, scale_velocity
 from ._system import BaraffWitkinSystem, _bw_assemble, _spring_blocks
 
 if TYPE_CHECKING:

@@ -28,8 +28,8 @@ from typing import Any, NamedTuple
 import numpy as np
 import warp as wp
 
-from ...energies._spring import dashpot_force_axis, spring_gradient_axis
-from ...integrators._symplectic import symplectic_particle
+from ...energies import dashpot_force_axis, spring_gradient_axis
+from ...integrators import symplectic_particle
 
 #: Lanes per particle of each tiled gather variant on CUDA: a warp (the reduction stays in shuffles), or half
 #: of one (fewer idle lanes on rows of 8-12 springs, at most 32 resident blocks per SM).

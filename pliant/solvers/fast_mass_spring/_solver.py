@@ -37,8 +37,7 @@ from ..._warp import capturing, grad_enabled
 from ...collision import ground_coefficients
 from ...energies import Dashpots, Gravity, Springs
 from ...integrators import SymplecticEuler
-from ...model import Control, Model, State
-from ...model._parameters import Parameter, declares
+from ...model import Control, Model, Parameter, State, declares
 from .._base import DAMPING_RATE, Solver
 from .._post import add_drag_force, check_collisions, finish_step
 from ..force import ForceSolver

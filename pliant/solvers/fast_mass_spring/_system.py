@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from ...energies._spring import dashpot_force_axis, spring_gradient_axis, spring_hessian
+from ...energies import dashpot_force_axis, spring_gradient_axis, spring_hessian
 from ...model import Model
 from ._cg import _bw_apply, _bw_update
 

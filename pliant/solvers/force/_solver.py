@@ -11,11 +11,9 @@ import warp as wp
 
 from ..._warp import GradientError, fresh, grad_enabled, launch
 from ...collision import ground_coefficients
-from ...energies import Energy, Gravity, GravityFromArray, GroundPenalty, ground_penalty, mass_spring
-from ...energies._base import _axpy
+from ...energies import Energy, Gravity, GravityFromArray, GroundPenalty, axpy, ground_penalty, mass_spring
 from ...integrators import Integrator, SymplecticEuler
-from ...model import Control, Model, State
-from ...model._parameters import Parameter, declares
+from ...model import Control, Model, Parameter, State, declares
 from .._base import DAMPING_RATE, Solver
 from .._post import add_drag_force, check_collisions, finish_step
 from ..minimizers import (
@@ -180,7 +178,7 @@ class ForceSolver(Solver):
         if grad_enabled(m):
             # ``out`` is a fresh zeroed array (see acceleration): no zeroing outside the tape.
             if c is not None:
-                _axpy(out, c.particle_f, 1.0, m)
+                axpy(out, c.particle_f, 1.0, m)
         elif c is not None:
             wp.copy(out, c.particle_f)
         else:
@@ -201,7 +199,7 @@ class ForceSolver(Solver):
         if grad_enabled(m):
             force, grad = fresh(m), fresh(m)
             if self._control is not None:
-                _axpy(force, self._control.particle_f, 1.0, m)
+                axpy(force, self._control.particle_f, 1.0, m)
             for e in self.energies:
                 if type(e).force is Energy.force:  # a potential: −∇E
                     e.gradient(m, x, grad)

@@ -6,25 +6,22 @@ Modules, bottom to top: ``_problem`` (the problem, workspace, cache and statisti
 leaves ``_slots``, ``_pcg_kernels``, ``_band_order``) → ``_options`` (the minimiser's settings) and
 ``_kernels`` → ``_assembly`` (Hessian assembly, the gradient, the Control's terms) → ``_adjoint`` (gradients
 through a step) → one file per minimiser: ``_newton`` (host Newton), ``_pcg`` (device Newton, with
-``_band``'s banded LDLᵀ), ``_quasi_newton`` (L-BFGS) → ``_minimize`` (their dispatch) / ``_static``.
+``_band``'s banded LDLᵀ), ``_quasi_newton`` (L-BFGS, its LU order from the leaf ``_dissection``) →
+``_minimize`` (their dispatch) / ``_static``.
 No minimiser imports another. Other solver families use the names below, never these modules.
 """
 
 from ._adjoint import differentiable
 from ._assembly import control_of
 from ._band import band_checkpoint_state, band_restore_checkpoint_state
+from ._dissection import nested_dissection
 from ._minimize import MINIMIZERS, Minimizer, choose, minimize
 from ._newton import minimize_incremental_potential
 from ._options import MinimizerOptions, device_newton, resolve_method, step_settings
 from ._pcg import DeviceCG, minimize_device
 from ._pcg import graph_blocker as device_newton_blocker
 from ._problem import DeviceNewtonStats, MinimizerCache, NewtonStats, PotentialProblem, cache_of
-from ._quasi_newton import (
-    lbfgs_checkpoint_state,
-    lbfgs_restore_checkpoint_state,
-    minimize_quasi_newton,
-    nested_dissection,
-)
+from ._quasi_newton import lbfgs_checkpoint_state, lbfgs_restore_checkpoint_state, minimize_quasi_newton
 from ._static import StaticStats, solve_static
 
 __all__ = [

@@ -24,7 +24,7 @@ from ._problem import needs_feasible_start
 from ._quasi_newton import minimize_quasi_newton
 
 if TYPE_CHECKING:
-    from ...integrators._implicit import ImplicitOptionsLike
+    from ...integrators import ImplicitOptionsLike
     from ._options import MinimizerLike
     from ._problem import DeviceNewtonStats, NewtonStats, PotentialProblem
 

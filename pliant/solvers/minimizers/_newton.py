@@ -50,7 +50,8 @@ from ._problem import (
 )
 
 if TYPE_CHECKING:
-    from ...integrators._implicit import ImplicitOptionsLike
+    from ...integrators import ImplicitOptionsLike
+    from ...model import Model
     from ._options import MinimizerLike
     from ._problem import PotentialProblem
 
@@ -81,6 +82,88 @@ def _refresh_patterns(solver: PotentialProblem, x: wp.array) -> bool:
     for e in solver.energies:
         e.refresh_pattern(m, x)
     return before != [e.pattern_version(m) for e in solver.energies]
+
+
+def _stiffness_ratio(ws: Workspace, m: Model) -> float:
+    """max_i H_ii/m_i over the free particles of the assembled H = M + h²K [1] (one host read)."""
+    ws.hstats.zero_()
+    launch(
+        stiffness_ratio,
+        m.particle_count,
+        [m.particle_inv_mass, ws.diag_slots, ws.values, ws.hstats],
+        device=m.device,
+    )
+    return float(ws.hstats.numpy()[0])
+
+
+def _direction(ws: Workspace, m: Model, lin: str, cg_tol: float, cg_max: int) -> int:
+    """The Newton direction H dx = −∇Φ into ``ws.dx`` by the linear solver ``lin`` ("direct", "scipy-cg" or
+    Warp's Jacobi-preconditioned CG); returns the CG iterations it took (0 for the direct solve)."""
+    n = m.particle_count
+    if lin == "direct":
+        direct_solve(ws, m)
+        return 0
+    if lin == "scipy-cg":
+        return host_cg_solve(ws, m, cg_tol, cg_max)
+    launch(_inverse_diagonal, n, [ws.diag_slots, ws.values, ws.inv_diag], device=m.device)
+    launch(_negate, n, [ws.grad, ws.rhs], device=m.device)
+    ws.dx.zero_()
+    cg_iterations, _, _ = ws.cg(cg_tol, cg_max)()
+    return int(cg_iterations)
+
+
+def _line_search(
+    solver: PotentialProblem,
+    ws: Workspace,
+    x: wp.array,
+    x_tilde: wp.array,
+    h: float,
+    phi0: float,
+    eps: float,
+    max_ls: int,
+    strict: bool,
+    stats: NewtonStats,
+) -> tuple[bool, bool, float, float]:
+    """Line search along ``ws.dx`` from ``x``: α ≤ min over energies of max_step, halved until Armijo holds on
+    Φ (at most ``max_ls`` halvings; with ``strict`` it stops at once on a non-descent direction). Returns
+    (accepted, descent, α, max |dx| over free particles [m]); the trial point is left in ``ws.x_trial``."""
+    m = solver.model
+    n = m.particle_count
+    h2 = h * h
+    alpha = 1.0
+    for e in solver.energies:
+        alpha = min(alpha, float(e.max_step(m, x, ws.dx)))
+    accepted = descent = False
+    dx_max = gdx = 0.0
+    for ls in range(max_ls + 1):
+        if ls == 0:
+            ws.tstats.zero_()
+            launch(_step_stats, n, [m.particle_inv_mass, ws.grad, ws.dx, ws.tstats_step], device=m.device)
+        else:
+            ws.tstats_phi.zero_()
+        launch(
+            _trial_point,
+            n,
+            [m.particle_inv_mass, m.particle_mass, x, ws.dx, x_tilde, m.s(alpha), ws.x_trial, ws.tstats],
+            device=m.device,
+        )
+        for e in solver.energies:
+            e.value(m, ws.x_trial, ws.tstats_e)
+        control_terms(solver, ws, ws.x_trial, ws.egrad_scratch, ws.tstats_e)
+        s = ws.tstats.numpy().astype(np.float64)
+        dx_max, gdx = s[2], s[3]
+        descent = bool(np.isfinite(gdx) and gdx < 0.0)
+        if not descent and strict:
+            break
+        phi = s[0] + h2 * s[1]
+        # Armijo with an allowance for the round-off of Φ's terms.
+        slack = 64.0 * eps * (abs(s[0]) + h2 * abs(s[1]) + abs(phi0))
+        if phi <= phi0 + 1e-4 * alpha * gdx + slack:
+            accepted = True
+            break
+        alpha *= 0.5
+        stats.line_search_backtracks += 1
+    return accepted, descent, alpha, dx_max
 
 
 @differentiable
@@ -115,7 +198,6 @@ def minimize_incremental_potential(
         :class:`NewtonStats`.
     """
     m = solver.model
-    n = m.particle_count
     ws = workspace_of(solver)
     opts, mz = step_settings(options, minimizer)
     tol_opt = float(opts.newton_tol)
@@ -159,61 +241,14 @@ def minimize_incremental_potential(
         assemble(solver, ws, x, h, project)
         if first:
             first = False
-            ws.hstats.zero_()
-            launch(
-                stiffness_ratio,
-                n,
-                [m.particle_inv_mass, ws.diag_slots, ws.values, ws.hstats],
-                device=m.device,
-            )
-            ratio = float(ws.hstats.numpy()[0])
-            tol = max(tol, eps * max(g[1], 1.0) * ratio / h)
+            tol = max(tol, eps * max(g[1], 1.0) * _stiffness_ratio(ws, m) / h)
             stats.tolerance = tol
-        if lin == "direct":
-            direct_solve(ws, m)
-        elif lin == "scipy-cg":
-            stats.linear_iterations += host_cg_solve(ws, m, cg_tol, cg_max)
-        else:
-            launch(_inverse_diagonal, n, [ws.diag_slots, ws.values, ws.inv_diag], device=m.device)
-            launch(_negate, n, [ws.grad, ws.rhs], device=m.device)
-            ws.dx.zero_()
-            cg_iterations, _, _ = ws.cg(cg_tol, cg_max)()
-            stats.linear_iterations += int(cg_iterations)
+        stats.linear_iterations += _direction(ws, m, lin, cg_tol, cg_max)
         stats.iterations += 1
-        # Line search: α ≤ min over energies of max_step, halved until Armijo holds on Φ.
-        alpha = 1.0
-        for e in solver.energies:
-            alpha = min(alpha, float(e.max_step(m, x, ws.dx)))
-        accepted = descent = False
-        dx_max = gdx = 0.0
-        for ls in range(max_ls + 1):
-            if ls == 0:
-                ws.tstats.zero_()
-                launch(_step_stats, n, [m.particle_inv_mass, ws.grad, ws.dx, ws.tstats_step], device=m.device)
-            else:
-                ws.tstats_phi.zero_()
-            launch(
-                _trial_point,
-                n,
-                [m.particle_inv_mass, m.particle_mass, x, ws.dx, x_tilde, m.s(alpha), ws.x_trial, ws.tstats],
-                device=m.device,
-            )
-            for e in solver.energies:
-                e.value(m, ws.x_trial, ws.tstats_e)
-            control_terms(solver, ws, ws.x_trial, ws.egrad_scratch, ws.tstats_e)
-            s = ws.tstats.numpy().astype(np.float64)
-            dx_max, gdx = s[2], s[3]
-            descent = bool(np.isfinite(gdx) and gdx < 0.0)
-            if not descent and switchable and not project:
-                break
-            phi = s[0] + h2 * s[1]
-            # Armijo with an allowance for the round-off of Φ's terms.
-            slack = 64.0 * eps * (abs(s[0]) + h2 * abs(s[1]) + abs(phi0))
-            if phi <= phi0 + 1e-4 * alpha * gdx + slack:
-                accepted = True
-                break
-            alpha *= 0.5
-            stats.line_search_backtracks += 1
+        strict = switchable and not project  # a non-descent direction ends the search (then projection)
+        accepted, descent, alpha, dx_max = _line_search(
+            solver, ws, x, x_tilde, h, phi0, eps, max_ls, strict, stats
+        )
         if switchable and not project and (not descent or not accepted):
             project = True  # the exact Hessian is indefinite here: redo this iteration with projection
             stats.projected = True

@@ -20,7 +20,7 @@ from ._band_order import band_work
 from ._problem import cache_of
 
 if TYPE_CHECKING:
-    from ...integrators._implicit import ImplicitOptionsLike
+    from ...integrators import ImplicitOptionsLike
     from ._problem import PotentialProblem
 
 #: The linear solvers of Newton's steps.

@@ -54,7 +54,7 @@ from ._slots import (
 
 if TYPE_CHECKING:
     from ...energies import Energy
-    from ...integrators._implicit import ImplicitOptionsLike
+    from ...integrators import ImplicitOptionsLike
     from ...model import Model
     from ._options import MinimizerLike
     from ._problem import PotentialProblem

@@ -41,6 +41,7 @@ from ..._warp import launch
 from .._errors import SingularSystemError
 from ._adjoint import differentiable
 from ._assembly import assemble, control_terms, gradient
+from ._dissection import nested_dissection
 from ._kernels import _trial_point
 from ._options import step_settings
 from ._problem import MinimizerCache, NewtonStats, Workspace, cache_of
@@ -49,52 +50,10 @@ if TYPE_CHECKING:
     import scipy.sparse
     from scipy.sparse.linalg import SuperLU
 
-    from ...integrators._implicit import ImplicitOptionsLike
+    from ...integrators import ImplicitOptionsLike
     from ...model import Model
     from ._options import MinimizerLike
     from ._problem import PotentialProblem
-
-
-def nested_dissection(points: np.ndarray, rows: np.ndarray, cols: np.ndarray, leaf: int = 32) -> np.ndarray:
-    """A fill-reducing order of the n nodes of a sparse symmetric pattern by geometric nested dissection.
-
-    Split the nodes at the median of their longest extent; the nodes of one half that touch the other form
-    the separator, ordered last; recurse into both halves. For a tet mesh's n×n Laplacian-like matrix this
-    leaves 14% (10³ cells) to 25% (20³ cells) fewer nonzeros in SuperLU's factors than its minimum-degree
-    ordering, with solves faster in proportion.
-
-    Args:
-        points: (n, 3) node positions [m] (the rest shape).
-        rows, cols: the pattern's entries (both triangles).
-        leaf: parts at most this large keep their order.
-    """
-    import scipy.sparse as sp
-
-    n = points.shape[0]
-    adj = sp.csr_matrix((np.ones(rows.size, dtype=bool), (rows, cols)), shape=(n, n))
-    order: list[np.ndarray] = []
-
-    def split(nodes: np.ndarray) -> None:
-        if nodes.size <= leaf:
-            order.append(nodes)
-            return
-        p = points[nodes]
-        axis = int(np.argmax(p.max(axis=0) - p.min(axis=0)))
-        cut = np.median(p[:, axis])
-        right_mask = p[:, axis] >= cut
-        left, right = nodes[~right_mask], nodes[right_mask]
-        if left.size == 0 or right.size == 0:
-            order.append(nodes)
-            return
-        in_right = np.zeros(n, dtype=bool)
-        in_right[right] = True
-        touches = np.asarray(adj[left][:, in_right].sum(axis=1)).ravel() > 0
-        split(left[~touches])
-        split(right)
-        order.append(left[touches])
-
-    split(np.arange(n))
-    return np.concatenate(order)
 
 
 class _LaggedHessian:
@@ -369,20 +328,7 @@ def minimize_quasi_newton(
             e.begin_step(m, x_ref, v_ref, h)
     wp.copy(x_out, x_tilde)
     x = x_out
-    correction = memo.get("correction")
-    if warm and correction is not None and memo.get("h") == h:
-        # Near rest the correction x − x̃ (elastic and contact response) barely changes between steps.
-        # Φ(x̃) = h² E(x̃) needs no gradient; the warm start is kept when it lowers Φ.
-        phi_tilde = h2 * _energy(solver, ws, x)
-        ws.x_trial.assign((x.numpy() + correction).astype(ws.np_dtype, copy=False))
-        g = gradient(solver, ws, ws.x_trial, x_tilde, h)
-        if _phi(g, h2) < phi_tilde:
-            wp.copy(x, ws.x_trial)
-            stats.warm_started = True
-        else:
-            g = gradient(solver, ws, x, x_tilde, h)
-    else:
-        g = gradient(solver, ws, x, x_tilde, h)
+    g = _start(solver, ws, memo, x, x_tilde, h, warm, stats)
     stats.residuals.append(float(g[0]))
     if g[0] <= tol_opt:
         return _finish(solver, stats, memo, x, x_tilde, g, h)
@@ -417,29 +363,7 @@ def minimize_quasi_newton(
             for e in solver.energies:
                 alpha = min(alpha, float(e.max_step(m, x, ws.dx)))
         stats.iterations += 1
-        accepted = False
-        for _ in range(max_ls + 1):
-            ws.tstats.zero_()
-            launch(
-                _trial_point,
-                n,
-                [m.particle_inv_mass, m.particle_mass, x, ws.dx, x_tilde, m.s(alpha), ws.x_trial, ws.tstats],
-                device=m.device,
-            )
-            g_new = gradient(solver, ws, ws.x_trial, x_tilde, h)
-            phi = _phi(g_new, h2)
-            size = abs(g_new[2]) + h2 * abs(g_new[3]) + abs(phi0)
-            if phi <= phi0 + 1e-4 * alpha * gdx + 64.0 * eps * size:
-                accepted = True
-                break
-            # Near the solution of a very stiff body (1 GPa) the decrease L-BFGS predicts (~1e-14 J) is below
-            # the cancellation error of E's sum, so Φ cannot confirm it; a full step that lowers the gradient
-            # and leaves Φ unchanged to 1e-6 of its size is taken (Newton's exact steps do not need this).
-            if alpha == 1.0 and g_new[0] < g[0] and phi - phi0 <= 1e-6 * size:
-                accepted = True
-                break
-            alpha *= 0.5
-            stats.line_search_backtracks += 1
+        accepted, alpha, g_new = _line_search(solver, ws, x, x_tilde, h, alpha, g, phi0, gdx, max_ls, stats)
         if not accepted:
             # ws.grad holds a rejected trial's gradient: recompute it at x before trying again.
             g = gradient(solver, ws, x, x_tilde, h)
@@ -464,6 +388,75 @@ def minimize_quasi_newton(
     if stats.iterations > refresh_after or not stats.converged:
         memo["refresh"] = True
     return _finish(solver, stats, memo, x, x_tilde, g, h)
+
+
+def _start(
+    solver: PotentialProblem,
+    ws: Workspace,
+    memo: dict,
+    x: wp.array,
+    x_tilde: wp.array,
+    h: float,
+    warm: bool,
+    stats: NewtonStats,
+) -> np.ndarray:
+    """Φ's gradient statistics at the step's start ``x`` (= x̃ on entry [m]); with ``warm``, ``x`` becomes
+    x̃ plus the last step's correction when that lowers Φ (``stats.warm_started``)."""
+    h2 = h * h
+    correction = memo.get("correction")
+    if warm and correction is not None and memo.get("h") == h:
+        # Near rest the correction x − x̃ (elastic and contact response) barely changes between steps.
+        # Φ(x̃) = h² E(x̃) needs no gradient; the warm start is kept when it lowers Φ.
+        phi_tilde = h2 * _energy(solver, ws, x)
+        ws.x_trial.assign((x.numpy() + correction).astype(ws.np_dtype, copy=False))
+        g = gradient(solver, ws, ws.x_trial, x_tilde, h)
+        if _phi(g, h2) < phi_tilde:
+            wp.copy(x, ws.x_trial)
+            stats.warm_started = True
+            return g
+    return gradient(solver, ws, x, x_tilde, h)
+
+
+def _line_search(
+    solver: PotentialProblem,
+    ws: Workspace,
+    x: wp.array,
+    x_tilde: wp.array,
+    h: float,
+    alpha: float,
+    g: np.ndarray,
+    phi0: float,
+    gdx: float,
+    max_ls: int,
+    stats: NewtonStats,
+) -> tuple[bool, float, np.ndarray]:
+    """Backtracking (Armijo) along ``ws.dx`` from ``x``, from step ``alpha``, at most ``max_ls`` halvings:
+    (accepted, the step taken, the gradient statistics at the trial point ``ws.x_trial``)."""
+    m = solver.model
+    h2 = h * h
+    eps = float(np.finfo(ws.np_dtype).eps)
+    g_new = g
+    for _ in range(max_ls + 1):
+        ws.tstats.zero_()
+        launch(
+            _trial_point,
+            m.particle_count,
+            [m.particle_inv_mass, m.particle_mass, x, ws.dx, x_tilde, m.s(alpha), ws.x_trial, ws.tstats],
+            device=m.device,
+        )
+        g_new = gradient(solver, ws, ws.x_trial, x_tilde, h)
+        phi = _phi(g_new, h2)
+        size = abs(g_new[2]) + h2 * abs(g_new[3]) + abs(phi0)
+        if phi <= phi0 + 1e-4 * alpha * gdx + 64.0 * eps * size:
+            return True, alpha, g_new
+        # Near the solution of a very stiff body (1 GPa) the decrease L-BFGS predicts (~1e-14 J) is below
+        # the cancellation error of E's sum, so Φ cannot confirm it; a full step that lowers the gradient
+        # and leaves Φ unchanged to 1e-6 of its size is taken (Newton's exact steps do not need this).
+        if alpha == 1.0 and g_new[0] < g[0] and phi - phi0 <= 1e-6 * size:
+            return True, alpha, g_new
+        alpha *= 0.5
+        stats.line_search_backtracks += 1
+    return False, alpha, g_new
 
 
 def _finish(

@@ -1,4 +1,5 @@
-"""Three-particle constraints: triangle area (made by the k-particle factory, like Distance and Volume)."""
+"""Triangle area constraints: C = A(x) − A0 per triangle (made by the k-particle factory, like Distance and
+Volume)."""
 
 from __future__ import annotations
 
