@@ -98,6 +98,25 @@ def test_two_workers_search_bit_for_bit(params: list[str]) -> None:
     assert (c.values, c.history) == (a.values, a.history)
 
 
+def test_workers_search_the_held_back_window_as_one_process_does() -> None:
+    """The validation gate holds back the last training frames while the global stage searches
+    (``held_back``): workers, whose problems were built before, search the same shortened window (a pool
+    that ignored it searched all the training frames, and a fit on two cores wrote other values)."""
+    from pliant.fit._gate import held_back
+
+    p = _problem(["E", "nu"])
+    n = p.n_train
+    try:
+        with held_back(p, n - 3):
+            a = cmaes(p, generations=2)
+            b = cmaes(p, generations=2, workers=2)
+        c = cmaes(p, generations=2, workers=2)  # the whole window again, on the same pool
+    finally:
+        close_workers(p)
+    assert (b.values, b.loss, b.history) == (a.values, a.loss, a.history)
+    assert c.loss != a.loss  # a different window: a different loss
+
+
 def test_workers_stop_on_an_error() -> None:
     """A worker that cannot build its problem: a FitError naming it, and no worker left running; an
     exception in the search (here its callback) stops the workers too."""

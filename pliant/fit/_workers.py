@@ -19,7 +19,8 @@ process (:func:`unsplittable`):
 Workers are started with the ``spawn`` context (Warp's runtime and ``fork`` do not mix), build their problem
 once from its constructor's arguments (``Problem.recipe``: the scene config, the raw observations, the
 options) and keep it across generations and stages; per generation the parent sends candidate values (and
-the multiple-shooting window, which the open-loop stage sets to 0) and receives losses. They ignore Ctrl-C
+the multiple-shooting window, which the open-loop stage sets to 0, and the training window, which the
+validation gate holds back) and receives losses. They ignore Ctrl-C
 (the parent stops them), exit when the parent's end of their pipe closes, and on Linux are sent SIGTERM when
 the parent dies (``PR_SET_PDEATHSIG``). A worker's exception comes back as a :class:`FitError` naming it.
 """
@@ -148,10 +149,12 @@ def _serve(conn: Connection, recipe: tuple, batched: bool, reuse: bool) -> None:
             return
         if msg[0] == "stop":
             return
-        _, shooting, values = msg
+        _, shooting, n_train, values = msg
         cpu = time.process_time()
         try:
-            problem.shooting = shooting
+            # what the parent's stage changes on its problem after the workers built theirs: the shooting
+            # window (the open-loop pass) and the training window (the validation gate's held-back frames)
+            problem.shooting, problem.n_train = shooting, n_train
             if batched:
                 losses = evaluate_batch(problem, values, scenes)
             else:
@@ -235,7 +238,9 @@ class WorkerPool:
         def feed(i: int) -> None:
             nonlocal nxt
             if nxt < len(tasks):
-                self._conns[i].send(("eval", problem.shooting, [values[j] for j in tasks[nxt]]))
+                self._conns[i].send(
+                    ("eval", problem.shooting, problem.n_train, [values[j] for j in tasks[nxt]])
+                )
                 busy[i] = tasks[nxt]
                 nxt += 1
 
