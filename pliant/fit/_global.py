@@ -145,6 +145,47 @@ def _search(
     return values, interrupted
 
 
+def _refine(
+    problem: Problem,
+    staged: Staged,
+    stages: dict[str, StageResult],
+    values: dict[str, float],
+    validated: dict[str, Any],
+    generations: int,
+    seed: int,
+    progress: bool,
+    workers: int | str,
+) -> tuple[dict[str, float], bool]:
+    """CMA-ES open loop on all the training frames from the held-back search's ``values`` with a small step
+    (its first evaluation is that start, so it cannot end worse): the held-back search found the basin, the
+    frames it did not see still move its optimum (on MuJoCo's cloth the damping rate, 0.117 → 0.2 1/s).
+    The parameters the gate put back stay out. Returns (the values, interrupted)."""
+    searched, window = problem.globals, problem.shooting
+    problem.globals = [b for b in searched if b.name not in validated["reset"]]
+    problem.shooting = 0
+    try:
+        if not problem.globals or generations <= 0:
+            return values, False
+        with stage_progress(progress, generations, "fit: CMA-ES (refined on all frames)") as tick:
+            stages["cmaes_refined_all_frames"] = result = staged(
+                "cmaes_refined_all_frames",
+                lambda hook: cmaes(
+                    problem,
+                    generations=generations,
+                    seed=seed,
+                    start=values,
+                    sigma=SIGMA_OPEN_LOOP,
+                    callback=tick,
+                    checkpoint=hook,
+                    workers=workers,
+                ),
+            )
+    finally:
+        problem.globals, problem.shooting = searched, window
+    validated["refit"].append("cmaes_refined_all_frames")
+    return {**values, **result.values}, result.interrupted
+
+
 def global_stages(
     problem: Problem,
     staged: Staged,
@@ -242,7 +283,10 @@ def global_stages(
         else:
             validated["why"] += (
                 f"; searched again on all the training frames, which ended worse there ({second:.4g} > "
-                f"{first:.4g}): the held-back search's values written"
+                f"{first:.4g}): the held-back search's values, refined on all the training frames, written"
+            )
+            values, interrupted = _refine(
+                problem, staged, stages, values, validated, generations, seed, progress, workers
             )
     if not interrupted:  # at the values written, over the frames they were fitted on
         identified = identify(problem, values, problem.n_train)

@@ -245,7 +245,7 @@ def describe(rep: dict[str, Any]) -> list[str]:
         ]
     lines = [f"identifiability (1 sigma for a {100 * rep['rise']:g} % rise of the training loss):"]
     for name, p in rep["params"].items():
-        lo, hi = p["band"]
+        lo, hi = sorted(p["band"])  # a value put back to 0 lies below a log box: its band reaches down to it
         what = "constrained by the data" if p["constrained"] else "NOT constrained by the data"
         lines.append(f"  {name}: {what}, {lo:.4g} .. {hi:.4g}")
     for t in rep["trade"]:
