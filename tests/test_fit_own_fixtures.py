@@ -4,9 +4,9 @@ particle masses and default penalty ground; scenes with pliant's defaults). The 
 must never predict the held-out frames worse than the nominal scene, and must reach the issue's bound:
 0.25× nominal on cloth, 0.3× on soft solids with ground contact.
 
-Baseline before issue 38's mass distribution landed (benchmarks/peers/README.md): MuJoCo's cloth reached
-0.345× with pliant's lumped masses (0.19× with its even masses set by hand), so it is expected to fail
-until the fit can explain the mass distribution.
+MuJoCo's cloth reached 0.345× before issue 38's stages and 0.266× after them (the mass distribution
+searched and chosen by validation: α = 0.99); 0.19× with its even masses and true E·t set by hand. It is
+marked xfail (not strict) until the default fit meets 0.25× there (benchmarks/peers/README.md).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ CASES = [
         "mujoco_cloth_own",
         0.25,
         marks=pytest.mark.xfail(
-            reason="needs the mass distribution of issue 38 item 2 (0.345x)", strict=False
+            reason="0.266x with the mass distribution chosen by validation; bound 0.25x", strict=False
         ),
     ),
     pytest.param("mujoco_cube_own", 0.30),
