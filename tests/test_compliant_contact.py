@@ -284,6 +284,10 @@ def test_the_gate_compares_with_the_scene_as_given_and_goes_back_to_it():
     hard = pl.scene.parse_scene(CUBE)
     problem = pl.fit.Problem(hard, obs, params=["ground_stiffness", "ground_damping_ratio"])
     assert problem.seeded and problem.given.ground.stiffness is None
+    from pliant.fit._run import search_plan
+
+    plan = "\n".join(search_plan(problem))  # the plan says the scene's ground is hard, not the seed
+    assert "ground_stiffness: [" in plan and "scene none (hard contact), start" in plan
     from pliant.fit._gate import gate, open_loop_loss
 
     n = problem.n_train

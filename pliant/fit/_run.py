@@ -22,7 +22,7 @@ from ._global import global_stages, stage_progress
 from ._gradient import gradient_stage
 from ._mass import choose_mass_distribution
 from ._memory import device_memory, memory_problem, problem_memory
-from ._params import FitError, auto_per_element, scene_constraints
+from ._params import COMPLIANT, FitError, auto_per_element, scene_constraints
 from ._photometric import PhotometricProblem, gradient_capable, problem_for, refinable
 from ._problem import Problem
 from ._resume import FitCheckpoint, StageHook
@@ -308,8 +308,10 @@ def search_plan(problem: Problem) -> list[str]:
     for b in problem.globals:
         unit = b.param.doc.rsplit("[", 1)[-1].rstrip("])") if "[" in b.param.doc else ""
         scale = "log" if b.param.log else "linear"
+        # a hard ground the fit made compliant to start its search: the scene itself has no such value
+        given = "none (hard contact)" if problem.seeded and b.name in COMPLIANT else f"{b.scene_value:.4g}"
         lines.append(
-            f"  {b.name}: [{b.lo:.4g}, {b.hi:.4g}] {unit} ({scale}), scene {b.scene_value:.4g}, start "
+            f"  {b.name}: [{b.lo:.4g}, {b.hi:.4g}] {unit} ({scale}), scene {given}, start "
             f"{b.nominal:.4g}; {b.why}; fitted by {' + '.join(stages_of(problem, b))}"
         )
     if problem.per_element is not None:
