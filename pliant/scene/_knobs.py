@@ -388,13 +388,6 @@ KNOBS: dict[str, Knob] = _table(
             name="ground_damping_ratio",
         ),
         Knob(
-            "ground.stick_velocity",
-            "stick velocity ε_v of the ground's Coulomb friction, below which it is a viscous ramp [m/s]",
-            bounds=(1e-6, 1e-2),
-            search=Around(10.0, 1e-6),
-            name="ground_stick_velocity",
-        ),
-        Knob(
             "objects[points].radius",
             "spring radius of point-cloud objects [m] (topology)",
             default=lambda cfg, o: 1.8 * o.spacing,
