@@ -22,7 +22,8 @@ from pathlib import Path
 
 PEERS = Path(__file__).resolve().parent
 
-#: (label, pliant benchmark row or None, Newton solver, substeps, iterations) per cloth size.
+#: (label, pliant benchmark row or None, Newton solver or "taichi" / "taichi-substep" (Taichi's launches per
+#: frame / per substep), substeps, iterations) per cloth size.
 CONFIGS = {
     64: [
         ("pliant FastMassSpring symplectic, 80 substeps", "cloth_drape_64_symplectic", None, 0, 0),
@@ -30,12 +31,16 @@ CONFIGS = {
         ("pliant Baraff-Witkin, 32 steps, CG 1e-2", "cloth_drape_64_implicit", None, 0, 0),
         ("newton SemiImplicit, 80 substeps", None, "semi", 80, 1),
         ("newton XPBD, 100 x 1", None, "xpbd", 100, 1),
+        ("taichi symplectic, 80 substeps, 1 kernel/frame", None, "taichi", 80, 0),
+        ("taichi symplectic, 80 substeps, 2 kernels/substep", None, "taichi-substep", 80, 0),
     ],
     128: [
         ("pliant FastMassSpring symplectic, 160 substeps", "cloth_drape_128_symplectic", None, 0, 0),
         ("pliant XPBD colouring, 100 x 1, omega 1.6", "xpbd_cloth_drape_128_coloring", None, 0, 0),
         ("newton SemiImplicit, 160 substeps", None, "semi", 160, 1),
         ("newton XPBD, 250 x 1", None, "xpbd", 250, 1),
+        ("taichi symplectic, 160 substeps, 1 kernel/frame", None, "taichi", 160, 0),
+        ("taichi symplectic, 160 substeps, 2 kernels/substep", None, "taichi-substep", 160, 0),
     ],
 }
 
@@ -58,8 +63,12 @@ def run_newton(py: str, network: str, n: int, solver: str, substeps: int, iterat
 
     from pliant.bench._drape_motion import reference_curve, trajectory_error
 
-    cmd = [py, str(PEERS / "cloth_drape_newton.py"), "--network", network, "--solver", solver]
-    cmd += ["--substeps", str(substeps), "--iterations", str(iterations)]
+    if solver.startswith("taichi"):  # the same network in Taichi (cloth_drape_taichi.py), symplectic Euler
+        cmd = [py, str(PEERS / "cloth_drape_taichi.py"), "--network", network, "--substeps", str(substeps)]
+        cmd += ["--launch", "substep" if solver == "taichi-substep" else "frame"]
+    else:
+        cmd = [py, str(PEERS / "cloth_drape_newton.py"), "--network", network, "--solver", solver]
+        cmd += ["--substeps", str(substeps), "--iterations", str(iterations)]
     r = _last_json(
         subprocess.run(["taskset", "-c", core, *cmd], capture_output=True, text=True, check=True).stdout
     )

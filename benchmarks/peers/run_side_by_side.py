@@ -11,7 +11,7 @@ impact, rebound) relative to the 0.1 m drop (``pliant.bench._box_motion``):
   (MuJoCo's soft contact and StVK material, Newton's contact penalty), not its convergence.
 
 Run from the repository root with pliant's venv (the peers run from ``--peers-python``, a venv with
-newton==1.8.0 and mujoco==4.0.0; see README.md):
+newton==1.8.0, mujoco==4.0.0 and taichi==1.7.4; see README.md):
 
     .venv/bin/python benchmarks/peers/run_side_by_side.py --rounds 3 --out /tmp/side_by_side.jsonl
 """
@@ -47,6 +47,7 @@ def configs(py: str) -> dict[str, tuple[list[str], str | None]]:
     """label -> (command printing one JSON row with ``com_curve`` or ``trajectory_error``, family)."""
     newton = [py, str(PEERS / "soft_box_newton.py")]
     mujoco = [py, str(PEERS / "soft_box_mujoco.py")]
+    taichi = [py, str(PEERS / "soft_box_taichi.py")]
     return {
         "pliant symplectic + penalty, 16 substeps, f32": (_pliant_row("soft_box_drop_10_explicit"), None),
         "pliant ImplicitMidpoint L-BFGS (AMG H0), 10 substeps": (
@@ -72,6 +73,7 @@ def configs(py: str) -> dict[str, tuple[list[str], str | None]]:
             + ["--collide-every", "50", "--contact-gap", "0.05"],
             "semi",
         ),
+        "taichi symplectic + penalty, 16 substeps, f32": ([*taichi, "--substeps", "16"], "ti"),
     }
 
 
@@ -79,10 +81,12 @@ def references(py: str) -> dict[str, list[str]]:
     """Each peer family's converged run (24 frames): 8-16x smaller steps than its rows, tight tolerances."""
     newton = [py, str(PEERS / "soft_box_newton.py"), "--frames", "24"]
     mujoco = [py, str(PEERS / "soft_box_mujoco.py"), "--frames", "24"]
+    taichi = [py, str(PEERS / "soft_box_taichi.py"), "--frames", "24"]
     return {
         "mj": [*mujoco, "--solver", "CG", "--timestep", str(FRAME / 128), "--tolerance", "1e-10"],
         "vbd": [*newton, "--solver", "vbd", "--substeps", "80", "--iterations", "10"],
         "semi": [*newton, "--solver", "semi", "--substeps", "800"],
+        "ti": [*taichi, "--substeps", "256", "--f64"],  # float64: g dt² is a few float32 ulps of the height
     }
 
 
