@@ -73,7 +73,7 @@ def test_unwritable_out_fails_before_the_simulation(tmp_path, capsys, monkeypatc
 def test_ctrl_c_in_view_exits_quietly(tmp_path, capsys, monkeypatch):
     import time
 
-    import pliant.render._viewer as viewer_mod
+    import pliant.render as viewer_mod  # where `pliant view` finds serve_viewer (its public name)
 
     traj = _rope_trajectory(tmp_path)
     capsys.readouterr()

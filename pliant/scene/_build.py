@@ -221,7 +221,7 @@ def lumped_masses(cfg: SceneConfig) -> list[np.ndarray]:
 
 
 def lumped_particles(cfg: SceneConfig) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(lumped masses [kg] [n], rest positions [m] [n, 3]) of each object of ``cfg``, as
+    """(lumped masses [kg], shape (n,); rest positions [m], shape (n, 3)) of each object of ``cfg``, as
     :func:`lumped_masses` builds them (on the host, no device).
 
     Raises:
