@@ -105,26 +105,19 @@ def _search(
             # loop (the held-out frames are): CMA-ES again, open loop, from there with half the step. Its
             # first evaluation is that start, so the open-loop training loss cannot get worse. On MuJoCo's
             # rope the windows' values alone predicted the held-out frames 1.3x worse than the nominal's.
-            window, problem.shooting = problem.shooting, 0
-            try:
-                with stage_progress(progress, generations, "fit: CMA-ES (open loop)") as tick:
-                    stages["cmaes_open_loop"] = staged(
-                        "cmaes_open_loop",
-                        lambda hook: cmaes(
-                            problem,
-                            generations=generations,
-                            seed=seed,
-                            start=values,
-                            sigma=SIGMA_OPEN_LOOP,
-                            callback=tick,
-                            checkpoint=hook,
-                            workers=workers,
-                        ),
-                    )
-            finally:
-                problem.shooting = window
-            values = stages["cmaes_open_loop"].values
-            interrupted = stages["cmaes_open_loop"].interrupted
+            done = _open_loop(
+                problem,
+                staged,
+                stages,
+                "cmaes_open_loop",
+                "fit: CMA-ES (open loop)",
+                values,
+                generations=generations,
+                seed=seed,
+                progress=progress,
+                workers=workers,
+            )
+            values, interrupted = done.values, done.interrupted
     if isinstance(problem, PhotometricProblem) and epochs > 0 and not interrupted and refinable(problem):
         # From images, stage 2 refines the global values with image gradients through the rollout.
         with stage_progress(progress, epochs, f"fit: {optimizer} (image gradients)") as tick:
@@ -145,6 +138,43 @@ def _search(
     return values, interrupted
 
 
+def _open_loop(
+    problem: Problem,
+    staged: Staged,
+    stages: dict[str, StageResult],
+    name: str,
+    desc: str,
+    start: dict[str, float],
+    *,
+    generations: int,
+    seed: int,
+    progress: bool,
+    workers: int | str,
+) -> StageResult:
+    """Stage ``name``: CMA-ES open loop (no multiple-shooting window) from ``start`` with half the first
+    stage's step (:data:`SIGMA_OPEN_LOOP`); its first evaluation is that start, so its open-loop training
+    loss cannot end worse. Recorded in ``stages`` through ``staged`` (the checkpoint)."""
+    window, problem.shooting = problem.shooting, 0
+    try:
+        with stage_progress(progress, generations, desc) as tick:
+            stages[name] = staged(
+                name,
+                lambda hook: cmaes(
+                    problem,
+                    generations=generations,
+                    seed=seed,
+                    start=start,
+                    sigma=SIGMA_OPEN_LOOP,
+                    callback=tick,
+                    checkpoint=hook,
+                    workers=workers,
+                ),
+            )
+    finally:
+        problem.shooting = window
+    return stages[name]
+
+
 def _refine(
     problem: Problem,
     staged: Staged,
@@ -160,28 +190,25 @@ def _refine(
     (its first evaluation is that start, so it cannot end worse): the held-back search found the basin, the
     frames it did not see still move its optimum (on MuJoCo's cloth the damping rate, 0.117 → 0.2 1/s).
     The parameters the gate put back stay out. Returns (the values, interrupted)."""
-    searched, window = problem.globals, problem.shooting
+    searched = problem.globals
     problem.globals = [b for b in searched if b.name not in validated["reset"]]
-    problem.shooting = 0
     try:
         if not problem.globals or generations <= 0:
             return values, False
-        with stage_progress(progress, generations, "fit: CMA-ES (refined on all frames)") as tick:
-            stages["cmaes_refined_all_frames"] = result = staged(
-                "cmaes_refined_all_frames",
-                lambda hook: cmaes(
-                    problem,
-                    generations=generations,
-                    seed=seed,
-                    start=values,
-                    sigma=SIGMA_OPEN_LOOP,
-                    callback=tick,
-                    checkpoint=hook,
-                    workers=workers,
-                ),
-            )
+        result = _open_loop(
+            problem,
+            staged,
+            stages,
+            "cmaes_refined_all_frames",
+            "fit: CMA-ES (refined on all frames)",
+            values,
+            generations=generations,
+            seed=seed,
+            progress=progress,
+            workers=workers,
+        )
     finally:
-        problem.globals, problem.shooting = searched, window
+        problem.globals = searched
     validated["refit"].append("cmaes_refined_all_frames")
     return {**values, **result.values}, result.interrupted
 
