@@ -1,7 +1,7 @@
 """The device Newton (``linear_solver="pcg"``) on the soft box drop, CG's dot products reduced by per-thread
 atomics against block sums (``pliant.solvers.minimizers._pcg.REDUCTION``), side by side in one process.
 
-Rows: the soft box drop of :mod:`pliant.bench._fem` (ImplicitMidpoint, 10 substeps per frame, float64,
+Rows: the soft box drop of :mod:`pliant.bench._fem` (ImplicitMidpoint, ``implicit_substeps(n)``, float64,
 Newton tolerance 1e-4 m/s per frame, the 24 judged frames, frames replayed as graphs) at each size, for
 each reduction, in interleaved rounds (so that a clock or thermal drift touches both alike). Each row has
 the benchmark's ``time_per_step_s``, ``iterations_per_step`` (Newton) and ``trajectory_error``, with
@@ -22,7 +22,7 @@ import json
 import statistics
 import time
 
-from pliant.bench._fem import BENCHMARKS, FRAMES_30, IMPLICIT_DTYPE, IMPLICIT_SUBSTEPS, soft_box_drop
+from pliant.bench._fem import BENCHMARKS, FRAMES_30, IMPLICIT_DTYPE, implicit_substeps, soft_box_drop
 from pliant.solvers.minimizers import _pcg
 
 
@@ -35,7 +35,7 @@ def pcg_row(n: int, device: str, reduction: str, frames: int) -> dict:
         row = soft_box_drop(
             n,
             "implicit",
-            IMPLICIT_SUBSTEPS,
+            implicit_substeps(n),
             frames,
             device=device,
             dtype=IMPLICIT_DTYPE,

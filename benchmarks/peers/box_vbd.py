@@ -197,21 +197,22 @@ def run_vbd(model, box: dict, n: int, device: str, substeps: int, iterations: in
 def pliant_row(
     n: int, device: str, frames: int, substeps: int | None = None, dtype: str | None = None
 ) -> dict:
-    """pliant's ``soft_box_drop_N_implicit_pcg`` row (ImplicitMidpoint, 10 substeps, float64, Newton-PCG on
-    the device, frames replayed as graphs) for any n, plus ms per frame and per step; an ``error`` row if it
-    fails. ``substeps`` and ``dtype`` replace the row's own (then named ``..._pcg_<substeps>_<dtype>``)."""
+    """pliant's ``soft_box_drop_N_implicit_pcg`` row (ImplicitMidpoint at ``_fem.implicit_substeps(n)``,
+    float64, Newton-PCG on the device, frames replayed as graphs) for any n, plus ms per frame and per step;
+    an ``error`` row if it fails. ``substeps`` and ``dtype`` replace the row's own (then named
+    ``..._pcg_<substeps>_<dtype>``)."""
     from pliant.bench import _fem
 
     name = f"soft_box_drop_{n}_implicit_pcg"
     if substeps is not None or dtype is not None:
-        substeps = substeps or _fem.IMPLICIT_SUBSTEPS
+        substeps = substeps or _fem.implicit_substeps(n)
         dtype = dtype or _fem.IMPLICIT_DTYPE
         name += f"_{substeps}_{dtype}"
     try:  # the row's own settings (_fem.BENCHMARKS names it for n = 10 and 30 only)
         row = _fem.soft_box_drop(
             n,
             "implicit",
-            substeps or _fem.IMPLICIT_SUBSTEPS,
+            substeps or _fem.implicit_substeps(n),
             frames,
             device=device,
             dtype=dtype or _fem.IMPLICIT_DTYPE,

@@ -50,7 +50,7 @@ def configs(py: str) -> dict[str, tuple[list[str], str | None]]:
     taichi = [py, str(PEERS / "soft_box_taichi.py")]
     return {
         "pliant symplectic + penalty, 16 substeps, f32": (_pliant_row("soft_box_drop_10_explicit"), None),
-        "pliant ImplicitMidpoint L-BFGS (AMG H0), 10 substeps": (
+        "pliant ImplicitMidpoint L-BFGS (AMG H0), 12 substeps": (
             _pliant_row("soft_box_drop_10_implicit"),
             None,
         ),
