@@ -303,3 +303,41 @@ def test_the_gate_compares_with_the_scene_as_given_and_goes_back_to_it():
     )
     assert values == {} and not problem.seeded  # back to the hard ground: nothing left to set
     assert problem.config(values).ground.stiffness is None
+
+
+def test_track_noise_is_measured_through_free_fall_and_impact():
+    """track_noise recovers white noise σ = 1.5 mm within 30 % (8 tracks) from a recording that falls, hits
+    the ground and rests (third differences cancel the free fall; the quietest frames leave the ringing out),
+    and is ~0 on the same recording without noise."""
+    from pliant.fit._params import track_noise
+
+    obs = pl.fit.observe(pl.scene.build_scene(pl.scene.parse_scene(CUBE)), tracks=8)
+    assert track_noise(obs) < 1e-4
+    rng = np.random.default_rng(7)
+    noisy = pl.io.Observations.from_arrays(obs.t, obs.points + rng.normal(0.0, 1.5e-3, obs.points.shape))
+    assert track_noise(noisy) == pytest.approx(1.5e-3, rel=0.3)
+
+
+def test_noisy_tracks_on_a_hard_ground_do_not_turn_compliant_contact_on():
+    """A cube resting on a hard ground, its lowest track moved onto the ground and σ = 1.5 mm of noise added:
+    the tracks dip below 2 mm (the old fixed bar, which would have switched compliant contact on), but not
+    below 4 σ of their measured noise, so the plan keeps the hard ground; the soft recording with the same
+    noise still sinks beyond it."""
+    from pliant.fit._params import SINK_NOISE, default_reasons, sink_threshold, sinks_into_ground
+
+    rng = np.random.default_rng(11)
+    hard = pl.scene.parse_scene(CUBE)
+    obs = pl.fit.observe(pl.scene.build_scene(hard), tracks=8)
+    low = obs.points[-20:, :, 1].mean(axis=0).min()
+    points = obs.points - np.array([0.0, low, 0.0])
+    noisy = pl.io.Observations.from_arrays(obs.t, points + rng.normal(0.0, 1.5e-3, obs.points.shape))
+    assert -float(noisy.points[..., 1].min()) > SINK_NOISE
+    assert sink_threshold(noisy) > -float(noisy.points[..., 1].min())
+    assert sinks_into_ground(hard, noisy) is None
+    assert "ground_stiffness" not in default_reasons(hard, noisy)
+    soft = pl.scene.parse_scene(
+        CUBE.replace("friction = 0.5", f"friction = 0.5\nstiffness = {KAPPA}\ndamping_ratio = 1.0")
+    )
+    sobs = pl.fit.observe(pl.scene.build_scene(soft), tracks=8)
+    snoisy = pl.io.Observations.from_arrays(sobs.t, sobs.points + rng.normal(0.0, 1.5e-3, sobs.points.shape))
+    assert sinks_into_ground(hard, snoisy) is not None
