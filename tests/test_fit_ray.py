@@ -124,3 +124,19 @@ def test_missing_ray_is_one_line_before_any_work(rope, tmp_path, monkeypatch):
     with pytest.raises(FitError, match="--address goes with --ray"):
         pl.fit.fit(*rope, tmp_path / "out", address="10.0.0.1:6379", **KW)
     assert not (tmp_path / "out").exists()
+
+
+def test_cli_refuses_ray_misuse_in_one_line(tmp_path, capsys, monkeypatch):
+    """`pliant fit` and `pliant twin`: --address without --ray, and --ray without Ray, exit 1 with one line
+    before reading the scene or the observations (neither file exists here)."""
+    from pliant.cli import main
+
+    missing = str(tmp_path / "missing.npz")
+    for cmd in (["fit", "rope", missing], ["twin", missing]):
+        assert main([*cmd, "--out", str(tmp_path / "out"), "--address", "10.0.0.1:6379"]) == 1
+        assert capsys.readouterr().err.strip().splitlines()[-1].endswith("--address goes with --ray")
+        with monkeypatch.context() as m:
+            m.setitem(sys.modules, "ray", None)
+            assert main([*cmd, "--out", str(tmp_path / "out"), "--ray"]) == 1
+        assert "--ray needs Ray, an optional extra: pip install" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

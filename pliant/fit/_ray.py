@@ -32,12 +32,11 @@ _OWNED: dict[str, Any] = {"started": False, "pools": 0}
 
 def require_ray() -> None:
     """FitError naming the pip command when Ray is not installed (before any work)."""
-    try:
-        import ray  # noqa: F401
-    except ImportError:
-        from .._extras import pip_install
+    from .._extras import missing_ray
 
-        raise FitError(f"--ray needs Ray, an optional extra: {pip_install('ray')}") from None
+    why = missing_ray()
+    if why:
+        raise FitError(why)
 
 
 def use_ray(problem: Problem, address: str | None = None) -> None:

@@ -1,7 +1,8 @@
 """A CMA-ES generation on several CPU cores (issue 42 item 2): worker processes, each holding its own copy of
 the fitting problem, evaluate the generation's candidates; the parent deals them out one at a time to
 whichever worker is free (a batched generation: one contiguous share per worker) and gathers the losses in
-candidate order.
+candidate order (:class:`WorkerPool`). The workers are :class:`Evaluator` s behind a :class:`Backend`:
+spawned processes here (:class:`Processes`), or Ray actors on a cluster (:mod:`pliant.fit._ray`).
 
 Warp runs a CPU kernel on one thread, so one process evaluates one candidate at a time. A candidate's loss
 does not depend on which process evaluates it (a rollout of a scene built for it alone, or one copy in a
