@@ -303,7 +303,8 @@ class WorkerPool:
             self._ready.add(i)
             if len(self._ready) == self.n:
                 self.warmup_s = time.perf_counter() - self.started
-                _LOG.info("CMA-ES: %d %ss ready in %.1f s", self.n, self.backend.kind, self.warmup_s)
+                what = "worker processes" if self.ray is None else "Ray actors"
+                _LOG.info("CMA-ES: %d %s ready in %.1f s", self.n, what, self.warmup_s)
         return msg
 
     def evaluate(self, problem: Problem, values: list[dict[str, float]]) -> list[float]:
