@@ -16,7 +16,7 @@ from pliant.fit import FitError, observe
 from pliant.fit._cmaes import cmaes
 from pliant.fit._ray import RayActors, use_ray
 from pliant.fit._resume import FitCheckpoint
-from pliant.fit._workers import close_workers
+from pliant.fit._workers import close_workers, pool_for
 
 #: Three generations, the validation gate's searches (held back, then all frames: the pool kept across
 #: the stages), no gradient stage.
@@ -98,7 +98,8 @@ def test_ray_search_loss_for_loss(cluster, actors, params):
 
 def test_an_actor_error_is_a_fit_error_naming_it(cluster):
     """An actor that cannot build its problem: a FitError naming the actor and the exception, the actors
-    stopped; more actors than the cluster's CPUs: refused before any is started."""
+    stopped; more actors than the cluster's CPUs: refused before any is started; an actor that dies: a
+    FitError naming it."""
     p = _problem(["E", "nu"])
     good = p.recipe
     p.recipe = (good[0], good[1], {**good[2], "params": ["no_such_parameter"]})
@@ -109,6 +110,13 @@ def test_an_actor_error_is_a_fit_error_naming_it(cluster):
     p.recipe = good
     with pytest.raises(FitError, match=r"--workers 3: the Ray cluster \(local\) has 2 CPUs"):
         cmaes(p, generations=2, workers=3)
+    pool = pool_for(p, 2, False, True)
+    try:
+        cluster.kill(pool.backend.actors[1])  # a node lost, an actor killed for its memory
+        with pytest.raises(FitError, match=r"^CMA-ES Ray actor 2 of 2 died: "):
+            pool.evaluate(p, [p.nominal] * 4)
+    finally:
+        close_workers(p)
     assert cluster.is_initialized()  # not started here: not shut down here
 
 
