@@ -1,7 +1,7 @@
 """CMA-ES on several cores (issue 42 item 2): the 117-particle, 288-tet beam fitted from 60 tracks, on one
 process pinned to one core against worker processes on two cores, side by side in one run.
 
-    python benchmarks/fit_workers.py [--generations 8] [--repeats 2] [--no-fit] [--json out.jsonl]
+    python benchmarks/fit_workers.py [--generations 8] [--repeats 2] [--no-fit] [--ray] [--json out.jsonl]
 
 The beam is ``pliant bench beam_implicit``'s (``pliant/scenes/cantilever.toml`` with 12 × 2 × 2 cells,
 4 substeps per frame, 90 frames, backward Euler, method "auto"). Its observations: 60 tracks
@@ -15,7 +15,9 @@ Rows (one JSON line each), every measurement a child process pinned with ``tasks
   generation after the first (whose 2-worker time includes the workers' start, reported as ``warmup_s``),
   their ratio; the CPU seconds per generation of the one process and of the busiest of the two
   (``cpu_speedup``: their ratio, the wall-time ratio a quiet machine would show, less the pipe's
-  latency); and whether the two searches' losses are equal bit for bit;
+  latency); and whether the two searches' losses are equal bit for bit; with ``--ray`` the two-core arm
+  runs on 2 Ray actors of a local Ray cluster of 2 CPUs instead (``per_generation_ray``; Ray's own
+  processes, its GCS and raylet, are not in the CPU seconds);
 - ``fit``: the default ``pl.fit.fit`` (``pliant fit``'s defaults: 40 generations at most, per-element E
   kept where it lowers the validation loss; no video) on 1 core with ``workers=1`` and on 2 cores with
   ``workers="auto"``: wall seconds, the parent process's CPU seconds (on a quiet machine about the wall
@@ -59,14 +61,21 @@ def _beam():
     return cfg, pl.fit.observe(truth, tracks=60, seed=3)
 
 
-def child_generations(workers: int, generations: int) -> dict:
-    """Seconds per generation of ``pl.fit.cmaes`` on ``workers`` processes, and its losses."""
+def child_generations(workers: int, generations: int, ray: bool = False) -> dict:
+    """Seconds per generation of ``pl.fit.cmaes`` on ``workers`` processes (``ray``: Ray actors of a local
+    cluster of ``workers`` CPUs), and its losses."""
     import pliant as pl
     import pliant.fit
+    from pliant.fit._ray import use_ray
     from pliant.fit._workers import close_workers
 
     cfg, obs = _beam()
     problem = pl.fit.Problem(cfg, obs, device="cpu")
+    if ray:
+        import ray as ray_
+
+        ray_.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+        use_ray(problem)
     stamps: list[float] = []
     cpu: list[float] = []
 
@@ -96,6 +105,7 @@ def child_generations(workers: int, generations: int) -> dict:
     gens = np.diff([t0, *stamps])
     return {
         "workers": workers,
+        "ray": ray,
         "first_s": float(gens[0]),
         "per_generation_s": float(np.median(gens[1:])),
         "parent_cpu_per_generation_s": float(np.median(np.diff([c0, *cpu])[1:])),
@@ -157,25 +167,26 @@ def main() -> None:
     ap.add_argument("--generations", type=int, default=8)
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--no-fit", action="store_true", help="only the per-generation row")
+    ap.add_argument("--ray", action="store_true", help="the two-core arm on Ray actors (pliant[ray])")
     ap.add_argument("--json", help="append the rows to this JSONL file")
     ap.add_argument("--child", nargs="+", help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.child:
         kind, w = a.child[0], a.child[1]
         w = w if w == "auto" else int(w)
-        row = child_generations(w, int(a.child[2])) if kind == "gen" else child_fit(w)
+        row = child_fit(w) if kind == "fit" else child_generations(w, int(a.child[2]), kind == "ray")
         print(json.dumps(row))
         return
     rows = []
     one, two = [], []
     for _ in range(a.repeats):
         one.append(_run("0", ["gen", "1", str(a.generations)]))
-        two.append(_run("0,1", ["gen", "2", str(a.generations)]))
+        two.append(_run("0,1", ["ray" if a.ray else "gen", "2", str(a.generations)]))
     t1 = float(np.median([r["per_generation_s"] for r in one]))
     t2 = float(np.median([r["per_generation_s"] for r in two]))
     rows.append(
         {
-            "row": "per_generation",
+            "row": "per_generation_ray" if a.ray else "per_generation",
             "scene": "cantilever 12x2x2 (117 particles, 288 tets), 60 tracks",
             "params": one[0]["params"],
             "shooting": one[0]["shooting"],

@@ -24,4 +24,14 @@ def pip_install(extra: str) -> str:
     return f"pip install -e '.[{extra}]' (in {root})"
 
 
-__all__ = ["checkout_root", "pip_install"]
+def missing_ray(flag: str = "--ray") -> str | None:
+    """The one-line error when Ray (the ``ray`` extra) cannot be imported, naming ``flag`` and the pip
+    command; None when it can."""
+    try:
+        import ray  # noqa: F401
+    except ImportError:
+        return f"{flag} needs Ray, an optional extra: {pip_install('ray')}"
+    return None
+
+
+__all__ = ["checkout_root", "missing_ray", "pip_install"]

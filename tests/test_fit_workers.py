@@ -131,7 +131,7 @@ def test_workers_stop_on_an_error() -> None:
     procs = []
 
     def boom(gen: int, loss: float) -> None:
-        procs.extend(p.__dict__["_worker_pool"]._procs)
+        procs.extend(p.__dict__["_worker_pool"].backend.procs)
         raise RuntimeError("stop here")
 
     with pytest.raises(RuntimeError, match="stop here"):
@@ -150,7 +150,7 @@ if __name__ == "__main__":
     p = _problem(["E", "damping_rate"])
     pool = pool_for(p, 2, False, True)
     pool.evaluate(p, [p.nominal] * 2)
-    print(*[q.pid for q in pool._procs], flush=True)
+    print(*[q.pid for q in pool.backend.procs], flush=True)
     time.sleep(600)
 """
 

@@ -95,6 +95,17 @@ def test_masks_are_required(footage, tmp_path):
         build_twin(obs, tmp_path, TwinOptions(progress=False))
 
 
+def test_ray_without_ray_is_refused_before_any_work(footage, tmp_path, monkeypatch):
+    """``ray=True`` (``pliant twin --ray``) where Ray cannot be imported: one line naming the pip command,
+    before the output folder is made (not after the carving and the splats)."""
+    import sys
+
+    monkeypatch.setitem(sys.modules, "ray", None)
+    with pytest.raises(TwinError, match=r"^--ray needs Ray, an optional extra: pip install"):
+        build_twin(footage, tmp_path / "out", TwinOptions(ray=True, progress=False))
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_camera_that_disagrees_with_the_masks_is_named(footage, tmp_path):
     w2c = footage.world_to_camera.copy()
     w2c[2, :3, 3] += [0.5, 0.0, 0.0]  # camera 2 half a metre off

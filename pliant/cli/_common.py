@@ -68,6 +68,30 @@ WORKERS_HELP = (
 )
 
 
+def add_ray(parser: argparse.ArgumentParser) -> None:
+    """``--ray`` and ``--address``: the CMA-ES generations on Ray actors (:mod:`pliant.fit._ray`)."""
+    parser.add_argument(
+        "--ray",
+        action="store_true",
+        help="evaluate each CMA-ES generation on Ray actors, one CPU each (pliant[ray]; --workers counts "
+        "them, auto: one per CPU of the cluster); the same results",
+    )
+    parser.add_argument(
+        "--address", help="an existing Ray cluster's address (with --ray; default: a local one)"
+    )
+
+
+def check_ray(args: argparse.Namespace) -> None:
+    """``--address`` without ``--ray``, or ``--ray`` without Ray installed: CliError, before any work."""
+    from .._extras import missing_ray
+
+    if args.address and not args.ray:
+        raise CliError("--address goes with --ray")
+    why = missing_ray() if args.ray else None
+    if why:
+        raise CliError(why)
+
+
 def _positive_float(text: str) -> float:
     try:
         v = float(text)

@@ -6,7 +6,17 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ._common import WORKERS_HELP, CliError, _positive_float, _positive_int, _sub, _workers, add_force
+from ._common import (
+    WORKERS_HELP,
+    CliError,
+    _positive_float,
+    _positive_int,
+    _sub,
+    _workers,
+    add_force,
+    add_ray,
+    check_ray,
+)
 from ._run import _load
 
 if TYPE_CHECKING:
@@ -95,6 +105,7 @@ def _add_fit_parser(sub: Subparsers) -> None:
     )
     f.add_argument("--seed", type=int, default=42, help="CMA-ES seed (42)")
     f.add_argument("--workers", type=_workers, default="auto", help=WORKERS_HELP + " (auto)")
+    add_ray(f)
     f.add_argument("--device", help="cpu or cuda:N (default: the scene's)")
     f.add_argument("--dtype", choices=("float32", "float64"), help="override [scene] dtype")
     f.add_argument("--no-video", action="store_true", help="skip fit.mp4")
@@ -236,6 +247,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
     if not 0.0 < args.train_fraction <= 1.0:
         raise CliError(f"--train-fraction: expected a number in (0, 1], got {args.train_fraction}")
+    check_ray(args)
     cfg = _load(args.scene, args.overrides, force=args.force)
     obs = Observations.load(args.obs)
     params = None
@@ -273,6 +285,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
             force=args.force,
             resume=args.resume,
             workers=args.workers,
+            ray=args.ray,
+            address=args.address,
         )
     except FitError as exc:
         raise CliError(str(exc)) from None
@@ -372,6 +386,8 @@ def _fit_models(
             force=args.force,
             resume=args.resume,
             workers=args.workers,
+            ray=args.ray,
+            address=args.address,
         )
     except FitError as exc:
         raise CliError(str(exc)) from None

@@ -13,6 +13,8 @@ from ._common import (
     _positive_int,
     _sub,
     _workers,
+    add_ray,
+    check_ray,
 )
 
 
@@ -67,6 +69,7 @@ def add_parsers(sub: Subparsers) -> None:
     p.add_argument("--splat-iterations", type=_positive_int, default=150, help="Adam steps of the splats")
     p.add_argument("--seed", type=int, default=42, help="seed of every random choice, >= 1 (42)")
     p.add_argument("--workers", type=_workers, default="auto", help=WORKERS_HELP + " (auto)")
+    add_ray(p)
     p.add_argument(
         "--resume",
         action="store_true",
@@ -98,6 +101,7 @@ def cmd_twin(args: argparse.Namespace) -> int:
     from ..io import ObservationError, Observations
     from ..twin import TWIN_MODELS, TwinError, TwinOptions, build_twin
 
+    check_ray(args)
     models = [m.strip() for m in args.models.split(",") if m.strip()]
     bad = [m for m in models if m not in TWIN_MODELS]
     if bad or not models:
@@ -128,6 +132,8 @@ def cmd_twin(args: argparse.Namespace) -> int:
             progress=not args.quiet,
             resume=args.resume,
             workers=args.workers,
+            ray=args.ray,
+            address=args.address,
         )
         rep = build_twin(obs, args.out, opts)
     except (ObservationError, TwinError) as exc:

@@ -78,7 +78,9 @@ def cmaes(
             (:func:`pliant.fit._workers.auto_workers`). Where splitting a generation would change its losses
             (:func:`pliant.fit._workers.unsplittable`) it stays in one process (a log line on
             ``pliant.fit`` says why). The workers stay with ``problem`` for its next CMA-ES stage;
-            ``pliant.fit._workers.close_workers(problem)`` stops them (garbage collection does too).
+            ``pliant.fit._workers.close_workers(problem)`` stops them (garbage collection does too). After
+            ``pliant.fit._ray.use_ray(problem)``: Ray actors, as many (1 too), or for ``"auto"`` one per CPU
+            of the Ray cluster (at most ``popsize``), under the same rules and with the same losses.
     """
     import cma
 
@@ -224,9 +226,16 @@ def _pool(problem: Problem, workers: int | str, popsize: int, batched: bool, reu
     asked = parse_workers(workers)  # None: "auto"
     if asked is not None:
         asked = min(asked, popsize or asked)  # no more processes than candidates
-    why = None if asked == 1 else unsplittable(problem, batched)
+    ray = problem.__dict__.get("_ray")  # pliant.fit._ray.use_ray: Ray actors, even one
+    why = None if asked == 1 and ray is None else unsplittable(problem, batched)
     if why is not None:
-        _LOG.info("CMA-ES: one process (workers=%s asked): %s", workers, why)
+        _LOG.info(
+            "CMA-ES: one process (workers=%s asked%s): %s", workers, "" if ray is None else ", Ray", why
+        )
+    elif ray is not None:
+        from ._ray import actor_count
+
+        return pool_for(problem, actor_count(asked, popsize, ray), batched, reuse), False
     pool = None
     if why is None and asked is not None and asked > 1:
         pool = pool_for(problem, asked, batched, reuse)

@@ -25,6 +25,7 @@ from ._memory import device_memory, memory_problem, problem_memory
 from ._params import COMPLIANT, FitError, auto_per_element, scene_constraints
 from ._photometric import PhotometricProblem, gradient_capable, problem_for, refinable
 from ._problem import Problem
+from ._ray import require_ray, use_ray
 from ._resume import FitCheckpoint, StageHook
 from ._toml import scene_toml
 
@@ -80,6 +81,8 @@ def fit(
     force: bool = False,
     resume: bool = False,
     workers: int | str = "auto",
+    ray: bool = False,
+    address: str | None = None,
 ) -> dict[str, Any]:
     """Fit a scene to observations and write the outputs into ``out``.
 
@@ -130,7 +133,11 @@ def fit(
             never stopped (on the CPU, ``fitted.toml`` byte for byte). Its scene, observations, options and
             fit version must be this fit's.
         workers: Processes that evaluate a CMA-ES generation (``pl.fit.cmaes``; "auto": the CPU's cores
-            where that pays); the same outputs whatever the count.
+            where that pays); the same outputs whatever the count. With ``ray``: Ray actors ("auto": one per
+            CPU of the cluster).
+        ray: Evaluate the CMA-ES generations on Ray actors (:mod:`pliant.fit._ray`; ``pip install
+            'pliant[ray]'``), with the same outputs.
+        address: With ``ray``, a running Ray cluster's address (None: a local one).
         force: From images: go on when the fit's memory estimate (:mod:`pliant.fit._memory`) exceeds the
             memory available on its device.
 
@@ -147,6 +154,10 @@ def fit(
         raise FitError(f"--validation: expected a fraction in [0, 1), got {validation}")
     if not (math.isfinite(smoothness) and smoothness >= 0):
         raise FitError(f"--smoothness: expected a weight >= 0, got {smoothness}")
+    if address and not ray:
+        raise FitError("--address goes with --ray")
+    if ray:
+        require_ray()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     options = {
@@ -194,6 +205,8 @@ def fit(
             raise
         per_element = None  # "auto" on a scene without such elements (rigid XPBD sets): no per-element stage
         problem = make(cfg, obs, per_element=None, shooting=shooting, **kw)
+    if ray:
+        use_ray(problem, address)
     image_gradient = isinstance(problem, PhotometricProblem) and epochs > 0 and bool(refinable(problem))
     mem = problem_memory(problem, gradient=image_gradient)
     plan = search_plan(problem)

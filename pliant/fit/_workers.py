@@ -1,7 +1,8 @@
 """A CMA-ES generation on several CPU cores (issue 42 item 2): worker processes, each holding its own copy of
 the fitting problem, evaluate the generation's candidates; the parent deals them out one at a time to
 whichever worker is free (a batched generation: one contiguous share per worker) and gathers the losses in
-candidate order.
+candidate order (:class:`WorkerPool`). The workers are :class:`Evaluator` s behind a :class:`Backend`:
+spawned processes here (:class:`Processes`), or Ray actors on a cluster (:mod:`pliant.fit._ray`).
 
 Warp runs a CPU kernel on one thread, so one process evaluates one candidate at a time. A candidate's loss
 does not depend on which process evaluates it (a rollout of a scene built for it alone, or one copy in a
@@ -32,7 +33,7 @@ import os
 import time
 import traceback
 import weakref
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -123,24 +124,65 @@ def _die_with_parent() -> None:
         pass
 
 
+def _failure(exc: BaseException) -> tuple:
+    return ("error", f"{type(exc).__name__}: {exc}", traceback.format_exc())
+
+
+class Evaluator:
+    """A worker's copy of the problem, built once from ``Problem.recipe``, and its evaluations: the body of
+    a worker process (:func:`_serve`) and of a Ray actor (:mod:`pliant.fit._ray`). Its answers are messages:
+    ``("ready", pid)``, ``("ok", losses, CPU seconds)`` or ``("error", "Type: message", traceback)``.
+
+    Args:
+        recipe: ``Problem.recipe`` (the scene config, the raw observations, the options).
+        batched: Evaluate a share as one batched simulation (``pliant.fit._cmaes.batchable``).
+        reuse: Reuse the batched scenes across generations (``BatchScenes``).
+    """
+
+    def __init__(self, recipe: tuple, batched: bool, reuse: bool) -> None:
+        self.batched, self.failed = batched, None
+        try:
+            from ._problem import Problem
+            from ._reuse import BatchScenes
+
+            cfg, obs, kwargs = recipe
+            self.problem = Problem(cfg, obs, **kwargs)
+            self.scenes = BatchScenes(reuse) if batched else None
+        except Exception as exc:  # noqa: BLE001 (sent to the parent, which raises it)
+            self.failed = _failure(exc)
+
+    def ready(self) -> tuple:
+        """``("ready", pid)``, or the error that stopped the problem's build."""
+        return self.failed or ("ready", os.getpid())
+
+    def evaluate(self, shooting: int, n_train: int, values: list[dict[str, float]]) -> tuple:
+        """The losses of ``values`` with the parent's shooting window [frames] (the open-loop stage sets it
+        to 0) and training window [frames] (the validation gate holds frames back), which the parent's
+        stage changes on its problem after the workers built theirs."""
+        from ._evaluate import evaluate, evaluate_batch
+
+        cpu = time.process_time()
+        try:
+            self.problem.shooting, self.problem.n_train = shooting, n_train
+            if self.batched:
+                losses = evaluate_batch(self.problem, values, self.scenes)
+            else:
+                losses = [evaluate(self.problem, v) for v in values]
+            return ("ok", [float(f) for f in losses], time.process_time() - cpu)
+        except Exception as exc:  # noqa: BLE001
+            return _failure(exc)
+
+
 def _serve(conn: Connection, recipe: tuple, batched: bool, reuse: bool) -> None:
-    """A worker's life: build the problem, say ready, then evaluate what the parent sends until it says stop
-    or its pipe closes."""
+    """A worker process's life: build the problem, say ready, then evaluate what the parent sends until it
+    says stop or its pipe closes."""
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it stops the workers
     _die_with_parent()
-    try:
-        from ._evaluate import evaluate, evaluate_batch
-        from ._problem import Problem
-        from ._reuse import BatchScenes
-
-        cfg, obs, kwargs = recipe
-        problem = Problem(cfg, obs, **kwargs)
-        scenes = BatchScenes(reuse) if batched else None
-        conn.send(("ready", os.getpid()))
-    except Exception as exc:  # noqa: BLE001 (sent to the parent, which raises it)
-        conn.send(("error", f"{type(exc).__name__}: {exc}", traceback.format_exc()))
+    worker = Evaluator(recipe, batched, reuse)
+    conn.send(worker.ready())
+    if worker.failed:
         return
     while True:
         try:
@@ -149,83 +191,126 @@ def _serve(conn: Connection, recipe: tuple, batched: bool, reuse: bool) -> None:
             return
         if msg[0] == "stop":
             return
-        _, shooting, n_train, values = msg
-        cpu = time.process_time()
-        try:
-            # what the parent's stage changes on its problem after the workers built theirs: the shooting
-            # window (the open-loop pass) and the training window (the validation gate's held-back frames)
-            problem.shooting, problem.n_train = shooting, n_train
-            if batched:
-                losses = evaluate_batch(problem, values, scenes)
-            else:
-                losses = [evaluate(problem, v) for v in values]
-            conn.send(("ok", [float(f) for f in losses], time.process_time() - cpu))
-        except Exception as exc:  # noqa: BLE001
-            conn.send(("error", f"{type(exc).__name__}: {exc}", traceback.format_exc()))
+        conn.send(worker.evaluate(*msg[1:]))
 
 
-class WorkerPool:
-    """``n`` worker processes for a problem's CMA-ES generations (see the module); this process deals the
-    candidates and waits (it uses no CPU meanwhile).
+class Backend(Protocol):
+    """Where a :class:`WorkerPool`'s ``n`` :class:`Evaluator` s run: worker processes
+    (:class:`Processes`) or Ray actors (:class:`pliant.fit._ray.RayActors`)."""
+
+    #: What one is called in messages ("worker", "Ray actor").
+    kind: str
+
+    def submit(self, i: int, task: tuple) -> None:
+        """Have worker ``i`` run ``Evaluator.evaluate(*task)`` once it has answered what it was given."""
+
+    def answers(self, busy: list[int]) -> list[tuple[int, tuple]]:
+        """Wait until some of the ``busy`` workers answer: their (index, message); FitError when one died."""
+        ...
+
+    def close(self) -> None:
+        """Stop the workers (at once: one busy with a generation is stopped)."""
+
+
+class Processes:
+    """``n`` worker processes (``spawn``), a pipe each (see the module).
 
     Args:
-        problem: The fitting problem (a :class:`~pliant.fit.Problem` with its ``recipe``).
-        n: Worker processes (>= 2).
-        batched: Workers evaluate their share as one batched simulation (``pliant.fit._cmaes.batchable``).
-        reuse: Their batched scenes are reused across generations (``BatchScenes``).
+        recipe: ``Problem.recipe``.
+        n: Worker processes.
+        batched: They evaluate their share as one batched simulation.
+        reuse: Their batched scenes are reused across generations.
     """
 
-    def __init__(self, problem: Problem, n: int, batched: bool, reuse: bool) -> None:
+    kind = "worker"
+
+    def __init__(self, recipe: tuple, n: int, batched: bool, reuse: bool) -> None:
         import multiprocessing as mp
 
-        self.n, self.batched, self.reuse = n, batched, reuse
-        self.started = time.perf_counter()
-        #: Wall seconds from the start to every worker ready (set by the first :meth:`evaluate`).
-        self.warmup_s: float | None = None
         ctx = mp.get_context("spawn")
-        self._conns: list[Connection] = []
-        self._procs: list[BaseProcess] = []
+        self.conns: list[Connection] = []
+        self.procs: list[BaseProcess] = []
         for i in range(n):
             parent, child = ctx.Pipe()
-            p = ctx.Process(
-                target=_serve, args=(child, problem.recipe, batched, reuse), name=f"pliant-fit-{i + 1}"
-            )
+            p = ctx.Process(target=_serve, args=(child, recipe, batched, reuse), name=f"pliant-fit-{i + 1}")
             p.daemon = True
             p.start()
             child.close()
-            self._conns.append(parent)
-            self._procs.append(p)
+            self.conns.append(parent)
+            self.procs.append(p)
+        self._finalizer = weakref.finalize(self, _stop, self.conns, self.procs)
+
+    def submit(self, i: int, task: tuple) -> None:
+        self.conns[i].send(("eval", *task))
+
+    def answers(self, busy: list[int]) -> list[tuple[int, tuple]]:
+        from multiprocessing.connection import wait
+
+        by_pipe = {id(self.conns[i]): i for i in busy}
+        by_sentinel = {self.procs[i].sentinel: i for i in busy}
+        got: dict[int, tuple] = {}
+        for ready in wait([self.conns[i] for i in busy] + [self.procs[i].sentinel for i in busy]):
+            i = by_sentinel[ready] if isinstance(ready, int) else by_pipe[id(ready)]
+            if i in got:
+                continue  # its pipe and its sentinel both fired: answered already
+            conn, proc = self.conns[i], self.procs[i]
+            if not conn.poll():
+                proc.join(1.0)
+                raise FitError(
+                    f"CMA-ES worker {i + 1} of {len(self.procs)} exited (code {proc.exitcode}) before "
+                    "answering; run with workers=1 to see the error in this process"
+                )
+            got[i] = conn.recv()
+        return list(got.items())
+
+    def close(self) -> None:
+        self._finalizer()
+
+
+class WorkerPool:
+    """``n`` workers for a problem's CMA-ES generations (see the module): worker processes, or Ray actors
+    with ``ray``; this process deals the candidates and waits (it uses no CPU meanwhile).
+
+    Args:
+        problem: The fitting problem (a :class:`~pliant.fit.Problem` with its ``recipe``).
+        n: Workers (>= 2 processes; >= 1 Ray actors).
+        batched: Workers evaluate their share as one batched simulation (``pliant.fit._cmaes.batchable``).
+        reuse: Their batched scenes are reused across generations (``BatchScenes``).
+        ray: Ray actors on the cluster at this address (``""``: the local one, or the one ``ray.init``
+            connected to; :func:`pliant.fit._ray.use_ray`); None: worker processes.
+    """
+
+    def __init__(self, problem: Problem, n: int, batched: bool, reuse: bool, ray: str | None = None) -> None:
+        self.n, self.batched, self.reuse, self.ray = n, batched, reuse, ray
+        self.started = time.perf_counter()
+        #: Wall seconds from the start to every worker ready (set by the first :meth:`evaluate`).
+        self.warmup_s: float | None = None
         self._ready: set[int] = set()
         #: Per generation: the CPU seconds each worker spent on it.
         self.cpu_s: list[list[float]] = []
-        self._finalizer = weakref.finalize(self, _stop, self._conns, self._procs)
+        if ray is None:
+            self.backend: Backend = Processes(problem.recipe, n, batched, reuse)
+        else:
+            from ._ray import RayActors
 
-    def _recv(self, i: int) -> tuple:
-        """Worker ``i``'s next message (FitError when it failed or died); call when its pipe or process is
-        ready (``multiprocessing.connection.wait``)."""
-        conn, proc = self._conns[i], self._procs[i]
-        if not conn.poll():
-            proc.join(1.0)
-            raise FitError(
-                f"CMA-ES worker {i + 1} of {self.n} exited (code {proc.exitcode}) before answering; run with "
-                "workers=1 to see the error in this process"
-            )
-        msg = conn.recv()
+            self.backend = RayActors(problem.recipe, n, batched, reuse, ray)
+
+    def _check(self, i: int, msg: tuple) -> tuple:
+        """Worker ``i``'s message ``msg``, once checked: FitError when it failed; a "ready" noted."""
         if msg[0] == "error":
-            raise FitError(f"CMA-ES worker {i + 1} of {self.n} failed: {msg[1]}\n{msg[2]}")
+            raise FitError(f"CMA-ES {self.backend.kind} {i + 1} of {self.n} failed: {msg[1]}\n{msg[2]}")
         if msg[0] == "ready":
             self._ready.add(i)
             if len(self._ready) == self.n:
                 self.warmup_s = time.perf_counter() - self.started
-                _LOG.info("CMA-ES: %d worker processes ready in %.1f s", self.n, self.warmup_s)
+                what = "worker processes" if self.ray is None else "Ray actors"
+                _LOG.info("CMA-ES: %d %s ready in %.1f s", self.n, what, self.warmup_s)
         return msg
 
     def evaluate(self, problem: Problem, values: list[dict[str, float]]) -> list[float]:
         """Losses of ``values``, in order: one candidate at a time to whichever worker is free (a slower or
-        busier process takes fewer); a batched problem's generation in one contiguous share per worker
-        (a batch each)."""
-        from multiprocessing.connection import wait
-
+        busier one takes fewer); a batched problem's generation in one contiguous share per worker (a batch
+        each)."""
         if self.batched:
             tasks = [list(s) for s in np.array_split(np.arange(len(values)), self.n) if s.size]
         else:
@@ -238,24 +323,15 @@ class WorkerPool:
         def feed(i: int) -> None:
             nonlocal nxt
             if nxt < len(tasks):
-                self._conns[i].send(
-                    ("eval", problem.shooting, problem.n_train, [values[j] for j in tasks[nxt]])
-                )
+                self.backend.submit(i, (problem.shooting, problem.n_train, [values[j] for j in tasks[nxt]]))
                 busy[i] = tasks[nxt]
                 nxt += 1
 
         for i in range(self.n):
             feed(i)
-        by_pipe = {id(c): i for i, c in enumerate(self._conns)}
-        by_sentinel = {p.sentinel: i for i, p in enumerate(self._procs)}
         while busy:
-            watched = [self._conns[i] for i in busy] + [self._procs[i].sentinel for i in busy]
-            for ready in wait(watched):
-                i = by_sentinel[ready] if isinstance(ready, int) else by_pipe[id(ready)]
-                if i not in busy:
-                    continue  # its pipe and its sentinel both fired: answered already
-                msg = self._recv(i)
-                if msg[0] != "ok":
+            for i, msg in self.backend.answers(list(busy)):
+                if self._check(i, msg)[0] != "ok":
                     continue  # "ready"
                 for j, f in zip(busy.pop(i), msg[1], strict=True):
                     losses[j] = f
@@ -265,8 +341,8 @@ class WorkerPool:
         return losses
 
     def close(self) -> None:
-        """Stop the workers (at once: a worker busy with a generation is terminated)."""
-        self._finalizer()
+        """Stop the workers (at once: a worker busy with a generation is stopped)."""
+        self.backend.close()
 
 
 def _stop(conns: list[Connection], procs: list[BaseProcess]) -> None:
@@ -286,21 +362,22 @@ def _stop(conns: list[Connection], procs: list[BaseProcess]) -> None:
 
 
 def pool_for(problem: Problem, n: int, batched: bool, reuse: bool) -> WorkerPool:
-    """The problem's worker pool of ``n`` processes, kept on the problem for its later CMA-ES stages (the
-    open-loop search after multiple shooting) and stopped with it (:func:`close_workers`, or when it is
-    garbage-collected)."""
+    """The problem's pool of ``n`` workers (Ray actors after :func:`pliant.fit._ray.use_ray`, else
+    processes), kept on the problem for its later CMA-ES stages (the open-loop search after multiple
+    shooting) and stopped with it (:func:`close_workers`, or when it is garbage-collected)."""
+    ray = problem.__dict__.get("_ray")
     pool = problem.__dict__.get("_worker_pool")
-    if pool is not None and (pool.n, pool.batched, pool.reuse) == (n, batched, reuse):
+    if pool is not None and (pool.n, pool.batched, pool.reuse, pool.ray) == (n, batched, reuse, ray):
         return pool
     close_workers(problem)
-    pool = WorkerPool(problem, n, batched, reuse)
+    pool = WorkerPool(problem, n, batched, reuse, ray)
     problem.__dict__["_worker_pool"] = pool
     weakref.finalize(problem, pool.close)
     return pool
 
 
 def close_workers(problem: Problem) -> None:
-    """Stop the problem's worker processes, if it has any."""
+    """Stop the problem's workers (processes or Ray actors), if it has any."""
     pool = problem.__dict__.pop("_worker_pool", None)
     if pool is not None:
         pool.close()
@@ -309,6 +386,9 @@ def close_workers(problem: Problem) -> None:
 __all__ = [
     "AUTO_HORIZON",
     "WORKER_START_S",
+    "Backend",
+    "Evaluator",
+    "Processes",
     "WorkerPool",
     "auto_workers",
     "close_workers",

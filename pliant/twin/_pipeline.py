@@ -96,8 +96,8 @@ class TwinOptions:
         resume: Continue each model's fit from its checkpoint in ``out/fit/<model>/`` where one exists (the
             steps before the fit are deterministic and run again); the twin is then the one an uninterrupted
             run makes.
-        workers: Processes evaluating each CMA-ES generation of the coarse fit (``pl.fit.fit``'s
-            ``workers``; the same twin whatever the count).
+        workers, ray, address: Who evaluates each CMA-ES generation of the coarse fit (``pl.fit.fit``'s
+            arguments: processes, or Ray actors on the cluster at ``address``): the same twin either way.
     """
 
     train_fraction: float = 0.7
@@ -113,6 +113,8 @@ class TwinOptions:
     progress: bool = True
     resume: bool = False
     workers: int | str = "auto"
+    ray: bool = False
+    address: str | None = None
 
 
 @dataclass
@@ -265,7 +267,7 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
         The contents of ``twin.json``.
 
     Raises:
-        TwinError: observations without images or masks, masks the cameras cannot explain.
+        TwinError: observations without images or masks, masks the cameras cannot explain; ``ray``, no Ray.
         FitError: with ``resume``, a model's fit checkpoint that is unreadable, edited or of another format
             or version (before any work), or from another scene or options (at that model's fit).
     """
@@ -277,7 +279,7 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
     check_observations(obs)
     _check_models(opts.models)
     out = Path(out)
-    _check_checkpoints(out, opts)  # a truncated or edited checkpoint is refused now, not after the splats
+    _check_checkpoints(out, opts)  # a bad checkpoint or Ray missing is refused now, not after the splats
     out.mkdir(parents=True, exist_ok=True)
     steps = _Steps(opts.progress)
     assert obs.K is not None and obs.world_to_camera is not None and obs.images is not None
@@ -371,9 +373,13 @@ def build_twin(obs: Observations, out: str | Path, options: TwinOptions | None =
 
 
 def _check_checkpoints(out: Path, opts: TwinOptions) -> None:
-    """With ``resume``, read each existing checkpoint ``out/fit/<model>/``: a bad one raises FitError."""
+    """With ``resume``, read each existing checkpoint ``out/fit/<model>/``: a bad one raises FitError; with
+    ``ray``, Ray missing raises TwinError."""
+    from .._extras import missing_ray
     from ..fit import CHECKPOINT_FILE, read_checkpoint
 
+    if opts.ray and missing_ray():
+        raise TwinError(missing_ray())
     for m in opts.models if opts.resume else ():
         if (out / "fit" / m / CHECKPOINT_FILE).exists():
             read_checkpoint(out / "fit" / m / CHECKPOINT_FILE)
@@ -390,12 +396,7 @@ def _check_models(models: Sequence[str]) -> None:
 
 #: The files a twin's folder holds besides twin.json, as twin.json lists them.
 TWIN_FILES = (
-    "twin.toml",
-    "twin_mesh.vtu",
-    "twin_coarse.vtu",
-    "splats.ply",
-    "reconstruction.png",
-    "twin_fit.png",
+    *("twin.toml", "twin_mesh.vtu", "twin_coarse.vtu", "splats.ply", "reconstruction.png", "twin_fit.png"),
     "twin_rollout.npz",
 )
 
@@ -490,11 +491,7 @@ def _fit_models(
 
     rows = {}
     for m, data in scenes.items():
-        small = parse_scene(
-            dumps(scene(m, True)),
-            f"{out} (coarse {m})",
-            out,
-        )
+        small = parse_scene(dumps(scene(m, True)), f"{out} (coarse {m})", out)
         rep = fit(
             small,
             track_free,
@@ -508,6 +505,8 @@ def _fit_models(
             progress=opts.progress,
             video=False,
             workers=opts.workers,
+            ray=opts.ray,
+            address=opts.address,
         )
         coarse_values = {k: p["value"] for k, p in rep["params"].items()}
         cfg = parse_scene(dumps(data), f"{out / 'twin_nominal.toml'} ({m})", out)
