@@ -147,7 +147,8 @@ class Colliders:
         """A collider of a registered kind (:data:`pliant.collision.kinds.CONTACT_KINDS`).
 
         Args:
-            kind: the kind's name ("sphere", "box", "capsule", "plane"; meshes through :meth:`add_mesh`).
+            kind: the kind's name ("sphere", "box", "capsule", "plane", "mesh" with ``vertices`` and
+                ``faces``: :meth:`add_mesh`).
             friction: Coulomb friction coefficient μ [-], >= 0.
             restitution: normal restitution coefficient e [-], in [0, 1] (hard contact only).
             velocity: v [m/s] of a kinematic collider's centre; None: static.
@@ -160,6 +161,12 @@ class Colliders:
             The collider's index.
         """
         k = CONTACT_KINDS.get(kind)
+        if kind == "mesh" and "vertices" in params:
+            contact = dict(friction=friction, restitution=restitution, velocity=velocity)
+            contact |= dict(
+                angular_velocity=angular_velocity, stiffness=stiffness, damping_ratio=damping_ratio
+            )
+            return self.add_mesh(params.pop("vertices"), params.pop("faces", None), **params, **contact)
         if k is None or (kind == "mesh" and "mesh" not in params):
             raise ValueError(
                 f"collider kind must be one of {sorted(CONTACT_KINDS)} (meshes: add_mesh), got {kind!r}"

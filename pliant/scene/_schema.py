@@ -171,7 +171,22 @@ class ColliderBase(Section):
 
     friction: NonNegFloat = 0.5  # Coulomb μ
     restitution: Fraction = 0.0
-    render: bool = True  # draw it in the video
+    render: bool = True  # draw it in the video (where it was at t = 0)
+    velocity: Vec3 | None = None  # [m/s] of a kinematic collider's centre (None: static)
+    angular_velocity: Vec3 | None = None  # [rad/s] about its centre
+    stiffness: PosFloat | None = None  # κ [1/s²] of compliant contact (None: hard); rests g/κ deep
+    damping_ratio: NonNegFloat = 0.0  # ζ of compliant contact, b = 2ζ√κ
+
+    def contact(self) -> dict[str, Any]:
+        """The keywords every ``Colliders.add_*`` takes: μ, e, motion and compliance."""
+        return {
+            "friction": self.friction,
+            "restitution": self.restitution,
+            "velocity": self.velocity,
+            "angular_velocity": self.angular_velocity,
+            "stiffness": self.stiffness,
+            "damping_ratio": self.damping_ratio,
+        }
 
 
 def _check_keyframes(v: Any) -> Any:

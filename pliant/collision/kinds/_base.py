@@ -43,6 +43,9 @@ class ContactKind:
         code: its integer code in the device arrays (unique, stable: recorded in nothing but memory).
         sdf: ``wp.func`` (pos, aux, rot, radius, mesh, p) → (φ [m], ∇φ, ∇²φ [1/m]).
         pack: ``pack(**params) -> Packed``: validates the parameters [m] and returns the device values.
+        floor: ``floor()`` → parameters of a sample collider whose surface is the plane y = 0, normal +y,
+            over x, z in [−5, 5] m (within 0.1 mm): the contract test's incline
+            (``tests/test_contact_registry.py``) rests and slides a particle on it under tilted gravity.
         aux_motion: how a rigid motion moves ``aux`` (``AUX_FIXED``, ``AUX_POINT``, ``AUX_DIRECTION``).
         params: the parameter names ``pack`` takes (documentation and the contract test).
         bounded: whether the surface encloses a finite volume (a plane does not).
@@ -52,6 +55,7 @@ class ContactKind:
     code: int
     sdf: Any
     pack: Callable[..., Packed]
+    floor: Callable[[], dict[str, Any]]
     aux_motion: int = AUX_FIXED
     params: tuple[str, ...] = field(default_factory=tuple)
     bounded: bool = True

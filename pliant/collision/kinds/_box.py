@@ -65,4 +65,11 @@ def pack_box(
     return Packed(c, he, rotation_matrix(rotation), float(rounding), c)
 
 
-BOX = ContactKind("box", 1, box_sdf, pack_box, params=("center", "half_extents", "rotation", "rounding"))
+def box_floor() -> dict[str, Any]:
+    """A 100 m × 1 m × 100 m slab whose top face is y = 0."""
+    return {"center": (0.0, -0.5, 0.0), "half_extents": (50.0, 0.5, 50.0)}
+
+
+BOX = ContactKind(
+    "box", 1, box_sdf, pack_box, box_floor, params=("center", "half_extents", "rotation", "rounding")
+)

@@ -43,4 +43,11 @@ def pack_capsule(a: Sequence[float], b: Sequence[float], radius: float) -> Packe
     return Packed(pa, pb, np.eye(3), float(radius), 0.5 * (pa + pb))
 
 
-CAPSULE = ContactKind("capsule", 2, capsule_sdf, pack_capsule, AUX_POINT, params=("a", "b", "radius"))
+def capsule_floor() -> dict[str, Any]:
+    """A capsule of radius 10 km along x whose top line is y = 0, z = 0."""
+    return {"a": (-50.0, -1.0e4, 0.0), "b": (50.0, -1.0e4, 0.0), "radius": 1.0e4}
+
+
+CAPSULE = ContactKind(
+    "capsule", 2, capsule_sdf, pack_capsule, capsule_floor, AUX_POINT, params=("a", "b", "radius")
+)

@@ -50,4 +50,13 @@ def pack_mesh() -> Packed:
     return Packed(np.zeros(3), np.zeros(3), np.eye(3), 0.0, np.zeros(3))
 
 
-MESH = ContactKind("mesh", 3, mesh_sdf, pack_mesh, params=("vertices", "faces"))
+def mesh_floor() -> dict[str, Any]:
+    """A 20 m × 1 m × 20 m closed box mesh (12 outward-wound triangles) whose top face is y = 0."""
+    lo, hi = np.array([-10.0, -1.0, -10.0]), np.array([10.0, 0.0, 10.0])
+    corners = np.array([[(lo, hi)[(k >> a) & 1][a] for a in range(3)] for k in range(8)])
+    quads = [(0, 2, 6, 4), (1, 5, 7, 3), (0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6)]
+    faces = [t for a, b, c, d in quads for t in ((a, c, b), (a, d, c))]
+    return {"vertices": corners, "faces": np.array(faces)}
+
+
+MESH = ContactKind("mesh", 3, mesh_sdf, pack_mesh, mesh_floor, params=("vertices", "faces"))

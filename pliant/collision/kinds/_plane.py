@@ -34,6 +34,11 @@ def pack_plane(point: Sequence[float], normal: Sequence[float] = (0.0, 1.0, 0.0)
     return Packed(p, n / norm, np.eye(3), 0.0, p)
 
 
+def plane_floor() -> dict[str, Any]:
+    """The plane y = 0."""
+    return {"point": (0.0, 0.0, 0.0), "normal": (0.0, 1.0, 0.0)}
+
+
 PLANE = ContactKind(
-    "plane", 4, plane_sdf, pack_plane, AUX_DIRECTION, params=("point", "normal"), bounded=False
+    "plane", 4, plane_sdf, pack_plane, plane_floor, AUX_DIRECTION, params=("point", "normal"), bounded=False
 )

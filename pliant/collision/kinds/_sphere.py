@@ -35,4 +35,9 @@ def pack_sphere(center: Sequence[float], radius: float) -> Packed:
     return Packed(c, np.zeros(3), np.eye(3), float(radius), c)
 
 
-SPHERE = ContactKind("sphere", 0, sphere_sdf, pack_sphere, params=("center", "radius"))
+def sphere_floor() -> dict[str, Any]:
+    """A sphere of radius 10 km whose top is the origin (it drops 1.25 mm at 5 m: flat enough)."""
+    return {"center": (0.0, -1.0e4, 0.0), "radius": 1.0e4}
+
+
+SPHERE = ContactKind("sphere", 0, sphere_sdf, pack_sphere, sphere_floor, params=("center", "radius"))
