@@ -349,6 +349,10 @@ class Colliders:
             "damping": scalars("damping"),
             "_meshes": meshes,  # keep the BVHs alive
         }
+        # The pose as added, for reset() (moving colliders overwrite pos, aux, rot, centre each step).
+        arr["_start"] = {
+            name: wp.clone(arr[name], requires_grad=False) for name in ("pos", "aux", "rot", "centre")
+        }
         self._cache[key] = arr
         return arr
 
@@ -358,8 +362,11 @@ class Colliders:
         return [a["kind"], a["pos"], a["aux"], a["rot"], a["radius"], a["mesh"]]
 
     def reset(self) -> None:
-        """Put moving colliders back where they were added (their device arrays are rebuilt on next use)."""
-        self._cache.clear()
+        """Put moving colliders back where they were added: the pose arrays are overwritten in place (a
+        captured frame graph keeps reading them), on every device they were built for."""
+        for arr in self._cache.values():
+            for name in ("pos", "aux", "rot", "centre"):
+                wp.copy(arr[name], arr["_start"][name])
 
     def graph_blocker(self) -> str | None:
         """None: the response (and a moving collider's motion) is launches over cached arrays (a frame of

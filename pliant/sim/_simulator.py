@@ -449,6 +449,10 @@ class Simulator(Checkpoints):
         reset = getattr(self.solver, "reset", None)
         if callable(reset):
             reset()  # history only (L-BFGS pairs, BDF2's past): set-up and arrays stay where graphs see them
+        for handler in getattr(self.solver, "collisions", ()):
+            back = getattr(handler, "reset", None)  # moving colliders: back to their pose at t = 0, in place
+            if callable(back):
+                back()
         self.frame, self.time = 0, 0.0
         self._xs, self._vs, self._ts = [], [], []
         self._last_good, self._solver_state = None, {}
