@@ -96,12 +96,17 @@ def test_every_kind_rests_or_slides_on_an_incline_in_every_family(kind: str, fam
 
 
 @pytest.mark.parametrize("mu", [0.3, 0.6])
+@pytest.mark.parametrize("family", FAMILIES)
 @pytest.mark.parametrize("law", tuple(pl.collision.FRICTION_LAWS))
-def test_every_friction_law_rests_or_slides_on_an_incline(law: str, mu: float):
-    """Each registered law keeps Coulomb's two regimes (it may smooth the switch, not move it)."""
-    model = _particle()
-    solver = _solver("symplectic_euler", model, [_floor("box", friction=mu, law=law)])
-    _check_incline(mu, *_slide(model, solver, int(DURATION / DT)))
+def test_every_friction_law_rests_or_slides_on_an_incline(law: str, family: str, mu: float):
+    """Each registered law keeps Coulomb's two regimes (it may smooth the switch, not move it), on a box
+    collider and on the model's ground (whose kernels dispatch on the law too) in every family."""
+    for ground in (False, True):
+        if ground:
+            model, collisions = _particle(ground=dict(friction=mu, restitution=0.0, friction_law=law)), []
+        else:
+            model, collisions = _particle(), [_floor("box", friction=mu, law=law)]
+        _check_incline(mu, *_slide(model, _solver(family, model, collisions), int(DURATION / DT)))
 
 
 def test_the_registries_are_consistent():
@@ -121,6 +126,9 @@ def test_the_registries_are_consistent():
         pl.collision.Colliders(friction_law="viscous")
     with pytest.raises(ValueError, match="collider kind must be one of"):
         pl.collision.Colliders().add("torus")
+    model = _particle(ground=dict(friction_law="viscous"))
+    with pytest.raises(ValueError, match="friction_law must be one of"):
+        _solver("symplectic_euler", model, [])
 
 
 @pytest.mark.parametrize("kind", KINDS)
@@ -178,3 +186,14 @@ def test_a_scene_file_names_a_plane_with_motion_and_compliance():
     d = scene.colliders.describe()
     assert d[0]["kind"] == "plane" and d[0]["velocity"] == [0.1, 0.0, 0.0] and d[0]["stiffness"] == 2500.0
     assert d[1]["angular_velocity"] == [0.0, 1.0, 0.0] and "stiffness" not in d[1]
+
+
+def test_a_scene_ground_names_its_friction_law():
+    """``[ground] friction_law`` reaches the model; an unknown law is a SceneError at that field."""
+    raw = pl.scene.load_scene("points_push").model_dump()
+    raw["ground"]["friction_law"] = "coulomb_exact"
+    scene = pl.scene.build_scene(pl.scene.SceneConfig.model_validate(raw), device="cpu")
+    assert scene.model.ground.friction_law == "coulomb_exact"
+    raw["ground"]["friction_law"] = "viscous"
+    with pytest.raises(pl.scene.SceneError, match="ground.friction_law: unknown law 'viscous'"):
+        pl.scene.build_scene(pl.scene.SceneConfig.model_validate(raw), device="cpu")

@@ -4,7 +4,13 @@ the broad phases they use."""
 from ._collider_sdf import collider_sdf
 from ._colliders import Colliders
 from ._friction import friction_velocity
-from ._friction_laws import FRICTION_LAWS, FrictionLaw, friction_law_scale
+from ._friction_laws import (
+    FRICTION_LAWS,
+    FrictionLaw,
+    friction_law_code,
+    friction_law_scale,
+    friction_law_velocity,
+)
 from ._ground import (
     ground_coefficients,
     ground_compliant,
@@ -23,7 +29,9 @@ __all__ = [
     "ContactKind",
     "FRICTION_LAWS",
     "FrictionLaw",
+    "friction_law_code",
     "friction_law_scale",
+    "friction_law_velocity",
     "friction_velocity",
     "SelfCollision",
     "StepBound",

@@ -331,7 +331,7 @@ class Colliders:
         def scalars(name: str, grad: bool = False) -> wp.array:
             return wp.array([r[name] for r in rows], dtype=model.scalar, device=d, requires_grad=grad)
 
-        arr = {
+        arr: dict[str, Any] = {
             "kind": wp.array([r["kind"] for r in rows], dtype=wp.int32, device=d),
             "pos": vecs("pos", rg),
             "aux": vecs("aux"),

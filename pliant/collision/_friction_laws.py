@@ -3,9 +3,10 @@
 A law maps the trial tangential speed s [m/s], the friction budget b = μ Δv_n [m/s] and the stick velocity
 ε_v [m/s] to the factor s'/s the tangential velocity is multiplied by (:mod:`._friction` states the
 contract: s' ≤ s, s' = 0 at s = 0, s' = s − b in slip). :func:`friction_law_scale` unrolls this table at
-code generation, so a collider set's ``friction_law`` picks any entry by name; ``tests/test_contact_registry
-.py`` runs each on the incline. The ground's kernels call the smoothed Coulomb law directly (bit for bit
-the arithmetic they always had).
+code generation, so the ground's ``friction_law`` and a collider set's pick any entry by name (every
+post-step response: the ground's projection, penalty friction and compliant contact, XPBD's ground, the
+colliders; the barrier keeps IPC's own lagged friction); ``tests/test_contact_registry.py`` runs each on
+the incline. For the default law the arithmetic is the one the kernels always had, bit for bit.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ class FrictionLaw:
 
 #: name → law. "coulomb": the smoothed Coulomb law (C¹ through stick/slip, :mod:`._friction`), every
 #: contact's default; "coulomb_exact": the same with ε_v = 0 (exact stick, a kink at the switch).
+#: ``Ground.friction_law`` and ``Colliders(friction_law=)`` name one.
 FRICTION_LAWS: dict[str, FrictionLaw] = {
     law.name: law
     for law in (
@@ -63,3 +65,9 @@ def friction_law_scale(law: int, speed: Any, budget: Any, stick_velocity: Any):
         if law == wp.static(_LAWS[k].code):
             scale = wp.static(_LAWS[k].scale)(speed, budget, stick_velocity)
     return scale
+
+
+@wp.func
+def friction_law_velocity(law: int, vt: Any, budget: Any, stick_velocity: Any):
+    """The tangential velocity v_t' [m/s] after the law ``law``: ṽ_t scaled by :func:`friction_law_scale`."""
+    return vt * friction_law_scale(law, wp.length(vt), budget, stick_velocity)

@@ -303,6 +303,8 @@ class GroundSection(Section):
     # ε_v [m/s]: below it Coulomb friction is a smooth viscous ramp; pl.model.STICK_VELOCITY (the schema
     # imports nothing of pliant; tests/test_friction_incline.py checks they agree)
     stick_velocity: NonNegFloat = 1.0e-4
+    # a law of pl.collision.FRICTION_LAWS ("coulomb": smoothed; "coulomb_exact"), checked at build
+    friction_law: str = "coulomb"
     # κ [1/s²] of compliant contact, a normal spring κ d per unit mass (rests g/κ deep; MuJoCo's solref
     # (τ, ζ) is κ = 1/(τ ζ)²), in every solver instead of the hard projection and restitution; unset: hard
     # contact (implicit integrators' Newton still sees a ground penalty, κ = 1e6).
