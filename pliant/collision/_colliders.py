@@ -128,6 +128,7 @@ class Colliders:
         self._rows: list[dict[str, Any]] = []
         self._meshes: list[tuple[np.ndarray, np.ndarray]] = []
         self._cache: dict = {}
+        self._pending_pose: dict[str, np.ndarray] = {}
 
     def __len__(self) -> int:
         return len(self._rows)
@@ -353,6 +354,7 @@ class Colliders:
         arr["_start"] = {
             name: wp.clone(arr[name], requires_grad=False) for name in ("pos", "aux", "rot", "centre")
         }
+        self._write_pose(arr)  # a pose restored from a checkpoint before the arrays existed
         self._cache[key] = arr
         return arr
 
@@ -364,9 +366,46 @@ class Colliders:
     def reset(self) -> None:
         """Put moving colliders back where they were added: the pose arrays are overwritten in place (a
         captured frame graph keeps reading them), on every device they were built for."""
+        self._pending_pose = {}
         for arr in self._cache.values():
             for name in ("pos", "aux", "rot", "centre"):
                 wp.copy(arr[name], arr["_start"][name])
+
+    _POSE = ("pos", "aux", "rot", "centre")
+
+    def checkpoint_state(self) -> dict[str, np.ndarray]:
+        """Moving colliders' poses now (``pose_pos``, ``pose_aux``, ``pose_rot``, ``pose_centre``: host
+        copies), so that a resumed run continues from where they were; static colliders keep nothing."""
+        if not self.moving or not self._cache:
+            return {}
+        arr = next(iter(self._cache.values()))
+        return {f"pose_{name}": arr[name].numpy().copy() for name in self._POSE}
+
+    def restore_checkpoint_state(self, state: dict[str, np.ndarray]) -> None:
+        """Take back :meth:`checkpoint_state`'s poses (written into the device arrays in place, now or
+        when they are built). Raises ValueError for an unknown key or a wrong shape."""
+        n = len(self._rows)
+        shapes = {"pos": (n, 3), "aux": (n, 3), "rot": (n, 3, 3), "centre": (n, 3)}
+        pose = {}
+        for key, a in state.items():
+            name = key.removeprefix("pose_")
+            if name not in shapes or not key.startswith("pose_"):
+                raise ValueError(
+                    f"Colliders: unknown checkpoint array {key!r} (pose_pos, pose_aux, pose_rot, pose_centre)"
+                )
+            a = np.asarray(a, dtype=np.float64)
+            if a.shape != shapes[name] or not np.all(np.isfinite(a)):
+                raise ValueError(
+                    f"Colliders: checkpoint {key} must be finite of shape {shapes[name]}, got {a.shape}"
+                )
+            pose[name] = a
+        self._pending_pose = pose
+        for arr in self._cache.values():
+            self._write_pose(arr)
+
+    def _write_pose(self, arr: dict[str, Any]) -> None:
+        for name, a in self._pending_pose.items():
+            arr[name].assign(a)
 
     def graph_blocker(self) -> str | None:
         """None: the response (and a moving collider's motion) is launches over cached arrays (a frame of

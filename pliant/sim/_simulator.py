@@ -15,7 +15,7 @@ from .._time import substep_dt
 from ..io import Trajectory
 from ..model import Control, Model, State, write_range
 from ..solvers import FrameStep, Solver
-from ._checkpoints import Checkpoints
+from ._checkpoints import Checkpoints, solver_and_handler_state
 from ._divergence import DivergenceError, stability_advice
 from ._graph import FrameGraphs
 
@@ -470,7 +470,7 @@ class Simulator(Checkpoints):
         # solver's state between steps at that point (L-BFGS history, a multistep integrator's past).
         self._last_good = (self.frame, self.time, x, v)
         if self._snapshot_solver:
-            self._solver_state = self.solver.checkpoint_state()
+            self._solver_state = solver_and_handler_state(self.solver)
 
     def trajectory(self) -> Trajectory:
         """Everything recorded so far (frame 0 included) as a :class:`Trajectory`."""
