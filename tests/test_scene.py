@@ -333,7 +333,7 @@ def test_collider_is_drawn_as_a_static_mesh():
             "center = [0.0, 0.0, 0.0]\nhalf_extent = 0.1\n",
             12,
             "colliders[0].half_extent",
-            "allowed: friction, restitution, render, kind, center, half_extents",
+            "damping_ratio, kind, center, half_extents",
         ),
         (
             '[[objects]]\nkind = "rope"\nmaterial = {stiffness = 1.0}\n[[handles]]\nkind = "points"\n'

@@ -1,8 +1,16 @@
-"""Contact: ground plane, static colliders, self-collision and the broad phases they use."""
+"""Contact: ground plane, colliders (one file per kind: :mod:`.kinds`), friction laws, self-collision and
+the broad phases they use."""
 
 from ._collider_sdf import collider_sdf
 from ._colliders import Colliders
 from ._friction import friction_velocity
+from ._friction_laws import (
+    FRICTION_LAWS,
+    FrictionLaw,
+    friction_law_code,
+    friction_law_scale,
+    friction_law_velocity,
+)
 from ._ground import (
     ground_coefficients,
     ground_compliant,
@@ -13,9 +21,17 @@ from ._ground import (
 from ._hashgrid import ParticleGrid, TriangleBVH, triangle_closest_point
 from ._selfcollision import SelfCollision, closest_point_triangle
 from ._step_bound import StepBound
+from .kinds import CONTACT_KINDS, ContactKind
 
 __all__ = [
+    "CONTACT_KINDS",
     "Colliders",
+    "ContactKind",
+    "FRICTION_LAWS",
+    "FrictionLaw",
+    "friction_law_code",
+    "friction_law_scale",
+    "friction_law_velocity",
     "friction_velocity",
     "SelfCollision",
     "StepBound",

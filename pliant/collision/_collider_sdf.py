@@ -1,9 +1,9 @@
 """The colliders' signed distances and contact response as Warp functions (no kernels, no Python state).
 
-One collider of kind 0 sphere, 1 box, 2 capsule, 3 mesh (:class:`pliant.collision.Colliders` documents the
-parameters) is a signed distance φ(p) [m] (negative inside) with its gradient n = ∇φ and Hessian ∇²φ
-[1/m]. The colliders' kernels (:mod:`._colliders`) and the penalty energy both call these, so they sit
-below both modules.
+One collider of a registered kind (:data:`pliant.collision.kinds.CONTACT_KINDS`: sphere, box, capsule,
+mesh, plane) is a signed distance φ(p) [m] (negative inside) with its gradient n = ∇φ and Hessian ∇²φ
+[1/m]. :func:`collider_sdf` unrolls the registry at code generation, so a new kind reaches every caller:
+the colliders' kernels (:mod:`._colliders`), the penalty energy and the barrier, which all sit above.
 """
 
 from __future__ import annotations
@@ -12,88 +12,30 @@ from typing import Any
 
 import warp as wp
 
-from ._friction import friction_velocity
+from ._friction_laws import friction_law_scale
+from .kinds import CONTACT_KINDS
 
-
-@wp.func
-def _curved_hessian(P: Any, n: Any, rho: Any):
-    """(P − nnᵀ)/ρ: the Hessian of the distance to a point (P = I) or a line (P = I − ûûᵀ)."""
-    return (P - wp.outer(n, n)) / wp.max(rho, type(rho)(1.0e-12))
+_KINDS = tuple(CONTACT_KINDS.values())
 
 
 @wp.func
 def collider_sdf(kind: int, pos: Any, aux: Any, rot: Any, radius: Any, mesh: wp.uint64, p: Any):
-    """(φ [m], n = ∇φ, ∇²φ [1/m]) of one collider at p; see :class:`Colliders` for the parameters."""
+    """(φ [m], n = ∇φ, ∇²φ [1/m]) of one collider at p; see :class:`Colliders` for the parameters.
+    An unregistered ``kind`` reads φ = 0, n = +y."""
     zero = radius * type(radius)(0.0)
-    one = type(radius)(1.0)
-    eye = wp.identity(n=3, dtype=type(radius))
-    up = type(p)(zero, one, zero)
     phi = zero
-    n = up
-    H = eye * zero
-    if kind == 0:  # sphere: centre pos, radius
-        d = p - pos
-        l = wp.length(d)
-        phi = l - radius
-        if l > zero:
-            n = d / l
-        H = _curved_hessian(eye, n, l)
-    elif kind == 1:  # box: centre pos, half extents aux, rotation rot (world from local), rounded by radius
-        pl = wp.transpose(rot) * (p - pos)
-        q = type(p)(wp.abs(pl[0]) - aux[0], wp.abs(pl[1]) - aux[1], wp.abs(pl[2]) - aux[2])
-        qmax = wp.max(q[0], wp.max(q[1], q[2]))
-        if qmax > zero:
-            qp = type(p)(wp.max(q[0], zero), wp.max(q[1], zero), wp.max(q[2], zero))
-            rho = wp.length(qp)
-            nl = type(p)(wp.sign(pl[0]) * qp[0], wp.sign(pl[1]) * qp[1], wp.sign(pl[2]) * qp[2]) / rho
-            P = eye * zero
-            for a in range(3):
-                if q[a] > zero:
-                    P[a, a] = one
-            n = rot * nl
-            H = rot * _curved_hessian(P, nl, rho) * wp.transpose(rot)
-            phi = rho - radius
-        else:
-            axis = 0
-            if q[1] >= q[0] and q[1] >= q[2]:
-                axis = 1
-            elif q[2] >= q[0] and q[2] >= q[1]:
-                axis = 2
-            nl = type(p)(zero, zero, zero)
-            nl[axis] = wp.sign(pl[axis])
-            n = rot * nl
-            phi = qmax - radius
-    elif kind == 2:  # capsule: segment pos–aux, radius
-        ab = aux - pos
-        t = wp.clamp(wp.dot(p - pos, ab) / wp.dot(ab, ab), zero, one)
-        d = p - (pos + t * ab)
-        l = wp.length(d)
-        phi = l - radius
-        if l > zero:
-            n = d / l
-        P = eye
-        if t > zero and t < one:
-            u = ab / wp.length(ab)
-            P = eye - wp.outer(u, u)
-        H = _curved_hessian(P, n, l)
-    else:  # closed triangle mesh (float32 BVH)
-        pf = wp.vec3f(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
-        qr = wp.mesh_query_point(mesh, pf, wp.float32(1.0e6))
-        if qr.result:
-            cpf = wp.mesh_eval_position(mesh, qr.face, qr.u, qr.v)
-            cp = type(p)(type(zero)(cpf[0]), type(zero)(cpf[1]), type(zero)(cpf[2]))
-            d = p - cp
-            l = wp.length(d)
-            s = type(zero)(qr.sign)
-            phi = s * l - radius
-            if l > type(zero)(1.0e-9):
-                n = s * d / l
-            else:
-                nf = wp.mesh_eval_face_normal(mesh, qr.face)
-                n = type(p)(type(zero)(nf[0]), type(zero)(nf[1]), type(zero)(nf[2]))
-        else:
-            phi = type(zero)(1.0e6)
+    n = type(p)(zero, type(radius)(1.0), zero)
+    H = wp.identity(n=3, dtype=type(radius)) * zero
+    for k in range(wp.static(len(_KINDS))):
+        if kind == wp.static(_KINDS[k].code):
+            phi, n, H = wp.static(_KINDS[k].sdf)(pos, aux, rot, radius, mesh, p)
     return phi, n, H
+
+
+@wp.func
+def surface_velocity(vel: Any, omega: Any, centre: Any, p: Any):
+    """The velocity [m/s] of a rigidly moving collider's material point at p: v + ω × (p − c)."""
+    return vel + wp.cross(omega, p - centre)
 
 
 @wp.func
@@ -104,31 +46,61 @@ def collider_contact(
     rot: Any,
     radius: Any,
     mesh: wp.uint64,
+    vs: Any,
     friction: Any,
     restitution: Any,
+    kappa: Any,
+    damping: Any,
+    law: int,
     stick_velocity: Any,
     dt: Any,
+    step_dt: Any,
     particle_radius: Any,
     x: Any,
     v: Any,
+    x_start: Any,
 ):
-    """One collider's velocity-level response for one particle: (x, v) → (x', v'), pushed out along n,
-    normal velocity reflected with restitution e, tangential velocity through the Coulomb law for the
-    normal change Δv_n (:func:`~pliant.collision._friction.friction_scale`: stopped if |v_t| ≤ μ·Δv_n, cut
-    by μ·Δv_n otherwise, smoothed below the stick velocity ε_v), and x moved by Δt Δv_t (friction acts
-    inside the step, so a sticking particle stays put)."""
+    """One collider's velocity-level response for one particle: (x, v) → (x', v'), relative to the
+    surface's velocity ``vs`` (zero for a static collider).
+
+    Hard contact (κ = 0): pushed out along n, the relative normal velocity reflected with restitution e,
+    the relative tangential velocity through the friction law for the normal change Δv_n
+    (:mod:`._friction_laws`; smoothed Coulomb: stopped if |v_t| ≤ μ·Δv_n, cut by μ·Δv_n otherwise), and x
+    moved by ``dt`` Δv_t (friction acts inside the step, so a sticking particle stays put).
+
+    Compliant contact (κ > 0 [1/s²], the ground's law): a = max(κ d − b v_n, 0) per unit mass by backward
+    Euler on the step's end state (``step_dt`` the step, ``dt`` = β Δt its ∂x/∂v), so a resting particle
+    sits g/κ deep; the damper b [1/s] acts on particles in contact at ``x_start``; restitution is the
+    damper's; friction for the velocity change Δt·a.
+    """
     zero = particle_radius * type(particle_radius)(0.0)
     phi, n, H = collider_sdf(kind, pos, aux, rot, radius, mesh, x)
     pen = particle_radius - phi
     x_new = x
     v_new = v
     if pen > zero:
-        vn = wp.dot(v, n)
-        vn_new = wp.max(vn, zero)
-        if vn < zero:
-            vn_new = -restitution * vn
-        vt = v - vn * n
-        vt_new = friction_velocity(vt, friction * (vn_new - vn), stick_velocity)
-        x_new = x + pen * n + dt * (vt_new - vt)
-        v_new = vt_new + vn_new * n
+        vr = v - vs
+        vn = wp.dot(vr, n)
+        vt = vr - vn * n
+        if kappa > zero:
+            num = kappa * pen
+            den = type(kappa)(1.0) + kappa * step_dt * dt
+            if damping > zero:
+                phi0, n0, H0 = collider_sdf(kind, pos, aux, rot, radius, mesh, x_start)
+                if phi0 < particle_radius:
+                    num = num - damping * vn
+                    den = den + damping * step_dt
+            dv = step_dt * wp.max(num, zero) / den
+            speed = wp.length(vt)
+            vt_new = vt * friction_law_scale(law, speed, friction * dv, stick_velocity)
+            x_new = x + (dt * dv) * n + dt * (vt_new - vt)
+            v_new = vt_new + (vn + dv) * n + vs
+        else:
+            vn_new = wp.max(vn, zero)
+            if vn < zero:
+                vn_new = -restitution * vn
+            speed = wp.length(vt)
+            vt_new = vt * friction_law_scale(law, speed, friction * (vn_new - vn), stick_velocity)
+            x_new = x + pen * n + dt * (vt_new - vt)
+            v_new = vt_new + vn_new * n + vs
     return x_new, v_new

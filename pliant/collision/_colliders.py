@@ -1,15 +1,23 @@
-"""Static colliders — sphere, box, capsule, triangle mesh — as signed distance fields.
+"""Colliders — sphere, box, capsule, triangle mesh, plane — as signed distance fields, static or moving.
 
 Each collider is a signed distance φ(p) [m] (negative inside) with its gradient n = ∇φ (the outward
-normal) and Hessian ∇²φ. Two responses use them:
+normal) and Hessian ∇²φ, of a kind registered in :data:`pliant.collision.kinds.CONTACT_KINDS` (one file
+per kind). Two responses use them:
 
-* :meth:`Colliders.apply`, a velocity-level response after an (explicit) step, like the ground plane:
-  particles closer than their radius are pushed out along n, the normal velocity is reflected with
-  restitution e, and Coulomb friction stops the tangential velocity if it is at most μ·Δv_n and removes
-  μ·Δv_n of it otherwise (so a block sliding on a collider decelerates by μ g, and one resting on a slope
-  inside the friction cone stays put: :mod:`pliant.collision._friction`);
+* :meth:`Colliders.apply`, a velocity-level response after a step, like the ground plane: particles
+  closer than their radius are pushed out along n, the normal velocity (relative to the surface's) is
+  reflected with restitution e, and the friction law (:data:`pliant.collision.FRICTION_LAWS`; smoothed
+  Coulomb by default) stops the relative tangential velocity if it is at most μ·Δv_n and removes μ·Δv_n of
+  it otherwise (so a block sliding on a collider decelerates by μ g, and one resting on a slope inside the
+  friction cone stays put: :mod:`pliant.collision._friction`). A collider given a ``stiffness`` κ is
+  compliant instead: the ground's spring–damper a = max(κ d − b v_n, 0), b = 2ζ√κ (rests g/κ deep);
 * :class:`pliant.energies.ColliderPenalty`, E = ½ k Σ max(0, r − φ)², a smooth term with an exact Hessian
   for implicit solvers.
+
+A collider given a ``velocity`` v [m/s] and/or an ``angular_velocity`` ω [rad/s] (about its centre) is
+kinematic: :meth:`Colliders.apply` first moves it rigidly over the step (on the device), then responds
+relative to its surface velocity v + ω × (p − c), so a body resting on it is carried along (stick) or
+slips at μ g. :meth:`Colliders.reset` puts every collider back where it was added.
 
 Meshes use ``wp.Mesh`` (a BVH) and ``wp.mesh_query_point``: they must be closed and consistently wound for
 the inside/outside sign; their Hessian omits the curvature term (exact on faces, Gauss–Newton elsewhere).
@@ -26,139 +34,17 @@ import warp as wp
 
 from .._warp import GradientError, fresh, launch
 from ..model import STICK_VELOCITY, Found, Getter, Parameter, declares
-from ._collider_sdf import collider_contact, collider_sdf
+from ._collider_kernels import _advance, _collider_query, collider_response
+from ._friction_laws import friction_law_code
+from .kinds import CONTACT_KINDS, vec3
 
 if TYPE_CHECKING:
     from ..model import Control, Model, State
 
-SPHERE, BOX, CAPSULE, MESH = 0, 1, 2, 3
-_KIND_NAMES = {SPHERE: "sphere", BOX: "box", CAPSULE: "capsule", MESH: "mesh"}
-
-
-@wp.kernel
-def collider_response(
-    first: int,
-    end: int,
-    # Colliders:
-    kind: wp.array(dtype=wp.int32),
-    pos: wp.array(dtype=Any),
-    aux: wp.array(dtype=Any),
-    rot: wp.array(dtype=Any),
-    radius: wp.array(dtype=Any),
-    mesh: wp.array(dtype=wp.uint64),
-    friction: wp.array(dtype=Any),
-    restitution: wp.array(dtype=Any),
-    stick_velocity: Any,
-    dt: Any,
-    # Model:
-    particle_inv_mass: wp.array(dtype=Any),
-    particle_radius: wp.array(dtype=Any),
-    # State in:
-    x_in: wp.array(dtype=Any),
-    v_in: wp.array(dtype=Any),
-    # Out:
-    x_out: wp.array(dtype=Any),
-    v_out: wp.array(dtype=Any),
-):
-    """Colliders ``first`` to ``end`` − 1 in turn (:func:`collider_contact`): reads (x_in, v_in), writes
-    every particle's (x_out, v_out), which may be the inputs (an in-place update).
-
-    Recorded steps launch one collider at a time (``end`` = ``first`` + 1), which runs no loop: Warp's
-    adjoint re-runs a dynamic loop's body with the values its variables hold after the loop, so x and v
-    carried through the colliders in a loop would get a wrong gradient. The gradient-free step launches all
-    colliders at once and carries x and v through them in registers.
-    """
-    i = wp.tid()
-    x = x_in[i]
-    v = v_in[i]
-    r = particle_radius[i]
-    eps = stick_velocity
-    if particle_inv_mass[i] != r * type(r)(0.0):
-        if end == first + 1:
-            k = first
-            x, v = collider_contact(
-                kind[k],
-                pos[k],
-                aux[k],
-                rot[k],
-                radius[k],
-                mesh[k],
-                friction[k],
-                restitution[k],
-                eps,
-                dt,
-                r,
-                x,
-                v,
-            )
-        else:
-            for c in range(first, end):
-                x, v = collider_contact(
-                    kind[c],
-                    pos[c],
-                    aux[c],
-                    rot[c],
-                    radius[c],
-                    mesh[c],
-                    friction[c],
-                    restitution[c],
-                    eps,
-                    dt,
-                    r,
-                    x,
-                    v,
-                )
-    x_out[i] = x
-    v_out[i] = v
-
-
-@wp.kernel
-def _collider_query(
-    kind: wp.array(dtype=wp.int32),
-    pos: wp.array(dtype=Any),
-    aux: wp.array(dtype=Any),
-    rot: wp.array(dtype=Any),
-    radius: wp.array(dtype=Any),
-    mesh: wp.array(dtype=wp.uint64),
-    x_in: wp.array(dtype=Any),
-    phi_out: wp.array(dtype=Any),
-    n_out: wp.array(dtype=Any),
-):
-    i = wp.tid()
-    best = radius[0] * type(radius[0])(0.0) + type(radius[0])(1.0e30)
-    for c in range(kind.shape[0]):
-        phi, n, H = collider_sdf(kind[c], pos[c], aux[c], rot[c], radius[c], mesh[c], x_in[i])
-        if phi < best:
-            best = phi
-            n_out[i] = n
-    phi_out[i] = best
-
-
-def _rotation_matrix(rotation: npt.ArrayLike | None) -> np.ndarray:
-    if rotation is None:
-        return np.eye(3)
-    r = np.asarray(rotation, dtype=np.float64)
-    if r.shape == (3, 3):
-        if not np.allclose(r @ r.T, np.eye(3), atol=1e-6) or np.linalg.det(r) < 0:
-            raise ValueError("box rotation must be a proper rotation matrix (orthonormal, det +1)")
-        return r
-    if r.shape == (4,):  # quaternion (x, y, z, w)
-        x, y, z, w = r / np.linalg.norm(r)
-        return np.array(
-            [
-                [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-            ]
-        )
-    raise ValueError(f"box rotation must be a 3x3 matrix or an (x, y, z, w) quaternion, got shape {r.shape}")
-
-
-def _vec(v: npt.ArrayLike, what: str) -> np.ndarray:
-    a = np.asarray(v, dtype=np.float64).reshape(-1)
-    if a.shape != (3,) or not np.all(np.isfinite(a)):
-        raise ValueError(f"{what} must be 3 finite numbers [m], got {v!r}")
-    return a
+SPHERE, BOX, CAPSULE, MESH, PLANE = (
+    CONTACT_KINDS[k].code for k in ("sphere", "box", "capsule", "mesh", "plane")
+)
+_KIND_NAMES = {k.code: k.name for k in CONTACT_KINDS.values()}
 
 
 def _collider_array(key: str) -> Getter:
@@ -178,13 +64,14 @@ def _collider_array(key: str) -> Getter:
 
 @declares
 class Colliders:
-    """A set of static colliders with Coulomb friction μ and restitution e each.
+    """A set of colliders with Coulomb friction μ and restitution e each; static, or moving rigidly with
+    a constant velocity and angular velocity; hard, or compliant (a stiffness κ and damping ratio ζ).
 
     Example::
 
         colliders = pl.collision.Colliders()
         colliders.add_sphere((0, 0.3, 0), 0.25, friction=0.3)
-        colliders.add_box((0, -0.05, 0), (1, 0.05, 1))
+        colliders.add_box((0, -0.05, 0), (1, 0.05, 1), velocity=(0.2, 0, 0))  # a conveyor plate
         solver = pl.solvers.FastMassSpring(model, collisions=[colliders])
         # or, after any solver's step: colliders.apply(model, state_0, state_1, dt)
 
@@ -192,6 +79,7 @@ class Colliders:
         stick_velocity: ε_v [m/s] >= 0 of every collider's smoothed Coulomb friction (a contact loaded
             inside the friction cone creeps below ε_v; 0: exact Coulomb, with a kink at stick/slip;
             :mod:`pliant.collision._friction`).
+        friction_law: the name of a law in :data:`pliant.collision.FRICTION_LAWS` ("coulomb": smoothed).
     """
 
     @classmethod
@@ -231,44 +119,113 @@ class Colliders:
             ),
         )
 
-    def __init__(self, *, stick_velocity: float = STICK_VELOCITY) -> None:
+    def __init__(self, *, stick_velocity: float = STICK_VELOCITY, friction_law: str = "coulomb") -> None:
         if not (np.isfinite(stick_velocity) and stick_velocity >= 0):
             raise ValueError(f"Colliders: stick_velocity must be >= 0 m/s, got {stick_velocity}")
         self.stick_velocity = float(stick_velocity)
-        self._rows: list[tuple] = []
+        self.friction_law = friction_law
+        self._law = friction_law_code(friction_law)
+        self._rows: list[dict[str, Any]] = []
         self._meshes: list[tuple[np.ndarray, np.ndarray]] = []
         self._cache: dict = {}
+        self._pending_pose: dict[str, np.ndarray] = {}
 
     def __len__(self) -> int:
         return len(self._rows)
 
-    def _add(self, kind, pos, aux, rot, radius, friction, restitution, mesh=-1) -> int:
-        if friction < 0:
-            raise ValueError(f"collider friction μ must be >= 0, got {friction}")
-        if not 0.0 <= restitution <= 1.0:
-            raise ValueError(f"collider restitution e must be in [0, 1], got {restitution}")
-        self._rows.append((kind, pos, aux, rot, float(radius), float(friction), float(restitution), mesh))
-        self._cache.clear()
-        return len(self._rows) - 1
-
-    def add_sphere(
-        self, center: Sequence[float], radius: float, *, friction: float = 0.5, restitution: float = 0.0
+    def add(
+        self,
+        kind: str,
+        *,
+        friction: float = 0.5,
+        restitution: float = 0.0,
+        velocity: Sequence[float] | None = None,
+        angular_velocity: Sequence[float] | None = None,
+        stiffness: float | None = None,
+        damping_ratio: float = 0.0,
+        **params: Any,
     ) -> int:
-        """A sphere.
+        """A collider of a registered kind (:data:`pliant.collision.kinds.CONTACT_KINDS`).
 
         Args:
-            center: centre [m].
-            radius: radius [m], > 0.
+            kind: the kind's name ("sphere", "box", "capsule", "plane", "mesh" with ``vertices`` and
+                ``faces``: :meth:`add_mesh`).
             friction: Coulomb friction coefficient μ [-], >= 0.
-            restitution: normal restitution coefficient e [-], in [0, 1].
+            restitution: normal restitution coefficient e [-], in [0, 1] (hard contact only).
+            velocity: v [m/s] of a kinematic collider's centre; None: static.
+            angular_velocity: ω [rad/s] about its centre (the axis times the rate); None: not spinning.
+            stiffness: κ [1/s²] > 0 of compliant contact (rests g/κ deep); None: hard contact.
+            damping_ratio: ζ [-] >= 0 of compliant contact's damper b = 2ζ√κ.
+            **params: the kind's parameters [m] (its ``params``, e.g. ``center``, ``radius``).
 
         Returns:
             The collider's index.
         """
-        if radius <= 0:
-            raise ValueError(f"sphere radius must be > 0 m, got {radius}")
-        c = _vec(center, "sphere center")
-        return self._add(SPHERE, c, np.zeros(3), np.eye(3), radius, friction, restitution)
+        k = CONTACT_KINDS.get(kind)
+        if kind == "mesh" and "vertices" in params:
+            contact = dict(friction=friction, restitution=restitution, velocity=velocity)
+            contact |= dict(
+                angular_velocity=angular_velocity, stiffness=stiffness, damping_ratio=damping_ratio
+            )
+            return self.add_mesh(params.pop("vertices"), params.pop("faces", None), **params, **contact)
+        if k is None or (kind == "mesh" and "mesh" not in params):
+            raise ValueError(
+                f"collider kind must be one of {sorted(CONTACT_KINDS)} (meshes: add_mesh), got {kind!r}"
+            )
+        mesh = params.pop("mesh", -1)
+        centre = params.pop("centre", None)
+        packed = k.pack(**params)
+        if not (np.isfinite(friction) and friction >= 0):
+            raise ValueError(f"collider friction μ must be >= 0, got {friction}")
+        if not 0.0 <= restitution <= 1.0:
+            raise ValueError(f"collider restitution e must be in [0, 1], got {restitution}")
+        if stiffness is not None and not (np.isfinite(stiffness) and stiffness > 0):
+            raise ValueError(f"collider stiffness κ must be > 0 1/s^2 (None: hard contact), got {stiffness}")
+        if not (np.isfinite(damping_ratio) and damping_ratio >= 0):
+            raise ValueError(f"collider damping_ratio ζ must be >= 0, got {damping_ratio}")
+        vel = np.zeros(3) if velocity is None else vec3(velocity, "collider velocity")
+        omega = (
+            np.zeros(3) if angular_velocity is None else vec3(angular_velocity, "collider angular_velocity")
+        )
+        row = {
+            "kind": k.code,
+            "name": k.name,
+            "pos": packed.pos,
+            "aux": packed.aux,
+            "rot": packed.rot,
+            "radius": packed.radius,
+            "centre": packed.centre if centre is None else centre,
+            "friction": float(friction),
+            "restitution": float(restitution),
+            "mesh": mesh,
+            "vel": vel,
+            "omega": omega,
+            "kappa": 0.0 if stiffness is None else float(stiffness),
+            "damping": 0.0 if stiffness is None else 2.0 * float(damping_ratio) * float(stiffness) ** 0.5,
+            "damping_ratio": float(damping_ratio),
+        }
+        self._rows.append(row)
+        self._cache.clear()
+        return len(self._rows) - 1
+
+    @property
+    def moving(self) -> bool:
+        """Whether any collider has a velocity or an angular velocity."""
+        return any(np.any(r["vel"] != 0) or np.any(r["omega"] != 0) for r in self._rows)
+
+    def add_sphere(self, center: Sequence[float], radius: float, **contact: Any) -> int:
+        """A sphere of centre ``center`` [m] and ``radius`` [m] > 0.
+
+        Args:
+            center: centre [m].
+            radius: radius [m], > 0.
+            **contact: ``friction``, ``restitution``, ``velocity``, ``angular_velocity``, ``stiffness``,
+                ``damping_ratio`` (:meth:`add`).
+
+        Returns:
+            The collider's index.
+        """
+        return self.add("sphere", center=center, radius=radius, **contact)
 
     def add_box(
         self,
@@ -277,8 +234,7 @@ class Colliders:
         *,
         rotation: npt.ArrayLike | None = None,
         rounding: float = 0.0,
-        friction: float = 0.5,
-        restitution: float = 0.0,
+        **contact: Any,
     ) -> int:
         """A box, optionally rotated and with rounded edges.
 
@@ -288,63 +244,56 @@ class Colliders:
             rotation: world-from-box rotation [-], a 3×3 matrix or an (x, y, z, w) quaternion; None: axis
                 aligned.
             rounding: radius [m] the surface is offset outwards by (rounded edges and corners), >= 0.
-            friction: Coulomb friction coefficient μ [-], >= 0.
-            restitution: normal restitution coefficient e [-], in [0, 1].
+            **contact: ``friction``, ``restitution``, ``velocity``, ``angular_velocity``, ``stiffness``,
+                ``damping_ratio`` (:meth:`add`).
 
         Returns:
             The collider's index.
         """
-        he = _vec(half_extents, "box half_extents")
-        if np.any(he <= 0):
-            raise ValueError(f"box half_extents must be > 0 m, got {half_extents}")
-        if rounding < 0:
-            raise ValueError(f"box rounding must be >= 0 m, got {rounding}")
-        c = _vec(center, "box center")
-        return self._add(BOX, c, he, _rotation_matrix(rotation), rounding, friction, restitution)
+        return self.add(
+            "box", center=center, half_extents=half_extents, rotation=rotation, rounding=rounding, **contact
+        )
 
-    def add_capsule(
-        self,
-        a: Sequence[float],
-        b: Sequence[float],
-        radius: float,
-        *,
-        friction: float = 0.5,
-        restitution: float = 0.0,
-    ) -> int:
-        """A capsule: the segment a–b thickened by ``radius``.
+    def add_capsule(self, a: Sequence[float], b: Sequence[float], radius: float, **contact: Any) -> int:
+        """A capsule: the segment a–b thickened by ``radius`` (it spins about the segment's midpoint).
 
         Args:
             a: first end of the axis segment [m].
             b: second end of the axis segment [m].
             radius: radius [m], > 0.
-            friction: Coulomb friction coefficient μ [-], >= 0.
-            restitution: normal restitution coefficient e [-], in [0, 1].
+            **contact: ``friction``, ``restitution``, ``velocity``, ``angular_velocity``, ``stiffness``,
+                ``damping_ratio`` (:meth:`add`).
 
         Returns:
             The collider's index.
         """
-        pa, pb = _vec(a, "capsule a"), _vec(b, "capsule b")
-        if radius <= 0:
-            raise ValueError(f"capsule radius must be > 0 m, got {radius}")
-        if np.linalg.norm(pb - pa) == 0:
-            raise ValueError("capsule endpoints coincide; use add_sphere")
-        return self._add(CAPSULE, pa, pb, np.eye(3), radius, friction, restitution)
+        return self.add("capsule", a=a, b=b, radius=radius, **contact)
 
-    def add_mesh(
-        self,
-        vertices: npt.ArrayLike,
-        faces: npt.ArrayLike,
-        *,
-        friction: float = 0.5,
-        restitution: float = 0.0,
+    def add_plane(
+        self, point: Sequence[float], normal: Sequence[float] = (0.0, 1.0, 0.0), **contact: Any
     ) -> int:
-        """A closed, outward-wound triangle mesh, queried through a BVH.
+        """A plane (the half space below it is solid), e.g. a tilted floor.
+
+        Args:
+            point: a point of the plane [m] (it moves and spins about this point).
+            normal: the outward normal [-] (non-zero; normalised).
+            **contact: ``friction``, ``restitution``, ``velocity``, ``angular_velocity``, ``stiffness``,
+                ``damping_ratio`` (:meth:`add`).
+
+        Returns:
+            The collider's index.
+        """
+        return self.add("plane", point=point, normal=normal, **contact)
+
+    def add_mesh(self, vertices: npt.ArrayLike, faces: npt.ArrayLike, **contact: Any) -> int:
+        """A closed, outward-wound triangle mesh, queried through a BVH (it spins about its vertices'
+        mean).
 
         Args:
             vertices: [V, 3] vertex positions [m].
             faces: [F, 3] vertex indices per triangle (counter-clockwise seen from outside).
-            friction: Coulomb friction coefficient μ [-], >= 0.
-            restitution: normal restitution coefficient e [-], in [0, 1].
+            **contact: ``friction``, ``restitution``, ``velocity``, ``angular_velocity``, ``stiffness``,
+                ``damping_ratio`` (:meth:`add`).
 
         Returns:
             The collider's index.
@@ -353,10 +302,10 @@ class Colliders:
         f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
         if f.size == 0 or f.min() < 0 or f.max() >= v.shape[0]:
             raise ValueError(f"mesh faces must index the {v.shape[0]} vertices and be non-empty")
+        if not np.all(np.isfinite(v)):
+            raise ValueError("mesh vertices must be finite")
         self._meshes.append((v, f.astype(np.int32)))
-        return self._add(
-            MESH, np.zeros(3), np.zeros(3), np.eye(3), 0.0, friction, restitution, len(self._meshes) - 1
-        )
+        return self.add("mesh", mesh=len(self._meshes) - 1, centre=v.mean(axis=0), **contact)
 
     # ------------------------------------------------------------------ device data
     def arrays(self, model: Model) -> dict:
@@ -365,7 +314,7 @@ class Colliders:
         if key in self._cache:
             return self._cache[key]
         if not self._rows:
-            raise ValueError("no colliders: add a sphere, box, capsule or mesh first")
+            raise ValueError("no colliders: add a sphere, box, capsule, plane or mesh first")
         d = model.device
         meshes = [
             wp.Mesh(
@@ -376,19 +325,36 @@ class Colliders:
         ]
         rows = self._rows
         rg = bool(getattr(model, "requires_grad", False))  # μ, e and positions carry gradients then
-        arr = {
-            "kind": wp.array([r[0] for r in rows], dtype=wp.int32, device=d),
-            "pos": wp.array(np.array([r[1] for r in rows]), dtype=model.vec3, device=d, requires_grad=rg),
-            "aux": wp.array(np.array([r[2] for r in rows]), dtype=model.vec3, device=d),
-            "rot": wp.array(np.array([r[3] for r in rows]), dtype=model.mat33, device=d),
-            "radius": wp.array([r[4] for r in rows], dtype=model.scalar, device=d),
+
+        def vecs(name: str, grad: bool = False) -> wp.array:
+            return wp.array(np.array([r[name] for r in rows]), dtype=model.vec3, device=d, requires_grad=grad)
+
+        def scalars(name: str, grad: bool = False) -> wp.array:
+            return wp.array([r[name] for r in rows], dtype=model.scalar, device=d, requires_grad=grad)
+
+        arr: dict[str, Any] = {
+            "kind": wp.array([r["kind"] for r in rows], dtype=wp.int32, device=d),
+            "pos": vecs("pos", rg),
+            "aux": vecs("aux"),
+            "rot": wp.array(np.array([r["rot"] for r in rows]), dtype=model.mat33, device=d),
+            "radius": scalars("radius"),
             "mesh": wp.array(
-                [meshes[r[7]].id if r[0] == MESH else 0 for r in rows], dtype=wp.uint64, device=d
+                [meshes[r["mesh"]].id if r["kind"] == MESH else 0 for r in rows], dtype=wp.uint64, device=d
             ),
-            "friction": wp.array([r[5] for r in rows], dtype=model.scalar, device=d, requires_grad=rg),
-            "restitution": wp.array([r[6] for r in rows], dtype=model.scalar, device=d, requires_grad=rg),
+            "centre": vecs("centre"),
+            "vel": vecs("vel"),
+            "omega": vecs("omega"),
+            "friction": scalars("friction", rg),
+            "restitution": scalars("restitution", rg),
+            "kappa": scalars("kappa"),
+            "damping": scalars("damping"),
             "_meshes": meshes,  # keep the BVHs alive
         }
+        # The pose as added, for reset() (moving colliders overwrite pos, aux, rot, centre each step).
+        arr["_start"] = {
+            name: wp.clone(arr[name], requires_grad=False) for name in ("pos", "aux", "rot", "centre")
+        }
+        self._write_pose(arr)  # a pose restored from a checkpoint before the arrays existed
         self._cache[key] = arr
         return arr
 
@@ -397,24 +363,84 @@ class Colliders:
         a = self.arrays(model)
         return [a["kind"], a["pos"], a["aux"], a["rot"], a["radius"], a["mesh"]]
 
+    def reset(self) -> None:
+        """Put moving colliders back where they were added: the pose arrays are overwritten in place (a
+        captured frame graph keeps reading them), on every device they were built for."""
+        self._pending_pose = {}
+        for arr in self._cache.values():
+            for name in ("pos", "aux", "rot", "centre"):
+                wp.copy(arr[name], arr["_start"][name])
+
+    _POSE = ("pos", "aux", "rot", "centre")
+
+    def checkpoint_state(self) -> dict[str, np.ndarray]:
+        """Moving colliders' poses now (``pose_pos``, ``pose_aux``, ``pose_rot``, ``pose_centre``: host
+        copies), so that a resumed run continues from where they were; static colliders keep nothing."""
+        if not self.moving or not self._cache:
+            return {}
+        arr = next(iter(self._cache.values()))
+        return {f"pose_{name}": arr[name].numpy().copy() for name in self._POSE}
+
+    def restore_checkpoint_state(self, state: dict[str, np.ndarray]) -> None:
+        """Take back :meth:`checkpoint_state`'s poses (written into the device arrays in place, now or
+        when they are built). Raises ValueError for an unknown key or a wrong shape."""
+        n = len(self._rows)
+        shapes = {"pos": (n, 3), "aux": (n, 3), "rot": (n, 3, 3), "centre": (n, 3)}
+        pose = {}
+        for key, a in state.items():
+            name = key.removeprefix("pose_")
+            if name not in shapes or not key.startswith("pose_"):
+                raise ValueError(
+                    f"Colliders: unknown checkpoint array {key!r} (pose_pos, pose_aux, pose_rot, pose_centre)"
+                )
+            a = np.asarray(a, dtype=np.float64)
+            if a.shape != shapes[name] or not np.all(np.isfinite(a)):
+                raise ValueError(
+                    f"Colliders: checkpoint {key} must be finite of shape {shapes[name]}, got {a.shape}"
+                )
+            pose[name] = a
+        self._pending_pose = pose
+        for arr in self._cache.values():
+            self._write_pose(arr)
+
+    def _write_pose(self, arr: dict[str, Any]) -> None:
+        for name, a in self._pending_pose.items():
+            arr[name].assign(a)
+
     def graph_blocker(self) -> str | None:
-        """None: the response is one launch over cached arrays (a frame of it can be replayed)."""
+        """None: the response (and a moving collider's motion) is launches over cached arrays (a frame of
+        it can be replayed)."""
         return None
+
+    #: :func:`pliant.solvers._post.finish_step` passes ``x_start`` and ``step_dt`` to :meth:`apply_out`.
+    takes_step = True
 
     def apply(self, model: Model, state_in: State, state_out: State, dt: float) -> None:
         """Velocity-level contact response on ``state_out`` (push out, restitution, Coulomb friction), in
         place: :meth:`apply_out` with ``state_out``'s arrays as input and output."""
         x, v = state_out.particle_q, state_out.particle_qd
-        self.apply_out(model, x, v, x, v, dt)
+        self.apply_out(model, x, v, x, v, dt, x_start=state_in.particle_q, step_dt=dt)
 
     def apply_out(
-        self, model: Model, x_in: wp.array, v_in: wp.array, x_out: wp.array, v_out: wp.array, dt: float
+        self,
+        model: Model,
+        x_in: wp.array,
+        v_in: wp.array,
+        x_out: wp.array,
+        v_out: wp.array,
+        dt: float,
+        *,
+        x_start: wp.array | None = None,
+        step_dt: float | None = None,
     ) -> None:
         """The response after a step, collider after collider: reads (x_in, v_in), writes (x_out, v_out).
 
         Friction acts inside the step, so its velocity change Δv_t moves positions by ``dt``·Δv_t: pass
         ∂x₁/∂v₁ [s] of the step, Δt after x₁ = x₀ + Δt v₁ (explicit steps, backward Euler), Δt/2 after the
-        implicit midpoint rule (what :func:`~pliant.solvers._post.finish_step` passes).
+        implicit midpoint rule (what :func:`~pliant.solvers._post.finish_step` passes). ``step_dt`` [s]
+        is the step itself (default ``dt``): moving colliders advance by it first, and compliant contact
+        integrates its force over it. ``x_start`` (positions at the step's start; default ``x_in``) tells
+        compliant contact's damper which particles were already in contact.
 
         Outputs that are the inputs are updated in place, in one launch (the gradient-free step). Other
         outputs are a recorded (``wp.Tape``) step's: one launch per collider, each but the last into fresh
@@ -422,16 +448,27 @@ class Colliders:
         restitution e arrays (``arrays(model)["friction"]``, ``["restitution"]``, one value per collider)
         and the colliders' positions (``["pos"]``) receive gradients. Piecewise smooth: where a particle
         enters or leaves contact or friction switches stick/slip the gradient is one-sided (a subgradient).
-        Mesh colliders raise :class:`~pliant.diff.GradientError` out of place (Warp's BVH query has no
-        adjoint here).
+        Mesh and moving colliders raise :class:`~pliant.diff.GradientError` out of place (Warp's BVH query
+        has no adjoint here; a moving collider's pose is updated in place).
         """
         in_place = x_out is x_in and v_out is v_in
-        if not in_place and any(r[0] == MESH for r in self._rows):
+        if not in_place and any(r["kind"] == MESH for r in self._rows):
             raise GradientError(
                 "mesh colliders are not differentiable: use spheres, boxes and capsules, or "
                 "finalize(requires_grad=False)"
             )
+        moving = self.moving
+        if not in_place and moving:
+            raise GradientError(
+                "moving colliders (velocity=, angular_velocity=) are not differentiable: make them static, "
+                "or finalize(requires_grad=False)"
+            )
         a = self.arrays(model)
+        h = dt if step_dt is None else step_dt
+        if moving:
+            args = [a["kind"], a["vel"], a["omega"], model.s(h), a["pos"], a["aux"], a["rot"], a["centre"]]
+            launch(_advance, len(self._rows), args, device=model.device)
+        x0 = x_in if x_start is None else x_start
         count = len(self._rows)
         # In place: one launch over every collider. Out of place: one launch per collider, each but the
         # last into fresh arrays.
@@ -442,9 +479,10 @@ class Colliders:
             launch(
                 collider_response,
                 model.particle_count,
-                [first, end, *self.geometry_inputs(model), a["friction"], a["restitution"]]
-                + [model.s(self.stick_velocity), model.s(dt)]
-                + [model.particle_inv_mass, model.particle_radius, x_in, v_in, xo, vo],
+                [first, end, *self.geometry_inputs(model), a["centre"], a["vel"], a["omega"]]
+                + [a["friction"], a["restitution"], a["kappa"], a["damping"], self._law]
+                + [model.s(self.stick_velocity), model.s(dt), model.s(h)]
+                + [model.particle_inv_mass, model.particle_radius, x0, x_in, v_in, xo, vo],
                 device=model.device,
             )
             x_in, v_in = xo, vo
@@ -457,8 +495,18 @@ class Colliders:
         return phi.numpy(), n.numpy()
 
     def describe(self) -> list[dict]:
-        """One dict per collider: kind, parameters, friction, restitution."""
-        return [
-            {"kind": _KIND_NAMES[r[0]], "friction": r[5], "restitution": r[6], "radius": r[4]}
-            for r in self._rows
-        ]
+        """One dict per collider: kind, friction, restitution, radius, and the motion and compliance set."""
+        out = []
+        for r in self._rows:
+            d = {
+                "kind": r["name"],
+                "friction": r["friction"],
+                "restitution": r["restitution"],
+                "radius": r["radius"],
+            }
+            if np.any(r["vel"] != 0) or np.any(r["omega"] != 0):
+                d |= {"velocity": r["vel"].tolist(), "angular_velocity": r["omega"].tolist()}
+            if r["kappa"] > 0:
+                d |= {"stiffness": r["kappa"], "damping_ratio": r["damping_ratio"]}
+            out.append(d)
+        return out

@@ -14,35 +14,35 @@ from typing import TYPE_CHECKING, Any
 import warp as wp
 
 from .._warp import grad_enabled, launch
-from ._friction import friction_scale
+from ._friction_laws import friction_law_code, friction_law_scale
 
 if TYPE_CHECKING:
     from ..model import Model
 
 
 @wp.func
-def coulomb_ground(v: Any, dvn: Any, vn_new: Any, friction: Any, stick_velocity: Any):
-    """v with normal component vn_new and its tangential part after Coulomb friction for the normal
-    velocity change dvn [m/s] (:func:`~pliant.collision._friction.friction_scale`: stopped if |v_t| ≤ μ·dvn,
-    slowed by μ·dvn otherwise, smoothed below the stick velocity ε_v).
+def coulomb_ground(v: Any, dvn: Any, vn_new: Any, friction: Any, law: int, stick_velocity: Any):
+    """v with normal component vn_new and its tangential part after the friction law ``law``
+    (:data:`~pliant.collision.FRICTION_LAWS`) for the normal velocity change dvn [m/s] (smoothed Coulomb:
+    stopped if |v_t| ≤ μ·dvn, slowed by μ·dvn otherwise, smoothed below the stick velocity ε_v).
 
     Coulomb: the tangential impulse is bounded by μ times the normal one, so a block sliding on the ground
     decelerates by exactly μg and stops after v²/(2μg).
     """
     zero = friction * type(friction)(0.0)
-    scale = friction_scale(wp.length(type(v)(v[0], zero, v[2])), friction * dvn, stick_velocity)
+    scale = friction_law_scale(law, wp.length(type(v)(v[0], zero, v[2])), friction * dvn, stick_velocity)
     return type(v)(v[0] * scale, vn_new, v[2] * scale)
 
 
 @wp.func
-def ground_velocity(v: Any, friction: Any, restitution: Any, stick_velocity: Any):
+def ground_velocity(v: Any, friction: Any, restitution: Any, law: int, stick_velocity: Any):
     """Velocity after hitting the ground: normal part reflected (×e) if approaching, Coulomb friction."""
     zero = friction * type(friction)(0.0)
     vn = v[1]
     vn_new = wp.max(vn, zero)
     if vn < zero:
         vn_new = -restitution * vn
-    return coulomb_ground(v, vn_new - vn, vn_new, friction, stick_velocity)
+    return coulomb_ground(v, vn_new - vn, vn_new, friction, law, stick_velocity)
 
 
 @wp.func
@@ -58,6 +58,7 @@ def ground_contact(
     radius: wp.array(dtype=Any),
     height: Any,
     coefficients: wp.array(dtype=Any),
+    law: int,
     stick_velocity: Any,
     shift_dt: Any,
     x_in: wp.array(dtype=Any),
@@ -79,7 +80,7 @@ def ground_contact(
     v = v_in[i]
     floor = height + radius[i]
     if inv_mass[i] != type(height)(0.0) and p[1] < floor:
-        v_new = ground_velocity(v, coefficients[0], coefficients[1], stick_velocity)
+        v_new = ground_velocity(v, coefficients[0], coefficients[1], law, stick_velocity)
         x_out[i] = friction_shift(type(p)(p[0], floor, p[2]), v, v_new, shift_dt)
         v_out[i] = v_new
     else:
@@ -93,6 +94,7 @@ def ground_penalty_friction(
     radius: wp.array(dtype=Any),
     height: Any,
     coefficients: wp.array(dtype=Any),
+    law: int,
     stick_velocity: Any,
     shift_dt: Any,
     kappa: Any,
@@ -126,7 +128,7 @@ def ground_penalty_friction(
     d = height + radius[i] - (p[1] + (one - point) * (x_start[i][1] - p[1]))
     zero = type(height)(0.0)
     if inv_mass[i] != zero and d > zero:
-        v_new = coulomb_ground(v, kappa * d * impulse_dt, v[1], coefficients[0], stick_velocity)
+        v_new = coulomb_ground(v, kappa * d * impulse_dt, v[1], coefficients[0], law, stick_velocity)
         x_out[i] = friction_shift(p, v, v_new, shift_dt)
         v_out[i] = v_new
     else:
@@ -140,6 +142,7 @@ def ground_damped_penalty_friction(
     radius: wp.array(dtype=Any),
     height: Any,
     coefficients: wp.array(dtype=Any),
+    law: int,
     stick_velocity: Any,
     shift_dt: Any,
     kappa: Any,
@@ -167,7 +170,7 @@ def ground_damped_penalty_friction(
         a = kappa * d
         if x_start[i][1] < floor:
             a = wp.max(a - damping * v[1], zero)
-        v_new = coulomb_ground(v, a * impulse_dt, v[1], coefficients[0], stick_velocity)
+        v_new = coulomb_ground(v, a * impulse_dt, v[1], coefficients[0], law, stick_velocity)
         x_out[i] = friction_shift(p, v, v_new, shift_dt)
         v_out[i] = v_new
     else:
@@ -181,6 +184,7 @@ def ground_compliant(
     radius: wp.array(dtype=Any),
     height: Any,
     coefficients: wp.array(dtype=Any),
+    law: int,
     stick_velocity: Any,
     shift_dt: Any,
     kappa: Any,
@@ -216,7 +220,7 @@ def ground_compliant(
             num = num - damping * v[1]
             den = den + damping * dt
         dv = dt * wp.max(num, zero) / den
-        v_new = coulomb_ground(v, dv, v[1] + dv, coefficients[0], stick_velocity)
+        v_new = coulomb_ground(v, dv, v[1] + dv, coefficients[0], law, stick_velocity)
         x_out[i] = friction_shift(type(p)(p[0], p[1] + shift_dt * dv, p[2]), v, v_new, shift_dt)
         v_out[i] = v_new
     else:
@@ -230,6 +234,7 @@ def ground_coefficients(model: Model) -> wp.array:
     g = model.ground
     if g is None:
         raise ValueError("the model has no ground plane: ModelBuilder.add_ground() first")
+    friction_law_code(g.friction_law)  # an unknown law fails here, at set-up
     rg = grad_enabled(model)
     return wp.array([g.friction, g.restitution], dtype=model.scalar, device=model.device, requires_grad=rg)
 
@@ -275,7 +280,8 @@ def respond_to_ground(
     if m.ground is None:
         raise ValueError("the model has no ground plane: ModelBuilder.add_ground() first")
     g = m.ground
-    common = [m.particle_inv_mass, m.particle_radius, m.s(g.height), coefficients, m.s(g.stick_velocity)]
+    law = friction_law_code(g.friction_law)
+    common = [m.particle_inv_mass, m.particle_radius, m.s(g.height), coefficients, law, m.s(g.stick_velocity)]
     common.append(m.s(shift * dt))
     if penalty is not None:
         if point != 1.0 and x_start is None:

@@ -9,7 +9,7 @@ import numpy as np
 import warp as wp
 from numpy.typing import ArrayLike
 
-from ..collision import ParticleGrid, TriangleBVH, friction_velocity
+from ..collision import ParticleGrid, TriangleBVH, friction_law_code, friction_law_velocity
 from ..model import STICK_VELOCITY, Model
 from ._base import Constraint, ProjectionContext
 from ._contact_math import (
@@ -60,6 +60,7 @@ def _ground_velocity(
     friction: Any,
     restitution: Any,
     threshold: Any,
+    law: int,
     stick_velocity: Any,
     dt: Any,
     lam_in: wp.array(dtype=Any),
@@ -84,7 +85,7 @@ def _ground_velocity(
     vt = v - vn * normal
     # Coulomb: the tangential velocity change is bounded by μ times the normal one, |Δx_n|/Δt = wλ/Δt (the
     # whole push of this step, the part that held the weight included).
-    vt_new = friction_velocity(vt, friction * inv_mass[i] * lam / dt, stick_velocity)
+    vt_new = friction_law_velocity(law, vt, friction * inv_mass[i] * lam / dt, stick_velocity)
     vn_pre = wp.dot(v_pre_in[i], normal)
     vn_new = wp.max(vn, zero)
     if vn_pre < -threshold:
@@ -158,6 +159,7 @@ class Ground(Constraint):
         self.stick_velocity = float(
             self._stick if self._stick is not None else (g.stick_velocity if g else STICK_VELOCITY)
         )
+        self.friction_law = friction_law_code(g.friction_law if g else "coulomb")  # the model's ground's
         # κ [1/s²] of compliant contact, not the PBD stiffness k in [0, 1] every Constraint has
         kappa = self._stiffness if self._stiffness is not None else (g.stiffness if g else None)
         self.contact_stiffness: float | None = kappa
@@ -231,6 +233,7 @@ class Ground(Constraint):
                 m.s(self.friction),
                 m.s(self.restitution),
                 m.s(2.0 * g * dt),  # below this approach speed a contact rests instead of bouncing
+                self.friction_law,
                 m.s(self.stick_velocity),
                 m.s(dt),
                 self.lam,

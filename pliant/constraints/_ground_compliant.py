@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import warp as wp
 
-from ..collision import friction_velocity
+from ..collision import friction_law_velocity
 from ._base import ProjectionContext
 from ._contact_math import ground_c, ground_grad
 
@@ -76,6 +76,7 @@ def _ground_velocity_compliant(
     inv_mass: wp.array(dtype=Any),
     normal: Any,
     friction: Any,
+    law: int,
     stick_velocity: Any,
     dt: Any,
     lam_in: wp.array(dtype=Any),
@@ -96,7 +97,7 @@ def _ground_velocity_compliant(
         return
     vn = wp.dot(v, normal)
     vt = v - vn * normal
-    vt_new = friction_velocity(vt, friction * inv_mass[i] * lam / dt, stick_velocity)
+    vt_new = friction_law_velocity(law, vt, friction * inv_mass[i] * lam / dt, stick_velocity)
     p_out[i] = p + dt * (vt_new - vt)
     v_out[i] = vt_new + vn * normal
 
@@ -146,6 +147,7 @@ def compliant_velocity(
             m.particle_inv_mass,
             m.vec3(*ground.normal),
             m.s(ground.friction),
+            ground.friction_law,
             m.s(ground.stick_velocity),
             m.s(dt),
             ground.lam,

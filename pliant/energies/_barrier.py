@@ -300,7 +300,7 @@ class BarrierContact(ModalEnergy):
         n, c = model.particle_count, (len(self.colliders) if self.colliders is not None else 0)
         mus = [model.ground.friction if (self.ground and model.ground is not None) else 0.0]
         if self.colliders is not None:
-            mus += [float(r[5]) for r in self.colliders._rows]
+            mus += [float(r["friction"]) for r in self.colliders._rows]
         lag = self._lag.get(id(model))
         if lag is None or lag[0].shape[0] != c + 1:
             lag = (

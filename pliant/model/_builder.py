@@ -352,6 +352,7 @@ class ModelBuilder(ShapesMixin):
         stick_velocity: float = STICK_VELOCITY,
         stiffness: float | None = None,
         damping_ratio: float = 0.0,
+        friction_law: str = "coulomb",
     ) -> None:
         """Add the ground plane y = ``height``.
 
@@ -364,6 +365,8 @@ class ModelBuilder(ShapesMixin):
             stiffness: κ [1/s²] > 0 of compliant contact (a normal spring κ d per unit mass; rests g/κ
                 deep); None: hard contact (projection and restitution).
             damping_ratio: ζ [-] >= 0 of compliant contact's damper b = 2ζ√κ (MuJoCo's dampratio).
+            friction_law: the name of a law in :data:`pliant.collision.FRICTION_LAWS` ("coulomb": smoothed
+                Coulomb, "coulomb_exact": unsmoothed); checked when a solver is set up.
         """
         if friction < 0:
             raise ValueError(f"ground friction must be >= 0, got {friction}")
@@ -375,6 +378,10 @@ class ModelBuilder(ShapesMixin):
             raise ValueError(f"ground stiffness must be > 0 1/s² (or None: hard contact), got {stiffness}")
         if not (math.isfinite(damping_ratio) and damping_ratio >= 0):
             raise ValueError(f"ground damping_ratio must be >= 0, got {damping_ratio}")
+        if not (isinstance(friction_law, str) and friction_law):
+            raise ValueError(
+                f"ground friction_law must be a law's name (e.g. 'coulomb'), got {friction_law!r}"
+            )
         if damping_ratio > 0 and stiffness is None:
             raise ValueError(
                 "ground damping_ratio needs a stiffness (compliant contact): give stiffness= too"
@@ -387,6 +394,7 @@ class ModelBuilder(ShapesMixin):
             float(stick_velocity),
             kappa,
             float(damping_ratio),
+            friction_law,
         )
 
     # ------------------------------------------------------------------ shapes

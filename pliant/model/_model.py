@@ -80,6 +80,8 @@ class Ground:
     stiffness: float | None = None
     #: ζ [-] of compliant contact (0: undamped spring).
     damping_ratio: float = 0.0
+    #: The friction law's name in :data:`pliant.collision.FRICTION_LAWS` ("coulomb": smoothed Coulomb).
+    friction_law: str = "coulomb"
 
     @property
     def compliant(self) -> bool:

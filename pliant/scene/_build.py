@@ -263,6 +263,12 @@ def _finalize(ctx: BuildContext, device: str | None, dtype: str | None, requires
     cfg = ctx.cfg
     g = cfg.ground
     if g is not None and g.enabled:
+        from ..collision import FRICTION_LAWS
+
+        if g.friction_law not in FRICTION_LAWS:
+            raise ctx.fail(
+                "ground.friction_law", f"unknown law {g.friction_law!r}; one of {sorted(FRICTION_LAWS)}"
+            )
         ctx.builder.add_ground(
             g.height,
             friction=g.friction,
@@ -270,6 +276,7 @@ def _finalize(ctx: BuildContext, device: str | None, dtype: str | None, requires
             stick_velocity=g.stick_velocity,
             stiffness=g.stiffness,
             damping_ratio=g.damping_ratio or 0.0,
+            friction_law=g.friction_law,
         )
     try:
         ctx.model = ctx.builder.finalize(

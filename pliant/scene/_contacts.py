@@ -1,8 +1,10 @@
-"""Built-in ``[[colliders]]`` kinds (sphere, box, capsule, mesh) and ``[[handles]]`` kinds (box, points)."""
+"""Built-in ``[[colliders]]`` kinds (sphere, box, capsule, mesh, plane: one per
+:data:`pliant.collision.CONTACT_KINDS` entry, ``tests/test_contact_registry.py`` checks) and
+``[[handles]]`` kinds (box, points)."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
 from pydantic import BeforeValidator
@@ -41,6 +43,13 @@ class CapsuleCollider(ColliderBase):
     radius: Length  # [m]
 
 
+class PlaneCollider(ColliderBase):
+    kind: Literal["plane"]
+    point: Vec3 = (0.0, 0.0, 0.0)  # a point of the plane [m]
+    normal: Vec3 = (0.0, 1.0, 0.0)  # outward normal (the half space below is solid)
+    size: Length = 4.0  # side [m] of the square drawn for it
+
+
 class MeshCollider(ColliderBase):
     kind: Literal["mesh"]
     path: str  # closed, outward-wound surface (relative to the scene file)
@@ -48,8 +57,8 @@ class MeshCollider(ColliderBase):
     origin: Vec3 = (0.0, 0.0, 0.0)  # translation after scaling [m]
 
 
-def _fr(c: ColliderBase) -> dict[str, float]:
-    return {"friction": c.friction, "restitution": c.restitution}
+def _fr(c: ColliderBase) -> dict[str, Any]:
+    return c.contact()
 
 
 def add_sphere(colliders: Colliders, cfg: SceneConfig, c: SphereCollider, at: str) -> tuple | None:
@@ -102,10 +111,24 @@ def add_mesh(colliders: Colliders, cfg: SceneConfig, c: MeshCollider, at: str) -
     return (v, f) if c.render else None
 
 
+def add_plane(colliders: Colliders, cfg: SceneConfig, c: PlaneCollider, at: str) -> tuple | None:
+    colliders.add_plane(c.point, c.normal, **_fr(c))
+    if not c.render:
+        return None
+    n = np.asarray(c.normal) / np.linalg.norm(c.normal)
+    u = np.cross(n, (1.0, 0.0, 0.0) if abs(n[0]) < 0.9 else (0.0, 0.0, 1.0))
+    u /= np.linalg.norm(u)
+    w = np.cross(n, u)
+    h = 0.5 * c.size
+    v = np.asarray(c.point) + h * np.array([-u - w, u - w, u + w, -u + w])
+    return v, np.array([[0, 2, 1], [0, 3, 2]])
+
+
 register_collider_kind("sphere", SphereCollider, add_sphere)
 register_collider_kind("box", BoxCollider, add_box)
 register_collider_kind("capsule", CapsuleCollider, add_capsule)
 register_collider_kind("mesh", MeshCollider, add_mesh)
+register_collider_kind("plane", PlaneCollider, add_plane)
 
 
 # ---------------------------------------------------------------------------------------------- handles

@@ -171,7 +171,22 @@ class ColliderBase(Section):
 
     friction: NonNegFloat = 0.5  # Coulomb μ
     restitution: Fraction = 0.0
-    render: bool = True  # draw it in the video
+    render: bool = True  # draw it in the video (where it was at t = 0)
+    velocity: Vec3 | None = None  # [m/s] of a kinematic collider's centre (None: static)
+    angular_velocity: Vec3 | None = None  # [rad/s] about its centre
+    stiffness: PosFloat | None = None  # κ [1/s²] of compliant contact (None: hard); rests g/κ deep
+    damping_ratio: NonNegFloat = 0.0  # ζ of compliant contact, b = 2ζ√κ
+
+    def contact(self) -> dict[str, Any]:
+        """The keywords every ``Colliders.add_*`` takes: μ, e, motion and compliance."""
+        return {
+            "friction": self.friction,
+            "restitution": self.restitution,
+            "velocity": self.velocity,
+            "angular_velocity": self.angular_velocity,
+            "stiffness": self.stiffness,
+            "damping_ratio": self.damping_ratio,
+        }
 
 
 def _check_keyframes(v: Any) -> Any:
@@ -288,6 +303,8 @@ class GroundSection(Section):
     # ε_v [m/s]: below it Coulomb friction is a smooth viscous ramp; pl.model.STICK_VELOCITY (the schema
     # imports nothing of pliant; tests/test_friction_incline.py checks they agree)
     stick_velocity: NonNegFloat = 1.0e-4
+    # a law of pl.collision.FRICTION_LAWS ("coulomb": smoothed; "coulomb_exact"), checked at build
+    friction_law: str = "coulomb"
     # κ [1/s²] of compliant contact, a normal spring κ d per unit mass (rests g/κ deep; MuJoCo's solref
     # (τ, ζ) is κ = 1/(τ ζ)²), in every solver instead of the hard projection and restitution; unset: hard
     # contact (implicit integrators' Newton still sees a ground penalty, κ = 1e6).

@@ -4,6 +4,7 @@ the solver's state between steps and the recorded frames, written atomically and
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -25,6 +26,42 @@ _PARAMS = (
     "tet_lam",
     "bending_stiffness",
 )
+
+
+_HANDLER = re.compile(r"handler(\d+)_(.+)")
+
+
+def solver_and_handler_state(solver: Solver) -> dict[str, np.ndarray]:
+    """The solver's state between steps, plus each contact handler's (a moving collider's pose) under
+    ``handler<k>_<name>`` (k: its index in ``solver.collisions``)."""
+    out = dict(solver.checkpoint_state())
+    for k, c in enumerate(getattr(solver, "collisions", ())):
+        own = getattr(c, "checkpoint_state", None)
+        if callable(own):
+            out.update({f"handler{k}_{name}": a for name, a in own().items()})
+    return out
+
+
+def restore_solver_and_handlers(solver: Solver, state: dict[str, np.ndarray]) -> None:
+    """Give :func:`solver_and_handler_state`'s arrays back to the solver and its handlers (ValueError for
+    a key no one takes)."""
+    handlers = list(getattr(solver, "collisions", ()))
+    per: dict[int, dict[str, np.ndarray]] = {}
+    rest = {}
+    for key, a in state.items():
+        hit = _HANDLER.fullmatch(key)
+        if hit is None:
+            rest[key] = a
+            continue
+        k = int(hit.group(1))
+        if k >= len(handlers) or not callable(getattr(handlers[k], "restore_checkpoint_state", None)):
+            raise ValueError(
+                f"{key}: no contact handler {k} that keeps a state; resume with the same collisions"
+            )
+        per.setdefault(k, {})[hit.group(2)] = a
+    solver.restore_checkpoint_state(rest)
+    for k, d in per.items():
+        handlers[k].restore_checkpoint_state(d)
 
 
 class Checkpoints:
@@ -119,7 +156,7 @@ class Checkpoints:
                 "record_velocity setting"
             )
         try:
-            self.solver.restore_checkpoint_state(ck["solver_state"])
+            restore_solver_and_handlers(self.solver, ck["solver_state"])
         except CheckpointError:
             raise
         except Exception as exc:  # whatever a foreign or corrupt solver_ array makes the solver raise

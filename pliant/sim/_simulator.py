@@ -15,7 +15,7 @@ from .._time import substep_dt
 from ..io import Trajectory
 from ..model import Control, Model, State, write_range
 from ..solvers import FrameStep, Solver
-from ._checkpoints import Checkpoints
+from ._checkpoints import Checkpoints, solver_and_handler_state
 from ._divergence import DivergenceError, stability_advice
 from ._graph import FrameGraphs
 
@@ -449,6 +449,10 @@ class Simulator(Checkpoints):
         reset = getattr(self.solver, "reset", None)
         if callable(reset):
             reset()  # history only (L-BFGS pairs, BDF2's past): set-up and arrays stay where graphs see them
+        for handler in getattr(self.solver, "collisions", ()):
+            back = getattr(handler, "reset", None)  # moving colliders: back to their pose at t = 0, in place
+            if callable(back):
+                back()
         self.frame, self.time = 0, 0.0
         self._xs, self._vs, self._ts = [], [], []
         self._last_good, self._solver_state = None, {}
@@ -466,7 +470,7 @@ class Simulator(Checkpoints):
         # solver's state between steps at that point (L-BFGS history, a multistep integrator's past).
         self._last_good = (self.frame, self.time, x, v)
         if self._snapshot_solver:
-            self._solver_state = self.solver.checkpoint_state()
+            self._solver_state = solver_and_handler_state(self.solver)
 
     def trajectory(self) -> Trajectory:
         """Everything recorded so far (frame 0 included) as a :class:`Trajectory`."""

@@ -116,9 +116,13 @@ def _contact_stage(
     positions by), else in place on ``state_out`` (which is (x, v) on the gradient-free path)."""
     apply_out = getattr(c, "apply_out", None)
     if callable(apply_out):
+        # Handlers that declare ``takes_step`` (Colliders) also get the step's start and length: moving
+        # colliders advance by Δt, and compliant contact integrates its force over Δt (its damper acts on
+        # particles in contact at x₀).
+        step = {"x_start": state_in.particle_q, "step_dt": dt} if getattr(c, "takes_step", False) else {}
 
         def out_of_place(x: wp.array, v: wp.array, xo: wp.array, vo: wp.array) -> None:
-            apply_out(m, x, v, xo, vo, shift_dt)
+            apply_out(m, x, v, xo, vo, shift_dt, **step)
 
         return out_of_place
 
