@@ -7,8 +7,8 @@ scatter path's two launches per substep (:mod:`._explicit`) in the same order: t
 particle's spring forces summed in spring order, hence the same frame bit for bit. It saves the cost around
 the arithmetic: the Python of ``step`` and its post-step stages, two launches per substep, a kernel body
 entered once per spring or particle, and the strided indexing of Warp's generated loops (the loops are C++,
-:data:`_FRAME_CPP`). Measured on the drape, one core: 1.69× the frames per second at 64², 1.61× at 128²
-(``benchmarks/peers/results_2026-11-28_cloth_fused.txt``).
+:data:`_FRAME_CPP`). Measured on the drape, one core: 1.78× the step-by-step frames per second at 64² and
+128² (CPU time; 3.24× / 2.79× Newton's SemiImplicit; ``benchmarks/peers/results_2026-11-28_cloth_fused.txt``).
 
 The substeps run in place in one buffer: the scatter reads all positions before the update writes any, and
 a particle's update reads only its own position, velocity and force, so writing x¹, v¹ over x⁰, v⁰ gives

@@ -124,8 +124,8 @@ class FastMassSpring(Solver):
             reaches trajectory_error ≤ 2 % with far fewer steps).
         fused_frame: run a frame's symplectic substeps (:meth:`step_frame`, which ``FrameStep`` and the
             Simulator call) as one CPU launch that loops over them in C++: the scatter's arithmetic in its
-            order, the same frame bit for bit, without per-step launches and Python (1.69× the frames per
-            second on the 64² drape, 1.61× at 128², one core; :mod:`._fused_frame`). None (default):
+            order, the same frame bit for bit, without per-step launches and Python (1.78× the frames per
+            second on the 64² and 128² drapes, one core; :mod:`._fused_frame`). None (default):
             wherever it applies (the CPU, the scatter kernel, no gradients, ground contact, contact
             handlers, drag handle or kinematic targets), else step by step (``fused_frame_blocker`` says
             why); True: always, and a setup it cannot run raises ValueError; False: never.
