@@ -173,17 +173,31 @@ def _symplectic_frame(
 
 
 def fused_frame_blocker(
-    model: Model, method: str, scatter: bool, contact: bool, collisions: int
+    fused_frame: bool | None, model: Model, method: str, scatter: bool, contact: bool, collisions: int
 ) -> str | None:
-    """Why FastMassSpring's frames cannot run as one launch on this setup, or None when they can.
+    """Why FastMassSpring's frames will not run as one launch on this setup, or None when they will.
 
     Args:
+        fused_frame: the solver's option: None (where it applies), True (required), False (never).
         model: the Model (its device, and whether it records gradients).
         method: the solver's method.
         scatter: whether the symplectic step is the spring scatter (``kernel="scatter"``).
         contact: whether ground contact follows each step.
         collisions: how many contact handlers follow each step.
+
+    Raises:
+        ValueError: ``fused_frame=True`` on a setup it cannot run.
     """
+    if fused_frame is False:
+        return "fused_frame=False"
+    why = _setup_blocker(model, method, scatter, contact, collisions)
+    if fused_frame and why is not None:
+        raise ValueError(f"FastMassSpring(fused_frame=True) cannot fuse frames here: {why}")
+    return why
+
+
+def _setup_blocker(model: Model, method: str, scatter: bool, contact: bool, collisions: int) -> str | None:
+    """What of this setup a one-launch frame cannot run (:func:`fused_frame_blocker`'s reasons), or None."""
     if not wp.get_device(model.device).is_cpu:
         return "the device is not the CPU (one thread would run the whole frame on a GPU)"
     if method != "symplectic":

@@ -241,19 +241,15 @@ class FastMassSpring(Solver):
             self._spring_pairs: wp.array = wp.array(pairs.astype(np.int32), dtype=wp.vec2i, device=d)
             self._f_springs = wp.zeros(model.particle_count, dtype=model.vec3, device=d)
         #: Why frames run step by step rather than as one launch (None: they are fused; ``fused_frame``).
-        self.fused_frame_blocker = "fused_frame=False" if fused_frame is False else None
-        if fused_frame is not False:
-            self.fused_frame_blocker = fused_frame_blocker(
-                model, method, self._scatter, self.contact, len(self.collisions)
-            )
-        if fused_frame and self.fused_frame_blocker is not None:
-            raise ValueError(
-                f"FastMassSpring(fused_frame=True) cannot fuse frames here: {self.fused_frame_blocker}"
-            )
-        self.fused_frame = fused_frame
-        self._fused: FusedFrame | None = None
-        if self.fused_frame_blocker is None:
-            self._fused = FusedFrame(model, self._spring_pairs, self._f_springs)
+        self.fused_frame, self.fused_frame_blocker = (
+            fused_frame,
+            fused_frame_blocker(
+                fused_frame, model, method, self._scatter, self.contact, len(self.collisions)
+            ),
+        )
+        self._fused = (
+            None if self.fused_frame_blocker else FusedFrame(model, self._spring_pairs, self._f_springs)
+        )
         self.update_parameters()
         n = model.particle_count
         self._f_zero = wp.zeros(n, dtype=model.vec3, device=d)
