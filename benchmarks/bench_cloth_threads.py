@@ -15,7 +15,8 @@ Measured 2026-11-28 06:34 UTC (load average 4.2-5.3, ``taskset -c 0-1``), frames
 64² / 128² drape, against pliant's fused frame in the same process (two runs): the split on one thread
 0.87-0.91× / 0.69-0.73× (the per-spring buffer's extra traffic: 790 kB at 128², more than L2), on two
 threads 0.04-0.07× / 0.03-0.19×: with six agents' jobs on two cores a thread waits at each barrier (2 per
-substep, 160-320 per frame) for its partner's next time slice; process CPU over wall 0.47-0.53. Both bit for bit with the step-by-step frame.
+substep, 160-320 per frame) for its partner's next time slice; process CPU over wall 0.47-0.53. Both bit
+for bit with the step-by-step frame.
 Worth retrying on a machine with idle cores, with a yielding barrier (futex) and a split that keeps the
 scatter's single pass (for instance colour-free particle blocks whose springs a thread owns).
 
