@@ -38,6 +38,7 @@ def _workloads() -> None:
         for kw in ({"kernel": "scatter"}, *gathers, {"method": "implicit"}):
             s0, s1 = m.state(), m.state()
             FastMassSpring(m, **kw).step(s0, s1, None, 1e-4)
+        FastMassSpring(m, fused_frame=True).step_frame(s0, s1, None, 1e-4, 2)  # the C++ frame (CPU only)
         s0, s1 = m.state(), m.state()
         XPBD(m, schedule="jacobi").step(s0, s1, None, 1e-4)
         # the Gauss–Seidel sweep, which CUDA launches per colour

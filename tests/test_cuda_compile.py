@@ -18,6 +18,7 @@ MUST_COMPILE = {
     "pliant.solvers.fast_mass_spring._system",
     "pliant.solvers.fast_mass_spring._cg",
     "pliant.solvers.fast_mass_spring._explicit",
+    "pliant.solvers.fast_mass_spring._fused_frame",
     "pliant.solvers.xpbd._kernels",
     "pliant.solvers.xpbd._tolerance",
     "pliant.solvers.minimizers._assembly",

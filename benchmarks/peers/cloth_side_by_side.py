@@ -27,6 +27,7 @@ PEERS = Path(__file__).resolve().parent
 CONFIGS = {
     64: [
         ("pliant FastMassSpring symplectic, 80 substeps", "cloth_drape_64_symplectic", None, 0, 0),
+        ("pliant ... step by step (before 1 launch/frame)", "cloth_drape_64_symplectic_stepwise", None, 0, 0),
         ("pliant XPBD colouring, 50 x 1, omega 1.6", "xpbd_cloth_drape_64_coloring", None, 0, 0),
         ("pliant Baraff-Witkin, 32 steps, CG 1e-2", "cloth_drape_64_implicit", None, 0, 0),
         ("newton SemiImplicit, 80 substeps", None, "semi", 80, 1),
@@ -36,6 +37,13 @@ CONFIGS = {
     ],
     128: [
         ("pliant FastMassSpring symplectic, 160 substeps", "cloth_drape_128_symplectic", None, 0, 0),
+        (
+            "pliant ... step by step (before 1 launch/frame)",
+            "cloth_drape_128_symplectic_stepwise",
+            None,
+            0,
+            0,
+        ),
         ("pliant XPBD colouring, 100 x 1, omega 1.6", "xpbd_cloth_drape_128_coloring", None, 0, 0),
         ("newton SemiImplicit, 160 substeps", None, "semi", 160, 1),
         ("newton XPBD, 250 x 1", None, "xpbd", 250, 1),
@@ -55,7 +63,12 @@ def run_pliant(row: str, core: str) -> dict:
         capture_output=True, text=True, check=True,
     ).stdout  # fmt: skip
     r = _last_json(out)
-    return {"fps": r["fps"], "trajectory_error": r["trajectory_error"], "peak_mem_mb": r.get("peak_mem_mb")}
+    return {
+        "fps": r["fps"],
+        "fps_cpu_time": r.get("fps_cpu_time"),
+        "trajectory_error": r["trajectory_error"],
+        "peak_mem_mb": r.get("peak_mem_mb"),
+    }
 
 
 def run_newton(py: str, network: str, n: int, solver: str, substeps: int, iterations: int, core: str) -> dict:
@@ -73,7 +86,19 @@ def run_newton(py: str, network: str, n: int, solver: str, substeps: int, iterat
         subprocess.run(["taskset", "-c", core, *cmd], capture_output=True, text=True, check=True).stdout
     )
     err = trajectory_error(np.asarray(r["sag_curve"]), reference_curve(n))
-    return {"fps": r["fps"], "trajectory_error": round(err, 5), "peak_mem_mb": r["peak_mem_mb"]}
+    return {
+        "fps": r["fps"],
+        "fps_cpu_time": r.get("fps_cpu_time"),
+        "trajectory_error": round(err, 5),
+        "peak_mem_mb": r["peak_mem_mb"],
+    }
+
+
+def _load() -> float:
+    """The 1-minute load average (the box is shared: it says how much the wall-clock figures mean)."""
+    import os
+
+    return round(os.getloadavg()[0], 2)
 
 
 def main() -> None:
@@ -82,37 +107,57 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--core", default="1")
     ap.add_argument("--peers-python", default="/work/peers-venv/bin/python")
+    ap.add_argument("--only", nargs="+", default=None, help="run the configs whose label holds one of these")
+    ap.add_argument("--out", default=None, help="also write each run as a JSON line to this file")
     args = ap.parse_args()
+    out = open(args.out, "a") if args.out else None  # noqa: SIM115 (kept open over the rounds)
     from pliant.bench._drape_motion import export_network
 
     for n in args.n:
         network = str(Path(tempfile.mkdtemp()) / f"drape{n}.npz")
         export_network(n, network)
-        rows: dict[str, list[dict]] = {c[0]: [] for c in CONFIGS[n]}
+        configs = [c for c in CONFIGS[n] if args.only is None or any(o in c[0] for o in args.only)]
+        rows: dict[str, list[dict]] = {c[0]: [] for c in configs}
         for r in range(args.rounds):
-            for label, row, solver, sub, it in CONFIGS[n]:  # interleaved: A B C ... A B C ...
+            for label, row, solver, sub, it in configs:  # interleaved: A B C ... A B C ...
                 res = (
                     run_pliant(row, args.core)
                     if row
                     else run_newton(args.peers_python, network, n, solver, sub, it, args.core)
                 )
                 rows[label].append(res)
-                print(json.dumps({"n": n, "config": label, "round": r, **res}), file=sys.stderr, flush=True)
-        first = CONFIGS[n][0][0]
+                line = json.dumps({"n": n, "config": label, "round": r, "load_avg_1min": _load(), **res})
+                print(line, file=sys.stderr, flush=True)
+                if out is not None:
+                    print(line, file=out, flush=True)
+        first = configs[0][0]
         print(
             f"\ncloth {n}x{n}, 30-frame fall, medians of {args.rounds} interleaved rounds on core {args.core}"
         )
-        print(f"{'config':48s} {'fps':>8s} {'traj err':>9s} {'first is N x faster':>21s} {'peak MB':>8s}")
+        # fps: wall clock; cpu fps: frames per second of the process's CPU time (on a shared core the wall
+        # clock counts other jobs' time slices too). Ratios: the first row's over this row's within each
+        # round (same load), then the median, with the range over the rounds.
+        print(
+            f"{'config':48s} {'fps':>8s} {'cpu fps':>8s} {'traj err':>9s} {'first is N x faster':>21s} "
+            f"{'(cpu time)':>18s} {'peak MB':>8s}"
+        )
         for label in rows:
             fps = statistics.median(x["fps"] for x in rows[label])
             err = statistics.median(x["trajectory_error"] for x in rows[label])
-            # the first row's fps over this row's, within each round (same load), then the median
-            paired = statistics.median(
-                a["fps"] / b["fps"] for a, b in zip(rows[first], rows[label], strict=True)
-            )
             mems = [x["peak_mem_mb"] for x in rows[label] if x.get("peak_mem_mb") is not None]
             mem = f"{statistics.median(mems):8.1f}" if mems else f"{'-':>8s}"
-            print(f"{label:48s} {fps:8.2f} {100 * err:8.2f}% {paired:20.2f}x {mem}")
+            cols = []
+            for key in ("fps", "fps_cpu_time"):
+                pairs = [(a.get(key), b.get(key)) for a, b in zip(rows[first], rows[label], strict=True)]
+                ratios = [a / b for a, b in pairs if a and b]
+                cols.append(
+                    f"{statistics.median(ratios):5.2f}x [{min(ratios):.2f}-{max(ratios):.2f}]"
+                    if ratios
+                    else "-"
+                )
+            cpus = [x["fps_cpu_time"] for x in rows[label] if x.get("fps_cpu_time")]
+            cpu = f"{statistics.median(cpus):8.2f}" if cpus else f"{'-':>8s}"
+            print(f"{label:48s} {fps:8.2f} {cpu} {100 * err:8.2f}% {cols[0]:>21s} {cols[1]:>18s} {mem}")
 
 
 if __name__ == "__main__":

@@ -79,6 +79,7 @@ def make_solver(
     cg_iterations: int = 100,
     cg_tol: float = 1.0e-2,
     damping_rate: float = 0.0,
+    fused_frame: bool | None = None,
 ) -> Solver:
     """The solver of a benchmark row: "implicit" / "symplectic" (FastMassSpring) or "force" (ForceSolver).
 
@@ -88,6 +89,7 @@ def make_solver(
         cg_iterations: the most CG iterations per implicit step.
         cg_tol: CG's relative residual; the step stops there (FastMassSpring's host check).
         damping_rate: velocity damping c [1/s]; 0 for the benchmark's physics.
+        fused_frame: FastMassSpring's one-launch CPU frame (None: where it applies; False: step by step).
     """
     from ..solvers import FastMassSpring
 
@@ -100,5 +102,10 @@ def make_solver(
             model, energies=[Springs(), Gravity()], integrator=SymplecticEuler(), damping_rate=damping_rate
         )
     return FastMassSpring(
-        model, method=method, cg_iterations=cg_iterations, cg_tol=cg_tol, damping_rate=damping_rate
+        model,
+        method=method,
+        cg_iterations=cg_iterations,
+        cg_tol=cg_tol,
+        damping_rate=damping_rate,
+        fused_frame=fused_frame,
     )

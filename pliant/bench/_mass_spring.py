@@ -52,6 +52,7 @@ def cloth_drape(
     device: str | None = "cpu",
     dtype: str = "float32",
     quick: bool = False,
+    fused_frame: bool | None = None,
 ) -> dict:
     """Run the drape for ``frames`` frames of 1/60 s; one dict of speed and motion figures.
 
@@ -65,6 +66,8 @@ def cloth_drape(
         device: Warp device.
         dtype: "float32" or "float64".
         quick: a 16 × 16 cloth (a smoke run).
+        fused_frame: FastMassSpring's one-launch CPU frame (None: where it applies; False: step by step,
+            the rows before it; the same motion bit for bit).
     """
     from .._warp import resolve_device
     from ..solvers import FastMassSpring
@@ -74,7 +77,9 @@ def cloth_drape(
     device = str(resolve_device(device))
     started = time.perf_counter()
     model = cloth_drape_model(n, device=device, dtype=dtype)
-    solver = make_solver(model, method, cg_iterations=cg_iterations, damping_rate=damping_rate)
+    solver = make_solver(
+        model, method, cg_iterations=cg_iterations, damping_rate=damping_rate, fused_frame=fused_frame
+    )
     dt = substep_dt(FRAME_DT, substeps)
     state, timing = run_timed(
         model, solver, model.control(), dt, frames=frames, substeps=substeps, device=device, started=started
@@ -99,6 +104,7 @@ def cloth_drape(
         "frames": frames,
         "substeps": substeps,
         "iterations": cg_iterations if method == "implicit" else 0,
+        "fused_frame": bool(d.get("fused_frame", False)),
         # What the tolerance stop actually used: mean CG iterations per implicit step.
         "cg_iterations_mean": (
             round(solver.cg_iterations_total / max(solver.cg_steps, 1), 2)
@@ -152,13 +158,26 @@ def reference_sag(
     return sag(model, s0.particle_q.numpy())
 
 
-def _bench(n: int, method: str, substeps: int = 1, cg_iterations: int = 100) -> Callable[..., dict]:
+def _bench(
+    n: int, method: str, substeps: int = 1, cg_iterations: int = 100, fused_frame: bool | None = None
+) -> Callable[..., dict]:
     def run(device: str | None = "cpu", quick: bool = False, dtype: str = "float32") -> dict:
         return cloth_drape(
-            n, method, substeps, cg_iterations, device=device, quick=quick, dtype=dtype, frames=FRAMES
+            n,
+            method,
+            substeps,
+            cg_iterations,
+            device=device,
+            quick=quick,
+            dtype=dtype,
+            frames=FRAMES,
+            fused_frame=fused_frame,
         )
 
-    run.__doc__ = f"Cloth drape {n}×{n}, {method}, {substeps} substep(s)/frame, the 30-frame fall, undamped."
+    how = ", step by step" if fused_frame is False else ""
+    run.__doc__ = (
+        f"Cloth drape {n}×{n}, {method}, {substeps} substep(s)/frame{how}, the 30-frame fall, undamped."
+    )
     return run
 
 
@@ -184,6 +203,14 @@ BENCHMARKS: dict[str, Callable[..., dict]] = {
     "cloth_drape_256_symplectic": _bench(256, "symplectic", SYMPLECTIC_SUBSTEPS[256]),
     "cloth_drape_512_symplectic": _bench(512, "symplectic", SYMPLECTIC_SUBSTEPS[512]),
     "cloth_drape_64_forcesolver": _bench(64, "force", SYMPLECTIC_SUBSTEPS[64]),
+    # The CPU rows before the one-launch frame (issue 42 item 4): the same motion bit for bit, for the
+    # side-by-side's fused / step-by-step ratio (benchmarks/peers/cloth_side_by_side.py).
+    "cloth_drape_64_symplectic_stepwise": _bench(
+        64, "symplectic", SYMPLECTIC_SUBSTEPS[64], fused_frame=False
+    ),
+    "cloth_drape_128_symplectic_stepwise": _bench(
+        128, "symplectic", SYMPLECTIC_SUBSTEPS[128], fused_frame=False
+    ),
 }
 
 

@@ -47,6 +47,22 @@ class Solver(abc.ABC):
     def step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
         """Advance ``state_in`` by ``dt`` [s] into ``state_out``."""
 
+    def step_frame(
+        self, state: State, spare: State, control: Control | None, dt: float, substeps: int
+    ) -> bool:
+        """Advance ``state`` by ``substeps`` steps of ``dt`` [s] in one call, leaving the end state where
+        ping-pong stepping would (``state`` for an even count, ``spare`` for an odd one), if this solver can
+        do a frame at once; returns whether it did. Default: False (the caller steps; see ``FrameStep``).
+
+        Args:
+            state: the frame's first state (its buffer holds the end for an even count).
+            spare: the second buffer (overwritten).
+            control: the Control the solver reads (None: none).
+            dt: the substep Δt [s].
+            substeps: steps in the frame (>= 1).
+        """
+        return False
+
     def apply_collisions(self, state_in: State, state_out: State, dt: float) -> None:
         """Run each contact handler on the finished step (``state_out`` is corrected in place)."""
         if self.collisions and grad_enabled(self.model) and _tape_active():

@@ -85,6 +85,11 @@ class FrameStep:
             return state, None
         if spare is None:
             raise ValueError("FrameStep: ping-pong stepping needs the spare state buffer")
+        # One call for the whole frame where the solver has it (FastMassSpring's fused CPU frame): the same
+        # end state in the same buffer; not with a per-substep callback.
+        whole = getattr(self.solver, "step_frame", None) if self.on_step is None else None
+        if whole is not None and whole(state, spare, control, self.dt, self.substeps):
+            return (state, spare) if self.substeps % 2 == 0 else (spare, state)
         for _ in range(self.substeps):
             step(state, spare, control, self.dt)
             state, spare = spare, state
