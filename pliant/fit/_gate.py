@@ -7,8 +7,8 @@ is held back. Then :func:`gate`:
 
 1. measures identifiability at the fitted values (:func:`pliant.fit._identify.identify`);
 2. prefers the simpler explanation on a tie: each parameter the data do not constrain goes back to the
-   scene's value where the open-loop loss on the validation frames stays within :data:`TIE` of the fitted
-   values' (loosest first);
+   scene's value where the open-loop loss stays within :data:`TIE` of the fitted values', on the validation
+   frames and on the frames the search trained on (loosest first);
 3. keeps the (simplified) fitted values only if their open-loop rollout predicts the validation frames
    strictly better than the scene's own values do; else the scene's values, and says why.
 """
@@ -58,15 +58,23 @@ def scene_values(problem: Problem) -> dict[str, float]:
 def open_loop_loss(problem: Problem, values: dict[str, float] | None, lo: int, hi: int) -> float:
     """The open-loop loss of global ``values`` on frames ``lo … hi − 1`` (inf when the run diverges); None:
     the scene as given (``problem.build_given``)."""
+    return open_loop_losses(problem, values, [(lo, hi)])[0]
+
+
+def open_loop_losses(
+    problem: Problem, values: dict[str, float] | None, windows: list[tuple[int, int]]
+) -> list[float]:
+    """:func:`open_loop_loss` on each frame window ``(lo, hi)`` of ``windows``, from one run up to the last
+    window's end (inf everywhere when it diverges)."""
     from ..sim import DivergenceError
 
     try:
         scene = problem.build_given() if values is None else problem.build(values)
-        x = problem.simulate(scene, hi, forced=False)
+        x = problem.simulate(scene, max(hi for _, hi in windows), forced=False)
     except DivergenceError:
-        return float("inf")
-    v = problem.loss(x, lo, hi)
-    return v if np.isfinite(v) else float("inf")
+        return [float("inf")] * len(windows)
+    out = [problem.loss(x, lo, hi) for lo, hi in windows]
+    return [v if np.isfinite(v) else float("inf") for v in out]
 
 
 def gate(
@@ -95,6 +103,12 @@ def gate(
     v_fit, v_nom = open_loop_loss(problem, fitted, lo, hi), open_loop_loss(problem, None, lo, hi)
     values, v, reset = dict(fitted), v_fit, {}
     if frames < n and ident is not None and "params" in ident:
+        # the frames the search trained on as well: a band that is wide with the others re-adjusting does
+        # not make a parameter free to drop with them held. On MuJoCo's cloth (tests/data/foreign) the
+        # dashpot at the fitted values was "not constrained" and dropping it lowered the 8 validation
+        # frames' loss by 7 % but doubled the loss on the 33 frames trained on; the fit written without it
+        # predicted the held-out frames at 0.27x nominal, with it 0.23x (mean over a 0.5 % neighbourhood).
+        t_fit = open_loop_loss(problem, fitted, 1, frames)
         # The simpler explanation is the mechanism the scene leaves off (a damping, a restitution, the even
         # masses of a blend at 0: a scene value of 0 or none), not the user's guess of a material constant:
         # an E the data cannot pin down is still fitted, not put back.
@@ -106,8 +120,8 @@ def gate(
         ]
         for name in sorted(loose, key=lambda k: -ident["params"][k]["sigma_unit"]):
             trial = {**values, name: nominal[name]}
-            v_trial = open_loop_loss(problem, trial, lo, hi)
-            if v_trial <= (1.0 + TIE) * v_fit:
+            t_trial, v_trial = open_loop_losses(problem, trial, [(1, frames), (lo, hi)])
+            if v_trial <= (1.0 + TIE) * v_fit and t_trial <= (1.0 + TIE) * t_fit:
                 values, v, reset[name] = trial, v_trial, fitted[name]
     where = f"validation frames {lo}-{hi - 1}" if frames < n else "training frames (no validation frames)"
     kept = v < v_nom
@@ -124,8 +138,8 @@ def gate(
         values, reset = scene_values(problem), {}
     if reset:
         why += (
-            f"; {', '.join(reset)} not constrained by the data and a tie on validation (within "
-            f"{100 * TIE:g} %): back to the scene's value"
+            f"; {', '.join(reset)} not constrained by the data and a tie on the training and validation "
+            f"frames (within {100 * TIE:g} %): back to the scene's value"
         )
     report = {
         "frames": [lo, hi],
