@@ -178,8 +178,13 @@ def solve_velocities(
     for j in range(start, end):
         c_lam[j] = zero
         c_imp[j] = v * zero
-    for _it in range(iterations):
-        for j in range(start, end):
+    for it in range(iterations):
+        for jj in range(start, end):
+            # Sweeps alternate direction (symmetric Gauss–Seidel): a one-way order favours the first
+            # contacts, and a symmetric landing would come out lopsided.
+            j = jj
+            if it % 2 == 1:
+                j = start + end - 1 - jj
             r = c_r[j]
             n = c_n[j]
             coef = c_coef[j]
