@@ -205,3 +205,18 @@ def test_a_body_that_touches_nothing_moves_as_without_contact():
     np.testing.assert_allclose(0.125 * alone[1].sum(axis=0), [0.5, 0.2, 0.0], atol=1e-12)
     L0 = 0.125 * np.cross(r0, np.cross([3.0, -5.0, 8.0], cube)).sum(axis=0)
     np.testing.assert_allclose(0.125 * np.cross(r1, v1).sum(axis=0), L0, atol=1e-9 * np.linalg.norm(L0))
+
+
+def test_rigid_contact_refuses_what_it_cannot_do():
+    """Compliant ground (a spring–damper per particle) and fewer than one contact sweep are refused at
+    construction, naming the fix."""
+    b = pl.ModelBuilder(gravity=(0.0, -G, 0.0))
+    b.add_particles(np.vstack([0.05 * np.eye(3), np.zeros(3)]), [0.1] * 4, radius=RADIUS)
+    b.add_ground(-1.0, stiffness=1e4)
+    model = b.finalize(device="cpu", dtype="float64")
+    with pytest.raises(NotImplementedError, match="compliant ground.*without stiffness"):
+        pl.solvers.RigidBodySolver(model)
+    b = pl.ModelBuilder()
+    b.add_particles(np.vstack([0.05 * np.eye(3), np.zeros(3)]), [0.1] * 4)
+    with pytest.raises(ValueError, match="contact_iterations must be >= 1"):
+        pl.solvers.RigidBodySolver(b.finalize(device="cpu"), contact_iterations=0)
