@@ -9,7 +9,9 @@ end the step inside the ground (y < height + r) or a collider (φ < r, from
 Gauss–Seidel over those contacts (Catto's sequential impulses, accumulated and clamped per contact):
 
 * normal: λ_n ≥ 0 with the contact's normal velocity ≥ −e u_n⁻ (restitution on the approach speed u_n⁻ < 0,
-  the free velocity at the contact, this step's gravity included as in the particle law);
+  the free velocity at the contact, this step's gravity included as in the particle law), and ≥ 0 where
+  the approach is slower than 2|g|Δt: a resting contact approaches at |g|Δt every step, and reflecting that
+  would make a body hop and creep down a slope between hops;
 * friction: :func:`pliant.collision.friction_velocity`, the project's one smoothed Coulomb law, in
   impulse form: a contact's trial tangential velocity ũ_t = u_t − k_t P (its own friction impulse P taken
   out, k_t the mean tangential response, :func:`tangential_response`) and its budget b = μ λ_n k_t, the
@@ -66,6 +68,7 @@ def add_contact(
     n: Any,
     pen: Any,
     coef: Any,
+    bounce_speed: Any,
     inv_mass: Any,
     inv_inertia: Any,
     v: Any,
@@ -81,7 +84,7 @@ def add_contact(
     zero = pen * type(pen)(0.0)
     un = wp.dot(n, v + wp.cross(w, r))
     target = zero
-    if un < zero:
+    if un < -bounce_speed:
         target = -coef[1] * un
     kn = wp.dot(n, contact_response(inv_mass, inv_inertia, r, n))
     c_r[j] = r
@@ -105,6 +108,7 @@ def gather_contacts(
     ground: int,
     ground_height: Any,
     ground_coef: Any,
+    bounce_speed: Any,
     col_count: int,
     col_kind: wp.array(dtype=wp.int32),
     col_pos: wp.array(dtype=Any),
@@ -135,8 +139,9 @@ def gather_contacts(
             pen = ground_height + radius[i] - x[1]
             if pen > zero:
                 j = add_contact(
-                    j, r, up, pen, ground_coef, inv_mass, inv_inertia, v, w, c_r, c_n, c_coef, c_aux
-                )
+                    j, r, up, pen, ground_coef, bounce_speed, inv_mass, inv_inertia,
+                    v, w, c_r, c_n, c_coef, c_aux,
+                )  # fmt: skip
         for s in range(col_count):
             phi, n, H = collider_sdf(
                 col_kind[s], col_pos[s], col_aux[s], col_rot[s], col_radius[s], col_mesh[s], x
@@ -144,8 +149,9 @@ def gather_contacts(
             pen = radius[i] - phi
             if pen > zero:
                 j = add_contact(
-                    j, r, n, pen, col_coef[s], inv_mass, inv_inertia, v, w, c_r, c_n, c_coef, c_aux
-                )
+                    j, r, n, pen, col_coef[s], bounce_speed, inv_mass, inv_inertia,
+                    v, w, c_r, c_n, c_coef, c_aux,
+                )  # fmt: skip
     return j
 
 

@@ -130,10 +130,13 @@ def _rigid_step(
         inv_m = type(dt)(1.0) / M
         inv_i = R_new * wp.inverse(Ib) * wp.transpose(R_new)
         start = a0 * surfaces
+        # Restitution only above twice the speed gravity gives in a step: a resting contact's approach
+        # speed is |g|Δt, and reflecting it would make a body hop (and creep down a slope between hops).
+        bounce = type(dt)(2.0) * dt * wp.length(gravity)
         end = gather_contacts(
             start, a0, a1, members, rest, cb, radius, c_new, R_new, ground, ground_height, ground_coef,
-            col_count, col_kind, col_pos, col_aux, col_rot, col_radius, col_mesh, col_coef, inv_m, inv_i,
-            v, w, c_r, c_n, c_coef, c_aux,
+            bounce, col_count, col_kind, col_pos, col_aux, col_rot, col_radius, col_mesh, col_coef, inv_m,
+            inv_i, v, w, c_r, c_n, c_coef, c_aux,
         )  # fmt: skip
         if end > start:
             v, w = solve_velocities(
@@ -197,7 +200,8 @@ class RigidBodySolver(Solver):
     Contact is the body's, not its particles': the model's (hard) ground and the
     :class:`pliant.collision.Colliders` among ``collisions`` are met after the free update by sequential
     impulses on the body's velocity and angular velocity over the particles that would end the step inside
-    them (normal impulses with restitution on the approach speed, the project's smoothed Coulomb friction
+    them (normal impulses with restitution on approach speeds above 2|g|Δt, so that resting contact does
+    not hop, the project's smoothed Coulomb friction
     bounded by μ times each contact's normal impulse, a split impulse for leftover penetration), and the
     pose is then integrated from the corrected velocities, so the body stays rigid through contact, slides
     at μ g cos θ and rests inside the friction cone (:mod:`pliant.solvers.rigid._contact`). A step where no
