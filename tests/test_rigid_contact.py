@@ -244,3 +244,20 @@ def test_a_resting_body_with_restitution_does_not_hop():
         lift = max(lift, float(s0.particle_q.numpy()[:, 1].min()) - RADIUS)
     assert np.linalg.norm(s0.particle_q.numpy().mean(axis=0) - c0) <= 1e-3
     assert lift < 1e-6, f"the box hopped {lift * 1e6:.2f} µm"
+
+
+def test_penetration_is_removed_by_position_not_velocity():
+    """A cube started 5 mm inside the ground (e = 0) is out after one step (its lowest corner on the surface
+    to 1e-9 m, so level) and at rest (1e-4 m/s, what 20 sweeps leave of gravity's g Δt = 16 mm/s): the
+    split impulse moves the pose and adds no energy, where a velocity push-out would launch it at
+    5 mm / Δt = 3 m/s."""
+    b = pl.ModelBuilder(gravity=(0.0, -G, 0.0))
+    cube = 0.5 * SIDE * np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], float)
+    b.add_particles(cube + [0.0, 0.5 * SIDE + RADIUS - 0.005, 0.0], [0.125] * 8, radius=RADIUS)
+    b.add_ground(0.0, friction=0.5, restitution=0.0)
+    model = b.finalize(device="cpu", dtype="float64")
+    s0, s1 = model.state(), model.state()
+    pl.solvers.RigidBodySolver(model).step(s0, s1, None, 1 / 600)
+    x, v = s1.particle_q.numpy(), s1.particle_qd.numpy()
+    np.testing.assert_allclose(x[:, 1][cube[:, 1] < 0], RADIUS, atol=1e-9)
+    np.testing.assert_allclose(v, 0.0, atol=1e-4)
