@@ -8,9 +8,11 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from ...collision import Colliders
 from ...constraints import polar_rotation
 from ...model import Control, Model, State
 from .._base import Solver
+from ._contact import gather_contacts, solve_positions, solve_velocities
 
 
 @wp.func
@@ -26,6 +28,17 @@ def gyroscopic_step(I: Any, w: Any, dt: Any):
     f = dt * wp.cross(w, I * w)
     J = I + dt * (skew(w) * I - skew(I * w))
     return w - wp.inverse(J) * f
+
+
+@wp.func
+def advance_rotation(q: Any, w: Any, dt: Any):
+    """R of q ← normalize(q + ½Δt [ω, 0] q) for the world angular velocity ω [rad/s]."""
+    half = type(dt)(0.5) * dt
+    dq = type(q)(w[0], w[1], w[2], dt * type(dt)(0.0)) * q
+    q = wp.normalize(
+        type(q)(q[0] + half * dq[0], q[1] + half * dq[1], q[2] + half * dq[2], q[3] + half * dq[3])
+    )
+    return wp.quat_to_matrix(q)
 
 
 @wp.kernel
@@ -46,6 +59,27 @@ def _rigid_step(
     # State in:
     x_in: wp.array(dtype=Any),
     v_in: wp.array(dtype=Any),
+    # Contact (surfaces = 0: none; else ground + colliders, the scratch's slots per member):
+    surfaces: int,
+    iterations: int,
+    radius: wp.array(dtype=Any),
+    ground: int,
+    ground_height: Any,
+    ground_coef: Any,
+    col_count: int,
+    col_kind: wp.array(dtype=wp.int32),
+    col_pos: wp.array(dtype=Any),
+    col_aux: wp.array(dtype=Any),
+    col_rot: wp.array(dtype=Any),
+    col_radius: wp.array(dtype=Any),
+    col_mesh: wp.array(dtype=wp.uint64),
+    col_coef: wp.array(dtype=Any),
+    c_r: wp.array(dtype=Any),
+    c_n: wp.array(dtype=Any),
+    c_coef: wp.array(dtype=Any),
+    c_aux: wp.array(dtype=Any),
+    c_imp: wp.array(dtype=Any),
+    c_lam: wp.array(dtype=Any),
     # Out:
     x_out: wp.array(dtype=Any),
     v_out: wp.array(dtype=Any),
@@ -89,17 +123,68 @@ def _rigid_step(
     w = R * wb
     # Orientation: q ← normalize(q + ½Δt [ω, 0] q).
     q = wp.quat_from_matrix(R)
-    half = type(dt)(0.5) * dt
-    dq = type(q)(w[0], w[1], w[2], zero) * q
-    q = wp.normalize(
-        type(q)(q[0] + half * dq[0], q[1] + half * dq[1], q[2] + half * dq[2], q[3] + half * dq[3])
-    )
-    R_new = wp.quat_to_matrix(q)
+    R_new = advance_rotation(q, w, dt)
+    if surfaces != 0:
+        # Body-level contact (._contact): impulses on (v, ω) from the contacts of the free end pose, then
+        # the pose again from the corrected velocities plus the split impulse's pseudo-velocities.
+        inv_m = type(dt)(1.0) / M
+        inv_i = R_new * wp.inverse(Ib) * wp.transpose(R_new)
+        start = a0 * surfaces
+        # Restitution only above twice the speed gravity gives in a step: a resting contact's approach
+        # speed is |g|Δt, and reflecting it would make a body hop (and creep down a slope between hops).
+        bounce = type(dt)(2.0) * dt * wp.length(gravity)
+        end = gather_contacts(
+            start, a0, a1, members, rest, cb, radius, c_new, R_new, ground, ground_height, ground_coef,
+            bounce, col_count, col_kind, col_pos, col_aux, col_rot, col_radius, col_mesh, col_coef, inv_m,
+            inv_i, v, w, c_r, c_n, c_coef, c_aux,
+        )  # fmt: skip
+        if end > start:
+            v, w = solve_velocities(
+                start, end, iterations, inv_m, inv_i, v, w, c_r, c_n, c_coef, c_aux, c_imp, c_lam
+            )
+            vp, wq = solve_positions(
+                start, end, iterations, dt, inv_m, inv_i, v, w, c_r, c_n, c_coef, c_aux, c_lam
+            )
+            c_new = c + dt * (v + vp)
+            R_new = advance_rotation(q, w + wq, dt)
     for k in range(a0, a1):
         i = members[k]
         r = R_new * (rest[k] - cb)
         x_out[i] = c_new + r
         v_out[i] = v + wp.cross(w, r)
+
+
+@wp.kernel
+def _pack_colliders(
+    first: int,
+    stick_velocity: Any,
+    kind: wp.array(dtype=wp.int32),
+    pos: wp.array(dtype=Any),
+    aux: wp.array(dtype=Any),
+    rot: wp.array(dtype=Any),
+    radius: wp.array(dtype=Any),
+    mesh: wp.array(dtype=wp.uint64),
+    friction: wp.array(dtype=Any),
+    restitution: wp.array(dtype=Any),
+    kind_out: wp.array(dtype=wp.int32),
+    pos_out: wp.array(dtype=Any),
+    aux_out: wp.array(dtype=Any),
+    rot_out: wp.array(dtype=Any),
+    radius_out: wp.array(dtype=Any),
+    mesh_out: wp.array(dtype=wp.uint64),
+    coef_out: wp.array(dtype=Any),
+):
+    """One Colliders set's live arrays into the solver's combined ones from ``first`` on; ``coef_out`` is
+    (μ, e, ε_v) per collider."""
+    s = wp.tid()
+    o = first + s
+    kind_out[o] = kind[s]
+    pos_out[o] = pos[s]
+    aux_out[o] = aux[s]
+    rot_out[o] = rot[s]
+    radius_out[o] = radius[s]
+    mesh_out[o] = mesh[s]
+    coef_out[o] = type(pos[s])(friction[s], restitution[s], stick_velocity)
 
 
 class RigidBodySolver(Solver):
@@ -112,22 +197,46 @@ class RigidBodySolver(Solver):
     then placed rigidly. Being stateless (all state in the particles), it follows the Solver contract and
     compares directly with :class:`pliant.constraints.ShapeMatching` at k_S = 1 under XPBD.
 
+    Contact is the body's, not its particles': the model's (hard) ground and the
+    :class:`pliant.collision.Colliders` among ``collisions`` are met after the free update by sequential
+    impulses on the body's velocity and angular velocity over the particles that would end the step inside
+    them (normal impulses with restitution on approach speeds above 2|g|Δt, so that resting contact does
+    not hop, the project's smoothed Coulomb friction
+    bounded by μ times each contact's normal impulse, a split impulse for leftover penetration), and the
+    pose is then integrated from the corrected velocities, so the body stays rigid through contact, slides
+    at μ g cos θ and rests inside the friction cone (:mod:`pliant.solvers.rigid._contact`). A step where no
+    body touches anything is the free update exactly.
+
     Args:
-        model: the Model; bodies' particles must not be pinned.
+        model: the Model; bodies' particles must not be pinned; a ground must be hard (no ``stiffness``).
         bodies: particle index arrays, one per body (default: all particles form one body).
-        collisions: contact handlers run after each step (``apply(model, state_in, state_out, dt)``); they
-            move particles one by one, and the next step's polar decomposition makes each body rigid again.
+        collisions: ``Colliders`` (body-level contact, above) and other contact handlers, run after each
+            step (``apply(model, state_in, state_out, dt)``): those move particles one by one, and the next
+            step's polar decomposition makes each body rigid again.
+        contact_iterations: Gauss–Seidel sweeps over a body's contacts per step, >= 1.
 
     Example::
 
-        solver = pl.solvers.RigidBodySolver(model)
+        solver = pl.solvers.RigidBodySolver(model, collisions=[colliders])
         solver.step(state_0, state_1, control, 1e-3)
     """
 
     def __init__(
-        self, model: Model, bodies: Sequence[Any] | None = None, *, collisions: Sequence[Any] = ()
+        self,
+        model: Model,
+        bodies: Sequence[Any] | None = None,
+        *,
+        collisions: Sequence[Any] = (),
+        contact_iterations: int = 20,
     ) -> None:
         super().__init__(model, collisions)
+        if int(contact_iterations) < 1:
+            raise ValueError(f"RigidBodySolver: contact_iterations must be >= 1, got {contact_iterations}")
+        if model.ground is not None and model.ground.compliant:
+            raise NotImplementedError(
+                "RigidBodySolver: compliant ground contact (Ground.stiffness) is not supported for rigid "
+                "bodies; add_ground() without stiffness"
+            )
         n = model.particle_count
         bodies = [np.arange(n)] if bodies is None else [np.asarray(b, np.int64).reshape(-1) for b in bodies]
         inv_mass = model.particle_inv_mass.numpy()
@@ -151,21 +260,52 @@ class RigidBodySolver(Solver):
             inertia.append(I)
             centers.append(c)
         members = np.concatenate(bodies)
-        d, f = model.device, model.scalar
+        d = model.device
         self.body_count = len(bodies)
+        self.contact_iterations = int(contact_iterations)
         self.offsets: wp.array = wp.array(np.asarray(offsets, np.int32), dtype=wp.int32, device=d)
         self.members: wp.array = wp.array(members.astype(np.int32), dtype=wp.int32, device=d)
         self.rest: wp.array = wp.array(q[members], dtype=model.vec3, device=d)
         self.rest_center: wp.array = wp.array(np.asarray(centers), dtype=model.vec3, device=d)
         self.inertia_body: wp.array = wp.array(np.asarray(inertia), dtype=model.mat33, device=d)
         self._zero_f = wp.zeros(n, dtype=model.vec3, device=d)
-        del f
+        # Colliders are met at body level; the other handlers stay post-step (Solver.apply_collisions).
+        self.colliders = [c for c in self.collisions if isinstance(c, Colliders)]
+        self.collisions = [c for c in self.collisions if not isinstance(c, Colliders)]
+        self._col_count = sum(len(c) for c in self.colliders)
+        self._col = self._collider_buffers(max(self._col_count, 1))
+        self._surfaces = (model.ground is not None) + self._col_count
+        size = max(members.size * self._surfaces, 1)
+        vec = [wp.zeros(size, dtype=model.vec3, device=d) for _ in range(5)]
+        self._scratch = [*vec, wp.zeros(size, dtype=model.scalar, device=d)]
+
+    def _collider_buffers(self, count: int) -> list[wp.array]:
+        """The combined collider arrays the step's kernel reads (kind, pos, aux, rot, radius, mesh, coef)."""
+        m, d = self.model, self.model.device
+        types = [wp.int32, m.vec3, m.vec3, m.mat33, m.scalar, wp.uint64, m.vec3]
+        return [wp.zeros(count, dtype=t, device=d) for t in types]
+
+    def _pack_colliders(self) -> None:
+        """Copy every Colliders set's live arrays (μ, e and positions may be changed in place) into one."""
+        first = 0
+        for c in self.colliders:
+            a = c.arrays(self.model)
+            args = [first, self.model.s(c.stick_velocity), *c.geometry_inputs(self.model)]
+            args += [a["friction"], a["restitution"], *self._col]
+            wp.launch(_pack_colliders, len(c), args, device=self.model.device)
+            first += len(c)
 
     def step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
         """Advance every body by ``dt`` [s]; particles outside bodies are copied unchanged."""
         m = self.model
         wp.copy(state_out.particle_q, state_in.particle_q)
         wp.copy(state_out.particle_qd, state_in.particle_qd)
+        if self.colliders:
+            self._pack_colliders()
+        g = m.ground
+        ground = [0, m.s(0.0), m.vec3()] if g is None else [1, m.s(g.height)]
+        if g is not None:
+            ground.append(m.vec3(g.friction, g.restitution, g.stick_velocity))
         wp.launch(
             _rigid_step,
             self.body_count,
@@ -181,6 +321,13 @@ class RigidBodySolver(Solver):
                 m.s(dt),
                 state_in.particle_q,
                 state_in.particle_qd,
+                self._surfaces,
+                self.contact_iterations,
+                m.particle_radius,
+                *ground,
+                self._col_count,
+                *self._col,
+                *self._scratch,
                 state_out.particle_q,
                 state_out.particle_qd,
             ],
@@ -190,4 +337,9 @@ class RigidBodySolver(Solver):
 
     def describe(self) -> dict:
         """Solver name and body count."""
-        return {"solver": "RigidBodySolver", "integrator": "newton_euler", "bodies": self.body_count}
+        return {
+            "solver": "RigidBodySolver",
+            "integrator": "newton_euler",
+            "bodies": self.body_count,
+            "contact_iterations": self.contact_iterations,
+        }
