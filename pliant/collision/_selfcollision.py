@@ -11,8 +11,17 @@ atomics; every thread reads a snapshot of the predicted positions, so CPU and CU
   stay on is the side it was on at the *start* of the step, so a particle that crossed a triangle within
   one step is put back: its signed distance to the plane is restored to ≥ h on that side.
 
-The approaching normal velocity (relative to the triangle or partner) is removed, and Coulomb friction μ
-removes at most μ·Δv_n of the tangential relative velocity.
+The approaching normal velocity (relative to the triangle or partner) is removed, and friction is the
+ground's smoothed Coulomb law (:func:`pliant.collision._friction.friction_scale`, one law for every
+contact): the relative tangential velocity ṽ_t changes by at most μ Δv_n, Δv_n the relative normal
+velocity change of the contact (stopped inside the cone, smoothed below the stick velocity ε_v). That
+change Δv_t is an impulse J = Δv_t / W, W = Σ_k c_k² w_k over the pair's points (c_k: 1 and −1 for two
+particles, 1 and the barycentric weights for a point and a triangle; w_k inverse masses), shared by both
+sides (point k: c_k w_k J), so it conserves momentum; each side also moves by Δt times its velocity change
+(friction acts inside the step: without it a sticking contact still creeps by Δt ṽ_t every step). A
+triangle's vertices take their share in a second kernel, which finds the same contacts from the
+triangle's side (a BVH of the points' swept boxes). With several contacts, each particle averages its
+corrections (Jacobi): momentum is exact for a particle with one contact.
 """
 
 from __future__ import annotations
@@ -21,6 +30,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
+
+from ..model import STICK_VELOCITY
+from ._friction import friction_scale
 
 if TYPE_CHECKING:
     from ..model import Model, State
@@ -72,6 +84,44 @@ def closest_point_triangle(p: Any, a: Any, b: Any, c: Any):
     return a + v * ab + t * ac, type(p)(one - v - t, v, t)
 
 
+@wp.func
+def _tangential_change(vrel: Any, n: Any, dvn: Any, friction: Any, stick_velocity: Any):
+    """Δv_t [m/s]: the change of the relative tangential velocity of vrel (normal n) by the smoothed Coulomb
+    law for the relative normal velocity change dvn [m/s] (budget μ dvn)."""
+    vt = vrel - wp.dot(vrel, n) * n
+    one = friction * type(friction)(0.0) + type(friction)(1.0)
+    return vt * (friction_scale(wp.length(vt), friction * dvn, stick_velocity) - one)
+
+
+@wp.func
+def _triangle_push(x: Any, x0: Any, a: Any, b: Any, c: Any, a0: Any, b0: Any, c0: Any, thickness: Any):
+    """(push [m], barycentric weights) of point x (x0 at the step's start) against triangle abc (a0b0c0 at
+    the start): back to the start side if it crossed, out to the thickness if closer; push = 0: no
+    contact."""
+    zero = thickness * type(thickness)(0.0)
+    push = x * zero
+    bary = x * zero
+    nrm = wp.cross(b - a, c - a)
+    ln = wp.length(nrm)
+    n0 = wp.cross(b0 - a0, c0 - a0)
+    if ln > zero and wp.length(n0) > zero:
+        n = nrm / ln
+        s0 = wp.dot(x0 - a0, n0)
+        s1 = wp.dot(x - a, n)
+        side = type(thickness)(1.0)
+        if s0 < zero or (s0 == zero and s1 < zero):
+            side = type(thickness)(-1.0)
+        cp, bary = closest_point_triangle(x, a, b, c)
+        d = x - cp
+        dist = wp.length(d)
+        inside = bary[0] > zero and bary[1] > zero and bary[2] > zero
+        if side * s1 < zero and (inside or dist < thickness):
+            push = (thickness - side * s1) * side * n  # crossed: back to the start side
+        elif dist < thickness and dist > zero:
+            push = (thickness - dist) * (d / dist)
+    return push, bary
+
+
 @wp.kernel
 def _triangle_bounds(
     tri_indices: wp.array(dtype=wp.int32),
@@ -115,6 +165,8 @@ def _self_contact(
     use_triangles: int,
     thickness: Any,
     friction: Any,
+    stick_velocity: Any,
+    dt: Any,
     # State at the start of the step and the predicted (snapshot) state:
     x_start: wp.array(dtype=Any),
     x_pred: wp.array(dtype=Any),
@@ -126,7 +178,8 @@ def _self_contact(
 ):
     i = wp.tid()
     zero = thickness * type(thickness)(0.0)
-    if particle_inv_mass[i] == zero:
+    wi = particle_inv_mass[i]
+    if wi == zero:
         return
     x = x_pred[i]
     v = v_pred[i]
@@ -150,11 +203,14 @@ def _self_contact(
                     vrel = v - v_pred[j]
                     vn = wp.dot(vrel, n)
                     if vn < zero:
-                        vt = vrel - vn * n
-                        st = wp.length(vt)
                         dv -= (w * vn) * n
-                        if st > zero:
-                            dv -= (w * wp.min(friction * (-vn), st) / st) * vt
+                        if friction > zero:
+                            # i's share w_i/(w_i + w_j) of the pair's tangential change (j takes the rest).
+                            dvt = (wi / (wi + particle_inv_mass[j])) * _tangential_change(
+                                vrel, n, -vn, friction, stick_velocity
+                            )
+                            dv += dvt
+                            dx += dt * dvt
                     count += 1
     if use_triangles != 0:
         x0 = x_start[i]
@@ -169,47 +225,123 @@ def _self_contact(
             ib = tri_indices[3 * f + 1]
             ic = tri_indices[3 * f + 2]
             if ia != i and ib != i and ic != i:
-                a = x_pred[ia]
-                b = x_pred[ib]
-                c = x_pred[ic]
-                nrm = wp.cross(b - a, c - a)
-                ln = wp.length(nrm)
                 a0 = x_start[ia]
-                n0 = wp.cross(x_start[ib] - a0, x_start[ic] - a0)
-                if ln > zero and wp.length(n0) > zero:
-                    n = nrm / ln
-                    s0 = wp.dot(x0 - a0, n0)
-                    s1 = wp.dot(x - a, n)
-                    side = type(thickness)(1.0)
-                    if s0 < zero or (s0 == zero and s1 < zero):
-                        side = type(thickness)(-1.0)
-                    cp, bary = closest_point_triangle(x, a, b, c)
-                    d = x - cp
-                    dist = wp.length(d)
-                    inside = bary[0] > zero and bary[1] > zero and bary[2] > zero
-                    push = x * zero
-                    if side * s1 < zero and (inside or dist < thickness):
-                        push = (thickness - side * s1) * side * n  # crossed: back to the start side
-                    elif dist < thickness and dist > zero:
-                        push = (thickness - dist) * (d / dist)
-                    lp = wp.length(push)
-                    if lp > zero:
-                        pn = push / lp
-                        dx += push
-                        vt_ = bary[0] * v_pred[ia] + bary[1] * v_pred[ib] + bary[2] * v_pred[ic]
-                        vrel = v - vt_
-                        vn = wp.dot(vrel, pn)
-                        if vn < zero:
-                            vt = vrel - vn * pn
-                            st = wp.length(vt)
-                            dv -= vn * pn
-                            if st > zero:
-                                dv -= (wp.min(friction * (-vn), st) / st) * vt
-                        count += 1
+                b0 = x_start[ib]
+                c0 = x_start[ic]
+                push, bary = _triangle_push(x, x0, x_pred[ia], x_pred[ib], x_pred[ic], a0, b0, c0, thickness)
+                lp = wp.length(push)
+                if lp > zero:
+                    pn = push / lp
+                    dx += push
+                    vrel = v - (bary[0] * v_pred[ia] + bary[1] * v_pred[ib] + bary[2] * v_pred[ic])
+                    vn = wp.dot(vrel, pn)
+                    if vn < zero:
+                        dv -= vn * pn
+                        if friction > zero:
+                            big_w = wi + (
+                                bary[0] * bary[0] * particle_inv_mass[ia]
+                                + bary[1] * bary[1] * particle_inv_mass[ib]
+                                + bary[2] * bary[2] * particle_inv_mass[ic]
+                            )
+                            dvt = (wi / big_w) * _tangential_change(vrel, pn, -vn, friction, stick_velocity)
+                            dv += dvt
+                            dx += dt * dvt
+                    count += 1
     if count > 0:
         inv = type(thickness)(1.0) / type(thickness)(count)
         x_out[i] = x + dx * inv
         v_out[i] = v + dv * inv
+
+
+@wp.kernel
+def _swept_boxes(
+    x_start: wp.array(dtype=Any),
+    xf: wp.array(dtype=wp.vec3f),
+    lower_out: wp.array(dtype=wp.vec3f),
+    upper_out: wp.array(dtype=wp.vec3f),
+):
+    # Particle i's box from its start to its predicted position: the leaf the points' BVH refits around.
+    i = wp.tid()
+    x = x_start[i]
+    x0 = wp.vec3f(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
+    lower_out[i] = wp.min(x0, xf[i])
+    upper_out[i] = wp.max(x0, xf[i])
+
+
+@wp.kernel
+def _triangle_friction(
+    particle_inv_mass: wp.array(dtype=Any),
+    tri_indices: wp.array(dtype=wp.int32),
+    adj_start: wp.array(dtype=wp.int32),
+    adj: wp.array(dtype=wp.int32),
+    points: wp.uint64,
+    thickness: Any,
+    friction: Any,
+    stick_velocity: Any,
+    dt: Any,
+    x_start: wp.array(dtype=Any),
+    x_pred: wp.array(dtype=Any),
+    v_pred: wp.array(dtype=Any),
+    x_io: wp.array(dtype=Any),
+    v_io: wp.array(dtype=Any),
+):
+    # The triangle side of point–triangle friction: particle k, a vertex of triangle t, takes the share
+    # −c_k w_k J of every contact (q, t) that _self_contact's thread q found (the same contact, computed by
+    # the same functions from the same snapshot), averaged over them.
+    k = wp.tid()
+    zero = thickness * type(thickness)(0.0)
+    wk = particle_inv_mass[k]
+    if wk == zero:
+        return
+    h = wp.float32(thickness)
+    r = wp.vec3f(h, h, h)
+    dx = x_pred[k] * zero
+    dv = x_pred[k] * zero
+    count = int(0)  # noqa: UP018 (a mutable Warp variable)
+    for e in range(adj_start[k], adj_start[k + 1]):
+        t = adj[e]
+        ia = tri_indices[3 * t]
+        ib = tri_indices[3 * t + 1]
+        ic = tri_indices[3 * t + 2]
+        a = x_pred[ia]
+        b = x_pred[ib]
+        c = x_pred[ic]
+        lo = wp.min(wp.min(a, b), c)
+        hi = wp.max(wp.max(a, b), c)
+        lof = wp.vec3f(wp.float32(lo[0]), wp.float32(lo[1]), wp.float32(lo[2])) - r
+        hif = wp.vec3f(wp.float32(hi[0]), wp.float32(hi[1]), wp.float32(hi[2])) + r
+        q = wp.bvh_query_aabb(points, lof, hif)
+        j = int(0)  # noqa: UP018
+        while wp.bvh_query_next(q, j):
+            wj = particle_inv_mass[j]
+            if j != ia and j != ib and j != ic and wj != zero:
+                push, bary = _triangle_push(
+                    x_pred[j], x_start[j], a, b, c, x_start[ia], x_start[ib], x_start[ic], thickness
+                )
+                lp = wp.length(push)
+                if lp > zero:
+                    pn = push / lp
+                    vrel = v_pred[j] - (bary[0] * v_pred[ia] + bary[1] * v_pred[ib] + bary[2] * v_pred[ic])
+                    vn = wp.dot(vrel, pn)
+                    if vn < zero:
+                        big_w = wj + (
+                            bary[0] * bary[0] * particle_inv_mass[ia]
+                            + bary[1] * bary[1] * particle_inv_mass[ib]
+                            + bary[2] * bary[2] * particle_inv_mass[ic]
+                        )
+                        ck = bary[0]
+                        if k == ib:
+                            ck = bary[1]
+                        elif k == ic:
+                            ck = bary[2]
+                        dvt = (-ck * wk / big_w) * _tangential_change(vrel, pn, -vn, friction, stick_velocity)
+                        dv += dvt
+                        dx += dt * dvt
+                        count += 1
+    if count > 0:
+        inv = type(thickness)(1.0) / type(thickness)(count)
+        x_io[k] = x_io[k] + dx * inv
+        v_io[k] = v_io[k] + dv * inv
 
 
 class SelfCollision:
@@ -223,7 +355,8 @@ class SelfCollision:
         model: the Model (its triangles ``model.tri_indices`` and rest positions are used).
         thickness: h [m]: minimum particle–particle and particle–triangle distance. Keep it below the cloth's
             edge length and above the largest displacement per step.
-        friction: Coulomb μ between contacting particles / triangles.
+        friction: Coulomb μ between contacting particles / triangles (the smoothed law of
+            :mod:`pliant.collision._friction`, shared by both sides of each contact).
         iterations: Jacobi passes per step (each pass resolves the contacts found in it).
         particles: resolve particle–particle contacts.
         triangles: resolve particle–triangle contacts (needs triangles in the model).
@@ -231,6 +364,8 @@ class SelfCollision:
             displacement to γ times its distance to the nearest other primitive at the step's start
             (:class:`pliant.collision.StepBound`, reach and edge separation = ``thickness``), so that no
             vertex–triangle or edge–edge pair crosses within a step however fast it moves.
+        stick_velocity: ε_v [m/s] > 0 of the friction law: a contact inside the Coulomb cone creeps slower
+            than this (default :data:`pliant.model.STICK_VELOCITY`, the ground's).
     """
 
     def __init__(
@@ -243,13 +378,17 @@ class SelfCollision:
         particles: bool = True,
         triangles: bool = True,
         bound: float | None = None,
+        stick_velocity: float = STICK_VELOCITY,
     ) -> None:
         if thickness <= 0:
             raise ValueError(f"thickness must be > 0 m, got {thickness}")
         if friction < 0 or iterations < 1:
             raise ValueError("friction must be >= 0 and iterations >= 1")
+        if not stick_velocity > 0:
+            raise ValueError(f"SelfCollision: stick_velocity must be > 0 m/s, got {stick_velocity}")
         self.thickness = float(thickness)
         self.friction = float(friction)
+        self.stick_velocity = float(stick_velocity)
         self.iterations = int(iterations)
         self.use_particles = bool(particles)
         self.use_triangles = bool(triangles) and model.tri_count > 0
@@ -279,6 +418,18 @@ class SelfCollision:
             self._xf.assign(model.particle_q_np.astype(np.float32))
             self._bound_triangles()
             self._bvh = wp.Bvh(self._tri_lo, self._tri_hi)
+        # The triangle side of point–triangle friction: each particle's triangles (CSR) and a BVH of the
+        # particles' swept boxes (start → predicted), refit each pass.
+        self._points: wp.Bvh | None = None
+        if self.use_triangles and self.friction > 0:
+            flat = tris.reshape(-1)
+            order = np.argsort(flat, kind="stable")
+            start = np.searchsorted(flat[order], np.arange(n + 1)).astype(np.int32)
+            self._adj_start: wp.array = wp.array(start, dtype=wp.int32, device=d)
+            self._adj: wp.array = wp.array((order // 3).astype(np.int32), dtype=wp.int32, device=d)
+            self._pt_lo = wp.array(model.particle_q_np.astype(np.float32), dtype=wp.vec3f, device=d)
+            self._pt_hi = wp.array(model.particle_q_np.astype(np.float32), dtype=wp.vec3f, device=d)
+            self._points = wp.Bvh(self._pt_lo, self._pt_hi)
         # Hash-table size ~2 cells per particle per axis³, capped: a build clears every cell.
         dim = int(np.clip(round(2.0 * n ** (1.0 / 3.0)), 8, 128))
         self._grid = wp.HashGrid(dim, dim, dim, device=d) if self.use_particles else None
@@ -330,6 +481,8 @@ class SelfCollision:
                     int(self.use_triangles),
                     s(self.thickness),
                     s(self.friction),
+                    s(self.stick_velocity),
+                    s(dt),
                     state_in.particle_q,
                     self._x,
                     self._v,
@@ -339,5 +492,31 @@ class SelfCollision:
                 ],
                 device=model.device,
             )
+            if self._points is not None:
+                self._triangle_side(model, state_in, state_out, dt)
         if self._bound is not None:
             self._bound.apply(model, state_in, state_out, dt)
+
+    def _triangle_side(self, model: Model, state_in: State, state_out: State, dt: float) -> None:
+        """The triangle vertices' share of this pass's point–triangle friction (into ``state_out``)."""
+        assert self._points is not None  # called only with friction on triangles
+        d, n, s = model.device, model.particle_count, model.s
+        wp.launch(_swept_boxes, n, [state_in.particle_q, self._xf, self._pt_lo, self._pt_hi], device=d)
+        self._points.refit()
+        args = [
+            model.particle_inv_mass,
+            self._tris,
+            self._adj_start,
+            self._adj,
+            wp.uint64(self._points.id),
+            s(self.thickness),
+            s(self.friction),
+            s(self.stick_velocity),
+            s(dt),
+            state_in.particle_q,
+            self._x,
+            self._v,
+            state_out.particle_q,
+            state_out.particle_qd,
+        ]
+        wp.launch(_triangle_friction, n, args, device=d)
