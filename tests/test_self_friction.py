@@ -90,3 +90,54 @@ def test_a_box_on_a_pinned_slab_slides_at_coulombs_rate_or_rests(family: str, mu
     model = _model(gap, fem=family in FEM_FAMILIES or family == "barrier")
     solver, dt = _solver(family, model, mu)
     _check(mu, *_run(model, solver, dt))
+
+
+def _apply_once(model: pl.Model, x_pred: np.ndarray, v_pred: np.ndarray, **kw) -> tuple[np.ndarray, ...]:
+    """One SelfCollision pass (μ = 0.3, h = 1 cm, no stick smoothing in play) from the model's positions to
+    the predicted state; returns (x, v) after it."""
+    sc = pl.collision.SelfCollision(model, thickness=0.01, friction=0.3, iterations=1, **kw)
+    s_in, s_out = model.state(), model.state()
+    s_out.particle_q.assign(x_pred)
+    s_out.particle_qd.assign(v_pred)
+    sc.apply(model, s_in, s_out, 1e-3)
+    return s_out.particle_q.numpy(), s_out.particle_qd.numpy()
+
+
+def test_a_self_contact_pair_conserves_momentum():
+    """Two particles (10 g and 30 g) overlapping in a step, approaching and sliding past each other: the
+    pass conserves momentum and the centre of mass (1e-12), stops the approach, and slows the relative
+    sliding by exactly μ |Δv_n| (Coulomb's slip). A particle sliding into a free triangle (vertices of
+    20-40 g): tangential momentum and the centre's tangential position are conserved the same way (the
+    normal push moves the point only), with the same slip law."""
+    m = np.array([0.01, 0.03])
+    b = pl.ModelBuilder(gravity=(0.0, 0.0, 0.0))
+    b.add_particles([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]], m, radius=0.001)
+    model = b.finalize(device="cpu", dtype="float64")
+    x = np.array([[0.0, 0.0, 0.0], [0.006, 0.002, 0.0]])
+    v = np.array([[0.3, 0.5, 2.0], [-0.1, 0.3, -1.0]])
+    x1, v1 = _apply_once(model, x, v, triangles=False)
+    np.testing.assert_allclose(m @ v1, m @ v, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(m @ x1, m @ x, rtol=0, atol=1e-12)
+    n = (x[0] - x[1]) / np.linalg.norm(x[0] - x[1])
+    vn, vn1 = (v[0] - v[1]) @ n, (v1[0] - v1[1]) @ n
+    assert vn < 0 and abs(vn1) < 1e-12
+    st, st1 = (np.linalg.norm(w - (w @ n) * n) for w in (v[0] - v[1], v1[0] - v1[1]))
+    assert st1 == pytest.approx(st - 0.3 * abs(vn), rel=1e-12)
+
+    # A point 4 mm above a free triangle in y = 0 (thickness 1 cm), moving down and sideways.
+    m = np.array([0.01, 0.02, 0.03, 0.04])
+    start = np.array([[0.1, 0.02, 0.1], [0.0, 0.0, 0.0], [0.0, 0.0, 0.4], [0.4, 0.0, 0.0]])
+    b = pl.ModelBuilder(gravity=(0.0, 0.0, 0.0))
+    b.add_particles(start, m, radius=0.001)
+    b.add_triangles([[1, 2, 3]])
+    model = b.finalize(device="cpu", dtype="float64")
+    x = start + [[0.0, -0.016, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
+    v = np.array([[2.0, -1.0, 0.5], [0.1, 0.0, 0.0], [0.0, 0.0, -0.2], [0.0, 0.0, 0.1]])
+    x1, v1 = _apply_once(model, x, v, particles=False)
+    tangential = [0, 2]
+    np.testing.assert_allclose((m @ v1)[tangential], (m @ v)[tangential], rtol=0, atol=1e-12)
+    np.testing.assert_allclose((m @ x1)[tangential], (m @ x)[tangential], rtol=0, atol=1e-12)
+    assert x1[0, 1] == pytest.approx(0.01, rel=1e-12) and abs(v1[0, 1]) < 1e-12
+    w = np.array([1.0, 1.0 - 0.25 - 0.25, 0.25, 0.25])  # point, then the barycentric weights at (0.1, 0.1)
+    rel, rel1 = (u[0] - w[1:] @ u[1:] for u in (v, v1))
+    assert np.linalg.norm(rel1[tangential]) == pytest.approx(np.linalg.norm(rel[tangential]) - 0.3, rel=1e-12)

@@ -4,12 +4,14 @@ Two kinds of contact are resolved after the integrator, each thread moving only 
 atomics; every thread reads a snapshot of the predicted positions, so CPU and CUDA give the same result):
 
 * particle–particle, found with ``wp.HashGrid``: centres closer than the thickness h are pushed apart,
-  half the overlap each, except pairs already closer than h in the rest configuration (neighbours in the
-  same mesh);
+  each by its share w_i/(w_i + w_j) of the overlap (w: inverse masses; half each for equal masses), so
+  that momentum is conserved, except pairs already closer than h in the rest configuration (neighbours
+  in the same mesh);
 * point–triangle against every triangle of the model (found with AABB queries of a ``wp.Bvh`` over the
   triangles' boxes, refitted each pass), skipping the particle's own triangles. The side a particle must
   stay on is the side it was on at the *start* of the step, so a particle that crossed a triangle within
-  one step is put back: its signed distance to the plane is restored to ≥ h on that side.
+  one step is put back: its signed distance to the plane is restored to ≥ h on that side. Only the
+  point moves along the normal (the triangle side of the push is :class:`StepBound`'s separation).
 
 The approaching normal velocity (relative to the triangle or partner) is removed, and friction is the
 ground's smoothed Coulomb law (:func:`pliant.collision._friction.friction_scale`, one law for every
@@ -195,20 +197,16 @@ def _self_contact(
                 l = wp.length(d)
                 if l < thickness and l > zero and wp.length(rest_q[i] - rest_q[j]) >= thickness:
                     n = d / l
-                    half = type(thickness)(0.5)
-                    w = half
-                    if particle_inv_mass[j] == zero:
-                        w = type(thickness)(1.0)
+                    # i's share w_i/(w_i + w_j) of the pair's corrections (j takes the rest): momentum
+                    # is conserved; ½ for equal masses, all of it against a pinned or kinematic j.
+                    w = wi / (wi + particle_inv_mass[j])
                     dx += (w * (thickness - l)) * n
                     vrel = v - v_pred[j]
                     vn = wp.dot(vrel, n)
                     if vn < zero:
                         dv -= (w * vn) * n
                         if friction > zero:
-                            # i's share w_i/(w_i + w_j) of the pair's tangential change (j takes the rest).
-                            dvt = (wi / (wi + particle_inv_mass[j])) * _tangential_change(
-                                vrel, n, -vn, friction, stick_velocity
-                            )
+                            dvt = w * _tangential_change(vrel, n, -vn, friction, stick_velocity)
                             dv += dvt
                             dx += dt * dvt
                     count += 1
