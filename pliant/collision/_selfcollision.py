@@ -116,9 +116,14 @@ def _triangle_push(x: Any, x0: Any, a: Any, b: Any, c: Any, a0: Any, b0: Any, c0
         cp, bary = closest_point_triangle(x, a, b, c)
         d = x - cp
         dist = wp.length(d)
+        # Crossed: on the other side of the plane with its projection inside the triangle (up to 1 % of h
+        # sideways, for a crossing through an edge). A point beside the triangle is not behind it: a box's
+        # vertex resting on another box's top face lies in the plane of that box's side faces, and
+        # rounding flips its side of them; taking that for a crossing pushed it h sideways.
+        lateral = wp.sqrt(wp.max(dist * dist - s1 * s1, zero))
         inside = bary[0] > zero and bary[1] > zero and bary[2] > zero
-        if side * s1 < zero and (inside or dist < thickness):
-            push = (thickness - side * s1) * side * n  # crossed: back to the start side
+        if side * s1 < zero and (inside or lateral < type(thickness)(0.01) * thickness):
+            push = (thickness - side * s1) * side * n  # back to the start side
         elif dist < thickness and dist > zero:
             push = (thickness - dist) * (d / dist)
     return push, bary
