@@ -21,9 +21,10 @@ change Δv_t is an impulse J = Δv_t / W, W = Σ_k c_k² w_k over the pair's poi
 particles, 1 and the barycentric weights for a point and a triangle; w_k inverse masses), shared by both
 sides (point k: c_k w_k J), so it conserves momentum; each side also moves by Δt times its velocity change
 (friction acts inside the step: without it a sticking contact still creeps by Δt ṽ_t every step). A
-triangle's vertices take their share in a second kernel, which finds the same contacts from the
-triangle's side (a BVH of the points' swept boxes). With several contacts, each particle averages its
-corrections (Jacobi): momentum is exact for a particle with one contact.
+triangle's vertices take their share in the same pass: each particle also finds, from the side of its
+own triangles, the contacts other particles find with them (a BVH of the points' swept boxes). With
+several contacts, each particle averages its normal corrections, and separately its friction corrections
+from both sides (Jacobi): momentum is exact for a particle with one contact.
 """
 
 from __future__ import annotations
@@ -160,119 +161,9 @@ def _snapshot(
     xf_out[i] = wp.vec3f(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
 
 
-@wp.kernel
-def _self_contact(
-    # Model:
-    particle_inv_mass: wp.array(dtype=Any),
-    rest_q: wp.array(dtype=Any),
-    tri_indices: wp.array(dtype=wp.int32),
-    tri_bvh: wp.uint64,
-    grid: wp.uint64,
-    use_particles: int,
-    use_triangles: int,
-    thickness: Any,
-    friction: Any,
-    stick_velocity: Any,
-    dt: Any,
-    # State at the start of the step and the predicted (snapshot) state:
-    x_start: wp.array(dtype=Any),
-    x_pred: wp.array(dtype=Any),
-    v_pred: wp.array(dtype=Any),
-    xf_pred: wp.array(dtype=wp.vec3f),
-    # Out:
-    x_out: wp.array(dtype=Any),
-    v_out: wp.array(dtype=Any),
-):
-    i = wp.tid()
-    zero = thickness * type(thickness)(0.0)
-    wi = particle_inv_mass[i]
-    if wi == zero:
-        return
-    x = x_pred[i]
-    v = v_pred[i]
-    dx = x * zero
-    dv = x * zero
-    count = int(0)  # noqa: UP018 (a mutable Warp variable)
-    if use_particles != 0:
-        query = wp.hash_grid_query(grid, xf_pred[i], wp.float32(thickness))
-        j = int(0)  # noqa: UP018
-        while wp.hash_grid_query_next(query, j):
-            if j != i:
-                d = x - x_pred[j]
-                l = wp.length(d)
-                if l < thickness and l > zero and wp.length(rest_q[i] - rest_q[j]) >= thickness:
-                    n = d / l
-                    # i's share w_i/(w_i + w_j) of the pair's corrections (j takes the rest): momentum
-                    # is conserved; ½ for equal masses, all of it against a pinned or kinematic j.
-                    w = wi / (wi + particle_inv_mass[j])
-                    dx += (w * (thickness - l)) * n
-                    vrel = v - v_pred[j]
-                    vn = wp.dot(vrel, n)
-                    if vn < zero:
-                        dv -= (w * vn) * n
-                        if friction > zero:
-                            dvt = w * _tangential_change(vrel, n, -vn, friction, stick_velocity)
-                            dv += dvt
-                            dx += dt * dvt
-                    count += 1
-    if use_triangles != 0:
-        x0 = x_start[i]
-        lo = wp.min(x, x0) - type(x)(thickness, thickness, thickness)
-        hi = wp.max(x, x0) + type(x)(thickness, thickness, thickness)
-        lof = wp.vec3f(wp.float32(lo[0]), wp.float32(lo[1]), wp.float32(lo[2]))
-        hif = wp.vec3f(wp.float32(hi[0]), wp.float32(hi[1]), wp.float32(hi[2]))
-        q = wp.bvh_query_aabb(tri_bvh, lof, hif)
-        f = int(0)  # noqa: UP018
-        while wp.bvh_query_next(q, f):
-            ia = tri_indices[3 * f]
-            ib = tri_indices[3 * f + 1]
-            ic = tri_indices[3 * f + 2]
-            if ia != i and ib != i and ic != i:
-                a0 = x_start[ia]
-                b0 = x_start[ib]
-                c0 = x_start[ic]
-                push, bary = _triangle_push(x, x0, x_pred[ia], x_pred[ib], x_pred[ic], a0, b0, c0, thickness)
-                lp = wp.length(push)
-                if lp > zero:
-                    pn = push / lp
-                    dx += push
-                    vrel = v - (bary[0] * v_pred[ia] + bary[1] * v_pred[ib] + bary[2] * v_pred[ic])
-                    vn = wp.dot(vrel, pn)
-                    if vn < zero:
-                        dv -= vn * pn
-                        if friction > zero:
-                            big_w = wi + (
-                                bary[0] * bary[0] * particle_inv_mass[ia]
-                                + bary[1] * bary[1] * particle_inv_mass[ib]
-                                + bary[2] * bary[2] * particle_inv_mass[ic]
-                            )
-                            dvt = (wi / big_w) * _tangential_change(vrel, pn, -vn, friction, stick_velocity)
-                            dv += dvt
-                            dx += dt * dvt
-                    count += 1
-    if count > 0:
-        inv = type(thickness)(1.0) / type(thickness)(count)
-        x_out[i] = x + dx * inv
-        v_out[i] = v + dv * inv
-
-
-@wp.kernel
-def _swept_boxes(
-    x_start: wp.array(dtype=Any),
-    xf: wp.array(dtype=wp.vec3f),
-    lower_out: wp.array(dtype=wp.vec3f),
-    upper_out: wp.array(dtype=wp.vec3f),
-):
-    # Particle i's box from its start to its predicted position: the leaf the points' BVH refits around.
-    i = wp.tid()
-    x = x_start[i]
-    x0 = wp.vec3f(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
-    lower_out[i] = wp.min(x0, xf[i])
-    upper_out[i] = wp.max(x0, xf[i])
-
-
-@wp.kernel
-def _triangle_friction(
+@wp.func
+def _triangle_side(
+    k: int,
     particle_inv_mass: wp.array(dtype=Any),
     tri_indices: wp.array(dtype=wp.int32),
     adj_start: wp.array(dtype=wp.int32),
@@ -285,17 +176,12 @@ def _triangle_friction(
     x_start: wp.array(dtype=Any),
     x_pred: wp.array(dtype=Any),
     v_pred: wp.array(dtype=Any),
-    x_io: wp.array(dtype=Any),
-    v_io: wp.array(dtype=Any),
 ):
-    # The triangle side of point–triangle friction: particle k, a vertex of triangle t, takes the share
-    # −c_k w_k J of every contact (q, t) that _self_contact's thread q found (the same contact, computed by
-    # the same functions from the same snapshot), averaged over them.
-    k = wp.tid()
+    """The triangle side of point–triangle friction: (Δx, Δv, count), the sums over every contact (q, t)
+    of a triangle t of particle k that thread q finds (the same contact, computed by the same functions
+    from the same snapshot) of k's share −c_k w_k J."""
     zero = thickness * type(thickness)(0.0)
     wk = particle_inv_mass[k]
-    if wk == zero:
-        return
     h = wp.float32(thickness)
     r = wp.vec3f(h, h, h)
     dx = x_pred[k] * zero
@@ -341,10 +227,148 @@ def _triangle_friction(
                         dv += dvt
                         dx += dt * dvt
                         count += 1
-    if count > 0:
-        inv = type(thickness)(1.0) / type(thickness)(count)
-        x_io[k] = x_io[k] + dx * inv
-        v_io[k] = v_io[k] + dv * inv
+    return dx, dv, count
+
+
+@wp.kernel
+def _self_contact(
+    # Model:
+    particle_inv_mass: wp.array(dtype=Any),
+    rest_q: wp.array(dtype=Any),
+    tri_indices: wp.array(dtype=wp.int32),
+    tri_bvh: wp.uint64,
+    grid: wp.uint64,
+    use_particles: int,
+    use_triangles: int,
+    thickness: Any,
+    friction: Any,
+    stick_velocity: Any,
+    dt: Any,
+    # The triangle side of friction (use_sides != 0): each particle's triangles (CSR), the points' BVH:
+    use_sides: int,
+    adj_start: wp.array(dtype=wp.int32),
+    adj: wp.array(dtype=wp.int32),
+    points: wp.uint64,
+    # State at the start of the step and the predicted (snapshot) state:
+    x_start: wp.array(dtype=Any),
+    x_pred: wp.array(dtype=Any),
+    v_pred: wp.array(dtype=Any),
+    xf_pred: wp.array(dtype=wp.vec3f),
+    # Out:
+    x_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+):
+    i = wp.tid()
+    zero = thickness * type(thickness)(0.0)
+    wi = particle_inv_mass[i]
+    if wi == zero:
+        return
+    x = x_pred[i]
+    v = v_pred[i]
+    dx = x * zero
+    dv = x * zero
+    count = int(0)  # noqa: UP018 (a mutable Warp variable)
+    # Friction's corrections, averaged over the particle's frictional contacts on either side of them.
+    fdx = x * zero
+    fdv = x * zero
+    fcount = int(0)  # noqa: UP018
+    if use_particles != 0:
+        query = wp.hash_grid_query(grid, xf_pred[i], wp.float32(thickness))
+        j = int(0)  # noqa: UP018
+        while wp.hash_grid_query_next(query, j):
+            if j != i:
+                d = x - x_pred[j]
+                l = wp.length(d)
+                if l < thickness and l > zero and wp.length(rest_q[i] - rest_q[j]) >= thickness:
+                    n = d / l
+                    # i's share w_i/(w_i + w_j) of the pair's corrections (j takes the rest): momentum
+                    # is conserved; ½ for equal masses, all of it against a pinned or kinematic j.
+                    w = wi / (wi + particle_inv_mass[j])
+                    dx += (w * (thickness - l)) * n
+                    vrel = v - v_pred[j]
+                    vn = wp.dot(vrel, n)
+                    if vn < zero:
+                        dv -= (w * vn) * n
+                        if friction > zero:
+                            dvt = w * _tangential_change(vrel, n, -vn, friction, stick_velocity)
+                            fdv += dvt
+                            fdx += dt * dvt
+                            fcount += 1
+                    count += 1
+    if use_triangles != 0:
+        x0 = x_start[i]
+        lo = wp.min(x, x0) - type(x)(thickness, thickness, thickness)
+        hi = wp.max(x, x0) + type(x)(thickness, thickness, thickness)
+        lof = wp.vec3f(wp.float32(lo[0]), wp.float32(lo[1]), wp.float32(lo[2]))
+        hif = wp.vec3f(wp.float32(hi[0]), wp.float32(hi[1]), wp.float32(hi[2]))
+        q = wp.bvh_query_aabb(tri_bvh, lof, hif)
+        f = int(0)  # noqa: UP018
+        while wp.bvh_query_next(q, f):
+            ia = tri_indices[3 * f]
+            ib = tri_indices[3 * f + 1]
+            ic = tri_indices[3 * f + 2]
+            if ia != i and ib != i and ic != i:
+                a0 = x_start[ia]
+                b0 = x_start[ib]
+                c0 = x_start[ic]
+                push, bary = _triangle_push(x, x0, x_pred[ia], x_pred[ib], x_pred[ic], a0, b0, c0, thickness)
+                lp = wp.length(push)
+                if lp > zero:
+                    pn = push / lp
+                    dx += push
+                    vrel = v - (bary[0] * v_pred[ia] + bary[1] * v_pred[ib] + bary[2] * v_pred[ic])
+                    vn = wp.dot(vrel, pn)
+                    if vn < zero:
+                        dv -= vn * pn
+                        if friction > zero:
+                            big_w = wi + (
+                                bary[0] * bary[0] * particle_inv_mass[ia]
+                                + bary[1] * bary[1] * particle_inv_mass[ib]
+                                + bary[2] * bary[2] * particle_inv_mass[ic]
+                            )
+                            dvt = (wi / big_w) * _tangential_change(vrel, pn, -vn, friction, stick_velocity)
+                            fdv += dvt
+                            fdx += dt * dvt
+                            fcount += 1
+                    count += 1
+    if use_sides != 0:
+        sdx, sdv, scount = _triangle_side(
+            i, particle_inv_mass, tri_indices, adj_start, adj, points,
+            thickness, friction, stick_velocity, dt, x_start, x_pred, v_pred,
+        )  # fmt: skip
+        fdx += sdx
+        fdv += sdv
+        fcount += scount
+    if count > 0 or fcount > 0:
+        xn = x
+        vn_ = v
+        if count > 0:
+            inv = type(thickness)(1.0) / type(thickness)(count)
+            xn = x + dx * inv
+            vn_ = v + dv * inv
+        if fcount > 0:
+            # One average for both sides: each side's correction is the whole relative change's share, and
+            # a pair of boxes touches both ways (each one's vertices on the other's triangles).
+            finv = type(thickness)(1.0) / type(thickness)(fcount)
+            xn = xn + fdx * finv
+            vn_ = vn_ + fdv * finv
+        x_out[i] = xn
+        v_out[i] = vn_
+
+
+@wp.kernel
+def _swept_boxes(
+    x_start: wp.array(dtype=Any),
+    xf: wp.array(dtype=wp.vec3f),
+    lower_out: wp.array(dtype=wp.vec3f),
+    upper_out: wp.array(dtype=wp.vec3f),
+):
+    # Particle i's box from its start to its predicted position: the leaf the points' BVH refits around.
+    i = wp.tid()
+    x = x_start[i]
+    x0 = wp.vec3f(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
+    lower_out[i] = wp.min(x0, xf[i])
+    upper_out[i] = wp.max(x0, xf[i])
 
 
 class SelfCollision:
@@ -424,12 +448,14 @@ class SelfCollision:
         # The triangle side of point–triangle friction: each particle's triangles (CSR) and a BVH of the
         # particles' swept boxes (start → predicted), refit each pass.
         self._points: wp.Bvh | None = None
+        self._adj_start: wp.array = wp.zeros(1, dtype=wp.int32, device=d)
+        self._adj: wp.array = wp.zeros(1, dtype=wp.int32, device=d)
         if self.use_triangles and self.friction > 0:
             flat = tris.reshape(-1)
             order = np.argsort(flat, kind="stable")
             start = np.searchsorted(flat[order], np.arange(n + 1)).astype(np.int32)
-            self._adj_start: wp.array = wp.array(start, dtype=wp.int32, device=d)
-            self._adj: wp.array = wp.array((order // 3).astype(np.int32), dtype=wp.int32, device=d)
+            self._adj_start = wp.array(start, dtype=wp.int32, device=d)
+            self._adj = wp.array((order // 3).astype(np.int32), dtype=wp.int32, device=d)
             self._pt_lo = wp.array(model.particle_q_np.astype(np.float32), dtype=wp.vec3f, device=d)
             self._pt_hi = wp.array(model.particle_q_np.astype(np.float32), dtype=wp.vec3f, device=d)
             self._points = wp.Bvh(self._pt_lo, self._pt_hi)
@@ -471,6 +497,10 @@ class SelfCollision:
                 self._bvh.refit()
             if self._grid is not None:
                 self._grid.build(self._xf, self.thickness)
+            if self._points is not None:
+                args = [state_in.particle_q, self._xf, self._pt_lo, self._pt_hi]
+                wp.launch(_swept_boxes, model.particle_count, args, device=model.device)
+                self._points.refit()
             wp.launch(
                 _self_contact,
                 model.particle_count,
@@ -486,6 +516,10 @@ class SelfCollision:
                     s(self.friction),
                     s(self.stick_velocity),
                     s(dt),
+                    int(self._points is not None),
+                    self._adj_start,
+                    self._adj,
+                    wp.uint64(self._points.id if self._points is not None else 0),
                     state_in.particle_q,
                     self._x,
                     self._v,
@@ -495,31 +529,5 @@ class SelfCollision:
                 ],
                 device=model.device,
             )
-            if self._points is not None:
-                self._triangle_side(model, state_in, state_out, dt)
         if self._bound is not None:
             self._bound.apply(model, state_in, state_out, dt)
-
-    def _triangle_side(self, model: Model, state_in: State, state_out: State, dt: float) -> None:
-        """The triangle vertices' share of this pass's point–triangle friction (into ``state_out``)."""
-        assert self._points is not None  # called only with friction on triangles
-        d, n, s = model.device, model.particle_count, model.s
-        wp.launch(_swept_boxes, n, [state_in.particle_q, self._xf, self._pt_lo, self._pt_hi], device=d)
-        self._points.refit()
-        args = [
-            model.particle_inv_mass,
-            self._tris,
-            self._adj_start,
-            self._adj,
-            wp.uint64(self._points.id),
-            s(self.thickness),
-            s(self.friction),
-            s(self.stick_velocity),
-            s(dt),
-            state_in.particle_q,
-            self._x,
-            self._v,
-            state_out.particle_q,
-            state_out.particle_qd,
-        ]
-        wp.launch(_triangle_friction, n, args, device=d)
