@@ -141,3 +141,36 @@ def test_a_self_contact_pair_conserves_momentum():
     w = np.array([1.0, 1.0 - 0.25 - 0.25, 0.25, 0.25])  # point, then the barycentric weights at (0.1, 0.1)
     rel, rel1 = (u[0] - w[1:] @ u[1:] for u in (v, v1))
     assert np.linalg.norm(rel1[tangential]) == pytest.approx(np.linalg.norm(rel[tangential]) - 0.3, rel=1e-12)
+
+
+def test_vertices_moving_under_a_triangle_carry_it_by_coulomb():
+    """A free triangle (springs, 10 g a vertex) resting on three kinematic points 4 mm under it, which move
+    sideways at V = 0.2 m/s: only the step bound's separation push touches this contact (the points are
+    not free, the triangle is not under a point of its own), and its friction (μ = 0.4) speeds the
+    triangle up at μg until it moves with them: v(25 ms) = μg·25 ms (3 %), v(0.3 s) = V (1 %), and
+    then it keeps its place on them (≤ 1 mm over 0.2 s). Before the push had friction it stayed put."""
+    mu, speed, h, dt = 0.4, 0.2, 0.005, 1 / 2400
+    b = pl.ModelBuilder(gravity=(0.0, -9.81, 0.0))
+    tri = np.array([[-0.1, h * 0.8, -0.1], [0.1, h * 0.8, -0.1], [0.0, h * 0.8, 0.1]])
+    b.add_particles(tri, 0.01, radius=0.001)
+    b.add_springs([[0, 1], [1, 2], [2, 0]], stiffness=1e3, damping=1.0)
+    b.add_triangles([[0, 2, 1]])
+    support = np.array([[-0.03, 0.0, -0.05], [0.03, 0.0, -0.05], [0.0, 0.0, 0.04]])
+    first = b.add_particles(support, 1.0, radius=0.0)
+    b.add_kinematic(np.arange(first, first + 3))
+    model = b.finalize(device="cpu", dtype="float64")
+    bound = pl.collision.StepBound(model, fraction=0.4, reach=h, separation=h, friction=mu)
+    solver = pl.solvers.ForceSolver(model, pl.energies.mass_spring(), collisions=[bound])
+    s0, s1, control = model.state(), model.state(), model.control()
+    vx, offset = {}, {}
+    for k in range(1, int(0.5 / dt) + 1):
+        control.kinematic_targets.assign(support + [speed * k * dt, 0.0, 0.0])
+        solver.step(s0, s1, control, dt)
+        s0, s1 = s1, s0
+        x, v = s0.particle_q.numpy(), s0.particle_qd.numpy()
+        vx[k] = v[:3, 0].mean()
+        offset[k] = x[:3, 0].mean() - speed * k * dt
+    k25, k300, k500 = round(0.025 / dt), round(0.3 / dt), round(0.5 / dt)
+    assert vx[k25] == pytest.approx(mu * 9.81 * 0.025, rel=0.03)
+    assert vx[k300] == pytest.approx(speed, rel=0.01)
+    assert abs(offset[k500] - offset[k300]) <= 1e-3

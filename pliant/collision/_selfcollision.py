@@ -230,6 +230,39 @@ def _triangle_side(
     return dx, dv, count
 
 
+@wp.func
+def _write(
+    i: int,
+    x: Any,
+    v: Any,
+    count: int,
+    dx: Any,
+    dv: Any,
+    fcount: int,
+    fdx: Any,
+    fdv: Any,
+    thickness: Any,
+    x_out: wp.array(dtype=Any),
+    v_out: wp.array(dtype=Any),
+):
+    """Particle i's position and velocity after the pass: the mean of its normal corrections, plus the mean
+    of its friction corrections from both sides (a pair of boxes touches both ways: each one's vertices
+    on the other's triangles; each side's correction is its whole share of the relative change)."""
+    if count > 0 or fcount > 0:
+        xn = x
+        vn_ = v
+        if count > 0:
+            inv = type(thickness)(1.0) / type(thickness)(count)
+            xn = x + dx * inv
+            vn_ = v + dv * inv
+        if fcount > 0:
+            finv = type(thickness)(1.0) / type(thickness)(fcount)
+            xn = xn + fdx * finv
+            vn_ = vn_ + fdv * finv
+        x_out[i] = xn
+        v_out[i] = vn_
+
+
 @wp.kernel
 def _self_contact(
     # Model:
@@ -339,21 +372,7 @@ def _self_contact(
         fdx += sdx
         fdv += sdv
         fcount += scount
-    if count > 0 or fcount > 0:
-        xn = x
-        vn_ = v
-        if count > 0:
-            inv = type(thickness)(1.0) / type(thickness)(count)
-            xn = x + dx * inv
-            vn_ = v + dv * inv
-        if fcount > 0:
-            # One average for both sides: each side's correction is the whole relative change's share, and
-            # a pair of boxes touches both ways (each one's vertices on the other's triangles).
-            finv = type(thickness)(1.0) / type(thickness)(fcount)
-            xn = xn + fdx * finv
-            vn_ = vn_ + fdv * finv
-        x_out[i] = xn
-        v_out[i] = vn_
+    _write(i, x, v, count, dx, dv, fcount, fdx, fdv, thickness, x_out, v_out)
 
 
 @wp.kernel
@@ -424,7 +443,14 @@ class SelfCollision:
         if bound is not None:
             from ._step_bound import StepBound
 
-            self._bound = StepBound(model, fraction=bound, reach=self.thickness, separation=self.thickness)
+            self._bound = StepBound(
+                model,
+                fraction=bound,
+                reach=self.thickness,
+                separation=self.thickness,
+                friction=self.friction,
+                stick_velocity=self.stick_velocity,
+            )
         d = model.device
         n = model.particle_count
         self._x = wp.zeros(n, dtype=model.vec3, device=d)
