@@ -59,23 +59,42 @@ def test_twisted_cloth_never_intersects():
 
 @pytest.mark.slow
 def test_cloth_on_a_spinning_sphere_never_intersects():
+    """Friction (μ = 0.4) carries the cloth round with the sphere (180°/s, clockwise seen from above): by
+    1.5 s it has turned more than 180° of the sphere's 270° (measured 210°: 170°/s once spun up), and it
+    stays on the sphere (its centre within 2 cm of the axis; measured 0.3 mm). The sphere is a kinematic
+    mesh, so this is self-contact friction: before the step bound's separation push had friction the
+    cloth, held up by the sphere's vertices and edges, turned 26° and slid off after ~1.1 s."""
     scene = cs.sphere()
     x = _run(scene)
     cloth = slice(0, 17 * 17)
-    # Friction (μ = 0.4) carries the cloth round with the sphere (180°/s, clockwise seen from above).
-    a0 = np.arctan2(x[0, cloth, 2], x[0, cloth, 0])
-    a1 = np.arctan2(x[-1, cloth, 2], x[-1, cloth, 0])
-    turned = np.rad2deg(np.median(np.angle(np.exp(1j * (a0 - a1)))))
-    assert turned > 10.0, f"the cloth turned {turned:.1f}° with the sphere"
+    angle = np.arctan2(x[:, cloth, 2], x[:, cloth, 0])  # [F, N]
+    step = np.angle(np.exp(1j * (angle[:-1] - angle[1:])))  # each frame's turn (clockwise positive)
+    turned = np.rad2deg(np.median(step, axis=1).sum())
+    assert turned > 180.0, f"the cloth turned {turned:.1f}° with the sphere (270°)"
+    m = scene.model.particle_mass.numpy()[cloth]
+    centre = (m @ x[-1, cloth]) / m.sum()
+    assert np.linalg.norm(centre[[0, 2]]) < 0.02, f"the cloth slid off: its centre is at {centre}"
 
 
 @pytest.mark.slow
-def test_stack_of_three_soft_boxes_never_intersects():
-    # Only intersections are judged: the explicit projection contact does not hold the stack (the upper
-    # boxes slide off after ~0.5 s, with or without the bound: issue 39, item 1).
-    scene = cs.boxes()
+@pytest.mark.parametrize("family", cs.FAMILIES)
+def test_stack_of_three_soft_boxes_holds_and_never_intersects(family):
+    """The stack stands for 1.5 s: every box's centre stays within 2 cm of where it started, horizontally
+    (measured: at most 7 mm, nearly all of it in the landing), and 2 cm of its stacked height (0.055,
+    0.16, 0.265 m at rest). Before self-contact friction took the ground's law (issue 39, item 1) the
+    upper boxes slid off after ~0.5 s (the top box 0.35 m)."""
+    scene = cs.boxes(family=family)
     x = _run(scene)
     assert x[:, :, 1].min() > 0.005 - 1e-4, "a box went through the ground"
+    m = scene.model.particle_mass.numpy()
+    n = len(m) // 3
+    for k in range(3):
+        part = slice(k * n, (k + 1) * n)
+        c = (m[part] @ x[:, part]) / m[part].sum()  # [F, 3] the box's centre
+        drift = np.linalg.norm(c[:, [0, 2]] - c[0, [0, 2]], axis=1).max()
+        assert drift < 0.02, f"box {k} drifted {drift * 1e3:.0f} mm"
+        rest = 0.055 + k * 0.105
+        assert abs(c[-1, 1] - rest) < 0.02, f"box {k} ends at {c[-1, 1]:.3f} m, stacked at {rest:.3f} m"
 
 
 @pytest.mark.slow

@@ -29,7 +29,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import warp as wp
 
+from ..model import STICK_VELOCITY
 from ._hashgrid import triangle_closest_point
+from ._selfcollision import _tangential_change
 
 if TYPE_CHECKING:
     from ..model import Model, State
@@ -207,6 +209,34 @@ def _snapshot(
     vf_out[i] = wp.vec3f(wp.float32(v[0]), wp.float32(v[1]), wp.float32(v[2]))
 
 
+@wp.func
+def _apply(
+    count: int,
+    dx: wp.vec3f,
+    dv: wp.vec3f,
+    fcount: int,
+    fdx: wp.vec3f,
+    fdv: wp.vec3f,
+    x_io: wp.array(dtype=Any),
+    v_io: wp.array(dtype=Any),
+    i: int,
+):
+    """Particle i += the push's corrections over √count and friction's over fcount (≤ count; the float32
+    sums cast to the state's precision)."""
+    if count > 0:
+        f = wp.float32(0.0)
+        if fcount > 0:
+            f = 1.0 / wp.float32(fcount)
+        inv = 1.0 / wp.sqrt(wp.float32(count))
+        ddx = dx * inv + fdx * f
+        ddv = dv * inv + fdv * f
+        x = x_io[i]
+        v = v_io[i]
+        zero = x[0] * type(x[0])(0.0)
+        x_io[i] = x + type(x)(type(zero)(ddx[0]), type(zero)(ddx[1]), type(zero)(ddx[2]))
+        v_io[i] = v + type(v)(type(zero)(ddv[0]), type(zero)(ddv[1]), type(zero)(ddv[2]))
+
+
 @wp.kernel
 def _edge_push(
     particle_inv_mass: wp.array(dtype=Any),
@@ -217,6 +247,9 @@ def _edge_push(
     xf: wp.array(dtype=wp.vec3f),
     vf: wp.array(dtype=wp.vec3f),
     h: wp.float32,
+    friction: wp.float32,
+    stick: wp.float32,
+    dt: wp.float32,
     x_io: wp.array(dtype=Any),
     v_io: wp.array(dtype=Any),
 ):
@@ -232,43 +265,62 @@ def _edge_push(
     dx = wp.vec3f(0.0, 0.0, 0.0)
     dv = wp.vec3f(0.0, 0.0, 0.0)
     count = int(0)  # noqa: UP018 (a mutable Warp variable)
+    fdx = wp.vec3f(0.0, 0.0, 0.0)  # friction's corrections, averaged apart (1/count: no overshoot)
+    fdv = wp.vec3f(0.0, 0.0, 0.0)
+    fcount = int(0)  # noqa: UP018
     r = wp.vec3f(h, h, h)
-    for k in range(adj_start[i], adj_start[i + 1]):
-        e = adj[k]
-        u = edges[2 * e]
-        w = edges[2 * e + 1]
-        p1 = xf[u]
-        q1 = xf[w]
-        q = wp.bvh_query_aabb(bvh, wp.min(p1, q1) - r, wp.max(p1, q1) + r)
-        o = int(0)  # noqa: UP018
-        while wp.bvh_query_next(q, o):
-            u2 = edges[2 * o]
-            w2 = edges[2 * o + 1]
-            if u2 != u and u2 != w and w2 != u and w2 != w:
-                p2 = xf[u2]
-                q2 = xf[w2]
-                c = segment_closest(p1, q1, p2, q2)
-                d = c[2]
-                if d < h and d > 0.0:
-                    s = c[0]
-                    t = c[1]
-                    n = ((p1 + (q1 - p1) * s) - (p2 + (q2 - p2) * t)) / d
-                    wi = s
-                    if i == u:
-                        wi = 1.0 - s
-                    share = 0.5 * wi / (s * s + (1.0 - s) * (1.0 - s))
-                    dx += (share * (h - d)) * n
-                    vrel = (vf[u] * (1.0 - s) + vf[w] * s) - (vf[u2] * (1.0 - t) + vf[w2] * t)
-                    vn = wp.dot(vrel, n)
-                    if vn < 0.0:
-                        dv -= (share * vn) * n
-                    count += 1
-    if count > 0:
-        inv = 1.0 / wp.sqrt(wp.float32(count))
-        x = x_io[i]
-        v = v_io[i]
-        x_io[i] = x + type(x)(type(zero)(dx[0] * inv), type(zero)(dx[1] * inv), type(zero)(dx[2] * inv))
-        v_io[i] = v + type(v)(type(zero)(dv[0] * inv), type(zero)(dv[1] * inv), type(zero)(dv[2] * inv))
+    # Sweep 0: the push; sweep 1 (with friction): friction, for the normal velocity change the push
+    # made, which its 1/√count average scales by √count over one contact's.
+    sweeps = int(1)  # noqa: UP018
+    if friction > 0.0:
+        sweeps = 2
+    for sweep in range(sweeps):
+        scale = wp.sqrt(wp.float32(wp.max(count, 1)))
+        for k in range(adj_start[i], adj_start[i + 1]):
+            e = adj[k]
+            u = edges[2 * e]
+            w = edges[2 * e + 1]
+            p1 = xf[u]
+            q1 = xf[w]
+            q = wp.bvh_query_aabb(bvh, wp.min(p1, q1) - r, wp.max(p1, q1) + r)
+            o = int(0)  # noqa: UP018
+            while wp.bvh_query_next(q, o):
+                u2 = edges[2 * o]
+                w2 = edges[2 * o + 1]
+                if u2 != u and u2 != w and w2 != u and w2 != w:
+                    p2 = xf[u2]
+                    q2 = xf[w2]
+                    c = segment_closest(p1, q1, p2, q2)
+                    d = c[2]
+                    if d < h and d > 0.0:
+                        s = c[0]
+                        t = c[1]
+                        n = ((p1 + (q1 - p1) * s) - (p2 + (q2 - p2) * t)) / d
+                        wi = s
+                        if i == u:
+                            wi = 1.0 - s
+                        share = 0.5 * wi / (s * s + (1.0 - s) * (1.0 - s))
+                        if sweep == 0:
+                            dx += (share * (h - d)) * n
+                        vrel = (vf[u] * (1.0 - s) + vf[w] * s) - (vf[u2] * (1.0 - t) + vf[w2] * t)
+                        vn = wp.dot(vrel, n)
+                        if sweep == 0:
+                            if vn < 0.0:
+                                dv -= (share * vn) * n
+                            count += 1
+                        elif vn < 0.0:
+                            # This edge's part of the relative tangential change: all of it against an edge
+                            # that cannot move (kinematic or pinned), half otherwise.
+                            part = 0.5
+                            if particle_inv_mass[u2] == zero and particle_inv_mass[w2] == zero:
+                                part = 1.0
+                            dvt = (2.0 * part * share) * _tangential_change(
+                                vrel, n, -vn * scale, friction, stick
+                            )
+                            fdv += dvt
+                            fdx += dt * dvt
+                            fcount += 1
+    _apply(count, dx, dv, fcount, fdx, fdv, x_io, v_io, i)
 
 
 @wp.kernel
@@ -281,6 +333,9 @@ def _triangle_push(
     xf: wp.array(dtype=wp.vec3f),
     vf: wp.array(dtype=wp.vec3f),
     h: wp.float32,
+    friction: wp.float32,
+    stick: wp.float32,
+    dt: wp.float32,
     x_io: wp.array(dtype=Any),
     v_io: wp.array(dtype=Any),
 ):
@@ -294,45 +349,58 @@ def _triangle_push(
     dx = wp.vec3f(0.0, 0.0, 0.0)
     dv = wp.vec3f(0.0, 0.0, 0.0)
     count = int(0)  # noqa: UP018 (a mutable Warp variable)
+    fdx = wp.vec3f(0.0, 0.0, 0.0)  # friction's corrections, averaged apart (1/count: no overshoot)
+    fdv = wp.vec3f(0.0, 0.0, 0.0)
+    fcount = int(0)  # noqa: UP018
     r = wp.vec3f(h, h, h)
-    for k in range(adj_start[i], adj_start[i + 1]):
-        t = adj[k]
-        ia = tris[3 * t]
-        ib = tris[3 * t + 1]
-        ic = tris[3 * t + 2]
-        a = xf[ia]
-        b = xf[ib]
-        c = xf[ic]
-        q = wp.bvh_query_aabb(points, wp.min(wp.min(a, b), c) - r, wp.max(wp.max(a, b), c) + r)
-        j = int(0)  # noqa: UP018
-        while wp.bvh_query_next(q, j):
-            if j != ia and j != ib and j != ic:
-                p = xf[j]
-                cp, bary = closest_point_triangle(p, a, b, c)
-                d = wp.length(p - cp)
-                if d < h and d > 0.0:
-                    n = (p - cp) / d
-                    wi = bary[0]
-                    if i == ib:
-                        wi = bary[1]
-                    elif i == ic:
-                        wi = bary[2]
-                    part = 0.5
-                    if particle_inv_mass[j] == zero:
-                        part = 1.0
-                    share = part * wi / wp.dot(bary, bary)
-                    dx -= (share * (h - d)) * n
-                    vrel = vf[j] - (bary[0] * vf[ia] + bary[1] * vf[ib] + bary[2] * vf[ic])
-                    vn = wp.dot(vrel, n)
-                    if vn < 0.0:
-                        dv += (share * vn) * n
-                    count += 1
-    if count > 0:
-        inv = 1.0 / wp.sqrt(wp.float32(count))
-        x = x_io[i]
-        v = v_io[i]
-        x_io[i] = x + type(x)(type(zero)(dx[0] * inv), type(zero)(dx[1] * inv), type(zero)(dx[2] * inv))
-        v_io[i] = v + type(v)(type(zero)(dv[0] * inv), type(zero)(dv[1] * inv), type(zero)(dv[2] * inv))
+    # Sweep 0: the push; sweep 1 (with friction): friction, for the normal velocity change the push
+    # made, which its 1/√count average scales by √count over one contact's.
+    sweeps = int(1)  # noqa: UP018
+    if friction > 0.0:
+        sweeps = 2
+    for sweep in range(sweeps):
+        scale = wp.sqrt(wp.float32(wp.max(count, 1)))
+        for k in range(adj_start[i], adj_start[i + 1]):
+            t = adj[k]
+            ia = tris[3 * t]
+            ib = tris[3 * t + 1]
+            ic = tris[3 * t + 2]
+            a = xf[ia]
+            b = xf[ib]
+            c = xf[ic]
+            q = wp.bvh_query_aabb(points, wp.min(wp.min(a, b), c) - r, wp.max(wp.max(a, b), c) + r)
+            j = int(0)  # noqa: UP018
+            while wp.bvh_query_next(q, j):
+                if j != ia and j != ib and j != ic:
+                    p = xf[j]
+                    cp, bary = closest_point_triangle(p, a, b, c)
+                    d = wp.length(p - cp)
+                    if d < h and d > 0.0:
+                        n = (p - cp) / d
+                        wi = bary[0]
+                        if i == ib:
+                            wi = bary[1]
+                        elif i == ic:
+                            wi = bary[2]
+                        part = 0.5
+                        if particle_inv_mass[j] == zero:
+                            part = 1.0
+                        share = part * wi / wp.dot(bary, bary)
+                        if sweep == 0:
+                            dx -= (share * (h - d)) * n
+                        vrel = vf[j] - (bary[0] * vf[ia] + bary[1] * vf[ib] + bary[2] * vf[ic])
+                        vn = wp.dot(vrel, n)
+                        if sweep == 0:
+                            if vn < 0.0:
+                                dv += (share * vn) * n
+                            count += 1
+                        elif vn < 0.0:
+                            # The triangle's part (as the push's) of the relative tangential change.
+                            dvt = -share * _tangential_change(vrel, n, -vn * scale, friction, stick)
+                            fdv += dvt
+                            fdx += dt * dvt
+                            fcount += 1
+    _apply(count, dx, dv, fcount, fdx, fdv, x_io, v_io, i)
 
 
 @wp.kernel
@@ -384,6 +452,10 @@ class StepBound:
             a pair the bound let approach within it.
         passes: Jacobi passes of the separation push per step (each costs about twice the bound
             itself; more keep pressed layers nearer h, the bound keeps them apart either way).
+        friction: Coulomb μ [-] ≥ 0 of the separation push (the smoothed law of
+            :mod:`pliant.collision._friction`, as :class:`SelfCollision`'s): a cloth held up by a mesh's
+            vertices and edges, which only this push touches, is otherwise carried by nothing.
+        stick_velocity: ε_v [m/s] > 0 of that law (default :data:`pliant.model.STICK_VELOCITY`).
     """
 
     def __init__(
@@ -395,6 +467,8 @@ class StepBound:
         separation: float | None = None,
         floor: float = 1.0e-6,
         passes: int = 1,
+        friction: float = 0.0,
+        stick_velocity: float = STICK_VELOCITY,
     ) -> None:
         if not 0.0 < fraction < 0.5:
             raise ValueError(f"StepBound: fraction must be in (0, 0.5) (no pair can cross), got {fraction}")
@@ -406,6 +480,10 @@ class StepBound:
             raise ValueError(f"StepBound: floor must be in [0, reach = {reach}) m, got {floor}")
         if separation is not None and not 0.0 < separation <= reach:
             raise ValueError(f"StepBound: separation must be in (0, reach = {reach}] m, got {separation}")
+        if not friction >= 0.0:
+            raise ValueError(f"StepBound: friction must be >= 0 (a Coulomb μ), got {friction}")
+        if not stick_velocity > 0.0:
+            raise ValueError(f"StepBound: stick_velocity must be > 0 m/s, got {stick_velocity}")
         if model.tri_count == 0:
             raise ValueError("StepBound: the model has no triangles; add some (add_triangles) or drop it")
         from ..geometry import edges_from_triangles
@@ -415,6 +493,8 @@ class StepBound:
         self.separation = None if separation is None else float(separation)
         self.floor = float(floor)
         self.passes = int(passes)
+        self.friction = float(friction)
+        self.stick_velocity = float(stick_velocity)
         d = model.device
         n = model.particle_count
         tris = model.tri_indices.numpy().reshape(-1, 3).astype(np.int32)
@@ -474,10 +554,12 @@ class StepBound:
         wp.launch(_scatter, self._edge_dist.shape[0], [self._edges, 2, self._edge_dist, self.bound], device=d)
         return self.bound
 
-    def push(self, model: Model, state_out: State) -> None:
+    def push(self, model: Model, state_out: State, dt: float = 0.0) -> None:
         """Push apart the edges of ``state_out`` closer than the separation, then its triangles from the
-        vertices closer than it (in place)."""
+        vertices closer than it (in place); friction moves positions by ``dt`` [s] times its velocity
+        change (the step's, as the other contact responses)."""
         d, x, v = model.device, state_out.particle_q, state_out.particle_qd
+        fr = [wp.float32(self.friction), wp.float32(self.stick_velocity), wp.float32(dt)]
         assert self.separation is not None  # called only with a separation
         h = wp.float32(self.separation)
         wp.launch(_snapshot, model.particle_count, [x, v, self._xp, self._vp], device=d)
@@ -494,6 +576,7 @@ class StepBound:
             self._xp,
             self._vp,
             h,
+            *fr,
             x,
             v,
         ]
@@ -509,6 +592,7 @@ class StepBound:
             self._xp,
             self._vp,
             h,
+            *fr,
             x,
             v,
         ]
@@ -516,10 +600,10 @@ class StepBound:
 
     def apply(self, model: Model, state_in: State, state_out: State, dt: float) -> None:
         """Push edges apart (with a separation), then truncate ``state_out``'s displacements from
-        ``state_in`` (in place; ``dt`` [s] unused)."""
+        ``state_in`` (in place; ``dt`` [s]: the step, for friction's position change)."""
         if self.separation is not None:
             for _ in range(self.passes):
-                self.push(model, state_out)
+                self.push(model, state_out, dt)
         self.compute(state_in.particle_q)
         args = [
             model.particle_inv_mass,

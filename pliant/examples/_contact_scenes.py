@@ -105,11 +105,15 @@ def _solver(
 
 def _contact(model: pl.Model, thickness: float, friction: float, reach: float | None = None) -> list:
     """SelfCollision with ``thickness`` [m] and μ, then the step bound (γ = 0.4, reach [m], default the
-    thickness)."""
+    thickness), whose separation push has the same μ."""
     return [
         pl.collision.SelfCollision(model, thickness=thickness, friction=friction),
         pl.collision.StepBound(
-            model, fraction=0.4, reach=thickness if reach is None else reach, separation=thickness
+            model,
+            fraction=0.4,
+            reach=thickness if reach is None else reach,
+            separation=thickness,
+            friction=friction,
         ),
     ]
 

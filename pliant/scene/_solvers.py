@@ -246,7 +246,15 @@ def _step_bound(ctx: BuildContext) -> list[StepBound]:
     if sc is None or sc.bound is None:
         return []
     try:
-        return [StepBound(ctx.finalized, fraction=sc.bound, reach=sc.thickness, separation=sc.thickness)]
+        return [
+            StepBound(
+                ctx.finalized,
+                fraction=sc.bound,
+                reach=sc.thickness,
+                separation=sc.thickness,
+                friction=sc.friction,
+            )
+        ]
     except ValueError as exc:
         raise ctx.fail("solver.self_collision.bound", str(exc)) from None
 
