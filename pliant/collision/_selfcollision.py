@@ -482,8 +482,8 @@ class SelfCollision:
             start = np.searchsorted(flat[order], np.arange(n + 1)).astype(np.int32)
             self._adj_start = wp.array(start, dtype=wp.int32, device=d)
             self._adj = wp.array((order // 3).astype(np.int32), dtype=wp.int32, device=d)
-            self._pt_lo = wp.array(model.particle_q_np.astype(np.float32), dtype=wp.vec3f, device=d)
-            self._pt_hi = wp.array(model.particle_q_np.astype(np.float32), dtype=wp.vec3f, device=d)
+            self._pt_lo: wp.array = wp.array(model.particle_q_np.astype(np.float32), dtype=wp.vec3f, device=d)
+            self._pt_hi: wp.array = wp.array(model.particle_q_np.astype(np.float32), dtype=wp.vec3f, device=d)
             self._points = wp.Bvh(self._pt_lo, self._pt_hi)
         # Hash-table size ~2 cells per particle per axis³, capped: a build clears every cell.
         dim = int(np.clip(round(2.0 * n ** (1.0 / 3.0)), 8, 128))
