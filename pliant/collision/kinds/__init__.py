@@ -26,12 +26,13 @@ from ._base import (
 )
 from ._box import BOX
 from ._capsule import CAPSULE
+from ._cylinder import CYLINDER
 from ._mesh import MESH
 from ._plane import PLANE
 from ._sphere import SPHERE
 
 #: name → kind; each kind's ``code`` is its value in the device arrays.
-CONTACT_KINDS: dict[str, ContactKind] = {k.name: k for k in (SPHERE, BOX, CAPSULE, MESH, PLANE)}
+CONTACT_KINDS: dict[str, ContactKind] = {k.name: k for k in (SPHERE, BOX, CAPSULE, MESH, PLANE, CYLINDER)}
 
 __all__ = [
     "AUX_DIRECTION",
