@@ -26,13 +26,12 @@ from ._base import (
 )
 from ._box import BOX
 from ._capsule import CAPSULE
-from ._cylinder import CYLINDER
 from ._mesh import MESH
 from ._plane import PLANE
 from ._sphere import SPHERE
 
 #: name → kind; each kind's ``code`` is its value in the device arrays.
-CONTACT_KINDS: dict[str, ContactKind] = {k.name: k for k in (SPHERE, BOX, CAPSULE, MESH, PLANE, CYLINDER)}
+CONTACT_KINDS: dict[str, ContactKind] = {k.name: k for k in (SPHERE, BOX, CAPSULE, MESH, PLANE)}
 
 __all__ = [
     "AUX_DIRECTION",
