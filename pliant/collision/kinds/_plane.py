@@ -1,8 +1,8 @@
 """The plane (a half space): through ``pos`` with unit outward normal ``aux``.
 
-The model's ground (``Model.ground``, y = height) is this kind with n = +y; its responses keep their own
-kernels (``collision/_ground.py``), written for that normal, so that the golden trajectories stay bit for
-bit. A tilted plane, or one that moves, is a collider of this kind.
+The model's ground (``Model.ground``, y = height) is this kind with n = +y: its post-step responses call
+this kind's (``collision/_ground.py:ground_response``). A tilted plane, or one that moves, is a collider of
+this kind.
 """
 
 from __future__ import annotations
