@@ -110,7 +110,8 @@ def test_every_friction_law_rests_or_slides_on_an_incline(law: str, family: str,
 
 
 def test_the_registries_are_consistent():
-    """Unique codes, names that match their keys, a floor for every kind, a scene kind for every kind."""
+    """Unique codes, names that match their keys, a floor for every kind, a scene kind built from every
+    kind's declared keys, and a drawing."""
     from pliant.scene._registry import COLLIDER_KINDS
 
     kinds = pl.collision.CONTACT_KINDS.values()
@@ -119,6 +120,11 @@ def test_the_registries_are_consistent():
     func = type(pl.collision.friction_velocity)  # what @wp.func makes
     assert all(isinstance(k.sdf, func) for k in kinds)
     assert set(pl.collision.CONTACT_KINDS) <= set(COLLIDER_KINDS), "a kind without a [[colliders]] schema"
+    for k in kinds:  # its scene keys are its schema's, and its drawing of its floor is a triangle mesh
+        assert {p.name for p in k.scene} <= set(COLLIDER_KINDS[k.name].schema.model_fields), k.name
+        if k.draw is not None:
+            v, f = k.draw(**k.floor())
+            assert np.all(np.isfinite(v)) and v.shape[1] == 3 and f.min() >= 0 and f.max() < len(v), k.name
     laws = pl.collision.FRICTION_LAWS.values()
     assert len({law.code for law in laws}) == len(laws)
     assert all(isinstance(law.scale, func) for law in laws)

@@ -13,9 +13,8 @@ from ._friction_laws import (
 )
 from ._ground import (
     ground_coefficients,
-    ground_compliant,
-    ground_contact,
     ground_penalty_friction,
+    ground_response,
     respond_to_ground,
 )
 from ._hashgrid import ParticleGrid, TriangleBVH, triangle_closest_point
@@ -40,9 +39,8 @@ __all__ = [
     "ParticleGrid",
     "TriangleBVH",
     "ground_coefficients",
-    "ground_compliant",
-    "ground_contact",
     "ground_penalty_friction",
+    "ground_response",
     "respond_to_ground",
     "triangle_closest_point",
 ]

@@ -495,7 +495,8 @@ class Colliders:
         return phi.numpy(), n.numpy()
 
     def describe(self) -> list[dict]:
-        """One dict per collider: kind, friction, restitution, radius, and the motion and compliance set."""
+        """One dict per collider: kind, friction, restitution, radius, and the motion (velocity,
+        angular_velocity and the centre [m] it rotates about, where it was added) and compliance set."""
         out = []
         for r in self._rows:
             d = {
@@ -506,6 +507,7 @@ class Colliders:
             }
             if np.any(r["vel"] != 0) or np.any(r["omega"] != 0):
                 d |= {"velocity": r["vel"].tolist(), "angular_velocity": r["omega"].tolist()}
+                d |= {"centre": np.asarray(r["centre"], float).tolist()}  # what it rotates about
             if r["kappa"] > 0:
                 d |= {"stiffness": r["kappa"], "damping_ratio": r["damping_ratio"]}
             out.append(d)

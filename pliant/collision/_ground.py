@@ -1,6 +1,11 @@
 """Ground-plane contact as a velocity-level response with Coulomb friction and restitution, or (a
 compliant ground, ``Ground.stiffness`` set) a normal spring–damper solved by backward Euler after the step.
 
+Both are the ``plane`` contact kind's (:func:`ground_response` calls the colliders' ``collider_contact``
+with n = +y): one home for the arithmetic, the same trajectories bit for bit at height 0 (y − 0 is y, and
+y + (r − y) is r for y in [r/2, 2r]) and to round-off otherwise. Implicit steps that minimised a ground
+penalty get friction for its impulse instead (:func:`ground_penalty_friction`), which no collider has.
+
 One kernel per response serves every step: it reads (x_in, v_in) and writes every particle of (x_out,
 v_out). A gradient-free step passes the same arrays as input and output (an in-place update: each thread
 touches only its own particle); a step that ``wp.Tape`` records passes fresh outputs, so that no array is
@@ -14,7 +19,12 @@ from typing import TYPE_CHECKING, Any
 import warp as wp
 
 from .._warp import grad_enabled, launch
+from ._collider_sdf import collider_contact
 from ._friction_laws import friction_law_code, friction_law_scale
+from .kinds import CONTACT_KINDS
+
+#: The ground is this kind (n = +y): its hard and compliant responses are the colliders' own.
+_PLANE = wp.constant(CONTACT_KINDS["plane"].code)
 
 if TYPE_CHECKING:
     from ..model import Model
@@ -35,17 +45,6 @@ def coulomb_ground(v: Any, dvn: Any, vn_new: Any, friction: Any, law: int, stick
 
 
 @wp.func
-def ground_velocity(v: Any, friction: Any, restitution: Any, law: int, stick_velocity: Any):
-    """Velocity after hitting the ground: normal part reflected (×e) if approaching, Coulomb friction."""
-    zero = friction * type(friction)(0.0)
-    vn = v[1]
-    vn_new = wp.max(vn, zero)
-    if vn < zero:
-        vn_new = -restitution * vn
-    return coulomb_ground(v, vn_new - vn, vn_new, friction, law, stick_velocity)
-
-
-@wp.func
 def friction_shift(p: Any, v: Any, v_new: Any, dt: Any):
     """p moved by Δt times the tangential velocity change v_new − v: friction acts inside the step, whose
     position p = x + Δt v already used the trial velocity (a sticking particle stays where it was)."""
@@ -53,7 +52,7 @@ def friction_shift(p: Any, v: Any, v_new: Any, dt: Any):
 
 
 @wp.kernel
-def ground_contact(
+def ground_response(
     inv_mass: wp.array(dtype=Any),
     radius: wp.array(dtype=Any),
     height: Any,
@@ -61,31 +60,57 @@ def ground_contact(
     law: int,
     stick_velocity: Any,
     shift_dt: Any,
+    kappa: Any,
+    damping: Any,
+    dt: Any,
+    x_start: wp.array(dtype=Any),
     x_in: wp.array(dtype=Any),
     v_in: wp.array(dtype=Any),
     x_out: wp.array(dtype=Any),
     v_out: wp.array(dtype=Any),
 ):
-    """Push particles above y = height + r, reflect the normal velocity (×e), Coulomb friction on v_t
-    (the position moved by ``shift_dt`` Δv_t too, :func:`friction_shift`; ``shift_dt`` = Δt after
-    x₁ = x₀ + Δt v₁).
+    """The ground's response after a step of Δt = ``dt``: the ``plane`` kind (through y = height, n = +y)
+    through :func:`~pliant.collision._collider_sdf.collider_contact`, the colliders' own response.
 
-    ``coefficients`` = [friction μ, restitution e] (an array, so that their gradients can be read). Every
-    particle's output is written (the outputs may be the inputs). Differentiable almost everywhere: the
-    contact set and the sign of the normal velocity are piecewise, so at a switch the gradient is
-    one-sided (a subgradient); friction is C¹ through stick/slip (the stick velocity ε_v smooths it).
+    Hard (κ = 0): particles pushed above y = height + r, the normal velocity reflected (×e), the friction
+    law on v_t, the position moved by ``shift_dt`` Δv_t. Compliant (κ > 0 [1/s²]): the spring–damper
+    a = max(κ d − b v_n, 0) / (1 + κ β Δt² + b Δt) by backward Euler on the trial depth d (β Δt =
+    ``shift_dt``), so a particle resting under gravity g sits exactly g/κ deep; the damper b [1/s] acts on
+    particles in contact at ``x_start``; restitution is the damper's; friction for the change Δt·a.
+    ``coefficients`` = [μ, e] (an array, so that their gradients can be read). Every particle's output is
+    written (the outputs may be the inputs). Differentiable almost everywhere (the contact set and the
+    sign of v_n are piecewise: one-sided gradients at a switch; friction is C¹ through ε_v).
     """
     i = wp.tid()
-    p = x_in[i]
+    x = x_in[i]
     v = v_in[i]
-    floor = height + radius[i]
-    if inv_mass[i] != type(height)(0.0) and p[1] < floor:
-        v_new = ground_velocity(v, coefficients[0], coefficients[1], law, stick_velocity)
-        x_out[i] = friction_shift(type(p)(p[0], floor, p[2]), v, v_new, shift_dt)
-        v_out[i] = v_new
-    else:
-        x_out[i] = p
-        v_out[i] = v
+    zero = height * type(height)(0.0)
+    if inv_mass[i] != zero:
+        n = type(x)(zero, type(height)(1.0), zero)
+        eye = wp.identity(n=3, dtype=type(height))
+        x, v = collider_contact(
+            _PLANE,
+            type(x)(zero, height, zero),
+            n,
+            eye,
+            zero,
+            wp.uint64(0),
+            n * zero,
+            coefficients[0],
+            coefficients[1],
+            kappa,
+            damping,
+            law,
+            stick_velocity,
+            shift_dt,
+            dt,
+            radius[i],
+            x,
+            v,
+            x_start[i],
+        )
+    x_out[i] = x
+    v_out[i] = v
 
 
 @wp.kernel
@@ -109,7 +134,7 @@ def ground_penalty_friction(
     """Coulomb friction for the normal impulse a ground penalty κ m d gave over the step (implicit steps).
 
     Inside the incremental potential the penalty holds a resting particle at the depth d = g/κ where it
-    balances the weight; projecting it back to y = height + r after every step (``ground_contact``) would
+    balances the weight; projecting it back to y = height + r after every step (``ground_response``) would
     undo that equilibrium and leave Newton a residual of h·g per step. So particles keep their height and
     the normal velocity the potential gave them. The penalty acted at x_θ = x₁ + (1 − θ)(x₀ − x₁)
     (θ = ``point``: 1 for backward Euler, ½ for the implicit midpoint rule; x₀ = ``x_start``) over
@@ -178,56 +203,6 @@ def ground_damped_penalty_friction(
         v_out[i] = v
 
 
-@wp.kernel
-def ground_compliant(
-    inv_mass: wp.array(dtype=Any),
-    radius: wp.array(dtype=Any),
-    height: Any,
-    coefficients: wp.array(dtype=Any),
-    law: int,
-    stick_velocity: Any,
-    shift_dt: Any,
-    kappa: Any,
-    damping: Any,
-    dt: Any,
-    x_start: wp.array(dtype=Any),
-    x_in: wp.array(dtype=Any),
-    v_in: wp.array(dtype=Any),
-    x_out: wp.array(dtype=Any),
-    v_out: wp.array(dtype=Any),
-):
-    """Compliant ground contact after a step of Δt = ``dt`` that ignored it: the normal spring–damper
-    a = max(κ d⁺ − b v⁺, 0) [m/s²] per unit mass, by backward Euler on the end-of-step penetration d⁺ and
-    normal velocity v⁺ (stable for any κ, b), then Coulomb friction for its velocity change Δt·a.
-
-    The step's trial (y, v_n) change as v⁺ = v_n + Δt a and y⁺ = y + β Δt·Δt a (β Δt = ``shift_dt``), so
-    a = max(κ d − b v_n, 0) / (1 + κ β Δt² + b Δt) for the trial depth d = height + r − y > 0. A particle
-    resting under gravity g then sits exactly g/κ deep (a = g at v⁺ = 0). The damper b [1/s] acts only on
-    particles in contact at the step's start (``x_start``): one entering is not braked before it touches,
-    and then y⁺ stays below the surface, so the force never pushes a particle out past it nor pulls.
-    Restitution is the damper's (coefficients[1] is unused); friction as :func:`ground_contact`'s.
-    """
-    i = wp.tid()
-    p = x_in[i]
-    v = v_in[i]
-    zero = type(height)(0.0)
-    floor = height + radius[i]
-    d = floor - p[1]
-    if inv_mass[i] != zero and d > zero:
-        num = kappa * d
-        den = type(height)(1.0) + kappa * dt * shift_dt
-        if damping > zero and x_start[i][1] < floor:
-            num = num - damping * v[1]
-            den = den + damping * dt
-        dv = dt * wp.max(num, zero) / den
-        v_new = coulomb_ground(v, dv, v[1] + dv, coefficients[0], law, stick_velocity)
-        x_out[i] = friction_shift(type(p)(p[0], p[1] + shift_dt * dv, p[2]), v, v_new, shift_dt)
-        v_out[i] = v_new
-    else:
-        x_out[i] = p
-        v_out[i] = v
-
-
 def ground_coefficients(model: Model) -> wp.array:
     """[friction μ, restitution e] of ``model.ground`` as the device array the ground kernels read, with
     ``requires_grad`` on a differentiable model (its ``.grad`` then holds ∂loss/∂μ, ∂loss/∂e)."""
@@ -267,7 +242,7 @@ def respond_to_ground(
         v_out: velocities [m/s] written (``v_in`` itself for an in-place update).
         penalty: κ [1/s²] of a :class:`~pliant.energies.GroundPenalty` the step already minimised: the
             response is then friction for the penalty's impulse instead of a projection. Without one, a
-            compliant ``model.ground`` (``stiffness`` set) gets :func:`ground_compliant`'s spring–damper.
+            compliant ``model.ground`` (``stiffness`` set) gets :func:`ground_response`'s spring–damper.
         penalty_damping: b [1/s] of that penalty's damper (:class:`~pliant.energies.DampedGroundPenalty`).
         x_start: positions [m] at the start of the step (needed with a penalty and ``point`` < 1, and by
             compliant contact's damper).
@@ -292,15 +267,13 @@ def respond_to_ground(
         if penalty_damping > 0:
             args = [*common, m.s(penalty), m.s(penalty_damping), m.s(impulse * dt), m.s(point), x0]
             kernel = ground_damped_penalty_friction
-    elif g.compliant:
-        if x_start is None and g.damping > 0:
+    else:
+        if g.compliant and x_start is None and g.damping > 0:
             raise ValueError(
                 "respond_to_ground: compliant contact with a damper needs x_start (the step's x₀)"
             )
         x0 = x_in if x_start is None else x_start
-        assert g.stiffness is not None  # g.compliant
-        args = [*common, m.s(g.stiffness), m.s(g.damping), m.s(dt), x0]
-        kernel = ground_compliant
-    else:
-        kernel, args = ground_contact, common
+        kappa, damping = (g.stiffness, g.damping) if g.compliant else (0.0, 0.0)
+        args = [*common, m.s(kappa or 0.0), m.s(damping), m.s(dt), x0]
+        kernel = ground_response
     launch(kernel, m.particle_count, [*args, x_in, v_in, x_out, v_out], device=m.device)

@@ -515,7 +515,7 @@ class LiveSession:
             from ..render import render_video
 
             m = self.model
-            xr, fr, colors = self.scene.render_mesh(traj.x, traj.faces)
+            xr, fr, colors = self.scene.render_mesh(traj.x, traj.faces, traj.t)
             mp4 = path.with_suffix(".mp4")
             render_video(
                 xr,

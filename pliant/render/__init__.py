@@ -16,6 +16,7 @@ from ._camera import Camera
 from ._export import export_obj, export_obj_sequence, export_ply, export_ply_sequence, export_usd
 from ._export_objects import (
     ObjectPart,
+    collider_points,
     curve_segments,
     export_usd_objects,
     export_vtu_series,
@@ -63,6 +64,7 @@ __all__ = [
     "export_vtu_series",
     "export_xdmf",
     "trajectory_objects",
+    "collider_points",
     "Camera",
     "Renderer",
     "VideoError",

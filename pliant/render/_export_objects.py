@@ -226,16 +226,45 @@ def export_usd_objects(
             if box is not None:
                 extent_attr.Set(Vt.Vec3fArray([Gf.Vec3f(*map(float, b)) for b in box]), code)
 
-    _add_static_meshes(stage, traj, finite)
+    _add_static_meshes(stage, traj, finite, codes)
     stage.GetRootLayer().Save()
     return path
 
 
-def _add_static_meshes(stage: object, traj: Trajectory, finite: np.ndarray) -> None:
+def collider_points(collider: dict[str, Any], t: Any) -> np.ndarray:
+    """A drawn collider's points [T, V, 3] [m] at times ``t`` [T] [s].
+
+    Args:
+        collider: a ``meta["colliders"]`` entry: ``points`` [V, 3] [m] where it was added and, for a moving
+            collider, ``centre`` [m] (the point it rotates about, at t = 0), ``velocity`` [m/s] and
+            ``angular_velocity`` [rad/s]: the rigid motion ``Colliders.apply`` gives it, c(t) = c + v t and
+            R(t) = exp(ω t) about c(t).
+        t: the frames' times [s] since it was added.
+
+    Returns:
+        The points per frame (the same points every frame for a static collider).
+    """
+    p = np.asarray(collider["points"], np.float64).reshape(-1, 3)
+    ts = np.asarray(t, np.float64).reshape(-1)
+    if "velocity" not in collider:
+        return np.broadcast_to(p, (len(ts), *p.shape))
+    c = np.asarray(collider["centre"], np.float64)
+    v = np.asarray(collider["velocity"], np.float64)
+    w = np.asarray(collider["angular_velocity"], np.float64)
+    rate = float(np.linalg.norm(w))
+    k = w / rate if rate > 0 else np.zeros(3)
+    d = p - c
+    cos, sin = np.cos(rate * ts)[:, None, None], np.sin(rate * ts)[:, None, None]  # Rodrigues, per frame
+    turned = d * cos + np.cross(k, d) * sin + np.outer(d @ k, k) * (1.0 - cos)
+    return c + ts[:, None, None] * v + turned
+
+
+def _add_static_meshes(stage: object, traj: Trajectory, finite: np.ndarray, codes: np.ndarray) -> None:
     """Static ``Mesh`` prims on ``stage``: the colliders of ``traj.meta["colliders"]`` under
     ``/pliant/colliders`` and, when ``traj.meta["ground"]`` (a height, m) is set, a ground quad
-    ``/pliant/ground`` around the finite positions ``finite`` [M, 3] (m)."""
-    from pxr import Gf, UsdGeom, Vt
+    ``/pliant/ground`` around the finite positions ``finite`` [M, 3] (m). A moving collider's points are
+    time-sampled at the time codes ``codes`` (its pose at each frame: :func:`collider_points`)."""
+    from pxr import Gf, Usd, UsdGeom, Vt
 
     static = [(f"/pliant/colliders/collider{i}", c) for i, c in enumerate(traj.meta.get("colliders") or [])]
     if static:
@@ -251,7 +280,13 @@ def _add_static_meshes(stage: object, traj: Trajectory, finite: np.ndarray) -> N
         pts = np.asarray(mesh["points"], np.float32).reshape(-1, 3)
         tris = np.asarray(mesh["faces"], np.int32).reshape(-1, 3)
         geom = UsdGeom.Mesh.Define(stage, at)
-        geom.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(pts)))
+        points_attr = geom.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(pts)))
+        if "velocity" in mesh:  # a moving collider: its pose per frame, and its whole sweep's extent
+            posed = collider_points(mesh, traj.t).astype(np.float32)
+            for f in range(len(codes)):  # per frame, not per point
+                code = Usd.TimeCode(float(codes[f]))
+                points_attr.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(posed[f])), code)
+            pts = posed.reshape(-1, 3)
         geom.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(tris), 3, np.int32)))
         geom.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(tris.ravel(), np.int32)))
         geom.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)

@@ -308,7 +308,7 @@ def _write_trajectory(
         # What the video draws (particles, the fine embedded surface, colliders) as <name>.render.npz.
         from ..io import Trajectory
 
-        xf, ff, _ = scene.render_mesh(traj.x, traj.faces)
+        xf, ff, _ = scene.render_mesh(traj.x, traj.faces, traj.t)
         fine = Trajectory(x=xf, t=traj.t, faces=ff, meta={**traj.meta, "render_mesh": True})
         report.written.append(Path(fine.save(render_path)))
 
@@ -328,7 +328,7 @@ def _video(
     try:
         from ..render import render_video
 
-        xr, fr, colors = scene.render_mesh(traj.x, traj.faces)
+        xr, fr, colors = scene.render_mesh(traj.x, traj.faces, traj.t)
         if splats is not None and splats.draw:
             splats.render_video(traj.x, path, scene.fps, progress=progress)
         else:

@@ -73,6 +73,8 @@ class Scene:
     control_points: list = field(default_factory=list)  # pl.energies.ControlPoints of spring handles
     embeddings: list[Embedding] = field(default_factory=list)
     static_meshes: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)  # drawn colliders
+    #: per drawn collider, its motion (``centre``, ``velocity``, ``angular_velocity``), empty when static
+    static_motions: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def dt(self) -> float:
@@ -128,25 +130,39 @@ class Scene:
         Returns the number of modules queued (0 when there is nothing to prebuild)."""
         return maybe_prebuild(self.config.scene.name, self.model)
 
+    def _drawn(self) -> list[dict[str, Any]]:
+        """The drawn colliders as ``meta["colliders"]`` entries (points, faces and a moving one's motion)."""
+        motions = self.static_motions or [{} for _ in self.static_meshes]
+        pairs = zip(self.static_meshes, motions, strict=True)
+        return [{"points": p, "faces": f, **mo} for (p, f), mo in pairs]
+
     def trajectory_meta(self) -> dict[str, Any]:
         """What a saved trajectory carries beside the simulator's meta so that ``pliant view`` and
         ``pliant export`` draw the whole scene: its name, the ground height (None without one) and the drawn
-        colliders (points and faces, rounded to µm)."""
+        colliders (points where they were added and faces, rounded to µm; a moving one's ``centre``,
+        ``velocity`` and ``angular_velocity`` too: :func:`pliant.render.collider_points` poses it)."""
         m = self.model
+        out = []
+        for c in self._drawn():
+            c = {**c, "points": np.asarray(c["points"], float).round(6).tolist()}
+            out.append(c | {"faces": np.asarray(c["faces"]).tolist()})
         return {
             "scene": self.config.scene.name,
             "ground": m.ground.height if m.ground is not None else None,
-            "colliders": [
-                {"points": np.asarray(p, float).round(6).tolist(), "faces": np.asarray(f).tolist()}
-                for p, f in self.static_meshes
-            ],
+            "colliders": out,
         }
 
     def render_mesh(
-        self, x: np.ndarray, faces: np.ndarray | None
+        self, x: np.ndarray, faces: np.ndarray | None, t: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
         """What to draw for positions ``x`` [T, N, 3] (or [N, 3]): embedded fine surfaces replace their tet
-        meshes' surfaces, and colliders with ``render = true`` are added as grey static meshes.
+        meshes' surfaces, and colliders with ``render = true`` are added as grey meshes.
+
+        Args:
+            x: particle positions [m] per frame.
+            faces: the model's render triangles.
+            t: the frames' times [T] [s] since the start: moving colliders are drawn where they are then
+                (:func:`pliant.render.collider_points`); None: where they were added.
 
         Returns (x, faces, per-vertex colours [V, 3] or None).
         """
@@ -168,9 +184,15 @@ class Scene:
             fparts.append(e.faces + count)
             count += len(e.bary)
         n_body = count
-        for v, f in self.static_meshes:
-            parts.append(np.broadcast_to(v, (xs.shape[0], *v.shape)))
-            fparts.append(f + count)
+        for c in self._drawn():
+            v = np.asarray(c["points"])
+            if t is not None and "velocity" in c:
+                from ..render import collider_points
+
+                parts.append(collider_points(c, np.asarray(t).reshape(-1)[: xs.shape[0]]))
+            else:
+                parts.append(np.broadcast_to(v, (xs.shape[0], *v.shape)))
+            fparts.append(c["faces"] + count)
             count += len(v)
         out = np.concatenate(parts, axis=1)
         out_faces = np.concatenate(fparts).astype(np.int32) if fparts else None
@@ -331,12 +353,13 @@ def _embeddings(ctx: BuildContext, x0: np.ndarray) -> list[Embedding]:
     return out
 
 
-def _colliders(ctx: BuildContext) -> tuple[Colliders | None, list]:
+def _colliders(ctx: BuildContext) -> tuple[Colliders | None, list, list]:
+    """The [[colliders]], their drawings (vertices, faces) and the drawn ones' motions (empty: static)."""
     from ..collision import Colliders
 
     if not ctx.cfg.colliders:
-        return None, []
-    colliders, drawn = Colliders(), []
+        return None, [], []
+    colliders, drawn, motions = Colliders(), [], []
     for i, c in enumerate(ctx.cfg.colliders):
         try:
             mesh = COLLIDER_KINDS[c.kind].add(colliders, ctx.cfg, c, f"colliders[{i}]")
@@ -346,8 +369,10 @@ def _colliders(ctx: BuildContext) -> tuple[Colliders | None, list]:
             raise ctx.fail(f"colliders[{i}]", str(exc)) from None
         if mesh is not None:
             drawn.append((np.asarray(mesh[0], float), np.asarray(mesh[1], np.int32)))
+            d = colliders.describe()[-1]
+            motions.append({k: d[k] for k in ("centre", "velocity", "angular_velocity") if k in d})
     ctx.handlers.append(colliders)
-    return colliders, drawn
+    return colliders, drawn, motions
 
 
 def _spring_handles(ctx: BuildContext, spring_handles: list) -> tuple[list, list]:
@@ -502,7 +527,7 @@ def build_scene(
         for name, value in params.items():
             ctx.finalized.set_world_parameter(name, w, value)
     embeddings = _embeddings(ctx, x0)
-    colliders, static_meshes = _colliders(ctx)
+    colliders, static_meshes, static_motions = _colliders(ctx)
     control_points, springs = _spring_handles(ctx, spring_handles)
     _entries(ctx, "energies", ENERGY_KINDS, ctx.terms)
     _extra_constraints(ctx)
@@ -524,4 +549,5 @@ def build_scene(
         control_points=control_points,
         embeddings=embeddings,
         static_meshes=static_meshes,
+        static_motions=static_motions,
     )

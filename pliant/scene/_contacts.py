@@ -1,14 +1,16 @@
-"""Built-in ``[[colliders]]`` kinds (sphere, box, capsule, mesh, plane: one per
-:data:`pliant.collision.CONTACT_KINDS` entry, ``tests/test_contact_registry.py`` checks) and
+"""The ``[[colliders]]`` kinds, one per :data:`pliant.collision.CONTACT_KINDS` entry and built from it (each
+kind's file declares its scene keys and its drawing: nothing here names a kind), and the built-in
 ``[[handles]]`` kinds (box, points)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BeforeValidator
+from pydantic import BeforeValidator, Field, create_model
 
+from ..collision.kinds import CONTACT_KINDS, REQUIRED, ContactKind
 from ._files import load_surface_file
 from ._registry import handle_mode, register_collider_kind, register_handle_kind
 from ._schema import ColliderBase, Float, Length, NonNegFloat, Scale3, Size3, Vec3, vector
@@ -19,116 +21,63 @@ if TYPE_CHECKING:
     from ._schema import HandleConfig, SceneConfig
 
 
-class SphereCollider(ColliderBase):
-    kind: Literal["sphere"]
-    center: Vec3 = (0.0, 0.0, 0.0)  # [m]
-    radius: Length  # [m]
-
-
-class BoxCollider(ColliderBase):
-    kind: Literal["box"]
-    center: Vec3 = (0.0, 0.0, 0.0)  # [m]
-    half_extents: Size3  # [m]
-    rotation: (
+#: The scene-file type of each :data:`pliant.collision.kinds.SCENE_TYPES` name (the same validated types the
+#: other sections use, so an error names the key and the bound: ``colliders[0].radius: ... >= 1e-06``).
+SCENE_TYPES: dict[str, Any] = {
+    "vec3": Vec3,
+    "length": Length,
+    "nonneg": NonNegFloat,
+    "size3": Size3,
+    "scale3": Scale3,
+    "quaternion": (
         Annotated[tuple[Float, Float, Float, Float], BeforeValidator(vector(4, "a quaternion [x, y, z, w]"))]
         | None
-    ) = None
-    rounding: NonNegFloat = 0.0  # [m]
+    ),
+    "surface": str,
+}
 
 
-class CapsuleCollider(ColliderBase):
-    kind: Literal["capsule"]
-    a: Vec3  # segment end points [m]
-    b: Vec3
-    radius: Length  # [m]
+def collider_schema(kind: ContactKind) -> type[ColliderBase]:
+    """The ``[[colliders]]`` schema of a contact kind: :class:`ColliderBase` with ``kind = "<name>"`` and
+    the kind's declared :attr:`~pliant.collision.ContactKind.scene` keys (type, default, unit and doc)."""
+    fields: dict[str, Any] = {"kind": (Literal.__getitem__(kind.name), ...)}
+    for p in kind.scene:
+        if p.type not in SCENE_TYPES:
+            raise TypeError(
+                f"collision/kinds: kind {kind.name!r} key {p.name!r} has type {p.type!r}; "
+                f"use one of {sorted(SCENE_TYPES)}"
+            )
+        default = ... if p.default is REQUIRED else p.default
+        fields[p.name] = (SCENE_TYPES[p.type], Field(default, description=f"{p.doc} [{p.unit}]"))
+    name = "".join(w.title() for w in kind.name.split("_")) + "Collider"
+    schema: type[ColliderBase] = create_model(name, __base__=ColliderBase, __module__=__name__, **fields)
+    schema.__doc__ = f"A ``[[colliders]]`` entry of kind {kind.name!r} (``pliant.collision.kinds``)."
+    return schema
 
 
-class PlaneCollider(ColliderBase):
-    kind: Literal["plane"]
-    point: Vec3 = (0.0, 0.0, 0.0)  # a point of the plane [m]
-    normal: Vec3 = (0.0, 1.0, 0.0)  # outward normal (the half space below is solid)
-    size: Length = 4.0  # side [m] of the square drawn for it
+def collider_adder(kind: ContactKind) -> Callable[..., tuple | None]:
+    """``add(colliders, cfg, c, at)`` for a contact kind: reads its ``surface`` keys, adds the collider with
+    the kind's keywords and the contact fields every collider has, and returns its drawing (or None)."""
+    draw_only = {p.name for p in kind.scene if p.draw_only}
+
+    def add(colliders: Colliders, cfg: SceneConfig, c: ColliderBase, at: str) -> tuple | None:
+        values = {p.name: getattr(c, p.name) for p in kind.scene}
+        for p in kind.scene:
+            if p.type == "surface":
+                mesh = load_surface_file(cfg, values[p.name], f"{at}.{p.name}")
+                values[p.name] = (mesh.points, np.asarray(mesh.triangles))
+        given = {k: v for k, v in values.items() if k not in draw_only}
+        args = kind.from_scene(**given) if kind.from_scene is not None else given
+        colliders.add(kind.name, **args, **c.contact())
+        if not c.render or kind.draw is None:
+            return None
+        return kind.draw(**args, **{k: values[k] for k in draw_only})
+
+    return add
 
 
-class MeshCollider(ColliderBase):
-    kind: Literal["mesh"]
-    path: str  # closed, outward-wound surface (relative to the scene file)
-    scale: Scale3 = (1.0, 1.0, 1.0)
-    origin: Vec3 = (0.0, 0.0, 0.0)  # translation after scaling [m]
-
-
-def _fr(c: ColliderBase) -> dict[str, Any]:
-    return c.contact()
-
-
-def add_sphere(colliders: Colliders, cfg: SceneConfig, c: SphereCollider, at: str) -> tuple | None:
-    import trimesh
-
-    colliders.add_sphere(c.center, c.radius, **_fr(c))
-    if not c.render:
-        return None
-    m = trimesh.creation.icosphere(subdivisions=3, radius=c.radius)
-    return m.vertices + np.asarray(c.center), m.faces
-
-
-def add_box(colliders: Colliders, cfg: SceneConfig, c: BoxCollider, at: str) -> tuple | None:
-    import trimesh
-
-    if c.rotation is not None and not np.linalg.norm(c.rotation) > 1e-12:
-        raise ValueError("rotation is a zero quaternion; give [x, y, z, w] with a non-zero norm")
-    colliders.add_box(c.center, c.half_extents, rotation=c.rotation, rounding=c.rounding, **_fr(c))
-    if not c.render:
-        return None
-    m = trimesh.creation.box(extents=2.0 * np.asarray(c.half_extents))
-    v = m.vertices
-    if c.rotation is not None:
-        from scipy.spatial.transform import Rotation
-
-        v = Rotation.from_quat(c.rotation).apply(v)
-    return v + np.asarray(c.center), m.faces
-
-
-def add_capsule(colliders: Colliders, cfg: SceneConfig, c: CapsuleCollider, at: str) -> tuple | None:
-    import trimesh
-
-    a, b = np.asarray(c.a), np.asarray(c.b)
-    d = b - a
-    if not np.linalg.norm(d) > 0:
-        raise ValueError("a and b coincide; a capsule needs two different end points (or use a sphere)")
-    colliders.add_capsule(c.a, c.b, c.radius, **_fr(c))
-    if not c.render:
-        return None
-    m = trimesh.creation.capsule(height=float(np.linalg.norm(d)), radius=c.radius, count=[16, 16])
-    rot = trimesh.geometry.align_vectors(np.array([0.0, 0.0, 1.0]), d / np.linalg.norm(d))[:3, :3]
-    return m.vertices @ rot.T + 0.5 * (a + b), m.faces  # trimesh's capsule is centred at the origin
-
-
-def add_mesh(colliders: Colliders, cfg: SceneConfig, c: MeshCollider, at: str) -> tuple | None:
-    mesh = load_surface_file(cfg, c.path, f"{at}.path")
-    v = mesh.points * np.asarray(c.scale) + np.asarray(c.origin)
-    f = np.asarray(mesh.triangles)
-    colliders.add_mesh(v, f, **_fr(c))
-    return (v, f) if c.render else None
-
-
-def add_plane(colliders: Colliders, cfg: SceneConfig, c: PlaneCollider, at: str) -> tuple | None:
-    colliders.add_plane(c.point, c.normal, **_fr(c))
-    if not c.render:
-        return None
-    n = np.asarray(c.normal) / np.linalg.norm(c.normal)
-    u = np.cross(n, (1.0, 0.0, 0.0) if abs(n[0]) < 0.9 else (0.0, 0.0, 1.0))
-    u /= np.linalg.norm(u)
-    w = np.cross(n, u)
-    h = 0.5 * c.size
-    v = np.asarray(c.point) + h * np.array([-u - w, u - w, u + w, -u + w])
-    return v, np.array([[0, 2, 1], [0, 3, 2]])
-
-
-register_collider_kind("sphere", SphereCollider, add_sphere)
-register_collider_kind("box", BoxCollider, add_box)
-register_collider_kind("capsule", CapsuleCollider, add_capsule)
-register_collider_kind("mesh", MeshCollider, add_mesh)
-register_collider_kind("plane", PlaneCollider, add_plane)
+for _kind in CONTACT_KINDS.values():
+    register_collider_kind(_kind.name, collider_schema(_kind), collider_adder(_kind))
 
 
 # ---------------------------------------------------------------------------------------------- handles

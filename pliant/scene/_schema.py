@@ -171,7 +171,7 @@ class ColliderBase(Section):
 
     friction: NonNegFloat = 0.5  # Coulomb μ
     restitution: Fraction = 0.0
-    render: bool = True  # draw it in the video (where it was at t = 0)
+    render: bool = True  # draw it in the video (a moving one where it is at each frame)
     velocity: Vec3 | None = None  # [m/s] of a kinematic collider's centre (None: static)
     angular_velocity: Vec3 | None = None  # [rad/s] about its centre
     stiffness: PosFloat | None = None  # κ [1/s²] of compliant contact (None: hard); rests g/κ deep

@@ -169,7 +169,7 @@ def finish_step(
         ground_penalty: κ [1/s²] of a :class:`~pliant.energies.GroundPenalty` the step already minimised;
             the ground response is then friction for the penalty's impulse instead of a projection (without
             one, a compliant ``model.ground`` is a spring–damper after the step,
-            :func:`pliant.collision.ground_compliant`).
+            :func:`pliant.collision.ground_response`).
         ground_damping: b [1/s] of that penalty's damper (compliant contact's).
         contact: (θ, w, β) [-] of the step (an integrator's ``contact_point``, ``contact_impulse``,
             ``contact_shift``): its forces act at x₀ + θ(x₁ − x₀) over wΔt, and friction's velocity change

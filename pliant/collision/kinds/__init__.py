@@ -1,16 +1,29 @@
 """The contact-kind registry: one file per kind, one line per kind in :data:`CONTACT_KINDS`.
 
-A new kind is a file giving a :class:`ContactKind` (its ``wp.func`` signed distance and its ``pack``) and
-its line below. :func:`pliant.collision.collider_sdf` unrolls this table at code generation, so every
-response (the projection after a step, compliant contact, the penalty and barrier energies, XPBD's
-post-step pass) handles the new kind, and ``tests/test_contact_registry.py`` walks it: every kind
-implements every interface, and rests or slides on a 1:2 incline as Coulomb says in every solver family.
+A new kind is a file giving a :class:`ContactKind` (its ``wp.func`` signed distance, its ``pack``, its scene
+keys and its drawing) and its line below: scene files name it with no other change (``pliant.scene``
+builds its ``[[colliders]]`` schema from the declaration). :func:`pliant.collision.collider_sdf` unrolls
+this table at code generation, so every response (the projection after a step, compliant contact, the
+penalty and barrier energies, XPBD's post-step pass) handles the new kind, and
+``tests/test_contact_registry.py`` walks it: every kind implements every interface, and rests or slides on
+a 1:2 incline as Coulomb says in every solver family.
 The table is read when the first kernel is generated: register before the first step.
 """
 
 from __future__ import annotations
 
-from ._base import AUX_DIRECTION, AUX_FIXED, AUX_POINT, ContactKind, Packed, rotation_matrix, vec3
+from ._base import (
+    AUX_DIRECTION,
+    AUX_FIXED,
+    AUX_POINT,
+    REQUIRED,
+    SCENE_TYPES,
+    ContactKind,
+    Packed,
+    SceneParam,
+    rotation_matrix,
+    vec3,
+)
 from ._box import BOX
 from ._capsule import CAPSULE
 from ._mesh import MESH
@@ -27,6 +40,9 @@ __all__ = [
     "CONTACT_KINDS",
     "ContactKind",
     "Packed",
+    "REQUIRED",
+    "SCENE_TYPES",
+    "SceneParam",
     "rotation_matrix",
     "vec3",
 ]

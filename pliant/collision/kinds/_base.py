@@ -6,7 +6,10 @@ collider, ``pos`` (a point), ``aux`` (a point, a direction or half extents), ``r
 signature ``sdf(pos, aux, rot, radius, mesh, p) -> (φ [m], n = ∇φ, ∇²φ [1/m])``: every response (the
 projection after a step, compliant contact, the penalty and barrier energies, XPBD's post-step pass) calls
 it through :func:`pliant.collision.collider_sdf`, which the registry unrolls at code generation. Its
-``pack`` turns keyword parameters (validated, one-line errors) into those values.
+``pack`` turns keyword parameters (validated, one-line errors) into those values. Its ``scene`` declares the
+keys a scene file's ``[[colliders]]`` entry of the kind takes (:class:`SceneParam`) and its ``draw`` the
+triangles a video or an export draws for it: ``pliant.scene`` builds the schema from them, so a kind's one
+file is its whole definition.
 """
 
 from __future__ import annotations
@@ -21,6 +24,36 @@ import warp as wp
 
 #: How a rigid motion moves a kind's ``aux``: not at all (half extents, unused), as a point, as a direction.
 AUX_FIXED, AUX_POINT, AUX_DIRECTION = 0, 1, 2
+
+#: The value types a scene parameter may declare, each a validated scene-file type (``pliant.scene``):
+#: ``vec3`` 3 numbers [m], ``length`` a number > 0 [m], ``nonneg`` a number >= 0, ``size3`` 3 numbers > 0
+#: (or one, for all three) [m], ``scale3`` 3 factors > 0 (or one), ``quaternion`` [x, y, z, w] or absent,
+#: ``surface`` a closed surface file's path (relative to the scene file), read into (vertices, faces).
+SCENE_TYPES = ("vec3", "length", "nonneg", "size3", "scale3", "quaternion", "surface")
+
+#: The default of a scene parameter that has none (the key is required).
+REQUIRED: Any = type("Required", (), {"__repr__": lambda self: "REQUIRED"})()
+
+
+@dataclass(frozen=True)
+class SceneParam:
+    """One key of a ``[[colliders]]`` entry of a kind (besides the keys every collider has).
+
+    Attributes:
+        name: the key (and, unless ``draw_only`` or the kind has a ``from_scene``, ``pack``'s keyword).
+        type: one of :data:`SCENE_TYPES`.
+        default: its value when absent, or :data:`REQUIRED`.
+        unit: its unit ("m", "-").
+        doc: one line saying what it is.
+        draw_only: it shapes the drawing only (``draw`` gets it; ``pack`` does not).
+    """
+
+    name: str
+    type: str
+    default: Any = REQUIRED
+    unit: str = "m"
+    doc: str = ""
+    draw_only: bool = False
 
 
 @dataclass(frozen=True)
@@ -49,6 +82,11 @@ class ContactKind:
         aux_motion: how a rigid motion moves ``aux`` (``AUX_FIXED``, ``AUX_POINT``, ``AUX_DIRECTION``).
         params: the parameter names ``pack`` takes (documentation and the contract test).
         bounded: whether the surface encloses a finite volume (a plane does not).
+        scene: its ``[[colliders]]`` keys (:class:`SceneParam`); the scene schema is built from them.
+        draw: ``draw(**add_keywords, **draw_only_values) -> (vertices [V, 3] m, faces [F, 3])``: the
+            triangles drawn for it where it was added; None: not drawn.
+        from_scene: ``from_scene(**values) -> add_keywords``: the scene values (a ``surface`` read as
+            (vertices, faces)) as ``Colliders.add`` keywords; None: the values themselves.
     """
 
     name: str
@@ -59,6 +97,9 @@ class ContactKind:
     aux_motion: int = AUX_FIXED
     params: tuple[str, ...] = field(default_factory=tuple)
     bounded: bool = True
+    scene: tuple[SceneParam, ...] = field(default_factory=tuple)
+    draw: Callable[..., tuple[np.ndarray, np.ndarray]] | None = None
+    from_scene: Callable[..., dict[str, Any]] | None = None
 
 
 def vec3(v: npt.ArrayLike, what: str) -> np.ndarray:
@@ -79,6 +120,8 @@ def rotation_matrix(rotation: npt.ArrayLike | None, what: str = "box rotation") 
             raise ValueError(f"{what} must be a proper rotation matrix (orthonormal, det +1)")
         return r
     if r.shape == (4,):  # quaternion (x, y, z, w)
+        if not (np.all(np.isfinite(r)) and np.linalg.norm(r) > 1e-12):
+            raise ValueError(f"{what} is a zero quaternion; give [x, y, z, w] with a non-zero norm")
         x, y, z, w = r / np.linalg.norm(r)
         return np.array(
             [

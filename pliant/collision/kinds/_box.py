@@ -9,7 +9,7 @@ import numpy as np
 import numpy.typing as npt
 import warp as wp
 
-from ._base import ContactKind, Packed, curved_hessian, rotation_matrix, vec3
+from ._base import ContactKind, Packed, SceneParam, curved_hessian, rotation_matrix, vec3
 
 
 @wp.func
@@ -70,6 +70,31 @@ def box_floor() -> dict[str, Any]:
     return {"center": (0.0, -0.5, 0.0), "half_extents": (50.0, 0.5, 50.0)}
 
 
+def draw_box(
+    center: Sequence[float],
+    half_extents: Sequence[float],
+    rotation: npt.ArrayLike | None = None,
+    rounding: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The box's 8 corners and 12 triangles [m] (its rounding is not drawn)."""
+    import trimesh
+
+    m = trimesh.creation.box(extents=2.0 * np.asarray(half_extents))
+    return m.vertices @ rotation_matrix(rotation).T + np.asarray(center), m.faces
+
+
 BOX = ContactKind(
-    "box", 1, box_sdf, pack_box, box_floor, params=("center", "half_extents", "rotation", "rounding")
+    "box",
+    1,
+    box_sdf,
+    pack_box,
+    box_floor,
+    params=("center", "half_extents", "rotation", "rounding"),
+    scene=(
+        SceneParam("center", "vec3", (0.0, 0.0, 0.0), doc="its centre"),
+        SceneParam("half_extents", "size3", doc="half its side lengths along its own axes"),
+        SceneParam("rotation", "quaternion", None, "-", "world from box; absent: axis aligned"),
+        SceneParam("rounding", "nonneg", 0.0, doc="outward offset of its surface (rounded edges)"),
+    ),
+    draw=draw_box,
 )

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from ._base import AUX_POINT, ContactKind, Packed, curved_hessian, vec3
+from ._base import AUX_POINT, ContactKind, Packed, SceneParam, curved_hessian, vec3
 
 
 @wp.func
@@ -39,7 +39,7 @@ def pack_capsule(a: Sequence[float], b: Sequence[float], radius: float) -> Packe
     if not radius > 0:
         raise ValueError(f"capsule radius must be > 0 m, got {radius}")
     if np.linalg.norm(pb - pa) == 0:
-        raise ValueError("capsule endpoints coincide; use add_sphere")
+        raise ValueError("capsule ends a and b coincide; give two different points (or use a sphere)")
     return Packed(pa, pb, np.eye(3), float(radius), 0.5 * (pa + pb))
 
 
@@ -48,6 +48,29 @@ def capsule_floor() -> dict[str, Any]:
     return {"a": (-50.0, -1.0e4, 0.0), "b": (50.0, -1.0e4, 0.0), "radius": 1.0e4}
 
 
+def draw_capsule(a: Sequence[float], b: Sequence[float], radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """A 16 × 16 capsule [m] around the segment a–b."""
+    import trimesh
+
+    pa, pb = np.asarray(a, float), np.asarray(b, float)
+    d = pb - pa
+    m = trimesh.creation.capsule(height=float(np.linalg.norm(d)), radius=radius, count=[16, 16])
+    rot = trimesh.geometry.align_vectors(np.array([0.0, 0.0, 1.0]), d / np.linalg.norm(d))[:3, :3]
+    return m.vertices @ rot.T + 0.5 * (pa + pb), m.faces  # trimesh's capsule is centred at the origin
+
+
 CAPSULE = ContactKind(
-    "capsule", 2, capsule_sdf, pack_capsule, capsule_floor, AUX_POINT, params=("a", "b", "radius")
+    "capsule",
+    2,
+    capsule_sdf,
+    pack_capsule,
+    capsule_floor,
+    AUX_POINT,
+    params=("a", "b", "radius"),
+    scene=(
+        SceneParam("a", "vec3", doc="one end of its axis segment"),
+        SceneParam("b", "vec3", doc="the other end"),
+        SceneParam("radius", "length", doc="its radius"),
+    ),
+    draw=draw_capsule,
 )

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from ._base import ContactKind, Packed
+from ._base import ContactKind, Packed, SceneParam
 
 
 @wp.func
@@ -59,4 +59,31 @@ def mesh_floor() -> dict[str, Any]:
     return {"vertices": corners, "faces": np.array(faces)}
 
 
-MESH = ContactKind("mesh", 3, mesh_sdf, pack_mesh, mesh_floor, params=("vertices", "faces"))
+def mesh_from_scene(
+    path: tuple[np.ndarray, np.ndarray], scale: Any = (1.0, 1.0, 1.0), origin: Any = (0.0, 0.0, 0.0)
+) -> dict[str, Any]:
+    """The scene's surface (read as (vertices, faces)) scaled, then moved to ``origin`` [m]."""
+    v, f = path
+    return {"vertices": np.asarray(v, float) * np.asarray(scale) + np.asarray(origin), "faces": np.asarray(f)}
+
+
+def draw_mesh(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh itself."""
+    return vertices, faces
+
+
+MESH = ContactKind(
+    "mesh",
+    3,
+    mesh_sdf,
+    pack_mesh,
+    mesh_floor,
+    params=("vertices", "faces"),
+    scene=(
+        SceneParam("path", "surface", unit="-", doc="a closed, outward-wound surface file"),
+        SceneParam("scale", "scale3", (1.0, 1.0, 1.0), "-", "factors applied to its vertices"),
+        SceneParam("origin", "vec3", (0.0, 0.0, 0.0), doc="translation after scaling"),
+    ),
+    draw=draw_mesh,
+    from_scene=mesh_from_scene,
+)

@@ -1,8 +1,8 @@
 """The plane (a half space): through ``pos`` with unit outward normal ``aux``.
 
-The model's ground (``Model.ground``, y = height) is this kind with n = +y; its responses keep their own
-kernels (``collision/_ground.py``), written for that normal, so that the golden trajectories stay bit for
-bit. A tilted plane, or one that moves, is a collider of this kind.
+The model's ground (``Model.ground``, y = height) is this kind with n = +y: its post-step responses call
+this kind's (``collision/_ground.py:ground_response``). A tilted plane, or one that moves, is a collider of
+this kind.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from ._base import AUX_DIRECTION, ContactKind, Packed, vec3
+from ._base import AUX_DIRECTION, ContactKind, Packed, SceneParam, vec3
 
 
 @wp.func
@@ -39,6 +39,32 @@ def plane_floor() -> dict[str, Any]:
     return {"point": (0.0, 0.0, 0.0), "normal": (0.0, 1.0, 0.0)}
 
 
+def draw_plane(
+    point: Sequence[float], normal: Sequence[float] = (0.0, 1.0, 0.0), size: float = 4.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """A square of side ``size`` [m] of the plane, centred on ``point`` [m] (two triangles facing out)."""
+    n = np.asarray(normal, float) / np.linalg.norm(normal)
+    u = np.cross(n, (1.0, 0.0, 0.0) if abs(n[0]) < 0.9 else (0.0, 0.0, 1.0))
+    u /= np.linalg.norm(u)
+    w = np.cross(n, u)
+    h = 0.5 * size
+    v = np.asarray(point, float) + h * np.array([-u - w, u - w, u + w, -u + w])
+    return v, np.array([[0, 2, 1], [0, 3, 2]])
+
+
 PLANE = ContactKind(
-    "plane", 4, plane_sdf, pack_plane, plane_floor, AUX_DIRECTION, params=("point", "normal"), bounded=False
+    "plane",
+    4,
+    plane_sdf,
+    pack_plane,
+    plane_floor,
+    AUX_DIRECTION,
+    params=("point", "normal"),
+    bounded=False,
+    scene=(
+        SceneParam("point", "vec3", (0.0, 0.0, 0.0), doc="a point of the plane"),
+        SceneParam("normal", "vec3", (0.0, 1.0, 0.0), "-", "its outward normal (solid below)"),
+        SceneParam("size", "length", 4.0, doc="side of the square drawn for it", draw_only=True),
+    ),
+    draw=draw_plane,
 )

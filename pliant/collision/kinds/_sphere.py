@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from ._base import ContactKind, Packed, curved_hessian, vec3
+from ._base import ContactKind, Packed, SceneParam, curved_hessian, vec3
 
 
 @wp.func
@@ -40,4 +40,24 @@ def sphere_floor() -> dict[str, Any]:
     return {"center": (0.0, -1.0e4, 0.0), "radius": 1.0e4}
 
 
-SPHERE = ContactKind("sphere", 0, sphere_sdf, pack_sphere, sphere_floor, params=("center", "radius"))
+def draw_sphere(center: Sequence[float], radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """An icosphere (level 3: 642 vertices) of ``radius`` [m] about ``center`` [m]."""
+    import trimesh
+
+    m = trimesh.creation.icosphere(subdivisions=3, radius=radius)
+    return m.vertices + np.asarray(center), m.faces
+
+
+SPHERE = ContactKind(
+    "sphere",
+    0,
+    sphere_sdf,
+    pack_sphere,
+    sphere_floor,
+    params=("center", "radius"),
+    scene=(
+        SceneParam("center", "vec3", (0.0, 0.0, 0.0), doc="its centre"),
+        SceneParam("radius", "length", doc="its radius"),
+    ),
+    draw=draw_sphere,
+)

@@ -132,7 +132,7 @@ class FastMassSpring(Solver):
         velocity_damping: the lecture's δ, multiplying velocities each step (1 = none).
         damping_rate: c [1/s]: v ← v·exp(−cΔt), Δt-independent; overrides ``velocity_damping``.
         contact: resolve ground contact after each step (needs ``model.ground``; a compliant ground is
-            a spring–damper solved after the step, :func:`pliant.collision.ground_compliant`).
+            a spring–damper solved after the step, :func:`pliant.collision.ground_response`).
         collisions: contact handlers applied after the step, each with ``apply(model, state_in, state_out,
             dt)`` (e.g. :class:`pliant.collision.Colliders`, :class:`pliant.collision.SelfCollision`).
 

@@ -63,7 +63,7 @@ class ForceSolver(Solver):
         damping_rate: c [1/s] for the Δt-independent form v ← v·exp(−cΔt); overrides ``velocity_damping``.
         contact: resolve ground contact after each step (needs ``model.ground``; a compliant ground,
             ``Ground.stiffness`` set, is a spring–damper: after explicit steps,
-            :func:`pliant.collision.ground_compliant`; inside implicit ones, its GroundPenalty).
+            :func:`pliant.collision.ground_response`; inside implicit ones, its GroundPenalty).
         collisions: contact handlers run after ground contact, each with
             ``apply(model, state_in, state_out, dt)`` (``pl.collision.Colliders``, ``SelfCollision``).
         minimizer: how an implicit integrator's steps are minimised: a
@@ -122,7 +122,7 @@ class ForceSolver(Solver):
         if self.contact and not self.integrator.explicit:
             # Newton must see the ground: projecting after a large implicit step flattens (inverts) elements.
             # A compliant ground is its own spring–damper; a hard one the default penalty. Explicit steps
-            # get a compliant ground's spring–damper after the step (collision.ground_compliant: stable).
+            # get a compliant ground's spring–damper after the step (collision.ground_response: stable).
             if not any(isinstance(e, GroundPenalty) for e in self.energies):
                 g = model.ground
                 assert g is not None  # self.contact: the model has a ground
