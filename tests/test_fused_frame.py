@@ -74,11 +74,12 @@ def test_fused_frame_takes_refreshed_parameters():
 
 def test_fused_frame_falls_back_or_refuses_with_the_reason():
     model = _cloth("float32", ground=True)
-    auto = pl.solvers.FastMassSpring(model)
-    assert auto.fused_frame_blocker == "ground contact follows each step"
+    handlers = [pl.collision.Colliders()]
+    auto = pl.solvers.FastMassSpring(model, collisions=handlers)
+    assert auto.fused_frame_blocker == "contact handlers follow each step"
     assert not auto.step_frame(model.state(), model.state(), None, 1e-3, 4)
-    with pytest.raises(ValueError, match="fused_frame=True.*ground contact"):
-        pl.solvers.FastMassSpring(model, fused_frame=True)
+    with pytest.raises(ValueError, match="fused_frame=True.*contact handlers"):
+        pl.solvers.FastMassSpring(model, collisions=handlers, fused_frame=True)
     with pytest.raises(ValueError, match="fused_frame=True.*method='implicit'"):
         pl.solvers.FastMassSpring(_cloth("float32"), method="implicit", fused_frame=True)
     # A drag handle needs its force every step: None steps one by one (the same frame), True refuses.

@@ -12,10 +12,13 @@ from ._friction_laws import (
     friction_law_velocity,
 )
 from ._ground import (
+    coulomb_ground,
+    friction_shift,
     ground_coefficients,
     ground_compliant,
     ground_contact,
     ground_penalty_friction,
+    ground_velocity,
     respond_to_ground,
 )
 from ._hashgrid import ParticleGrid, TriangleBVH, triangle_closest_point
@@ -40,9 +43,12 @@ __all__ = [
     "ParticleGrid",
     "TriangleBVH",
     "ground_coefficients",
+    "coulomb_ground",
+    "friction_shift",
     "ground_compliant",
     "ground_contact",
     "ground_penalty_friction",
+    "ground_velocity",
     "respond_to_ground",
     "triangle_closest_point",
 ]
