@@ -15,7 +15,9 @@ a particle's update reads only its own position, velocity and force, so writing 
 what the ping-pong pair gives. The frame copies its input into the spare buffer first, and copies the result
 back when ping-pong stepping would have ended in the input buffer (an even substep count).
 
-After each substep's update come the stages ``finish_step`` runs after a step, per particle in its order:
+Before each substep the drag handle's force (``drag_force`` at the substep's start position) goes into a
+scratch copy of the external forces, as ``FastMassSpring._external`` sums it. After each substep's update
+come the stages ``finish_step`` runs after a step, per particle in its order:
 the control's kinematic targets (in the C++ update loop: ``apply_kinematic``'s two lines), then the ground
 response. The update loop lists the particles below y = height + r (a superset of those the response
 moves); for those, the loop in the kernel language runs the ground kernel's body through its own wp.funcs
@@ -33,7 +35,7 @@ import warp as wp
 
 from ..._warp import grad_enabled
 from ...collision import coulomb_ground, friction_law_code, friction_shift, ground_velocity
-from .._post import kinematic_slot
+from .._post import drag_force, kinematic_slot
 
 if TYPE_CHECKING:
     from ...model import Control, Model, State
@@ -254,8 +256,15 @@ def _symplectic_frame(
     damped: int,
     particle_inv_mass: wp.array(dtype=Any),
     gravity: Any,
-    # Control (kinematic: 1 where its targets apply; slot: particle -> target index, -1 for the others):
+    # Control (f_ext: the forces the update adds; with a drag handle (drag_index >= 0) a scratch array the
+    # frame fills from particle_f, else particle_f itself. kinematic: 1 where its targets apply; slot:
+    # particle -> target index, -1 for the others):
+    particle_f: wp.array(dtype=Any),
     f_ext: wp.array(dtype=Any),
+    drag_index: int,
+    drag_target: Any,
+    drag_stiffness: Any,
+    drag_max_force: Any,
     kinematic: int,
     kinematic_slot: wp.array(dtype=wp.int32),
     kinematic_targets: wp.array(dtype=Any),
@@ -288,7 +297,14 @@ def _symplectic_frame(
     # Launched with dim 1: the whole frame on the launching thread. Springs and update in C++ (_FRAME_CPP),
     # which lists the particles below the ground; their response by the ground kernels' own wp.funcs.
     _copy_cpp(1, x_a, v_a, x_b, v_b)
+    if drag_index >= 0:
+        for i in range(particle_f.shape[0]):
+            f_ext[i] = particle_f[i]
     for _k in range(substeps):
+        if drag_index >= 0:  # FastMassSpring._external and add_drag_force: at the substep's start position
+            f_ext[drag_index] = particle_f[drag_index] + drag_force(
+                drag_target, drag_stiffness, drag_max_force, x_b[drag_index]
+            )
         _substep_cpp(spring_pairs, spring_param, damped, particle_inv_mass, gravity, f_ext, dt, delta,
                              f_springs, kinematic, kinematic_slot, kinematic_targets, inv_dt, ground,
                              particle_radius, height, x_start, contacts, x_b, v_b)  # fmt: skip
@@ -339,15 +355,6 @@ def _setup_blocker(model: Model, method: str, scatter: bool, collisions: int) ->
         return "the model records gradients (each step must write fresh arrays for the tape)"
     if collisions:
         return "contact handlers follow each step"
-    return None
-
-
-def control_blocker(control: Control | None) -> str | None:
-    """Why a frame with ``control`` cannot be fused (a per-step stage it needs), or None."""
-    if control is None:
-        return None
-    if control.drag_index >= 0:
-        return "the control's drag handle (its force follows the particle every step)"
     return None
 
 
@@ -404,15 +411,17 @@ class FusedFrame:
         spare: State,
         control: Control | None,
         f_ext: wp.array,
+        f_work: wp.array,
         dt: float,
         delta: float,
         substeps: int,
         damped: int,
     ) -> bool:
         """Run ``substeps`` symplectic steps of ``dt`` [s] (velocity factor ``delta``, external forces
-        ``f_ext`` [N], dashpots if ``damped``, then the control's kinematic targets and the ground response)
-        from ``state``, ending in ``state`` for an even count and in ``spare`` for an odd one (where
-        ping-pong stepping ends); False (nothing run) for a strided array."""
+        ``f_ext`` [N] plus the control's drag handle (summed in ``f_work``), dashpots if ``damped``, then the
+        control's kinematic targets and the ground response) from ``state``, ending in ``state`` for an even
+        count and in ``spare`` for an odd one (where ping-pong stepping ends); False (nothing run) for a
+        strided array."""
         arrays = [state.particle_q, state.particle_qd, spare.particle_q, spare.particle_qd, f_ext]
         indices, targets = None, self._no_targets
         if control is not None and control.kinematic_indices.shape[0]:
@@ -421,7 +430,11 @@ class FusedFrame:
         if not all(a.is_contiguous for a in arrays):
             return False  # the C++ loops index plain pointers
         ground, gkey = self._ground_args()
-        key = (*(a.ptr for a in arrays), dt, substeps, 0 if indices is None else indices.ptr, gkey)
+        drag: tuple[int, tuple[float, ...], float, float] = (-1, (0.0, 0.0, 0.0), 0.0, 0.0)
+        if control is not None and control.drag_index >= 0:
+            c = control
+            drag = (c.drag_index, tuple(map(float, c.drag_target)), c.drag_stiffness, c.drag_max_force)
+        key = (*(a.ptr for a in arrays), dt, substeps, 0 if indices is None else indices.ptr, gkey, drag)
         cmd = self._cmds.get(key)
         if cmd is None:
             if len(self._cmds) > 8:
@@ -433,6 +446,7 @@ class FusedFrame:
             if g is not None and g.stiffness is not None and ground[0] == 2:
                 kappa, damping = g.stiffness, g.damping
             args = [self.spring_pairs, self.param, damped, m.particle_inv_mass, m.gravity_vec, f_ext]
+            args += [f_ext if drag[0] < 0 else f_work, drag[0], m.vec3(*drag[1]), m.s(drag[2]), m.s(drag[3])]
             args += [int(kin), slot, targets, int(substeps), m.s(dt), m.s(1.0 / dt), m.s(delta)]
             args += [*ground, m.s(dt), m.s(kappa), m.s(damping), self.f_springs, self.contacts, self.x_start]
             args += [state.particle_q, state.particle_qd, spare.particle_q, spare.particle_qd]
