@@ -74,24 +74,34 @@ def test_fused_frame_takes_refreshed_parameters():
 
 def test_fused_frame_falls_back_or_refuses_with_the_reason():
     model = _cloth("float32", ground=True)
-    auto = pl.solvers.FastMassSpring(model)
-    assert auto.fused_frame_blocker == "ground contact follows each step"
+    handlers = [pl.collision.Colliders()]
+    auto = pl.solvers.FastMassSpring(model, collisions=handlers)
+    assert auto.fused_frame_blocker == "contact handlers follow each step"
     assert not auto.step_frame(model.state(), model.state(), None, 1e-3, 4)
-    with pytest.raises(ValueError, match="fused_frame=True.*ground contact"):
-        pl.solvers.FastMassSpring(model, fused_frame=True)
+    with pytest.raises(ValueError, match="fused_frame=True.*contact handlers"):
+        pl.solvers.FastMassSpring(model, collisions=handlers, fused_frame=True)
     with pytest.raises(ValueError, match="fused_frame=True.*method='implicit'"):
         pl.solvers.FastMassSpring(_cloth("float32"), method="implicit", fused_frame=True)
-    # A drag handle needs its force every step: None steps one by one (the same frame), True refuses.
+
+
+@pytest.mark.parametrize("max_force", [0.05, float("inf")])
+def test_fused_frame_with_the_drag_handle(max_force):
+    """The drag handle's force, at each substep's start position (capped or not), inside the frame: bit for
+    bit, and the target moved between frames (a live session's cursor) is followed."""
     model = _cloth("float64")
     control = model.control()
-    control.set_drag(3, (0.0, 0.2, 0.0), 5.0, max_force=1.0)
-    auto = pl.solvers.FastMassSpring(model)
-    assert not auto.step_frame(model.state(), model.state(), control, 1e-3, 4)
-    xa, _, _ = _frames(model, auto, control, 4)
-    xp, _, _ = _frames(model, pl.solvers.FastMassSpring(model, fused_frame=False), control, 4)
-    assert np.array_equal(xa, xp)
-    with pytest.raises(ValueError, match="drag handle"):
-        _frames(model, pl.solvers.FastMassSpring(model, fused_frame=True), control, 4)
+    out = []
+    for fused in (None, False):
+        solver = pl.solvers.FastMassSpring(model, fused_frame=fused)
+        frame = pl.solvers.FrameStep(solver, 1e-3, 7)
+        s0, s1 = model.state(), model.state()
+        for f in range(6):
+            control.set_drag(3, (0.05 * f, 0.2, 0.0), 5.0, max_force=max_force)
+            s0, s1 = frame(s0, control, s1)
+        out.append((s0.particle_q.numpy().copy(), s0.particle_qd.numpy().copy()))
+    assert np.array_equal(out[0][0], out[1][0]) and np.array_equal(out[0][1], out[1][1])
+    free = _frames(model, pl.solvers.FastMassSpring(model), None, 7, frames=6)[0]
+    assert out[0][0][3, 1] - free[3, 1] > 1e-3  # pulled up towards y = 0.2
 
 
 def test_fused_drape_keeps_its_trajectory_error():

@@ -12,7 +12,10 @@ from ._friction_laws import (
     friction_law_velocity,
 )
 from ._ground import (
+    coulomb_ground,
+    friction_shift,
     ground_coefficients,
+    ground_particle,
     ground_penalty_friction,
     ground_response,
     respond_to_ground,
@@ -39,6 +42,9 @@ __all__ = [
     "ParticleGrid",
     "TriangleBVH",
     "ground_coefficients",
+    "coulomb_ground",
+    "friction_shift",
+    "ground_particle",
     "ground_penalty_friction",
     "ground_response",
     "respond_to_ground",

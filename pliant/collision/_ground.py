@@ -51,6 +51,55 @@ def friction_shift(p: Any, v: Any, v_new: Any, dt: Any):
     return type(p)(p[0] + dt * (v_new[0] - v[0]), p[1], p[2] + dt * (v_new[2] - v[2]))
 
 
+@wp.func
+def ground_particle(
+    x: Any,
+    v: Any,
+    x_start: Any,
+    inv_mass: Any,
+    radius: Any,
+    height: Any,
+    friction: Any,
+    restitution: Any,
+    law: int,
+    stick_velocity: Any,
+    shift_dt: Any,
+    kappa: Any,
+    damping: Any,
+    dt: Any,
+):
+    """One particle's ground response (x, v) → (x', v'): the ``plane`` kind through y = ``height``, n = +y,
+    by :func:`~pliant.collision._collider_sdf.collider_contact` (see :func:`ground_response`); a particle of
+    zero inverse mass, or above the ground, comes back unchanged. The fused FastMassSpring frame calls it
+    too, so the two paths are one arithmetic."""
+    zero = height * type(height)(0.0)
+    if inv_mass != zero:
+        n = type(x)(zero, type(height)(1.0), zero)
+        eye = wp.identity(n=3, dtype=type(height))
+        return collider_contact(
+            _PLANE,
+            type(x)(zero, height, zero),
+            n,
+            eye,
+            zero,
+            wp.uint64(0),
+            n * zero,
+            friction,
+            restitution,
+            kappa,
+            damping,
+            law,
+            stick_velocity,
+            shift_dt,
+            dt,
+            radius,
+            x,
+            v,
+            x_start,
+        )
+    return x, v
+
+
 @wp.kernel
 def ground_response(
     inv_mass: wp.array(dtype=Any),
@@ -82,33 +131,22 @@ def ground_response(
     sign of v_n are piecewise: one-sided gradients at a switch; friction is C¹ through ε_v).
     """
     i = wp.tid()
-    x = x_in[i]
-    v = v_in[i]
-    zero = height * type(height)(0.0)
-    if inv_mass[i] != zero:
-        n = type(x)(zero, type(height)(1.0), zero)
-        eye = wp.identity(n=3, dtype=type(height))
-        x, v = collider_contact(
-            _PLANE,
-            type(x)(zero, height, zero),
-            n,
-            eye,
-            zero,
-            wp.uint64(0),
-            n * zero,
-            coefficients[0],
-            coefficients[1],
-            kappa,
-            damping,
-            law,
-            stick_velocity,
-            shift_dt,
-            dt,
-            radius[i],
-            x,
-            v,
-            x_start[i],
-        )
+    x, v = ground_particle(
+        x_in[i],
+        v_in[i],
+        x_start[i],
+        inv_mass[i],
+        radius[i],
+        height,
+        coefficients[0],
+        coefficients[1],
+        law,
+        stick_velocity,
+        shift_dt,
+        kappa,
+        damping,
+        dt,
+    )
     x_out[i] = x
     v_out[i] = v
 

@@ -48,7 +48,9 @@ def apply_kinematic(
 _SLOTS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def _kinematic_slot(model: Model, indices: wp.array) -> wp.array:
+def kinematic_slot(model: Model, indices: wp.array) -> wp.array:
+    """Particle → index in the kinematic targets (−1 for the others) [N] int32, as :func:`apply_kinematic`
+    reads it, for the Control's ``indices`` [K] (built once per indices array)."""
     slot = _SLOTS.get(indices)
     if slot is None or slot.shape[0] != model.particle_count:
         slot = wp.full(model.particle_count, -1, dtype=wp.int32, device=model.device)
@@ -179,7 +181,7 @@ def finish_step(
     m = model
     stages: list[Stage] = []
     if control is not None and control.kinematic_indices.shape[0]:
-        slot = _kinematic_slot(m, control.kinematic_indices)
+        slot = kinematic_slot(m, control.kinematic_indices)
         targets, inv_dt = control.kinematic_targets, m.s(1.0 / dt)
 
         def kinematic(x: wp.array, v: wp.array, xo: wp.array, vo: wp.array) -> None:

@@ -52,7 +52,7 @@ from ._explicit import (
     _symplectic_update,
     ell_gather_kernel,
 )
-from ._fused_frame import FusedFrame, control_blocker, fused_frame_blocker
+from ._fused_frame import FusedFrame, fused_frame_blocker
 from ._system import BaraffWitkinSystem, _bw_assemble, _bw_finish
 
 #: The gather kernel of each ``FastMassSpring(gather=...)`` variant (``_explicit`` says how they differ).
@@ -124,11 +124,12 @@ class FastMassSpring(Solver):
             reaches trajectory_error ≤ 2 % with far fewer steps).
         fused_frame: run a frame's symplectic substeps (:meth:`step_frame`, which ``FrameStep`` and the
             Simulator call) as one CPU launch that loops over them in C++: the scatter's arithmetic in its
-            order, the same frame bit for bit, without per-step launches and Python (1.78× the frames per
-            second on the 64² and 128² drapes, one core; :mod:`._fused_frame`). None (default):
-            wherever it applies (the CPU, the scatter kernel, no gradients, ground contact, contact
-            handlers, drag handle or kinematic targets), else step by step (``fused_frame_blocker`` says
-            why); True: always, and a setup it cannot run raises ValueError; False: never.
+            order, the drag handle, kinematic targets and the ground response (projection or compliant),
+            the same frame bit for bit, without per-step launches and Python (1.78× the frames per second
+            on the 64² and 128² drapes, one core; :mod:`._fused_frame`). None (default): wherever it
+            applies (the CPU, the scatter kernel, no gradients, no contact handlers), else
+            step by step (``fused_frame_blocker`` says why); True: always, and a setup it cannot run raises
+            ValueError; False: never.
         velocity_damping: the lecture's δ, multiplying velocities each step (1 = none).
         damping_rate: c [1/s]: v ← v·exp(−cΔt), Δt-independent; overrides ``velocity_damping``.
         contact: resolve ground contact after each step (needs ``model.ground``; a compliant ground is
@@ -243,12 +244,12 @@ class FastMassSpring(Solver):
         #: Why frames run step by step rather than as one launch (None: they are fused; ``fused_frame``).
         self.fused_frame, self.fused_frame_blocker = (
             fused_frame,
-            fused_frame_blocker(
-                fused_frame, model, method, self._scatter, self.contact, len(self.collisions)
-            ),
+            fused_frame_blocker(fused_frame, model, method, self._scatter, len(self.collisions)),
         )
         self._fused = (
-            None if self.fused_frame_blocker else FusedFrame(model, self._spring_pairs, self._f_springs)
+            None
+            if self.fused_frame_blocker
+            else FusedFrame(model, self._spring_pairs, self._f_springs, self._ground)
         )
         self.update_parameters()
         n = model.particle_count
@@ -532,18 +533,14 @@ class FastMassSpring(Solver):
         as ping-pong stepping leaves it; ``spare`` is overwritten); False (nothing done) where it does not.
 
         Raises:
-            ValueError: ``fused_frame=True`` with a control the fused frame cannot take (drag, kinematic).
+            ValueError: ``fused_frame=True`` with a strided state or control array.
         """
         if self._fused is None:
             return False
-        why = control_blocker(control)
-        if why is not None:
-            if self.fused_frame:
-                raise ValueError(f"FastMassSpring(fused_frame=True) cannot fuse this frame: {why}")
-            return False
         f_ext = self._f_zero if control is None else control.particle_f
         delta = self.velocity_damping(dt)
-        if self._fused.launch(state, spare, f_ext, float(dt), delta, int(substeps), self._damped):
+        args = (state, spare, control, f_ext, self._f_work, float(dt), delta, int(substeps), self._damped)
+        if self._fused.launch(*args):
             return True
         if self.fused_frame:
             raise ValueError("FastMassSpring(fused_frame=True) cannot fuse this frame: a strided state array")
