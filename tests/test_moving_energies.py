@@ -128,6 +128,30 @@ def test_a_cloth_on_a_spinning_sphere_never_intersects_it():
     assert cloth[-1][:, 0].mean() < -0.02
 
 
+def test_a_spinning_paddle_pushes_particles_without_intersection():
+    """A box paddle (half-length 0.2 m) spinning at 3 rad/s about z, Δt = 1/60: its tips sweep 1 cm per
+    step past particles 4 mm from its faces (no gravity). Barrier contact starts each step from the
+    particles carried by the paddle where it reaches them, so every step ends with every particle outside
+    the paddle at its end pose (signed distance > 0), and the paddle has pushed them round."""
+    cols = pl.collision.Colliders()
+    cols.add_box((0.0, 0.0, 0.0), (0.2, 0.02, 0.05), friction=0.2, angular_velocity=(0.0, 0.0, 3.0))
+    xs = np.linspace(-0.18, 0.18, 7)
+    pts = [[x, s * 0.024, 0.0] for x in xs for s in (1.0, -1.0)]
+    b = pl.ModelBuilder(gravity=(0.0, 0.0, 0.0))
+    b.add_particles(pts, [M] * len(pts), radius=R)
+    model = b.finalize(device="cpu", dtype="float64")
+    bar = pl.energies.BarrierContact(dhat=5e-3, kappa=1.0, ground=False, colliders=cols)
+    solver = pl.solvers.ForceSolver(model, [bar], pl.integrators.BackwardEuler(newton_tol=1e-8))
+    s0, s1 = model.state(), model.state()
+    for _ in range(30):
+        solver.step(s0, s1, None, 1 / 60)
+        s0, s1 = s1, s0
+        phi, _ = cols.query(model, s0.particle_q)
+        assert phi.min() > 0.0
+    angle = np.arctan2(s0.particle_q.numpy()[:, 1], s0.particle_q.numpy()[:, 0])
+    assert np.abs(np.sin(angle)).max() > 0.5  # turned well away from the x axis
+
+
 def _moving_sphere(first, mu: float) -> tuple[pl.collision.Colliders, pl.Model]:
     cols = pl.collision.Colliders()
     spin = dict(velocity=(0.3, -0.2, 0.1), angular_velocity=(0.0, 2.0, 5.0))
@@ -139,11 +163,13 @@ def _moving_sphere(first, mu: float) -> tuple[pl.collision.Colliders, pl.Model]:
 
 def test_penalty_derivatives_and_pose_with_a_moving_collider():
     """After begin_step(Δt) the penalty acts on the sphere moved by v Δt (its value is that of a static
-    sphere there, to 1e-12), and its gradient and Hessian match central differences (float64)."""
+    sphere there, to 1e-12), and its gradient and Hessian, lagged friction included, match central
+    differences (float64)."""
     h = 0.05
     cols, model = _moving_sphere([0.05, 0.31, 0.02], 0.3)  # the first inside
-    e = pl.energies.ColliderPenalty(cols, stiffness=1e3)
+    e = pl.energies.ColliderPenalty(cols, stiffness=1e3, friction=True)
     x = model.particle_q_np.copy()
+    x[0] += [0.003, -0.001, 0.001]  # slides relative to the surface
     v = wp.zeros(model.particle_count, dtype=wp.vec3d)
     g, g_fd, H, H_fd = energy_fd_check(model, e, x, eps=1e-7, begin=(model.particle_q, v, h))
     assert np.abs(g).max() > 0
@@ -151,8 +177,10 @@ def test_penalty_derivatives_and_pose_with_a_moving_collider():
     assert np.abs(H - H_fd).max() <= 1e-5 * np.abs(H_fd).max()
     moved = pl.collision.Colliders()
     moved.add_sphere((0.3 * h, 0.5 - 0.2 * h, 0.1 * h), 0.2)
+    bare = pl.energies.ColliderPenalty(cols, stiffness=1e3)  # the normal term alone
+    bare.begin_step(model, model.particle_q, v, h)
     vals = []
-    for energy in (e, pl.energies.ColliderPenalty(moved, stiffness=1e3)):
+    for energy in (bare, pl.energies.ColliderPenalty(moved, stiffness=1e3)):
         out = wp.zeros(1, dtype=wp.float64)
         energy.value(model, model.particle_q, out)
         vals.append(out.numpy()[0])

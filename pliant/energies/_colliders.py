@@ -157,6 +157,7 @@ class ColliderPenalty(ModalEnergy):
         self.stick_velocity = stick_velocity
         self._ahead: dict[int, list] = {}
         self._lag: dict[int, tuple] = {}
+        self._mus: dict[int, tuple[float, ...]] = {}
         _refuse_compliant(colliders, "ColliderPenalty")
 
     @property
@@ -173,15 +174,17 @@ class ColliderPenalty(ModalEnergy):
             return
         d, n, c = model.device, model.particle_count, len(self.colliders)
         lag = self._lag.get(id(model))
-        if lag is None or lag[0].shape[0] != c:
+        mus = tuple(float(r["friction"]) for r in self.colliders._rows)
+        if lag is None or lag[0].shape[0] != c or self._mus.get(id(model)) != mus:
+            # Built (and μ written) only when they change: a step replayed as a graph copies nothing.
             lag = (
-                wp.zeros(c, dtype=wp.float64, device=d),
+                wp.array(np.array(mus, np.float64), dtype=wp.float64, device=d),
                 wp.zeros(n * c, dtype=wp.float64, device=d),
                 wp.zeros(n * c, dtype=wp.vec3d, device=d),
                 wp.zeros(n, dtype=model.vec3, device=d),
                 wp.zeros(n * c, dtype=wp.vec3d, device=d),
             )
-        lag[0].assign(np.array([r["friction"] for r in self.colliders._rows], np.float64))
+            self._mus[id(model)] = mus
         wp.copy(lag[3], x)
         ev = self.colliders.stick_velocity if self.stick_velocity is None else self.stick_velocity
         self._lag[id(model)] = (*lag[:5], max(float(ev) * float(dt), 1e-12))
