@@ -227,3 +227,25 @@ def test_compliant_colliders_are_refused_by_the_energies():
         pl.energies.ColliderPenalty(cols)
     with pytest.raises(ValueError, match=r"BarrierContact: colliders \[0\] are compliant"):
         pl.energies.BarrierContact(ground=False, colliders=cols)
+
+
+def test_a_barrier_scene_moves_its_colliders_after_each_step():
+    """``[ground] contact = "barrier"`` takes the colliders out of the post-step handlers; with a moving
+    sphere ForceSolver adds their motion handler, so the sphere rises by v t and the cloth stays outside
+    it where it is after every step; the handler's ``reset`` (what ``Simulator.restart`` calls) puts it
+    back."""
+    from tests.test_barrier import BARRIER_SCENE
+
+    text = BARRIER_SCENE.replace("radius = 0.27\n", "radius = 0.27\nvelocity = [0.0, 0.05, 0.0]\n")
+    scene = pl.scene.build_scene(pl.scene.parse_scene(text))
+    assert [type(c).__name__ for c in scene.solver.collisions] == ["ColliderMotion"]
+    cols = scene.solver.collisions[0].colliders
+    s0, s1 = scene.model.state(), scene.model.state()
+    for k in range(1, 4):
+        scene.solver.step(s0, s1, None, 0.1)
+        s0, s1 = s1, s0
+        centre = cols.arrays(scene.model)["pos"].numpy()[0]
+        assert centre == pytest.approx((0.0, -0.25 + 0.005 * k, 0.0), abs=1e-6)  # a float32 scene
+        assert (np.linalg.norm(s0.particle_q.numpy() - centre, axis=1) > 0.27).all()
+    scene.solver.collisions[0].reset()
+    assert cols.arrays(scene.model)["pos"].numpy()[0] == pytest.approx((0.0, -0.25, 0.0))
