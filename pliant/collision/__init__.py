@@ -1,8 +1,9 @@
 """Contact: ground plane, colliders (one file per kind: :mod:`.kinds`), friction laws, self-collision and
 the broad phases they use."""
 
+from ._collider_kernels import rigid_displacement
 from ._collider_sdf import collider_sdf
-from ._colliders import Colliders
+from ._colliders import ColliderMotion, Colliders
 from ._friction import friction_velocity
 from ._friction_laws import (
     FRICTION_LAWS,
@@ -27,6 +28,7 @@ from .kinds import CONTACT_KINDS, ContactKind
 
 __all__ = [
     "CONTACT_KINDS",
+    "ColliderMotion",
     "Colliders",
     "ContactKind",
     "FRICTION_LAWS",
@@ -48,5 +50,6 @@ __all__ = [
     "ground_penalty_friction",
     "ground_response",
     "respond_to_ground",
+    "rigid_displacement",
     "triangle_closest_point",
 ]

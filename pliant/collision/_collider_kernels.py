@@ -155,6 +155,14 @@ def _advance(
     centre[c] = c1
 
 
+@wp.func
+def rigid_displacement(vel: Any, omega: Any, centre: Any, h: Any, p: Any):
+    """How far [m] a rigidly moving collider carries its material point at p over h [s]: the same motion as
+    :func:`_advance` (centre by v h, rotation exp(ω h) about it), c + v h + R (p − c) − p."""
+    R = _rotation(omega, h)
+    return centre + h * vel + R * (p - centre) - p
+
+
 @wp.kernel
 def _collider_query(
     kind: wp.array(dtype=wp.int32),

@@ -213,6 +213,10 @@ class Colliders:
         """Whether any collider has a velocity or an angular velocity."""
         return any(np.any(r["vel"] != 0) or np.any(r["omega"] != 0) for r in self._rows)
 
+    def compliant(self) -> list[int]:
+        """The indices of the compliant colliders (given a ``stiffness`` κ)."""
+        return [k for k, r in enumerate(self._rows) if r["kappa"] > 0]
+
     def add_sphere(self, center: Sequence[float], radius: float, **contact: Any) -> int:
         """A sphere of centre ``center`` [m] and ``radius`` [m] > 0.
 
@@ -363,6 +367,35 @@ class Colliders:
         a = self.arrays(model)
         return [a["kind"], a["pos"], a["aux"], a["rot"], a["radius"], a["mesh"]]
 
+    def advance(self, model: Model, h: float) -> None:
+        """Move every collider rigidly over h [s] (centre by v h, rotation exp(ω h) about it), in place on
+        the device; static colliders stay bit for bit where they are."""
+        a = self.arrays(model)
+        args = [a["kind"], a["vel"], a["omega"], model.s(h), a["pos"], a["aux"], a["rot"], a["centre"]]
+        launch(_advance, len(self._rows), args, device=model.device)
+
+    def pose_ahead(self, model: Model, h: float) -> list:
+        """Kernel inputs as :meth:`geometry_inputs`, with the pose the colliders will have h [s] from now
+        (their current pose moved rigidly over h), in arrays of their own (overwritten by the next call;
+        the current pose is not touched). Implicit steps evaluate contact here, at the end of the step."""
+        a = self.arrays(model)
+        ahead = a.get("_ahead")
+        if ahead is None:
+            ahead = {name: wp.clone(a[name], requires_grad=False) for name in self._POSE}
+            a["_ahead"] = ahead
+        else:
+            for name in self._POSE:
+                wp.copy(ahead[name], a[name])
+        args = [a["kind"], a["vel"], a["omega"], model.s(h)] + [ahead[name] for name in self._POSE]
+        launch(_advance, len(self._rows), args, device=model.device)
+        return [a["kind"], ahead["pos"], ahead["aux"], ahead["rot"], a["radius"], a["mesh"]]
+
+    def motion(self) -> ColliderMotion:
+        """A contact handler that only moves these colliders each step (no response): for a solver whose
+        energies are the contact (``BarrierContact``, ``ColliderPenalty``) without the colliders among its
+        post-step handlers; ``ForceSolver`` adds it itself."""
+        return ColliderMotion(self)
+
     def reset(self) -> None:
         """Put moving colliders back where they were added: the pose arrays are overwritten in place (a
         captured frame graph keeps reading them), on every device they were built for."""
@@ -466,8 +499,7 @@ class Colliders:
         a = self.arrays(model)
         h = dt if step_dt is None else step_dt
         if moving:
-            args = [a["kind"], a["vel"], a["omega"], model.s(h), a["pos"], a["aux"], a["rot"], a["centre"]]
-            launch(_advance, len(self._rows), args, device=model.device)
+            self.advance(model, h)
         x0 = x_in if x_start is None else x_start
         count = len(self._rows)
         # In place: one launch over every collider. Out of place: one launch per collider, each but the
@@ -512,3 +544,49 @@ class Colliders:
                 d |= {"stiffness": r["kappa"], "damping_ratio": r["damping_ratio"]}
             out.append(d)
         return out
+
+
+class ColliderMotion:
+    """The post-step handler of kinematic colliders whose contact is an energy of the implicit step: it
+    moves them over each step (:meth:`Colliders.advance`) and does nothing else; the reset, the checkpointed
+    pose and the refusal to be recorded are the colliders' own.
+
+    Args:
+        colliders: the moving colliders.
+    """
+
+    #: :func:`pliant.solvers._post.finish_step` passes ``x_start`` and ``step_dt`` to :meth:`apply_out`.
+    takes_step = True
+
+    def __init__(self, colliders: Colliders) -> None:
+        self.colliders = colliders
+
+    def apply(self, model: Model, state_in: State, state_out: State, dt: float) -> None:
+        """Move the colliders over ``dt`` [s]; the state is not touched."""
+        self.colliders.advance(model, dt)
+
+    def apply_out(self, model: Model, x_in, v_in, x_out, v_out, dt: float, *, x_start=None, step_dt=None):
+        """Move the colliders over ``step_dt`` (default ``dt``) [s]; (x_out, v_out) = (x_in, v_in). Raises
+        :class:`~pliant.diff.GradientError` out of place (a recorded step: the pose is updated in place)."""
+        if x_out is not x_in or v_out is not v_in:
+            raise GradientError(
+                "moving colliders (velocity=, angular_velocity=) are not differentiable: make them static, "
+                "or finalize(requires_grad=False)"
+            )
+        self.colliders.advance(model, dt if step_dt is None else step_dt)
+
+    def graph_blocker(self) -> str | None:
+        """None: one launch over cached arrays."""
+        return None
+
+    def reset(self) -> None:
+        """The colliders back where they were added."""
+        self.colliders.reset()
+
+    def checkpoint_state(self) -> dict[str, np.ndarray]:
+        """The colliders' pose (:meth:`Colliders.checkpoint_state`)."""
+        return self.colliders.checkpoint_state()
+
+    def restore_checkpoint_state(self, state: dict[str, np.ndarray]) -> None:
+        """Take back :meth:`checkpoint_state`'s pose."""
+        self.colliders.restore_checkpoint_state(state)

@@ -86,6 +86,22 @@ class BarrierContact(ModalEnergy):
     as that bound allows (``feasible_start``), instead of from x̃ itself, which may intersect. Start from an
     intersection-free configuration with every pair farther apart than 0; then no iterate ever intersects.
 
+    Moving colliders (``velocity=``, ``angular_velocity=``): the step solves for the positions at its end,
+    so :meth:`begin_step` (the minimisers call it; the term is then ``dissipative``) puts each collider at
+    its pose after the step's h (:meth:`Colliders.pose_ahead`); the barrier, its derivatives and the line
+    search's CCD all see that pose, and friction acts on the motion relative to the surface (the lagged
+    surface displacement, :mod:`._barrier_friction`). The start x_ref, clear of the colliders where they
+    were, may be inside one where it will be, so the minimiser starts from :meth:`carried_start`: each
+    particle within reach of a moving collider moved by that collider's rigid motion (its distance to it
+    is then unchanged), checked clear of the ground and every collider at the end pose (else left where it
+    was; RuntimeError when neither is clear: a kinematic collider squeezes it into an obstacle). What is
+    guaranteed: every iterate (the start and each line-search point) is clear of the ground and of every
+    collider at the end pose, so the step's result never intersects a collider at the end of the step.
+    What is not: the motion in between (a collider thinner than its travel in a step could have passed a
+    particle outside its reach, which is then simply on its other side), and self-contact of a surface only
+    partly carried. ``ForceSolver`` moves the colliders after the step (a motion handler when they are
+    not among its ``collisions``). Compliant colliders (``stiffness=``) are refused: a barrier is hard.
+
     Hessian: per pair, exact (closest-point envelope formula, :mod:`._barrier_math`) and projected to the
     nearest PSD matrix when ``project_psd`` (self-contact pairs: Jacobi rotations in the ≤ 5-dimensional
     subspace that holds the 12×12 Hessian's range; obstacles: 3×3). The pattern follows the pairs:
@@ -144,14 +160,17 @@ class BarrierContact(ModalEnergy):
         self.self_friction = float(self_friction) if self_contact else 0.0
         self.friction = bool(friction) or self.self_friction > 0
         self.stick_velocity = None if stick_velocity is None else float(stick_velocity)
-        #: With friction the term is dissipative: the minimisers call begin_step (the lagged normal forces).
-        self.dissipative = self.friction
+        self._ahead: dict[int, list] = {}
+        self._carry: dict[int, tuple[wp.array, wp.array]] = {}
+        self._ahead_dt: dict[int, float] = {}
         self._lag: dict[int, tuple] = {}
         self._self_lag: dict[int, tuple] = {}
         self.dhat = float(dhat)
         self.kappa = None if kappa is None else float(kappa)
         self.ground = bool(ground)
         self.colliders = colliders if colliders is not None and len(colliders) > 0 else None
+        if self.colliders is not None:
+            _refuse_compliant(self.colliders, "BarrierContact")
         self.self_contact = bool(self_contact)
         self.triangles = None if triangles is None else np.asarray(triangles, np.int32).reshape(-1, 3)
         self._surfaces: dict[int, _Surface] = {}
@@ -159,6 +178,15 @@ class BarrierContact(ModalEnergy):
         # Per model: the sorted keys i·n + j (i < j) of the point pairs in the Hessian pattern, on the host
         # and the device, and the pattern's version (bumped when it changes).
         self._keys: dict[int, tuple[np.ndarray, wp.array, int]] = {}
+
+    @property
+    def dissipative(self) -> bool:  # type: ignore[override]
+        """With friction or moving colliders: the minimisers call :meth:`begin_step` (the lagged normal
+        forces, the colliders' pose at the step's end)."""
+        return self.friction or self._moving()
+
+    def _moving(self) -> bool:
+        return self.colliders is not None and self.colliders.moving
 
     @property
     def owns_ground(self) -> bool:
@@ -198,10 +226,13 @@ class BarrierContact(ModalEnergy):
             self._surfaces[id(model)] = s
         return s
 
-    def _obstacles(self, model: Model) -> list:
-        """(collider inputs..., count, ground flag, ground height) for the obstacle kernels."""
+    def _obstacles(self, model: Model, start: bool = False) -> list:
+        """(collider inputs..., count, ground flag, ground height) for the obstacle kernels: moving colliders
+        at the step's end pose once :meth:`begin_step` set one (``start``: where they are now)."""
         if self.colliders is not None:
-            geo: list = self.colliders.geometry_inputs(model)
+            _refuse_compliant(self.colliders, "BarrierContact")  # also those added after construction
+            ahead = None if start or not self._moving() else self._ahead.get(id(model))
+            geo: list = self.colliders.geometry_inputs(model) if ahead is None else ahead
             count = len(self.colliders)
         else:
             key = ("_dummy_colliders", model.dtype, str(model.device))
@@ -244,7 +275,7 @@ class BarrierContact(ModalEnergy):
         )
         lag = self._lag.get(id(model))
         if lag is not None:
-            mu, lam, normal, x_start, eps = lag
+            mu, lam, normal, x_start, eps, moving, shift = lag
             launch(
                 F.friction_terms,
                 model.particle_count,
@@ -254,6 +285,8 @@ class BarrierContact(ModalEnergy):
                     lam,
                     normal,
                     x_start,
+                    moving,
+                    shift,
                     x,
                     wp.float64(eps),
                     mode,
@@ -292,8 +325,14 @@ class BarrierContact(ModalEnergy):
             )
 
     def begin_step(self, model: Model, x: wp.array, v: wp.array, dt: float) -> None:
-        """With ``friction``: freeze the normal forces λ = κ|b′(d)| [N] and normals at the step's start x [m]
-        and the step Δt [s] (ε = ε_v Δt); without, nothing."""
+        """With moving colliders: their pose after the step Δt [s], where the barrier then acts. With
+        ``friction``: freeze the normal forces λ = κ|b′(d)| [N], normals and the moving colliders' surface
+        displacements at the step's start x [m] (ε = ε_v Δt)."""
+        moving = self._moving()
+        if moving:
+            assert self.colliders is not None
+            self._ahead[id(model)] = self.colliders.pose_ahead(model, dt)
+            self._ahead_dt[id(model)] = float(dt)
         if not self.friction:
             return
         d = model.device
@@ -309,24 +348,31 @@ class BarrierContact(ModalEnergy):
                 wp.zeros(n * (c + 1), dtype=wp.vec3d, device=d),
                 wp.zeros(n, dtype=model.vec3, device=d),
                 0.0,
+                0,
+                wp.zeros(n * (c + 1), dtype=wp.vec3d, device=d),
             )
         lag[0].assign(np.asarray(mus, np.float64))
         wp.copy(lag[3], x)
         ev = self.stick_velocity
         if ev is None:
             ev = model.ground.stick_velocity if model.ground is not None else STICK_VELOCITY
-        self._lag[id(model)] = (*lag[:4], max(float(ev) * float(dt), 1e-12))
+        self._lag[id(model)] = (*lag[:4], max(float(ev) * float(dt), 1e-12), int(moving), lag[6])
+        motion = self._motion(model)
         launch(
             F.friction_lag,
             n,
             [
-                *self._obstacles(model),
+                *self._obstacles(model, start=True),
                 model.particle_inv_mass,
                 x,
                 wp.float64(self.dhat),
                 wp.float64(self.stiffness(model)),
+                int(moving),
+                *motion,
+                model.s(dt),
                 lag[1],
                 lag[2],
+                lag[6],
             ],
             device=d,
         )
@@ -354,6 +400,48 @@ class BarrierContact(ModalEnergy):
                 device=d,
             )
         self._self_lag[id(model)] = sl
+
+    def _motion(self, model: Model) -> list:
+        """(vel, omega, centre) of the colliders now (the dummies' zeros without colliders)."""
+        if self.colliders is not None:
+            a = self.colliders.arrays(model)
+            return [a["vel"], a["omega"], a["centre"]]
+        dummy = self._obstacles(model)[1]  # a 1-element vec3 array of zeros
+        return [dummy, dummy, dummy]
+
+    def carried_start(self, model: Model, x_ref: wp.array) -> wp.array | None:
+        """Where the minimiser starts from instead of ``x_ref`` [m] with moving colliders (None without):
+        particles within reach of one carried by its rigid motion over the step (class docstring). Raises
+        RuntimeError when a particle is clear of the colliders' end pose neither carried nor left."""
+        ahead = self._ahead.get(id(model))
+        if not self._moving() or ahead is None:
+            return None
+        assert self.colliders is not None
+        d = model.device
+        buf = self._carry.get(id(model))
+        if buf is None:
+            buf = (wp.zeros_like(x_ref), wp.zeros(1, dtype=wp.int32, device=d))
+            self._carry[id(model)] = buf
+        out, blocked = buf
+        blocked.zero_()
+        start = self._obstacles(model, start=True)
+        a = self.colliders.arrays(model)
+        h = float(self._ahead_dt[id(model)])
+        launch(
+            C.carry_start,
+            model.particle_count,
+            [*start[:6], a["vel"], a["omega"], a["centre"], *ahead[1:4], *start[6:]]
+            + [model.s(h), model.s(self.dhat), model.particle_inv_mass, x_ref, out, blocked],
+            device=d,
+        )
+        k = int(blocked.numpy()[0])
+        if k:
+            raise RuntimeError(
+                f"BarrierContact: {k} particles would be inside a collider or the ground at the step's end "
+                "whether carried by a moving collider or not (a kinematic collider squeezes them into an "
+                "obstacle); move the collider clear, or lower dt"
+            )
+        return out
 
     # ----------------------------------------------------------------------------------- Hessian pattern
     def _pattern(self, model: Model) -> tuple[np.ndarray, wp.array, int]:
@@ -486,3 +574,13 @@ def barrier_pair_terms(
     H = wp.zeros(k, dtype=K.mat12d, device="cpu")
     wp.launch(K.pair_terms, k, [x, int(edge_edge), wp.float64(dhat), int(project), v, g, H], device="cpu")
     return v.numpy(), g.numpy(), H.numpy()
+
+
+def _refuse_compliant(colliders: Colliders, who: str) -> None:
+    """ValueError naming the compliant colliders (``stiffness=`` κ): a barrier is hard contact."""
+    soft = colliders.compliant()
+    if soft:
+        raise ValueError(
+            f"{who}: colliders {soft} are compliant (stiffness=); a barrier keeps every particle outside, so "
+            "drop stiffness= (or use the post-step response collisions=[colliders], which honours it)"
+        )

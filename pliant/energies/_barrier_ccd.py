@@ -12,7 +12,7 @@ from typing import Any
 
 import warp as wp
 
-from ..collision import collider_sdf
+from ..collision import collider_sdf, rigid_displacement
 from ._barrier_kernels import all_fixed
 from ._barrier_math import edge_edge_distance, point_triangle_distance, to_d
 
@@ -208,3 +208,78 @@ def obstacle_toi(
                 best = wp.min(best, t)
     if best < one:
         wp.atomic_min(alpha_io, 0, type(x[0])(best))
+
+
+@wp.func
+def _clear_at_end(
+    kind: wp.array(dtype=wp.int32),
+    pos: wp.array(dtype=Any),
+    aux: wp.array(dtype=Any),
+    rot: wp.array(dtype=Any),
+    radius: wp.array(dtype=Any),
+    mesh: wp.array(dtype=wp.uint64),
+    n_colliders: int,
+    ground: int,
+    height: wp.float64,
+    x: Any,
+):
+    """Whether x is strictly outside the ground and every collider (at the pose given)."""
+    if ground != 0:
+        if wp.float64(x[1]) - height <= wp.float64(0.0):
+            return False
+    for c in range(n_colliders):
+        phi, n, H = collider_sdf(kind[c], pos[c], aux[c], rot[c], radius[c], mesh[c], x)
+        if phi <= phi * type(phi)(0.0):
+            return False
+    return True
+
+
+@wp.kernel(enable_backward=False)
+def carry_start(
+    # Colliders at the step's start:
+    kind: wp.array(dtype=wp.int32),
+    pos: wp.array(dtype=Any),
+    aux: wp.array(dtype=Any),
+    rot: wp.array(dtype=Any),
+    radius: wp.array(dtype=Any),
+    mesh: wp.array(dtype=wp.uint64),
+    vel: wp.array(dtype=Any),
+    omega: wp.array(dtype=Any),
+    centre: wp.array(dtype=Any),
+    # ... and at its end (kind, radius and mesh are the same):
+    pos1: wp.array(dtype=Any),
+    aux1: wp.array(dtype=Any),
+    rot1: wp.array(dtype=Any),
+    n_colliders: int,
+    ground: int,
+    height: wp.float64,
+    h: Any,
+    dhat: Any,
+    inv_mass: wp.array(dtype=Any),
+    x_in: wp.array(dtype=Any),
+    x_out: wp.array(dtype=Any),
+    blocked: wp.array(dtype=wp.int32),
+):
+    # A free particle within reach of a moving collider over the step (φ < d̂ + |s| + |ω|h φ: no surface
+    # point nearer than φ moves farther than that) is carried by its rigid motion (the nearest such
+    # collider's), which keeps its distance to that collider exactly. The start must be clear of the ground
+    # and of every collider at the end pose: carried, else where it was; neither counts in ``blocked``.
+    i = wp.tid()
+    x = x_in[i]
+    x_out[i] = x
+    if inv_mass[i] == x[0] * type(x[0])(0.0):
+        return
+    best = dhat * type(dhat)(1.0e30)
+    moved = x
+    for c in range(n_colliders):
+        speed = wp.length(vel[c]) + wp.length(omega[c])
+        if speed > h * type(h)(0.0):
+            phi, n, H = collider_sdf(kind[c], pos[c], aux[c], rot[c], radius[c], mesh[c], x)
+            s = rigid_displacement(vel[c], omega[c], centre[c], h, x)
+            if phi < best and phi < dhat + wp.length(s) + wp.length(omega[c]) * h * phi:
+                best = phi
+                moved = x + s
+    if _clear_at_end(kind, pos1, aux1, rot1, radius, mesh, n_colliders, ground, height, moved):
+        x_out[i] = moved
+    elif not _clear_at_end(kind, pos1, aux1, rot1, radius, mesh, n_colliders, ground, height, x):
+        wp.atomic_add(blocked, 0, 1)

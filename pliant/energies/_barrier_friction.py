@@ -10,6 +10,11 @@ so the friction force μλ f₁(|u|) û, f₁ = f₀′ = 2y/ε − y²/ε² bel
 particle slides faster than the stick velocity ε_v [m/s] and a stiff viscous ramp below it (static friction
 up to a creep of ε_v). The Hessian μλ [f₁′ ûûᵀ + (f₁/y)(P − ûûᵀ)] (P = I − nnᵀ) is PSD (f₁′ ≥ 0).
 
+A moving collider (``velocity=``, ``angular_velocity=``) carries its material point at x_t by s_ic, the
+rigid displacement over the step (:func:`pliant.collision.rigid_displacement`, also lagged): friction acts
+on the motion relative to the surface, u = (I − n nᵀ)(x − x_t − s_ic), i.e. on v − v_s with v_s the surface
+velocity v + ω × (p − c) (exactly s_ic/Δt for a translating collider). Static obstacles have s = 0.
+
 Self-contact pairs (point–triangle, edge–edge) closer than d̂ at x_t get the same potential with their
 closest-point coefficients c (r = Σ c_k x_k) lagged too: u = (I − nnᵀ) Σ_k c_k (x_k − x_k,t), n = r/|r| at
 x_t, so the gradient on point k is c_k μλ f₁ û and the Hessian c cᵀ ⊗ (the 3×3 above), PSD as well.
@@ -21,7 +26,7 @@ from typing import Any
 
 import warp as wp
 
-from ..collision import collider_sdf
+from ..collision import collider_sdf, rigid_displacement
 from ._barrier_kernels import write_pair
 from ._barrier_math import barrier_d1, edge_edge_params, mat12d, point_triangle_params, to_d, vec12d
 
@@ -43,15 +48,29 @@ def friction_lag(
     x_in: wp.array(dtype=Any),
     dhat: wp.float64,
     kappa: wp.float64,
+    # Moving colliders (``moving`` 0: all static, no shift written):
+    moving: int,
+    vel: wp.array(dtype=Any),
+    omega: wp.array(dtype=Any),
+    centre: wp.array(dtype=Any),
+    h: Any,
     lam_out: wp.array(dtype=wp.float64),
     normal_out: wp.array(dtype=wp.vec3d),
+    shift_out: wp.array(dtype=wp.vec3d),
 ):
-    # λ = κ|b′(d)| and n at the step's start, per (particle, obstacle); 0 where out of contact.
+    # λ = κ|b′(d)| and n at the step's start, per (particle, obstacle); 0 where out of contact. With moving
+    # colliders, the surface's displacement s over the step at x (zero for static ones and the ground).
     i = wp.tid()
     x = x_in[i]
     slots = n_colliders + 1
     for c in range(slots):
         lam_out[i * slots + c] = wp.float64(0.0)
+        if moving != 0:
+            shift_out[i * slots + c] = wp.vec3d()
+            if c > 0:
+                k = c - 1
+                if wp.length(vel[k]) > h * type(h)(0.0) or wp.length(omega[k]) > h * type(h)(0.0):
+                    shift_out[i * slots + c] = to_d(rigid_displacement(vel[k], omega[k], centre[k], h, x))
     if inv_mass[i] == x[0] * type(x[0])(0.0):
         return
     if ground != 0:
@@ -74,6 +93,8 @@ def friction_terms(
     lam: wp.array(dtype=wp.float64),
     normal: wp.array(dtype=wp.vec3d),
     x_start: wp.array(dtype=Any),
+    moving: int,
+    shift: wp.array(dtype=wp.vec3d),
     x_in: wp.array(dtype=Any),
     eps: wp.float64,
     mode: int,
@@ -83,7 +104,7 @@ def friction_terms(
     grad_out: wp.array(dtype=Any),
     hess_out: wp.array(dtype=Any),
 ):
-    # D_i = Σ_c μ_c λ_ic f₀(|P(x − x_t)|), its gradient and Hessian (module docstring).
+    # D_i = Σ_c μ_c λ_ic f₀(|P(x − x_t − s_ic)|), its gradient and Hessian (module docstring).
     i = wp.tid()
     x = x_in[i]
     dx = to_d(x) - to_d(x_start[i])
@@ -97,6 +118,8 @@ def friction_terms(
             n = normal[k]
             P = wp.identity(n=3, dtype=wp.float64) - wp.outer(n, n)
             u = P * dx
+            if moving != 0:
+                u = P * (dx - shift[k])
             y = wp.length(u)
             if y < eps:
                 val = val + w * (

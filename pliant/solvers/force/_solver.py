@@ -10,7 +10,7 @@ import numpy as np
 import warp as wp
 
 from ..._warp import GradientError, fresh, grad_enabled, launch
-from ...collision import ground_coefficients
+from ...collision import Colliders, ground_coefficients
 from ...energies import Energy, Gravity, GravityFromArray, GroundPenalty, axpy, ground_penalty, mass_spring
 from ...integrators import Integrator, SymplecticEuler
 from ...model import Control, Model, Parameter, State, declares
@@ -132,6 +132,13 @@ class ForceSolver(Solver):
                     else GroundPenalty()
                 )
         self.collisions = check_collisions(collisions)
+        # Kinematic colliders whose contact is an energy (barrier, penalty) evaluate at the step's end
+        # pose; when they are not also a post-step handler (which moves them), a motion handler does.
+        for e in self.energies:
+            cols = getattr(e, "colliders", None)
+            if isinstance(cols, Colliders) and cols.moving:
+                if not any(c is cols or getattr(c, "colliders", None) is cols for c in self.collisions):
+                    self.collisions.append(cols.motion())
         d = model.device
         self._force = wp.zeros(model.particle_count, dtype=model.vec3, device=d)
         #: [friction μ, restitution e] of the ground as every step reads them; on a requires_grad model

@@ -61,11 +61,18 @@ def _feasible_start(
 ) -> bool:
     """With an energy that needs it, x = x_ref + α(x̃ − x_ref) (free particles; fixed ones at x̃), α ≤ 1 the
     energies' ``max_step`` from x_ref: the start is then as admissible as x_ref (IPC starts from x_ref).
-    Returns whether it applied (the energies then refresh their Hessian patterns at this start)."""
+    An energy with ``carried_start`` (barrier contact with moving colliders) may replace x_ref here by
+    positions admissible at the step's end. Returns whether it applied (the energies then refresh their
+    Hessian patterns at this start)."""
     if not needs_feasible_start(solver):
         return False
     m = solver.model
     n = m.particle_count
+    for e in solver.energies:
+        carried = getattr(e, "carried_start", None)
+        moved = carried(m, x_ref) if carried is not None else None
+        if moved is not None:
+            x_ref = moved
     launch(_toward, n, [m.particle_inv_mass, x_ref, x_tilde, m.s(0.0), 0, ws.dx, x], device=m.device)
     alpha = 1.0
     for e in solver.energies:
