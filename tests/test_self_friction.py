@@ -262,3 +262,28 @@ def test_xpbd_contact_constraints_hold_a_stack_of_boxes():
         drift = np.linalg.norm(c[:, [0, 2]] - c[0, [0, 2]], axis=1).max()
         assert drift < 0.005, f"box {k} drifted {drift * 1e3:.1f} mm"
         assert abs(c[-1, 1] - (0.055 + k * 0.11)) < 0.02, f"box {k} ends at {c[-1, 1]:.3f} m"
+
+
+def test_a_scene_gives_its_self_collision_friction_to_xpbds_contact_constraints():
+    """``[solver] self_collision.friction`` reaches XPBD's ParticleCollision and PointTriangleCollision (it
+    used to reach only the step bound's push), as does a ``[[constraints]] particle_collision``'s friction;
+    a negative μ is refused before any work."""
+    from pathlib import Path
+
+    from pliant.scene import SceneError, build_scene, parse_scene
+
+    text = (Path(pl.__file__).parent / "scenes" / "xpbd_cloth_sphere.toml").read_text(encoding="utf-8")
+    on = text.replace("self_collision = { thickness", "self_collision = { friction = 0.4, thickness")
+    solver = build_scene(parse_scene(on, overrides=["scene.frames=1"])).solver
+    kinds = (pl.constraints.ParticleCollision, pl.constraints.PointTriangleCollision)
+    contact = [c for c in solver.constraints if isinstance(c, kinds)]
+    assert len(contact) == 2 and all(c.friction_settings.friction == 0.4 for c in contact)
+    extra = on + '\n[[constraints]]\nkind = "particle_collision"\nfriction = 0.25\n'
+    solver = build_scene(parse_scene(extra, overrides=["scene.frames=1"])).solver
+    mus = sorted(c.friction_settings.friction for c in solver.constraints if isinstance(c, kinds))
+    assert mus == [0.25, 0.4, 0.4]
+    with pytest.raises(SceneError, match="friction"):
+        bad = on.replace("friction = 0.4", "friction = -0.1")
+        build_scene(parse_scene(bad, overrides=["scene.frames=1"]))
+    with pytest.raises(ValueError, match="PointTriangleCollision: friction must be a finite μ >= 0"):
+        pl.constraints.PointTriangleCollision(friction=float("nan"))
