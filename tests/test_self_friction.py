@@ -6,7 +6,9 @@ the same figures, with the slab's self-contact friction μ instead of the ground
 slides at a = g (sin θ − μ cos θ) (the slope of its centre's velocity over 0.3-1.5 s within 2 %) for
 μ = 0.3 and 0.45, and travels at most 1 mm over 1.5 s for μ = 0.6. The projection families use
 :class:`pliant.collision.SelfCollision` (point–triangle contact, thickness 5 mm); the barrier path is the
-implicit ForceSolver with :class:`pliant.energies.BarrierContact` (self_contact, lagged self_friction).
+implicit ForceSolver with :class:`pliant.energies.BarrierContact` (self_contact, lagged self_friction);
+"xpbd_constraints" is XPBD's own point–triangle contact constraint
+(:class:`pliant.constraints.PointTriangleCollision`, friction inside the projection) without any handler.
 """
 
 from __future__ import annotations
@@ -67,6 +69,11 @@ def _solver(family: str, model: pl.Model, mu: float):
         return pl.solvers.FastMassSpring(model, collisions=sc), 1 / 2400
     if family == "xpbd":
         return pl.solvers.XPBD(model, iterations=10, collisions=sc), 1 / 600
+    if family == "xpbd_constraints":
+        contact = pl.constraints.PointTriangleCollision(thickness=H, friction=mu)
+        return pl.solvers.XPBD(
+            model, iterations=10, constraints=[pl.constraints.Distance(), contact]
+        ), 1 / 600
     assert family == "barrier"
     # The barrier's points are the surface's vertices: the slab's triangles and the box's boundary.
     tris = np.concatenate([model.tri_indices.numpy().reshape(-1, 3), surface_from_tets(model.tet_indices_np)])
@@ -76,8 +83,8 @@ def _solver(family: str, model: pl.Model, mu: float):
     return pl.solvers.ForceSolver(model, [*fem, bar], pl.integrators.BackwardEuler()), 1 / 600
 
 
-FAMILIES = ("symplectic_euler", "backward_euler", "fast_mass_spring", "xpbd", "barrier")
-FAST = {"symplectic_euler", "fast_mass_spring", "xpbd"}
+FAMILIES = ("symplectic_euler", "backward_euler", "fast_mass_spring", "xpbd", "xpbd_constraints", "barrier")
+FAST = {"symplectic_euler", "fast_mass_spring", "xpbd", "xpbd_constraints"}
 
 
 @pytest.mark.parametrize("mu", [0.3, 0.45, 0.6])
@@ -174,3 +181,109 @@ def test_vertices_moving_under_a_triangle_carry_it_by_coulomb():
     assert vx[k25] == pytest.approx(mu * 9.81 * 0.025, rel=0.03)
     assert vx[k300] == pytest.approx(speed, rel=0.01)
     assert abs(offset[k500] - offset[k300]) <= 1e-3
+
+
+def _xpbd_step(model: pl.Model, v: np.ndarray, contact, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """One XPBD step (4 sweeps) with only ``contact`` from the model's positions at velocities ``v``;
+    returns the start positions and the velocities after it."""
+    s0, s1 = model.state(), model.state()
+    s0.particle_qd.assign(v)
+    pl.solvers.XPBD(model, iterations=4, constraints=[contact]).step(s0, s1, None, dt)
+    return s0.particle_q.numpy(), s1.particle_qd.numpy()
+
+
+def test_xpbd_contact_constraints_conserve_momentum_and_slip_by_coulomb():
+    """XPBD's own contact constraints with μ = 0.3, no gravity. Two particles (10 g and 30 g, radius 5 mm)
+    whose step overlaps by 0.84 mm while sliding past each other: momentum is conserved (1e-12), the pair
+    ends touching and its relative tangential velocity is cut by exactly μ depth/Δt (Coulomb's slip, 1e-12
+    relative). A point (10 g) landing 6 mm deep in a free triangle (20-40 g) moving in its plane: momentum
+    is conserved in all three axes (1e-12; the normal push moves the triangle too), and the tangential
+    velocity of the point against the triangle's point under it is cut by μ depth/Δt to 0.3 % (the
+    triangle tilts a little under the push, so the barycentric point is not quite the start's)."""
+    mu, dt = 0.3, 2e-3
+    m = np.array([0.01, 0.03])
+    b = pl.ModelBuilder(gravity=(0.0, 0.0, 0.0))
+    b.add_particles([[0.0, 0.0, 0.0], [0.012, 0.0, 0.0]], m, radius=0.005)
+    model = b.finalize(device="cpu", dtype="float64")
+    v = np.array([[1.0, 0.2, 0.5], [-0.5, -0.1, -0.3]])
+    x, v1 = _xpbd_step(model, v, pl.constraints.ParticleCollision(friction=mu), dt)
+    np.testing.assert_allclose(m @ v1, m @ v, rtol=0, atol=1e-12)
+    d = (x[0] + dt * v[0]) - (x[1] + dt * v[1])  # the predicted positions' separation
+    n, depth = d / np.linalg.norm(d), 0.01 - np.linalg.norm(d)
+    assert depth > 5e-4
+    rel, rel1 = dt * (v[0] - v[1]), v1[0] - v1[1]
+    assert rel1 @ n == pytest.approx((rel @ n + depth) / dt, rel=1e-12)
+    slip = np.linalg.norm(rel - (rel @ n) * n)
+    assert slip > mu * depth  # it slides: the budget does not stop it
+    assert np.linalg.norm(rel1 - (rel1 @ n) * n) == pytest.approx((slip - mu * depth) / dt, rel=1e-12)
+
+    m = np.array([0.01, 0.02, 0.03, 0.04])
+    start = np.array([[0.1, 0.02, 0.1], [0.0, 0.0, 0.0], [0.0, 0.0, 0.4], [0.4, 0.0, 0.0]])
+    b = pl.ModelBuilder(gravity=(0.0, 0.0, 0.0))
+    b.add_particles(start, m, radius=0.001)
+    b.add_triangles([[1, 2, 3]])
+    model = b.finalize(device="cpu", dtype="float64")
+    v = np.array([[2.0, -8.0, 0.5], [0.1, 0.0, 0.0], [0.0, 0.0, -0.2], [0.0, 0.0, 0.1]])
+    contact = pl.constraints.PointTriangleCollision(thickness=0.01, friction=mu)
+    _, v1 = _xpbd_step(model, v, contact, dt)
+    assert int(contact.contact_count.numpy()[0]) == 1
+    np.testing.assert_allclose(m @ v1, m @ v, rtol=0, atol=1e-12)
+    depth = 0.01 - (0.02 + dt * v[0, 1])  # 6 mm below the thickness
+    w = np.array([0.5, 0.25, 0.25])  # the barycentric weights at (0.1, 0.1)
+    rel, rel1 = (u[0] - w @ u[1:] for u in (v, v1))
+    slip = np.linalg.norm(rel[[0, 2]])
+    assert slip > mu * depth / dt
+    assert np.linalg.norm(rel1[[0, 2]]) == pytest.approx(slip - mu * depth / dt, rel=3e-3)
+
+
+@pytest.mark.slow
+def test_xpbd_contact_constraints_hold_a_stack_of_boxes():
+    """Issue 39's stack of three soft boxes (pliant/examples/_contact_scenes.py) in XPBD with only its own
+    contact constraints (no SelfCollision handler, no step bound), μ = 0.6 between the boxes: every box's
+    centre stays within 5 mm of where it started, horizontally, over 1.5 s (measured 0.5, 0.7, 1.3 mm; with
+    μ = 0 the upper boxes slide 30-39 mm), and they end stacked (2 cm of 0.055, 0.165, 0.275 m)."""
+    from pliant.examples import _contact_scenes as cs
+
+    scene = cs.boxes(family="xpbd")
+    model = scene.model
+    contact = [
+        pl.constraints.PointTriangleCollision(thickness=0.005, friction=0.6),
+        pl.constraints.ParticleCollision(friction=0.6),
+    ]
+    scene.solver = pl.solvers.XPBD(
+        model, iterations=10, damping=2.0, constraints=[pl.constraints.Distance(compliance=0.0), *contact]
+    )
+    x = scene.run()
+    m = model.particle_mass.numpy()
+    n = len(m) // 3
+    for k in range(3):
+        part = slice(k * n, (k + 1) * n)
+        c = (m[part] @ x[:, part]) / m[part].sum()  # [F, 3] the box's centre
+        drift = np.linalg.norm(c[:, [0, 2]] - c[0, [0, 2]], axis=1).max()
+        assert drift < 0.005, f"box {k} drifted {drift * 1e3:.1f} mm"
+        assert abs(c[-1, 1] - (0.055 + k * 0.11)) < 0.02, f"box {k} ends at {c[-1, 1]:.3f} m"
+
+
+def test_a_scene_gives_its_self_collision_friction_to_xpbds_contact_constraints():
+    """``[solver] self_collision.friction`` reaches XPBD's ParticleCollision and PointTriangleCollision (it
+    used to reach only the step bound's push), as does a ``[[constraints]] particle_collision``'s friction;
+    a negative μ is refused before any work."""
+    from pathlib import Path
+
+    from pliant.scene import SceneError, build_scene, parse_scene
+
+    text = (Path(pl.__file__).parent / "scenes" / "xpbd_cloth_sphere.toml").read_text(encoding="utf-8")
+    on = text.replace("self_collision = { thickness", "self_collision = { friction = 0.4, thickness")
+    solver = build_scene(parse_scene(on, overrides=["scene.frames=1"])).solver
+    kinds = (pl.constraints.ParticleCollision, pl.constraints.PointTriangleCollision)
+    contact = [c for c in solver.constraints if isinstance(c, kinds)]
+    assert len(contact) == 2 and all(c.friction_settings.friction == 0.4 for c in contact)
+    extra = on + '\n[[constraints]]\nkind = "particle_collision"\nfriction = 0.25\n'
+    solver = build_scene(parse_scene(extra, overrides=["scene.frames=1"])).solver
+    mus = sorted(c.friction_settings.friction for c in solver.constraints if isinstance(c, kinds))
+    assert mus == [0.25, 0.4, 0.4]
+    with pytest.raises(SceneError, match="friction"):
+        bad = on.replace("friction = 0.4", "friction = -0.1")
+        build_scene(parse_scene(bad, overrides=["scene.frames=1"]))
+    with pytest.raises(ValueError, match="PointTriangleCollision: friction must be a finite μ >= 0"):
+        pl.constraints.PointTriangleCollision(friction=float("nan"))

@@ -23,6 +23,7 @@ from ._contact_math import (
     point_triangle_grad,
 )
 from ._ground_compliant import check_compliance, compliant_velocity, project_compliant
+from ._self_friction import SelfFriction, project_particle_friction, project_point_triangle_friction
 
 
 # ---------------------------------------------------------------------- ground
@@ -292,6 +293,8 @@ class ParticleCollision(Constraint):
 
     Args:
         cell_size: hash-grid cell [m]; default twice the largest particle radius.
+        friction, stick_velocity, friction_law: Coulomb μ between particles (0: none), ε_v [m/s] and the law's
+            name, as :class:`PointTriangleCollision`'s (:mod:`._self_friction`).
 
     Every particle collides with every other one, including its neighbours in a mesh: give particles a
     radius below half the rest spacing of connected particles.
@@ -300,8 +303,16 @@ class ParticleCollision(Constraint):
     always_jacobi = True
     is_contact = True
 
-    def __init__(self, *, cell_size: float | None = None) -> None:
+    def __init__(
+        self,
+        *,
+        cell_size: float | None = None,
+        friction: float = 0.0,
+        stick_velocity: float | None = None,
+        friction_law: str = "coulomb",
+    ) -> None:
         super().__init__(compliance=0.0)
+        self.friction_settings = SelfFriction("ParticleCollision", friction, stick_velocity, friction_law)
         if cell_size is not None and not (math.isfinite(cell_size) and cell_size > 0):
             # Checked here, not when bind() builds the grid, so a scene names the field before any work.
             raise ValueError(f"cell_size must be a positive length [m] (or omitted), got {cell_size}")
@@ -316,31 +327,24 @@ class ParticleCollision(Constraint):
         self.query_radius = 2.0 * rmax
         self.grid = ParticleGrid(model.device, model.dtype, self._cell or self.query_radius)
         self.count = model.particle_count
+        self.friction_settings.bind(model, self.count)
 
     def evaluate(self, x: wp.array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """C [P], pairs [P, 2] and ∇C [P, 2, 3] of the particle pairs within the query radius at ``x``."""
         return evaluate_particle_pairs(self.model, self.grid, self.query_radius, x)
 
     def begin_step(self, ctx: ProjectionContext, x: wp.array, p: wp.array, dt: float) -> None:
-        """Rebuild the grid over the predicted positions."""
+        """Rebuild the grid over the predicted positions; friction keeps the step's start positions x."""
         ctx.call(self.grid.build, p)
+        self.friction_settings.begin_step(ctx, x)
 
     def project(self, ctx: ProjectionContext, p: wp.array, dt: float) -> None:
         """Accumulate contact corrections into ``ctx.delta``."""
-        m = self.model
-        ctx.launch(
-            _project_particle_collision,
-            self.count,
-            [
-                wp.uint64(self.grid.id),
-                m.particle_inv_mass,
-                m.particle_radius,
-                m.s(self.query_radius),
-                p,
-                ctx.delta,
-                ctx.delta_count,
-            ],
-        )
+        m, f = self.model, self.friction_settings
+        args = [wp.uint64(self.grid.id), m.particle_inv_mass, m.particle_radius, m.s(self.query_radius)]
+        kernel = project_particle_friction if f.friction > 0 else _project_particle_collision
+        fric = f.args(dt) if f.friction > 0 else []
+        ctx.launch(kernel, self.count, [*args, *fric, p, ctx.delta, ctx.delta_count])
 
 
 # ---------------------------------------------------------------------- point–triangle
@@ -489,6 +493,9 @@ class PointTriangleCollision(Constraint):
             triangle mesh in the model: pin its particles to make it a static obstacle).
         margin: extra detection distance [m] (default h).
         capacity: most contacts per step (extra ones are dropped; see :attr:`overflow`).
+        friction: Coulomb μ between the point and the triangle (:mod:`._self_friction`; 0: none).
+        stick_velocity: ε_v [m/s] of the smoothed law; default :data:`pliant.model.STICK_VELOCITY`.
+        friction_law: a name of :data:`pliant.collision.FRICTION_LAWS`.
     """
 
     always_jacobi = True
@@ -501,8 +508,14 @@ class PointTriangleCollision(Constraint):
         triangles: ArrayLike | None = None,
         margin: float | None = None,
         capacity: int | None = None,
+        friction: float = 0.0,
+        stick_velocity: float | None = None,
+        friction_law: str = "coulomb",
     ) -> None:
         super().__init__(compliance=0.0)
+        self.friction_settings = SelfFriction(
+            "PointTriangleCollision", friction, stick_velocity, friction_law
+        )
         if thickness <= 0:
             raise ValueError(f"PointTriangleCollision: thickness must be > 0 m, got {thickness}")
         self.thickness = float(thickness)
@@ -527,10 +540,12 @@ class PointTriangleCollision(Constraint):
         self.contact_side = wp.zeros(self.capacity, dtype=f, device=d)
         self._min = wp.zeros(1, dtype=f, device=d)
         self.count = self.capacity
+        self.friction_settings.bind(model, self.capacity)
 
     def begin_step(self, ctx: ProjectionContext, x: wp.array, p: wp.array, dt: float) -> None:
         """Refit the BVH at the predicted positions and generate this step's contacts."""
         m = self.model
+        self.friction_settings.begin_step(ctx, x)
         self.bvh.update(p, ctx)
         ctx.call(self.contact_count.zero_)
         ctx.launch(
@@ -563,20 +578,11 @@ class PointTriangleCollision(Constraint):
 
     def project(self, ctx: ProjectionContext, p: wp.array, dt: float) -> None:
         """Accumulate contact corrections into ``ctx.delta``."""
-        m = self.model
-        ctx.launch(
-            _project_point_triangle,
-            self.capacity,
-            [
-                self.tri_indices,
-                m.particle_inv_mass,
-                m.s(self.thickness),
-                *self._contact_args(),
-                p,
-                ctx.delta,
-                ctx.delta_count,
-            ],
-        )
+        m, f = self.model, self.friction_settings
+        args = [self.tri_indices, m.particle_inv_mass, m.s(self.thickness), *self._contact_args()]
+        kernel = project_point_triangle_friction if f.friction > 0 else _project_point_triangle
+        fric = f.args(dt) if f.friction > 0 else []
+        ctx.launch(kernel, self.capacity, [*args, *fric, p, ctx.delta, ctx.delta_count])
 
     def evaluate(self, x: wp.array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """C [K], indices [K, 4] (point, triangle) and ∇C [K, 4, 3] of this step's contacts at ``x``."""

@@ -415,9 +415,9 @@ def _extra_constraints(ctx: BuildContext) -> None:
     sc = cfg.solver.self_collision
     if sc is not None:
         if sc.particles:
-            ctx.constraints.append(C.ParticleCollision())
+            ctx.constraints.append(C.ParticleCollision(friction=sc.friction))
         if sc.triangles and model.tri_count:
-            ctx.constraints.append(C.PointTriangleCollision(thickness=sc.thickness))
+            ctx.constraints.append(C.PointTriangleCollision(thickness=sc.thickness, friction=sc.friction))
 
 
 def _entries(ctx: BuildContext, section: str, registry: dict, out: list) -> None:

@@ -245,8 +245,8 @@ class SelfCollisionConfig(Section):
     #: d̂ = thickness for point–triangle and edge–edge pairs, intersection-free (implicit ForceSolver only).
     contact: Literal["projection", "barrier"] = "projection"
     kappa: PosFloat | None = None  # barrier stiffness κ [N/m]; None: pl.energies.BarrierContact's default
-    #: Coulomb μ between layers: SelfCollision's and the step bound's push (XPBD / PBD: the bound's push
-    #: only); barrier: the lagged friction's μ
+    #: Coulomb μ between layers: SelfCollision's and the step bound's push (XPBD / PBD: the contact
+    #: constraints' and the bound's push); barrier: the lagged friction's μ
     friction: NonNegFloat = 0.0
     iterations: Annotated[int, Strict(), Field(ge=1, le=100)] = 2  # force solver: passes per step
     particles: bool = True  # particle–particle contacts

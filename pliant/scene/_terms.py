@@ -25,11 +25,14 @@ def air_drag(
     return AirDrag(coefficient, quadratic=quadratic, wind=wind if wind is not None else (0.0, 0.0, 0.0))
 
 
-def particle_collision(model: Model, *, cell_size: float | None = None) -> ParticleCollision:
-    """``pl.constraints.ParticleCollision`` (particle–particle contact by the particles' radii)."""
+def particle_collision(
+    model: Model, *, cell_size: float | None = None, friction: float = 0.0
+) -> ParticleCollision:
+    """``pl.constraints.ParticleCollision`` (particle–particle contact by the particles' radii; hash-grid
+    ``cell_size`` [m], Coulomb ``friction`` μ between particles)."""
     from ..constraints import ParticleCollision
 
-    return ParticleCollision(cell_size=cell_size)
+    return ParticleCollision(cell_size=cell_size, friction=friction)
 
 
 def register_builtin_terms() -> None:
