@@ -9,36 +9,10 @@ import numpy as np
 import warp as wp
 
 from ...collision import Colliders
-from ...constraints import polar_rotation
 from ...model import Control, Model, State
 from .._base import Solver
 from ._contact import gather_contacts, solve_positions, solve_velocities
-
-
-@wp.func
-def skew(a: Any):
-    """[a]× with [a]× b = a × b."""
-    z = type(a[0])(0.0)
-    return type(wp.outer(a, a))(z, -a[2], a[1], a[2], z, -a[0], -a[1], a[0], z)
-
-
-@wp.func
-def gyroscopic_step(I: Any, w: Any, dt: Any):
-    """One Newton step on I(ω' − ω) + Δt ω' × Iω' = 0 (implicit gyroscopic term, Catto 2015), body frame."""
-    f = dt * wp.cross(w, I * w)
-    J = I + dt * (skew(w) * I - skew(I * w))
-    return w - wp.inverse(J) * f
-
-
-@wp.func
-def advance_rotation(q: Any, w: Any, dt: Any):
-    """R of q ← normalize(q + ½Δt [ω, 0] q) for the world angular velocity ω [rad/s]."""
-    half = type(dt)(0.5) * dt
-    dq = type(q)(w[0], w[1], w[2], dt * type(dt)(0.0)) * q
-    q = wp.normalize(
-        type(q)(q[0] + half * dq[0], q[1] + half * dq[1], q[2] + half * dq[2], q[3] + half * dq[3])
-    )
-    return wp.quat_to_matrix(q)
+from ._motion import advance_rotation, free_motion
 
 
 @wp.kernel
@@ -87,43 +61,10 @@ def _rigid_step(
     b = wp.tid()
     a0 = offsets[b]
     a1 = offsets[b + 1]
-    zero = dt * type(dt)(0.0)
-    # Body state from the particles: centre, rotation (polar part of A, exact for a rigid arrangement),
-    # linear momentum, angular momentum, and the forces.
-    M = zero
-    c = gravity * zero
-    p = gravity * zero
-    F = gravity * zero
-    for k in range(a0, a1):
-        i = members[k]
-        M = M + mass[i]
-        c = c + mass[i] * x_in[i]
-        p = p + mass[i] * v_in[i]
-        F = F + mass[i] * gravity + f_ext[i]
-    c = c / M
     cb = rest_center[b]
-    A = wp.outer(c, c) * zero
-    L = c * zero
-    tau = c * zero
-    for k in range(a0, a1):
-        i = members[k]
-        r = x_in[i] - c
-        A = A + mass[i] * wp.outer(r, rest[k] - cb)
-        L = L + mass[i] * wp.cross(r, v_in[i])
-        tau = tau + wp.cross(r, f_ext[i])
-    R = polar_rotation(A)
     Ib = inertia_body[b]
-    # Newton: symplectic Euler for the centre.
-    v = p / M + dt * F / M
+    M, c, q, v, w, R_new = free_motion(a0, a1, members, rest, cb, Ib, mass, gravity, f_ext, dt, x_in, v_in)
     c_new = c + dt * v
-    # Euler: ω from L = R I_b Rᵀ ω, torque impulse, implicit gyroscopic term in the body frame.
-    wb = wp.inverse(Ib) * (wp.transpose(R) * L)
-    wb = wb + dt * (wp.inverse(Ib) * (wp.transpose(R) * tau))
-    wb = gyroscopic_step(Ib, wb, dt)
-    w = R * wb
-    # Orientation: q ← normalize(q + ½Δt [ω, 0] q).
-    q = wp.quat_from_matrix(R)
-    R_new = advance_rotation(q, w, dt)
     if surfaces != 0:
         # Body-level contact (._contact): impulses on (v, ω) from the contacts of the free end pose, then
         # the pose again from the corrected velocities plus the split impulse's pseudo-velocities.
