@@ -10,9 +10,11 @@ import warp as wp
 
 from ...collision import Colliders
 from ...model import Control, Model, State
+from ...model._model import STICK_VELOCITY
 from .._base import Solver
 from ._contact import gather_contacts, solve_positions, solve_velocities
 from ._motion import advance_rotation, free_motion
+from ._pairs import _coupled_contacts, _free_bodies, _place_bodies
 
 
 @wp.kernel
@@ -145,8 +147,11 @@ class RigidBodySolver(Solver):
     not hop, the project's smoothed Coulomb friction
     bounded by μ times each contact's normal impulse, a split impulse for leftover penetration), and the
     pose is then integrated from the corrected velocities, so the body stays rigid through contact, slides
-    at μ g cos θ and rests inside the friction cone (:mod:`pliant.solvers.rigid._contact`). A step where no
-    body touches anything is the free update exactly.
+    at μ g cos θ and rests inside the friction cone (:mod:`pliant.solvers.rigid._contact`). Bodies also meet
+    each other, where particle spheres of different bodies overlap, with ``body_friction`` and
+    ``body_restitution``: with more than one body all contacts are solved together by one Gauss–Seidel pass
+    (:mod:`pliant.solvers.rigid._pairs`, one thread). A step where no body touches anything is the free
+    update exactly, and a body that touches no other body moves as with the per-body solve, bit for bit.
 
     Args:
         model: the Model; bodies' particles must not be pinned; a ground must be hard (no ``stiffness``).
@@ -155,6 +160,10 @@ class RigidBodySolver(Solver):
             step (``apply(model, state_in, state_out, dt)``): those move particles one by one, and the next
             step's polar decomposition makes each body rigid again.
         contact_iterations: Gauss–Seidel sweeps over a body's contacts per step, >= 1.
+        body_friction: μ >= 0 between bodies (smoothed Coulomb, stick velocity 1e-4 m/s as the ground's).
+        body_restitution: e in [0, 1] between bodies, on approach speeds above 2|g|Δt.
+        pair_contacts: room for body-to-body contacts per step (default 4 per body particle); a step that
+            finds more raises, naming this argument.
 
     Example::
 
@@ -169,10 +178,18 @@ class RigidBodySolver(Solver):
         *,
         collisions: Sequence[Any] = (),
         contact_iterations: int = 20,
+        body_friction: float = 0.5,
+        body_restitution: float = 0.0,
+        pair_contacts: int | None = None,
     ) -> None:
         super().__init__(model, collisions)
         if int(contact_iterations) < 1:
             raise ValueError(f"RigidBodySolver: contact_iterations must be >= 1, got {contact_iterations}")
+        if not (np.isfinite(body_friction) and body_friction >= 0 and 0 <= body_restitution <= 1):
+            raise ValueError(
+                "RigidBodySolver: body_friction must be >= 0 and body_restitution in [0, 1], got "
+                f"{body_friction}, {body_restitution}"
+            )
         if model.ground is not None and model.ground.compliant:
             raise NotImplementedError(
                 "RigidBodySolver: compliant ground contact (Ground.stiffness) is not supported for rigid "
@@ -216,9 +233,36 @@ class RigidBodySolver(Solver):
         self._col_count = sum(len(c) for c in self.colliders)
         self._col = self._collider_buffers(max(self._col_count, 1))
         self._surfaces = (model.ground is not None) + self._col_count
-        size = max(members.size * self._surfaces, 1)
+        # With several bodies, pair contacts follow the ground's and colliders' in the same scratch.
+        self.pair_contacts = 4 * members.size if pair_contacts is None else int(pair_contacts)
+        if self.pair_contacts < 1:
+            raise ValueError(f"RigidBodySolver: pair_contacts must be >= 1, got {pair_contacts}")
+        self._coupled = self.body_count > 1
+        size = max(members.size * self._surfaces + self._coupled * self.pair_contacts, 1)
         vec = [wp.zeros(size, dtype=model.vec3, device=d) for _ in range(5)]
         self._scratch = [*vec, wp.zeros(size, dtype=model.scalar, device=d)]
+        self.body_friction, self.body_restitution = float(body_friction), float(body_restitution)
+        if self._coupled:
+            self._init_coupled(bodies, centers)
+
+    def _init_coupled(self, bodies: list[np.ndarray], centers: list[np.ndarray]) -> None:
+        """Per-body arrays of the coupled path (:mod:`._pairs`) and each body's bounding radius [m]."""
+        m, d, B = self.model, self.model.device, self.body_count
+        q, rad = m.particle_q_np, m.particle_radius.numpy()
+        bound = [
+            np.linalg.norm(q[b] - c, axis=1).max() + rad[b].max()
+            for b, c in zip(bodies, centers, strict=True)
+        ]
+        self._bound = wp.array(np.asarray(bound), dtype=m.scalar, device=d)
+        quat = wp.quatd if m.scalar == wp.float64 else wp.quat
+        types = [m.vec3, quat, m.mat33, m.vec3, m.vec3, m.scalar, m.mat33, m.vec3, m.vec3]
+        self._body = [wp.zeros(B, dtype=t, device=d) for t in types]
+        self._touch = wp.zeros(B, dtype=wp.int32, device=d)
+        self._pair = [
+            wp.zeros(self._scratch[0].shape[0], dtype=m.vec3, device=d),
+            wp.zeros(self._scratch[0].shape[0], dtype=wp.vec2i, device=d),
+        ]
+        self._counts = wp.zeros(2, dtype=wp.int32, device=d)
 
     def _collider_buffers(self, count: int) -> list[wp.array]:
         """The combined collider arrays the step's kernel reads (kind, pos, aux, rot, radius, mesh, coef)."""
@@ -247,6 +291,11 @@ class RigidBodySolver(Solver):
         ground = [0, m.s(0.0), m.vec3()] if g is None else [1, m.s(g.height)]
         if g is not None:
             ground.append(m.vec3(g.friction, g.restitution, g.stick_velocity))
+        f_ext = control.particle_f if control is not None else self._zero_f
+        if self._coupled:
+            self._step_coupled(state_in, state_out, f_ext, dt, ground)
+            self.apply_collisions(state_in, state_out, dt)
+            return
         wp.launch(
             _rigid_step,
             self.body_count,
@@ -258,7 +307,7 @@ class RigidBodySolver(Solver):
                 self.inertia_body,
                 m.particle_mass,
                 m.gravity_vec,
-                control.particle_f if control is not None else self._zero_f,
+                f_ext,
                 m.s(dt),
                 state_in.particle_q,
                 state_in.particle_qd,
@@ -275,6 +324,34 @@ class RigidBodySolver(Solver):
             device=m.device,
         )
         self.apply_collisions(state_in, state_out, dt)
+
+    def _step_coupled(
+        self, state_in: State, state_out: State, f_ext: wp.array, dt: float, ground: list
+    ) -> None:
+        """Free steps, one Gauss–Seidel pass over all contacts, placement (:mod:`._pairs`)."""
+        m, d, B = self.model, self.model.device, self.body_count
+        c, q, R, v, w, im, ii, vp, wq = self._body
+        common = [self.offsets, self.members, self.rest, self.rest_center]
+        free = [*common, self.inertia_body, m.particle_mass, m.gravity_vec, f_ext, m.s(dt)]
+        wp.launch(
+            _free_bodies,
+            B,
+            [*free, state_in.particle_q, state_in.particle_qd, c, q, R, v, w, im, ii],
+            device=d,
+        )
+        pair = m.vec3(self.body_friction, self.body_restitution, STICK_VELOCITY)
+        args = [B, *common, self._bound, m.particle_radius, m.s(dt), m.gravity_vec, self.contact_iterations]
+        args += [self._surfaces, *ground, pair, self.pair_contacts, self._col_count, *self._col]
+        args += [c, R, v, w, im, ii, *self._scratch, *self._pair, vp, wq, self._touch, self._counts]
+        wp.launch(_coupled_contacts, 1, args, device=d)
+        wanted = int(self._counts.numpy()[1])
+        if wanted > self.pair_contacts:
+            raise RuntimeError(
+                f"RigidBodySolver: {wanted} body-to-body contacts in one step, room for "
+                f"{self.pair_contacts}; pass a larger pair_contacts"
+            )
+        out = [state_out.particle_q, state_out.particle_qd]
+        wp.launch(_place_bodies, B, [*common, m.s(dt), c, q, R, v, w, vp, wq, self._touch, *out], device=d)
 
     def describe(self) -> dict:
         """Solver name and body count."""
