@@ -7,7 +7,8 @@ Contact between two bodies couples their velocities, so the one-thread-per-body 
 2. one thread (:func:`_coupled_contacts`) gathers each body's ground and collider contacts (the same as the
    per-body path, in the same order) and then the pair contacts: a broad phase over body pairs by bounding
    spheres at the free end poses (O(B²), fine for the few bodies a rigid scene has), and a narrow phase over
-   the two bodies' particles, a contact where spheres of different bodies overlap (|x_a − x_b| < r_a + r_b).
+   the two bodies' particles, a contact where spheres of different bodies overlap (|x_a − x_b| < r_a + r_b)
+   or are closer than min(r_a, r_b) to it (speculative: the pair may close the gap, not overlap).
    A pair contact acts at one point, the middle of the overlap, with the normal n along x_a − x_b, so its
    equal and opposite impulses keep the total momentum and angular momentum. Then projected Gauss–Seidel
    (sequential impulses, the per-body path's normal, restitution and smoothed-Coulomb updates, with the
@@ -75,6 +76,7 @@ def add_pair(
     rb: Any,
     n: Any,
     pen: Any,
+    dt: Any,
     coef: Any,
     bounce_speed: Any,
     ima: Any,
@@ -91,12 +93,16 @@ def add_pair(
     c_coef: wp.array(dtype=Any),
     c_aux: wp.array(dtype=Any),
 ):
-    """Store pair contact j (levers ra, rb [m] of the common point, n from b to a): as ``add_contact``, with
-    the relative free velocity u_a − u_b and k_n = nᵀ(K_a + K_b)n."""
+    """Store pair contact j (levers ra, rb [m] of the common point, n from b to a, overlap ``pen`` [m] at
+    the free poses, step ``dt`` [s]): as ``add_contact``, with the relative free velocity u_a − u_b and
+    k_n = nᵀ(K_a + K_b)n; a speculative contact (pen ≤ 0) only keeps the pair from overlapping at the end."""
     zero = pen * type(pen)(0.0)
     un = wp.dot(n, (va + wp.cross(wa, ra)) - (vb + wp.cross(wb, rb)))
     target = zero
-    if un < -bounce_speed:
+    if pen <= zero:
+        # Speculative: apart by −pen at the free poses, the pair may close that gap this step, no more.
+        target = un + pen / dt
+    elif un < -bounce_speed:
         target = -coef[1] * un
     kn = wp.dot(n, contact_response(ima, iia, ra, n)) + wp.dot(n, contact_response(imb, iib, rb, n))
     c_r[j] = ra
@@ -215,14 +221,18 @@ def _coupled_contacts(
                         d = xa - (cb + rb)
                         dist = wp.length(d)
                         pen = radius[members[k]] + radius[members[l]] - dist
-                        if pen > zero and dist > zero:
+                        # Pairs up to min(r_a, r_b) apart at the free poses are watched (speculative): two
+                        # bodies that fall together do not overlap at their free poses, but the lower one
+                        # is then stopped (by the ground, a third body) and the upper one must be too.
+                        margin = wp.min(radius[members[k]], radius[members[l]])
+                        if pen > -margin and dist > zero:
                             wanted += 1
                             if end < limit:
                                 n = d / dist
                                 # The common point: the middle of the overlap, on the line of centres.
                                 p = ca + ra - (radius[members[k]] - type(dt)(0.5) * pen) * n
                                 add_pair(
-                                    end, p - ca, p - cb, n, pen, pair_coef, bounce, b_im[a], b_ii[a],
+                                    end, p - ca, p - cb, n, pen, dt, pair_coef, bounce, b_im[a], b_ii[a],
                                     b_v[a], b_w[a], b_im[b], b_ii[b], b_v[b], b_w[b], c_r, c_r2, c_n,
                                     c_coef, c_aux,
                                 )  # fmt: skip
@@ -259,6 +269,8 @@ def _coupled_contacts(
                 kt = kt + tangential_response(b_im[b], b_ii[b], r2, n)
             trial = (u - wp.dot(u, n) * n) - kt * P
             P_new = (friction_velocity(trial, c_coef[j][0] * lam_new * kt, c_coef[j][1]) - trial) / kt
+            if b >= 0 and lam_new == zero:
+                P_new = trial * zero  # no friction without a normal impulse (exactly: a watched pair)
             push(a, b, r, r2, P_new - P, b_im, b_ii, b_v, b_w)
             c_imp[j] = P_new
     # Positions: the split impulse on the overlap the corrected velocities leave (._contact.solve_positions).
