@@ -143,6 +143,173 @@ def push(
         b_w[b] = wb
 
 
+@wp.func
+def gather_pairs(
+    end: int,
+    body_count: int,
+    offsets: wp.array(dtype=wp.int32),
+    members: wp.array(dtype=wp.int32),
+    rest: wp.array(dtype=Any),
+    rest_center: wp.array(dtype=Any),
+    bound: wp.array(dtype=Any),
+    radius: wp.array(dtype=Any),
+    dt: Any,
+    bounce: Any,
+    pair_coef: Any,
+    pair_capacity: int,
+    b_c: wp.array(dtype=Any),
+    b_R: wp.array(dtype=Any),
+    b_v: wp.array(dtype=Any),
+    b_w: wp.array(dtype=Any),
+    b_im: wp.array(dtype=Any),
+    b_ii: wp.array(dtype=Any),
+    c_r: wp.array(dtype=Any),
+    c_n: wp.array(dtype=Any),
+    c_coef: wp.array(dtype=Any),
+    c_aux: wp.array(dtype=Any),
+    c_r2: wp.array(dtype=Any),
+    c_ab: wp.array(dtype=wp.vec2i),
+    b_touch: wp.array(dtype=wp.int32),
+    counts: wp.array(dtype=wp.int32),
+):
+    """Pair contacts from ``end`` on (at most ``pair_capacity``): broad phase by bounding spheres at the free
+    poses, narrow phase over particle spheres; ``counts`` = (contacts, pair contacts wanted)."""
+    zero = dt * type(dt)(0.0)
+    wanted = int(0)  # noqa: UP018
+    limit = end + pair_capacity
+    for a in range(body_count):
+        ca = b_c[a] + dt * b_v[a]
+        for b in range(a + 1, body_count):
+            cb = b_c[b] + dt * b_v[b]
+            if wp.length(ca - cb) < bound[a] + bound[b]:
+                for k in range(offsets[a], offsets[a + 1]):
+                    ra = b_R[a] * (rest[k] - rest_center[a])
+                    xa = ca + ra
+                    for l in range(offsets[b], offsets[b + 1]):
+                        rb = b_R[b] * (rest[l] - rest_center[b])
+                        d = xa - (cb + rb)
+                        dist = wp.length(d)
+                        pen = radius[members[k]] + radius[members[l]] - dist
+                        # Pairs up to min(r_a, r_b) apart at the free poses are watched (speculative): two
+                        # bodies that fall together do not overlap at their free poses, but the lower one
+                        # is then stopped (by the ground, a third body) and the upper one must be too.
+                        margin = wp.min(radius[members[k]], radius[members[l]])
+                        if pen > -margin and dist > zero:
+                            wanted += 1
+                            if end < limit:
+                                n = d / dist
+                                # The common point: the middle of the overlap, on the line of centres.
+                                p = ca + ra - (radius[members[k]] - type(dt)(0.5) * pen) * n
+                                add_pair(
+                                    end, p - ca, p - cb, n, pen, dt, pair_coef, bounce, b_im[a], b_ii[a],
+                                    b_v[a], b_w[a], b_im[b], b_ii[b], b_v[b], b_w[b], c_r, c_r2, c_n,
+                                    c_coef, c_aux,
+                                )  # fmt: skip
+                                c_ab[end] = wp.vec2i(a, b)
+                                end += 1
+                                b_touch[a] = 1
+                                b_touch[b] = 1
+    counts[0] = end
+    counts[1] = wanted
+    return end
+
+
+@wp.func
+def solve_all_velocities(
+    end: int,
+    iterations: int,
+    b_v: wp.array(dtype=Any),
+    b_w: wp.array(dtype=Any),
+    b_im: wp.array(dtype=Any),
+    b_ii: wp.array(dtype=Any),
+    c_r: wp.array(dtype=Any),
+    c_n: wp.array(dtype=Any),
+    c_coef: wp.array(dtype=Any),
+    c_aux: wp.array(dtype=Any),
+    c_imp: wp.array(dtype=Any),
+    c_lam: wp.array(dtype=Any),
+    c_r2: wp.array(dtype=Any),
+    c_ab: wp.array(dtype=wp.vec2i),
+):
+    """Sequential impulses over contacts [0, end) on the bodies' (v, ω) in ``b_v``, ``b_w``."""
+    zero = b_im[0] * type(b_im[0])(0.0)
+    # Velocities: sequential impulses, sweeps alternating direction (as ._contact.solve_velocities).
+    for j in range(end):
+        c_lam[j] = zero
+        c_imp[j] = b_v[c_ab[j][0]] * zero
+    for it in range(iterations):
+        for jj in range(end):
+            j = jj
+            if it % 2 == 1:
+                j = end - 1 - jj
+            a = c_ab[j][0]
+            b = c_ab[j][1]
+            r = c_r[j]
+            r2 = c_r2[j]
+            n = c_n[j]
+            aux = c_aux[j]
+            lam = c_lam[j]
+            u = relative_velocity(a, b, r, r2, b_v, b_w)
+            lam_new = wp.max(lam + (aux[0] - wp.dot(n, u)) * aux[1], zero)
+            push(a, b, r, r2, (lam_new - lam) * n, b_im, b_ii, b_v, b_w)
+            c_lam[j] = lam_new
+            u = relative_velocity(a, b, r, r2, b_v, b_w)
+            P = c_imp[j]
+            kt = tangential_response(b_im[a], b_ii[a], r, n)
+            if b >= 0:
+                kt = kt + tangential_response(b_im[b], b_ii[b], r2, n)
+            trial = (u - wp.dot(u, n) * n) - kt * P
+            P_new = (friction_velocity(trial, c_coef[j][0] * lam_new * kt, c_coef[j][1]) - trial) / kt
+            if b >= 0 and lam_new == zero:
+                P_new = trial * zero  # no friction without a normal impulse (exactly: a watched pair)
+            push(a, b, r, r2, P_new - P, b_im, b_ii, b_v, b_w)
+            c_imp[j] = P_new
+
+
+@wp.func
+def solve_all_positions(
+    end: int,
+    body_count: int,
+    iterations: int,
+    dt: Any,
+    b_v: wp.array(dtype=Any),
+    b_w: wp.array(dtype=Any),
+    b_im: wp.array(dtype=Any),
+    b_ii: wp.array(dtype=Any),
+    c_r: wp.array(dtype=Any),
+    c_n: wp.array(dtype=Any),
+    c_coef: wp.array(dtype=Any),
+    c_aux: wp.array(dtype=Any),
+    c_lam: wp.array(dtype=Any),
+    c_r2: wp.array(dtype=Any),
+    c_ab: wp.array(dtype=wp.vec2i),
+    b_vp: wp.array(dtype=Any),
+    b_wq: wp.array(dtype=Any),
+):
+    """Split impulse: pseudo-velocities ``b_vp``, ``b_wq`` for the overlap the corrected velocities leave."""
+    zero = dt * type(dt)(0.0)
+    # As ._contact.solve_positions, over every body's contacts.
+    for b in range(body_count):
+        b_vp[b] = b_v[b] * zero
+        b_wq[b] = b_w[b] * zero
+    for j in range(end):
+        aux = c_aux[j]
+        u = relative_velocity(c_ab[j][0], c_ab[j][1], c_r[j], c_r2[j], b_v, b_w)
+        left = c_coef[j][2] - dt * (wp.dot(c_n[j], u) - aux[2])
+        c_lam[j] = zero
+        c_aux[j] = type(aux)(wp.max(left, zero) / dt, aux[1], aux[2])
+    for _it in range(iterations):
+        for j in range(end):
+            a = c_ab[j][0]
+            b = c_ab[j][1]
+            n = c_n[j]
+            lam = c_lam[j]
+            u = relative_velocity(a, b, c_r[j], c_r2[j], b_vp, b_wq)
+            lam_new = wp.max(lam + (c_aux[j][0] - wp.dot(n, u)) * c_aux[j][1], zero)
+            push(a, b, c_r[j], c_r2[j], (lam_new - lam) * n, b_im, b_ii, b_vp, b_wq)
+            c_lam[j] = lam_new
+
+
 @wp.kernel
 def _coupled_contacts(
     body_count: int,
@@ -189,7 +356,6 @@ def _coupled_contacts(
     counts: wp.array(dtype=wp.int32),
 ):
     """Gather, then solve, every contact (module docstring); ``counts`` = (contacts, pair contacts wanted)."""
-    zero = dt * type(dt)(0.0)
     # Restitution above twice gravity's step speed, as in the per-body path (_solver._rigid_step).
     bounce = type(dt)(2.0) * dt * wp.length(gravity)
     end = int(0)  # noqa: UP018 (a dynamic Warp variable, not a constant)
@@ -206,93 +372,17 @@ def _coupled_contacts(
             for j in range(start, end):
                 c_ab[j] = wp.vec2i(b, -1)
                 b_touch[b] = 1
-    wanted = int(0)  # noqa: UP018
-    limit = end + pair_capacity
-    for a in range(body_count):
-        ca = b_c[a] + dt * b_v[a]
-        for b in range(a + 1, body_count):
-            cb = b_c[b] + dt * b_v[b]
-            if wp.length(ca - cb) < bound[a] + bound[b]:
-                for k in range(offsets[a], offsets[a + 1]):
-                    ra = b_R[a] * (rest[k] - rest_center[a])
-                    xa = ca + ra
-                    for l in range(offsets[b], offsets[b + 1]):
-                        rb = b_R[b] * (rest[l] - rest_center[b])
-                        d = xa - (cb + rb)
-                        dist = wp.length(d)
-                        pen = radius[members[k]] + radius[members[l]] - dist
-                        # Pairs up to min(r_a, r_b) apart at the free poses are watched (speculative): two
-                        # bodies that fall together do not overlap at their free poses, but the lower one
-                        # is then stopped (by the ground, a third body) and the upper one must be too.
-                        margin = wp.min(radius[members[k]], radius[members[l]])
-                        if pen > -margin and dist > zero:
-                            wanted += 1
-                            if end < limit:
-                                n = d / dist
-                                # The common point: the middle of the overlap, on the line of centres.
-                                p = ca + ra - (radius[members[k]] - type(dt)(0.5) * pen) * n
-                                add_pair(
-                                    end, p - ca, p - cb, n, pen, dt, pair_coef, bounce, b_im[a], b_ii[a],
-                                    b_v[a], b_w[a], b_im[b], b_ii[b], b_v[b], b_w[b], c_r, c_r2, c_n,
-                                    c_coef, c_aux,
-                                )  # fmt: skip
-                                c_ab[end] = wp.vec2i(a, b)
-                                end += 1
-                                b_touch[a] = 1
-                                b_touch[b] = 1
-    counts[0] = end
-    counts[1] = wanted
-    # Velocities: sequential impulses, sweeps alternating direction (as ._contact.solve_velocities).
-    for j in range(end):
-        c_lam[j] = zero
-        c_imp[j] = b_v[c_ab[j][0]] * zero
-    for it in range(iterations):
-        for jj in range(end):
-            j = jj
-            if it % 2 == 1:
-                j = end - 1 - jj
-            a = c_ab[j][0]
-            b = c_ab[j][1]
-            r = c_r[j]
-            r2 = c_r2[j]
-            n = c_n[j]
-            aux = c_aux[j]
-            lam = c_lam[j]
-            u = relative_velocity(a, b, r, r2, b_v, b_w)
-            lam_new = wp.max(lam + (aux[0] - wp.dot(n, u)) * aux[1], zero)
-            push(a, b, r, r2, (lam_new - lam) * n, b_im, b_ii, b_v, b_w)
-            c_lam[j] = lam_new
-            u = relative_velocity(a, b, r, r2, b_v, b_w)
-            P = c_imp[j]
-            kt = tangential_response(b_im[a], b_ii[a], r, n)
-            if b >= 0:
-                kt = kt + tangential_response(b_im[b], b_ii[b], r2, n)
-            trial = (u - wp.dot(u, n) * n) - kt * P
-            P_new = (friction_velocity(trial, c_coef[j][0] * lam_new * kt, c_coef[j][1]) - trial) / kt
-            if b >= 0 and lam_new == zero:
-                P_new = trial * zero  # no friction without a normal impulse (exactly: a watched pair)
-            push(a, b, r, r2, P_new - P, b_im, b_ii, b_v, b_w)
-            c_imp[j] = P_new
-    # Positions: the split impulse on the overlap the corrected velocities leave (._contact.solve_positions).
-    for b in range(body_count):
-        b_vp[b] = b_v[b] * zero
-        b_wq[b] = b_w[b] * zero
-    for j in range(end):
-        aux = c_aux[j]
-        u = relative_velocity(c_ab[j][0], c_ab[j][1], c_r[j], c_r2[j], b_v, b_w)
-        left = c_coef[j][2] - dt * (wp.dot(c_n[j], u) - aux[2])
-        c_lam[j] = zero
-        c_aux[j] = type(aux)(wp.max(left, zero) / dt, aux[1], aux[2])
-    for _it in range(iterations):
-        for j in range(end):
-            a = c_ab[j][0]
-            b = c_ab[j][1]
-            n = c_n[j]
-            lam = c_lam[j]
-            u = relative_velocity(a, b, c_r[j], c_r2[j], b_vp, b_wq)
-            lam_new = wp.max(lam + (c_aux[j][0] - wp.dot(n, u)) * c_aux[j][1], zero)
-            push(a, b, c_r[j], c_r2[j], (lam_new - lam) * n, b_im, b_ii, b_vp, b_wq)
-            c_lam[j] = lam_new
+    end = gather_pairs(
+        end, body_count, offsets, members, rest, rest_center, bound, radius, dt, bounce, pair_coef,
+        pair_capacity, b_c, b_R, b_v, b_w, b_im, b_ii, c_r, c_n, c_coef, c_aux, c_r2, c_ab, b_touch, counts,
+    )  # fmt: skip
+    solve_all_velocities(
+        end, iterations, b_v, b_w, b_im, b_ii, c_r, c_n, c_coef, c_aux, c_imp, c_lam, c_r2, c_ab
+    )
+    solve_all_positions(
+        end, body_count, iterations, dt, b_v, b_w, b_im, b_ii, c_r, c_n, c_coef, c_aux, c_lam, c_r2, c_ab,
+        b_vp, b_wq,
+    )  # fmt: skip
 
 
 @wp.kernel

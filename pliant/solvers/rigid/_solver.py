@@ -9,8 +9,7 @@ import numpy as np
 import warp as wp
 
 from ...collision import Colliders
-from ...model import Control, Model, State
-from ...model._model import STICK_VELOCITY
+from ...model import STICK_VELOCITY, Control, Model, State
 from .._base import Solver
 from ._contact import gather_contacts, solve_positions, solve_velocities
 from ._motion import advance_rotation, free_motion
@@ -253,7 +252,7 @@ class RigidBodySolver(Solver):
             np.linalg.norm(q[b] - c, axis=1).max() + rad[b].max()
             for b, c in zip(bodies, centers, strict=True)
         ]
-        self._bound = wp.array(np.asarray(bound), dtype=m.scalar, device=d)
+        self._bound: wp.array = wp.array(np.asarray(bound), dtype=m.scalar, device=d)
         quat = wp.quatd if m.scalar == wp.float64 else wp.quat
         types = [m.vec3, quat, m.mat33, m.vec3, m.vec3, m.scalar, m.mat33, m.vec3, m.vec3]
         self._body = [wp.zeros(B, dtype=t, device=d) for t in types]
