@@ -245,11 +245,13 @@ class RigidBodySolver(Solver):
             self._init_coupled(bodies, centers)
 
     def _init_coupled(self, bodies: list[np.ndarray], centers: list[np.ndarray]) -> None:
-        """Per-body arrays of the coupled path (:mod:`._pairs`) and each body's bounding radius [m]."""
+        """Per-body arrays of the coupled path (:mod:`._pairs`) and each body's bounding radius [m]: its
+        farthest particle plus twice the largest radius, so that the broad phase also keeps the pairs that
+        are watched (up to min(r_a, r_b) apart)."""
         m, d, B = self.model, self.model.device, self.body_count
         q, rad = m.particle_q_np, m.particle_radius.numpy()
         bound = [
-            np.linalg.norm(q[b] - c, axis=1).max() + rad[b].max()
+            np.linalg.norm(q[b] - c, axis=1).max() + 2 * rad[b].max()
             for b, c in zip(bodies, centers, strict=True)
         ]
         self._bound: wp.array = wp.array(np.asarray(bound), dtype=m.scalar, device=d)
