@@ -94,13 +94,13 @@ def test_a_head_on_impact_has_the_1d_closed_form_and_keeps_momentum(e: float):
 def test_a_stack_of_three_boxes_stays_put_without_overlap():
     """Three cubes stacked corner on corner on the ground (μ = 0.5 everywhere, e = 0): over 2 s each moves at
     most 1 mm, spheres of different bodies overlap at most 1 % of their radius over the last second, and
-    each stays rigid (1e-9 m). Sixty sweeps: impulses start from zero every step (the solver keeps no
-    state), and the bottom contacts must carry three weights through two bodies; with the default 20 the
-    top cube drifts 3 mm sideways over 2 s (0.3 mm with 60)."""
+    each stays rigid (1e-9 m). The stack's contacts take pair_sweeps = 100 sweeps (0.15 mm): impulses start
+    from zero every step and the bottom contacts carry three weights through two bodies; with 20, the
+    per-body default, the top cube drifts 3 mm sideways over 2 s."""
     r, h = 0.01, SIDE + 2 * 0.01
     centres = [(0.0, 0.5 * SIDE + r + k * h, 0.0) for k in range(3)]
     model = _boxes(centres, [(0, 0, 0)] * 3, r, (0.0, -G, 0.0), ground_mu=0.5)
-    solver = pl.solvers.RigidBodySolver(model, _bodies(3), contact_iterations=60)
+    solver = pl.solvers.RigidBodySolver(model, _bodies(3))
     xs, _, bend = _run(model, solver, 1 / 600, 1200)
     for k in range(3):
         travel = np.linalg.norm(xs[:, 8 * k : 8 * k + 8].mean(axis=1) - centres[k], axis=1).max()
@@ -114,8 +114,8 @@ def test_a_box_on_a_box_on_the_incline_rests_inside_the_cone():
     """Gravity tilted to tan θ = 0.5, the 10 cm cube on a 30 × 5 × 30 cm slab (32 particles, 4 × 2 × 4, its
     middle top particles under the cube's corners; wide, so that the pair does not topple as two stacked
     cubes would, tan θ > 0.05 / 0.11) on the ground, μ = 0.6 between them and with the ground, radius 1 cm:
-    the cube moves ≤ 1 mm relative to the slab over 1.5 s, the slab ≤ 1 mm, both rigid (1e-9 m). A hundred
-    sweeps (0.1 mm each): with the default 20 the unconverged impulses let the cube creep 1 mm/s, until the
+    the cube moves ≤ 1 mm relative to the slab over 1.5 s, the slab ≤ 1 mm, both rigid (1e-9 m). With
+    pair_sweeps = 20 instead of 100 the unconverged impulses let the cube creep 1 mm/s, until the
     sphere-on-sphere normals tilt past the cone and it slides off."""
     r = 0.01
     g = np.array(
@@ -129,7 +129,9 @@ def test_a_box_on_a_box_on_the_incline_rests_inside_the_cone():
     b.add_ground(0.0, friction=0.6, restitution=0.0)
     model = b.finalize(device="cpu", dtype="float64")
     solver = pl.solvers.RigidBodySolver(
-        model, [np.arange(32), np.arange(32, 40)], body_friction=0.6, contact_iterations=100
+        model,
+        [np.arange(32), np.arange(32, 40)],
+        body_friction=0.6,
     )
     s0, s1 = model.state(), model.state()
     d0 = [_distances(slab), _distances(cube)]

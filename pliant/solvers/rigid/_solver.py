@@ -159,6 +159,8 @@ class RigidBodySolver(Solver):
             step (``apply(model, state_in, state_out, dt)``): those move particles one by one, and the next
             step's polar decomposition makes each body rigid again.
         contact_iterations: Gauss–Seidel sweeps over a body's contacts per step, >= 1.
+        pair_sweeps: sweeps over the contacts of bodies that touch another body, >= 1 (a stack's weight
+            must pass through several bodies; impulses start from zero every step).
         body_friction: μ >= 0 between bodies (smoothed Coulomb, stick velocity 1e-4 m/s as the ground's).
         body_restitution: e in [0, 1] between bodies, on approach speeds above 2|g|Δt.
         pair_contacts: room for body-to-body contacts per step (default 4 per body particle); a step that
@@ -177,6 +179,7 @@ class RigidBodySolver(Solver):
         *,
         collisions: Sequence[Any] = (),
         contact_iterations: int = 20,
+        pair_sweeps: int = 100,
         body_friction: float = 0.5,
         body_restitution: float = 0.0,
         pair_contacts: int | None = None,
@@ -184,6 +187,8 @@ class RigidBodySolver(Solver):
         super().__init__(model, collisions)
         if int(contact_iterations) < 1:
             raise ValueError(f"RigidBodySolver: contact_iterations must be >= 1, got {contact_iterations}")
+        if int(pair_sweeps) < 1:
+            raise ValueError(f"RigidBodySolver: pair_sweeps must be >= 1, got {pair_sweeps}")
         if not (np.isfinite(body_friction) and body_friction >= 0 and 0 <= body_restitution <= 1):
             raise ValueError(
                 "RigidBodySolver: body_friction must be >= 0 and body_restitution in [0, 1], got "
@@ -220,6 +225,7 @@ class RigidBodySolver(Solver):
         d = model.device
         self.body_count = len(bodies)
         self.contact_iterations = int(contact_iterations)
+        self.pair_sweeps = int(pair_sweeps)
         self.offsets: wp.array = wp.array(np.asarray(offsets, np.int32), dtype=wp.int32, device=d)
         self.members: wp.array = wp.array(members.astype(np.int32), dtype=wp.int32, device=d)
         self.rest: wp.array = wp.array(q[members], dtype=model.vec3, device=d)
@@ -342,6 +348,7 @@ class RigidBodySolver(Solver):
         )
         pair = m.vec3(self.body_friction, self.body_restitution, STICK_VELOCITY)
         args = [B, *common, self._bound, m.particle_radius, m.s(dt), m.gravity_vec, self.contact_iterations]
+        args += [self.pair_sweeps]
         args += [self._surfaces, *ground, pair, self.pair_contacts, self._col_count, *self._col]
         args += [c, R, v, w, im, ii, *self._scratch, *self._pair, vp, wq, self._touch, self._counts]
         wp.launch(_coupled_contacts, 1, args, device=d)
@@ -361,4 +368,5 @@ class RigidBodySolver(Solver):
             "integrator": "newton_euler",
             "bodies": self.body_count,
             "contact_iterations": self.contact_iterations,
+            "pair_sweeps": self.pair_sweeps,
         }
