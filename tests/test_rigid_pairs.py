@@ -2,11 +2,12 @@
 
 RigidBodySolver solves the contacts between bodies (particle spheres of different bodies overlapping)
 together with the ground's by one Gauss–Seidel pass (pliant/solvers/rigid/_pairs.py). These tests pin what
-that promises, in float64: Coulomb's two regimes between bodies (a box on a box on the incline of
+that promises, in float64: Coulomb's two regimes between bodies (a box on a slab on the incline of
 tests/test_friction_incline.py rests for μ = 0.6; a box on a held body slides at g(sin θ − μ cos θ), 2 %,
-for μ = 0.3), a head-on impact's 1D closed forms for e = 1 and e = 0 (1 %) with momentum and angular
-momentum kept (1e-9 relative), a stack of three boxes that stays put (1 mm over 2 s) without overlap
-(1 % of the radius), and bodies that stay rigid (pairwise distances to 1e-9 m).
+for μ = 0.3 and 0.45), a head-on impact's 1D closed forms for e = 1 and e = 0 (1 %), momentum and angular
+momentum kept (1e-9 relative, off-centre impacts with friction too), a stack of three boxes that stays put
+(1 mm over 2 s) without overlap (1 % of the radius), bodies that stay rigid (pairwise distances to 1e-9 m),
+and bodies that touch no other body moving bit for bit as with the per-body solve.
 """
 
 from __future__ import annotations
@@ -232,3 +233,28 @@ def test_bodies_that_touch_no_other_body_move_as_with_the_per_body_solve():
     np.testing.assert_array_equal(both[:, :8], run(starts[:1]))
     np.testing.assert_array_equal(both[:, 8:], run(starts[1:]))
     assert np.abs(both[0, 8:, 0].mean() - 1.0) > 0.05  # the second cube moved (slid, hit the sphere)
+
+
+@pytest.mark.parametrize(("dy", "mu", "e"), [(0.01, 0.5, 0.5), (0.015, 0.2, 1.0), (0.01, 0.0, 1.0)])
+def test_an_off_centre_impact_keeps_momentum_and_angular_momentum(dy: float, mu: float, e: float):
+    """Two cubes meet off centre (offset dy [m], one also moving in z), so that friction and the normal
+    impulse both spin them: the total momentum and the angular momentum about the origin are those before
+    (1e-9 relative, every step), the cubes spin afterwards, and with e = 1 and μ = 0 the kinetic energy is
+    kept (1e-3: restitution is set on each contact's approach speed)."""
+    r = 0.01
+    gap = SIDE + 2 * r + 0.02
+    centres = [(-gap / 2, 0.3, 0.2), (gap / 2, 0.3 + dy, 0.2)]
+    model = _boxes(centres, [(1.0, 0.0, 0.0), (-0.5, 0.0, 0.05)], r, (0.0, 0.0, 0.0))
+    solver = pl.solvers.RigidBodySolver(model, _bodies(2), body_friction=mu, body_restitution=e)
+    xs, vs, bend = _run(model, solver, 1e-3, 150)
+    m, x0, v0 = model.particle_mass.numpy(), model.particle_q.numpy(), model.particle_qd.numpy()
+    P0, L0 = m @ v0, (m[:, None] * np.cross(x0, v0)).sum(axis=0)
+    P, L = np.einsum("i,tij->tj", m, vs), (m[:, None] * np.cross(xs, vs)).sum(axis=1)
+    assert np.abs(P - P0).max() <= 1e-9 * np.linalg.norm(P0)
+    assert np.abs(L - L0).max() <= 1e-9 * np.linalg.norm(L0)
+    spin = np.abs(vs[-1, :8] - vs[-1, :8].mean(axis=0)).max()
+    assert spin > 0.01, "the off-centre impact should spin the cubes"
+    if mu == 0.0 and e == 1.0:
+        energy = 0.5 * (m[:, None] * vs[-1] ** 2).sum()
+        assert energy == pytest.approx(0.5 * (m[:, None] * v0**2).sum(), rel=1e-3)
+    assert bend < 1e-9
