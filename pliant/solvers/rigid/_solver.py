@@ -9,36 +9,11 @@ import numpy as np
 import warp as wp
 
 from ...collision import Colliders
-from ...constraints import polar_rotation
-from ...model import Control, Model, State
+from ...model import STICK_VELOCITY, Control, Model, State
 from .._base import Solver
 from ._contact import gather_contacts, solve_positions, solve_velocities
-
-
-@wp.func
-def skew(a: Any):
-    """[a]× with [a]× b = a × b."""
-    z = type(a[0])(0.0)
-    return type(wp.outer(a, a))(z, -a[2], a[1], a[2], z, -a[0], -a[1], a[0], z)
-
-
-@wp.func
-def gyroscopic_step(I: Any, w: Any, dt: Any):
-    """One Newton step on I(ω' − ω) + Δt ω' × Iω' = 0 (implicit gyroscopic term, Catto 2015), body frame."""
-    f = dt * wp.cross(w, I * w)
-    J = I + dt * (skew(w) * I - skew(I * w))
-    return w - wp.inverse(J) * f
-
-
-@wp.func
-def advance_rotation(q: Any, w: Any, dt: Any):
-    """R of q ← normalize(q + ½Δt [ω, 0] q) for the world angular velocity ω [rad/s]."""
-    half = type(dt)(0.5) * dt
-    dq = type(q)(w[0], w[1], w[2], dt * type(dt)(0.0)) * q
-    q = wp.normalize(
-        type(q)(q[0] + half * dq[0], q[1] + half * dq[1], q[2] + half * dq[2], q[3] + half * dq[3])
-    )
-    return wp.quat_to_matrix(q)
+from ._motion import advance_rotation, free_motion
+from ._pairs import _coupled_contacts, _free_bodies, _place_bodies
 
 
 @wp.kernel
@@ -87,43 +62,10 @@ def _rigid_step(
     b = wp.tid()
     a0 = offsets[b]
     a1 = offsets[b + 1]
-    zero = dt * type(dt)(0.0)
-    # Body state from the particles: centre, rotation (polar part of A, exact for a rigid arrangement),
-    # linear momentum, angular momentum, and the forces.
-    M = zero
-    c = gravity * zero
-    p = gravity * zero
-    F = gravity * zero
-    for k in range(a0, a1):
-        i = members[k]
-        M = M + mass[i]
-        c = c + mass[i] * x_in[i]
-        p = p + mass[i] * v_in[i]
-        F = F + mass[i] * gravity + f_ext[i]
-    c = c / M
     cb = rest_center[b]
-    A = wp.outer(c, c) * zero
-    L = c * zero
-    tau = c * zero
-    for k in range(a0, a1):
-        i = members[k]
-        r = x_in[i] - c
-        A = A + mass[i] * wp.outer(r, rest[k] - cb)
-        L = L + mass[i] * wp.cross(r, v_in[i])
-        tau = tau + wp.cross(r, f_ext[i])
-    R = polar_rotation(A)
     Ib = inertia_body[b]
-    # Newton: symplectic Euler for the centre.
-    v = p / M + dt * F / M
+    M, c, q, v, w, R_new = free_motion(a0, a1, members, rest, cb, Ib, mass, gravity, f_ext, dt, x_in, v_in)
     c_new = c + dt * v
-    # Euler: ω from L = R I_b Rᵀ ω, torque impulse, implicit gyroscopic term in the body frame.
-    wb = wp.inverse(Ib) * (wp.transpose(R) * L)
-    wb = wb + dt * (wp.inverse(Ib) * (wp.transpose(R) * tau))
-    wb = gyroscopic_step(Ib, wb, dt)
-    w = R * wb
-    # Orientation: q ← normalize(q + ½Δt [ω, 0] q).
-    q = wp.quat_from_matrix(R)
-    R_new = advance_rotation(q, w, dt)
     if surfaces != 0:
         # Body-level contact (._contact): impulses on (v, ω) from the contacts of the free end pose, then
         # the pose again from the corrected velocities plus the split impulse's pseudo-velocities.
@@ -204,8 +146,11 @@ class RigidBodySolver(Solver):
     not hop, the project's smoothed Coulomb friction
     bounded by μ times each contact's normal impulse, a split impulse for leftover penetration), and the
     pose is then integrated from the corrected velocities, so the body stays rigid through contact, slides
-    at μ g cos θ and rests inside the friction cone (:mod:`pliant.solvers.rigid._contact`). A step where no
-    body touches anything is the free update exactly.
+    at μ g cos θ and rests inside the friction cone (:mod:`pliant.solvers.rigid._contact`). Bodies also meet
+    each other, where particle spheres of different bodies overlap, with ``body_friction`` and
+    ``body_restitution``: with more than one body all contacts are solved together by one Gauss–Seidel pass
+    (:mod:`pliant.solvers.rigid._pairs`, one thread). A step where no body touches anything is the free
+    update exactly, and a body that touches no other body moves as with the per-body solve, bit for bit.
 
     Args:
         model: the Model; bodies' particles must not be pinned; a ground must be hard (no ``stiffness``).
@@ -214,6 +159,12 @@ class RigidBodySolver(Solver):
             step (``apply(model, state_in, state_out, dt)``): those move particles one by one, and the next
             step's polar decomposition makes each body rigid again.
         contact_iterations: Gauss–Seidel sweeps over a body's contacts per step, >= 1.
+        pair_sweeps: sweeps over the contacts of bodies that touch another body, >= 1 (a stack's weight
+            must pass through several bodies; impulses start from zero every step).
+        body_friction: μ >= 0 between bodies (smoothed Coulomb, stick velocity 1e-4 m/s as the ground's).
+        body_restitution: e in [0, 1] between bodies, on approach speeds above 2|g|Δt.
+        pair_contacts: room for body-to-body contacts per step (default 4 per body particle); a step that
+            finds more raises, naming this argument.
 
     Example::
 
@@ -228,10 +179,21 @@ class RigidBodySolver(Solver):
         *,
         collisions: Sequence[Any] = (),
         contact_iterations: int = 20,
+        pair_sweeps: int = 100,
+        body_friction: float = 0.5,
+        body_restitution: float = 0.0,
+        pair_contacts: int | None = None,
     ) -> None:
         super().__init__(model, collisions)
         if int(contact_iterations) < 1:
             raise ValueError(f"RigidBodySolver: contact_iterations must be >= 1, got {contact_iterations}")
+        if int(pair_sweeps) < 1:
+            raise ValueError(f"RigidBodySolver: pair_sweeps must be >= 1, got {pair_sweeps}")
+        if not (np.isfinite(body_friction) and body_friction >= 0 and 0 <= body_restitution <= 1):
+            raise ValueError(
+                "RigidBodySolver: body_friction must be >= 0 and body_restitution in [0, 1], got "
+                f"{body_friction}, {body_restitution}"
+            )
         if model.ground is not None and model.ground.compliant:
             raise NotImplementedError(
                 "RigidBodySolver: compliant ground contact (Ground.stiffness) is not supported for rigid "
@@ -263,6 +225,7 @@ class RigidBodySolver(Solver):
         d = model.device
         self.body_count = len(bodies)
         self.contact_iterations = int(contact_iterations)
+        self.pair_sweeps = int(pair_sweeps)
         self.offsets: wp.array = wp.array(np.asarray(offsets, np.int32), dtype=wp.int32, device=d)
         self.members: wp.array = wp.array(members.astype(np.int32), dtype=wp.int32, device=d)
         self.rest: wp.array = wp.array(q[members], dtype=model.vec3, device=d)
@@ -275,9 +238,38 @@ class RigidBodySolver(Solver):
         self._col_count = sum(len(c) for c in self.colliders)
         self._col = self._collider_buffers(max(self._col_count, 1))
         self._surfaces = (model.ground is not None) + self._col_count
-        size = max(members.size * self._surfaces, 1)
+        # With several bodies, pair contacts follow the ground's and colliders' in the same scratch.
+        self.pair_contacts = 4 * members.size if pair_contacts is None else int(pair_contacts)
+        if self.pair_contacts < 1:
+            raise ValueError(f"RigidBodySolver: pair_contacts must be >= 1, got {pair_contacts}")
+        self._coupled = self.body_count > 1
+        size = max(members.size * self._surfaces + self._coupled * self.pair_contacts, 1)
         vec = [wp.zeros(size, dtype=model.vec3, device=d) for _ in range(5)]
         self._scratch = [*vec, wp.zeros(size, dtype=model.scalar, device=d)]
+        self.body_friction, self.body_restitution = float(body_friction), float(body_restitution)
+        if self._coupled:
+            self._init_coupled(bodies, centers)
+
+    def _init_coupled(self, bodies: list[np.ndarray], centers: list[np.ndarray]) -> None:
+        """Per-body arrays of the coupled path (:mod:`._pairs`) and each body's bounding radius [m]: its
+        farthest particle plus twice the largest radius, so that the broad phase also keeps the pairs that
+        are watched (up to min(r_a, r_b) apart)."""
+        m, d, B = self.model, self.model.device, self.body_count
+        q, rad = m.particle_q_np, m.particle_radius.numpy()
+        bound = [
+            np.linalg.norm(q[b] - c, axis=1).max() + 2 * rad[b].max()
+            for b, c in zip(bodies, centers, strict=True)
+        ]
+        self._bound: wp.array = wp.array(np.asarray(bound), dtype=m.scalar, device=d)
+        quat = wp.quatd if m.scalar == wp.float64 else wp.quat
+        types = [m.vec3, quat, m.mat33, m.vec3, m.vec3, m.scalar, m.mat33, m.vec3, m.vec3]
+        self._body = [wp.zeros(B, dtype=t, device=d) for t in types]
+        self._touch = wp.zeros(B, dtype=wp.int32, device=d)
+        self._pair = [
+            wp.zeros(self._scratch[0].shape[0], dtype=m.vec3, device=d),
+            wp.zeros(self._scratch[0].shape[0], dtype=wp.vec2i, device=d),
+        ]
+        self._counts = wp.zeros(2, dtype=wp.int32, device=d)
 
     def _collider_buffers(self, count: int) -> list[wp.array]:
         """The combined collider arrays the step's kernel reads (kind, pos, aux, rot, radius, mesh, coef)."""
@@ -306,6 +298,11 @@ class RigidBodySolver(Solver):
         ground = [0, m.s(0.0), m.vec3()] if g is None else [1, m.s(g.height)]
         if g is not None:
             ground.append(m.vec3(g.friction, g.restitution, g.stick_velocity))
+        f_ext = control.particle_f if control is not None else self._zero_f
+        if self._coupled:
+            self._step_coupled(state_in, state_out, f_ext, dt, ground)
+            self.apply_collisions(state_in, state_out, dt)
+            return
         wp.launch(
             _rigid_step,
             self.body_count,
@@ -317,7 +314,7 @@ class RigidBodySolver(Solver):
                 self.inertia_body,
                 m.particle_mass,
                 m.gravity_vec,
-                control.particle_f if control is not None else self._zero_f,
+                f_ext,
                 m.s(dt),
                 state_in.particle_q,
                 state_in.particle_qd,
@@ -335,6 +332,35 @@ class RigidBodySolver(Solver):
         )
         self.apply_collisions(state_in, state_out, dt)
 
+    def _step_coupled(
+        self, state_in: State, state_out: State, f_ext: wp.array, dt: float, ground: list
+    ) -> None:
+        """Free steps, one Gauss–Seidel pass over all contacts, placement (:mod:`._pairs`)."""
+        m, d, B = self.model, self.model.device, self.body_count
+        c, q, R, v, w, im, ii, vp, wq = self._body
+        common = [self.offsets, self.members, self.rest, self.rest_center]
+        free = [*common, self.inertia_body, m.particle_mass, m.gravity_vec, f_ext, m.s(dt)]
+        wp.launch(
+            _free_bodies,
+            B,
+            [*free, state_in.particle_q, state_in.particle_qd, c, q, R, v, w, im, ii],
+            device=d,
+        )
+        pair = m.vec3(self.body_friction, self.body_restitution, STICK_VELOCITY)
+        args = [B, *common, self._bound, m.particle_radius, m.s(dt), m.gravity_vec, self.contact_iterations]
+        args += [self.pair_sweeps]
+        args += [self._surfaces, *ground, pair, self.pair_contacts, self._col_count, *self._col]
+        args += [c, R, v, w, im, ii, *self._scratch, *self._pair, vp, wq, self._touch, self._counts]
+        wp.launch(_coupled_contacts, 1, args, device=d)
+        wanted = int(self._counts.numpy()[1])
+        if wanted > self.pair_contacts:
+            raise RuntimeError(
+                f"RigidBodySolver: {wanted} body-to-body contacts in one step, room for "
+                f"{self.pair_contacts}; pass a larger pair_contacts"
+            )
+        out = [state_out.particle_q, state_out.particle_qd]
+        wp.launch(_place_bodies, B, [*common, m.s(dt), c, q, R, v, w, vp, wq, self._touch, *out], device=d)
+
     def describe(self) -> dict:
         """Solver name and body count."""
         return {
@@ -342,4 +368,5 @@ class RigidBodySolver(Solver):
             "integrator": "newton_euler",
             "bodies": self.body_count,
             "contact_iterations": self.contact_iterations,
+            "pair_sweeps": self.pair_sweeps,
         }
