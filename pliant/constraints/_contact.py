@@ -293,8 +293,9 @@ class ParticleCollision(Constraint):
 
     Args:
         cell_size: hash-grid cell [m]; default twice the largest particle radius.
-        friction, stick_velocity, friction_law: Coulomb μ between particles (0: none), ε_v [m/s] and the law's
-            name, as :class:`PointTriangleCollision`'s (:mod:`._self_friction`).
+        friction: Coulomb μ between particles (0: none; :mod:`._self_friction`).
+        stick_velocity: ε_v [m/s] of the smoothed law; default :data:`pliant.model.STICK_VELOCITY`.
+        friction_law: the law's name in the friction-law registry.
 
     Every particle collides with every other one, including its neighbours in a mesh: give particles a
     radius below half the rest spacing of connected particles.

@@ -232,10 +232,10 @@ def export_usd_objects(
 
 
 def collider_points(collider: dict[str, Any], t: Any) -> np.ndarray:
-    """A drawn collider's points [T, V, 3] [m] at times ``t`` [T] [s].
+    """A drawn collider's points [m], [T, V, 3], at times ``t`` [s] (one per frame).
 
     Args:
-        collider: a ``meta["colliders"]`` entry: ``points`` [V, 3] [m] where it was added and, for a moving
+        collider: a ``meta["colliders"]`` entry: ``points`` [m], [V, 3], where it was added and, for a moving
             collider, ``centre`` [m] (the point it rotates about, at t = 0), ``velocity`` [m/s] and
             ``angular_velocity`` [rad/s]: the rigid motion ``Colliders.apply`` gives it, c(t) = c + v t and
             R(t) = exp(ω t) about c(t).

@@ -161,8 +161,8 @@ class Scene:
         Args:
             x: particle positions [m] per frame.
             faces: the model's render triangles.
-            t: the frames' times [T] [s] since the start: moving colliders are drawn where they are then
-                (:func:`pliant.render.collider_points`); None: where they were added.
+            t: the frames' times [s] since the start, one per frame: moving colliders are drawn where they
+                are then (:func:`pliant.render.collider_points`); None: where they were added.
 
         Returns (x, faces, per-vertex colours [V, 3] or None).
         """
