@@ -134,25 +134,25 @@ def _advance(
     vel: wp.array(dtype=Any),
     omega: wp.array(dtype=Any),
     h: Any,
-    pos: wp.array(dtype=Any),
-    aux: wp.array(dtype=Any),
-    rot: wp.array(dtype=Any),
-    centre: wp.array(dtype=Any),
+    pos_io: wp.array(dtype=Any),
+    aux_io: wp.array(dtype=Any),
+    rot_io: wp.array(dtype=Any),
+    centre_io: wp.array(dtype=Any),
 ):
     """Move each collider rigidly over h [s]: its centre by v h, its geometry rotated by ω h about it."""
     c = wp.tid()
     R = _rotation(omega[c], h)
-    c0 = centre[c]
+    c0 = centre_io[c]
     c1 = c0 + h * vel[c]
-    pos[c] = c1 + R * (pos[c] - c0)
-    rot[c] = R * rot[c]
+    pos_io[c] = c1 + R * (pos_io[c] - c0)
+    rot_io[c] = R * rot_io[c]
     for k in range(wp.static(len(_KINDS))):
         if kind[c] == wp.static(_KINDS[k].code):
             if wp.static(_KINDS[k].aux_motion == AUX_POINT):
-                aux[c] = c1 + R * (aux[c] - c0)
+                aux_io[c] = c1 + R * (aux_io[c] - c0)
             if wp.static(_KINDS[k].aux_motion == AUX_DIRECTION):
-                aux[c] = R * aux[c]
-    centre[c] = c1
+                aux_io[c] = R * aux_io[c]
+    centre_io[c] = c1
 
 
 @wp.func

@@ -344,8 +344,8 @@ class ParticleCollision(Constraint):
         m, f = self.model, self.friction_settings
         args = [wp.uint64(self.grid.id), m.particle_inv_mass, m.particle_radius, m.s(self.query_radius)]
         kernel = project_particle_friction if f.friction > 0 else _project_particle_collision
-        fric = f.args(dt) if f.friction > 0 else []
-        ctx.launch(kernel, self.count, [*args, *fric, p, ctx.delta, ctx.delta_count])
+        fric = f.args(dt, p) if f.friction > 0 else [p]
+        ctx.launch(kernel, self.count, [*args, *fric, ctx.delta, ctx.delta_count])
 
 
 # ---------------------------------------------------------------------- point–triangle
@@ -582,8 +582,8 @@ class PointTriangleCollision(Constraint):
         m, f = self.model, self.friction_settings
         args = [self.tri_indices, m.particle_inv_mass, m.s(self.thickness), *self._contact_args()]
         kernel = project_point_triangle_friction if f.friction > 0 else _project_point_triangle
-        fric = f.args(dt) if f.friction > 0 else []
-        ctx.launch(kernel, self.capacity, [*args, *fric, p, ctx.delta, ctx.delta_count])
+        fric = f.args(dt, p) if f.friction > 0 else [p]
+        ctx.launch(kernel, self.capacity, [*args, *fric, ctx.delta, ctx.delta_count])
 
     def evaluate(self, x: wp.array) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """C [K], indices [K, 4] (point, triangle) and ∇C [K, 4, 3] of this step's contacts at ``x``."""

@@ -61,8 +61,9 @@ class SelfFriction:
             ctx.call(self.depth.zero_)
             ctx.call(self.used.zero_)
 
-    def args(self, dt: float) -> list:
-        """The friction kernels' arguments between the contact's and the positions."""
+    def args(self, dt: float, p: wp.array) -> list:
+        """The friction kernels' arguments between the contact's and the outputs, for the step of ``dt`` [s]
+        and the predicted positions ``p`` [m] (read-only, so before the budget the kernels update)."""
         m = self.model
         return [
             m.s(self.friction),
@@ -70,6 +71,7 @@ class SelfFriction:
             m.s(self.stick_velocity),
             m.s(dt),
             self.x_start,
+            p,
             self.depth,
             self.used,
         ]
@@ -96,9 +98,9 @@ def project_particle_friction(
     stick: Any,
     dt: Any,
     x_start: wp.array(dtype=Any),
+    p_in: wp.array(dtype=Any),
     depth_io: wp.array(dtype=Any),
     used_io: wp.array(dtype=Any),
-    p_in: wp.array(dtype=Any),
     delta_out: wp.array(dtype=Any),
     count_out: wp.array(dtype=wp.int32),
 ):
@@ -153,9 +155,9 @@ def project_point_triangle_friction(
     stick: Any,
     dt: Any,
     x_start: wp.array(dtype=Any),
+    p_in: wp.array(dtype=Any),
     depth_io: wp.array(dtype=Any),
     used_io: wp.array(dtype=Any),
-    p_in: wp.array(dtype=Any),
     delta_out: wp.array(dtype=Any),
     count_out: wp.array(dtype=wp.int32),
 ):

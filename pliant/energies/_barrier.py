@@ -364,12 +364,12 @@ class BarrierContact(ModalEnergy):
             [
                 *self._obstacles(model, start=True),
                 model.particle_inv_mass,
-                x,
                 wp.float64(self.dhat),
                 wp.float64(self.stiffness(model)),
                 int(moving),
                 *motion,
                 model.s(dt),
+                x,
                 lag[1],
                 lag[2],
                 lag[6],

@@ -258,7 +258,7 @@ def carry_start(
     inv_mass: wp.array(dtype=Any),
     x_in: wp.array(dtype=Any),
     x_out: wp.array(dtype=Any),
-    blocked: wp.array(dtype=wp.int32),
+    blocked_out: wp.array(dtype=wp.int32),
 ):
     # A free particle within reach of a moving collider over the step (φ < d̂ + |s| + |ω|h φ: no surface
     # point nearer than φ moves farther than that) is carried by its rigid motion (the nearest such
@@ -282,4 +282,4 @@ def carry_start(
     if _clear_at_end(kind, pos1, aux1, rot1, radius, mesh, n_colliders, ground, height, moved):
         x_out[i] = moved
     elif not _clear_at_end(kind, pos1, aux1, rot1, radius, mesh, n_colliders, ground, height, x):
-        wp.atomic_add(blocked, 0, 1)
+        wp.atomic_add(blocked_out, 0, 1)

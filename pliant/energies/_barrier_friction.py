@@ -45,7 +45,6 @@ def friction_lag(
     ground: int,
     height: wp.float64,
     inv_mass: wp.array(dtype=Any),
-    x_in: wp.array(dtype=Any),
     dhat: wp.float64,
     kappa: wp.float64,
     # Moving colliders (``moving`` 0: all static, no shift written):
@@ -54,6 +53,7 @@ def friction_lag(
     omega: wp.array(dtype=Any),
     centre: wp.array(dtype=Any),
     h: Any,
+    x_in: wp.array(dtype=Any),
     lam_out: wp.array(dtype=wp.float64),
     normal_out: wp.array(dtype=wp.vec3d),
     shift_out: wp.array(dtype=wp.vec3d),

@@ -198,11 +198,8 @@ def _symplectic_frame(
     damped: int,
     particle_inv_mass: wp.array(dtype=Any),
     gravity: Any,
-    # Control (f_ext: the forces the update adds; with a drag handle (drag_index >= 0) a scratch array the
-    # frame fills from particle_f, else particle_f itself. kinematic: 1 where its targets apply; slot:
-    # particle -> target index, -1 for the others):
+    # Control (kinematic: 1 where its targets apply; slot: particle -> target index, -1 for the others):
     particle_f: wp.array(dtype=Any),
-    f_ext: wp.array(dtype=Any),
     drag_index: int,
     drag_target: Any,
     drag_stiffness: Any,
@@ -225,40 +222,43 @@ def _symplectic_frame(
     shift_dt: Any,
     kappa: Any,
     damping: Any,
-    # Scratch: the scattered spring forces (zero between steps; the update clears it again), the particles
-    # below the ground after a substep's update (their count in the last element) and their start positions:
-    f_springs: wp.array(dtype=Any),
-    contacts: wp.array(dtype=wp.int32),
-    x_start: wp.array(dtype=Any),
+    # Scratch: the forces the update adds (with a drag handle (drag_index >= 0) an array the frame fills from
+    # particle_f, else particle_f itself), the scattered spring forces (zero between steps; the update clears
+    # it again), the particles below the ground after a substep's update (their count in the last element)
+    # and their start positions:
+    f_ext_io: wp.array(dtype=Any),
+    f_springs_io: wp.array(dtype=Any),
+    contacts_io: wp.array(dtype=wp.int32),
+    x_start_io: wp.array(dtype=Any),
     # State: the frame's input (written back for an even substep count) and the spare buffer:
-    x_a: wp.array(dtype=Any),
-    v_a: wp.array(dtype=Any),
-    x_b: wp.array(dtype=Any),
-    v_b: wp.array(dtype=Any),
+    x_a_io: wp.array(dtype=Any),
+    v_a_io: wp.array(dtype=Any),
+    x_b_io: wp.array(dtype=Any),
+    v_b_io: wp.array(dtype=Any),
 ):
     # Launched with dim 1: the whole frame on the launching thread. Springs and update in C++ (_FRAME_CPP),
     # which lists the particles below the ground; their response by the ground kernels' own wp.funcs.
-    _copy_cpp(1, x_a, v_a, x_b, v_b)
+    _copy_cpp(1, x_a_io, v_a_io, x_b_io, v_b_io)
     if drag_index >= 0:
         for i in range(particle_f.shape[0]):
-            f_ext[i] = particle_f[i]
+            f_ext_io[i] = particle_f[i]
     for _k in range(substeps):
         if drag_index >= 0:  # FastMassSpring._external and add_drag_force: at the substep's start position
-            f_ext[drag_index] = particle_f[drag_index] + drag_force(
-                drag_target, drag_stiffness, drag_max_force, x_b[drag_index]
+            f_ext_io[drag_index] = particle_f[drag_index] + drag_force(
+                drag_target, drag_stiffness, drag_max_force, x_b_io[drag_index]
             )
-        _substep_cpp(spring_pairs, spring_param, damped, particle_inv_mass, gravity, f_ext, dt, delta,
-                             f_springs, kinematic, kinematic_slot, kinematic_targets, inv_dt, ground,
-                             particle_radius, height, x_start, contacts, x_b, v_b)  # fmt: skip
-        for c in range(contacts[x_b.shape[0]]):
-            i = contacts[c]
-            xi, vi = ground_particle(x_b[i], v_b[i], x_start[i], particle_inv_mass[i], particle_radius[i],
-                                     height, coefficients[0], coefficients[1], law, stick_velocity, shift_dt,
-                                     kappa, damping, dt)  # fmt: skip
-            x_b[i] = xi
-            v_b[i] = vi
+        _substep_cpp(spring_pairs, spring_param, damped, particle_inv_mass, gravity, f_ext_io, dt, delta,
+                             f_springs_io, kinematic, kinematic_slot, kinematic_targets, inv_dt, ground,
+                             particle_radius, height, x_start_io, contacts_io, x_b_io, v_b_io)  # fmt: skip
+        for c in range(contacts_io[x_b_io.shape[0]]):
+            i = contacts_io[c]
+            xi, vi = ground_particle(x_b_io[i], v_b_io[i], x_start_io[i], particle_inv_mass[i],
+                                     particle_radius[i], height, coefficients[0], coefficients[1], law,
+                                     stick_velocity, shift_dt, kappa, damping, dt)  # fmt: skip
+            x_b_io[i] = xi
+            v_b_io[i] = vi
     if substeps % 2 == 0:
-        _copy_cpp(0, x_a, v_a, x_b, v_b)
+        _copy_cpp(0, x_a_io, v_a_io, x_b_io, v_b_io)
 
 
 def fused_frame_blocker(
@@ -387,9 +387,10 @@ class FusedFrame:
             if g is not None and g.stiffness is not None and ground[0] == 2:
                 kappa, damping = g.stiffness, g.damping
             args = [self.spring_pairs, self.param, damped, m.particle_inv_mass, m.gravity_vec, f_ext]
-            args += [f_ext if drag[0] < 0 else f_work, drag[0], m.vec3(*drag[1]), m.s(drag[2]), m.s(drag[3])]
+            args += [drag[0], m.vec3(*drag[1]), m.s(drag[2]), m.s(drag[3])]
             args += [int(kin), slot, targets, int(substeps), m.s(dt), m.s(1.0 / dt), m.s(delta)]
-            args += [*ground, m.s(dt), m.s(kappa), m.s(damping), self.f_springs, self.contacts, self.x_start]
+            args += [*ground, m.s(dt), m.s(kappa), m.s(damping)]
+            args += [f_ext if drag[0] < 0 else f_work, self.f_springs, self.contacts, self.x_start]
             args += [state.particle_q, state.particle_qd, spare.particle_q, spare.particle_qd]
             cmd = self._cmds[key] = wp.launch(_symplectic_frame, 1, args, device=m.device, record_cmd=True)
         cmd.launch()
