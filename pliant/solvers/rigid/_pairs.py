@@ -52,13 +52,13 @@ def _free_bodies(
     dt: Any,
     x_in: wp.array(dtype=Any),
     v_in: wp.array(dtype=Any),
-    b_c: wp.array(dtype=Any),
-    b_q: wp.array(dtype=Any),
-    b_R: wp.array(dtype=Any),
-    b_v: wp.array(dtype=Any),
-    b_w: wp.array(dtype=Any),
-    b_im: wp.array(dtype=Any),
-    b_ii: wp.array(dtype=Any),
+    b_c_out: wp.array(dtype=Any),
+    b_q_out: wp.array(dtype=Any),
+    b_R_out: wp.array(dtype=Any),
+    b_v_out: wp.array(dtype=Any),
+    b_w_out: wp.array(dtype=Any),
+    b_im_out: wp.array(dtype=Any),
+    b_ii_out: wp.array(dtype=Any),
 ):
     """Each body's free step: centre c, orientation q, free end rotation R', v, ω, 1/M and world I⁻¹ at R'."""
     b = wp.tid()
@@ -66,13 +66,13 @@ def _free_bodies(
     M, c, q, v, w, R_new = free_motion(
         offsets[b], offsets[b + 1], members, rest, rest_center[b], Ib, mass, gravity, f_ext, dt, x_in, v_in
     )
-    b_c[b] = c
-    b_q[b] = q
-    b_R[b] = R_new
-    b_v[b] = v
-    b_w[b] = w
-    b_im[b] = type(dt)(1.0) / M
-    b_ii[b] = R_new * wp.inverse(Ib) * wp.transpose(R_new)
+    b_c_out[b] = c
+    b_q_out[b] = q
+    b_R_out[b] = R_new
+    b_v_out[b] = v
+    b_w_out[b] = w
+    b_im_out[b] = type(dt)(1.0) / M
+    b_ii_out[b] = R_new * wp.inverse(Ib) * wp.transpose(R_new)
 
 
 @wp.func
@@ -358,53 +358,56 @@ def _coupled_contacts(
     col_radius: wp.array(dtype=Any),
     col_mesh: wp.array(dtype=wp.uint64),
     col_coef: wp.array(dtype=Any),
-    b_c: wp.array(dtype=Any),
-    b_R: wp.array(dtype=Any),
-    b_v: wp.array(dtype=Any),
-    b_w: wp.array(dtype=Any),
-    b_im: wp.array(dtype=Any),
-    b_ii: wp.array(dtype=Any),
-    c_r: wp.array(dtype=Any),
-    c_n: wp.array(dtype=Any),
-    c_coef: wp.array(dtype=Any),
-    c_aux: wp.array(dtype=Any),
-    c_imp: wp.array(dtype=Any),
-    c_lam: wp.array(dtype=Any),
-    c_r2: wp.array(dtype=Any),
-    c_ab: wp.array(dtype=wp.vec2i),
-    b_vp: wp.array(dtype=Any),
-    b_wq: wp.array(dtype=Any),
-    b_touch: wp.array(dtype=wp.int32),
-    counts: wp.array(dtype=wp.int32),
+    b_c_in: wp.array(dtype=Any),
+    b_R_in: wp.array(dtype=Any),
+    b_im_in: wp.array(dtype=Any),
+    b_ii_in: wp.array(dtype=Any),
+    b_v_io: wp.array(dtype=Any),
+    b_w_io: wp.array(dtype=Any),
+    c_r_out: wp.array(dtype=Any),
+    c_n_out: wp.array(dtype=Any),
+    c_coef_out: wp.array(dtype=Any),
+    c_aux_out: wp.array(dtype=Any),
+    c_imp_out: wp.array(dtype=Any),
+    c_lam_out: wp.array(dtype=Any),
+    c_r2_out: wp.array(dtype=Any),
+    c_ab_out: wp.array(dtype=wp.vec2i),
+    b_vp_out: wp.array(dtype=Any),
+    b_wq_out: wp.array(dtype=Any),
+    b_touch_out: wp.array(dtype=wp.int32),
+    counts_out: wp.array(dtype=wp.int32),
 ):
-    """Gather, then solve, every contact (module docstring); ``counts`` = (contacts, pair contacts wanted)."""
+    """Gather, then solve, every contact (module docstring); ``counts_out`` = (contacts, pair contacts
+    wanted)."""
     # Restitution above twice gravity's step speed, as in the per-body path (_solver._rigid_step).
     bounce = type(dt)(2.0) * dt * wp.length(gravity)
     end = int(0)  # noqa: UP018 (a dynamic Warp variable, not a constant)
     for b in range(body_count):
-        b_touch[b] = 0
-        c_new = b_c[b] + dt * b_v[b]
+        b_touch_out[b] = 0
+        c_new = b_c_in[b] + dt * b_v_io[b]
         if surfaces != 0:
             start = end
             end = gather_contacts(
-                start, offsets[b], offsets[b + 1], members, rest, rest_center[b], radius, c_new, b_R[b],
+                start, offsets[b], offsets[b + 1], members, rest, rest_center[b], radius, c_new, b_R_in[b],
                 ground, ground_height, ground_coef, bounce, col_count, col_kind, col_pos, col_aux, col_rot,
-                col_radius, col_mesh, col_coef, b_im[b], b_ii[b], b_v[b], b_w[b], c_r, c_n, c_coef, c_aux,
+                col_radius, col_mesh, col_coef, b_im_in[b], b_ii_in[b], b_v_io[b], b_w_io[b], c_r_out,
+                c_n_out, c_coef_out, c_aux_out,
             )  # fmt: skip
             for j in range(start, end):
-                c_ab[j] = wp.vec2i(b, -1)
-                b_touch[b] = 1
+                c_ab_out[j] = wp.vec2i(b, -1)
+                b_touch_out[b] = 1
     end = gather_pairs(
         end, body_count, offsets, members, rest, rest_center, bound, radius, dt, bounce, pair_coef,
-        pair_capacity, b_c, b_R, b_v, b_w, b_im, b_ii, c_r, c_n, c_coef, c_aux, c_r2, c_ab, b_touch, counts,
+        pair_capacity, b_c_in, b_R_in, b_v_io, b_w_io, b_im_in, b_ii_in, c_r_out, c_n_out, c_coef_out,
+        c_aux_out, c_r2_out, c_ab_out, b_touch_out, counts_out,
     )  # fmt: skip
     solve_all_velocities(
-        end, iterations, pair_sweeps, b_touch, b_v, b_w, b_im, b_ii, c_r, c_n, c_coef, c_aux, c_imp, c_lam,
-        c_r2, c_ab,
+        end, iterations, pair_sweeps, b_touch_out, b_v_io, b_w_io, b_im_in, b_ii_in, c_r_out, c_n_out,
+        c_coef_out, c_aux_out, c_imp_out, c_lam_out, c_r2_out, c_ab_out,
     )  # fmt: skip
     solve_all_positions(
-        end, body_count, iterations, pair_sweeps, b_touch, dt, b_v, b_w, b_im, b_ii, c_r, c_n, c_coef, c_aux,
-        c_lam, c_r2, c_ab, b_vp, b_wq,
+        end, body_count, iterations, pair_sweeps, b_touch_out, dt, b_v_io, b_w_io, b_im_in, b_ii_in, c_r_out,
+        c_n_out, c_coef_out, c_aux_out, c_lam_out, c_r2_out, c_ab_out, b_vp_out, b_wq_out,
     )  # fmt: skip
 
 

@@ -31,9 +31,6 @@ def _rigid_step(
     f_ext: wp.array(dtype=Any),
     # Parameters:
     dt: Any,
-    # State in:
-    x_in: wp.array(dtype=Any),
-    v_in: wp.array(dtype=Any),
     # Contact (surfaces = 0: none; else ground + colliders, the scratch's slots per member):
     surfaces: int,
     iterations: int,
@@ -49,13 +46,16 @@ def _rigid_step(
     col_radius: wp.array(dtype=Any),
     col_mesh: wp.array(dtype=wp.uint64),
     col_coef: wp.array(dtype=Any),
-    c_r: wp.array(dtype=Any),
-    c_n: wp.array(dtype=Any),
-    c_coef: wp.array(dtype=Any),
-    c_aux: wp.array(dtype=Any),
-    c_imp: wp.array(dtype=Any),
-    c_lam: wp.array(dtype=Any),
-    # Out:
+    # State in:
+    x_in: wp.array(dtype=Any),
+    v_in: wp.array(dtype=Any),
+    # Out (the contact scratch, refilled each step, then the particles):
+    c_r_out: wp.array(dtype=Any),
+    c_n_out: wp.array(dtype=Any),
+    c_coef_out: wp.array(dtype=Any),
+    c_aux_out: wp.array(dtype=Any),
+    c_imp_out: wp.array(dtype=Any),
+    c_lam_out: wp.array(dtype=Any),
     x_out: wp.array(dtype=Any),
     v_out: wp.array(dtype=Any),
 ):
@@ -78,15 +78,17 @@ def _rigid_step(
         end = gather_contacts(
             start, a0, a1, members, rest, cb, radius, c_new, R_new, ground, ground_height, ground_coef,
             bounce, col_count, col_kind, col_pos, col_aux, col_rot, col_radius, col_mesh, col_coef, inv_m,
-            inv_i, v, w, c_r, c_n, c_coef, c_aux,
+            inv_i, v, w, c_r_out, c_n_out, c_coef_out, c_aux_out,
         )  # fmt: skip
         if end > start:
             v, w = solve_velocities(
-                start, end, iterations, inv_m, inv_i, v, w, c_r, c_n, c_coef, c_aux, c_imp, c_lam
-            )
+                start, end, iterations, inv_m, inv_i, v, w, c_r_out, c_n_out, c_coef_out, c_aux_out,
+                c_imp_out, c_lam_out,
+            )  # fmt: skip
             vp, wq = solve_positions(
-                start, end, iterations, dt, inv_m, inv_i, v, w, c_r, c_n, c_coef, c_aux, c_lam
-            )
+                start, end, iterations, dt, inv_m, inv_i, v, w, c_r_out, c_n_out, c_coef_out, c_aux_out,
+                c_lam_out,
+            )  # fmt: skip
             c_new = c + dt * (v + vp)
             R_new = advance_rotation(q, w + wq, dt)
     for k in range(a0, a1):
@@ -316,14 +318,14 @@ class RigidBodySolver(Solver):
                 m.gravity_vec,
                 f_ext,
                 m.s(dt),
-                state_in.particle_q,
-                state_in.particle_qd,
                 self._surfaces,
                 self.contact_iterations,
                 m.particle_radius,
                 *ground,
                 self._col_count,
                 *self._col,
+                state_in.particle_q,
+                state_in.particle_qd,
                 *self._scratch,
                 state_out.particle_q,
                 state_out.particle_qd,
@@ -350,7 +352,7 @@ class RigidBodySolver(Solver):
         args = [B, *common, self._bound, m.particle_radius, m.s(dt), m.gravity_vec, self.contact_iterations]
         args += [self.pair_sweeps]
         args += [self._surfaces, *ground, pair, self.pair_contacts, self._col_count, *self._col]
-        args += [c, R, v, w, im, ii, *self._scratch, *self._pair, vp, wq, self._touch, self._counts]
+        args += [c, R, im, ii, v, w, *self._scratch, *self._pair, vp, wq, self._touch, self._counts]
         wp.launch(_coupled_contacts, 1, args, device=d)
         wanted = int(self._counts.numpy()[1])
         if wanted > self.pair_contacts:
