@@ -15,7 +15,7 @@ import pliant as pl
 from pliant.cli._fit import _gate_lines
 from pliant.fit import observe
 from pliant.fit._gate import TIE, fit_window
-from pliant.fit._identify import CONSTRAINED, hessian, stencil, summarise
+from pliant.fit._identify import CONSTRAINED, hessian, identify, stencil, summarise
 from pliant.fit._params import resolve_globals
 
 #: The tiny rope over 20 steps (21 observed frames): 15 training frames, of which 12-14 validate.
@@ -194,3 +194,98 @@ def test_a_loose_parameter_the_training_frames_use_is_not_put_back(monkeypatch):
     assert list(gv["reset"]) == ["damping"] and gv["kept"] is True
     assert values == {"stiffness": 60.0, "damping_rate": 0.5, "damping": 0.0}
     assert "tie on the training and validation frames" in gv["why"]
+
+
+class _Box:
+    """A stand-in Problem for :func:`identify` with a closed-form loss (``_unit_loss``) in the unit box."""
+
+    def __init__(self):
+        self.globals = resolve_globals(
+            pl.scene.parse_scene(FIT_ROPE), ["stiffness", "damping_rate", "damping"]
+        )
+
+    def unit(self, cands: list[dict]) -> np.ndarray:
+        """The candidates' points [n, 3] in the unit box."""
+        return np.array([[b.param.to_unit(c[b.name], b.lo, b.hi) for b in self.globals] for c in cands])
+
+    def values(self, u) -> dict[str, float]:
+        return {b.name: b.param.from_unit(x, b.lo, b.hi) for b, x in zip(self.globals, u, strict=True)}
+
+
+@pytest.mark.parametrize("edge", [1.0, 0.0])
+def test_a_parameter_the_data_push_past_its_bound_is_held_there_and_the_others_measured(edge):
+    """L = 1 + ½ xᵀ A x + (xᵀ b − s·σ) t − ½ q t² (x: stiffness and damping_rate about m; t: damping's
+    distance from its bound, σ = +1 at the upper, −1 at the lower): the loss falls towards the bound at
+    slope ∂L/∂u = −σ s and is concave across it, so the whole Hessian has λ = −q, and the report said
+    nothing ("no minimum"). Now damping is at its bound with that slope, and the reduced Hessian at the bound
+    is A: bands √(2ΔL (A⁻¹)ᵢᵢ) with ΔL = 0.1 (the loss there is 1), correlation −ρ (they trade). With A
+    indefinite the free ones are "not measured", the bound one still reported."""
+    box, m, s, q = _Box(), np.array([0.4, 0.6]), 5.0, 200.0
+    b = np.array([3.0, -2.0])
+    side = 1.0 if edge else -1.0
+
+    def losses(A):
+        def run(cands):
+            u = box.unit(cands)
+            x, t = u[:, :2] - m, side * (u[:, 2] - edge)  # t ≤ 0 inside the box
+            quad = 0.5 * np.einsum("pi,ij,pj->p", x, A, x)
+            return list(1.0 + quad + (x @ b - s * side * side) * t - 0.5 * q * t * t)
+
+        return run
+
+    a, rho = 400.0, 0.95
+    A = a * np.array([[1.0, rho], [rho, 1.0]])
+    values = box.values([*m, edge])
+    rep = identify(box, values, 10, losses(A))
+    assert summarise(np.array(rep["hessian"]), 1.0, box.globals, values)["minimum"] is False  # before
+    d = rep["params"]["damping"]
+    assert rep["at_bound"] == ["damping"] and rep["free"] == ["stiffness", "damping_rate"]
+    assert d["at_bound"] == ("upper" if edge else "lower") and d["constrained"] is None
+    assert d["slope_unit"] == pytest.approx(-side * s, rel=1e-6)  # upper: falls upwards; lower: downwards
+    assert d["value"] == (box.globals[2].hi if edge else box.globals[2].lo)
+    assert rep["minimum"] is True and rep["loss"] == pytest.approx(1.0, rel=1e-12)
+    cov = 2.0 * 0.1 * np.linalg.inv(A)
+    for k, name in enumerate(("stiffness", "damping_rate")):
+        p = rep["params"][name]
+        assert p["sigma_unit"] == pytest.approx(math.sqrt(cov[k, k]), rel=0.05)
+        assert p["constrained"] == (math.sqrt(cov[k, k]) < CONSTRAINED)  # 0.072 of the box: constrained
+    (pair,) = rep["trade"]
+    assert pair["params"] == ["stiffness", "damping_rate"]
+    assert pair["correlation"] == pytest.approx(-rho, rel=0.05) and abs(pair["correlation"]) > 0.9
+    assert rep["evaluations"] == 19 + 9  # the whole stencil, then the free ones' with damping at its bound
+    lines = "\n".join(_gate_lines({"identifiability": rep}))
+    assert f"damping: at its {d['at_bound']} bound" in lines and "push it beyond the search box" in lines
+    assert "stiffness: constrained by the data" in lines and "trade against each other" in lines
+    rep = identify(box, values, 10, losses(np.array([[1.0, 0.0], [0.0, -300.0]])))
+    assert rep["minimum"] is False and rep["params"]["damping"]["at_bound"] and rep["trade"] == []
+    lines = _gate_lines({"identifiability": rep})
+    assert lines[1].startswith("  damping: at its") and len(lines) == 3
+    assert lines[2].startswith("  stiffness, damping_rate: not measured: with damping at the bound")
+
+
+def test_the_report_is_unchanged_when_no_parameter_is_pushed_against_a_bound():
+    """An interior minimum beside the upper bound of damping (within a step: the loss rises towards the
+    bound at slope 0.4), then damping_rate's minimum 0.002 of the box below its lower bound (the loss falls
+    towards it at 0.06 per unit of the box: less than ΔL = 0.2, flat there): the report is the plain
+    stencil's, as before bounds were handled (the same dict, no line about a bound)."""
+    box = _Box()
+    A = np.array([[50.0, 10.0, 0.0], [10.0, 30.0, 5.0], [0.0, 5.0, 80.0]])
+    for opt, u0 in (([0.5, 0.3, 0.995], [0.5, 0.3, 0.995]), ([0.5, -0.002, 0.995], [0.5, 0.0, 0.995])):
+
+        def run(cands, opt=np.array(opt)):
+            x = box.unit(cands) - opt
+            return list(2.0 + 0.5 * np.einsum("pi,ij,pj->p", x, A, x))
+
+        values = box.values(u0)
+        pts, c = stencil(box.unit([values])[0])  # identify's own point: the values' round trip
+        f = np.array(run([box.values(u) for u in pts]))
+        want = summarise(hessian(f, 3), float(f[0]), box.globals, values)
+        moved = {b.name: b.param.from_unit(c[k], b.lo, b.hi) for k, b in enumerate(box.globals)}
+        method = "central finite differences of the open-loop training loss, step 0.02 of the unit box"
+        want.update(
+            method=method, frames=[1, 10], evaluations=19, left_out=[], hessian=hessian(f, 3).tolist()
+        )
+        want["centre"] = moved
+        rep = identify(box, values, 10, run)
+        assert rep == want and "at_bound" not in rep
+        assert not any("bound" in line for line in _gate_lines({"identifiability": rep}))
