@@ -414,3 +414,82 @@ def test_pliant_view_of_a_scene_serves_it_live(tmp_path):
     finally:
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=60)
+
+
+_MOVING_BOX = """
+[scene]
+name = "turntable"
+frame_dt = 0.03333333333333333
+substeps = 20
+frames = 10
+
+[[objects]]
+kind = "cloth"
+name = "cloth"
+nx = 6
+ny = 6
+size = 0.4
+origin = [-0.2, 0.33, -0.2]
+plane = "xz"
+mass = 0.05
+pin = "none"
+material = { stiffness = 100.0 }
+
+[[colliders]]
+kind = "box"
+center = [0.0, 0.15, 0.0]
+half_extents = [0.2, 0.15, 0.2]
+velocity = [0.2, 0.0, -0.1]
+angular_velocity = [0.3, 2.0, 0.0]
+
+[[colliders]]
+kind = "box"
+center = [1.0, 0.1, 0.0]
+half_extents = [0.1, 0.1, 0.1]
+
+[solver]
+kind = "force"
+integrator = "SymplecticEuler"
+"""
+
+
+def test_a_moving_collider_is_drawn_at_the_simulated_time_and_back_at_reset(tmp_path):
+    """The live view draws a moving, spinning box at ``collider_points(meta, t)`` (1e-9 m, float64) for the
+    session's simulated time t after each frame, where the simulation has it (its centre c + v t); a reset
+    puts both back to t = 0; the static box's drawing never changes."""
+    from pliant.render import collider_points
+
+    path = tmp_path / "turntable.toml"
+    path.write_text(_MOVING_BOX)
+    scene = pl.scene.build_scene(pl.scene.load_scene(path), device="cpu")
+    moving, static = scene.trajectory_meta()["colliders"]
+    session = LiveSession(scene)
+    v = serve_live(session, port=_free_port(), start=False)
+    node, still = "/pliant/colliders/collider0", "/pliant/colliders/collider1"
+    handle = next(h for h, p in v._handles if p.name == node)
+    centre = scene.colliders.arrays(scene.model)["centre"]
+
+    def check(frames: int) -> None:
+        t = frames * scene.frame_dt
+        assert session.frame == frames and session.t == pytest.approx(t, abs=1e-12)
+        drawn = v.colliders[node]
+        np.testing.assert_allclose(drawn, collider_points(moving, [t])[0], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(handle.vertices, drawn, rtol=0, atol=1e-6)
+        c_t = np.asarray(moving["centre"]) + t * np.asarray(moving["velocity"])
+        np.testing.assert_allclose(centre.numpy()[0], c_t, rtol=0, atol=1e-5)  # where the simulation has it
+        np.testing.assert_array_equal(v.colliders[still], static["points"])
+
+    try:
+        check(0)
+        for k in range(1, 4):
+            assert v.run_frame()
+            check(k)
+        assert np.abs(v.colliders[node] - moving["points"]).max() > 0.02  # it moved and turned
+        session.reset()  # what the reset button does
+        v.show(session.x)
+        check(0)
+        np.testing.assert_allclose(v.colliders[node], moving["points"], rtol=0, atol=1e-12)
+        assert v.run_frame()
+        check(1)
+    finally:
+        v.stop()

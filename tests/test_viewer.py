@@ -149,3 +149,54 @@ def test_playback_frames_the_object(length):
     assert max((hi[0] - lo[0]) / 800, (hi[1] - lo[1]) / 600) > 0.7, (lo, hi)
     first = _pixels(x[0], cam.position, cam.look_at, cam.fov)
     assert np.ptp(first[:, 0]) > 0.3 * 800  # the rope at rest, straight, a third of the view across
+
+
+def test_a_moving_collider_is_drawn_where_it_is_at_the_frame_shown():
+    """A box moving at v and spinning at ω about +y (a recording that starts at t = 0.5 s, as a live one
+    may): at every frame k its node draws c + v t_k + R_y(ω t_k)(p - c), which is
+    ``collider_points(meta, t_k)`` to 1e-9 m (float64; the node's float32 to 1e-6 m); the static collider's
+    drawing never changes."""
+    import trimesh
+
+    from pliant.render import collider_points
+
+    traj = _trajectory()
+    c, v, w = np.array([0.5, 0.1, 0.0]), np.array([0.3, 0.0, 0.1]), 2.0
+    box = trimesh.creation.box(extents=(0.2, 0.2, 0.3))
+    moving = {
+        "points": (box.vertices + c).tolist(),
+        "faces": box.faces.tolist(),
+        "centre": c.tolist(),
+        "velocity": v.tolist(),
+        "angular_velocity": [0.0, w, 0.0],
+    }
+    static = traj.meta["colliders"][0]
+    traj.meta["colliders"].append(moving)
+    traj = Trajectory(x=traj.x, t=0.5 + traj.t, faces=traj.faces, meta=traj.meta)
+    viewer = serve_viewer(traj, port=_free_port())
+    try:
+        nodes = {p.name: h for h, p in viewer._handles if p.kind == "collider"}
+        assert set(nodes) == set(viewer.colliders) == {f"/pliant/colliders/collider{i}" for i in (0, 1)}
+        for k in [0, 3, 9]:
+            if k:
+                viewer.show(k)
+            t = traj.t[k]
+            p = np.asarray(moving["points"]) - c
+            cos, sin = np.cos(w * t), np.sin(w * t)
+            turned = np.stack([cos * p[:, 0] + sin * p[:, 2], p[:, 1], cos * p[:, 2] - sin * p[:, 0]], axis=1)
+            drawn = viewer.colliders["/pliant/colliders/collider1"]
+            assert drawn.dtype == np.float64
+            np.testing.assert_allclose(drawn, c + v * t + turned, rtol=0, atol=1e-9)
+            np.testing.assert_allclose(drawn, collider_points(moving, [t])[0], rtol=0, atol=1e-9)
+            np.testing.assert_allclose(
+                nodes["/pliant/colliders/collider1"].vertices, drawn, rtol=0, atol=1e-6
+            )
+            np.testing.assert_array_equal(viewer.colliders["/pliant/colliders/collider0"], static["points"])
+            np.testing.assert_array_equal(
+                nodes["/pliant/colliders/collider0"].vertices, np.asarray(static["points"], np.float32)
+            )
+        assert (
+            np.abs(drawn - moving["points"]).max() > 0.2
+        )  # not where it was added: 0.24 m on, 1.6 rad round
+    finally:
+        viewer.stop()

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from ..render import add_object_nodes, load_viser, move_nodes, require_token, viewer_url
+from ..render import add_object_nodes, drawn_colliders, load_viser, move_nodes, require_token, viewer_url
 from ._session import LiveSession, write_parameter
 
 #: The time scale slider's range (simulated seconds per wall-clock second).
@@ -68,8 +68,9 @@ class LiveViewer:
 
     # ------------------------------------------------------------------ the loop
     def show(self, x: np.ndarray) -> None:
-        """Move the scene nodes (and the splats) to positions ``x`` [N, 3]."""
-        move_nodes(self._handles, x)
+        """Move the scene nodes (and the splats) to positions ``x`` [N, 3] and moving colliders to their pose
+        at the session's simulated time (that of its latest ``x``)."""
+        move_nodes(self._handles, x, self.session.t)
         if self._marker is not None:  # the grab's target: a red ball where the cursor pulls
             target = self.session.target
             if target is not None:
@@ -156,6 +157,11 @@ class LiveViewer:
         if self._thread is not None:
             self._thread.join(timeout=10.0)
         self.server.stop()
+
+    @property
+    def colliders(self) -> dict[str, np.ndarray]:
+        """Collider node name → the points [m], [V, 3] float64, it draws now."""
+        return drawn_colliders(self._handles)
 
     # ------------------------------------------------------------------ controls
     def record(self) -> list[Path]:

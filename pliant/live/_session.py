@@ -250,6 +250,8 @@ class LiveSession:
 
     Attributes:
         x: the positions [m] after the last frame, [N, 3] float32 (a host copy, replaced each frame).
+        t: the simulated time [s] of ``x`` (0 at the start and after :meth:`reset`): a moving collider is
+            drawn where it is then.
         lock: held while a frame is stepped or parameters are written.
         last_event: (wall time [s] of a grab/move, wall time when the first frame that read it finished).
         latencies: drag latencies [s]: for each frame that began after a new grab/move, the time from the
@@ -273,6 +275,7 @@ class LiveSession:
         self._x0 = self.sim.state_0.particle_q.numpy().copy()
         self._v0 = self.sim.state_0.particle_qd.numpy().copy()
         self.x = self._x0.astype(np.float32)
+        self.t = 0.0
         self._mass = self.model.particle_mass.numpy().astype(np.float64)
         self._inv_mass = self.model.particle_inv_mass.numpy()
         self._ranges = _object_ranges(self.model)
@@ -312,7 +315,8 @@ class LiveSession:
                 if self.recording:
                     self.sim._record(False)
                 x = self.sim.state_0.particle_q.numpy().astype(np.float32)
-            self.x = x
+                t = float(self.sim.time)
+            self.x, self.t = x, t
             if event is not None and event != self._measured:
                 # The latest drag event before this frame began: this frame is the first to read it.
                 self._measured = event
@@ -324,7 +328,8 @@ class LiveSession:
         return self.x
 
     def reset(self) -> None:
-        """Back to the scene's initial state (frame 0), letting go of any grab; parameters stay as set."""
+        """Back to the scene's initial state (frame 0, t = 0, moving colliders where they were added), letting
+        go of any grab; parameters stay as set."""
         with self.lock:
             self.release()
             s = self.sim.state_0
@@ -333,8 +338,12 @@ class LiveSession:
             self.sim.frame, self.sim.time = 0, 0.0
             if self.scene.control_fn is not None:
                 self.scene.control_fn(0.0, None)  # [[handles]] back to their start
+            for handler in getattr(self.sim.solver, "collisions", ()):
+                back = getattr(handler, "reset", None)  # moving colliders back to their pose at t = 0
+                if callable(back):
+                    back()
             self.sim._solver_changed()
-            self.x = self._x0.astype(np.float32)
+            self.x, self.t = self._x0.astype(np.float32), 0.0
 
     # ------------------------------------------------------------------ grab and drag
     def pick(

@@ -36,9 +36,11 @@ from ._video import (
     write_video,
 )
 from ._viewer import (
+    ColliderPart,
     Viewer,
     ViewerError,
     add_object_nodes,
+    drawn_colliders,
     is_loopback,
     load_viser,
     move_nodes,
@@ -51,6 +53,8 @@ __all__ = [
     "link_beads",
     "curve_segments",
     "add_object_nodes",
+    "ColliderPart",
+    "drawn_colliders",
     "is_loopback",
     "load_viser",
     "move_nodes",

@@ -17,13 +17,28 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ._export_objects import ObjectPart, _prim_names, trajectory_objects
+from ._export_objects import ObjectPart, _prim_names, collider_points, trajectory_objects
 
 if TYPE_CHECKING:
     from ..io import Trajectory
 
 #: Object colours (RGB 0-255), one per object in turn.
 PALETTE = [(90, 160, 230), (230, 130, 70), (110, 190, 110), (200, 90, 160), (220, 200, 80), (120, 120, 220)]
+
+
+@dataclass
+class ColliderPart(ObjectPart):
+    """A drawn collider's scene node (kind ``"collider"``, ``name`` its node): ``collider`` is its
+    ``meta["colliders"]`` entry, ``points`` [m], [V, 3] float64, where the node draws it now (the node holds
+    them as float32); :func:`move_nodes` poses a moving one at the time of the frame shown."""
+
+    collider: dict[str, Any] = field(default_factory=dict)
+    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+
+def drawn_colliders(handles: list[tuple[Any, ObjectPart]]) -> dict[str, np.ndarray]:
+    """Node name → the points [m], [V, 3] float64, each collider node of ``handles`` draws now."""
+    return {p.name: p.points for _, p in handles if isinstance(p, ColliderPart)}
 
 
 class ViewerError(ImportError):
@@ -54,6 +69,8 @@ class Viewer:
         nodes: scene node names → what they show (``"mesh"``, ``"curve"``, ``"points"``, ``"collider"``,
             ``"ground"``).
         frame: the frame shown.
+        colliders: collider node name → the points [m], [V, 3] float64 it draws now (a moving collider's
+            pose at the frame's time, :func:`pliant.render.collider_points`).
     """
 
     server: Any
@@ -72,10 +89,15 @@ class Viewer:
         """Move every object to ``frame`` (negative counts from the end)."""
         t = self.traj.frame_count
         k = int(frame) % t
-        move_nodes(self._handles, np.asarray(self.traj.x[k], np.float32))
+        move_nodes(self._handles, np.asarray(self.traj.x[k], np.float32), float(self.traj.t[k]))
         self.frame = k
         if self._slider is not None and int(self._slider.value) != k:
             self._slider.value = k
+
+    @property
+    def colliders(self) -> dict[str, np.ndarray]:
+        """Collider node name → the points [m], [V, 3] float64, it draws now."""
+        return drawn_colliders(self._handles)
 
     def play(self, fps: float) -> None:
         """Advance the timeline at ``fps`` frames per second while the "play" box is ticked (a thread)."""
@@ -94,9 +116,22 @@ class Viewer:
         self.server.stop()
 
 
-def move_nodes(handles: list[tuple[Any, ObjectPart]], x: np.ndarray) -> None:
-    """Put every object's scene node(s) at positions ``x`` [N, 3] (float32) of the whole model."""
+def move_nodes(handles: list[tuple[Any, ObjectPart]], x: np.ndarray, t: float | None = None) -> None:
+    """Put every object's scene node(s) at positions ``x`` [N, 3] (float32) of the whole model and, given
+    ``t``, every moving collider's where it is then.
+
+    Args:
+        handles: (scene node handle, part) pairs of :func:`add_object_nodes`.
+        x: the positions [m], [N, 3].
+        t: the time [s] of ``x`` since the start (a trajectory's ``t``, a live simulation's time): moving
+            colliders are posed at it (:func:`pliant.render.collider_points`); None: they stay put.
+    """
     for handle, part in handles:
+        if isinstance(part, ColliderPart):
+            if t is not None and "velocity" in part.collider:  # a static one never changes
+                part.points = collider_points(part.collider, [t])[0]
+                handle.vertices = part.points.astype(np.float32)
+            continue
         xs = x[part.start : part.start + part.count]
         if part.kind in ("surface", "solid"):
             handle.vertices = xs
@@ -118,9 +153,12 @@ def add_object_nodes(
     batched mesh: the browser can click and drag those, not lines or points; the node's part has kind
     ``"spheres"``).
 
+    Colliders are drawn where they were added (t = 0); :func:`move_nodes` with a time poses the moving ones.
+
     Returns:
-        (scene node handle, part) pairs in the order :func:`move_nodes` moves them, and node name → what it
-        shows (``"mesh"``, ``"curve"``, ``"points"``, ``"spheres"``, ``"collider"``, ``"ground"``).
+        (scene node handle, part) pairs in the order :func:`move_nodes` moves them (the colliders last, each
+        a :class:`ColliderPart`), and node name → what it shows (``"mesh"``, ``"curve"``, ``"points"``,
+        ``"spheres"``, ``"collider"``, ``"ground"``).
     """
     from dataclasses import replace
 
@@ -166,9 +204,13 @@ def add_object_nodes(
             handles.append((hs, replace(part, kind="spheres")))
     for i, mesh in enumerate(traj.meta.get("colliders") or []):
         node = f"/pliant/colliders/collider{i}"
-        pts = np.asarray(mesh["points"], np.float32).reshape(-1, 3)
+        pts = np.asarray(mesh["points"], np.float64).reshape(-1, 3)
         tris = np.asarray(mesh["faces"], np.int32).reshape(-1, 3)
-        server.scene.add_mesh_simple(node, pts, tris, color=(160, 160, 160), side="double")
+        h = server.scene.add_mesh_simple(
+            node, pts.astype(np.float32), tris, color=(160, 160, 160), side="double"
+        )
+        part = ColliderPart(node, "collider", 0, 0, tris, np.zeros((0, 4), np.int32), "collider", mesh, pts)
+        handles.append((h, part))
         nodes[node] = "collider"
     finite = np.asarray(traj.x).reshape(-1, 3)
     lo, hi = finite.min(axis=0), finite.max(axis=0)
@@ -329,10 +371,11 @@ def serve_viewer(
         server=server,
         url=viewer_url(host, server.get_port(), token),
         traj=traj,
-        parts=[p for _, p in handles],
+        parts=[p for _, p in handles if not isinstance(p, ColliderPart)],
         nodes=nodes,
         _handles=handles,
     )
+    v.show(0)  # a moving collider at its pose at the first frame's time (a recording may start late)
     t = traj.frame_count
     v._slider = server.gui.add_slider("frame", min=0, max=max(t - 1, 1), step=1, initial_value=0)
     v._slider.on_update(lambda _: v.show(int(v._slider.value)))
