@@ -72,6 +72,26 @@ def test_fused_frame_takes_refreshed_parameters():
     assert np.array_equal(xf, xp) and np.array_equal(vf, vp)
 
 
+@pytest.mark.parametrize("fused", [None, False])
+def test_damping_rate_set_between_frames_acts(fused):
+    """δ = exp(−cΔt) is baked into the recorded launches (fused and per step): a ``damping_rate`` set between
+    frames acts from the next frame, as on a solver whose recorded launches were dropped (``refresh``)."""
+    out = []
+    for refresh in (False, True):
+        model = _cloth("float32")
+        sim = pl.Simulator(model, pl.solvers.FastMassSpring(model, fused_frame=fused, damping_rate=0.5),
+                           substeps=8, graph=False)  # fmt: skip
+        for _ in range(3):
+            sim.step_frame()
+        sim.solver.damping_rate = 30.0
+        if refresh:
+            sim.solver.refresh_parameters()
+        for _ in range(3):
+            sim.step_frame()
+        out.append(sim.state_0.particle_q.numpy())
+    assert out[0].tobytes() == out[1].tobytes()
+
+
 def test_fused_frame_falls_back_or_refuses_with_the_reason():
     model = _cloth("float32", ground=True)
     handlers = [pl.collision.Colliders()]
