@@ -548,6 +548,10 @@ class FastMassSpring(Solver):
             raise ValueError("FastMassSpring(fused_frame=True) cannot fuse this frame: a strided state array")
         return False
 
+    def frame_is_one_launch(self) -> bool:
+        """True where frames are fused (``fused_frame_blocker`` is None): one launch on the CPU."""
+        return self._fused is not None
+
     def graph_blocker(self) -> str | None:
         """None without a tape: explicit kernels, and implicit steps whose CG stops on the device when
         captured (a converged iteration is a no-op; ``_launch_cg``)."""
