@@ -3,6 +3,7 @@ with a ground, before (step-by-step frames: a tree without it) and after, in pai
 
     git archive 2c31b4f | tar -x -C /tmp/before      # the tree before the fused ground
     PYTHONPATH=$PWD python benchmarks/bench_fused_ground.py --before /tmp/before [--rounds 3] [--only fit]
+    PYTHONPATH=$PWD python benchmarks/bench_fused_ground.py --before /tmp/before --only fit --only beam
 
 Two rows, each run in a fresh process per tree and round (the same Warp kernel cache), order alternating:
 
@@ -13,8 +14,10 @@ Two rows, each run in a fresh process per tree and round (the same Warp kernel c
   (``tests/data/foreign/mujoco_cloth_own``) with ``[solver] kind = "fast_mass_spring"`` and ``[ground]
   height = 0`` (the fixture itself uses ForceSolver and no ground; its cloth hangs above y = 0.3, so the
   ground is declared but not touched: the fallback's cost without the contact work); the CMA-ES stage's
-  CPU seconds (its timer read through ``time.process_time``) and the whole process's, ``fitted.toml``'s
-  SHA-256 compared.
+  CPU seconds (its timer, and the gradient stage's, read through ``time.process_time``) and the whole
+  process's, ``fitted.toml``'s SHA-256 compared.
+- ``beam`` (only with ``--only beam``): the 117-particle beam's default fit of ``fit_workers.py``
+  (``child_fit(1)``: implicit ForceSolver, replayed graphs), the same figures.
 
 Prints one JSON line per run and the paired before/after ratios (the machine is shared: CPU seconds).
 
@@ -34,6 +37,17 @@ Measured 2026-11-28 on the shared 2-core box (load 2.5-3.5), 3 interleaved round
   stage takes 4.8 / 4.5 s instead of 6.2 / 6.4 s, fitted.toml the same, but the gradient stage, whose taped
   rollouts need the graphs, 10× longer: skipping graphs for forward frames that are one fused launch, or a
   cheaper fingerprint, is the next step.
+
+Measured 2026-11-28, same box (load 2.5-5.6), 3 interleaved rounds, before = fd96e3e, after = one-launch
+frames without a graph (``Solver.frame_is_one_launch``) and the memoised fingerprint walk:
+
+- fit, CMA-ES stage: 6.82 / 6.18 / 6.37 s before, 4.58 / 4.42 / 4.37 s after: 1.49×, 1.40×, 1.46× (what
+  ``PLIANT_GRAPH=0`` gave); whole process 19.7 / 17.9 / 18.3 → 13.6 / 13.2 / 13.2 s; gradient stage
+  1.07 / 0.96 / 0.95 → 1.02 / 0.91 / 0.91 s (its replays take the cheaper fingerprint); fitted.toml
+  byte-identical.
+- beam, CMA-ES stage: 5.70 / 5.46 / 5.55 s before, 5.15 / 5.32 / 5.17 s after: 1.11×, 1.03×, 1.07× (its
+  fingerprint 100 → 50 µs of a ~500 µs frame); whole process 23.8 / 23.2 / 23.2 → 22.0 / 22.2 / 22.4 s;
+  gradient stage 5.39 / 5.51 / 5.32 → 5.28 / 5.33 / 5.39 s; fitted.toml byte-identical.
 """
 
 from __future__ import annotations
@@ -51,6 +65,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE = ROOT / "tests" / "data" / "foreign" / "mujoco_cloth_own"
 REPEAT = 5  # rollouts per process in the rollout row (one is 0.2-0.4 s)
+ROWS = ["rollout", "fit", "beam"]
 
 
 def _rollout() -> dict:
@@ -82,14 +97,33 @@ def _rollout() -> dict:
             "frames": sc.frames, "substeps": sc.substeps, "fused_frame_blocker": blocker}  # fmt: skip
 
 
-def _fit() -> dict:
+def _cpu_stage_timers() -> None:
+    """The CMA-ES and gradient stages' timers as CPU time (one process: --workers 1)."""
     import types
 
     import pliant.fit._cmaes as cmaes
+    import pliant.fit._gradient as gradient
+
+    for mod in (cmaes, gradient):
+        mod.time = types.SimpleNamespace(perf_counter=time.process_time, process_time=time.process_time)  # type: ignore[assignment]
+
+
+def _beam() -> dict:
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from fit_workers import child_fit
+
+    _cpu_stage_timers()
+    row = child_fit(1)
+    return {"cpu_s": round(row["cpu_s"], 2), "cmaes_cpu_s": round(row["stage_wall_time"]["cmaes"], 2),
+            "stages_s": {k: round(v, 2) for k, v in row["stage_wall_time"].items()},
+            "test_mm": round(row["error_test_mm"], 3),
+            "fitted_sha256": hashlib.sha256(row["fitted_toml"].encode()).hexdigest()[:16]}  # fmt: skip
+
+
+def _fit() -> dict:
     from pliant.cli import main
 
-    # The CMA-ES stage's timer as CPU time (one process: --workers 1).
-    cmaes.time = types.SimpleNamespace(perf_counter=time.process_time, process_time=time.process_time)  # type: ignore[assignment]
+    _cpu_stage_timers()
     # One scene path for every run: fitted.toml names its source, and is then byte for byte comparable.
     scene = Path(tempfile.gettempdir()) / "bench_fused_ground" / "cloth_fms.toml"
     scene.parent.mkdir(exist_ok=True)
@@ -113,17 +147,17 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--before", help="the tree before the fused ground (git archive of its parent)")
     p.add_argument("--rounds", type=int, default=3)
-    p.add_argument("--only", choices=["rollout", "fit"], action="append")
-    p.add_argument("--child", choices=["rollout", "fit"], help=argparse.SUPPRESS)
+    p.add_argument("--only", choices=ROWS, action="append")
+    p.add_argument("--child", choices=ROWS, help=argparse.SUPPRESS)
     a = p.parse_args()
     if a.child:
-        print(json.dumps(_rollout() if a.child == "rollout" else _fit()), flush=True)
+        print(json.dumps({"rollout": _rollout, "fit": _fit, "beam": _beam}[a.child]()), flush=True)
         return
     if not a.before:
         p.error("--before DIR: the tree before the fused ground (see the docstring)")
     trees = {"before": Path(a.before).resolve(), "after": ROOT}
     rows: dict[str, dict[str, list[dict]]] = {}
-    for what in a.only or ["rollout", "fit"]:
+    for what in a.only or ["rollout", "fit"]:  # beam: only when asked (minutes)
         rows[what] = {"before": [], "after": []}
         for r in range(a.rounds):
             for name in ("before", "after") if r % 2 == 0 else ("after", "before"):
@@ -135,11 +169,16 @@ def main() -> None:
                 row.update(json.loads(line) if line.startswith("{") else {"error": line})
                 print(json.dumps(row), flush=True)
                 rows[what][name].append(row)
-        key = "cmaes_cpu_s" if what == "fit" else "cpu_s"
+        key = "cpu_s" if what == "rollout" else "cmaes_cpu_s"
         pairs = [b[key] / f[key] for b, f in zip(rows[what]["before"], rows[what]["after"], strict=True)]
         same = {r.get("sha256", r.get("fitted_sha256")) for t in rows[what].values() for r in t}
         ratios = [round(x, 2) for x in pairs]
         print(f"{what}: {key} before/after per round {ratios}; identical: {len(same) == 1}")
+        if what != "rollout":  # the whole process and the gradient stage (CPU seconds too)
+            both = list(zip(rows[what]["before"], rows[what]["after"], strict=True))
+            for name in ("cpu_s", "gradient"):
+                get = (lambda r: r["cpu_s"]) if name == "cpu_s" else (lambda r: r["stages_s"]["gradient"])
+                print(f"{what}: {name} before/after per round {[round(get(b) / get(f), 2) for b, f in both]}")
 
 
 if __name__ == "__main__":

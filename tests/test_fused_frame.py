@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import warp as wp
 
 import pliant as pl
 from pliant.bench._drape_motion import reference_curve, solver_curve, trajectory_error
@@ -72,6 +73,26 @@ def test_fused_frame_takes_refreshed_parameters():
     assert np.array_equal(xf, xp) and np.array_equal(vf, vp)
 
 
+@pytest.mark.parametrize("fused", [None, False])
+def test_damping_rate_set_between_frames_acts(fused):
+    """δ = exp(−cΔt) is baked into the recorded launches (fused and per step): a ``damping_rate`` set between
+    frames acts from the next frame, as on a solver whose recorded launches were dropped (``refresh``)."""
+    out = []
+    for refresh in (False, True):
+        model = _cloth("float32")
+        sim = pl.Simulator(model, pl.solvers.FastMassSpring(model, fused_frame=fused, damping_rate=0.5),
+                           substeps=8, graph=False)  # fmt: skip
+        for _ in range(3):
+            sim.step_frame()
+        sim.solver.damping_rate = 30.0
+        if refresh:
+            sim.solver.refresh_parameters()
+        for _ in range(3):
+            sim.step_frame()
+        out.append(sim.state_0.particle_q.numpy())
+    assert out[0].tobytes() == out[1].tobytes()
+
+
 def test_fused_frame_falls_back_or_refuses_with_the_reason():
     model = _cloth("float32", ground=True)
     handlers = [pl.collision.Colliders()]
@@ -130,3 +151,63 @@ def test_simulator_frames_fused_and_replayed_equal_step_by_step(graph):
         xs.append(sim.state_0.particle_q.numpy())
         assert (sim.graph_reason is None) == graph
     assert np.array_equal(xs[0], xs[1])
+
+
+def _set_particle_f(sim: pl.Simulator, replace: bool) -> None:
+    """A constant push on every particle: written in place, or as a new array (a new address)."""
+    f = np.tile([0.0, 0.5, 0.1], (sim.model.particle_count, 1)).astype(np.float32)
+    if replace:
+        sim.control.particle_f = wp.array(f, dtype=wp.vec3, device="cpu")
+    else:
+        sim.control.particle_f.assign(f)
+
+
+def _refresh(sim: pl.Simulator, name: str, scale: float) -> None:
+    """A model array written in place, then the solver's ``refresh_parameters``."""
+    a = getattr(sim.model, name)
+    a.assign(a.numpy() * scale)
+    assert sim.solver.refresh_parameters() is None
+
+
+#: Each public setter a fit uses, one change per entry.
+CHANGES = {
+    "damping_rate": lambda s: setattr(s.solver, "damping_rate", 3.0),
+    "velocity_damping_factor": lambda s: setattr(s.solver, "velocity_damping_factor", 0.2),
+    "stiffness": lambda s: _refresh(s, "spring_stiffness", 1.3),
+    "rest_length": lambda s: _refresh(s, "spring_rest_length", 0.98),
+    "spring_damping": lambda s: _refresh(s, "spring_damping", 0.0),
+    "particle_f_in_place": lambda s: _set_particle_f(s, replace=False),
+    "particle_f_replaced": lambda s: _set_particle_f(s, replace=True),
+}
+
+
+def test_simulator_launches_a_fused_frame_without_a_graph():
+    """graph=None: a frame that is one fused launch runs directly (no capture, no per-frame fingerprint),
+    and a change through each public setter a fit uses acts from the next frame as it does on a simulator
+    launching every frame (graph=False) and on the unfused solver's replayed graph, bit for bit."""
+    sims = []
+    for fused, graph in ((None, None), (None, False), (False, None)):
+        model = _cloth("float32")
+        solver = pl.solvers.FastMassSpring(model, fused_frame=fused, damping_rate=0.5)
+        sims.append(pl.Simulator(model, solver, substeps=8, graph=graph))
+    one, _, unfused = sims
+    assert one.solver.frame_is_one_launch() and not unfused.solver.frame_is_one_launch()
+
+    def frames(n: int = 3) -> list[bytes]:
+        for s in sims:
+            for _ in range(n):
+                s.step_frame()
+        return [
+            s.state_0.particle_q.numpy().tobytes() + s.state_0.particle_qd.numpy().tobytes() for s in sims
+        ]
+
+    xs = frames()
+    assert xs[0] == xs[1] == xs[2]
+    for name, change in CHANGES.items():
+        for s in sims:
+            change(s)
+        xs = frames()
+        assert xs[0] == xs[1] == xs[2], name
+    assert one.graph_reason is not None and "one fused launch" in one.graph_reason
+    assert one._graphs is not None and one._graphs.captures == one._graphs.replays == 0
+    assert unfused.graph_reason is None and unfused._graphs is not None and unfused._graphs.replays > 0

@@ -325,3 +325,47 @@ def test_a_tolerance_set_after_construction_is_captured_with_it():
     assert graphed.solver.sweep_counts() == direct.solver.sweep_counts()
     assert graphed.solver.sweep_counts()[1] < 40 * 8, "the tolerance never stopped the sweeps early"
     np.testing.assert_array_equal(graphed.state_0.particle_q.numpy(), direct.state_0.particle_q.numpy())
+
+
+def _plain_fingerprint(*roots, depth: int = 4) -> tuple:
+    """The fingerprint's walk as first written (no memos, no shortcuts): the reference for its speed-ups."""
+    from pliant.sim._graph import _SCALARS, _SKIP
+
+    out: list = []
+    seen: set[int] = set()
+
+    def walk(obj, path, d):
+        if isinstance(obj, wp.array):
+            out.append((path, obj.ptr, obj.shape))
+        elif isinstance(obj, _SCALARS):
+            out.append((path, obj))
+        elif isinstance(obj, np.ndarray):
+            out.append((path, obj.shape, obj.tobytes() if obj.size <= 64 else id(obj)))
+        elif isinstance(obj, list | tuple):
+            for i, x in enumerate(obj):
+                walk(x, f"{path}[{i}]", d)
+        elif isinstance(obj, dict):
+            for k, v in obj.items():
+                if isinstance(k, str) and not any(s in k for s in _SKIP):
+                    walk(v, f"{path}.{k}", d)
+        elif d > 0 and type(obj).__module__.startswith("pliant") and id(obj) not in seen:
+            seen.add(id(obj))
+            for k, v in vars(obj).items() if hasattr(obj, "__dict__") else ():
+                if not any(s in k for s in _SKIP):
+                    walk(v, f"{path}.{k}", d - 1)
+
+    for i, r in enumerate(roots):
+        walk(r, str(i), depth)
+    return tuple(out)
+
+
+@pytest.mark.parametrize("name", builtin_scenes())
+def test_fingerprint_is_the_plain_walk(name):
+    """The memoised walk gives the plain walk's tuple, entry for entry, on every built-in scene's solver and
+    control (before and after a frame: solvers allocate on their first step), and at depth 2."""
+    sim = pl.scene.build_scene(pl.scene.load_scene(name)).simulator()
+    for _ in range(2):
+        roots = (sim.solver, sim.control, 1 / 240, 4)
+        assert fingerprint(*roots) == _plain_fingerprint(*roots)
+        assert fingerprint(*roots, depth=2) == _plain_fingerprint(*roots, depth=2)
+        sim.step_frame()

@@ -45,8 +45,33 @@ _MAX_GRAPHS = 4
 _MAX_WARM = 16
 
 
+#: Exact types that are fingerprint leaves (the common case, checked before the isinstance chain).
+_LEAF_TYPES = frozenset({bool, int, float, str, bytes, type(None)})
+#: Per attribute name, whether it is skipped; per type, whether its attributes are walked. The walk runs
+#: every replayed frame over the same few hundred names and types: the substring tests and module lookups
+#: were half its cost (issue #42). Bounded, for dicts whose keys keep changing.
+_SKIP_MEMO: dict[str, bool] = {}
+_PLIANT_MEMO: dict[type, bool] = {}
+_MEMO_MAX = 4096
+
+
 def _skip(name: str) -> bool:
-    return any(s in name for s in _SKIP)
+    hit = _SKIP_MEMO.get(name)
+    if hit is None:
+        if len(_SKIP_MEMO) >= _MEMO_MAX:
+            _SKIP_MEMO.clear()
+        hit = _SKIP_MEMO[name] = any(s in name for s in _SKIP)
+    return hit
+
+
+def _walked(t: type) -> bool:
+    """Whether objects of type ``t`` have their attributes walked (pliant's own classes)."""
+    hit = _PLIANT_MEMO.get(t)
+    if hit is None:
+        if len(_PLIANT_MEMO) >= _MEMO_MAX:
+            _PLIANT_MEMO.clear()
+        hit = _PLIANT_MEMO[t] = t.__module__.startswith("pliant")
+    return hit
 
 
 def fingerprint(*roots: Any, depth: int = 4) -> tuple:
@@ -67,7 +92,10 @@ def fingerprint(*roots: Any, depth: int = 4) -> tuple:
     seen: set[int] = set()
 
     def walk(obj: object, path: str, d: int) -> None:
-        if isinstance(obj, wp.array):
+        t = type(obj)
+        if t in _LEAF_TYPES:  # never a wp.array: the same entry the chain below gives, sooner
+            out.append((path, obj))
+        elif isinstance(obj, wp.array):
             out.append((path, obj.ptr, obj.shape))
         elif isinstance(obj, _SCALARS):
             out.append((path, obj))
@@ -82,10 +110,14 @@ def fingerprint(*roots: Any, depth: int = 4) -> tuple:
             for k, v in obj.items():
                 if isinstance(k, str) and not _skip(k):
                     walk(v, f"{path}.{k}", d)
-        elif d > 0 and type(obj).__module__.startswith("pliant") and id(obj) not in seen:
+        elif d > 0 and _walked(t) and id(obj) not in seen:
             seen.add(id(obj))
             for k, v in vars(obj).items() if hasattr(obj, "__dict__") else ():
-                if not _skip(k):
+                if _skip(k):
+                    continue
+                if type(v) in _LEAF_TYPES:  # most attributes: no call for them
+                    out.append((f"{path}.{k}", v))
+                else:
                     walk(v, f"{path}.{k}", d - 1)
 
     for i, r in enumerate(roots):

@@ -19,6 +19,8 @@ from ._checkpoints import Checkpoints, solver_and_handler_state
 from ._divergence import DivergenceError, stability_advice
 from ._graph import FrameGraphs
 
+#: ``graph_reason`` of a frame that is one launch (``Solver.frame_is_one_launch``): launched directly.
+_ONE_LAUNCH = "the frame is one fused launch (a graph would save nothing)"
 #: Reasons already reported for running without a CUDA graph (each is reported once per process).
 _REPORTED: set[str] = set()
 
@@ -94,8 +96,11 @@ class Simulator(Checkpoints):
             explicit solvers and XPBD; an implicit solve shares one linear system, so a non-finite world
             can spoil the others within that step.
         graph: replay each frame as a captured graph (CUDA graphs; Warp's CPU graphs on the CPU) when the
-            solver allows it. None (default): whenever it does (``graph_reason`` says why not otherwise);
-            True: require it (ValueError with the reason if the solver cannot); False: launch by launch.
+            solver allows it. None (default): whenever it does (``graph_reason`` says why not otherwise)
+            and a frame is more than one launch (``Solver.frame_is_one_launch``: a graph of one launch
+            saves nothing, and its per-frame fingerprint would cost as much as the frame); True: require it
+            (ValueError with the reason if the solver cannot; a one-launch frame is then replayed too);
+            False: launch by launch.
             ``PLIANT_GRAPH=0`` in the environment turns the automatic choice off for a whole command.
 
     Example::
@@ -187,6 +192,7 @@ class Simulator(Checkpoints):
         if why is not None and graph:
             raise ValueError(f"graph=True: a frame cannot be replayed as a graph: {why}; pass graph=None")
         self.graph_reason = why
+        self._graph_required = graph is True  # a one-launch frame is captured only when asked to be
         # Kept unless graphs are off: the solver's options can change between frames (an XPBD tolerance
         # set later), so step_frame asks graph_blocker() again each frame.
         self._graphs = FrameGraphs(self.model.device) if graph is not False else None
@@ -234,6 +240,8 @@ class Simulator(Checkpoints):
         states = (self.state_0, self.state_1)
         if self._graphs is not None:
             self.graph_reason = self.solver.graph_blocker()
+            if self.graph_reason is None and not self._graph_required and self.solver.frame_is_one_launch():
+                self.graph_reason = _ONE_LAUNCH
         if self._graphs is not None and self.graph_reason is None:
             # Δt and the substep count are part of what a graph bakes in: they join the fingerprint.
             states = self._graphs.run(frame, states, (self.solver, self.control, fs.dt, fs.substeps))

@@ -63,6 +63,12 @@ class Solver(abc.ABC):
         """
         return False
 
+    def frame_is_one_launch(self) -> bool:
+        """Whether :meth:`step_frame` runs a whole frame as one kernel launch: a replayed graph of it saves
+        nothing, so the Simulator launches such a frame directly (no per-frame fingerprint). Default False.
+        """
+        return False
+
     def apply_collisions(self, state_in: State, state_out: State, dt: float) -> None:
         """Run each contact handler on the finished step (``state_out`` is corrected in place)."""
         if self.collisions and grad_enabled(self.model) and _tape_active():

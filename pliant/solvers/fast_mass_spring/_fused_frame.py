@@ -375,7 +375,10 @@ class FusedFrame:
         if control is not None and control.drag_index >= 0:
             c = control
             drag = (c.drag_index, tuple(map(float, c.drag_target)), c.drag_stiffness, c.drag_max_force)
-        key = (*(a.ptr for a in arrays), dt, substeps, 0 if indices is None else indices.ptr, gkey, drag)
+        # δ and the dashpot switch are baked into the recorded launch: a damping_rate set between frames
+        # must record a new one.
+        kin_ptr = 0 if indices is None else indices.ptr
+        key = (*(a.ptr for a in arrays), dt, delta, damped, substeps, kin_ptr, gkey, drag)
         cmd = self._cmds.get(key)
         if cmd is None:
             if len(self._cmds) > 8:

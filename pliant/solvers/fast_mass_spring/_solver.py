@@ -326,7 +326,7 @@ class FastMassSpring(Solver):
             self._damped = int(np.any(per_spring[:, 2] > 0))
         else:
             self._damped = 0
-        self._cmds: dict[tuple[int, int, int, int, float], list] = {}
+        self._cmds: dict[tuple[int, int, int, int, float, float], list] = {}
 
     def refresh_parameters(self) -> str | None:
         """Pack the springs' parameters again per row (:meth:`update_parameters`), into the arrays its graphs
@@ -371,7 +371,9 @@ class FastMassSpring(Solver):
 
     def _commands(self, state_in: State, state_out: State, f_ext: wp.array, dt: float) -> list:
         """Pre-recorded launches for this (state_in, state_out, forces, dt): no argument packing per step."""
-        key = (state_in.particle_q.ptr, state_in.particle_qd.ptr, state_out.particle_q.ptr, f_ext.ptr, dt)
+        # δ is baked into the recorded launches: a damping_rate set between frames must record new ones.
+        vd = self.velocity_damping(dt)
+        key = (state_in.particle_q.ptr, state_in.particle_qd.ptr, state_out.particle_q.ptr, f_ext.ptr, dt, vd)
         cmds = self._cmds.get(key)
         if cmds is not None:
             return cmds
@@ -385,7 +387,7 @@ class FastMassSpring(Solver):
             state_out.particle_q,
             state_out.particle_qd,
         )
-        delta = s(self.velocity_damping(dt))
+        delta = s(vd)
         if self._scatter:
             cmds = [
                 wp.launch(
@@ -545,6 +547,10 @@ class FastMassSpring(Solver):
         if self.fused_frame:
             raise ValueError("FastMassSpring(fused_frame=True) cannot fuse this frame: a strided state array")
         return False
+
+    def frame_is_one_launch(self) -> bool:
+        """True where frames are fused (``fused_frame_blocker`` is None): one launch on the CPU."""
+        return self._fused is not None
 
     def graph_blocker(self) -> str | None:
         """None without a tape: explicit kernels, and implicit steps whose CG stops on the device when
