@@ -11,6 +11,7 @@ the incline. For the default law the arithmetic is the one the kernels always ha
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -32,7 +33,7 @@ class FrictionLaw:
 
     name: str
     code: int
-    scale: Any
+    scale: Callable[..., object]
     doc: str
 
 

@@ -17,6 +17,7 @@ process's Ray job: Ray stops them when it ends, and :func:`~pliant.fit._workers.
 
 from __future__ import annotations
 
+import types
 import weakref
 from typing import TYPE_CHECKING, Any
 
@@ -53,7 +54,7 @@ def use_ray(problem: Problem, address: str | None = None) -> None:
     problem.__dict__["_ray"] = address or ""
 
 
-def _connect(address: str) -> Any:
+def _connect(address: str) -> types.ModuleType:
     """Ray, connected to ``address`` (``""``: local) unless this process already is."""
     import ray
 

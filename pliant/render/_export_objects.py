@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 if TYPE_CHECKING:
     from ..io import Trajectory
@@ -231,7 +232,7 @@ def export_usd_objects(
     return path
 
 
-def collider_points(collider: dict[str, Any], t: Any) -> np.ndarray:
+def collider_points(collider: dict[str, Any], t: npt.ArrayLike) -> np.ndarray:
     """A drawn collider's points [m], [T, V, 3], at times ``t`` [s] (one per frame).
 
     Args:

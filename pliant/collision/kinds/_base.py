@@ -31,8 +31,16 @@ AUX_FIXED, AUX_POINT, AUX_DIRECTION = 0, 1, 2
 #: ``surface`` a closed surface file's path (relative to the scene file), read into (vertices, faces).
 SCENE_TYPES = ("vec3", "length", "nonneg", "size3", "scale3", "quaternion", "surface")
 
+
 #: The default of a scene parameter that has none (the key is required).
-REQUIRED: Any = type("Required", (), {"__repr__": lambda self: "REQUIRED"})()
+class _Required:
+    """The type of :data:`REQUIRED` (a marker: no default)."""
+
+    def __repr__(self) -> str:
+        return "REQUIRED"
+
+
+REQUIRED = _Required()
 
 
 @dataclass(frozen=True)
@@ -50,7 +58,7 @@ class SceneParam:
 
     name: str
     type: str
-    default: Any = REQUIRED
+    default: object = REQUIRED
     unit: str = "m"
     doc: str = ""
     draw_only: bool = False
@@ -91,7 +99,7 @@ class ContactKind:
 
     name: str
     code: int
-    sdf: Any
+    sdf: Callable[..., object]
     pack: Callable[..., Packed]
     floor: Callable[[], dict[str, Any]]
     aux_motion: int = AUX_FIXED

@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import warp as wp
 
 from ._base import ContactKind, Packed, SceneParam
@@ -60,7 +61,9 @@ def mesh_floor() -> dict[str, Any]:
 
 
 def mesh_from_scene(
-    path: tuple[np.ndarray, np.ndarray], scale: Any = (1.0, 1.0, 1.0), origin: Any = (0.0, 0.0, 0.0)
+    path: tuple[np.ndarray, np.ndarray],
+    scale: npt.ArrayLike = (1.0, 1.0, 1.0),
+    origin: npt.ArrayLike = (0.0, 0.0, 0.0),
 ) -> dict[str, Any]:
     """The scene's surface (read as (vertices, faces)) scaled, then moved to ``origin`` [m]."""
     v, f = path
