@@ -29,7 +29,7 @@ import warp as wp
 
 from ..model import STICK_VELOCITY
 
-__all__ = ["STICK_VELOCITY", "friction_scale", "friction_velocity"]
+__all__ = ["STICK_VELOCITY", "friction_scale", "friction_velocity", "tangential_change"]
 
 
 @wp.func
@@ -57,3 +57,13 @@ def friction_scale(speed: Any, budget: Any, stick_velocity: Any):
 def friction_velocity(vt: Any, budget: Any, stick_velocity: Any):
     """The tangential velocity v_t' [m/s] after friction: ṽ_t scaled by :func:`friction_scale`."""
     return vt * friction_scale(wp.length(vt), budget, stick_velocity)
+
+
+@wp.func
+def tangential_change(vrel: Any, n: Any, dvn: Any, friction: Any, stick_velocity: Any):
+    """Δv_t [m/s]: the change of the relative tangential velocity of vrel (normal n) by the smoothed Coulomb
+    law for the relative normal velocity change dvn [m/s] (budget μ dvn); self-contact's friction on both
+    sides of a pair (``SelfCollision``, ``StepBound``)."""
+    vt = vrel - wp.dot(vrel, n) * n
+    one = friction * type(friction)(0.0) + type(friction)(1.0)
+    return vt * (friction_scale(wp.length(vt), friction * dvn, stick_velocity) - one)

@@ -35,7 +35,7 @@ import numpy as np
 import warp as wp
 
 from ..model import STICK_VELOCITY
-from ._friction import friction_scale
+from ._friction import tangential_change
 
 if TYPE_CHECKING:
     from ..model import Model, State
@@ -85,15 +85,6 @@ def closest_point_triangle(p: Any, a: Any, b: Any, c: Any):
     v = vb * denom
     t = vc * denom
     return a + v * ab + t * ac, type(p)(one - v - t, v, t)
-
-
-@wp.func
-def _tangential_change(vrel: Any, n: Any, dvn: Any, friction: Any, stick_velocity: Any):
-    """Δv_t [m/s]: the change of the relative tangential velocity of vrel (normal n) by the smoothed Coulomb
-    law for the relative normal velocity change dvn [m/s] (budget μ dvn)."""
-    vt = vrel - wp.dot(vrel, n) * n
-    one = friction * type(friction)(0.0) + type(friction)(1.0)
-    return vt * (friction_scale(wp.length(vt), friction * dvn, stick_velocity) - one)
 
 
 @wp.func
@@ -223,7 +214,7 @@ def _triangle_side(
                             ck = bary[1]
                         elif k == ic:
                             ck = bary[2]
-                        dvt = (-ck * wk / big_w) * _tangential_change(vrel, pn, -vn, friction, stick_velocity)
+                        dvt = (-ck * wk / big_w) * tangential_change(vrel, pn, -vn, friction, stick_velocity)
                         dv += dvt
                         dx += dt * dvt
                         count += 1
@@ -323,7 +314,7 @@ def _self_contact(
                     if vn < zero:
                         dv -= (w * vn) * n
                         if friction > zero:
-                            dvt = w * _tangential_change(vrel, n, -vn, friction, stick_velocity)
+                            dvt = w * tangential_change(vrel, n, -vn, friction, stick_velocity)
                             fdv += dvt
                             fdx += dt * dvt
                             fcount += 1
@@ -359,7 +350,7 @@ def _self_contact(
                                 + bary[1] * bary[1] * particle_inv_mass[ib]
                                 + bary[2] * bary[2] * particle_inv_mass[ic]
                             )
-                            dvt = (wi / big_w) * _tangential_change(vrel, pn, -vn, friction, stick_velocity)
+                            dvt = (wi / big_w) * tangential_change(vrel, pn, -vn, friction, stick_velocity)
                             fdv += dvt
                             fdx += dt * dvt
                             fcount += 1

@@ -30,8 +30,8 @@ import numpy as np
 import warp as wp
 
 from ..model import STICK_VELOCITY
+from ._friction import tangential_change
 from ._hashgrid import triangle_closest_point
-from ._selfcollision import _tangential_change
 
 if TYPE_CHECKING:
     from ..model import Model, State
@@ -314,7 +314,7 @@ def _edge_push(
                             part = 0.5
                             if particle_inv_mass[u2] == zero and particle_inv_mass[w2] == zero:
                                 part = 1.0
-                            dvt = (2.0 * part * share) * _tangential_change(
+                            dvt = (2.0 * part * share) * tangential_change(
                                 vrel, n, -vn * scale, friction, stick
                             )
                             fdv += dvt
@@ -396,7 +396,7 @@ def _triangle_push(
                             count += 1
                         elif vn < 0.0:
                             # The triangle's part (as the push's) of the relative tangential change.
-                            dvt = -share * _tangential_change(vrel, n, -vn * scale, friction, stick)
+                            dvt = -share * tangential_change(vrel, n, -vn * scale, friction, stick)
                             fdv += dvt
                             fdx += dt * dvt
                             fcount += 1

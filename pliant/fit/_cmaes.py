@@ -235,7 +235,7 @@ def _pool(problem: Problem, workers: int | str, popsize: int, batched: bool, reu
     elif ray is not None:
         from ._ray import actor_count
 
-        return pool_for(problem, actor_count(asked, popsize, ray), batched, reuse), False
+        return pool_for(problem, actor_count(asked, popsize, ray.address), batched, reuse), False
     pool = None
     if why is None and asked is not None and asked > 1:
         pool = pool_for(problem, asked, batched, reuse)

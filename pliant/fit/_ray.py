@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import types
 import weakref
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from ._params import FitError
@@ -51,7 +52,7 @@ def use_ray(problem: Problem, address: str | None = None) -> None:
     """
     require_ray()
     close_workers(problem)  # worker processes a previous stage left on it
-    problem.__dict__["_ray"] = address or ""
+    problem.__dict__["_ray"] = RayBackend(address or "")
 
 
 def _connect(address: str) -> types.ModuleType:
@@ -93,6 +94,19 @@ def actor_count(asked: int | None, popsize: int, address: str) -> int:
             f"--workers {cpus} or fewer, or auto"
         )
     return max(1, min(asked or cpus, popsize))
+
+
+@dataclass(frozen=True)
+class RayBackend:
+    """What :func:`use_ray` leaves on a problem: it makes a :class:`~pliant.fit._workers.WorkerPool`'s Ray
+    actors on the cluster at ``address`` (``""``: local). Handed to the pool, so that the pool's module does
+    not import this one (which imports it)."""
+
+    address: str
+
+    def __call__(self, recipe: tuple, n: int, batched: bool, reuse: bool) -> RayActors:
+        """``n`` actors evaluating ``recipe`` (see :class:`RayActors`)."""
+        return RayActors(recipe, n, batched, reuse, self.address)
 
 
 class RayActors:

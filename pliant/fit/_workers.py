@@ -40,6 +40,7 @@ import numpy as np
 from ._params import FitError
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
     from multiprocessing.connection import Connection
     from multiprocessing.process import BaseProcess
 
@@ -276,11 +277,13 @@ class WorkerPool:
         n: Workers (>= 2 processes; >= 1 Ray actors).
         batched: Workers evaluate their share as one batched simulation (``pliant.fit._cmaes.batchable``).
         reuse: Their batched scenes are reused across generations (``BatchScenes``).
-        ray: Ray actors on the cluster at this address (``""``: the local one, or the one ``ray.init``
-            connected to; :func:`pliant.fit._ray.use_ray`); None: worker processes.
+        ray: Makes the Ray actors (``pliant.fit._ray.RayBackend``, which :func:`pliant.fit._ray.use_ray`
+            leaves on the problem: called with the recipe, n, batched, reuse); None: worker processes.
     """
 
-    def __init__(self, problem: Problem, n: int, batched: bool, reuse: bool, ray: str | None = None) -> None:
+    def __init__(
+        self, problem: Problem, n: int, batched: bool, reuse: bool, ray: Callable[..., Backend] | None = None
+    ) -> None:
         self.n, self.batched, self.reuse, self.ray = n, batched, reuse, ray
         self.started = time.perf_counter()
         #: Wall seconds from the start to every worker ready (set by the first :meth:`evaluate`).
@@ -291,9 +294,7 @@ class WorkerPool:
         if ray is None:
             self.backend: Backend = Processes(problem.recipe, n, batched, reuse)
         else:
-            from ._ray import RayActors
-
-            self.backend = RayActors(problem.recipe, n, batched, reuse, ray)
+            self.backend = ray(problem.recipe, n, batched, reuse)
 
     def _check(self, i: int, msg: tuple) -> tuple:
         """Worker ``i``'s message ``msg``, once checked: FitError when it failed; a "ready" noted."""
