@@ -161,6 +161,7 @@ def ground_penalty_friction(
     stick_velocity: Any,
     shift_dt: Any,
     kappa: Any,
+    damping: Any,
     impulse_dt: Any,
     point: Any,
     x_start: wp.array(dtype=Any),
@@ -181,57 +182,23 @@ def ground_penalty_friction(
     (:func:`friction_shift`: it only takes back part of this step's own tangential motion). Even a
     particle that went deep is not lifted: moving one vertex of an element along the normal after the
     step's inversion-safe minimisation can invert the element; the penalty pushes it out in the next step.
-    A subgradient where a particle enters or leaves the contact set; friction is C¹ (ε_v).
+    With ``damping`` b > 0 [1/s] (a :class:`~pliant.energies.DampedGroundPenalty`, compliant contact's
+    spring–damper) the impulse is max(κ d − b v_n, 0) ``impulse_dt`` per unit mass for a particle in contact
+    at the step's start (v_n the step's end velocity), κ d ``impulse_dt`` for one entering; b = 0 leaves the
+    undamped arithmetic as it is. A subgradient where a particle enters or leaves the contact set; friction
+    is C¹ (ε_v).
     """
     i = wp.tid()
     p = x_in[i]
     v = v_in[i]
     one = type(height)(1.0)
-    # x₁ + (1 − θ)(x₀ − x₁): exactly x₁ for θ = 1.
-    d = height + radius[i] - (p[1] + (one - point) * (x_start[i][1] - p[1]))
-    zero = type(height)(0.0)
-    if inv_mass[i] != zero and d > zero:
-        v_new = coulomb_ground(v, kappa * d * impulse_dt, v[1], coefficients[0], law, stick_velocity)
-        x_out[i] = friction_shift(p, v, v_new, shift_dt)
-        v_out[i] = v_new
-    else:
-        x_out[i] = p
-        v_out[i] = v
-
-
-@wp.kernel
-def ground_damped_penalty_friction(
-    inv_mass: wp.array(dtype=Any),
-    radius: wp.array(dtype=Any),
-    height: Any,
-    coefficients: wp.array(dtype=Any),
-    law: int,
-    stick_velocity: Any,
-    shift_dt: Any,
-    kappa: Any,
-    damping: Any,
-    impulse_dt: Any,
-    point: Any,
-    x_start: wp.array(dtype=Any),
-    x_in: wp.array(dtype=Any),
-    v_in: wp.array(dtype=Any),
-    x_out: wp.array(dtype=Any),
-    v_out: wp.array(dtype=Any),
-):
-    """:func:`ground_penalty_friction` for a :class:`~pliant.energies.DampedGroundPenalty` (compliant
-    contact's spring–damper): the normal impulse is max(κ d − b v_n, 0) ``impulse_dt`` per unit mass for a
-    particle in contact at the step's start (b = ``damping`` [1/s]; v_n the step's end velocity), κ d
-    ``impulse_dt`` for one entering. A separate kernel, so that the undamped one stays what it was."""
-    i = wp.tid()
-    p = x_in[i]
-    v = v_in[i]
-    one = type(height)(1.0)
     floor = height + radius[i]
+    # x₁ + (1 − θ)(x₀ − x₁): exactly x₁ for θ = 1.
     d = floor - (p[1] + (one - point) * (x_start[i][1] - p[1]))
     zero = type(height)(0.0)
     if inv_mass[i] != zero and d > zero:
         a = kappa * d
-        if x_start[i][1] < floor:
+        if damping > zero and x_start[i][1] < floor:
             a = wp.max(a - damping * v[1], zero)
         v_new = coulomb_ground(v, a * impulse_dt, v[1], coefficients[0], law, stick_velocity)
         x_out[i] = friction_shift(p, v, v_new, shift_dt)
@@ -300,11 +267,8 @@ def respond_to_ground(
         if point != 1.0 and x_start is None:
             raise ValueError("respond_to_ground: a penalty with point < 1 needs x_start (the step's x₀)")
         x0 = x_in if x_start is None else x_start
-        args = [*common, m.s(penalty), m.s(impulse * dt), m.s(point), x0]
+        args = [*common, m.s(penalty), m.s(penalty_damping), m.s(impulse * dt), m.s(point), x0]
         kernel = ground_penalty_friction
-        if penalty_damping > 0:
-            args = [*common, m.s(penalty), m.s(penalty_damping), m.s(impulse * dt), m.s(point), x0]
-            kernel = ground_damped_penalty_friction
     else:
         if g.compliant and x_start is None and g.damping > 0:
             raise ValueError(
