@@ -13,8 +13,6 @@ from ._friction_laws import (
     friction_law_velocity,
 )
 from ._ground import (
-    coulomb_ground,
-    friction_shift,
     ground_coefficients,
     ground_particle,
     ground_penalty_friction,
@@ -44,8 +42,6 @@ __all__ = [
     "ParticleGrid",
     "TriangleBVH",
     "ground_coefficients",
-    "coulomb_ground",
-    "friction_shift",
     "ground_particle",
     "ground_penalty_friction",
     "ground_response",
